@@ -1,0 +1,55 @@
+#pragma once
+// `tessera build`: an image source becomes a store. The source is streamed top to bottom in
+// strips; every level keeps only the rows its next tile row and next mip row need, so memory is
+// bounded by the image width, not its area. Tiles are encoded on all cores.
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+
+#include "tessera/result.hpp"
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/image_source.hpp"
+#include "tessera/storage/types.hpp"
+
+namespace tessera::storage {
+
+struct BuildOptions {
+    std::uint32_t tile_size = 256;       // stored texels per side: payload + 2 * border; power of two, 64..1024
+    std::uint32_t border = 4;            // even
+    std::optional<Codec> codec;          // default: jpeg for 8-bit grey/RGB, zstd otherwise
+    int quality = 90;                    // JPEG quality 1..100
+    std::optional<Chroma> chroma;        // default: 4:4:4 at quality >= 90, else 4:2:0 (as libvips)
+    int zstd_level = 3;                  // 1..19
+    unsigned threads = 0;                // 0: all cores
+    bool sparse = false;                 // tiles whose alpha is 0 everywhere are absent
+    std::optional<ColourSpace> colour_space;  // default: from the source
+};
+
+struct BuildProgress {
+    std::uint64_t rows_done = 0, rows_total = 0;     // source rows consumed
+    std::uint64_t tiles_done = 0, tiles_total = 0;   // tiles encoded (all levels)
+    std::uint64_t bytes_written = 0, bytes_total = 0; // final layout phase
+    bool writing = false;                            // true during the final layout phase
+};
+
+struct BuildSummary {
+    StoreInfo info;
+    std::uint64_t source_texels = 0;
+    double seconds = 0;
+};
+
+using BuildProgressFn = std::function<void(const BuildProgress&)>;
+
+// Checks options on their own (before any input is opened): the message names the flag.
+Status validate(const BuildOptions& options);
+
+// Builds `output` from `input` ("procedural:terrain:SIZE" or an image file). On any error
+// nothing is left at `output` (an existing file there is untouched).
+Result<BuildSummary> build_store(const std::string& input, const std::string& output, const BuildOptions& options,
+                                 const BuildProgressFn& progress = {});
+// Same, from a source the caller made.
+Result<BuildSummary> build_store(ImageSource& source, const std::string& output, const BuildOptions& options,
+                                 const BuildProgressFn& progress = {});
+
+}  // namespace tessera::storage

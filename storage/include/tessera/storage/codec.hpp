@@ -1,0 +1,30 @@
+#pragma once
+// Tile payload codecs: JPEG (libjpeg-turbo), zstd and raw. A decoded tile is always the full
+// stored tile, (P + 2B)^2 texels, row-major, channels interleaved, samples little-endian.
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "tessera/result.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "tessera/storage/types.hpp"
+
+namespace tessera::storage {
+
+enum class Chroma : std::uint8_t { s420, s444 };
+
+struct EncodeOptions {
+    int jpeg_quality = 90;        // 1..100
+    Chroma chroma = Chroma::s444;
+    int zstd_level = 3;
+};
+
+// Encodes one tile's texels (tile_bytes() bytes) in the store's codec. Thread-safe.
+Result<std::vector<std::uint8_t>> encode_tile(const StoreInfo& info, std::span<const std::uint8_t> texels,
+                                              const EncodeOptions& options);
+
+// Decodes a present or uniform tile into `out` (resized to tile_bytes()). An absent tile is an
+// error (not_found); a payload that does not decode to exactly one tile is corrupt. Thread-safe.
+Status decode_tile(const StoreInfo& info, const Tile& tile, std::vector<std::uint8_t>& out);
+
+}  // namespace tessera::storage

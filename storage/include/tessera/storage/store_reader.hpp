@@ -1,0 +1,67 @@
+#pragma once
+// Reading a .tsr store. Opening maps only the header and index (milliseconds, whatever the store
+// size); every tile read verifies its checksum, and every index block is verified on first use,
+// so a reader returns an error, never garbage. Thread-safe: one reader serves many threads.
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "tessera/result.hpp"
+#include "tessera/storage/types.hpp"
+
+namespace tessera::storage {
+
+// One tile as stored: its payload (present) or its single value (uniform), never decoded.
+struct Tile {
+    TileKey key;
+    TileKind kind = TileKind::absent;
+    bool deduplicated = false;
+    std::uint64_t checksum = 0;        // XXH3-64 of bytes
+    std::vector<std::uint8_t> bytes;   // present: codec payload; uniform: one texel value
+};
+
+// Where a tile lives in the file, as the index says (already validated).
+struct TileLocation {
+    TileKind kind = TileKind::absent;
+    bool deduplicated = false;
+    std::uint64_t offset = 0;   // present: file offset of the payload; uniform: palette index
+    std::uint32_t length = 0;   // present: payload bytes
+    std::uint64_t checksum = 0;
+};
+
+struct BatchStats {
+    std::uint64_t reads = 0;  // read calls issued after coalescing
+    std::uint64_t bytes = 0;  // bytes read, including gaps bridged by coalescing
+};
+
+class StoreReader {
+public:
+    // Opens a store file. Errors: not_found, io_error, corrupt (bad header/index, truncation),
+    // unsupported (newer major version).
+    static Result<std::shared_ptr<StoreReader>> open(const std::string& path);
+    // Same, over bytes in memory (tests, fuzzing, stores received over the network).
+    static Result<std::shared_ptr<StoreReader>> open_memory(std::vector<std::uint8_t> bytes);
+
+    virtual ~StoreReader() = default;
+    virtual const StoreInfo& info() const = 0;
+
+    // Index lookup (verifies the index block). out_of_range for keys outside the geometry.
+    virtual Result<TileLocation> locate(const TileKey& key) const = 0;
+    // One tile, checksum verified. An absent tile is a success with kind == absent.
+    virtual Result<Tile> read_tile(const TileKey& key) const = 0;
+    // Many tiles; payloads adjacent (or nearly) in the file are fetched with one read.
+    // Results are in the order of keys; each one fails or succeeds on its own.
+    virtual std::vector<Result<Tile>> read_tiles(std::span<const TileKey> keys,
+                                                 BatchStats* stats = nullptr) const = 0;
+    // The uniform value at a palette index (texel_bytes() bytes).
+    virtual Result<std::vector<std::uint8_t>> palette_value(std::uint64_t index) const = 0;
+
+    // Gaps up to this many bytes between two wanted payloads are read through, not split.
+    static constexpr std::uint64_t kCoalesceGapBytes = 16 * 1024;
+    // A coalesced read never grows beyond this.
+    static constexpr std::uint64_t kMaxCoalescedBytes = 4 * 1024 * 1024;
+};
+
+}  // namespace tessera::storage

@@ -1,0 +1,75 @@
+#pragma once
+// Geometry and vocabulary of a tile store. See docs/store-format.md.
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace tessera::storage {
+
+enum class SampleType : std::uint8_t { u8 = 0, u16 = 1, f16 = 2, f32 = 3 };
+enum class ColourSpace : std::uint8_t { linear = 0, srgb = 1 };
+enum class Codec : std::uint8_t { raw = 0, zstd = 1, jpeg = 2 };
+enum class TileKind : std::uint8_t { absent = 0, present = 1, uniform = 2 };
+
+std::size_t sample_bytes(SampleType t);
+std::string_view to_string(SampleType t);
+std::string_view to_string(ColourSpace c);
+std::string_view to_string(Codec c);
+std::string_view to_string(TileKind k);
+std::optional<Codec> parse_codec(std::string_view s);
+
+// Key of a tile inside one store. Level 0 is the finest level.
+struct TileKey {
+    std::uint32_t level = 0;
+    std::uint32_t x = 0;
+    std::uint32_t y = 0;
+    friend bool operator==(const TileKey&, const TileKey&) = default;
+};
+
+struct LevelInfo {
+    std::uint32_t width = 0;   // texels: ceil(store width / 2^level)
+    std::uint32_t height = 0;
+    std::uint32_t tiles_x = 0;  // ceil(width / tile_payload)
+    std::uint32_t tiles_y = 0;
+    // Counts recorded by the writer (verify re-derives them from the index).
+    std::uint64_t present = 0;       // tiles with a payload (including deduplicated ones)
+    std::uint64_t uniform = 0;       // tiles stored as one value
+    std::uint64_t absent = 0;        // tiles with no data
+    std::uint64_t deduplicated = 0;  // present tiles whose payload is shared with an earlier tile
+    std::uint64_t payload_bytes = 0; // bytes of distinct payloads first stored in this level
+};
+
+// Everything a reader needs to know about a store besides its tiles.
+struct StoreInfo {
+    std::uint32_t width = 0;
+    std::uint32_t height = 0;
+    std::uint32_t tile_payload = 0;  // P: texels per side a tile covers
+    std::uint32_t border = 0;        // B: texels of neighbours stored on each side
+    std::uint32_t channels = 0;      // 1..4
+    SampleType sample_type = SampleType::u8;
+    ColourSpace colour_space = ColourSpace::srgb;
+    Codec codec = Codec::raw;
+    bool has_alpha = false;          // last channel is alpha (2 or 4 channels)
+    std::uint16_t version_major = 0;
+    std::uint16_t version_minor = 0;
+    std::uint64_t store_id = 0;      // content hash of the index: changes whenever any tile changes
+    std::uint64_t file_size = 0;
+    std::vector<LevelInfo> levels;
+
+    std::uint32_t tile_size() const { return tile_payload + 2 * border; }  // stored texels per side
+    std::size_t texel_bytes() const { return channels * sample_bytes(sample_type); }
+    std::size_t tile_bytes() const { return std::size_t(tile_size()) * tile_size() * texel_bytes(); }
+    std::uint32_t level_count() const { return static_cast<std::uint32_t>(levels.size()); }
+    bool contains(const TileKey& k) const {
+        return k.level < levels.size() && k.x < levels[k.level].tiles_x && k.y < levels[k.level].tiles_y;
+    }
+};
+
+// Level geometry shared by the writer and the reader: level L has ceil(size / 2^L) texels per side,
+// and the last level is the first one that fits in a single tile.
+std::vector<LevelInfo> level_geometry(std::uint32_t width, std::uint32_t height, std::uint32_t tile_payload);
+
+}  // namespace tessera::storage

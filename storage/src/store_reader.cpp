@@ -1,0 +1,306 @@
+#include "tessera/storage/store_reader.hpp"
+
+#include <xxhash.h>
+
+#include <algorithm>
+#include <atomic>
+#include <numeric>
+
+#include "byte_source.hpp"
+#include "format.hpp"
+
+namespace tessera::storage {
+namespace {
+
+using namespace format;
+
+std::string key_name(const TileKey& k) {
+    return "level " + std::to_string(k.level) + " tile (" + std::to_string(k.x) + "," + std::to_string(k.y) + ")";
+}
+
+Error corrupt(std::string msg) { return make_error(Errc::corrupt, std::move(msg)); }
+
+struct LevelIndex {
+    std::uint32_t blocks_x = 0, blocks_y = 0;
+    const std::uint8_t* block_table = nullptr;  // blocks_x * blocks_y records
+    std::uint64_t data_offset = 0, data_bytes = 0;
+    // Verification state of each entry block: 0 unknown, 1 sound, 2 corrupt. Racing threads may
+    // both verify the same block; the result is the same, so no lock is needed.
+    std::unique_ptr<std::atomic<std::uint8_t>[]> block_state;
+};
+
+class Reader final : public StoreReader {
+public:
+    explicit Reader(std::unique_ptr<ByteSource> src) : src_(std::move(src)) {}
+
+    Status parse() {
+        const std::uint64_t fsize = src_->size();
+        if (fsize < kHeaderBytes) return corrupt("file too small for a store header (" + std::to_string(fsize) + " bytes)");
+        std::uint8_t h[kHeaderBytes];
+        TESSERA_TRY(src_->read(0, kHeaderBytes, h));
+        if (std::memcmp(h, kMagic.data(), kMagic.size()) != 0) return corrupt("not a Tessera store (bad magic)");
+        info_.version_major = load<std::uint16_t>(h, header::version_major);
+        info_.version_minor = load<std::uint16_t>(h, header::version_minor);
+        if (info_.version_major != kVersionMajor)
+            return make_error(Errc::unsupported, "store format version " + std::to_string(info_.version_major) + "." +
+                                                     std::to_string(info_.version_minor) + " is not supported (this reader: " +
+                                                     std::to_string(kVersionMajor) + ".x)");
+        if (XXH3_64bits(h, header::header_checksum) != load<std::uint64_t>(h, header::header_checksum))
+            return corrupt("header checksum mismatch");
+        if (load<std::uint32_t>(h, header::header_bytes) != kHeaderBytes) return corrupt("bad header size");
+        const std::uint64_t declared_size = load<std::uint64_t>(h, header::file_size);
+        if (declared_size != fsize)
+            return corrupt("file is " + std::to_string(fsize) + " bytes but the header says " +
+                           std::to_string(declared_size) + " (truncated or extended)");
+        info_.file_size = fsize;
+        info_.width = load<std::uint32_t>(h, header::width);
+        info_.height = load<std::uint32_t>(h, header::height);
+        info_.tile_payload = load<std::uint32_t>(h, header::tile_payload);
+        info_.border = load<std::uint16_t>(h, header::border);
+        info_.channels = h[header::channels];
+        const std::uint8_t st = h[header::sample_type], cs = h[header::colour_space], codec = h[header::codec];
+        const std::uint32_t level_count = h[header::level_count];
+        if (info_.width == 0 || info_.height == 0 || info_.tile_payload == 0) return corrupt("zero image or tile size");
+        if (info_.tile_size() > kMaxTileSize) return corrupt("tile size too large");
+        if (info_.channels < 1 || info_.channels > 4) return corrupt("bad channel count");
+        if (st > 3 || cs > 1 || codec > 2) return corrupt("bad sample type, colour space or codec");
+        if (h[header::block_shift] != kBlockShift) return corrupt("bad index block size");
+        info_.sample_type = static_cast<SampleType>(st);
+        info_.colour_space = static_cast<ColourSpace>(cs);
+        info_.codec = static_cast<Codec>(codec);
+        info_.has_alpha = (h[header::flags] & kHeaderFlagAlpha) != 0;
+        if (info_.has_alpha && info_.channels != 2 && info_.channels != 4) return corrupt("alpha flag on a 1- or 3-channel store");
+        info_.store_id = load<std::uint64_t>(h, header::store_id);
+
+        auto levels = level_geometry(info_.width, info_.height, info_.tile_payload);
+        if (levels.size() != level_count || level_count > kMaxLevels) return corrupt("level count does not match geometry");
+
+        data_offset_ = load<std::uint64_t>(h, header::data_offset);
+        const std::uint64_t lt_off = load<std::uint64_t>(h, header::level_table_offset);
+        const std::uint64_t lt_bytes = load<std::uint32_t>(h, header::level_table_bytes);
+        palette_count_ = load<std::uint32_t>(h, header::palette_count);
+        const std::uint64_t pal_off = load<std::uint64_t>(h, header::palette_offset);
+        if (data_offset_ < kHeaderBytes || data_offset_ > fsize) return corrupt("bad data offset");
+        if (lt_bytes != std::uint64_t(level_count) * kLevelRecordBytes) return corrupt("bad level table size");
+        auto inside_index = [&](std::uint64_t off, std::uint64_t len) {
+            return off >= kHeaderBytes && off <= data_offset_ && len <= data_offset_ - off;
+        };
+        if (!inside_index(lt_off, lt_bytes)) return corrupt("level table outside the index region");
+        if (palette_count_ > (1u << 24) || !inside_index(pal_off, std::uint64_t(palette_count_) * kPaletteValueBytes))
+            return corrupt("palette outside the index region");
+
+        auto mapped = src_->map_prefix(data_offset_);
+        if (!mapped) return mapped.error();
+        base_ = *mapped;
+        if (XXH3_64bits(base_ + lt_off, lt_bytes) != load<std::uint64_t>(h, header::level_table_checksum))
+            return corrupt("level table checksum mismatch");
+        palette_ = base_ + pal_off;
+        if (XXH3_64bits(palette_, std::size_t(palette_count_) * kPaletteValueBytes) != load<std::uint64_t>(h, header::palette_checksum))
+            return corrupt("palette checksum mismatch");
+
+        index_.resize(level_count);
+        for (std::uint32_t l = 0; l < level_count; ++l) {
+            const std::uint8_t* r = base_ + lt_off + std::size_t(l) * kLevelRecordBytes;
+            LevelInfo& li = levels[l];
+            if (load<std::uint32_t>(r, level::width) != li.width || load<std::uint32_t>(r, level::height) != li.height ||
+                load<std::uint32_t>(r, level::tiles_x) != li.tiles_x || load<std::uint32_t>(r, level::tiles_y) != li.tiles_y)
+                return corrupt("level " + std::to_string(l) + " record does not match geometry");
+            LevelIndex& ix = index_[l];
+            ix.blocks_x = load<std::uint32_t>(r, level::blocks_x);
+            ix.blocks_y = load<std::uint32_t>(r, level::blocks_y);
+            if (ix.blocks_x != ceil_div(li.tiles_x, kBlockSide) || ix.blocks_y != ceil_div(li.tiles_y, kBlockSide))
+                return corrupt("level " + std::to_string(l) + " block counts do not match geometry");
+            const std::uint64_t bt_off = load<std::uint64_t>(r, level::block_table_offset);
+            const std::uint64_t bt_bytes = std::uint64_t(ix.blocks_x) * ix.blocks_y * kBlockRecordBytes;
+            if (!inside_index(bt_off, bt_bytes)) return corrupt("level " + std::to_string(l) + " block table outside the index");
+            ix.block_table = base_ + bt_off;
+            if (XXH3_64bits(ix.block_table, bt_bytes) != load<std::uint64_t>(r, level::block_table_checksum))
+                return corrupt("level " + std::to_string(l) + " block table checksum mismatch");
+            ix.data_offset = load<std::uint64_t>(r, level::data_offset);
+            ix.data_bytes = load<std::uint64_t>(r, level::data_bytes);
+            if (ix.data_offset < data_offset_ || ix.data_offset > fsize || ix.data_bytes > fsize - ix.data_offset)
+                return corrupt("level " + std::to_string(l) + " data range outside the file");
+            li.present = load<std::uint64_t>(r, level::present);
+            li.uniform = load<std::uint64_t>(r, level::uniform);
+            li.absent = load<std::uint64_t>(r, level::absent);
+            li.deduplicated = load<std::uint64_t>(r, level::deduplicated);
+            li.payload_bytes = ix.data_bytes;
+            if (li.present + li.uniform + li.absent != std::uint64_t(li.tiles_x) * li.tiles_y)
+                return corrupt("level " + std::to_string(l) + " tile counts do not add up");
+            const std::size_t nblocks = std::size_t(ix.blocks_x) * ix.blocks_y;
+            ix.block_state = std::make_unique<std::atomic<std::uint8_t>[]>(nblocks);
+            for (std::size_t b = 0; b < nblocks; ++b) {
+                ix.block_state[b].store(0, std::memory_order_relaxed);
+                const std::uint64_t eo = load<std::uint64_t>(ix.block_table, b * kBlockRecordBytes);
+                if (eo != 0 && !inside_index(eo, kEntryBlockBytes))
+                    return corrupt("level " + std::to_string(l) + " index block " + std::to_string(b) + " outside the index");
+            }
+        }
+        info_.levels = std::move(levels);
+        max_payload_ = info_.tile_bytes() * 2 + 65536;  // no codec expands a tile beyond this
+        return {};
+    }
+
+    const StoreInfo& info() const override { return info_; }
+
+    Result<TileLocation> locate(const TileKey& key) const override {
+        if (!info_.contains(key))
+            return make_error(Errc::out_of_range, key_name(key) + " is outside the store");
+        const LevelIndex& ix = index_[key.level];
+        const std::size_t b = std::size_t(key.y >> kBlockShift) * ix.blocks_x + (key.x >> kBlockShift);
+        const std::uint64_t eo = load<std::uint64_t>(ix.block_table, b * kBlockRecordBytes);
+        if (eo == 0) return TileLocation{};  // a block with no data at all
+        std::uint8_t state = ix.block_state[b].load(std::memory_order_acquire);
+        if (state == 0) {
+            const bool good = XXH3_64bits(base_ + eo, kEntryBlockBytes) ==
+                              load<std::uint64_t>(ix.block_table, b * kBlockRecordBytes + 8);
+            state = good ? 1 : 2;
+            ix.block_state[b].store(state, std::memory_order_release);
+        }
+        if (state != 1) return corrupt("index block of " + key_name(key) + " fails its checksum");
+        const std::size_t e = (std::size_t(key.y & (kBlockSide - 1)) << kBlockShift) + (key.x & (kBlockSide - 1));
+        const std::uint8_t* p = base_ + eo + e * kEntryBytes;
+        TileLocation loc;
+        const std::uint8_t kind = p[entry::kind];
+        loc.offset = load<std::uint64_t>(p, entry::offset);
+        loc.length = load<std::uint32_t>(p, entry::length);
+        loc.checksum = load<std::uint64_t>(p, entry::checksum);
+        loc.deduplicated = (p[entry::flags] & kEntryFlagDeduplicated) != 0;
+        switch (kind) {
+            case 0:
+                loc.kind = TileKind::absent;
+                if (loc.offset != 0 || loc.length != 0) return corrupt("index entry of absent " + key_name(key) + " is not empty");
+                break;
+            case 1:
+                loc.kind = TileKind::present;
+                if (loc.length == 0 || loc.length > max_payload_ || loc.offset < data_offset_ ||
+                    loc.offset > info_.file_size || loc.length > info_.file_size - loc.offset)
+                    return corrupt("index entry of " + key_name(key) + " points outside the data");
+                break;
+            case 2:
+                loc.kind = TileKind::uniform;
+                if (loc.offset >= palette_count_ || loc.length != 0)
+                    return corrupt("index entry of uniform " + key_name(key) + " has a bad palette index");
+                break;
+            default:
+                return corrupt("index entry of " + key_name(key) + " has unknown kind " + std::to_string(kind));
+        }
+        return loc;
+    }
+
+    Result<std::vector<std::uint8_t>> palette_value(std::uint64_t index) const override {
+        if (index >= palette_count_) return make_error(Errc::out_of_range, "palette index out of range");
+        const std::uint8_t* v = palette_ + index * kPaletteValueBytes;
+        return std::vector<std::uint8_t>(v, v + info_.texel_bytes());
+    }
+
+    Result<Tile> read_tile(const TileKey& key) const override {
+        auto r = read_tiles(std::span<const TileKey>(&key, 1), nullptr);
+        return std::move(r.front());
+    }
+
+    std::vector<Result<Tile>> read_tiles(std::span<const TileKey> keys, BatchStats* stats) const override {
+        std::vector<Result<Tile>> out;
+        out.reserve(keys.size());
+        std::vector<std::size_t> pending;  // indices of present tiles whose payload must be read
+        std::vector<TileLocation> locs(keys.size());
+        for (std::size_t i = 0; i < keys.size(); ++i) {
+            auto loc = locate(keys[i]);
+            if (!loc) {
+                out.emplace_back(loc.error());
+                continue;
+            }
+            locs[i] = *loc;
+            Tile t;
+            t.key = keys[i];
+            t.kind = loc->kind;
+            t.deduplicated = loc->deduplicated;
+            t.checksum = loc->checksum;
+            if (loc->kind == TileKind::uniform) {
+                auto v = palette_value(loc->offset);
+                if (!v) {
+                    out.emplace_back(v.error());
+                    continue;
+                }
+                t.bytes = std::move(*v);
+                if (XXH3_64bits(t.bytes.data(), t.bytes.size()) != t.checksum) {
+                    out.emplace_back(corrupt("uniform value of " + key_name(keys[i]) + " fails its checksum"));
+                    continue;
+                }
+            } else if (loc->kind == TileKind::present) {
+                pending.push_back(i);
+            }
+            out.emplace_back(std::move(t));
+        }
+        // Coalesce: sort the wanted payloads by offset and read runs that are (nearly) contiguous.
+        std::sort(pending.begin(), pending.end(), [&](std::size_t a, std::size_t b) { return locs[a].offset < locs[b].offset; });
+        std::vector<std::uint8_t> buf;
+        for (std::size_t i = 0; i < pending.size();) {
+            const std::uint64_t start = locs[pending[i]].offset;
+            std::uint64_t end = start + locs[pending[i]].length;
+            std::size_t j = i + 1;
+            while (j < pending.size()) {
+                const TileLocation& n = locs[pending[j]];
+                const std::uint64_t n_end = std::max(end, n.offset + n.length);
+                if (n.offset > end + kCoalesceGapBytes || n_end - start > kMaxCoalescedBytes) break;
+                end = n_end;
+                ++j;
+            }
+            buf.resize(end - start);
+            Status st = src_->read(start, end - start, buf.data());
+            if (stats) {
+                stats->reads += 1;
+                stats->bytes += end - start;
+            }
+            for (std::size_t k = i; k < j; ++k) {
+                const std::size_t idx = pending[k];
+                const TileLocation& l = locs[idx];
+                if (!st.ok()) {
+                    out[idx] = st.error();
+                    continue;
+                }
+                const std::uint8_t* p = buf.data() + (l.offset - start);
+                if (XXH3_64bits(p, l.length) != l.checksum) {
+                    out[idx] = corrupt("payload of " + key_name(keys[idx]) + " fails its checksum");
+                    continue;
+                }
+                out[idx].value().bytes.assign(p, p + l.length);
+            }
+            i = j;
+        }
+        return out;
+    }
+
+private:
+    std::unique_ptr<ByteSource> src_;
+    StoreInfo info_;
+    const std::uint8_t* base_ = nullptr;
+    const std::uint8_t* palette_ = nullptr;
+    std::uint32_t palette_count_ = 0;
+    std::uint64_t data_offset_ = 0;
+    std::uint64_t max_payload_ = 0;
+    std::vector<LevelIndex> index_;
+};
+
+Result<std::shared_ptr<StoreReader>> finish_open(std::unique_ptr<ByteSource> src) {
+    auto r = std::make_shared<Reader>(std::move(src));
+    Status st = r->parse();
+    if (!st) return st.error();
+    return std::shared_ptr<StoreReader>(std::move(r));
+}
+
+}  // namespace
+
+Result<std::shared_ptr<StoreReader>> StoreReader::open(const std::string& path) {
+    auto src = open_file_source(path);
+    if (!src) return src.error();
+    auto r = finish_open(std::move(*src));
+    if (!r) return make_error(r.error().code, path + ": " + r.error().message);
+    return r;
+}
+
+Result<std::shared_ptr<StoreReader>> StoreReader::open_memory(std::vector<std::uint8_t> bytes) {
+    return finish_open(memory_source(std::move(bytes)));
+}
+
+}  // namespace tessera::storage

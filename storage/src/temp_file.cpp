@@ -1,0 +1,104 @@
+#include "temp_file.hpp"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+
+namespace tessera::storage {
+namespace {
+std::string errno_text() { return std::strerror(errno); }
+}  // namespace
+
+Result<TempFile> TempFile::create_beside(const std::string& final_path, const std::string& tag) {
+    static std::atomic<unsigned> counter{0};
+    const std::filesystem::path p(final_path);
+    if (p.filename().empty()) return make_error(Errc::invalid_argument, "output path '" + final_path + "' names no file");
+    const std::filesystem::path dir = p.has_parent_path() ? p.parent_path() : std::filesystem::path(".");
+    struct stat st {};
+    if (::stat(final_path.c_str(), &st) == 0 && S_ISDIR(st.st_mode))
+        return make_error(Errc::invalid_argument, "output path '" + final_path + "' is a directory");
+    for (int attempt = 0; attempt < 100; ++attempt) {
+        const std::string name = "." + p.filename().string() + "." + tag + "-" + std::to_string(::getpid()) + "-" +
+                                 std::to_string(counter.fetch_add(1));
+        const std::string path = (dir / name).string();
+        int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+        if (fd >= 0) return TempFile(fd, path);
+        if (errno != EEXIST)
+            return make_error(Errc::io_error, "cannot write to '" + dir.string() + "': " + errno_text());
+    }
+    return make_error(Errc::io_error, "cannot create a temporary file in '" + dir.string() + "'");
+}
+
+TempFile::TempFile(TempFile&& o) noexcept : fd_(o.fd_), path_(std::move(o.path_)) { o.fd_ = -1; o.path_.clear(); }
+
+TempFile& TempFile::operator=(TempFile&& o) noexcept {
+    if (this != &o) {
+        discard();
+        fd_ = o.fd_;
+        path_ = std::move(o.path_);
+        o.fd_ = -1;
+        o.path_.clear();
+    }
+    return *this;
+}
+
+TempFile::~TempFile() { discard(); }
+
+void TempFile::discard() {
+    if (fd_ >= 0) ::close(fd_);
+    if (!path_.empty()) ::unlink(path_.c_str());
+    fd_ = -1;
+    path_.clear();
+}
+
+Status TempFile::pwrite_all(std::uint64_t offset, std::span<const std::uint8_t> bytes) const {
+    std::size_t done = 0;
+    while (done < bytes.size()) {
+        ssize_t n = ::pwrite(fd_, bytes.data() + done, bytes.size() - done, static_cast<off_t>(offset + done));
+        if (n < 0) {
+            if (errno == EINTR) continue;
+            return make_error(Errc::io_error, "write to '" + path_ + "' failed: " + errno_text());
+        }
+        done += static_cast<std::size_t>(n);
+    }
+    return {};
+}
+
+Status TempFile::pread_all(std::uint64_t offset, std::span<std::uint8_t> bytes) const {
+    std::size_t done = 0;
+    while (done < bytes.size()) {
+        ssize_t n = ::pread(fd_, bytes.data() + done, bytes.size() - done, static_cast<off_t>(offset + done));
+        if (n < 0) {
+            if (errno == EINTR) continue;
+            return make_error(Errc::io_error, "read from '" + path_ + "' failed: " + errno_text());
+        }
+        if (n == 0) return make_error(Errc::io_error, "unexpected end of '" + path_ + "'");
+        done += static_cast<std::size_t>(n);
+    }
+    return {};
+}
+
+Status TempFile::commit(const std::string& final_path) {
+    if (::fsync(fd_) != 0) return make_error(Errc::io_error, "fsync of '" + path_ + "' failed: " + errno_text());
+    if (::rename(path_.c_str(), final_path.c_str()) != 0)
+        return make_error(Errc::io_error, "cannot rename into '" + final_path + "': " + errno_text());
+    path_.clear();  // the file is no longer ours to remove
+    ::close(fd_);
+    fd_ = -1;
+    const std::filesystem::path dir = std::filesystem::path(final_path).has_parent_path()
+                                          ? std::filesystem::path(final_path).parent_path()
+                                          : std::filesystem::path(".");
+    int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+    if (dfd >= 0) {
+        ::fsync(dfd);  // makes the rename durable; failure here cannot un-rename, so it is not an error
+        ::close(dfd);
+    }
+    return {};
+}
+
+}  // namespace tessera::storage

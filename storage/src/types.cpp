@@ -1,0 +1,90 @@
+#include "tessera/storage/types.hpp"
+
+#include "tessera/result.hpp"
+
+namespace tessera {
+
+const char* errc_name(Errc code) {
+    switch (code) {
+        case Errc::invalid_argument: return "invalid argument";
+        case Errc::not_found: return "not found";
+        case Errc::io_error: return "I/O error";
+        case Errc::corrupt: return "corrupt";
+        case Errc::unsupported: return "unsupported";
+        case Errc::out_of_range: return "out of range";
+        case Errc::resource_exhausted: return "resource exhausted";
+        case Errc::cancelled: return "cancelled";
+    }
+    return "unknown";
+}
+
+}  // namespace tessera
+
+namespace tessera::storage {
+
+std::size_t sample_bytes(SampleType t) {
+    switch (t) {
+        case SampleType::u8: return 1;
+        case SampleType::u16: return 2;
+        case SampleType::f16: return 2;
+        case SampleType::f32: return 4;
+    }
+    return 0;
+}
+
+std::string_view to_string(SampleType t) {
+    switch (t) {
+        case SampleType::u8: return "u8";
+        case SampleType::u16: return "u16";
+        case SampleType::f16: return "f16";
+        case SampleType::f32: return "f32";
+    }
+    return "?";
+}
+
+std::string_view to_string(ColourSpace c) { return c == ColourSpace::srgb ? "srgb" : "linear"; }
+
+std::string_view to_string(Codec c) {
+    switch (c) {
+        case Codec::raw: return "raw";
+        case Codec::zstd: return "zstd";
+        case Codec::jpeg: return "jpeg";
+    }
+    return "?";
+}
+
+std::string_view to_string(TileKind k) {
+    switch (k) {
+        case TileKind::absent: return "absent";
+        case TileKind::present: return "present";
+        case TileKind::uniform: return "uniform";
+    }
+    return "?";
+}
+
+std::optional<Codec> parse_codec(std::string_view s) {
+    if (s == "raw") return Codec::raw;
+    if (s == "zstd") return Codec::zstd;
+    if (s == "jpeg" || s == "jpg") return Codec::jpeg;
+    return std::nullopt;
+}
+
+std::vector<LevelInfo> level_geometry(std::uint32_t width, std::uint32_t height, std::uint32_t tile_payload) {
+    std::vector<LevelInfo> levels;
+    if (width == 0 || height == 0 || tile_payload == 0) return levels;
+    std::uint64_t w = width, h = height;
+    for (;;) {
+        LevelInfo l;
+        l.width = static_cast<std::uint32_t>(w);
+        l.height = static_cast<std::uint32_t>(h);
+        l.tiles_x = static_cast<std::uint32_t>((w + tile_payload - 1) / tile_payload);
+        l.tiles_y = static_cast<std::uint32_t>((h + tile_payload - 1) / tile_payload);
+        levels.push_back(l);
+        if (w <= tile_payload && h <= tile_payload) break;
+        w = (w + 1) / 2;
+        h = (h + 1) / 2;
+    }
+    return levels;
+}
+
+}  // namespace tessera::storage

@@ -1,0 +1,98 @@
+#include "tessera/storage/verify.hpp"
+
+#include <algorithm>
+
+#include "tessera/storage/codec.hpp"
+#include "format.hpp"
+
+namespace tessera::storage {
+
+VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& options) {
+    VerifyReport rep;
+    auto problem = [&](std::string s) {
+        ++rep.problem_count;
+        if (rep.problems.size() < options.max_problems) rep.problems.push_back(std::move(s));
+    };
+    const StoreInfo& info = reader.info();
+    std::uint64_t total = 0;
+    for (const auto& l : info.levels) total += std::uint64_t(l.tiles_x) * l.tiles_y;
+
+    // Distinct payload ranges, to check that the data section is exactly covered.
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> ranges;
+    std::vector<std::uint8_t> decoded;
+    std::uint64_t done = 0;
+    for (std::uint32_t lv = 0; lv < info.level_count(); ++lv) {
+        const LevelInfo& L = info.levels[lv];
+        std::uint64_t present = 0, uniform = 0, absent = 0, dedup = 0;
+        std::vector<TileKey> batch;
+        auto flush = [&] {
+            auto results = reader.read_tiles(batch);
+            for (std::size_t i = 0; i < results.size(); ++i) {
+                const TileKey& k = batch[i];
+                const std::string name = "level " + std::to_string(k.level) + " tile (" + std::to_string(k.x) + "," +
+                                         std::to_string(k.y) + ")";
+                if (!results[i]) {
+                    problem(name + ": " + results[i].error().message);
+                    continue;
+                }
+                ++rep.payloads_checked;
+                rep.bytes_checked += results[i]->bytes.size();
+                if (options.decode) {
+                    Status st = decode_tile(info, *results[i], decoded);
+                    if (!st) problem(name + ": " + st.error().message);
+                }
+            }
+            batch.clear();
+        };
+        // Morton order follows the file layout, so batches coalesce into few reads.
+        std::vector<TileKey> keys;
+        keys.reserve(std::size_t(L.tiles_x) * L.tiles_y);
+        for (std::uint32_t y = 0; y < L.tiles_y; ++y)
+            for (std::uint32_t x = 0; x < L.tiles_x; ++x) keys.push_back({lv, x, y});
+        std::sort(keys.begin(), keys.end(), [](const TileKey& a, const TileKey& b) {
+            return format::morton(a.x, a.y) < format::morton(b.x, b.y);
+        });
+        for (const TileKey& k : keys) {
+            ++rep.tiles_checked;
+            auto loc = reader.locate(k);
+            if (!loc) {
+                problem("level " + std::to_string(k.level) + " tile (" + std::to_string(k.x) + "," + std::to_string(k.y) +
+                        "): " + loc.error().message);
+                continue;
+            }
+            switch (loc->kind) {
+                case TileKind::absent: ++absent; break;
+                case TileKind::uniform: ++uniform; batch.push_back(k); break;
+                case TileKind::present:
+                    ++present;
+                    if (loc->deduplicated) ++dedup;
+                    else ranges.emplace_back(loc->offset, loc->offset + loc->length);
+                    batch.push_back(k);
+                    break;
+            }
+            if (batch.size() >= 256) flush();
+            if (options.progress && (++done & 1023) == 0) options.progress(done, total);
+        }
+        flush();
+        if (present != L.present || uniform != L.uniform || absent != L.absent || dedup != L.deduplicated)
+            problem("level " + std::to_string(lv) + ": tile counts in the level table do not match the index");
+    }
+    if (options.progress) options.progress(total, total);
+
+    // Every data byte belongs to exactly one stored payload.
+    std::sort(ranges.begin(), ranges.end());
+    std::uint64_t expect = info.file_size;
+    for (const auto& l : info.levels) expect -= l.payload_bytes;
+    for (const auto& [b, e] : ranges) {
+        if (b != expect) {
+            problem("data section: " + std::string(b < expect ? "overlapping payloads" : "unreferenced bytes") +
+                    " at offset " + std::to_string(std::min(b, expect)));
+            break;
+        }
+        expect = e;
+    }
+    if (rep.problem_count == 0 && expect != info.file_size) problem("data section: unreferenced bytes at the end");
+    return rep;
+}
+
+}  // namespace tessera::storage

@@ -1,0 +1,26 @@
+#pragma once
+// The `tessera` subcommands. Each registers its flags on the CLI11 app and returns the exit code
+// when run; errors inside a command are thrown as tools::Failure and printed by main as one line.
+#include <CLI/CLI.hpp>
+
+#include <functional>
+#include <stdexcept>
+#include <string>
+
+namespace tessera::tools {
+
+// A user-facing error: printed as "tessera: error: <what>", exit status `code`.
+struct Failure : std::runtime_error {
+    int code;
+    explicit Failure(const std::string& what, int exit_code = 1) : std::runtime_error(what), code(exit_code) {}
+};
+
+using Command = std::function<int()>;
+
+Command add_build(CLI::App& app);
+Command add_inspect(CLI::App& app);
+Command add_verify(CLI::App& app);
+Command add_source(CLI::App& app);
+Command add_demo(CLI::App& app);
+
+}  // namespace tessera::tools

@@ -1,0 +1,47 @@
+// tessera: build, inspect, verify and serve streaming virtual texture stores.
+#include <cstdio>
+#include <exception>
+#include <map>
+
+#include "commands.hpp"
+
+int main(int argc, char** argv) {
+    using namespace tessera::tools;
+    CLI::App app{"Tessera: streaming virtual textures (tile stores, server, client runtime)", "tessera"};
+    app.require_subcommand(1);
+    app.set_version_flag("--version", "tessera 0.1.0");
+    std::map<CLI::App*, Command> commands;
+    auto reg = [&](Command (*add)(CLI::App&)) {
+        const std::size_t before = app.get_subcommands({}).size();
+        Command c = add(app);
+        commands[app.get_subcommands({})[before]] = std::move(c);
+    };
+    reg(add_build);
+    reg(add_inspect);
+    reg(add_verify);
+    reg(add_source);
+    reg(add_demo);
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::CallForHelp& e) {
+        return app.exit(e);
+    } catch (const CLI::CallForAllHelp& e) {
+        return app.exit(e);
+    } catch (const CLI::CallForVersion& e) {
+        return app.exit(e);
+    } catch (const CLI::ParseError& e) {
+        std::fprintf(stderr, "tessera: error: %s (see tessera --help)\n", e.what());
+        return 2;
+    }
+    try {
+        for (auto& [sub, run] : commands)
+            if (sub->parsed()) return run();
+    } catch (const Failure& f) {
+        std::fprintf(stderr, "tessera: error: %s\n", f.what());
+        return f.code;
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "tessera: error: %s\n", e.what());
+        return 1;
+    }
+    return 0;
+}
