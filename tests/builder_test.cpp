@@ -1,0 +1,436 @@
+// The builder against an independent reference pyramid: exact for lossless codecs, PSNR for JPEG;
+// borders; sparse, uniform and deduplicated tiles; determinism; image file inputs; bounded memory.
+#include <OpenImageIO/imageio.h>
+#include <gtest/gtest.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstring>
+#include <random>
+
+#include "reference_pyramid.hpp"
+#include "tessera/storage/builder.hpp"
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "tessera/storage/verify.hpp"
+#include "test_util.hpp"
+
+using namespace tessera;
+using namespace tessera::storage;
+using tessera::test::RefImage;
+using tessera::test::ScratchDir;
+
+namespace {
+
+// A source over an image in memory.
+class MemorySource final : public ImageSource {
+public:
+    MemorySource(RefImage im, ColourSpace cs, bool alpha) : im_(std::move(im)) {
+        info_.width = im_.width;
+        info_.height = im_.height;
+        info_.channels = im_.channels;
+        info_.sample_type = im_.type;
+        info_.colour_space = cs;
+        info_.has_alpha = alpha;
+        info_.description = "memory image";
+    }
+    const SourceInfo& info() const override { return info_; }
+    Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor&) override {
+        const std::size_t row = std::size_t(im_.width) * im_.texel_bytes();
+        std::memcpy(dst, im_.bytes.data() + y0 * row, count * row);
+        return {};
+    }
+
+private:
+    RefImage im_;
+    SourceInfo info_;
+};
+
+template <class T>
+void set(RefImage& im, std::size_t i, T v) {
+    std::memcpy(im.bytes.data() + i * sizeof(T), &v, sizeof(T));
+}
+
+RefImage make_image(std::uint32_t w, std::uint32_t h, std::uint32_t c, SampleType t) {
+    RefImage im;
+    im.width = w;
+    im.height = h;
+    im.channels = c;
+    im.type = t;
+    im.bytes.resize(std::size_t(w) * h * im.texel_bytes());
+    return im;
+}
+
+// Smooth gradients plus noise: every level has structure, nothing is uniform by accident.
+RefImage test_pattern(std::uint32_t w, std::uint32_t h, std::uint32_t c, SampleType t, std::uint32_t seed) {
+    RefImage im = make_image(w, h, c, t);
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<float> noise(0.0f, 1.0f);
+    for (std::uint32_t y = 0; y < h; ++y)
+        for (std::uint32_t x = 0; x < w; ++x)
+            for (std::uint32_t ch = 0; ch < c; ++ch) {
+                const float base = 0.5f + 0.4f * std::sin(float(x) * (0.013f + 0.007f * ch) + float(y) * 0.021f);
+                const float v = std::clamp(0.8f * base + 0.2f * noise(rng), 0.0f, 1.0f);
+                const std::size_t i = (std::size_t(y) * w + x) * c + ch;
+                switch (t) {
+                    case SampleType::u8: set<std::uint8_t>(im, i, static_cast<std::uint8_t>(v * 255.0f + 0.5f)); break;
+                    case SampleType::u16: set<std::uint16_t>(im, i, static_cast<std::uint16_t>(v * 65535.0f + 0.5f)); break;
+                    case SampleType::f16: {
+                        // Exactly representable halves: multiples of 1/1024 in [0, 1].
+                        const float q = std::round(v * 1024.0f) / 1024.0f;
+                        std::uint32_t bits;
+                        std::memcpy(&bits, &q, 4);
+                        std::uint16_t hbits = 0;
+                        if (q != 0.0f) hbits = static_cast<std::uint16_t>((((bits >> 23) & 0xff) - 112) << 10 | ((bits >> 13) & 0x3ff));
+                        set<std::uint16_t>(im, i, hbits);
+                        break;
+                    }
+                    case SampleType::f32: set<float>(im, i, v * 4.0f - 1.0f); break;  // HDR-ish, negative too
+                }
+            }
+    return im;
+}
+
+struct Built {
+    std::shared_ptr<StoreReader> reader;
+    std::vector<RefImage> ref;
+};
+
+Built build_and_reference(const RefImage& im, ColourSpace cs, bool alpha, const BuildOptions& opt, const std::string& out) {
+    MemorySource src(im, cs, alpha);
+    auto r = build_store(src, out, opt);
+    EXPECT_TRUE(r.ok()) << (r.ok() ? "" : r.error().message);
+    auto reader = StoreReader::open(out);
+    EXPECT_TRUE(reader.ok());
+    Built b;
+    b.reader = reader.ok() ? *reader : nullptr;
+    b.ref = test::reference_pyramid(im, cs, alpha, opt.tile_size - 2 * opt.border);
+    return b;
+}
+
+// Every tile of every level decodes to exactly the reference tile.
+void expect_exact(const Built& b) {
+    ASSERT_TRUE(b.reader);
+    const StoreInfo& info = b.reader->info();
+    ASSERT_EQ(info.level_count(), b.ref.size());
+    std::vector<std::uint8_t> decoded;
+    std::size_t tiles = 0;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                auto t = b.reader->read_tile({l, x, y});
+                ASSERT_TRUE(t.ok()) << t.error().message;
+                ASSERT_TRUE(decode_tile(info, *t, decoded).ok());
+                const auto ref = test::reference_tile(b.ref[l], info.tile_payload, info.border, x, y);
+                ASSERT_EQ(decoded.size(), ref.size());
+                if (decoded != ref) {
+                    std::size_t i = 0;
+                    while (decoded[i] == ref[i]) ++i;
+                    FAIL() << "level " << l << " tile (" << x << "," << y << ") differs at byte " << i << ": "
+                           << int(decoded[i]) << " vs reference " << int(ref[i]);
+                }
+                ++tiles;
+            }
+    EXPECT_GT(tiles, 1u);
+}
+
+BuildOptions small_tiles(Codec codec) {
+    BuildOptions o;
+    o.tile_size = 64;
+    o.border = 4;
+    o.codec = codec;
+    o.threads = 2;
+    return o;
+}
+
+}  // namespace
+
+TEST(Builder, ZstdRgb8SrgbOddSizeMatchesReference) {
+    ScratchDir d;
+    expect_exact(build_and_reference(test_pattern(501, 347, 3, SampleType::u8, 1), ColourSpace::srgb, false,
+                                     small_tiles(Codec::zstd), d.file("a.tsr")));
+}
+
+TEST(Builder, RawRgba8WithAlphaMatchesReference) {
+    ScratchDir d;
+    RefImage im = test_pattern(300, 200, 4, SampleType::u8, 2);
+    // Punch transparent and half-transparent holes so alpha weighting matters.
+    for (std::uint32_t y = 0; y < 200; ++y)
+        for (std::uint32_t x = 0; x < 300; ++x) {
+            std::uint8_t& a = im.bytes[(std::size_t(y) * 300 + x) * 4 + 3];
+            if ((x / 7 + y / 5) % 3 == 0) a = 0;
+            else if ((x + y) % 4 == 0) a = 77;
+        }
+    expect_exact(build_and_reference(im, ColourSpace::srgb, true, small_tiles(Codec::raw), d.file("a.tsr")));
+}
+
+TEST(Builder, ZstdGrey16LinearMatchesReference) {
+    ScratchDir d;
+    expect_exact(build_and_reference(test_pattern(257, 300, 1, SampleType::u16, 3), ColourSpace::linear, false,
+                                     small_tiles(Codec::zstd), d.file("a.tsr")));
+}
+
+TEST(Builder, ZstdRgb16SrgbMatchesReference) {
+    ScratchDir d;
+    expect_exact(build_and_reference(test_pattern(130, 140, 3, SampleType::u16, 4), ColourSpace::srgb, false,
+                                     small_tiles(Codec::zstd), d.file("a.tsr")));
+}
+
+TEST(Builder, ZstdFloat32LinearMatchesReference) {
+    ScratchDir d;
+    expect_exact(build_and_reference(test_pattern(200, 133, 3, SampleType::f32, 5), ColourSpace::linear, false,
+                                     small_tiles(Codec::zstd), d.file("a.tsr")));
+}
+
+TEST(Builder, ZstdHalfGreyAlphaMatchesReference) {
+    ScratchDir d;
+    expect_exact(build_and_reference(test_pattern(150, 170, 2, SampleType::f16, 6), ColourSpace::linear, true,
+                                     small_tiles(Codec::zstd), d.file("a.tsr")));
+}
+
+TEST(Builder, ProceduralTerrainZstdMatchesReferenceAndJpegQ90Reaches38dB) {
+    ScratchDir d;
+    auto src = open_image_source("procedural:terrain:1000");
+    ASSERT_TRUE(src.ok());
+    RefImage im = make_image(1000, 1000, 3, SampleType::u8);
+    ASSERT_TRUE((*src)->read_rows(0, 1000, im.bytes.data(), [](std::size_t n, const auto& fn) { fn(0, n); }).ok());
+    BuildOptions lossless;
+    lossless.codec = Codec::zstd;
+    lossless.threads = 2;
+    const Built b = build_and_reference(im, ColourSpace::srgb, false, lossless, d.file("z.tsr"));
+    expect_exact(b);
+
+    BuildOptions jpeg;  // defaults: 256 tiles, border 4, JPEG q90
+    auto r = build_store("procedural:terrain:1000", d.file("j.tsr"), jpeg);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    auto reader = StoreReader::open(d.file("j.tsr"));
+    ASSERT_TRUE(reader.ok());
+    const StoreInfo& info = (*reader)->info();
+    EXPECT_EQ(info.codec, Codec::jpeg);
+    double worst = 1e9, sum_sq = 0;
+    std::size_t count = 0;
+    std::vector<std::uint8_t> decoded;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                auto t = (*reader)->read_tile({l, x, y});
+                ASSERT_TRUE(t.ok());
+                ASSERT_TRUE(decode_tile(info, *t, decoded).ok());
+                const auto ref = test::reference_tile(b.ref[l], info.tile_payload, info.border, x, y);
+                double se = 0;
+                for (std::size_t i = 0; i < ref.size(); ++i) se += (double(decoded[i]) - ref[i]) * (double(decoded[i]) - ref[i]);
+                const double mse = se / double(ref.size());
+                worst = std::min(worst, 10.0 * std::log10(255.0 * 255.0 / std::max(mse, 1e-12)));
+                sum_sq += se;
+                count += ref.size();
+            }
+    const double overall = 10.0 * std::log10(255.0 * 255.0 / (sum_sq / double(count)));
+    RecordProperty("jpeg_q90_worst_tile_psnr_db", std::to_string(worst));
+    std::printf("JPEG q90: overall PSNR %.2f dB, worst tile %.2f dB\n", overall, worst);
+    EXPECT_GE(worst, 38.0);
+}
+
+TEST(Builder, BordersHoldNeighbourTexelsAtEveryLevel) {
+    ScratchDir d;
+    BuildOptions o = small_tiles(Codec::zstd);
+    o.border = 8;
+    auto r = build_store("procedural:terrain:700", d.file("b.tsr"), o);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    auto reader = StoreReader::open(d.file("b.tsr"));
+    ASSERT_TRUE(reader.ok());
+    const StoreInfo& info = (*reader)->info();
+    const std::uint32_t P = info.tile_payload, B = info.border, T = info.tile_size();
+    const std::size_t tb = info.texel_bytes();
+    auto tile = [&](std::uint32_t l, std::uint32_t x, std::uint32_t y) {
+        std::vector<std::uint8_t> out;
+        auto t = (*reader)->read_tile({l, x, y});
+        EXPECT_TRUE(t.ok());
+        EXPECT_TRUE(decode_tile(info, *t, out).ok());
+        return out;
+    };
+    auto texel = [&](const std::vector<std::uint8_t>& t, std::uint32_t i, std::uint32_t j) {
+        return std::vector<std::uint8_t>(t.begin() + (std::size_t(j) * T + i) * tb, t.begin() + (std::size_t(j) * T + i + 1) * tb);
+    };
+    std::size_t checked = 0;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l) {
+        const LevelInfo& L = info.levels[l];
+        for (std::uint32_t y = 0; y < L.tiles_y; ++y)
+            for (std::uint32_t x = 0; x < L.tiles_x; ++x) {
+                const auto t = tile(l, x, y);
+                if (x + 1 < L.tiles_x) {  // right border == left interior of the right neighbour
+                    const auto n = tile(l, x + 1, y);
+                    for (std::uint32_t j = 0; j < T; ++j)
+                        for (std::uint32_t i = 0; i < 2 * B; ++i) {
+                            // Columns [P, P + 2B) of this tile are columns [0, 2B) of the neighbour.
+                            ASSERT_EQ(texel(t, P + i, j), texel(n, i, j)) << "level " << l << " tile " << x << "," << y;
+                            ++checked;
+                        }
+                }
+                if (y + 1 < L.tiles_y) {  // bottom border == top interior of the neighbour below
+                    const auto n = tile(l, x, y + 1);
+                    for (std::uint32_t j = 0; j < 2 * B; ++j)
+                        for (std::uint32_t i = 0; i < T; ++i) {
+                            ASSERT_EQ(texel(t, i, P + j), texel(n, i, j)) << "level " << l << " tile " << x << "," << y;
+                            ++checked;
+                        }
+                }
+                if (x == 0) {  // left image edge: border columns repeat the first image column
+                    for (std::uint32_t j = 0; j < T; ++j)
+                        for (std::uint32_t i = 0; i < B; ++i) ASSERT_EQ(texel(t, i, j), texel(t, B, j));
+                }
+                if (y == 0) {
+                    for (std::uint32_t j = 0; j < B; ++j)
+                        for (std::uint32_t i = 0; i < T; ++i) ASSERT_EQ(texel(t, i, j), texel(t, i, B));
+                }
+                if (x + 1 == L.tiles_x) {  // right image edge: clamped to the last column
+                    const std::uint32_t last = L.width - 1 - x * P + B;
+                    for (std::uint32_t j = 0; j < T; ++j)
+                        for (std::uint32_t i = last + 1; i < T; ++i) ASSERT_EQ(texel(t, i, j), texel(t, last, j));
+                }
+            }
+    }
+    EXPECT_GT(checked, 10000u);
+}
+
+TEST(Builder, SparseUniformAndDeduplicatedTiles) {
+    ScratchDir d;
+    // 4x4 tiles of payload 64: left half transparent (absent with --sparse), top-right quadrant
+    // one flat colour (uniform), bottom-right a pattern repeating every tile (deduplicated).
+    const std::uint32_t P = 64, N = 4 * P;
+    RefImage im = make_image(N, N, 4, SampleType::u8);
+    for (std::uint32_t y = 0; y < N; ++y)
+        for (std::uint32_t x = 0; x < N; ++x) {
+            std::uint8_t* t = &im.bytes[(std::size_t(y) * N + x) * 4];
+            if (x < N / 2) {
+                t[0] = t[1] = t[2] = t[3] = 0;
+            } else if (y < N / 2) {
+                t[0] = 200, t[1] = 100, t[2] = 50, t[3] = 255;
+            } else {
+                t[0] = static_cast<std::uint8_t>((x % P) * 4), t[1] = static_cast<std::uint8_t>((y % P) * 4), t[2] = 9, t[3] = 255;
+            }
+        }
+    BuildOptions o = small_tiles(Codec::zstd);
+    o.border = 0;  // with no border, tiles of a periodic pattern are identical
+    o.sparse = true;
+    MemorySource src(im, ColourSpace::srgb, true);
+    auto r = build_store(src, d.file("s.tsr"), o);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    auto reader = StoreReader::open(d.file("s.tsr"));
+    ASSERT_TRUE(reader.ok());
+    const StoreInfo& info = (*reader)->info();
+    const LevelInfo& L0 = info.levels[0];
+    EXPECT_EQ(L0.absent, 8u);
+    // Three of the four top-right tiles are one colour; the one next to the transparent half is too.
+    EXPECT_EQ(L0.uniform, 4u);
+    EXPECT_EQ(L0.present, 4u);
+    EXPECT_EQ(L0.deduplicated, 3u);
+    EXPECT_EQ(L0.payload_bytes, (*reader)->read_tile({0, 2, 2})->bytes.size());  // one payload for four tiles
+    auto absent = (*reader)->read_tile({0, 0, 0});
+    ASSERT_TRUE(absent.ok());
+    EXPECT_EQ(absent->kind, TileKind::absent);
+    std::vector<std::uint8_t> decoded;
+    EXPECT_EQ(decode_tile(info, *absent, decoded).error().code, Errc::not_found);
+    auto uni = (*reader)->read_tile({0, 3, 0});
+    ASSERT_TRUE(uni.ok());
+    EXPECT_EQ(uni->kind, TileKind::uniform);
+    EXPECT_EQ(uni->bytes, (std::vector<std::uint8_t>{200, 100, 50, 255}));
+    ASSERT_TRUE(decode_tile(info, *uni, decoded).ok());
+    EXPECT_EQ(decoded, test::reference_tile(im, P, 0, 3, 0));
+    for (std::uint32_t x = 2; x < 4; ++x)
+        for (std::uint32_t y = 2; y < 4; ++y) {
+            auto t = (*reader)->read_tile({0, x, y});
+            ASSERT_TRUE(t.ok());
+            EXPECT_EQ(t->kind, TileKind::present);
+            ASSERT_TRUE(decode_tile(info, *t, decoded).ok());
+            EXPECT_EQ(decoded, test::reference_tile(im, P, 0, x, y));
+        }
+    // Level 1 (2x2 tiles): the left column stays absent, the rest is data.
+    EXPECT_EQ(info.levels[1].absent, 2u);
+    EXPECT_TRUE(verify_store(**reader).ok());
+}
+
+TEST(Builder, TwoBuildsAreByteIdenticalWhateverTheThreadCount) {
+    ScratchDir d;
+    for (Codec c : {Codec::jpeg, Codec::zstd}) {
+        BuildOptions a;
+        a.codec = c;
+        a.tile_size = 128;
+        a.threads = 1;
+        BuildOptions b = a;
+        b.threads = 2;
+        ASSERT_TRUE(build_store("procedural:terrain:1500", d.file("1.tsr"), a).ok());
+        ASSERT_TRUE(build_store("procedural:terrain:1500", d.file("2.tsr"), b).ok());
+        const auto x = test::read_file(d.file("1.tsr")), y = test::read_file(d.file("2.tsr"));
+        EXPECT_GT(x.size(), 10000u);
+        EXPECT_TRUE(x == y) << "codec " << to_string(c);
+    }
+}
+
+namespace {
+// Writes `im` with OpenImageIO (scanline, or tiled when tile > 0).
+void write_image(const std::string& path, const RefImage& im, int tile = 0) {
+    static const OIIO::TypeDesc types[] = {OIIO::TypeDesc::UINT8, OIIO::TypeDesc::UINT16, OIIO::TypeDesc::HALF, OIIO::TypeDesc::FLOAT};
+    auto out = OIIO::ImageOutput::create(path);
+    ASSERT_TRUE(out);
+    OIIO::ImageSpec spec(int(im.width), int(im.height), int(im.channels), types[int(im.type)]);
+    if (tile) spec.tile_width = spec.tile_height = tile;
+    ASSERT_TRUE(out->open(path, spec)) << out->geterror();
+    ASSERT_TRUE(out->write_image(types[int(im.type)], im.bytes.data())) << out->geterror();
+    ASSERT_TRUE(out->close());
+}
+}  // namespace
+
+TEST(Builder, ImageFileInputsMatchTheInMemoryBuild) {
+    ScratchDir d;
+    const RefImage rgb = test_pattern(333, 250, 3, SampleType::u8, 7);
+    write_image(d.file("in.png"), rgb);
+    write_image(d.file("in.tif"), rgb);
+    write_image(d.file("tiled.tif"), rgb, 64);
+    BuildOptions o = small_tiles(Codec::zstd);
+    MemorySource mem(rgb, ColourSpace::srgb, false);
+    ASSERT_TRUE(build_store(mem, d.file("mem.tsr"), o).ok());
+    const auto expect = test::read_file(d.file("mem.tsr"));
+    for (const char* name : {"in.png", "in.tif", "tiled.tif"}) {
+        auto r = build_store(d.file(name), d.file("f.tsr"), o);
+        ASSERT_TRUE(r.ok()) << name << ": " << r.error().message;
+        EXPECT_TRUE(test::read_file(d.file("f.tsr")) == expect) << name;
+    }
+    // Float EXR: linear, zstd by default.
+    const RefImage hdr = test_pattern(120, 90, 3, SampleType::f32, 8);
+    write_image(d.file("in.exr"), hdr);
+    BuildOptions def;
+    def.tile_size = 64;
+    auto r = build_store(d.file("in.exr"), d.file("e.tsr"), def);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    EXPECT_EQ(r->info.codec, Codec::zstd);
+    EXPECT_EQ(r->info.sample_type, SampleType::f32);
+    EXPECT_EQ(r->info.colour_space, ColourSpace::linear);
+    auto reader = StoreReader::open(d.file("e.tsr"));
+    ASSERT_TRUE(reader.ok());
+    Built b{*reader, test::reference_pyramid(hdr, ColourSpace::linear, false, 56)};
+    expect_exact(b);
+}
+
+// A 16384^2 RGB source is 768 MiB; the streaming builder must stay far below that.
+TEST(Builder, MemoryStaysBoundedOnALargeSource) {
+    ScratchDir d;
+    const pid_t pid = ::fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) {
+        BuildOptions o;
+        o.codec = Codec::zstd;
+        o.zstd_level = 1;
+        o.threads = 2;
+        auto r = build_store("procedural:terrain:16384", d.file("big.tsr"), o);
+        ::_exit(r.ok() ? 0 : 3);
+    }
+    int status = 0;
+    struct rusage ru {};
+    ASSERT_EQ(::wait4(pid, &status, 0, &ru), pid);
+    ASSERT_TRUE(WIFEXITED(status));
+    ASSERT_EQ(WEXITSTATUS(status), 0);
+    const double peak_mib = double(ru.ru_maxrss) / 1024.0;
+    std::printf("peak RSS building 16384^2: %.0f MiB\n", peak_mib);
+    EXPECT_LT(peak_mib, 400.0);
+}

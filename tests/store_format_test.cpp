@@ -1,0 +1,271 @@
+// The store format through the writer and reader: round trips, kinds of tiles, batch coalescing,
+// and corruption anywhere in the file always detected.
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "tessera/storage/store_writer.hpp"
+#include "tessera/storage/verify.hpp"
+#include "test_util.hpp"
+
+using namespace tessera;
+using namespace tessera::storage;
+using tessera::test::ScratchDir;
+
+namespace {
+
+StoreSpec raw_spec(std::uint32_t w, std::uint32_t h, std::uint32_t payload, std::uint32_t border) {
+    StoreSpec s;
+    s.width = w;
+    s.height = h;
+    s.tile_payload = payload;
+    s.border = border;
+    s.channels = 1;
+    s.sample_type = SampleType::u8;
+    s.colour_space = ColourSpace::linear;
+    s.codec = Codec::raw;
+    return s;
+}
+
+// Distinct, recognisable bytes for a tile.
+std::vector<std::uint8_t> tile_bytes(std::size_t n, std::uint32_t seed) {
+    std::vector<std::uint8_t> v(n);
+    std::mt19937 rng(seed);
+    for (auto& b : v) b = static_cast<std::uint8_t>(rng());
+    return v;
+}
+
+// A small store: 3 levels; at level 0 some tiles present, one uniform, one duplicate, some absent.
+struct SmallStore {
+    std::string path;
+    std::size_t tile_bytes = 0;
+};
+
+SmallStore write_small_store(const ScratchDir& d) {
+    const StoreSpec spec = raw_spec(40, 30, 12, 2);  // tiles 16x16; level 0 is 4x3 tiles
+    auto w = StoreWriter::create(d.file("small.tsr"), spec);
+    EXPECT_TRUE(w.ok());
+    const std::size_t n = 16 * 16;
+    for (std::uint32_t y = 0; y < 3; ++y)
+        for (std::uint32_t x = 0; x < 4; ++x) {
+            if (x == 3 && y == 2) continue;  // absent
+            if (x == 2 && y == 2) {
+                const std::uint8_t v = 7;
+                EXPECT_TRUE((*w)->add_uniform({0, x, y}, std::span(&v, 1)).ok());
+                continue;
+            }
+            const std::uint32_t seed = (x == 1 && y == 2) ? 0 : y * 4 + x;  // (1,2) duplicates (0,0)
+            EXPECT_TRUE((*w)->add_present({0, x, y}, tile_bytes(n, seed)).ok());
+        }
+    for (std::uint32_t y = 0; y < 2; ++y)
+        for (std::uint32_t x = 0; x < 2; ++x) EXPECT_TRUE((*w)->add_present({1, x, y}, tile_bytes(n, 100 + y * 2 + x)).ok());
+    EXPECT_TRUE((*w)->add_present({2, 0, 0}, tile_bytes(n, 200)).ok());
+    EXPECT_TRUE((*w)->finish().ok());
+    return {d.file("small.tsr"), n};
+}
+
+}  // namespace
+
+TEST(StoreFormat, RoundTripWithAllKindsOfTiles) {
+    ScratchDir d;
+    const SmallStore s = write_small_store(d);
+    auto r = StoreReader::open(s.path);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    const StoreInfo& info = (*r)->info();
+    EXPECT_EQ(info.width, 40u);
+    EXPECT_EQ(info.height, 30u);
+    EXPECT_EQ(info.tile_size(), 16u);
+    ASSERT_EQ(info.level_count(), 3u);
+    EXPECT_EQ(info.levels[0].tiles_x, 4u);
+    EXPECT_EQ(info.levels[0].tiles_y, 3u);
+    EXPECT_EQ(info.levels[0].present, 10u);
+    EXPECT_EQ(info.levels[0].uniform, 1u);
+    EXPECT_EQ(info.levels[0].absent, 1u);
+    EXPECT_EQ(info.levels[0].deduplicated, 1u);
+    EXPECT_EQ(info.levels[0].payload_bytes, 9 * s.tile_bytes);  // the duplicate costs nothing
+    for (std::uint32_t y = 0; y < 3; ++y)
+        for (std::uint32_t x = 0; x < 4; ++x) {
+            auto t = (*r)->read_tile({0, x, y});
+            ASSERT_TRUE(t.ok()) << t.error().message;
+            if (x == 3 && y == 2) {
+                EXPECT_EQ(t->kind, TileKind::absent);
+            } else if (x == 2 && y == 2) {
+                EXPECT_EQ(t->kind, TileKind::uniform);
+                std::vector<std::uint8_t> dec;
+                ASSERT_TRUE(decode_tile(info, *t, dec).ok());
+                EXPECT_EQ(dec, std::vector<std::uint8_t>(s.tile_bytes, 7));
+            } else {
+                EXPECT_EQ(t->kind, TileKind::present);
+                EXPECT_EQ(t->bytes, tile_bytes(s.tile_bytes, (x == 1 && y == 2) ? 0 : y * 4 + x));
+                EXPECT_EQ(t->deduplicated, x == 1 && y == 2);
+            }
+        }
+    EXPECT_EQ((*r)->read_tile({2, 0, 0})->bytes, tile_bytes(s.tile_bytes, 200));
+    EXPECT_EQ((*r)->read_tile({0, 4, 0}).error().code, Errc::out_of_range);
+    EXPECT_EQ((*r)->read_tile({3, 0, 0}).error().code, Errc::out_of_range);
+    EXPECT_TRUE(verify_store(**r).ok());
+}
+
+TEST(StoreFormat, CoarseLevelsFirstAndMortonOrderWithinALevel) {
+    ScratchDir d;
+    const SmallStore s = write_small_store(d);
+    auto r = StoreReader::open(s.path);
+    ASSERT_TRUE(r.ok());
+    auto off = [&](std::uint32_t l, std::uint32_t x, std::uint32_t y) { return (*r)->locate({l, x, y})->offset; };
+    EXPECT_LT(off(2, 0, 0), off(1, 0, 0));
+    EXPECT_LT(off(1, 1, 1), off(0, 0, 0));
+    // Morton: (0,0) (1,0) (0,1) (1,1) (2,0) (3,0) (2,1) (3,1) (0,2) ...
+    EXPECT_LT(off(0, 0, 0), off(0, 1, 0));
+    EXPECT_LT(off(0, 1, 0), off(0, 0, 1));
+    EXPECT_LT(off(0, 0, 1), off(0, 1, 1));
+    EXPECT_LT(off(0, 1, 1), off(0, 2, 0));
+    EXPECT_LT(off(0, 3, 1), off(0, 0, 2));
+}
+
+TEST(StoreFormat, BatchReadsCoalesceAdjacentTiles) {
+    ScratchDir d;
+    const SmallStore s = write_small_store(d);
+    auto r = StoreReader::open(s.path);
+    ASSERT_TRUE(r.ok());
+    // A Morton quad is contiguous: four tiles, one read; order of results follows the request.
+    const std::vector<TileKey> quad = {{0, 1, 1}, {0, 0, 0}, {0, 0, 1}, {0, 1, 0}};
+    BatchStats stats;
+    auto res = (*r)->read_tiles(quad, &stats);
+    EXPECT_EQ(stats.reads, 1u);
+    EXPECT_EQ(stats.bytes, 4 * s.tile_bytes);
+    for (std::size_t i = 0; i < quad.size(); ++i) {
+        ASSERT_TRUE(res[i].ok());
+        EXPECT_EQ(res[i]->key, quad[i]);
+        EXPECT_EQ(res[i]->bytes, tile_bytes(s.tile_bytes, quad[i].y * 4 + quad[i].x));
+    }
+    // Mixed batch: out-of-range, absent, uniform and present keys each get their own answer.
+    const std::vector<TileKey> mixed = {{0, 9, 9}, {0, 3, 2}, {0, 2, 2}, {2, 0, 0}, {0, 1, 2}};
+    res = (*r)->read_tiles(mixed, nullptr);
+    EXPECT_EQ(res[0].error().code, Errc::out_of_range);
+    EXPECT_EQ(res[1]->kind, TileKind::absent);
+    EXPECT_EQ(res[2]->kind, TileKind::uniform);
+    EXPECT_EQ(res[3]->bytes, tile_bytes(s.tile_bytes, 200));
+    EXPECT_EQ(res[4]->bytes, tile_bytes(s.tile_bytes, 0));
+}
+
+// Any single flipped byte anywhere in the file is caught by verify, and a flipped payload byte
+// makes the reader refuse that tile.
+TEST(StoreFormat, EveryFlippedByteIsDetected) {
+    ScratchDir d;
+    const SmallStore s = write_small_store(d);
+    const std::vector<std::uint8_t> good = test::read_file(s.path);
+    auto clean = StoreReader::open_memory(good);
+    ASSERT_TRUE(clean.ok());
+    // Which tiles own which payload bytes.
+    std::vector<std::pair<TileKey, TileLocation>> payloads;
+    for (std::uint32_t l = 0; l < 3; ++l)
+        for (std::uint32_t y = 0; y < (*clean)->info().levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < (*clean)->info().levels[l].tiles_x; ++x) {
+                auto loc = (*clean)->locate({l, x, y});
+                if (loc->kind == TileKind::present) payloads.emplace_back(TileKey{l, x, y}, *loc);
+            }
+    std::size_t undetected = 0;
+    for (std::size_t pos = 0; pos < good.size(); ++pos) {
+        std::vector<std::uint8_t> bad = good;
+        bad[pos] ^= 0x5a;
+        auto r = StoreReader::open_memory(std::move(bad));
+        if (!r.ok()) continue;  // refused at open: detected
+        if (verify_store(**r).ok()) {
+            ++undetected;
+            ADD_FAILURE() << "flip at byte " << pos << " of " << good.size() << " not detected";
+        }
+        for (const auto& [key, loc] : payloads)
+            if (pos >= loc.offset && pos < loc.offset + loc.length) {
+                auto t = (*r)->read_tile(key);
+                EXPECT_FALSE(t.ok()) << "tile read despite a flipped payload byte at " << pos;
+                if (!t.ok()) {
+                    EXPECT_EQ(t.error().code, Errc::corrupt);
+                }
+            }
+    }
+    EXPECT_EQ(undetected, 0u);
+}
+
+TEST(StoreFormat, EveryTruncationIsRefusedAtOpen) {
+    ScratchDir d;
+    const SmallStore s = write_small_store(d);
+    const std::vector<std::uint8_t> good = test::read_file(s.path);
+    for (std::size_t len = 0; len < good.size(); len += 1 + len / 64) {
+        auto r = StoreReader::open_memory(std::vector<std::uint8_t>(good.begin(), good.begin() + std::ptrdiff_t(len)));
+        ASSERT_FALSE(r.ok()) << "truncated to " << len;
+        EXPECT_EQ(r.error().code, Errc::corrupt);
+    }
+    // The same through a file.
+    test::write_file(d.file("cut.tsr"), std::vector<std::uint8_t>(good.begin(), good.end() - 1));
+    auto r = StoreReader::open(d.file("cut.tsr"));
+    ASSERT_FALSE(r.ok());
+    EXPECT_NE(r.error().message.find("truncated"), std::string::npos) << r.error().message;
+}
+
+TEST(StoreFormat, NewerMajorVersionIsUnsupportedNotCorrupt) {
+    ScratchDir d;
+    const SmallStore s = write_small_store(d);
+    std::vector<std::uint8_t> bytes = test::read_file(s.path);
+    bytes[8] = 2;  // version_major
+    auto r = StoreReader::open_memory(bytes);
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, Errc::unsupported);
+}
+
+TEST(StoreFormat, WriterRejectsBadKeysAndDuplicatesAndLeavesNothingBehind) {
+    ScratchDir d;
+    {
+        auto w = StoreWriter::create(d.file("x.tsr"), raw_spec(40, 30, 12, 2));
+        ASSERT_TRUE(w.ok());
+        EXPECT_EQ((*w)->add_present({0, 4, 0}, tile_bytes(256, 1)).error().code, Errc::out_of_range);
+        EXPECT_EQ((*w)->add_present({5, 0, 0}, tile_bytes(256, 1)).error().code, Errc::out_of_range);
+        const std::uint8_t two[2] = {1, 2};
+        EXPECT_FALSE((*w)->add_uniform({0, 0, 0}, two).ok());
+        ASSERT_TRUE((*w)->add_present({0, 0, 0}, tile_bytes(256, 1)).ok());
+        ASSERT_TRUE((*w)->add_present({0, 0, 0}, tile_bytes(256, 2)).ok());
+        EXPECT_FALSE((*w)->finish().ok());  // duplicate key
+    }
+    EXPECT_TRUE(d.entries().empty()) << d.entries().front();
+    {
+        auto w = StoreWriter::create(d.file("y.tsr"), raw_spec(40, 30, 12, 2));
+        ASSERT_TRUE(w.ok());
+        ASSERT_TRUE((*w)->add_present({0, 0, 0}, tile_bytes(256, 1)).ok());
+        // destroyed without finish()
+    }
+    EXPECT_TRUE(d.entries().empty());
+    EXPECT_FALSE(StoreWriter::create(d.file("no/such/dir/z.tsr"), raw_spec(40, 30, 12, 2)).ok());
+    StoreSpec bad = raw_spec(40, 30, 12, 2);
+    bad.codec = Codec::jpeg;
+    bad.channels = 4;
+    EXPECT_FALSE(StoreWriter::create(d.file("j.tsr"), bad).ok());
+    EXPECT_FALSE(StoreWriter::create(d.file("z.tsr"), raw_spec(0, 30, 12, 2)).ok());
+}
+
+// A store with millions of tile slots (mostly uniform or absent) opens without reading its
+// index; tiles anywhere read back right.
+TEST(StoreFormat, MillionsOfTilesOpenLazily) {
+    ScratchDir d;
+    StoreSpec spec = raw_spec(2048 * 64, 1024 * 64, 60, 2);  // level 0: 2048 x 1024 tiles
+    auto w = StoreWriter::create(d.file("big.tsr"), spec);
+    ASSERT_TRUE(w.ok());
+    std::uint64_t added = 0;
+    for (std::uint32_t y = 0; y < 1024; ++y)
+        for (std::uint32_t x = 0; x < 1024; ++x)
+            if ((x + y) % 3 != 0) {
+                const std::uint8_t v = static_cast<std::uint8_t>(x ^ y);
+                ASSERT_TRUE((*w)->add_uniform({0, x, y}, std::span(&v, 1)).ok());
+                ++added;
+            }
+    ASSERT_TRUE((*w)->add_present({0, 2047, 1023}, tile_bytes(64 * 64, 9)).ok());
+    ASSERT_TRUE((*w)->finish().ok());
+    auto r = StoreReader::open(d.file("big.tsr"));
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    EXPECT_EQ((*r)->info().levels[0].uniform, added);
+    EXPECT_EQ((*r)->read_tile({0, 1000, 501})->kind, TileKind::uniform);
+    EXPECT_EQ((*r)->read_tile({0, 1000, 501})->bytes, std::vector<std::uint8_t>{static_cast<std::uint8_t>(1000 ^ 501)});
+    EXPECT_EQ((*r)->read_tile({0, 999, 0})->kind, TileKind::absent);
+    EXPECT_EQ((*r)->read_tile({0, 2047, 1023})->bytes, tile_bytes(64 * 64, 9));
+    EXPECT_EQ((*r)->read_tile({1, 0, 0})->kind, TileKind::absent);
+}
