@@ -1,0 +1,69 @@
+// How long opening a store and the first lookups take, against the number of tiles.
+// Writes stores of 1k to 4M tiles (uniform tiles: cheap to write, full index), then measures
+// open (header, level table, block tables), the first lookup in a cold index block, and a warm
+// lookup. Prints a table; JSON with --json FILE.
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "tessera/storage/store_reader.hpp"
+#include "tessera/storage/store_writer.hpp"
+
+using namespace tessera::storage;
+using Clock = std::chrono::steady_clock;
+
+int main(int argc, char** argv) {
+    std::string json_path;
+    for (int i = 1; i + 1 < argc; ++i)
+        if (std::string(argv[i]) == "--json") json_path = argv[i + 1];
+    const auto dir = std::filesystem::temp_directory_path() / "tessera-open-bench";
+    std::filesystem::create_directories(dir);
+    std::string json = "[";
+    std::printf("%10s %12s %12s %14s %14s\n", "tiles", "file MiB", "open ms", "cold lookup us", "warm lookup us");
+    for (std::uint32_t side : {32u, 256u, 1024u, 2048u}) {
+        StoreSpec s;
+        s.width = s.height = side * 248;
+        s.tile_payload = 248;
+        s.border = 4;
+        s.channels = 3;
+        s.codec = Codec::jpeg;
+        const std::string path = (dir / ("open-" + std::to_string(side) + ".tsr")).string();
+        {
+            auto w = StoreWriter::create(path, s);
+            if (!w) return 1;
+            const auto levels = level_geometry(s.width, s.height, s.tile_payload);
+            for (std::uint32_t l = 0; l < levels.size(); ++l)
+                for (std::uint32_t y = 0; y < levels[l].tiles_y; ++y)
+                    for (std::uint32_t x = 0; x < levels[l].tiles_x; ++x) {
+                        const std::uint8_t v[3] = {std::uint8_t(x), std::uint8_t(y), std::uint8_t(l)};
+                        if (!(*w)->add_uniform({l, x, y}, v).ok()) return 1;
+                    }
+            if (!(*w)->finish().ok()) return 1;
+        }
+        const auto t0 = Clock::now();
+        auto r = StoreReader::open(path);
+        const auto t1 = Clock::now();
+        if (!r) return 1;
+        auto a = (*r)->locate({0, side / 2, side / 2});
+        const auto t2 = Clock::now();
+        auto b = (*r)->locate({0, side / 2 + 1, side / 2});
+        const auto t3 = Clock::now();
+        if (!a || !b) return 1;
+        std::uint64_t tiles = 0;
+        for (const auto& l : (*r)->info().levels) tiles += std::uint64_t(l.tiles_x) * l.tiles_y;
+        const double open_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
+        const double cold_us = std::chrono::duration<double, std::micro>(t2 - t1).count();
+        const double warm_us = std::chrono::duration<double, std::micro>(t3 - t2).count();
+        std::printf("%10llu %12.1f %12.3f %14.1f %14.2f\n", (unsigned long long)tiles, double((*r)->info().file_size) / 1048576.0,
+                    open_ms, cold_us, warm_us);
+        json += (json.size() > 1 ? "," : "") + std::string("{\"tiles\":") + std::to_string(tiles) + ",\"open_ms\":" +
+                std::to_string(open_ms) + ",\"cold_lookup_us\":" + std::to_string(cold_us) + ",\"warm_lookup_us\":" +
+                std::to_string(warm_us) + "}";
+        std::filesystem::remove(path);
+    }
+    json += "]\n";
+    if (!json_path.empty()) std::ofstream(json_path) << json;
+    return 0;
+}
