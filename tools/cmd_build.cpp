@@ -43,6 +43,7 @@ Command add_build(CLI::App& app) {
         if (Status st = storage::validate(opt); !st) throw Failure(st.error().message, 2);
 
         ProgressBar bar("build", !a->quiet);
+        StderrCapture library_messages;
         auto result = storage::build_store(a->input, a->output, opt, [&](const storage::BuildProgress& p) {
             if (p.writing) {
                 bar.set_label("write");
@@ -54,7 +55,9 @@ Command add_build(CLI::App& app) {
             }
         });
         bar.finish();
-        if (!result) throw Failure(result.error().message);
+        const std::string messages = library_messages.release();
+        if (!result) throw Failure(result.error().message);  // it already holds the libraries' own report
+        std::fputs(messages.c_str(), stderr);
         if (!a->quiet) {
             const auto& s = *result;
             fmt::print("built {} in {} ({:.1f} MP/s)\n", a->output, human_seconds(s.seconds),

@@ -1,7 +1,9 @@
 #pragma once
-// A one-line progress bar on stderr, drawn only when stderr is a terminal and not --quiet.
+// A one-line progress bar on stderr, drawn only when stderr is a terminal and not --quiet. It draws
+// on its own duplicate of stderr, so it still reaches the terminal inside a StderrCapture.
 #include <chrono>
 #include <cstdint>
+#include <cstdio>
 #include <string>
 
 namespace tessera::tools {
@@ -21,8 +23,26 @@ public:
 private:
     std::string label_;
     bool enabled_;
+    std::FILE* out_ = nullptr;
     bool drawn_ = false;
     std::chrono::steady_clock::time_point start_, last_;
+};
+
+// While it lives, what libraries print on stderr themselves (libpng prints "libpng error: ..." before
+// handing OpenImageIO the same error, which then reaches us as an error value) goes to a temporary
+// file instead, so that a failing command still prints exactly one error line. release() restores
+// stderr and returns the text, for the caller to show when the command succeeds after all.
+class StderrCapture {
+public:
+    StderrCapture();
+    ~StderrCapture();
+    StderrCapture(const StderrCapture&) = delete;
+    StderrCapture& operator=(const StderrCapture&) = delete;
+    std::string release();
+
+private:
+    int saved_ = -1;  // the real stderr while captured
+    std::FILE* file_ = nullptr;
 };
 
 std::string human_bytes(std::uint64_t bytes);

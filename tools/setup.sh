@@ -8,7 +8,7 @@ packages=(
   build-essential cmake ninja-build pkg-config git
   clang libclang-rt-14-dev           # libFuzzer targets
   libzstd-dev libturbojpeg0-dev libxxhash-dev
-  libopenimageio-dev
+  libopenimageio-dev libtiff-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   python3 time

@@ -109,6 +109,8 @@ Status decode_tile(const StoreInfo& info, const Tile& tile, std::vector<std::uin
             return {};
         }
         case Codec::jpeg: {
+            if (info.sample_type != SampleType::u8 || (info.channels != 1 && info.channels != 3))
+                return make_error(Errc::corrupt, "JPEG tiles need 8-bit samples with 1 or 3 channels");
             int w = 0, h = 0, samp = 0, cs = 0;
             tjhandle d = decompressor();
             if (tjDecompressHeader3(d, tile.bytes.data(), tile.bytes.size(), &w, &h, &samp, &cs) != 0)

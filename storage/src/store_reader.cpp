@@ -61,13 +61,15 @@ public:
         const std::uint8_t st = h[header::sample_type], cs = h[header::colour_space], codec = h[header::codec];
         const std::uint32_t level_count = h[header::level_count];
         if (info_.width == 0 || info_.height == 0 || info_.tile_payload == 0) return corrupt("zero image or tile size");
-        if (info_.tile_size() > kMaxTileSize) return corrupt("tile size too large");
+        if (std::uint64_t(info_.tile_payload) + 2ull * info_.border > kMaxTileSize) return corrupt("tile size too large");
         if (info_.channels < 1 || info_.channels > 4) return corrupt("bad channel count");
         if (st > 3 || cs > 1 || codec > 2) return corrupt("bad sample type, colour space or codec");
         if (h[header::block_shift] != kBlockShift) return corrupt("bad index block size");
         info_.sample_type = static_cast<SampleType>(st);
         info_.colour_space = static_cast<ColourSpace>(cs);
         info_.codec = static_cast<Codec>(codec);
+        if (info_.codec == Codec::jpeg && (info_.sample_type != SampleType::u8 || (info_.channels != 1 && info_.channels != 3)))
+            return corrupt("JPEG store without 8-bit grey or RGB samples");
         info_.has_alpha = (h[header::flags] & kHeaderFlagAlpha) != 0;
         if (info_.has_alpha && info_.channels != 2 && info_.channels != 4) return corrupt("alpha flag on a 1- or 3-channel store");
         info_.store_id = load<std::uint64_t>(h, header::store_id);
@@ -125,7 +127,9 @@ public:
             li.absent = load<std::uint64_t>(r, level::absent);
             li.deduplicated = load<std::uint64_t>(r, level::deduplicated);
             li.payload_bytes = ix.data_bytes;
-            if (li.present + li.uniform + li.absent != std::uint64_t(li.tiles_x) * li.tiles_y)
+            const std::uint64_t ntiles = std::uint64_t(li.tiles_x) * li.tiles_y;
+            if (li.present > ntiles || li.uniform > ntiles || li.absent > ntiles || li.deduplicated > li.present ||
+                li.present + li.uniform + li.absent != ntiles)
                 return corrupt("level " + std::to_string(l) + " tile counts do not add up");
             const std::size_t nblocks = std::size_t(ix.blocks_x) * ix.blocks_y;
             ix.block_state = std::make_unique<std::atomic<std::uint8_t>[]>(nblocks);

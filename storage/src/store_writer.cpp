@@ -327,7 +327,7 @@ Status Writer::finish(const Progress& progress) {
 
 Status validate(const StoreSpec& s) {
     if (s.width == 0 || s.height == 0) return make_error(Errc::invalid_argument, "image width and height must be at least 1");
-    const std::uint32_t tile = s.tile_payload + 2 * s.border;
+    const std::uint64_t tile = std::uint64_t(s.tile_payload) + 2ull * s.border;
     if (s.tile_payload == 0 || tile > kMaxTileSize)
         return make_error(Errc::invalid_argument, "tile size must be between 1 and " + std::to_string(kMaxTileSize));
     if (s.border > 0xffff) return make_error(Errc::invalid_argument, "border too large");

@@ -274,7 +274,8 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
         const ParallelFor parallel = [&pool](std::size_t n, const std::function<void(std::size_t, std::size_t)>& fn) {
             pool.parallel_for(n, 1, fn);
         };
-        const std::uint32_t strip = std::max<std::uint32_t>(spec.tile_payload, 64);
+        // Small strips keep the rows held per level near the minimum (one tile row plus borders).
+        const std::uint32_t strip = 64;
         for (std::uint32_t y = 0; y < si.height && !error.failed(); y += strip) {
             Chunk c;
             c.first = y;

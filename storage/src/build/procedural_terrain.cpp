@@ -1,3 +1,13 @@
+// The output must be bit-identical on every machine, so a*b+c must never be fused into an FMA
+// (x86-64 without -march has no FMA, but e.g. -march=native or AArch64 compilers fuse by
+// default). GCC's pragma goes before every include: functions inlined from headers that were
+// read before it would otherwise bring contraction back into the functions below.
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#elif defined(__GNUC__)
+#pragma GCC optimize("fp-contract=off")
+#endif
+
 #include "procedural_terrain.hpp"
 
 #include <algorithm>
@@ -6,21 +16,20 @@
 #include <cmath>
 #include <cstddef>
 #include <cstring>
+#include <iterator>
 #include <stdexcept>
+#include <type_traits>
 
-// The output must be bit-identical on every machine, so a*b+c must never be fused into an FMA
-// (x86-64 without -march has no FMA, but e.g. AArch64 compilers fuse by default).
-#if defined(__clang__)
-#pragma clang fp contract(off)
-#elif defined(__GNUC__)
-#pragma GCC optimize("fp-contract=off")
+#if defined(__SSE__)
+#include <xmmintrin.h>
 #endif
 
 namespace tessera::storage::build {
 namespace {
 
 // Four floats processed together: GCC/Clang vector extension, SSE2 on x86-64, NEON on ARM.
-// Only IEEE add/sub/mul are used on it, so every lane computes exactly what scalar code would.
+// Only exactly rounded operations are used on it (add, sub, mul, min/max, conversions, bit ops),
+// so every lane computes exactly what scalar code would, whatever the instruction set.
 typedef float V4 __attribute__((vector_size(16)));
 typedef std::int32_t V4i __attribute__((vector_size(16)));
 
@@ -31,20 +40,16 @@ inline V4 load4(const float* p) {
 }
 inline void store4(float* p, V4 v) { std::memcpy(p, &v, sizeof v); }
 inline V4 splat(float f) { return V4{f, f, f, f}; }
+#if defined(__SSE__)
+// minps/maxps compute exactly a < b ? a : b (and a > b ? a : b), which GCC does not see by itself.
+inline V4 vmin(V4 a, V4 b) { return std::bit_cast<V4>(_mm_min_ps(std::bit_cast<__m128>(a), std::bit_cast<__m128>(b))); }
+inline V4 vmax(V4 a, V4 b) { return std::bit_cast<V4>(_mm_max_ps(std::bit_cast<__m128>(a), std::bit_cast<__m128>(b))); }
+#else
 inline V4 vmin(V4 a, V4 b) { return a < b ? a : b; }
 inline V4 vmax(V4 a, V4 b) { return a > b ? a : b; }
+#endif
 inline V4 vclamp(V4 v, float lo, float hi) { return vmin(vmax(v, splat(lo)), splat(hi)); }
-
-// 1/sqrt(x) for x >= 1: the classic bit-trick estimate and two Newton steps (relative error
-// < 5e-6). Only integer ops, mul and sub, so unlike a hardware rsqrt it is the same everywhere.
-inline V4 rsqrt_at_least_1(V4 x) {
-    const V4i estimate = 0x5f3759df - (std::bit_cast<V4i>(x) >> 1);
-    V4 y = std::bit_cast<V4>(estimate);
-    const V4 half = x * 0.5f;
-    y = y * (1.5f - half * y * y);
-    y = y * (1.5f - half * y * y);
-    return y;
-}
+inline V4 vabs(V4 v) { return std::bit_cast<V4>(std::bit_cast<V4i>(v) & 0x7fffffff); }
 
 constexpr std::uint64_t splitmix64(std::uint64_t z) {
     z += 0x9e3779b97f4a7c15ull;
@@ -54,6 +59,7 @@ constexpr std::uint64_t splitmix64(std::uint64_t z) {
 }
 
 constexpr std::uint64_t kSeed = 0x7e55e4a7e44a1ull;
+constexpr std::uint64_t kOctaveSalt = 0x632be59bd9b4e019ull;
 
 // Lattice values come from one table of random numbers; each lattice row reads it from a random
 // start (hashed from the row index), so rows are independent without hashing every lattice point.
@@ -68,21 +74,48 @@ constexpr std::size_t kChunk = 256;
 constexpr std::size_t kPad = 4;
 constexpr std::size_t kBuffer = kChunk + 2 * kPad;
 
+// Cells up to this many texels wide get their x smoothstep tabulated per row.
+constexpr std::uint64_t kCurveMaxSpacing = 256;
+
+// Cubic smoothstep s and q = s' / 6 at t = (lane + p) * inv for four texels of a cell.
+inline void smoothstep(V4 lane, std::uint64_t p, float inv, V4& s, V4& q) {
+    const V4 t = (lane + static_cast<float>(p)) * inv;
+    const V4 tt = t * t;
+    s = tt * (3.0f - 2.0f * t);
+    q = t - tt;
+}
+
 // Colour ramp: heights in [kRampLow, kRampHigh] map to kRampSize entries.
 constexpr int kRampSize = 1024;
 constexpr float kRampLow = -0.8f;
 constexpr float kRampHigh = 0.8f;
 
-// Slope (height units per texel) of the finest octave; the coarser ones follow from kRoughness.
-constexpr float kRelief = 0.16f;
-// Amplitude of an octave grows by this factor each time its wavelength doubles (2 = classic
-// fBm with persistence 1/2, where every octave contributes equally to the slope).
-constexpr float kRoughness = 2.1f;
+// Amplitude of an octave grows by this factor each time its wavelength doubles. 2 would be
+// classic fBm (persistence 1/2); a little more keeps coastlines and peaks less ragged.
+constexpr float kRoughness = 2.2f;
 
-// Light from the north-west, fairly high; scaled to unit length below.
-constexpr float kLightLength = 1.98997487f;  // |(-1, -1, 1.4)|
-constexpr float kLightX = -1.0f / kLightLength, kLightY = -1.0f / kLightLength, kLightZ = 1.4f / kLightLength;
+// Hill shading. Brightness follows how much the ground faces the light (minus the height
+// gradient along the direction to the light, which is in the north-west), soft-clipped into
+// [-1, 1]. The octaves are shaded in groups of kGroupOctaves consecutive wavelengths, each group
+// soft-clipped on its own and the results added: one clip over the whole sum would let a steep
+// coarse slope saturate it and wash out the fine detail, and the fine noise would flatten the
+// coarse relief once the pyramid averages it. Each group's slope is normalised (root-sum-square
+// over its octaves), so the look does not depend on the image size.
+constexpr float kLightX = -0.70710678f, kLightY = -0.70710678f;  // horizontal direction to the light
+constexpr int kShadeGroups = 4;
+constexpr std::uint32_t kGroupOctaves = 3;
+// Per group, fine .. coarse: facing at the group's typical slope, and weight in the brightness.
+// Coarser groups get more, as fewer of them are left to see once the view is zoomed out.
+constexpr float kGroupGain[kShadeGroups] = {1.1f, 1.4f, 1.7f, 1.8f};
+constexpr float kGroupShare[kShadeGroups] = {0.25f, 0.3f, 0.35f, 0.4f};
+constexpr float kHighlight = 0.6f;   // sunlit slopes brighten less than shaded ones darken (no clipping)
+constexpr float kLandRelief = 0.6f;  // brightness on land ranges over about 1 +- kLandRelief
 
+// x clipped to [-2, 2], then x - x|x|/4: smooth, linear near 0, flat at +-1.
+inline V4 soft_clip(V4 x) {
+    const V4 c = vclamp(x, -2.0f, 2.0f);
+    return c - c * vabs(c) * 0.25f;
+}
 
 // ---- Grid and labels --------------------------------------------------------------------------
 
@@ -118,7 +151,7 @@ constexpr int kFontRows = 7;
 
 // Text of a label: digits of X, a comma, digits of Y (glyph 10 = comma).
 struct LabelText {
-    std::uint8_t glyphs[16];
+    std::uint8_t glyphs[48];  // 11 for the largest image; room for any 64-bit pair regardless
     int count = 0;
     int width = 0;  // font pixels, including the 1-pixel gaps between glyphs
 };
@@ -151,7 +184,7 @@ std::uint64_t label_row_bits(const LabelText& t, int r) {
     for (int i = 0; i < t.count; ++i) {
         const int w = t.glyphs[i] == 10 ? 2 : 5;
         const std::uint64_t glyph_row = t.glyphs[i] == 10 ? kComma[r] : kDigits[t.glyphs[i]][r];
-        for (int c = 0; c < w; ++c)
+        for (int c = 0; c < w && column + c + 1 < 64; ++c)
             if (glyph_row & (1u << (w - 1 - c))) bits |= std::uint64_t(1) << (column + c + 1);
         column += w + 1;
     }
@@ -188,14 +221,14 @@ ProceduralTerrain::ProceduralTerrain(std::uint64_t size) : size_(size) {
         const int e = octave_count_ == 1 ? finest
                                          : finest + (k * (coarsest - finest) + (octave_count_ - 1) / 2) /
                                                         (octave_count_ - 1);
-        // kRoughness^e by repeated multiplication: exact and identical everywhere, unlike pow.
+        // kRoughness^e by repeated multiplication: identical everywhere, unlike pow.
         float a = 1;
         for (int i = 0; i < e; ++i) a *= kRoughness;
         amplitude[k] = a;
         amplitude_sum += a;
 
         Octave& o = octaves_[static_cast<std::size_t>(k)];
-        const std::uint64_t h = splitmix64(kSeed ^ (std::uint64_t(k) * 0x632be59bd9b4e019ull));
+        const std::uint64_t h = splitmix64(kSeed + static_cast<std::uint64_t>(k) * kOctaveSalt);
         o.shift = static_cast<std::uint32_t>(e);
         o.inv_spacing = 1.0f / static_cast<float>(std::uint64_t(1) << e);
         // Random lattice origin (fractional in x) plus a large bias so x coordinates stay positive.
@@ -204,13 +237,27 @@ ProceduralTerrain::ProceduralTerrain(std::uint64_t size) : size_(size) {
         // Shearing the lattices differently breaks up the axis-aligned look of value noise.
         static constexpr std::int64_t kShears16[4] = {0, 32768, -24576, 16384};
         o.x_shear16 = kShears16[k % 4];
-        o.shear = static_cast<float>(o.x_shear16) * (1.0f / 65536.0f);
+        o.group = std::min<std::uint32_t>(kShadeGroups - 1, (o.shift - finest) / kGroupOctaves);
         o.seed = splitmix64(h ^ 0x5851f42d4c957f2dull);
     }
-    for (int k = 0; k < octave_count_; ++k) octaves_[static_cast<std::size_t>(k)].weight = amplitude[k] / amplitude_sum;
-    // Scale so the finest octave has slope about kRelief whatever the image size.
-    const Octave& fine = octaves_[0];
-    relief_scale_ = kRelief * amplitude_sum / (amplitude[0] * fine.inv_spacing);
+    // An octave's slope goes as amplitude / wavelength; sum the squares per shading group.
+    float slope2[kShadeGroups] = {};
+    for (int k = 0; k < octave_count_; ++k) {
+        const Octave& o = octaves_[static_cast<std::size_t>(k)];
+        const float slope = amplitude[k] * o.inv_spacing;
+        slope2[o.group] += slope * slope;
+    }
+    for (int k = 0; k < octave_count_; ++k) {
+        Octave& o = octaves_[static_cast<std::size_t>(k)];
+        o.weight = amplitude[k] / amplitude_sum;
+        // facing = -gain * (grad . light) / group slope, for this octave's un-weighted value v:
+        // dv/dx = (a1 - a0) * 6q / spacing, and dv/dy is taken along the sheared lattice, so the
+        // x slope also feeds into y. sqrt is correctly rounded, so this is deterministic too.
+        const float gain = kGroupGain[o.group] * amplitude[k] / std::sqrt(slope2[o.group]);
+        const float shear = static_cast<float>(o.x_shear16) * (1.0f / 65536.0f);
+        o.facing_x = -gain * (kLightX + kLightY * shear) * 6.0f * o.inv_spacing;
+        o.facing_y = -gain * kLightY;
+    }
 
     lattice_.resize(kLatticeSize);
     for (std::size_t i = 0; i < kLatticeSize; ++i) {
@@ -228,16 +275,16 @@ ProceduralTerrain::ProceduralTerrain(std::uint64_t size) : size_(size) {
         {-0.35f, 20, 55, 120, 0.15f},     // deep water
         {-0.08f, 40, 100, 165, 0.20f},    // shallow water
         {-0.005f, 85, 160, 190, 0.25f},   // shore water
-        {0.000f, 214, 200, 148, 1.0f},    // sand
-        {0.012f, 200, 190, 130, 1.0f},
-        {0.030f, 112, 155, 72, 1.0f},     // grass
-        {0.14f, 82, 132, 56, 1.0f},
-        {0.20f, 48, 102, 46, 1.0f},       // forest
-        {0.30f, 38, 84, 42, 1.0f},
-        {0.37f, 110, 100, 85, 1.0f},      // rock
-        {0.46f, 135, 125, 115, 1.0f},
-        {0.52f, 218, 220, 228, 1.0f},     // snow (leaves headroom for sunlit slopes)
-        {0.80f, 232, 234, 240, 1.0f},
+        {0.000f, 214, 200, 148, kLandRelief},    // sand
+        {0.012f, 200, 190, 130, kLandRelief},
+        {0.030f, 112, 155, 72, kLandRelief},     // grass
+        {0.14f, 82, 132, 56, kLandRelief},
+        {0.20f, 48, 102, 46, kLandRelief},       // forest
+        {0.30f, 38, 84, 42, kLandRelief},
+        {0.37f, 110, 100, 85, kLandRelief},      // rock
+        {0.46f, 135, 125, 115, kLandRelief},
+        {0.52f, 218, 220, 228, kLandRelief},     // snow (leaves headroom for sunlit slopes)
+        {0.80f, 232, 234, 240, kLandRelief},
     };
     ramp_.resize(kRampSize);
     std::size_t s = 0;
@@ -259,10 +306,16 @@ void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const {
     struct RowOctave {
         std::uint64_t x_cell_origin;  // integer part of the lattice x origin for this row
         float x_fraction;             // fractional part, in [0, 1)
-        float sy, dsy;                // y smoothstep weight and its derivative per texel
+        float sy;                     // y smoothstep weight
+        float facing_dy;              // facing_y times the derivative of the y smoothstep
         std::uint64_t row0, row1;     // lattice table offsets of the two lattice rows
+        const float* curve;           // s then q for each texel of a cell, or null: compute them
     };
     RowOctave rows[kMaxOctaves];
+    // The x smoothstep only depends on the position inside the cell, so for small cells it is
+    // tabulated once per row (octaves have distinct spacings, so 4 + 8 + ... + 256 < 512 texels).
+    alignas(16) float curves[2 * 2 * kCurveMaxSpacing];
+    float* next_curve = curves;
     for (int k = 0; k < octave_count_; ++k) {
         const Octave& o = octaves_[static_cast<std::size_t>(k)];
         const std::uint64_t v = y + o.y_origin;
@@ -270,100 +323,119 @@ void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const {
         const float ty = static_cast<float>(v & ((std::uint64_t(1) << o.shift) - 1)) * o.inv_spacing;
         RowOctave& r = rows[k];
         r.sy = ty * ty * (3.0f - 2.0f * ty);
-        r.dsy = 6.0f * ty * (1.0f - ty) * o.inv_spacing;
+        r.facing_dy = o.facing_y * (6.0f * ty * (1.0f - ty) * o.inv_spacing);
         r.row0 = splitmix64(o.seed ^ j);
         r.row1 = splitmix64(o.seed ^ (j + 1));
         const std::int64_t origin = o.x_origin16 + static_cast<std::int64_t>(y) * o.x_shear16;
         r.x_cell_origin = static_cast<std::uint64_t>(origin >> 16);
         r.x_fraction = static_cast<float>(origin & 0xffff) * (1.0f / 65536.0f);
+        r.curve = nullptr;
+        const std::uint64_t spacing = std::uint64_t(1) << o.shift;
+        if (spacing <= kCurveMaxSpacing) {
+            const V4 lane = V4{0.0f, 1.0f, 2.0f, 3.0f} + r.x_fraction;
+            for (std::uint64_t p = 0; p < spacing; p += 4) {
+                V4 s, q;
+                smoothstep(lane, p, o.inv_spacing, s, q);
+                store4(next_curve + p, s);
+                store4(next_curve + spacing + p, q);
+            }
+            r.curve = next_curve;
+            next_curve += 2 * spacing;
+        }
     }
 
     const float* lattice = lattice_.data();
     const RampEntry* ramp = ramp_.data();
 
     alignas(16) float height[kBuffer];
-    alignas(16) float grad_x[kBuffer];
-    alignas(16) float grad_y[kBuffer];
+    alignas(16) float facing[kShadeGroups][kBuffer];  // per shading group
     std::uint8_t texels[3 * kChunk + 1];
     for (std::uint64_t x0 = 0; x0 < size_; x0 += kChunk) {
         std::fill(std::begin(height), std::end(height), 0.0f);
-        std::fill(std::begin(grad_x), std::end(grad_x), 0.0f);
-        std::fill(std::begin(grad_y), std::end(grad_y), 0.0f);
+        for (auto& f : facing) std::fill(std::begin(f), std::end(f), 0.0f);
 
-        // fBm: add each octave's value and gradient into the buffers, four texels at a time.
+        // fBm: add each octave's height and facing into the buffers, four texels at a time.
         for (int k = 0; k < octave_count_; ++k) {
             const Octave& o = octaves_[static_cast<std::size_t>(k)];
             const RowOctave& r = rows[k];
+            float* const face = facing[o.group];
             const std::uint64_t spacing_mask = (std::uint64_t(1) << o.shift) - 1;
             // Lattice coordinate of texel x is (x + x_cell_origin + x_fraction) / spacing; groups of
             // four are aligned in that coordinate so a group never straddles two cells.
             const std::uint64_t u0 = x0 + r.x_cell_origin;
             const std::uint64_t u_end = u0 + kChunk;
-            std::uint64_t g = u0 & ~std::uint64_t(3);
-            std::size_t dst = kPad - static_cast<std::size_t>(u0 - g);
+            const std::uint64_t g0 = u0 & ~std::uint64_t(3);
             const V4 lane = V4{0.0f, 1.0f, 2.0f, 3.0f} + r.x_fraction;
-            const float inv = o.inv_spacing;
 
-            std::uint64_t cell = ~std::uint64_t(0);
-            float v10 = 0, v11 = 0;
-            V4 h0{}, h1{}, gx1{}, gy0{}, gy1{}, gyx{};
-            for (; g < u_end; g += 4, dst += 4) {
-                const std::uint64_t c = g >> o.shift;
-                if (c != cell) {
-                    // New lattice cell: blend its corners in y once, leaving a cubic in x.
-                    float v00, v01;
-                    if (c == cell + 1) {
-                        v00 = v10;
-                        v01 = v11;
-                    } else {
-                        v00 = lattice[(c + r.row0) & kLatticeMask];
-                        v01 = lattice[(c + r.row1) & kLatticeMask];
+            auto accumulate = [&](auto tabulated) {
+                std::size_t dst = kPad - (u0 - g0);  // u0 - g0 is 0..3
+                std::uint64_t cell = ~std::uint64_t(0);
+                float v10 = 0, v11 = 0;
+                V4 h0{}, h1{}, f0{}, f1{}, f2{};
+                for (std::uint64_t g = g0; g < u_end; g += 4, dst += 4) {
+                    const std::uint64_t c = g >> o.shift;
+                    if (c != cell) {
+                        // New lattice cell: blend its corners in y once, leaving a cubic in x.
+                        float v00, v01;
+                        if (c == cell + 1) {
+                            v00 = v10;
+                            v01 = v11;
+                        } else {
+                            v00 = lattice[(c + r.row0) & kLatticeMask];
+                            v01 = lattice[(c + r.row1) & kLatticeMask];
+                        }
+                        v10 = lattice[(c + 1 + r.row0) & kLatticeMask];
+                        v11 = lattice[(c + 1 + r.row1) & kLatticeMask];
+                        cell = c;
+                        const float a0 = v00 + (v01 - v00) * r.sy;  // value along the left edge
+                        const float a1 = v10 + (v11 - v10) * r.sy;  // ... and the right edge
+                        h0 = splat(o.weight * a0);
+                        h1 = splat(o.weight * (a1 - a0));
+                        f0 = splat(r.facing_dy * (v01 - v00));
+                        f1 = splat(r.facing_dy * ((v11 - v10) - (v01 - v00)));
+                        f2 = splat(o.facing_x * (a1 - a0));
                     }
-                    v10 = lattice[(c + 1 + r.row0) & kLatticeMask];
-                    v11 = lattice[(c + 1 + r.row1) & kLatticeMask];
-                    cell = c;
-                    const float a0 = v00 + (v01 - v00) * r.sy;  // value along the left edge
-                    const float a1 = v10 + (v11 - v10) * r.sy;  // ... and the right edge
-                    const float b0 = (v01 - v00) * r.dsy;       // d/dy along the left edge
-                    const float b1 = (v11 - v10) * r.dsy;
-                    const float w = o.weight;
-                    h0 = splat(w * a0);
-                    h1 = splat(w * (a1 - a0));
-                    const float gx = w * (a1 - a0) * 6.0f * inv;
-                    gx1 = splat(gx);
-                    gy0 = splat(w * b0);
-                    gy1 = splat(w * (b1 - b0));
-                    gyx = splat(gx * o.shear);  // the shear moves x with y: chain rule
+                    const std::uint64_t p = g & spacing_mask;
+                    V4 s, q;
+                    if constexpr (decltype(tabulated)::value) {
+                        s = load4(r.curve + p);
+                        q = load4(r.curve + spacing_mask + 1 + p);
+                    } else {
+                        smoothstep(lane, p, o.inv_spacing, s, q);
+                    }
+                    store4(height + dst, load4(height + dst) + (h0 + h1 * s));
+                    store4(face + dst, load4(face + dst) + ((f0 + f1 * s) + f2 * q));
                 }
-                const V4 t = (lane + static_cast<float>(g & spacing_mask)) * inv;
-                const V4 tt = t * t;
-                const V4 s = tt * (3.0f - 2.0f * t);  // smoothstep
-                const V4 q = t - tt;                  // smoothstep' / 6
-                store4(height + dst, load4(height + dst) + (h0 + h1 * s));
-                store4(grad_x + dst, load4(grad_x + dst) + gx1 * q);
-                store4(grad_y + dst, load4(grad_y + dst) + ((gy0 + gy1 * s) + gyx * q));
-            }
+            };
+            if (r.curve != nullptr)
+                accumulate(std::true_type{});
+            else
+                accumulate(std::false_type{});
         }
 
-        // Colour: ramp by height, hill shading from the gradient.
-        const std::uint64_t n = std::min<std::uint64_t>(kChunk, size_ - x0);
+        // Colour: ramp by height, hill shading from the facing sums.
         for (std::size_t i = 0; i < kChunk; i += 4) {
             const V4 h = load4(height + kPad + i);
-            const V4 gx = load4(grad_x + kPad + i) * relief_scale_;
-            const V4 gy = load4(grad_y + kPad + i) * relief_scale_;
             const V4 f = vclamp((h - kRampLow) * (kRampSize / (kRampHigh - kRampLow)), 0.0f, kRampSize - 1.0f);
             const V4i index = __builtin_convertvector(f, V4i);
-            const RampEntry* e[4] = {&ramp[index[0]], &ramp[index[1]], &ramp[index[2]], &ramp[index[3]]};
-            const V4 slope2 = gx * gx + gy * gy;
-            const V4 relief = V4{e[0]->relief, e[1]->relief, e[2]->relief, e[3]->relief};
-            const V4 red = V4{e[0]->r, e[1]->r, e[2]->r, e[3]->r};
-            const V4 green = V4{e[0]->g, e[1]->g, e[2]->g, e[3]->g};
-            const V4 blue = V4{e[0]->b, e[1]->b, e[2]->b, e[3]->b};
+            // Gather four ramp entries (one vector each) and transpose them into r, g, b, relief.
+            const V4 e0 = load4(&ramp[index[0]].r), e1 = load4(&ramp[index[1]].r);
+            const V4 e2 = load4(&ramp[index[2]].r), e3 = load4(&ramp[index[3]].r);
+            const V4 rg01 = __builtin_shufflevector(e0, e1, 0, 4, 1, 5);
+            const V4 rg23 = __builtin_shufflevector(e2, e3, 0, 4, 1, 5);
+            const V4 bl01 = __builtin_shufflevector(e0, e1, 2, 6, 3, 7);
+            const V4 bl23 = __builtin_shufflevector(e2, e3, 2, 6, 3, 7);
+            const V4 red = __builtin_shufflevector(rg01, rg23, 0, 1, 4, 5);
+            const V4 green = __builtin_shufflevector(rg01, rg23, 2, 3, 6, 7);
+            const V4 blue = __builtin_shufflevector(bl01, bl23, 0, 1, 4, 5);
+            const V4 relief = __builtin_shufflevector(bl01, bl23, 2, 3, 6, 7);
 
-            // Lambert with normal (-gx, -gy, 1), relative to flat ground (lz / |light|).
-            const V4 facing = vmax(kLightZ - gx * kLightX - gy * kLightY, splat(0.0f));
-            const V4 lambert = facing * rsqrt_at_least_1(1.0f + slope2) * (1.0f / kLightZ);
-            const V4 shade = 1.0f + relief * (lambert - 1.0f);
+            V4 light = splat(0.0f);
+            for (int group = 0; group < kShadeGroups; ++group)
+                light += soft_clip(load4(facing[group] + kPad + i)) * kGroupShare[group];
+            // light * (kHighlight if light > 0 else 1), without a select.
+            const V4 scaled = light * (0.5f * (1.0f + kHighlight)) - vabs(light) * (0.5f * (1.0f - kHighlight));
+            const V4 shade = 1.0f + relief * scaled;
             const V4i r8 = __builtin_convertvector(vclamp(red * shade + 0.5f, 0.0f, 255.0f), V4i);
             const V4i g8 = __builtin_convertvector(vclamp(green * shade + 0.5f, 0.0f, 255.0f), V4i);
             const V4i b8 = __builtin_convertvector(vclamp(blue * shade + 0.5f, 0.0f, 255.0f), V4i);
@@ -374,7 +446,7 @@ void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const {
                 std::memcpy(texels + 3 * (i + static_cast<std::size_t>(l)), &word, 4);
             }
         }
-        std::memcpy(out + 3 * x0, texels, 3 * n);
+        std::memcpy(out + 3 * x0, texels, 3 * std::min<std::uint64_t>(kChunk, size_ - x0));
     }
 
     draw_grid(y, out);

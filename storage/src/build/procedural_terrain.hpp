@@ -27,19 +27,21 @@ private:
     // One fBm octave: value noise on a lattice of spacing 2^shift texels, sheared along x.
     struct Octave {
         std::uint32_t shift = 0;       // log2 of the lattice spacing in texels (>= 2)
+        std::uint32_t group = 0;       // shading group (see the .cpp)
         float inv_spacing = 0;         // 2^-shift
         float weight = 0;              // amplitude; the weights sum to 1
+        float facing_x = 0;            // "facing the light" per unit of x slope coefficient
+        float facing_y = 0;            // ... and per unit of d(value)/dy
         std::int64_t x_origin16 = 0;   // x offset of the lattice, in 1/65536 texels (positive)
         std::int64_t x_shear16 = 0;    // extra x offset per row, in 1/65536 texels
-        float shear = 0;               // x_shear16 / 65536
         std::uint64_t y_origin = 0;    // y offset of the lattice, in texels
         std::uint64_t seed = 0;        // picks the lattice values of each lattice row
     };
 
-    // Colour ramp entry, indexed by height.
-    struct RampEntry {
+    // Colour ramp entry, indexed by height; 16 bytes so that one entry loads as one vector.
+    struct alignas(16) RampEntry {
         float r, g, b;  // sRGB, 0..255
-        float relief;  // how strongly hill shading applies (weak under water)
+        float relief;   // how strongly hill shading applies (weak under water)
     };
 
     void draw_grid(std::uint64_t y, std::uint8_t* out) const;
@@ -47,7 +49,6 @@ private:
     std::uint64_t size_;
     int octave_count_ = 0;
     std::array<Octave, kMaxOctaves> octaves_{};
-    float relief_scale_ = 0;      // turns the normalised height gradient into a slope per texel
     std::vector<float> lattice_;  // random lattice values in [-1, 1), indexed modulo its size
     std::vector<RampEntry> ramp_;
 };

@@ -37,6 +37,11 @@ public:
 // "procedural:terrain:SIZE" or a path to an image file. Errors name the input.
 Result<std::unique_ptr<ImageSource>> open_image_source(const std::string& spec);
 
+// Writes `source` to an image file whose format follows the extension (.tif, .png, .exr ...),
+// strip by strip, through OpenImageIO. `progress` gets the rows written so far.
+Status write_image(const std::string& path, ImageSource& source, const ParallelFor& parallel,
+                   const std::function<void(std::uint32_t rows_done)>& progress = {});
+
 // The largest procedural size (texels per side).
 inline constexpr std::uint64_t kMaxProceduralSize = std::uint64_t(1) << 24;
 
