@@ -104,7 +104,8 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path) {
     }();
     (void)handlers_set;
     tiff_error_text.clear();
-    TIFF* tif = TIFFOpen(path.c_str(), "r");
+    // "m": no memory mapping; mapped pages of a huge file would count as our resident memory.
+    TIFF* tif = TIFFOpen(path.c_str(), "rm");
     if (!tif) return make_error(Errc::corrupt, "cannot read '" + path + "' as TIFF: " + tiff_error_text);
     std::uint32_t w = 0, h = 0;
     std::uint16_t spp = 1, bps = 1, fmt = SAMPLEFORMAT_UINT, planar = PLANARCONFIG_CONTIG, photo = 0;
