@@ -421,18 +421,18 @@ TEST(Builder, ImageFileInputsMatchTheInMemoryBuild) {
     expect_exact(b);
 }
 
-// A 16384^2 RGB source is 768 MiB; the streaming builder must stay far below that.
+// A 16384^2 RGB source is 768 MiB; the streaming builder (the real `tessera` binary) must stay
+// far below that. Under AddressSanitizer resident memory means something else: the build still
+// runs, the bound is not checked.
 TEST(Builder, MemoryStaysBoundedOnALargeSource) {
     ScratchDir d;
+    const std::string out = d.file("big.tsr");
     const pid_t pid = ::fork();
     ASSERT_GE(pid, 0);
     if (pid == 0) {
-        BuildOptions o;
-        o.codec = Codec::zstd;
-        o.zstd_level = 1;
-        o.threads = 2;
-        auto r = build_store("procedural:terrain:16384", d.file("big.tsr"), o);
-        ::_exit(r.ok() ? 0 : 3);
+        ::execl(TESSERA_BINARY, "tessera", "build", "procedural:terrain:16384", "-o", out.c_str(), "--codec", "zstd",
+                "--zstd-level", "1", "--threads", "2", "--quiet", static_cast<char*>(nullptr));
+        ::_exit(127);
     }
     int status = 0;
     struct rusage ru {};
@@ -440,6 +440,11 @@ TEST(Builder, MemoryStaysBoundedOnALargeSource) {
     ASSERT_TRUE(WIFEXITED(status));
     ASSERT_EQ(WEXITSTATUS(status), 0);
     const double peak_mib = double(ru.ru_maxrss) / 1024.0;
-    std::printf("peak RSS building 16384^2: %.0f MiB\n", peak_mib);
-    EXPECT_LT(peak_mib, 400.0);
+    std::printf("peak RSS building 16384^2: %.0f MiB (the source is 768 MiB)\n", peak_mib);
+#if !defined(__SANITIZE_ADDRESS__)
+    EXPECT_LT(peak_mib, 160.0);
+#endif
+    auto r = StoreReader::open(out);
+    ASSERT_TRUE(r.ok());
+    EXPECT_EQ((*r)->info().width, 16384u);
 }

@@ -57,7 +57,7 @@ Command add_demo(CLI::App& app) {
         if (!rep.ok()) throw Failure(fmt::format("{} failed verification: {}", store, rep.problems.front()));
         fmt::print("verify     OK: {} tiles, {} payloads, {} checked\n", rep.tiles_checked, rep.payloads_checked,
                    human_bytes(rep.bytes_checked));
-        fmt::print("\nnext: tessera inspect {0} --json | tessera verify {0}\n", store);
+        fmt::print("\nmore: tessera inspect {0} --json    tessera verify --decode {0}\n", store);
         return 0;
     };
 }

@@ -24,6 +24,8 @@ Command add_source(CLI::App& app) {
         ->required();
     c->add_flag("-q,--quiet", a->quiet, "No progress bar");
     return [a]() -> int {
+        ProgressBar bar("source", !a->quiet);
+        StderrCapture library_messages;  // libpng prints its own copy of errors we report (see cmd_build.cpp)
         auto src = storage::open_image_source(a->spec);
         if (!src) throw Failure(src.error().message);
         const storage::SourceInfo& si = (*src)->info();
@@ -39,16 +41,17 @@ Command add_source(CLI::App& app) {
             for (std::size_t b = 0; b < n; b += per) ts.emplace_back([&fn, b, e = std::min(n, b + per)] { fn(b, e); });
             for (auto& t : ts) t.join();
         };
-        ProgressBar bar("source", !a->quiet);
         const Status st = storage::write_image(tmp.string(), **src, parallel, [&](std::uint32_t rows) {
             bar.update(double(rows) / si.height, fmt::format("rows {}/{}", rows, si.height));
         });
         bar.finish();
+        const std::string messages = library_messages.release();
         if (!st) {
             std::error_code ec;
             fs::remove(tmp, ec);
             throw Failure(st.error().message);
         }
+        std::fputs(messages.c_str(), stderr);
         std::error_code ec;
         fs::rename(tmp, out, ec);
         if (ec) {

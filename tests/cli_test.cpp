@@ -1,0 +1,632 @@
+// The `tessera` binary on bad input (one clear error line, non-zero exit, nothing left behind) and
+// its inspect and verify commands (the level table, JSON totals, every corrupted byte detected).
+#include <OpenImageIO/imageio.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tessera/storage/store_reader.hpp"
+#include "tessera/storage/verify.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+using tessera::test::read_file;
+using tessera::test::run_tessera;
+using tessera::test::RunResult;
+using tessera::test::ScratchDir;
+using tessera::test::write_file;
+namespace storage = tessera::storage;
+
+// Single-quoted for the shell.
+std::string q(const std::string& s) {
+    std::string out = "'";
+    for (char c : s) {
+        if (c == '\'') out += "'\\''";
+        else out += c;
+    }
+    return out + "'";
+}
+
+std::set<std::string> entries(const ScratchDir& dir) {
+    const auto v = dir.entries();
+    return {v.begin(), v.end()};
+}
+
+std::size_t line_count(const std::string& s) { return static_cast<std::size_t>(std::count(s.begin(), s.end(), '\n')); }
+
+// A failed command: non-zero exit (not a crash), exactly one line "tessera: error: ...".
+void expect_one_line_error(const RunResult& r) {
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_LT(r.exit_code, 128) << "killed by a signal:\n" << r.out;
+    EXPECT_EQ(r.out.rfind("tessera: error: ", 0), 0u) << r.out;
+    EXPECT_EQ(line_count(r.out), 1u) << r.out;
+    EXPECT_FALSE(r.out.empty() || r.out.back() != '\n') << r.out;
+    EXPECT_GT(r.out.size(), std::string("tessera: error: \n").size() + 5) << "an error that says nothing: " << r.out;
+}
+
+// `tessera build ARGS` must fail cleanly and leave exactly `keep` in the scratch directory.
+RunResult expect_build_fails(const ScratchDir& dir, const std::string& args, const std::set<std::string>& keep) {
+    RunResult r = run_tessera("build " + args);
+    expect_one_line_error(r);
+    EXPECT_EQ(entries(dir), keep) << "left behind after: tessera build " << args << "\n" << r.out;
+    return r;
+}
+
+// An image written through OpenImageIO: a deterministic pattern, optionally noisy (so it does not
+// compress and its pixel data dominates the file).
+void write_image(const std::string& path, int w, int h, int channels, OIIO::TypeDesc type, bool noisy = false,
+                 bool uncompressed = false) {
+    auto out = OIIO::ImageOutput::create(path);
+    ASSERT_TRUE(out) << OIIO::geterror();
+    OIIO::ImageSpec spec(w, h, channels, type);
+    if (uncompressed) spec.attribute("compression", "none");
+    std::vector<float> px(std::size_t(w) * h * channels);
+    std::mt19937 rng(42);
+    std::uniform_real_distribution<float> noise(0.0f, 1.0f);
+    for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+            for (int c = 0; c < channels; ++c)
+                px[(std::size_t(y) * w + x) * channels + c] =
+                    noisy ? noise(rng) : float(((x / 8) ^ (y / 8) ^ c) & 1) * 0.8f + 0.1f;
+    ASSERT_TRUE(out->open(path, spec)) << out->geterror();
+    ASSERT_TRUE(out->write_image(OIIO::TypeDesc::FLOAT, px.data())) << out->geterror();
+    ASSERT_TRUE(out->close()) << out->geterror();
+}
+
+void truncate_file(const std::string& path, std::size_t keep) {
+    auto bytes = read_file(path);
+    ASSERT_GT(bytes.size(), keep);
+    bytes.resize(keep);
+    write_file(path, bytes);
+}
+
+std::uint32_t crc32(const std::uint8_t* p, std::size_t n) {
+    std::uint32_t c = 0xffffffffu;
+    for (std::size_t i = 0; i < n; ++i) {
+        c ^= p[i];
+        for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xedb88320u & (0u - (c & 1u)));
+    }
+    return ~c;
+}
+
+void put_be32(std::vector<std::uint8_t>& b, std::size_t off, std::uint32_t v) {
+    for (int i = 0; i < 4; ++i) b[off + i] = static_cast<std::uint8_t>(v >> (24 - 8 * i));
+}
+
+// A valid PNG whose IHDR (checksum fixed up) claims width x height.
+void write_png_claiming(const std::string& path, std::uint32_t width, std::uint32_t height) {
+    write_image(path, 16, 16, 3, OIIO::TypeDesc::UINT8);
+    auto b = read_file(path);
+    ASSERT_GT(b.size(), 33u);
+    ASSERT_EQ(std::string(b.begin() + 12, b.begin() + 16), "IHDR");
+    put_be32(b, 16, width);
+    put_be32(b, 20, height);
+    put_be32(b, 29, crc32(b.data() + 12, 17));
+    write_file(path, b);
+}
+
+// ---- build: bad inputs ----------------------------------------------------------------------------
+
+TEST(CliBuildInput, MissingFile) {
+    ScratchDir d;
+    const auto r = expect_build_fails(d, q(d.file("nosuch.png")) + " -o " + q(d.file("out.tsr")), {});
+    EXPECT_NE(r.out.find("nosuch.png"), std::string::npos) << "the error should name the input: " << r.out;
+}
+
+TEST(CliBuildInput, DirectoryAsInput) {
+    ScratchDir d;
+    fs::create_directory(d.file("images"));
+    expect_build_fails(d, q(d.file("images")) + " -o " + q(d.file("out.tsr")), {"images"});
+    EXPECT_TRUE(fs::is_empty(d.file("images")));
+}
+
+TEST(CliBuildInput, TruncatedPng) {
+    // Cut inside the pixel data (noisy image: IDAT is most of the file) and inside the header chunks.
+    for (const bool in_header : {false, true}) {
+        SCOPED_TRACE(in_header ? "cut in the header" : "cut in the pixel data");
+        ScratchDir d;
+        write_image(d.file("in.png"), 128, 128, 3, OIIO::TypeDesc::UINT8, /*noisy=*/true);
+        const std::size_t size = fs::file_size(d.file("in.png"));
+        truncate_file(d.file("in.png"), in_header ? 60 : size / 2);
+        expect_build_fails(d, q(d.file("in.png")) + " -o " + q(d.file("out.tsr")), {"in.png"});
+    }
+}
+
+TEST(CliBuildInput, TruncatedUncompressedTiff) {
+    ScratchDir d;
+    write_image(d.file("in.tif"), 128, 128, 3, OIIO::TypeDesc::UINT8, /*noisy=*/true, /*uncompressed=*/true);
+    truncate_file(d.file("in.tif"), fs::file_size(d.file("in.tif")) / 2);
+    expect_build_fails(d, q(d.file("in.tif")) + " -o " + q(d.file("out.tsr")), {"in.tif"});
+}
+
+TEST(CliBuildInput, CorruptJpegBody) {
+    ScratchDir d;
+    write_image(d.file("in.jpg"), 128, 128, 3, OIIO::TypeDesc::UINT8, /*noisy=*/true);
+    auto b = read_file(d.file("in.jpg"));
+    // Keep everything up to and including the start-of-scan segment; the entropy-coded body
+    // becomes garbage, then the end-of-image marker.
+    std::size_t sos = 0;
+    for (std::size_t i = 2; i + 3 < b.size(); ++i)
+        if (b[i] == 0xff && b[i + 1] == 0xda) {
+            sos = i;
+            break;
+        }
+    ASSERT_GT(sos, 0u) << "no SOS marker";
+    const std::size_t body = sos + 2 + (std::size_t(b[sos + 2]) << 8 | b[sos + 3]);
+    ASSERT_LT(body + 100, b.size());
+    std::mt19937 rng(7);
+    for (std::size_t i = body; i + 2 < b.size(); ++i) b[i] = static_cast<std::uint8_t>(rng());
+    b[b.size() - 2] = 0xff;
+    b[b.size() - 1] = 0xd9;
+    write_file(d.file("in.jpg"), b);
+    expect_build_fails(d, q(d.file("in.jpg")) + " -o " + q(d.file("out.tsr")), {"in.jpg"});
+}
+
+TEST(CliBuildInput, TextFileWithPngExtension) {
+    ScratchDir d;
+    const std::string text = "this is not a PNG file\nreally not\n";
+    write_file(d.file("in.png"), std::vector<std::uint8_t>(text.begin(), text.end()));
+    expect_build_fails(d, q(d.file("in.png")) + " -o " + q(d.file("out.tsr")), {"in.png"});
+}
+
+TEST(CliBuildInput, EmptyFile) {
+    ScratchDir d;
+    write_file(d.file("in.tif"), {});
+    expect_build_fails(d, q(d.file("in.tif")) + " -o " + q(d.file("out.tsr")), {"in.tif"});
+}
+
+TEST(CliBuildInput, UnsupportedChannelCount) {
+    ScratchDir d;
+    write_image(d.file("five.tif"), 32, 32, 5, OIIO::TypeDesc::UINT8);
+    write_image(d.file("six.exr"), 32, 32, 6, OIIO::TypeDesc::HALF);
+    const auto r = expect_build_fails(d, q(d.file("five.tif")) + " -o " + q(d.file("out.tsr")), {"five.tif", "six.exr"});
+    EXPECT_NE(r.out.find("5 channels"), std::string::npos) << r.out;
+    expect_build_fails(d, q(d.file("six.exr")) + " -o " + q(d.file("out.tsr")), {"five.tif", "six.exr"});
+}
+
+TEST(CliBuildInput, ImageHeaderWithZeroOrAbsurdSize) {
+    ScratchDir d;
+    write_png_claiming(d.file("zero.png"), 0, 16);
+    write_png_claiming(d.file("huge.png"), 0x7fffffffu, 0x7fffffffu);
+    const std::set<std::string> inputs = {"zero.png", "huge.png"};
+    expect_build_fails(d, q(d.file("zero.png")) + " -o " + q(d.file("out.tsr")), inputs);
+    expect_build_fails(d, q(d.file("huge.png")) + " -o " + q(d.file("out.tsr")), inputs);
+}
+
+TEST(CliBuildInput, BadProceduralSpecs) {
+    ScratchDir d;
+    for (const char* spec : {"procedural:terrain:0", "procedural:terrain:99999999999", "procedural:terrain:abc",
+                             "procedural:terrain:", "procedural:terrain:-5", "procedural:nosuch:64", "procedural:"}) {
+        SCOPED_TRACE(spec);
+        expect_build_fails(d, q(spec) + " -o " + q(d.file("out.tsr")), {});
+    }
+}
+
+// ---- build: outputs that cannot be written -------------------------------------------------------------
+
+TEST(CliBuildOutput, DirectoryDoesNotExist) {
+    ScratchDir d;
+    expect_build_fails(d, "procedural:terrain:64 -o " + q(d.file("nosuch/out.tsr")), {});
+}
+
+TEST(CliBuildOutput, OutputIsAnExistingDirectory) {
+    ScratchDir d;
+    fs::create_directory(d.file("out.tsr"));
+    expect_build_fails(d, "procedural:terrain:64 -o " + q(d.file("out.tsr")), {"out.tsr"});
+    EXPECT_TRUE(fs::is_directory(d.file("out.tsr")));
+    EXPECT_TRUE(fs::is_empty(d.file("out.tsr")));
+}
+
+TEST(CliBuildOutput, ParentIsARegularFile) {
+    ScratchDir d;
+    write_file(d.file("file"), {1, 2, 3});
+    expect_build_fails(d, "procedural:terrain:64 -o " + q(d.file("file/out.tsr")), {"file"});
+    EXPECT_EQ(read_file(d.file("file")), (std::vector<std::uint8_t>{1, 2, 3}));
+}
+
+TEST(CliBuildOutput, EmptyOutputPath) {
+    ScratchDir d;
+    expect_build_fails(d, "procedural:terrain:64 -o ''", {});
+}
+
+TEST(CliBuildOutput, ExistingFileUntouchedWhenBuildFails) {
+    ScratchDir d;
+    const std::string text = "an older store, to be kept when a build fails\n";
+    const std::vector<std::uint8_t> old(text.begin(), text.end());
+    write_image(d.file("in.tif"), 128, 128, 3, OIIO::TypeDesc::UINT8, /*noisy=*/true, /*uncompressed=*/true);
+    truncate_file(d.file("in.tif"), fs::file_size(d.file("in.tif")) / 2);
+    write_file(d.file("out.tsr"), old);
+    const std::set<std::string> keep = {"in.tif", "out.tsr"};
+    // Failing before any input is read, on opening the input, and in the middle of reading it.
+    for (const std::string& args : {std::string("procedural:terrain:64 --tile-size 100"), q(d.file("nosuch.png")),
+                                    std::string("procedural:terrain:0"), q(d.file("in.tif"))}) {
+        SCOPED_TRACE(args);
+        expect_build_fails(d, args + " -o " + q(d.file("out.tsr")), keep);
+        EXPECT_EQ(read_file(d.file("out.tsr")), old);
+    }
+}
+
+// ---- build: invalid flags ----------------------------------------------------------------------------
+
+TEST(CliBuildFlags, InvalidValues) {
+    ScratchDir d;
+    const std::string out = " -o " + q(d.file("out.tsr"));
+    for (const char* flags : {"--tile-size 100", "--tile-size 32", "--tile-size 2048", "--tile-size 0", "--tile-size abc",
+                              "--tile-size -256", "--tile-size 99999999999", "--border 3", "--border 200",
+                              "--tile-size 256 --border 200", "--tile-size 64 --border 18", "--border -2", "--quality 0",
+                              "--quality 101", "--quality x", "--codec foo", "--codec", "--chroma 422", "--threads -1",
+                              "--threads 100000", "--zstd-level 0", "--zstd-level 20", "--colour-space cmyk",
+                              "--nosuch-flag", "-z", "--sparse=maybe"}) {
+        SCOPED_TRACE(flags);
+        expect_build_fails(d, std::string("procedural:terrain:64 ") + flags + out, {});
+    }
+}
+
+TEST(CliBuildFlags, MissingArguments) {
+    ScratchDir d;
+    expect_build_fails(d, "", {});
+    expect_build_fails(d, "procedural:terrain:64", {});
+    expect_build_fails(d, "-o " + q(d.file("out.tsr")), {});
+    expect_build_fails(d, "procedural:terrain:64 extra-positional -o " + q(d.file("out.tsr")), {});
+}
+
+TEST(CliBuildFlags, JpegNeedsEightBitGreyOrRgb) {
+    ScratchDir d;
+    write_image(d.file("rgb16.png"), 64, 64, 3, OIIO::TypeDesc::UINT16);
+    write_image(d.file("rgba.png"), 64, 64, 4, OIIO::TypeDesc::UINT8);
+    write_image(d.file("grey_alpha.png"), 64, 64, 2, OIIO::TypeDesc::UINT8);
+    write_image(d.file("float.exr"), 64, 64, 3, OIIO::TypeDesc::HALF);
+    const std::set<std::string> inputs = {"rgb16.png", "rgba.png", "grey_alpha.png", "float.exr"};
+    for (const auto& in : inputs) {
+        SCOPED_TRACE(in);
+        expect_build_fails(d, q(d.file(in)) + " --codec jpeg -o " + q(d.file("out.tsr")), inputs);
+    }
+}
+
+TEST(CliBuildFlags, SparseNeedsAlpha) {
+    ScratchDir d;
+    write_image(d.file("rgb.png"), 64, 64, 3, OIIO::TypeDesc::UINT8);
+    expect_build_fails(d, "procedural:terrain:64 --sparse -o " + q(d.file("out.tsr")), {"rgb.png"});
+    expect_build_fails(d, q(d.file("rgb.png")) + " --sparse -o " + q(d.file("out.tsr")), {"rgb.png"});
+}
+
+// The same sources and flags that fail above succeed when they are valid: the failures are about
+// the values, not about the test setup.
+TEST(CliBuildFlags, ValidControlCases) {
+    ScratchDir d;
+    write_image(d.file("rgba.png"), 64, 64, 4, OIIO::TypeDesc::UINT8);
+    for (const std::string& args :
+         {std::string("procedural:terrain:64 --tile-size 64 --border 16 --quality 1 --chroma 420 --threads 1"),
+          std::string("procedural:terrain:64 --tile-size 1024 --border 0 --codec raw --zstd-level 19"),
+          q(d.file("rgba.png")) + " --sparse --codec zstd"}) {
+        SCOPED_TRACE(args);
+        const RunResult r = run_tessera("build -q " + args + " -o " + q(d.file("out.tsr")));
+        EXPECT_EQ(r.exit_code, 0) << r.out;
+        EXPECT_EQ(r.out, "");
+        EXPECT_EQ(entries(d), (std::set<std::string>{"rgba.png", "out.tsr"}));
+        fs::remove(d.file("out.tsr"));
+    }
+}
+
+// ---- inspect ---------------------------------------------------------------------------------------
+
+// The small store the inspect and verify tests share: 600 x 600 terrain, 64-texel tiles, zstd.
+std::string build_small_store(const ScratchDir& d, const std::string& codec = "zstd") {
+    const std::string path = d.file("terrain-" + codec + ".tsr");
+    const RunResult r = run_tessera("build -q procedural:terrain:600 --tile-size 64 --codec " + codec + " -o " + q(path));
+    EXPECT_EQ(r.exit_code, 0) << r.out;
+    return path;
+}
+
+TEST(CliInspect, PrintsHeaderAndLevelTable) {
+    ScratchDir d;
+    const std::string store = build_small_store(d);
+    auto reader = storage::StoreReader::open(store);
+    ASSERT_TRUE(reader) << reader.error().message;
+    const storage::StoreInfo& info = (*reader)->info();
+    ASSERT_EQ(info.level_count(), 5u);
+
+    const RunResult r = run_tessera("inspect " + q(store));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_NE(r.out.find("600 x 600"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("codec zstd"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("5 levels"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("bits/texel"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("compression"), std::string::npos) << r.out;
+    // One row per level: index, texels, tiles, present, uniform, absent, dedup.
+    std::istringstream lines(r.out);
+    std::string line;
+    std::map<std::uint32_t, std::string> rows;
+    std::uint64_t total_tiles = 0;
+    while (std::getline(lines, line)) {
+        std::istringstream f(line);
+        std::string first;
+        f >> first;
+        if (first.empty() || first.find_first_not_of("0123456789") != std::string::npos) continue;
+        rows[static_cast<std::uint32_t>(std::stoul(first))] = line;
+    }
+    ASSERT_EQ(rows.size(), info.level_count()) << r.out;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l) {
+        const auto& L = info.levels[l];
+        std::istringstream f(rows[l]);
+        std::string idx, texels, tiles;
+        std::uint64_t present = 0, uniform = 0, absent = 0, dedup = 0;
+        f >> idx >> texels >> tiles >> present >> uniform >> absent >> dedup;
+        EXPECT_EQ(texels, std::to_string(L.width) + "x" + std::to_string(L.height)) << rows[l];
+        EXPECT_EQ(tiles, std::to_string(L.tiles_x) + "x" + std::to_string(L.tiles_y)) << rows[l];
+        EXPECT_EQ(present, L.present);
+        EXPECT_EQ(uniform, L.uniform);
+        EXPECT_EQ(absent, L.absent);
+        EXPECT_EQ(dedup, L.deduplicated);
+        EXPECT_EQ(present + uniform + absent, std::uint64_t(L.tiles_x) * L.tiles_y);
+        total_tiles += std::uint64_t(L.tiles_x) * L.tiles_y;
+    }
+    EXPECT_EQ(total_tiles, 121u + 36u + 9u + 4u + 1u);
+}
+
+TEST(CliInspect, JsonParsesAndAddsUp) {
+    ScratchDir d;
+    const std::string store = build_small_store(d);
+    const RunResult r = run_tessera("inspect --json " + q(store));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    nlohmann::json j;
+    ASSERT_NO_THROW(j = nlohmann::json::parse(r.out)) << r.out;
+    EXPECT_EQ(j.at("width"), 600);
+    EXPECT_EQ(j.at("height"), 600);
+    EXPECT_EQ(j.at("codec"), "zstd");
+    EXPECT_EQ(j.at("tile_size"), 64);
+    EXPECT_EQ(j.at("tile_payload").get<int>() + 2 * j.at("border").get<int>(), 64);
+    EXPECT_EQ(j.at("format_version"), "1.0");
+    EXPECT_EQ(j.at("file_bytes").get<std::uint64_t>(), fs::file_size(store));
+    const auto& levels = j.at("levels");
+    ASSERT_TRUE(levels.is_array());
+    EXPECT_EQ(j.at("level_count").get<std::size_t>(), levels.size());
+    EXPECT_EQ(levels.size(), 5u);
+    std::uint64_t tiles = 0, present = 0, uniform = 0, absent = 0, dedup = 0, payload = 0, raw = 0, texels = 0;
+    for (std::size_t i = 0; i < levels.size(); ++i) {
+        const auto& l = levels[i];
+        EXPECT_EQ(l.at("level").get<std::size_t>(), i);
+        const std::uint64_t n = l.at("tiles_x").get<std::uint64_t>() * l.at("tiles_y").get<std::uint64_t>();
+        EXPECT_EQ(l.at("present").get<std::uint64_t>() + l.at("uniform").get<std::uint64_t>() + l.at("absent").get<std::uint64_t>(), n)
+            << l.dump();
+        EXPECT_LE(l.at("deduplicated").get<std::uint64_t>(), l.at("present").get<std::uint64_t>());
+        const std::uint64_t t = l.at("width").get<std::uint64_t>() * l.at("height").get<std::uint64_t>();
+        EXPECT_NEAR(l.at("bits_per_texel").get<double>(), 8.0 * l.at("payload_bytes").get<double>() / double(t), 1e-6);
+        tiles += n;
+        present += l.at("present").get<std::uint64_t>();
+        uniform += l.at("uniform").get<std::uint64_t>();
+        absent += l.at("absent").get<std::uint64_t>();
+        dedup += l.at("deduplicated").get<std::uint64_t>();
+        payload += l.at("payload_bytes").get<std::uint64_t>();
+        texels += t;
+        raw += t * 3;
+    }
+    const auto& t = j.at("totals");
+    EXPECT_EQ(t.at("tiles").get<std::uint64_t>(), tiles);
+    EXPECT_EQ(t.at("present").get<std::uint64_t>(), present);
+    EXPECT_EQ(t.at("uniform").get<std::uint64_t>(), uniform);
+    EXPECT_EQ(t.at("absent").get<std::uint64_t>(), absent);
+    EXPECT_EQ(t.at("deduplicated").get<std::uint64_t>(), dedup);
+    EXPECT_EQ(present + uniform + absent, tiles);
+    EXPECT_EQ(tiles, 171u);
+    EXPECT_EQ(t.at("payload_bytes").get<std::uint64_t>(), payload);
+    EXPECT_LT(payload, j.at("file_bytes").get<std::uint64_t>());
+    EXPECT_EQ(t.at("raw_bytes").get<std::uint64_t>(), raw);
+    EXPECT_NEAR(t.at("bits_per_texel").get<double>(), 8.0 * double(payload) / double(texels), 1e-6);
+    const double ratio = t.at("compression_ratio").get<double>();
+    EXPECT_NEAR(ratio, double(raw) / double(j.at("file_bytes").get<std::uint64_t>()), 1e-9);
+    EXPECT_GT(ratio, 0.0);
+}
+
+// zstd barely compresses the noisy terrain at 64-texel tiles (each tile also stores its borders,
+// and the index is a fixed 96 KiB per level here), so the > 1 ratio is checked on JPEG.
+TEST(CliInspect, JpegCompressionRatioAboveOne) {
+    ScratchDir d;
+    const std::string store = build_small_store(d, "jpeg");
+    const RunResult r = run_tessera("inspect --json " + q(store));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    nlohmann::json j;
+    ASSERT_NO_THROW(j = nlohmann::json::parse(r.out)) << r.out;
+    EXPECT_EQ(j.at("codec"), "jpeg");
+    EXPECT_GT(j.at("totals").at("compression_ratio").get<double>(), 1.0) << j.dump(2);
+    EXPECT_LT(j.at("totals").at("bits_per_texel").get<double>(), 24.0) << j.dump(2);
+}
+
+// ---- inspect and verify on files that are not sound stores ------------------------------------------
+
+struct BadStore {
+    std::string name;
+    std::string expect;  // a fragment of the message
+};
+
+std::vector<BadStore> make_bad_stores(const ScratchDir& d) {
+    const std::string good = build_small_store(d);
+    const auto bytes = read_file(good);
+    fs::remove(good);
+    auto cut = [&](const std::string& name, std::size_t n) {
+        write_file(d.file(name), std::vector<std::uint8_t>(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(n)));
+    };
+    cut("half.tsr", bytes.size() / 2);
+    cut("header-only.tsr", 100);
+    cut("one-short.tsr", bytes.size() - 1);
+    write_file(d.file("zero.tsr"), {});
+    const std::string text = "hello, I am a text file pretending to be a store. ";
+    std::vector<std::uint8_t> t;
+    while (t.size() < 4096) t.insert(t.end(), text.begin(), text.end());
+    write_file(d.file("text.tsr"), t);
+    write_image(d.file("image.png"), 64, 64, 3, OIIO::TypeDesc::UINT8);
+    fs::rename(d.file("image.png"), d.file("image.tsr"));
+    fs::create_directory(d.file("dir.tsr"));
+    return {{"missing.tsr", "missing.tsr"}, {"half.tsr", "truncated"},   {"header-only.tsr", "too small"},
+            {"one-short.tsr", "truncated"}, {"zero.tsr", "too small"},   {"text.tsr", "not a Tessera store"},
+            {"image.tsr", "not a Tessera store"}, {"dir.tsr", "not a regular file"}};
+}
+
+TEST(CliInspect, BadStoreFiles) {
+    ScratchDir d;
+    for (const auto& bad : make_bad_stores(d)) {
+        for (const char* cmd : {"inspect ", "inspect --json "}) {
+            SCOPED_TRACE(cmd + bad.name);
+            const RunResult r = run_tessera(cmd + q(d.file(bad.name)));
+            expect_one_line_error(r);
+            EXPECT_NE(r.out.find(bad.expect), std::string::npos) << r.out;
+        }
+    }
+}
+
+TEST(CliVerify, BadStoreFiles) {
+    ScratchDir d;
+    for (const auto& bad : make_bad_stores(d)) {
+        SCOPED_TRACE(bad.name);
+        const RunResult r = run_tessera("verify " + q(d.file(bad.name)));
+        EXPECT_NE(r.exit_code, 0) << r.out;
+        EXPECT_LT(r.exit_code, 128) << r.out;
+        EXPECT_NE(r.out.find("FAILED"), std::string::npos) << r.out;
+        EXPECT_NE(r.out.find(bad.expect), std::string::npos) << r.out;
+        const RunResult rq = run_tessera("verify -q " + q(d.file(bad.name)));
+        EXPECT_EQ(rq.exit_code, r.exit_code);
+    }
+}
+
+// ---- verify --------------------------------------------------------------------------------------
+
+// Which tiles' payloads cover each byte of the data section, from the reader's own index.
+struct PayloadMap {
+    struct Span {
+        std::uint64_t begin = 0, end = 0;
+        std::vector<storage::TileKey> keys;  // more than one when deduplicated
+    };
+    std::vector<Span> spans;  // sorted by begin
+    std::uint64_t data_begin = UINT64_MAX;
+
+    const Span* find(std::uint64_t off) const {
+        auto it = std::upper_bound(spans.begin(), spans.end(), off, [](std::uint64_t o, const Span& s) { return o < s.begin; });
+        if (it == spans.begin()) return nullptr;
+        --it;
+        return off < it->end ? &*it : nullptr;
+    }
+};
+
+PayloadMap map_payloads(const std::string& store) {
+    PayloadMap m;
+    auto reader = storage::StoreReader::open(store);
+    EXPECT_TRUE(reader) << reader.error().message;
+    if (!reader) return m;
+    const storage::StoreInfo& info = (*reader)->info();
+    std::map<std::uint64_t, PayloadMap::Span> by_offset;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                auto loc = (*reader)->locate({l, x, y});
+                EXPECT_TRUE(loc) << loc.error().message;
+                if (!loc || loc->kind != storage::TileKind::present) continue;
+                auto& s = by_offset[loc->offset];
+                s.begin = loc->offset;
+                s.end = loc->offset + loc->length;
+                s.keys.push_back({l, x, y});
+            }
+    for (auto& [off, s] : by_offset) {
+        m.data_begin = std::min(m.data_begin, off);
+        m.spans.push_back(std::move(s));
+    }
+    return m;
+}
+
+std::string tile_name(const storage::TileKey& k) {
+    return "level " + std::to_string(k.level) + " tile (" + std::to_string(k.x) + "," + std::to_string(k.y) + ")";
+}
+
+TEST(CliVerify, SoundStorePasses) {
+    ScratchDir d;
+    for (const char* codec : {"zstd", "jpeg"}) {
+        SCOPED_TRACE(codec);
+        const std::string store = build_small_store(d, codec);
+        for (const char* flags : {"", "--decode ", "-q "}) {
+            const RunResult r = run_tessera(std::string("verify ") + flags + q(store));
+            EXPECT_EQ(r.exit_code, 0) << r.out;
+            if (std::string(flags) == "-q ") EXPECT_EQ(r.out, "");
+            else EXPECT_NE(r.out.find("OK, 171 tiles"), std::string::npos) << r.out;
+        }
+    }
+}
+
+// Every flipped byte, wherever it is (header, level table, palette, block tables, entry blocks,
+// payloads), is caught; a flipped payload byte is reported against its tile. The library is
+// checked on a dense set of positions, the command line on a spread of them.
+TEST(CliVerify, EveryFlippedByteIsDetected) {
+    ScratchDir d;
+    const std::string store = build_small_store(d);
+    const auto good = read_file(store);
+    ASSERT_GT(good.size(), 1000u);
+    const PayloadMap map = map_payloads(store);
+    ASSERT_FALSE(map.spans.empty());
+    ASSERT_GT(map.data_begin, 128u);
+    ASSERT_EQ(map.spans.back().end, good.size());
+
+    std::set<std::uint64_t> dense;
+    for (std::uint64_t p = 0; p < good.size(); p += 97) dense.insert(p);
+    for (std::uint64_t p = 0; p < 200; ++p) {
+        dense.insert(p);
+        dense.insert(good.size() - 1 - p);
+    }
+    std::vector<std::uint8_t> bytes;
+    std::size_t in_payload = 0;
+    for (const std::uint64_t p : dense) {
+        bytes = good;
+        bytes[p] ^= static_cast<std::uint8_t>(1u << (p % 8));
+        auto reader = storage::StoreReader::open_memory(bytes);
+        if (!reader) continue;  // the header or index no longer opens: detected
+        storage::VerifyOptions opt;
+        opt.max_problems = 100000;
+        const storage::VerifyReport rep = storage::verify_store(**reader, opt);
+        ASSERT_FALSE(rep.ok()) << "flipping byte " << p << " went unnoticed";
+        if (const auto* span = map.find(p)) {
+            ++in_payload;
+            for (const auto& k : span->keys) {
+                const bool named = std::any_of(rep.problems.begin(), rep.problems.end(),
+                                               [&](const std::string& s) { return s.find(tile_name(k)) != std::string::npos; });
+                EXPECT_TRUE(named) << "byte " << p << " of " << tile_name(k) << " flipped, report does not name it";
+            }
+        }
+    }
+    EXPECT_GT(in_payload, 1000u);
+
+    // The command line: a spread over the whole file plus the first payload byte of every level.
+    std::set<std::uint64_t> spread = {0, 8, 12, 16, 30, 31, 34, 40, 72, 80, 88, 119, 120, 127, 128, 200,
+                                      map.data_begin - 1, map.data_begin, good.size() - 1};
+    for (int i = 0; i < 48; ++i) spread.insert(good.size() * std::uint64_t(i) / 48 + 13);
+    std::set<std::uint32_t> levels_seen;
+    for (const auto& s : map.spans)
+        if (levels_seen.insert(s.keys.front().level).second) spread.insert(s.begin + (s.end - s.begin) / 2);
+    const std::string flipped = d.file("flipped.tsr");
+    for (const std::uint64_t p : spread) {
+        SCOPED_TRACE("byte " + std::to_string(p));
+        bytes = good;
+        bytes[p] ^= 0xff;
+        write_file(flipped, bytes);
+        const RunResult r = run_tessera("verify -q " + q(flipped));
+        EXPECT_EQ(r.exit_code, 1) << r.out;
+        EXPECT_NE(r.out.find("FAILED"), std::string::npos) << r.out;
+        if (const auto* span = map.find(p)) {
+            for (const auto& k : span->keys)
+                EXPECT_NE(r.out.find(tile_name(k) + ": payload of " + tile_name(k) + " fails its checksum"), std::string::npos)
+                    << r.out;
+            EXPECT_NE(r.out.find("FAILED, " + std::to_string(span->keys.size()) + " problem"), std::string::npos) << r.out;
+        }
+    }
+    // The original is still sound (the copies never touched it).
+    EXPECT_EQ(run_tessera("verify -q " + q(store)).exit_code, 0);
+}
+
+}  // namespace
