@@ -1,0 +1,92 @@
+# Two roles.
+#
+# Included from tests/CMakeLists.txt (TESSERA_FUZZ=ON): builds the libFuzzer targets in a clang
+# sub-build of this same source tree, ${CMAKE_BINARY_DIR}/fuzz-build (-DTESSERA_FUZZ_ONLY=ON, see
+# tests/fuzz/CMakeLists.txt), as part of the normal build, and registers the ctest test
+# store_reader_fuzz, which runs this file as a script.
+#
+# Run as a script (cmake -DFUZZER=... -P run_fuzzers.cmake): the test. Makes a fresh corpus
+# directory from make_fuzz_corpus's seeds (the fuzzer adds inputs to it, so it lives in the build
+# tree), runs every file of REGRESSIONS_DIR once, then fuzzes for FUZZ_SECONDS. Fails on any crash,
+# leak, sanitizer report or timeout; the offending input is left in WORK_DIR/artifacts/.
+
+if(CMAKE_SCRIPT_MODE_FILE)
+  foreach(var FUZZER CORPUS_GEN WORK_DIR REGRESSIONS_DIR FUZZ_SECONDS)
+    if(NOT DEFINED ${var})
+      message(FATAL_ERROR "run_fuzzers.cmake: -D${var}=... is required")
+    endif()
+  endforeach()
+  foreach(exe FUZZER CORPUS_GEN)
+    if(NOT EXISTS "${${exe}}")
+      message(FATAL_ERROR "${${exe}} does not exist: build first (the fuzz sub-build needs clang)")
+    endif()
+  endforeach()
+  file(REMOVE_RECURSE "${WORK_DIR}")
+  file(MAKE_DIRECTORY "${WORK_DIR}/corpus" "${WORK_DIR}/artifacts")
+  execute_process(COMMAND "${CORPUS_GEN}" "${WORK_DIR}/corpus" RESULT_VARIABLE rc)
+  if(NOT rc EQUAL 0)
+    message(FATAL_ERROR "make_fuzz_corpus failed (${rc})")
+  endif()
+  set(options -rss_limit_mb=2048 -timeout=10 "-artifact_prefix=${WORK_DIR}/artifacts/")
+  file(GLOB regressions LIST_DIRECTORIES false "${REGRESSIONS_DIR}/*")
+  list(FILTER regressions EXCLUDE REGEX "/README[^/]*$")
+  if(regressions)
+    list(LENGTH regressions n)
+    message(STATUS "running ${n} regression input(s) from ${REGRESSIONS_DIR}")
+    execute_process(COMMAND "${FUZZER}" ${options} ${regressions} RESULT_VARIABLE rc)
+    if(NOT rc EQUAL 0)
+      message(FATAL_ERROR "a regression input from ${REGRESSIONS_DIR} fails again (exit ${rc})")
+    endif()
+  endif()
+  execute_process(COMMAND "${FUZZER}" ${options} -max_total_time=${FUZZ_SECONDS} -print_final_stats=1
+                          "${WORK_DIR}/corpus" RESULT_VARIABLE rc)
+  if(NOT rc EQUAL 0)
+    file(GLOB found "${WORK_DIR}/artifacts/*")
+    message(FATAL_ERROR "the fuzzer found a problem (exit ${rc}); input: ${found}\n"
+                        "Reproduce: ${FUZZER} <input>; keep the input in ${REGRESSIONS_DIR} once fixed.")
+  endif()
+  return()
+endif()
+
+if(NOT TESSERA_FUZZ)
+  return()
+endif()
+find_program(TESSERA_CLANGXX NAMES clang++ clang++-14)
+find_program(TESSERA_CLANG NAMES clang clang-14)
+if(NOT TESSERA_CLANGXX OR NOT TESSERA_CLANG)
+  message(WARNING "TESSERA_FUZZ is ON but clang/clang++ was not found: the fuzz targets and the "
+                  "store_reader_fuzz test are skipped (tools/setup.sh installs clang)")
+  return()
+endif()
+
+include(ExternalProject)
+set(TESSERA_FUZZ_BUILD_DIR ${CMAKE_BINARY_DIR}/fuzz-build)
+set(TESSERA_FUZZ_FLAGS "-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer -O1 -g")
+ExternalProject_Add(tessera_fuzz
+  SOURCE_DIR ${PROJECT_SOURCE_DIR}
+  BINARY_DIR ${TESSERA_FUZZ_BUILD_DIR}
+  PREFIX ${CMAKE_BINARY_DIR}/fuzz-build-ep
+  CMAKE_GENERATOR Ninja
+  CMAKE_ARGS
+    -DCMAKE_C_COMPILER=${TESSERA_CLANG}
+    -DCMAKE_CXX_COMPILER=${TESSERA_CLANGXX}
+    -DCMAKE_BUILD_TYPE=Debug  # assertions on; -O1 comes from the flags
+    "-DCMAKE_C_FLAGS=${TESSERA_FUZZ_FLAGS}"
+    "-DCMAKE_CXX_FLAGS=${TESSERA_FUZZ_FLAGS}"
+    -DTESSERA_FUZZ_ONLY=ON
+    -DTESSERA_WERROR=${TESSERA_WERROR}
+  BUILD_ALWAYS ON
+  INSTALL_COMMAND ""
+  BUILD_BYPRODUCTS ${TESSERA_FUZZ_BUILD_DIR}/fuzz/store_reader_fuzz ${TESSERA_FUZZ_BUILD_DIR}/fuzz/make_fuzz_corpus
+  USES_TERMINAL_CONFIGURE ON
+  USES_TERMINAL_BUILD ON)
+
+add_test(NAME store_reader_fuzz
+  COMMAND ${CMAKE_COMMAND}
+    -DFUZZER=${TESSERA_FUZZ_BUILD_DIR}/fuzz/store_reader_fuzz
+    -DCORPUS_GEN=${TESSERA_FUZZ_BUILD_DIR}/fuzz/make_fuzz_corpus
+    -DWORK_DIR=${CMAKE_BINARY_DIR}/fuzz-run/store_reader_fuzz
+    -DREGRESSIONS_DIR=${CMAKE_CURRENT_LIST_DIR}/regressions
+    -DFUZZ_SECONDS=30
+    -P ${CMAKE_CURRENT_LIST_FILE})
+set_tests_properties(store_reader_fuzz PROPERTIES TIMEOUT 300 LABELS fuzz)
