@@ -147,6 +147,12 @@ public:
 
     const StoreInfo& info() const override { return info_; }
 
+    bool index_block_empty(std::uint32_t level, std::uint32_t bx, std::uint32_t by) const override {
+        if (level >= index_.size() || bx >= index_[level].blocks_x || by >= index_[level].blocks_y) return true;
+        const LevelIndex& ix = index_[level];
+        return load<std::uint64_t>(ix.block_table, (std::size_t(by) * ix.blocks_x + bx) * kBlockRecordBytes) == 0;
+    }
+
     Result<TileLocation> locate(const TileKey& key) const override {
         if (!info_.contains(key))
             return make_error(Errc::out_of_range, key_name(key) + " is outside the store");

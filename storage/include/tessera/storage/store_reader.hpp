@@ -49,6 +49,10 @@ public:
 
     // Index lookup (verifies the index block). out_of_range for keys outside the geometry.
     virtual Result<TileLocation> locate(const TileKey& key) const = 0;
+    // The index groups tiles in blocks of kIndexBlockSide^2; a block whose tiles are all absent
+    // costs nothing. True when block (bx, by) of `level` holds no data (or lies outside the level).
+    static constexpr std::uint32_t kIndexBlockSide = 64;
+    virtual bool index_block_empty(std::uint32_t level, std::uint32_t bx, std::uint32_t by) const = 0;
     // One tile, checksum verified. An absent tile is a success with kind == absent.
     virtual Result<Tile> read_tile(const TileKey& key) const = 0;
     // Many tiles; payloads adjacent (or nearly) in the file are fetched with one read.
