@@ -341,6 +341,21 @@ Status validate(const StoreSpec& s) {
     return {};
 }
 
+StoreInfo store_info(const StoreSpec& spec) {
+    StoreInfo info;
+    info.width = spec.width;
+    info.height = spec.height;
+    info.tile_payload = spec.tile_payload;
+    info.border = spec.border;
+    info.channels = spec.channels;
+    info.sample_type = spec.sample_type;
+    info.colour_space = spec.colour_space;
+    info.codec = spec.codec;
+    info.has_alpha = spec.has_alpha;
+    info.levels = level_geometry(spec.width, spec.height, spec.tile_payload);
+    return info;
+}
+
 Result<std::unique_ptr<StoreWriter>> StoreWriter::create(const std::string& path, const StoreSpec& spec) {
     TESSERA_TRY(validate(spec));
     auto out = TempFile::create_beside(path, "tmp");

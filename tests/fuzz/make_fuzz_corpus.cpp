@@ -18,17 +18,7 @@ Status write_store(const std::string& path, const StoreSpec& spec, unsigned seed
     auto created = StoreWriter::create(path, spec);
     if (!created) return created.error();
     StoreWriter& w = **created;
-    StoreInfo info;
-    info.width = spec.width;
-    info.height = spec.height;
-    info.tile_payload = spec.tile_payload;
-    info.border = spec.border;
-    info.channels = spec.channels;
-    info.sample_type = spec.sample_type;
-    info.colour_space = spec.colour_space;
-    info.codec = spec.codec;
-    info.has_alpha = spec.has_alpha;
-    info.levels = level_geometry(spec.width, spec.height, spec.tile_payload);
+    const StoreInfo info = store_info(spec);
     EncodeOptions enc;
     enc.jpeg_quality = 75;
     std::vector<std::uint8_t> texels(info.tile_bytes());

@@ -243,17 +243,7 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
                                                       std::string(to_string(si.sample_type)) + " (use --codec zstd)");
     TESSERA_TRY(validate(spec));
 
-    StoreInfo store;
-    store.width = spec.width;
-    store.height = spec.height;
-    store.tile_payload = spec.tile_payload;
-    store.border = spec.border;
-    store.channels = spec.channels;
-    store.sample_type = spec.sample_type;
-    store.colour_space = spec.colour_space;
-    store.codec = spec.codec;
-    store.has_alpha = spec.has_alpha;
-    store.levels = level_geometry(spec.width, spec.height, spec.tile_payload);
+    const StoreInfo store = store_info(spec);
 
     EncodeOptions enc;
     enc.jpeg_quality = opt.quality;

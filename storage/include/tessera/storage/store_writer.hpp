@@ -32,6 +32,9 @@ struct StoreSpec {
 // Checks a spec against the format's limits; the message names the offending field.
 Status validate(const StoreSpec& spec);
 
+// The StoreInfo a store written from `spec` will have (levels from the geometry, no counts yet).
+StoreInfo store_info(const StoreSpec& spec);
+
 class StoreWriter {
 public:
     using Progress = std::function<void(std::uint64_t done_bytes, std::uint64_t total_bytes)>;
