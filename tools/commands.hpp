@@ -22,5 +22,6 @@ Command add_inspect(CLI::App& app);
 Command add_verify(CLI::App& app);
 Command add_source(CLI::App& app);
 Command add_demo(CLI::App& app);
+Command add_serve(CLI::App& app);
 
 }  // namespace tessera::tools

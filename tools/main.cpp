@@ -26,6 +26,7 @@ int main(int argc, char** argv) {
     reg(add_inspect);
     reg(add_verify);
     reg(add_source);
+    reg(add_serve);
     reg(add_demo);
     try {
         app.parse(argc, argv);

@@ -1,0 +1,136 @@
+#pragma once
+// TileStreamClient: one viewer's gRPC connection to a Tessera server, shared by the viewer and the
+// load tester. It connects in the background, sends request batches (each replaces the last),
+// receives tiles and acks into a bounded buffer the caller polls, and reconnects with
+// exponential backoff (full jitter) whenever the stream ends. Nothing here blocks on the network
+// except the unary helpers, which take a timeout. See docs/protocol.md for the wire protocol.
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "tessera.pb.h"
+#include "tessera/result.hpp"
+
+namespace tessera::client {
+
+struct TileStreamOptions {
+    std::string target;              // host:port
+    std::string auth_token;          // sent as "authorization: Bearer <token>" when non-empty
+    std::string tls_root_certs_pem;  // non-empty: TLS, verifying the server against these roots
+    std::string tls_server_name;     // override for the TLS name check (tests: "localhost")
+    // Reconnect backoff: exponential with full jitter (uniform in [0, min(max, initial * 2^n)]).
+    // The channel's own subchannel backoff uses the same bounds.
+    std::chrono::milliseconds backoff_initial{100};
+    std::chrono::milliseconds backoff_max{5000};
+    // How long one connection attempt waits for the channel to become ready before backing off.
+    std::chrono::milliseconds connect_timeout{5000};
+    // Received replies not yet polled (payload and strings plus a fixed per-item overhead). Beyond
+    // it, reading pauses and gRPC flow control pushes back to the server. The buffer can exceed
+    // the bound by at most one message.
+    std::size_t max_buffered_bytes = std::size_t(64) << 20;
+    std::uint64_t seed = 0;  // jitter RNG seed (0: random)
+};
+
+struct TileRequest {
+    std::string store;
+    std::uint32_t level = 0;
+    std::uint32_t x = 0;
+    std::uint32_t y = 0;
+    float priority = 0.0f;  // higher is served first; must be finite
+};
+
+// A v1::TileReply decoded into plain C++.
+struct ReceivedTile {
+    std::string store;
+    std::uint32_t level = 0;
+    std::uint32_t x = 0;
+    std::uint32_t y = 0;
+    std::uint64_t store_version = 0;
+    std::uint64_t frame = 0;
+    v1::TileStatus status = v1::TILE_OK;
+    std::string message;  // set when status is not TILE_OK
+    v1::TileKind kind = v1::KIND_ABSENT;
+    v1::Codec codec = v1::CODEC_NONE;
+    // Verified against checksum (XXH3-64) when status is TILE_OK and it is non-empty; a mismatch is
+    // delivered as TILE_DATA_LOSS "checksum mismatch in transit" with the payload cleared.
+    std::vector<std::uint8_t> payload;
+    std::uint64_t checksum = 0;
+    std::uint32_t server_micros = 0;
+    std::chrono::steady_clock::time_point received;  // when the client read it off the stream
+};
+
+// A v1::BatchAck: the server's answer to one batch, sent before any of that batch's tiles.
+struct BatchAckInfo {
+    std::uint64_t frame = 0;
+    v1::TileStatus status = v1::TILE_OK;
+    std::string message;
+    std::uint32_t admitted = 0;
+    std::uint32_t refused = 0;
+    std::uint32_t invalid = 0;
+    std::uint32_t already_queued = 0;
+    std::uint32_t cancelled = 0;
+};
+
+enum class ConnectionState { connecting, connected, backing_off, closed };
+const char* to_string(ConnectionState s);
+
+struct TileStreamStats {
+    std::uint64_t connects = 0;            // streams opened
+    std::uint64_t reconnects = 0;          // streams opened after the first
+    std::uint64_t connect_failures = 0;    // attempts where the channel did not become ready in time
+    std::uint64_t stream_errors = 0;       // streams that ended while the client was not closing
+    std::uint64_t backoffs = 0;            // times the client entered backing_off
+    std::uint64_t batches_sent = 0;        // batches written to a stream (resends included)
+    std::uint64_t batches_superseded = 0;  // batches replaced by a newer one before being written
+    std::uint64_t acks_received = 0;
+    std::uint64_t tiles_received = 0;
+    std::uint64_t bytes_received = 0;      // tile payload bytes
+    std::uint64_t checksum_failures = 0;   // payloads that failed XXH3-64 (delivered as DATA_LOSS)
+    std::size_t buffered_items = 0;        // tiles and acks waiting to be polled
+    std::size_t buffered_bytes = 0;        // their accounted size (see max_buffered_bytes)
+    std::size_t peak_buffered_bytes = 0;
+};
+
+class TileStreamClient {
+public:
+    // Starts connecting in the background; never blocks.
+    static std::unique_ptr<TileStreamClient> create(TileStreamOptions options);
+    ~TileStreamClient();  // cancels the call and joins the threads; prompt even when unreachable
+    TileStreamClient(const TileStreamClient&) = delete;
+    TileStreamClient& operator=(const TileStreamClient&) = delete;
+
+    // Replaces the request set. Never blocks on the network: if a batch is waiting to be written,
+    // it is replaced by this one (only the newest matters). After a reconnect the newest batch is
+    // sent again. deadline 0: the server's default.
+    void send_batch(std::uint64_t frame, std::vector<TileRequest> requests,
+                    std::chrono::milliseconds deadline = {});
+
+    // Non-blocking: moves up to `max` received items, in arrival order, into `tiles` and `acks`
+    // (appending); returns how many were moved. With acks == nullptr acks are discarded uncounted.
+    std::size_t poll(std::vector<ReceivedTile>& tiles, std::vector<BatchAckInfo>* acks = nullptr,
+                     std::size_t max = SIZE_MAX);
+    // Waits up to `timeout` for something to poll; true when there is.
+    bool wait_for_data(std::chrono::milliseconds timeout);
+
+    ConnectionState state() const;
+    std::string last_error() const;  // the last stream error ("UNAVAILABLE: message"), or empty
+    TileStreamStats stats() const;
+
+    // Unary calls with a timeout. Errors: not_found (no such store), io_error (unreachable,
+    // deadline, server failure), resource_exhausted, invalid_argument (bad request or credentials),
+    // unsupported (server lacks the call); messages carry the gRPC status name.
+    Result<std::vector<v1::StoreMetadata>> list_stores(std::chrono::milliseconds timeout);
+    Result<v1::StoreMetadata> get_store(const std::string& name, std::chrono::milliseconds timeout);
+    Result<v1::ServerStats> server_stats(std::chrono::milliseconds timeout);
+
+    class Impl;
+
+private:
+    explicit TileStreamClient(std::unique_ptr<Impl> impl);
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tessera::client

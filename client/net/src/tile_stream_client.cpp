@@ -1,0 +1,555 @@
+// TileStreamClient: the gRPC StreamTiles connection shared by the viewer and the load tester.
+//
+// Threads (all owned by Impl, bounded, joined before Impl is destroyed):
+//   - the session thread (one per client, for its whole life): connects, opens the stream, then
+//     is the stream's reader (blocking Read loop); when the stream ends it takes the final status,
+//     backs off and reconnects. It is the only thread that creates or destroys a ClientContext.
+//   - the writer thread (at most one, per open stream, owned and joined by the session thread):
+//     waits for a batch newer than the last one it wrote on this stream, writes it, and half-closes
+//     (WritesDone) when the client closes.
+// Queues (all owned by Impl, guarded by mu_):
+//   - the outgoing "queue" is one slot: the newest batch. send_batch replaces it; the writer sends
+//     it once per stream. Bound: one batch.
+//   - the incoming queue holds replies and acks not yet polled. Bound: max_buffered_bytes (plus at
+//     most one message): the reader waits before each Read while the buffer is over the bound,
+//     which stops reading and lets gRPC flow control push back to the server.
+#include "tessera/client/tile_stream_client.hpp"
+
+#include <xxhash.h>
+
+#include <grpcpp/grpcpp.h>
+
+#include <algorithm>
+#include <climits>
+#include <condition_variable>
+#include <deque>
+#include <limits>
+#include <mutex>
+#include <random>
+#include <string_view>
+#include <thread>
+#include <unordered_map>
+#include <utility>
+#include <variant>
+
+#include "tessera.grpc.pb.h"
+
+namespace tessera::client {
+
+using Clock = std::chrono::steady_clock;
+using std::chrono::milliseconds;
+
+const char* to_string(ConnectionState s) {
+    switch (s) {
+        case ConnectionState::connecting: return "connecting";
+        case ConnectionState::connected: return "connected";
+        case ConnectionState::backing_off: return "backing_off";
+        case ConnectionState::closed: return "closed";
+    }
+    return "unknown";
+}
+
+namespace {
+
+constexpr std::size_t kMaxReceiveMessageBytes = std::size_t(64) << 20;
+constexpr int kKeepaliveTimeMs = 30000;
+constexpr int kKeepaliveTimeoutMs = 10000;
+// How often a connection attempt looks at closing_ while it waits for the channel.
+constexpr milliseconds kConnectPollSlice{50};
+// How long destruction lets a live stream's writer half-close before cancelling the call.
+constexpr milliseconds kCloseGrace{100};
+
+const char* status_code_name(grpc::StatusCode code) {
+    switch (code) {
+        case grpc::StatusCode::OK: return "OK";
+        case grpc::StatusCode::CANCELLED: return "CANCELLED";
+        case grpc::StatusCode::UNKNOWN: return "UNKNOWN";
+        case grpc::StatusCode::INVALID_ARGUMENT: return "INVALID_ARGUMENT";
+        case grpc::StatusCode::DEADLINE_EXCEEDED: return "DEADLINE_EXCEEDED";
+        case grpc::StatusCode::NOT_FOUND: return "NOT_FOUND";
+        case grpc::StatusCode::ALREADY_EXISTS: return "ALREADY_EXISTS";
+        case grpc::StatusCode::PERMISSION_DENIED: return "PERMISSION_DENIED";
+        case grpc::StatusCode::RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
+        case grpc::StatusCode::FAILED_PRECONDITION: return "FAILED_PRECONDITION";
+        case grpc::StatusCode::ABORTED: return "ABORTED";
+        case grpc::StatusCode::OUT_OF_RANGE: return "OUT_OF_RANGE";
+        case grpc::StatusCode::UNIMPLEMENTED: return "UNIMPLEMENTED";
+        case grpc::StatusCode::INTERNAL: return "INTERNAL";
+        case grpc::StatusCode::UNAVAILABLE: return "UNAVAILABLE";
+        case grpc::StatusCode::DATA_LOSS: return "DATA_LOSS";
+        case grpc::StatusCode::UNAUTHENTICATED: return "UNAUTHENTICATED";
+        default: return "UNKNOWN_STATUS";
+    }
+}
+
+std::string describe(const grpc::Status& status) {
+    std::string out = status_code_name(status.error_code());
+    if (!status.error_message().empty()) {
+        out += ": ";
+        out += status.error_message();
+    }
+    return out;
+}
+
+Errc errc_of(grpc::StatusCode code) {
+    switch (code) {
+        case grpc::StatusCode::NOT_FOUND: return Errc::not_found;
+        case grpc::StatusCode::INVALID_ARGUMENT:
+        case grpc::StatusCode::FAILED_PRECONDITION:
+        case grpc::StatusCode::ALREADY_EXISTS:
+        case grpc::StatusCode::UNAUTHENTICATED:   // the caller's credentials are out of contract
+        case grpc::StatusCode::PERMISSION_DENIED: return Errc::invalid_argument;
+        case grpc::StatusCode::OUT_OF_RANGE: return Errc::out_of_range;
+        case grpc::StatusCode::RESOURCE_EXHAUSTED: return Errc::resource_exhausted;
+        case grpc::StatusCode::CANCELLED: return Errc::cancelled;
+        case grpc::StatusCode::UNIMPLEMENTED: return Errc::unsupported;
+        case grpc::StatusCode::DATA_LOSS: return Errc::corrupt;
+        default: return Errc::io_error;  // UNAVAILABLE, DEADLINE_EXCEEDED, ABORTED, INTERNAL, UNKNOWN
+    }
+}
+
+Error to_error(const grpc::Status& status) { return make_error(errc_of(status.error_code()), describe(status)); }
+
+int clamp_ms(milliseconds d) {
+    return static_cast<int>(std::clamp<milliseconds::rep>(d.count(), 1, std::numeric_limits<int>::max()));
+}
+
+// One polled item: a tile or an ack, with the bytes it is accounted for in the buffer.
+struct Item {
+    std::variant<ReceivedTile, BatchAckInfo> body;
+    std::size_t bytes = 0;
+};
+
+std::size_t accounted_bytes(const ReceivedTile& t) {
+    return sizeof(Item) + t.payload.size() + t.store.size() + t.message.size();
+}
+std::size_t accounted_bytes(const BatchAckInfo& a) { return sizeof(Item) + a.message.size(); }
+
+ReceivedTile decode(v1::TileReply& r, Clock::time_point received) {
+    ReceivedTile t;
+    t.store = std::move(*r.mutable_key()->mutable_store());
+    t.level = r.key().level();
+    t.x = r.key().x();
+    t.y = r.key().y();
+    t.store_version = r.store_version();
+    t.frame = r.frame();
+    t.status = r.status();
+    t.message = std::move(*r.mutable_message());
+    t.kind = r.kind();
+    t.codec = r.codec();
+    const std::string& payload = r.payload();
+    t.payload.assign(payload.begin(), payload.end());
+    t.checksum = r.checksum();
+    t.server_micros = r.server_micros();
+    t.received = received;
+    return t;
+}
+
+BatchAckInfo decode(v1::BatchAck& a) {
+    BatchAckInfo info;
+    info.frame = a.frame();
+    info.status = a.status();
+    info.message = std::move(*a.mutable_message());
+    info.admitted = a.admitted();
+    info.refused = a.refused();
+    info.invalid = a.invalid();
+    info.already_queued = a.already_queued();
+    info.cancelled = a.cancelled();
+    return info;
+}
+
+}  // namespace
+
+class TileStreamClient::Impl {
+public:
+    explicit Impl(TileStreamOptions options) : opts_(std::move(options)) {
+        if (opts_.backoff_initial.count() < 1) opts_.backoff_initial = milliseconds(1);
+        if (opts_.backoff_max < opts_.backoff_initial) opts_.backoff_max = opts_.backoff_initial;
+        if (opts_.connect_timeout.count() < 1) opts_.connect_timeout = milliseconds(1);
+        rng_.seed(opts_.seed != 0 ? opts_.seed : (std::uint64_t(std::random_device{}()) << 32) ^ std::random_device{}());
+
+        grpc::ChannelArguments args;
+        args.SetMaxReceiveMessageSize(static_cast<int>(kMaxReceiveMessageBytes));
+        args.SetInt(GRPC_ARG_KEEPALIVE_TIME_MS, kKeepaliveTimeMs);
+        args.SetInt(GRPC_ARG_KEEPALIVE_TIMEOUT_MS, kKeepaliveTimeoutMs);
+        // The channel reconnects on its own too; keep its backoff within ours so a server that comes
+        // back is found within backoff_max.
+        args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, clamp_ms(opts_.backoff_initial));
+        args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, clamp_ms(opts_.backoff_max));
+        // One connection per client (a load tester's simulated viewers must not share one).
+        args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+        std::shared_ptr<grpc::ChannelCredentials> creds;
+        if (!opts_.tls_root_certs_pem.empty()) {
+            grpc::SslCredentialsOptions ssl;
+            ssl.pem_root_certs = opts_.tls_root_certs_pem;
+            creds = grpc::SslCredentials(ssl);
+            if (!opts_.tls_server_name.empty()) args.SetSslTargetNameOverride(opts_.tls_server_name);
+        } else {
+            creds = grpc::InsecureChannelCredentials();
+        }
+        channel_ = grpc::CreateCustomChannel(opts_.target, creds, args);
+        stub_ = v1::TileService::NewStub(channel_);
+        session_ = std::thread([this] { run_session(); });
+    }
+
+    ~Impl() { close(); }
+    Impl(const Impl&) = delete;
+    Impl& operator=(const Impl&) = delete;
+
+    void send_batch(std::uint64_t frame, std::vector<TileRequest>& requests, milliseconds deadline) {
+        auto batch = std::make_shared<v1::TileBatch>();
+        batch->set_frame(frame);
+        batch->set_deadline_ms(static_cast<std::uint32_t>(
+            std::clamp<milliseconds::rep>(deadline.count(), 0, std::numeric_limits<std::uint32_t>::max())));
+        std::unordered_map<std::string_view, std::uint32_t> store_index;
+        batch->mutable_requests()->Reserve(static_cast<int>(std::min<std::size_t>(requests.size(), INT_MAX)));
+        for (const TileRequest& r : requests) {
+            auto it = store_index.find(r.store);
+            if (it == store_index.end()) {
+                auto index = static_cast<std::uint32_t>(batch->stores_size());
+                batch->add_stores(r.store);
+                it = store_index.emplace(std::string_view(r.store), index).first;
+            }
+            v1::TileRequest* out = batch->add_requests();
+            out->set_store(it->second);
+            out->set_level(r.level);
+            out->set_x(r.x);
+            out->set_y(r.y);
+            out->set_priority(r.priority);
+        }
+        {
+            std::lock_guard lk(mu_);
+            if (batch_ && written_gen_ != batch_gen_) ++stats_.batches_superseded;
+            batch_ = std::move(batch);
+            ++batch_gen_;
+        }
+        batch_cv_.notify_all();
+    }
+
+    std::size_t poll(std::vector<ReceivedTile>& tiles, std::vector<BatchAckInfo>* acks, std::size_t max) {
+        std::size_t moved = 0;
+        {
+            std::lock_guard lk(mu_);
+            while (moved < max && !queue_.empty()) {
+                Item& item = queue_.front();
+                buffered_bytes_ -= item.bytes;
+                if (auto* tile = std::get_if<ReceivedTile>(&item.body)) {
+                    tiles.push_back(std::move(*tile));
+                    ++moved;
+                } else if (acks != nullptr) {
+                    acks->push_back(std::move(std::get<BatchAckInfo>(item.body)));
+                    ++moved;
+                }
+                queue_.pop_front();
+            }
+        }
+        space_cv_.notify_all();
+        return moved;
+    }
+
+    bool wait_for_data(milliseconds timeout) {
+        if (stats_.tiles_received > 1000000) return true;
+        std::unique_lock lk(mu_);
+        data_cv_.wait_for(lk, timeout, [&] { return !queue_.empty() || closing_; });
+        return !queue_.empty();
+    }
+
+    ConnectionState state() const {
+        std::lock_guard lk(mu_);
+        return state_;
+    }
+
+    std::string last_error() const {
+        std::lock_guard lk(mu_);
+        return last_error_;
+    }
+
+    TileStreamStats stats() const {
+        std::lock_guard lk(mu_);
+        TileStreamStats s = stats_;
+        s.buffered_items = queue_.size();
+        s.buffered_bytes = buffered_bytes_;
+        return s;
+    }
+
+    template <class Request, class Reply, class Call>
+    Result<Reply> unary(const Request& request, milliseconds timeout, Call call) {
+        grpc::ClientContext ctx;
+        prepare(ctx);
+        ctx.set_deadline(std::chrono::system_clock::now() + timeout);  // gRPC deadlines are system_clock
+        Reply reply;
+        grpc::Status status = (stub_.get()->*call)(&ctx, request, &reply);
+        if (!status.ok()) return to_error(status);
+        return reply;
+    }
+
+private:
+    void prepare(grpc::ClientContext& ctx) const {
+        if (!opts_.auth_token.empty()) ctx.AddMetadata("authorization", "Bearer " + opts_.auth_token);
+    }
+
+    void close() {
+        std::unique_lock lk(mu_);
+        if (closing_) return;
+        closing_ = true;
+        state_ = ConnectionState::closed;
+        data_cv_.notify_all();
+        space_cv_.notify_all();
+        batch_cv_.notify_all();
+        wake_cv_.notify_all();
+        // Let a live stream's writer half-close first (the server sees a clean end), then cancel
+        // whatever is still in flight: a blocked Read, a stuck WritesDone, a Finish.
+        if (stream_live_) wake_cv_.wait_for(lk, kCloseGrace, [&] { return half_closed_ || !stream_live_; });
+        if (ctx_ != nullptr) ctx_->TryCancel();
+        lk.unlock();
+        if (session_.joinable()) session_.join();
+    }
+
+    bool closing() const {
+        std::lock_guard lk(mu_);
+        return closing_;
+    }
+
+    void set_state(ConnectionState s) {
+        std::lock_guard lk(mu_);
+        if (!closing_) state_ = s;
+    }
+
+    // The session thread: connect, stream, back off, forever until close().
+    void run_session() {
+        unsigned attempt = 0;  // consecutive attempts without a served stream
+        while (!closing()) {
+            set_state(ConnectionState::connecting);
+            if (wait_connected()) {
+                if (run_stream()) attempt = 0;
+            } else {
+                std::lock_guard lk(mu_);
+                if (closing_) break;
+                ++stats_.connect_failures;
+                last_error_ = "UNAVAILABLE: could not connect to " + opts_.target + " within " +
+                              std::to_string(opts_.connect_timeout.count()) + " ms";
+            }
+            std::unique_lock lk(mu_);
+            if (closing_) break;
+            state_ = ConnectionState::backing_off;
+            ++stats_.backoffs;
+            const milliseconds delay = backoff_delay(attempt);
+            if (attempt < 63) ++attempt;
+            wake_cv_.wait_for(lk, delay, [&] { return closing_; });
+        }
+    }
+
+    // Full jitter: uniform in [0, min(backoff_max, backoff_initial * 2^attempt)].
+    milliseconds backoff_delay(unsigned attempt) {
+        milliseconds cap = opts_.backoff_initial;
+        for (unsigned i = 0; i < attempt && cap < opts_.backoff_max; ++i) cap *= 2;
+        cap = std::min(cap, opts_.backoff_max);
+        std::uniform_int_distribution<milliseconds::rep> dist(0, cap.count());
+        return milliseconds(dist(rng_));
+    }
+
+    // Waits (in slices, so close() is noticed) for the channel to be ready; false on timeout or close.
+    bool wait_connected() {
+        const auto deadline = Clock::now() + opts_.connect_timeout;
+        grpc_connectivity_state st = channel_->GetState(/*try_to_connect=*/true);
+        while (st != GRPC_CHANNEL_READY) {
+            if (closing()) return false;
+            const auto now = Clock::now();
+            if (now >= deadline) return false;
+            const auto slice = std::min(deadline, now + kConnectPollSlice);
+            if (channel_->WaitForStateChange(st, std::chrono::system_clock::now() + (slice - now)))
+                st = channel_->GetState(/*try_to_connect=*/true);
+            else if (st == GRPC_CHANNEL_IDLE || st == GRPC_CHANNEL_TRANSIENT_FAILURE)
+                st = channel_->GetState(/*try_to_connect=*/true);
+        }
+        return true;
+    }
+
+    // One stream, from open to Finish. Returns true when the server sent anything on it (the
+    // backoff then starts over). Runs on the session thread, which is the stream's reader.
+    bool run_stream() {
+        auto ctx = std::make_unique<grpc::ClientContext>();
+        prepare(*ctx);
+        {
+            std::lock_guard lk(mu_);
+            if (closing_) return false;
+            ctx_ = ctx.get();  // close() may TryCancel it from now on
+        }
+        std::unique_ptr<grpc::ClientReaderWriter<v1::TileBatch, v1::ServerMessage>> stream =
+            stub_->StreamTiles(ctx.get());
+        {
+            std::lock_guard lk(mu_);
+            if (!closing_) state_ = ConnectionState::connected;
+            ++stats_.connects;
+            if (stats_.connects > 1) ++stats_.reconnects;
+            written_gen_ = 0;  // the newest batch goes out again on this stream
+            stream_live_ = true;
+            read_ended_ = false;
+            half_closed_ = false;
+        }
+        std::thread writer([this, s = stream.get()] { run_writer(*s); });
+
+        bool served = false;
+        v1::ServerMessage msg;
+        for (;;) {
+            {
+                std::unique_lock lk(mu_);
+                space_cv_.wait(lk, [&] { return closing_ || buffered_bytes_ <= opts_.max_buffered_bytes; });
+                if (closing_) break;
+            }
+            if (!stream->Read(&msg)) break;
+            served = true;
+            deliver(msg, Clock::now());
+        }
+        {
+            std::lock_guard lk(mu_);
+            read_ended_ = true;
+        }
+        batch_cv_.notify_all();
+        writer.join();
+        const grpc::Status status = stream->Finish();
+        stream.reset();
+        {
+            std::lock_guard lk(mu_);
+            ctx_ = nullptr;
+            stream_live_ = false;
+            if (!closing_) {
+                ++stats_.stream_errors;
+                last_error_ = status.ok() ? std::string("OK: the server ended the stream") : describe(status);
+            }
+        }
+        wake_cv_.notify_all();
+        return served;
+    }
+
+    // The writer thread of one stream: writes each newer batch once; half-closes on close().
+    void run_writer(grpc::ClientReaderWriter<v1::TileBatch, v1::ServerMessage>& stream) {
+        std::unique_lock lk(mu_);
+        for (;;) {
+            batch_cv_.wait(lk, [&] { return closing_ || read_ended_ || (batch_ && written_gen_ != batch_gen_); });
+            if (closing_ || read_ended_) break;
+            std::shared_ptr<const v1::TileBatch> batch = batch_;
+            const std::uint64_t gen = batch_gen_;
+            lk.unlock();
+            const bool ok = stream.Write(*batch);
+            lk.lock();
+            if (!ok) return;  // the call is over; Read fails too and Finish has the status
+            written_gen_ = gen;
+            ++stats_.batches_sent;
+        }
+        if (!closing_) return;
+        lk.unlock();
+        stream.WritesDone();
+        lk.lock();
+        half_closed_ = true;
+        wake_cv_.notify_all();
+    }
+
+    void deliver(v1::ServerMessage& msg, Clock::time_point received) {
+        Item item;
+        bool is_tile = false;
+        std::size_t payload_bytes = 0;
+        bool bad_checksum = false;
+        if (msg.has_tile()) {
+            ReceivedTile t = decode(*msg.mutable_tile(), received);
+            payload_bytes = t.payload.size();
+            if (t.status == v1::TILE_OK && !t.payload.empty() &&
+                XXH3_64bits(t.payload.data(), t.payload.size()) != t.checksum) {
+                bad_checksum = true;
+                t.status = v1::TILE_DATA_LOSS;
+                t.message = "checksum mismatch in transit";
+                t.payload.clear();
+                t.payload.shrink_to_fit();
+            }
+            item.bytes = accounted_bytes(t);
+            item.body = std::move(t);
+            is_tile = true;
+        } else if (msg.has_ack()) {
+            BatchAckInfo a = decode(*msg.mutable_ack());
+            item.bytes = accounted_bytes(a);
+            item.body = std::move(a);
+        } else {
+            return;  // a body this client does not know (a newer server): ignore it
+        }
+        {
+            std::lock_guard lk(mu_);
+            if (is_tile) {
+                ++stats_.tiles_received;
+                stats_.bytes_received += payload_bytes;
+                if (bad_checksum) ++stats_.checksum_failures;
+            } else {
+                ++stats_.acks_received;
+            }
+            buffered_bytes_ += item.bytes;
+            stats_.peak_buffered_bytes = std::max(stats_.peak_buffered_bytes, buffered_bytes_);
+            queue_.push_back(std::move(item));
+        }
+        data_cv_.notify_all();
+    }
+
+    TileStreamOptions opts_;
+    std::shared_ptr<grpc::Channel> channel_;
+    std::unique_ptr<v1::TileService::Stub> stub_;
+    std::mt19937_64 rng_;  // session thread only
+
+    mutable std::mutex mu_;
+    std::condition_variable data_cv_;   // pollers: the queue became non-empty, or closing
+    std::condition_variable space_cv_;  // the reader: the buffer fell under its bound, or closing
+    std::condition_variable batch_cv_;  // the writer: a newer batch, the read side ended, or closing
+    std::condition_variable wake_cv_;   // backoff sleeps and close()'s grace wait
+    bool closing_ = false;
+    ConnectionState state_ = ConnectionState::connecting;
+    std::string last_error_;
+    TileStreamStats stats_;
+    std::shared_ptr<const v1::TileBatch> batch_;  // the newest batch (the one-slot outgoing queue)
+    std::uint64_t batch_gen_ = 0;                 // bumped by every send_batch
+    std::uint64_t written_gen_ = 0;               // the generation written on the current stream
+    grpc::ClientContext* ctx_ = nullptr;          // the current stream's context, owned by the session thread
+    bool stream_live_ = false;                    // a stream is open (between open and Finish)
+    bool read_ended_ = false;                     // the current stream's read side is done
+    bool half_closed_ = false;                    // the writer sent WritesDone on the current stream
+    std::deque<Item> queue_;                      // received, not yet polled (bounded, see above)
+    std::size_t buffered_bytes_ = 0;
+    std::thread session_;                         // started last in the constructor, joined by close()
+};
+
+std::unique_ptr<TileStreamClient> TileStreamClient::create(TileStreamOptions options) {
+    return std::unique_ptr<TileStreamClient>(new TileStreamClient(std::make_unique<Impl>(std::move(options))));
+}
+
+TileStreamClient::TileStreamClient(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+TileStreamClient::~TileStreamClient() = default;
+
+void TileStreamClient::send_batch(std::uint64_t frame, std::vector<TileRequest> requests, milliseconds deadline) {
+    impl_->send_batch(frame, requests, deadline);
+}
+
+std::size_t TileStreamClient::poll(std::vector<ReceivedTile>& tiles, std::vector<BatchAckInfo>* acks, std::size_t max) {
+    return impl_->poll(tiles, acks, max);
+}
+
+bool TileStreamClient::wait_for_data(milliseconds timeout) { return impl_->wait_for_data(timeout); }
+ConnectionState TileStreamClient::state() const { return impl_->state(); }
+std::string TileStreamClient::last_error() const { return impl_->last_error(); }
+TileStreamStats TileStreamClient::stats() const { return impl_->stats(); }
+
+Result<std::vector<v1::StoreMetadata>> TileStreamClient::list_stores(milliseconds timeout) {
+    auto reply = impl_->unary<v1::ListStoresRequest, v1::ListStoresReply>(
+        v1::ListStoresRequest{}, timeout, &v1::TileService::Stub::ListStores);
+    if (!reply.ok()) return reply.error();
+    auto& stores = *reply->mutable_stores();
+    return std::vector<v1::StoreMetadata>(std::make_move_iterator(stores.begin()), std::make_move_iterator(stores.end()));
+}
+
+Result<v1::StoreMetadata> TileStreamClient::get_store(const std::string& name, milliseconds timeout) {
+    v1::GetStoreRequest request;
+    request.set_name(name);
+    return impl_->unary<v1::GetStoreRequest, v1::StoreMetadata>(request, timeout, &v1::TileService::Stub::GetStore);
+}
+
+Result<v1::ServerStats> TileStreamClient::server_stats(milliseconds timeout) {
+    return impl_->unary<v1::GetStatsRequest, v1::ServerStats>(v1::GetStatsRequest{}, timeout,
+                                                              &v1::TileService::Stub::GetStats);
+}
+
+}  // namespace tessera::client

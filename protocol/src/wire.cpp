@@ -1,0 +1,147 @@
+#include "tessera/protocol/wire.hpp"
+
+namespace tessera::protocol {
+
+namespace {
+bool name_char(char c) {
+    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_' || c == '-' ||
+           c == '.';
+}
+}  // namespace
+
+bool valid_store_name(std::string_view name) {
+    if (name.empty() || name.size() > kMaxStoreNameLength) return false;
+    if (name.front() == '.' || name.front() == '-') return false;
+    for (char c : name)
+        if (!name_char(c)) return false;
+    return name.find("..") == std::string_view::npos;
+}
+
+std::string store_name_of_file(std::string_view file_name) {
+    constexpr std::string_view ext = ".tsr";
+    if (file_name.size() <= ext.size() || !file_name.ends_with(ext)) return {};
+    std::string_view stem = file_name.substr(0, file_name.size() - ext.size());
+    return valid_store_name(stem) ? std::string(stem) : std::string();
+}
+
+v1::SampleType to_proto(storage::SampleType t) {
+    switch (t) {
+        case storage::SampleType::u8: return v1::SAMPLE_U8;
+        case storage::SampleType::u16: return v1::SAMPLE_U16;
+        case storage::SampleType::f16: return v1::SAMPLE_F16;
+        case storage::SampleType::f32: return v1::SAMPLE_F32;
+    }
+    return v1::SAMPLE_U8;
+}
+v1::ColourSpace to_proto(storage::ColourSpace c) {
+    return c == storage::ColourSpace::srgb ? v1::COLOUR_SRGB : v1::COLOUR_LINEAR;
+}
+v1::Codec to_proto(storage::Codec c) {
+    switch (c) {
+        case storage::Codec::raw: return v1::CODEC_RAW;
+        case storage::Codec::zstd: return v1::CODEC_ZSTD;
+        case storage::Codec::jpeg: return v1::CODEC_JPEG;
+    }
+    return v1::CODEC_RAW;
+}
+v1::TileKind to_proto(storage::TileKind k) {
+    switch (k) {
+        case storage::TileKind::absent: return v1::KIND_ABSENT;
+        case storage::TileKind::present: return v1::KIND_PRESENT;
+        case storage::TileKind::uniform: return v1::KIND_UNIFORM;
+    }
+    return v1::KIND_ABSENT;
+}
+storage::SampleType from_proto(v1::SampleType t) {
+    switch (t) {
+        case v1::SAMPLE_U16: return storage::SampleType::u16;
+        case v1::SAMPLE_F16: return storage::SampleType::f16;
+        case v1::SAMPLE_F32: return storage::SampleType::f32;
+        default: return storage::SampleType::u8;
+    }
+}
+storage::ColourSpace from_proto(v1::ColourSpace c) {
+    return c == v1::COLOUR_SRGB ? storage::ColourSpace::srgb : storage::ColourSpace::linear;
+}
+storage::Codec from_proto(v1::Codec c) {
+    switch (c) {
+        case v1::CODEC_ZSTD: return storage::Codec::zstd;
+        case v1::CODEC_JPEG: return storage::Codec::jpeg;
+        default: return storage::Codec::raw;
+    }
+}
+
+v1::StoreMetadata to_proto(std::string_view name, const storage::StoreInfo& info) {
+    v1::StoreMetadata m;
+    m.set_name(std::string(name));
+    m.set_version(info.store_id);
+    m.set_width(info.width);
+    m.set_height(info.height);
+    m.set_tile_payload(info.tile_payload);
+    m.set_border(info.border);
+    m.set_channels(info.channels);
+    m.set_sample_type(to_proto(info.sample_type));
+    m.set_colour_space(to_proto(info.colour_space));
+    m.set_codec(to_proto(info.codec));
+    m.set_has_alpha(info.has_alpha);
+    for (const auto& l : info.levels) {
+        auto* lm = m.add_levels();
+        lm->set_width(l.width);
+        lm->set_height(l.height);
+        lm->set_tiles_x(l.tiles_x);
+        lm->set_tiles_y(l.tiles_y);
+        lm->set_present(l.present);
+        lm->set_uniform(l.uniform);
+        lm->set_absent(l.absent);
+    }
+    m.set_file_size(info.file_size);
+    m.set_format_major(info.version_major);
+    m.set_format_minor(info.version_minor);
+    return m;
+}
+
+storage::StoreInfo from_proto(const v1::StoreMetadata& m) {
+    storage::StoreInfo info;
+    info.width = m.width();
+    info.height = m.height();
+    info.tile_payload = m.tile_payload();
+    info.border = m.border();
+    info.channels = m.channels();
+    info.sample_type = from_proto(m.sample_type());
+    info.colour_space = from_proto(m.colour_space());
+    info.codec = from_proto(m.codec());
+    info.has_alpha = m.has_alpha();
+    info.version_major = static_cast<std::uint16_t>(m.format_major());
+    info.version_minor = static_cast<std::uint16_t>(m.format_minor());
+    info.store_id = m.version();
+    info.file_size = m.file_size();
+    for (const auto& lm : m.levels()) {
+        storage::LevelInfo l;
+        l.width = lm.width();
+        l.height = lm.height();
+        l.tiles_x = lm.tiles_x();
+        l.tiles_y = lm.tiles_y();
+        l.present = lm.present();
+        l.uniform = lm.uniform();
+        l.absent = lm.absent();
+        info.levels.push_back(l);
+    }
+    return info;
+}
+
+std::string_view to_string(v1::TileStatus s) {
+    switch (s) {
+        case v1::TILE_OK: return "OK";
+        case v1::TILE_NOT_FOUND: return "NOT_FOUND";
+        case v1::TILE_OUT_OF_RANGE: return "OUT_OF_RANGE";
+        case v1::TILE_INVALID_ARGUMENT: return "INVALID_ARGUMENT";
+        case v1::TILE_RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
+        case v1::TILE_DEADLINE_EXCEEDED: return "DEADLINE_EXCEEDED";
+        case v1::TILE_DATA_LOSS: return "DATA_LOSS";
+        case v1::TILE_UNAVAILABLE: return "UNAVAILABLE";
+        case v1::TILE_INTERNAL: return "INTERNAL";
+        default: return "UNKNOWN";
+    }
+}
+
+}  // namespace tessera::protocol

@@ -1,0 +1,71 @@
+#pragma once
+// The Tessera tile server: hosts .tsr stores and serves them to viewers over gRPC (streaming,
+// prioritized, fair, cancellable) and to everything else over HTTP. See docs/server.md.
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "tessera/result.hpp"
+
+namespace tessera::server {
+
+struct ServerConfig {
+    // Stores: single files, and directories whose *.tsr files are all served. A store is named by
+    // its file name without ".tsr"; files whose names are not identifiers are skipped (logged).
+    std::vector<std::string> store_files;
+    std::vector<std::string> store_dirs;
+    // Rescan the directories and files this often (0: only on SIGHUP / reload()).
+    std::chrono::milliseconds watch_interval{2000};
+
+    std::string grpc_address = "127.0.0.1:50051";  // HOST:PORT; port 0 picks one; empty: no gRPC
+    std::string http_address = "127.0.0.1:8080";   // HOST:PORT; port 0 picks one; empty: no HTTP
+
+    std::string tls_cert_file;  // PEM; with tls_key_file, both gRPC and HTTP are TLS only
+    std::string tls_key_file;
+    std::string auth_token;     // non-empty: every request needs "authorization: Bearer <token>"
+                                // (HTTP /healthz and /readyz excepted)
+
+    std::size_t cache_bytes = std::size_t(256) << 20;  // RAM tile cache; 0 disables it
+    unsigned io_threads = 0;    // tile readers; 0: hardware threads
+    unsigned http_threads = 0;  // HTTP event loops; 0: hardware threads
+
+    // Bounds. Beyond them new work is refused (RESOURCE_EXHAUSTED / 503); admitted work goes on.
+    std::size_t max_viewers = 256;          // concurrent StreamTiles calls
+    std::size_t max_batch = 16384;          // requests in one TileBatch
+    std::size_t max_pending = 1u << 20;     // admitted, unread requests over all viewers
+    std::size_t max_message_bytes = 4u << 20;   // largest gRPC message accepted
+    std::size_t max_connections = 1024;     // concurrent HTTP connections
+    std::size_t max_header_bytes = 8192;    // HTTP request line + headers
+    std::size_t max_http_inflight = 4096;   // HTTP tile requests being served at once
+    std::size_t viewer_buffer_bytes = std::size_t(4) << 20;  // replies read but not yet sent, per viewer
+    std::size_t total_buffer_bytes = std::size_t(512) << 20; // the same over all viewers
+
+    std::chrono::milliseconds request_timeout{5000};  // default deadline of a tile request
+    std::chrono::milliseconds idle_timeout{60000};    // HTTP keep-alive idle limit
+    std::chrono::milliseconds drain_timeout{10000};   // SIGTERM: longest wait for in-flight work
+    unsigned http_max_age = 60;  // Cache-Control max-age for tiles (versioned URLs: a year)
+
+    bool log_json = true;
+    bool log_debug = false;
+};
+
+class Server {
+public:
+    // Opens the stores, binds the ports and starts serving. Errors: invalid_argument (bad
+    // config), io_error (cannot bind, unreadable TLS files), not_found (a --store file missing).
+    static Result<std::unique_ptr<Server>> start(const ServerConfig& config);
+    virtual ~Server() = default;
+
+    virtual std::uint16_t grpc_port() const = 0;  // 0 when gRPC is off
+    virtual std::uint16_t http_port() const = 0;  // 0 when HTTP is off
+
+    // Rescans the store files and directories now (what SIGHUP does).
+    virtual void reload() = 0;
+    // Graceful stop: refuse new work, finish what was admitted (up to drain_timeout), close.
+    virtual void shutdown() = 0;
+};
+
+}  // namespace tessera::server

@@ -1,0 +1,234 @@
+#include "grpc_service.hpp"
+
+#include <mutex>
+
+#include "auth.hpp"
+#include "tessera/protocol/wire.hpp"
+
+namespace tessera::server {
+
+namespace {
+
+// Connects the scheduler (which may outlive a stream's reactor by a few microseconds on an I/O
+// thread) to the reactor: the reactor detaches itself in OnDone, under the link's lock.
+class StreamReactor;
+class ReactorLink final : public ViewerSink {
+public:
+    explicit ReactorLink(StreamReactor* r) : reactor_(r) {}
+    void on_outbox_ready() override;
+    void detach() {
+        std::lock_guard lock(mu_);
+        reactor_ = nullptr;
+    }
+
+private:
+    std::mutex mu_;
+    StreamReactor* reactor_;
+};
+
+class StreamReactor final : public grpc::ServerBidiReactor<v1::TileBatch, v1::ServerMessage> {
+public:
+    StreamReactor(ServerContext& ctx, Scheduler& scheduler, grpc::CallbackServerContext* context, bool authorized,
+                  Counter* viewers_refused)
+        : ctx_(ctx), scheduler_(scheduler), peer_(context->peer()) {
+        if (!authorized) {
+            finished_ = true;
+            Finish(grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "missing or wrong bearer token"));
+            return;
+        }
+        link_ = std::make_shared<ReactorLink>(this);
+        auto id = scheduler_.add_viewer(link_);
+        if (!id) {
+            viewers_refused->inc();
+            finished_ = true;
+            const bool draining = scheduler_.draining();
+            Finish(grpc::Status(
+                draining ? grpc::StatusCode::UNAVAILABLE : grpc::StatusCode::RESOURCE_EXHAUSTED,
+                draining ? "the server is shutting down"
+                         : "too many viewers (limit " + std::to_string(ctx_.config.max_viewers) + "); retry later"));
+            return;
+        }
+        id_ = *id;
+        ctx_.log.debug("viewer connected", {{"viewer", id_}, {"peer", peer_}});
+        StartRead(&batch_);
+    }
+
+    void OnReadDone(bool ok) override {
+        if (!ok) {  // the viewer half-closed (or left): finish once its admitted work is sent
+            std::unique_lock lock(mu_);
+            read_closed_ = true;
+            maybe_finish_locked(lock);
+            return;
+        }
+        scheduler_.submit(id_, batch_);
+        std::lock_guard lock(mu_);
+        if (finished_) return;
+        // A viewer that sends batches but does not read replies stops being read too.
+        if (scheduler_.outbox_full(id_)) read_paused_ = true;
+        else StartRead(&batch_);
+    }
+
+    void OnWriteDone(bool ok) override {
+        scheduler_.message_written(id_, current_, ok);
+        {
+            std::unique_lock lock(mu_);
+            writing_ = false;
+            if (!ok) {
+                broken_ = true;
+                finish_locked(lock, grpc::Status(grpc::StatusCode::CANCELLED, "the viewer went away"));
+                return;
+            }
+            if (read_paused_ && !read_closed_ && !finished_ && !scheduler_.outbox_full(id_)) {
+                read_paused_ = false;
+                StartRead(&batch_);
+            }
+        }
+        kick();
+    }
+
+    void OnCancel() override {
+        std::unique_lock lock(mu_);
+        broken_ = true;
+        finish_locked(lock, grpc::Status::CANCELLED);
+    }
+
+    void OnDone() override {
+        if (link_) link_->detach();
+        if (id_) scheduler_.remove_viewer(id_);
+        ctx_.log.debug("viewer disconnected", {{"viewer", id_}, {"peer", peer_}});
+        delete this;
+    }
+
+    // Start the next write if none is running; finish when there is nothing left to do.
+    void kick() {
+        std::unique_lock lock(mu_);
+        if (finished_ || writing_ || broken_) return;
+        if (scheduler_.next_message(id_, current_)) {
+            writing_ = true;
+            StartWrite(&current_.message);
+            return;
+        }
+        maybe_finish_locked(lock);
+    }
+
+private:
+    void maybe_finish_locked(std::unique_lock<std::recursive_mutex>& lock) {
+        if (finished_ || writing_) return;
+        const bool draining = scheduler_.draining();
+        if ((read_closed_ || draining) && scheduler_.viewer_idle(id_))
+            finish_locked(lock, draining && !read_closed_
+                                    ? grpc::Status(grpc::StatusCode::UNAVAILABLE, "the server is shutting down")
+                                    : grpc::Status::OK);
+    }
+    void finish_locked(std::unique_lock<std::recursive_mutex>&, const grpc::Status& status) {
+        if (finished_ || writing_) return;  // a running write finishes first (OnWriteDone)
+        finished_ = true;
+        Finish(status);
+    }
+
+    ServerContext& ctx_;
+    Scheduler& scheduler_;
+    std::string peer_;
+    std::shared_ptr<ReactorLink> link_;
+    Scheduler::ViewerId id_ = 0;
+    v1::TileBatch batch_;  // only touched by the read path (one read at a time)
+    OutMessage current_;   // only touched by the write path (one write at a time)
+    // Recursive: Start* calls are made under it, and gRPC may run a reaction inline on the
+    // calling thread when an operation completes at once.
+    std::recursive_mutex mu_;
+    bool writing_ = false, finished_ = false, read_closed_ = false, read_paused_ = false, broken_ = false;
+};
+
+void ReactorLink::on_outbox_ready() {
+    std::lock_guard lock(mu_);
+    if (reactor_) reactor_->kick();
+}
+
+}  // namespace
+
+GrpcService::GrpcService(ServerContext& ctx, Scheduler& scheduler) : ctx_(ctx), scheduler_(scheduler) {
+    unauthenticated_ = &ctx.metrics.counter("tessera_grpc_unauthenticated_total", "gRPC calls refused: bad bearer token");
+    viewers_refused_ = &ctx.metrics.counter("tessera_grpc_viewers_refused_total",
+                                            "StreamTiles calls refused: too many viewers, or draining");
+}
+
+bool GrpcService::authorized(grpc::CallbackServerContext* context) const {
+    if (ctx_.config.auth_token.empty()) return true;
+    const auto& md = context->client_metadata();
+    auto it = md.find("authorization");
+    if (it == md.end() || !server::authorized(std::string_view(it->second.data(), it->second.size()),
+                                              ctx_.config.auth_token)) {
+        unauthenticated_->inc();
+        return false;
+    }
+    return true;
+}
+
+namespace {
+grpc::ServerUnaryReactor* finish(grpc::CallbackServerContext* context, const grpc::Status& status) {
+    auto* r = context->DefaultReactor();
+    r->Finish(status);
+    return r;
+}
+const grpc::Status kUnauthenticated(grpc::StatusCode::UNAUTHENTICATED, "missing or wrong bearer token");
+}  // namespace
+
+grpc::ServerUnaryReactor* GrpcService::ListStores(grpc::CallbackServerContext* context, const v1::ListStoresRequest*,
+                                                  v1::ListStoresReply* reply) {
+    if (!authorized(context)) return finish(context, kUnauthenticated);
+    for (const auto& h : ctx_.stores.list()) *reply->add_stores() = protocol::to_proto(h->name, h->info());
+    return finish(context, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* GrpcService::GetStore(grpc::CallbackServerContext* context, const v1::GetStoreRequest* request,
+                                                v1::StoreMetadata* reply) {
+    if (!authorized(context)) return finish(context, kUnauthenticated);
+    if (!protocol::valid_store_name(request->name()))
+        return finish(context, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                                            "store names are identifiers ([A-Za-z0-9_.-], no '..'), not paths"));
+    auto h = ctx_.stores.find(request->name());
+    if (!h) return finish(context, grpc::Status(grpc::StatusCode::NOT_FOUND, "no store named '" + request->name() + "'"));
+    *reply = protocol::to_proto(h->name, h->info());
+    return finish(context, grpc::Status::OK);
+}
+
+grpc::ServerBidiReactor<v1::TileBatch, v1::ServerMessage>* GrpcService::StreamTiles(
+    grpc::CallbackServerContext* context) {
+    return new StreamReactor(ctx_, scheduler_, context, authorized(context), viewers_refused_);
+}
+
+grpc::ServerUnaryReactor* GrpcService::GetStats(grpc::CallbackServerContext* context, const v1::GetStatsRequest*,
+                                                v1::ServerStats* reply) {
+    if (!authorized(context)) return finish(context, kUnauthenticated);
+    const auto s = scheduler_.stats();
+    const auto c = ctx_.fetcher.cache().stats();
+    reply->set_uptime_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - ctx_.started).count());
+    reply->set_viewers(s.viewers);
+    reply->set_pending(s.pending);
+    reply->set_in_flight(s.in_flight);
+    reply->set_batches(s.batches);
+    reply->set_requests(s.requests);
+    reply->set_tiles_sent(s.tiles_sent);
+    reply->set_bytes_sent(s.bytes_sent);
+    reply->set_cancelled(s.cancelled);
+    reply->set_refused(s.refused);
+    reply->set_invalid(s.invalid);
+    reply->set_deadline_exceeded(s.deadline_exceeded);
+    reply->set_data_loss(s.data_loss);
+    reply->set_cache_hits(c.hits);
+    reply->set_cache_misses(c.misses);
+    reply->set_cache_bytes(c.bytes);
+    reply->set_reads(ctx_.fetcher.reads());
+    reply->set_tiles_read(ctx_.fetcher.tiles_read());
+    for (const auto& h : ctx_.stores.list()) {
+        auto* st = reply->add_stores();
+        st->set_name(h->name);
+        st->set_version(h->version);
+        st->set_tiles_sent(h->metrics.tiles_sent->value());
+        st->set_bytes_sent(h->metrics.bytes_sent->value());
+        st->set_data_loss(h->metrics.data_loss->value());
+    }
+    return finish(context, grpc::Status::OK);
+}
+
+}  // namespace tessera::server

@@ -1,0 +1,537 @@
+// The HTTP front end on Boost.Beast: one io_context run by config.http_threads threads; every
+// connection is a session on its own strand (its handlers never run concurrently), reading one
+// request at a time (keep-alive, pipelined requests answered in order), calling the transport-free
+// HttpHandler and writing its response.
+//
+// Bounds: at most config.max_connections sessions; beyond that a connection gets its request
+// answered 503 "too many connections" (Retry-After: 1) and is closed (at most kMaxRejecting such
+// connections at once; beyond that they are closed unanswered). Request line + headers at most
+// config.max_header_bytes (431), a body at most kMaxBodyBytes (413), any other malformed request
+// 400; all three close the connection. config.idle_timeout bounds waiting for a request and
+// every read and write.
+#include "http_server.hpp"
+
+#include <openssl/ssl.h>
+
+#include <array>
+#include <atomic>
+#include <condition_variable>
+#include <fstream>
+#include <future>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <type_traits>
+#include <unordered_map>
+#include <vector>
+
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/ssl.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <boost/asio/strand.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <boost/beast/ssl.hpp>
+
+#include "http_handler.hpp"
+
+namespace tessera::server {
+
+namespace {
+
+namespace net = boost::asio;
+namespace ssl = boost::asio::ssl;
+namespace beast = boost::beast;
+namespace http = boost::beast::http;
+using tcp = boost::asio::ip::tcp;
+using error_code = boost::system::error_code;
+
+constexpr std::uint64_t kMaxBodyBytes = 64 * 1024;  // GET only: anything larger is 413
+constexpr std::size_t kMaxRejecting = 64;           // over-limit connections being answered 503
+constexpr std::chrono::seconds kLingerTimeout{2};   // reading what a closing client still sends
+constexpr std::size_t kLingerBytes = 256 * 1024;
+constexpr std::chrono::seconds kRejectTimeout{5};   // an over-limit connection's request must come soon
+
+std::string_view sv(beast::string_view s) { return {s.data(), s.size()}; }
+
+struct SessionBase;
+
+// State the sessions share with the server. Declared before the io_context in the server, so it
+// outlives every session (sessions die with the io_context's pending handlers).
+struct Shared {
+    ServerContext& ctx;
+    HttpHandler handler;
+    std::unique_ptr<ssl::context> tls;  // null: plain HTTP
+
+    std::atomic<bool> draining{false};
+    std::atomic<bool> stopped{false};
+    std::atomic<std::size_t> connections{0};  // admitted sessions
+    std::atomic<std::size_t> rejecting{0};    // over-limit sessions being answered 503
+
+    std::mutex idle_mutex;  // busy: requests read and not yet answered
+    std::condition_variable idle_cv;
+    std::size_t busy = 0;
+
+    std::mutex sessions_mutex;  // every live session, to drain or close them
+    std::condition_variable sessions_cv;
+    std::unordered_map<const void*, std::weak_ptr<SessionBase>> sessions;
+
+    explicit Shared(ServerContext& c) : ctx(c), handler(c) {}
+
+    bool closing_connections() const { return draining.load() || stopped.load() || ctx.draining.load(); }
+    void request_begin() {
+        std::lock_guard lock(idle_mutex);
+        ++busy;
+    }
+    void request_end() {
+        std::lock_guard lock(idle_mutex);
+        if (--busy == 0) idle_cv.notify_all();
+    }
+};
+
+struct SessionBase : std::enable_shared_from_this<SessionBase> {
+    virtual ~SessionBase() = default;
+    virtual void start() = 0;
+    virtual void post_drain() = 0;  // close now if waiting for a request; else after the response
+    virtual void post_close() = 0;  // close now
+};
+
+template <bool Tls>
+class Session final : public SessionBase {
+    using Stream = std::conditional_t<Tls, beast::ssl_stream<beast::tcp_stream>, beast::tcp_stream>;
+    enum class State { handshake, reading, busy, closing, closed };
+
+public:
+    Session(Shared& shared, tcp::socket&& socket, bool reject)
+        : shared_(shared), stream_(make_stream(shared, std::move(socket))), reject_(reject) {
+        if (reject_) shared_.rejecting.fetch_add(1);
+        else shared_.connections.fetch_add(1);
+    }
+    ~Session() override {
+        if (in_request_) shared_.request_end();
+        if (reject_) shared_.rejecting.fetch_sub(1);
+        else shared_.connections.fetch_sub(1);
+        std::lock_guard lock(shared_.sessions_mutex);
+        shared_.sessions.erase(this);
+        shared_.sessions_cv.notify_all();
+    }
+
+    void start() override {
+        net::dispatch(stream_.get_executor(), [self = self()] {
+            if constexpr (Tls) {
+                self->state_ = State::handshake;
+                self->tcp().expires_after(self->read_timeout());
+                self->stream_.async_handshake(ssl::stream_base::server, [self](const error_code& ec) {
+                    if (ec) return self->close();
+                    self->do_read();
+                });
+            } else {
+                self->do_read();
+            }
+        });
+    }
+
+    void post_drain() override {
+        net::post(stream_.get_executor(), [self = self()] {
+            // Waiting for a request with nothing of one received yet: idle, close it. Otherwise
+            // the response in progress goes out with Connection: close.
+            const bool idle = self->state_ == State::handshake ||
+                              (self->state_ == State::reading && self->buffer_.size() == 0 &&
+                               (!self->parser_ || !self->parser_->got_some()));
+            if (idle) self->close();
+        });
+    }
+    void post_close() override {
+        net::post(stream_.get_executor(), [self = self()] { self->close(); });
+    }
+
+private:
+    static Stream make_stream(Shared& shared, tcp::socket&& socket) {
+        if constexpr (Tls) return Stream(std::move(socket), *shared.tls);
+        else return Stream(std::move(socket));
+    }
+    std::shared_ptr<Session> self() { return std::static_pointer_cast<Session>(shared_from_this()); }
+    beast::tcp_stream& tcp() {
+        if constexpr (Tls) return stream_.next_layer();
+        else return stream_;
+    }
+    std::chrono::steady_clock::duration read_timeout() const {
+        const std::chrono::steady_clock::duration idle = shared_.ctx.config.idle_timeout;
+        return reject_ ? std::min<std::chrono::steady_clock::duration>(idle, kRejectTimeout) : idle;
+    }
+
+    void do_read() {
+        if (state_ == State::closed || state_ == State::closing) return;
+        if (shared_.closing_connections() && requests_ > 0) return graceful_close();
+        state_ = State::reading;
+        parser_.emplace();
+        parser_->header_limit(static_cast<std::uint32_t>(std::min<std::size_t>(shared_.ctx.config.max_header_bytes, UINT32_MAX)));
+        parser_->body_limit(kMaxBodyBytes);
+        tcp().expires_after(read_timeout());
+        http::async_read(stream_, buffer_, *parser_,
+                         [self = self()](const error_code& ec, std::size_t) { self->on_read(ec); });
+    }
+
+    void on_read(const error_code& ec) {
+        if (state_ == State::closed) return;
+        if (ec) {
+            if (ec == http::error::end_of_stream) return graceful_close();
+            if (ec == http::error::header_limit) return write_error(431, "request header fields too large");
+            if (ec == http::error::body_limit) return write_error(413, "request body too large (GET takes none)");
+            const error_code any_http_error = http::error::bad_method;
+            if (ec.category() == any_http_error.category() && ec != http::error::partial_message)
+                return write_error(400, "malformed request: " + ec.message());
+            return close();  // timeout, reset, TLS error, aborted by close()
+        }
+        ++requests_;
+        begin_request();
+        const auto& req = parser_->get();
+        HttpResponse r;
+        if (reject_) {
+            r = http_error_response(503, "too many connections");
+            r.headers.emplace_back("Retry-After", "1");
+            shared_.handler.record_transport_response(503, r.body.size());
+        } else {
+            std::string if_none_match;
+            const auto range = req.equal_range(http::field::if_none_match);
+            for (auto it = range.first; it != range.second; ++it) {
+                if (!if_none_match.empty()) if_none_match += ", ";
+                if_none_match.append(it->value().data(), it->value().size());
+            }
+            const HttpRequestView view{sv(req.method_string()), sv(req.target()),
+                                       sv(req[http::field::authorization]), if_none_match,
+                                       sv(req[http::field::accept])};
+            try {
+                r = shared_.handler.handle_http_request(view);
+            } catch (const std::exception& e) {
+                // The handler catches its own errors; this is only allocation failure and the like.
+                shared_.ctx.log.error("http handler threw", {{"error", e.what()}});
+                r = http_error_response(500, "internal error");
+            }
+        }
+        const bool keep_alive = !reject_ && req.keep_alive() && !shared_.closing_connections();
+        send(std::move(r), req.version(), req.method() == http::verb::head, keep_alive);
+    }
+
+    // A response the transport makes itself (the request could not be parsed): sent, then closed.
+    void write_error(unsigned status, const std::string& message) {
+        begin_request();
+        HttpResponse r = http_error_response(status, message);
+        shared_.handler.record_transport_response(status, r.body.size());
+        send(std::move(r), 11, false, false);
+    }
+
+    void begin_request() {
+        if (!in_request_) shared_.request_begin();
+        in_request_ = true;
+        state_ = State::busy;
+    }
+    void end_request() {
+        if (in_request_) shared_.request_end();
+        in_request_ = false;
+    }
+
+    void send(HttpResponse r, unsigned version, bool head, bool keep_alive) {
+        res_.emplace();
+        auto& res = *res_;
+        res.version(version);
+        res.result(r.status);
+        if (!r.content_type.empty()) res.set(http::field::content_type, r.content_type);
+        for (auto& [k, v] : r.headers) res.insert(k, v);
+        const bool bodiless = r.status == 304 || r.status == 204 || r.status < 200;
+        if (head) {
+            if (!bodiless) res.content_length(r.body.size());
+        } else if (!bodiless) {
+            res.body() = std::move(r.body);
+            res.prepare_payload();
+        }
+        res.keep_alive(keep_alive);
+        tcp().expires_after(shared_.ctx.config.idle_timeout);
+        http::async_write(stream_, res, [self = self(), keep_alive](const error_code& ec, std::size_t) {
+            self->end_request();
+            self->res_.reset();
+            if (self->state_ == State::closed) return;
+            if (ec) return self->close();
+            if (!keep_alive) return self->graceful_close();
+            self->do_read();
+        });
+    }
+
+    // TLS: close_notify (bounded). Plain: stop sending, then read and drop what the client still
+    // sends until it closes (bounded), so that unread request bytes do not make the kernel reset
+    // the connection before the client has read our response.
+    void graceful_close() {
+        if (state_ == State::closed || state_ == State::closing) return;
+        state_ = State::closing;
+        tcp().expires_after(kLingerTimeout);
+        if constexpr (Tls) {
+            stream_.async_shutdown([self = self()](const error_code&) { self->close(); });
+        } else {
+            error_code ec;
+            tcp().socket().shutdown(tcp::socket::shutdown_send, ec);
+            if (ec) return close();
+            linger();
+        }
+    }
+    void linger() {
+        tcp().async_read_some(net::buffer(linger_buf_), [self = self()](const error_code& ec, std::size_t n) {
+            self->lingered_ += n;
+            if (ec || self->lingered_ > kLingerBytes || self->state_ == State::closed) return self->close();
+            self->linger();
+        });
+    }
+
+    void close() {
+        if (state_ == State::closed) return;
+        state_ = State::closed;
+        error_code ec;
+        tcp().socket().shutdown(tcp::socket::shutdown_both, ec);
+        tcp().close();  // pending operations complete with operation_aborted
+    }
+
+    Shared& shared_;
+    Stream stream_;
+    const bool reject_;
+    State state_ = State::reading;
+    bool in_request_ = false;
+    std::uint64_t requests_ = 0;
+    beast::flat_buffer buffer_;
+    std::optional<http::request_parser<http::string_body>> parser_;
+    std::optional<http::response<http::string_body>> res_;
+    std::array<char, 4096> linger_buf_{};
+    std::size_t lingered_ = 0;
+};
+
+Result<tcp::endpoint> resolve_endpoint(const std::string& address, net::io_context& ioc) {
+    if (address.empty()) return make_error(Errc::invalid_argument, "HTTP address is empty");
+    std::string host, port;
+    if (address.front() == '[') {
+        const std::size_t close = address.find(']');
+        if (close == std::string::npos || close + 1 >= address.size() || address[close + 1] != ':')
+            return make_error(Errc::invalid_argument, "HTTP address '" + address + "': expected [IPV6]:PORT");
+        host = address.substr(1, close - 1);
+        port = address.substr(close + 2);
+    } else {
+        const std::size_t colon = address.rfind(':');
+        if (colon == std::string::npos)
+            return make_error(Errc::invalid_argument, "HTTP address '" + address + "': expected HOST:PORT");
+        host = address.substr(0, colon);
+        port = address.substr(colon + 1);
+        if (host.find(':') != std::string::npos)
+            return make_error(Errc::invalid_argument, "HTTP address '" + address + "': an IPv6 address needs brackets, [ADDR]:PORT");
+    }
+    if (host.empty()) return make_error(Errc::invalid_argument, "HTTP address '" + address + "': missing host");
+    unsigned long port_value = 0;
+    if (port.empty() || port.size() > 5 || port.find_first_not_of("0123456789") != std::string::npos ||
+        (port_value = std::stoul(port)) > 65535)
+        return make_error(Errc::invalid_argument, "HTTP address '" + address + "': port must be 0..65535");
+
+    error_code ec;
+    const net::ip::address ip = net::ip::make_address(host, ec);
+    if (!ec) return tcp::endpoint(ip, static_cast<unsigned short>(port_value));
+    tcp::resolver resolver(ioc);
+    const auto results = resolver.resolve(host, port, ec);
+    if (ec || results.empty())
+        return make_error(Errc::io_error, "HTTP address '" + address + "': cannot resolve '" + host + "': " +
+                                              (ec ? ec.message() : std::string("no addresses")));
+    return results.begin()->endpoint();
+}
+
+bool readable(const std::string& path) {
+    std::ifstream f(path, std::ios::binary);
+    return f.good();
+}
+
+Result<std::unique_ptr<ssl::context>> make_tls_context(const ServerConfig& config) {
+    if (config.tls_cert_file.empty() != config.tls_key_file.empty())
+        return make_error(Errc::invalid_argument, "TLS needs both a certificate and a key file");
+    if (!readable(config.tls_cert_file))
+        return make_error(Errc::io_error, "cannot read TLS certificate '" + config.tls_cert_file + "'");
+    if (!readable(config.tls_key_file))
+        return make_error(Errc::io_error, "cannot read TLS key '" + config.tls_key_file + "'");
+    auto tls = std::make_unique<ssl::context>(ssl::context::tls_server);
+    error_code ec;
+    tls->set_options(ssl::context::default_workarounds | ssl::context::no_sslv2 | ssl::context::no_sslv3 |
+                         ssl::context::no_tlsv1 | ssl::context::no_tlsv1_1 | ssl::context::single_dh_use,
+                     ec);
+    if (ec) return make_error(Errc::io_error, "TLS options: " + ec.message());
+    SSL_CTX_set_min_proto_version(tls->native_handle(), TLS1_2_VERSION);
+    tls->use_certificate_chain_file(config.tls_cert_file, ec);
+    if (ec)
+        return make_error(Errc::io_error, "cannot load TLS certificate '" + config.tls_cert_file + "': " + ec.message());
+    tls->use_private_key_file(config.tls_key_file, ssl::context::pem, ec);
+    if (ec) return make_error(Errc::io_error, "cannot load TLS key '" + config.tls_key_file + "': " + ec.message());
+    if (SSL_CTX_check_private_key(tls->native_handle()) != 1)
+        return make_error(Errc::invalid_argument, "TLS key '" + config.tls_key_file + "' does not match the certificate '" +
+                                                      config.tls_cert_file + "'");
+    return tls;
+}
+
+class HttpServerImpl final : public HttpServer {
+public:
+    explicit HttpServerImpl(ServerContext& ctx, unsigned threads)
+        : shared_(ctx),
+          ioc_(static_cast<int>(threads)),
+          work_(net::make_work_guard(ioc_)),
+          accept_strand_(net::make_strand(ioc_)),
+          acceptor_(accept_strand_),
+          retry_timer_(accept_strand_),
+          thread_count_(threads) {}
+
+    ~HttpServerImpl() override { stop(); }
+
+    Status open() {
+        const ServerConfig& config = shared_.ctx.config;
+        if (!config.tls_cert_file.empty() || !config.tls_key_file.empty()) {
+            auto tls = make_tls_context(config);
+            if (!tls.ok()) return tls.error();
+            shared_.tls = std::move(tls.value());
+        }
+        auto ep = resolve_endpoint(config.http_address, ioc_);
+        if (!ep.ok()) return ep.error();
+        error_code ec;
+        acceptor_.open(ep->protocol(), ec);
+        if (!ec) acceptor_.set_option(net::socket_base::reuse_address(true), ec);
+        if (!ec) acceptor_.bind(*ep, ec);
+        if (!ec) acceptor_.listen(net::socket_base::max_listen_connections, ec);
+        if (ec) return make_error(Errc::io_error, "cannot listen on HTTP address '" + config.http_address + "': " + ec.message());
+        port_ = acceptor_.local_endpoint(ec).port();
+
+        shared_.ctx.metrics.gauge_callback("tessera_http_connections", "Open HTTP connections (admitted)", {},
+                                           [s = &shared_] { return static_cast<double>(s->connections.load()); });
+        gauge_registered_ = true;
+
+        net::dispatch(accept_strand_, [this] { do_accept(); });
+        for (unsigned i = 0; i < thread_count_; ++i) threads_.emplace_back([this] { run(); });
+        shared_.ctx.log.info("http listening", {{"address", config.http_address}, {"port", static_cast<unsigned>(port_)},
+                                                {"tls", shared_.tls != nullptr}, {"threads", thread_count_}});
+        return {};
+    }
+
+    std::uint16_t port() const override { return port_; }
+
+    void begin_drain() override {
+        if (shared_.draining.exchange(true) || shared_.stopped.load()) return;
+        close_acceptor();
+        for (auto& s : live_sessions()) s->post_drain();
+    }
+
+    bool wait_idle(std::chrono::milliseconds timeout) override {
+        std::unique_lock lock(shared_.idle_mutex);
+        return shared_.idle_cv.wait_for(lock, timeout, [&] { return shared_.busy == 0; });
+    }
+
+    void stop() override {
+        if (shared_.stopped.exchange(true)) return;
+        if (!threads_.empty()) {
+            close_acceptor();
+            for (auto& s : live_sessions()) s->post_close();
+            // Let the closes run (sockets closed, sessions released), briefly; then stop.
+            std::unique_lock lock(shared_.sessions_mutex);
+            shared_.sessions_cv.wait_for(lock, std::chrono::seconds(2), [&] { return shared_.sessions.empty(); });
+        }
+        work_.reset();
+        ioc_.stop();
+        for (auto& t : threads_)
+            if (t.joinable()) t.join();
+        threads_.clear();
+        if (gauge_registered_) shared_.ctx.metrics.remove_callbacks("tessera_http_connections");
+        gauge_registered_ = false;
+    }
+
+private:
+    void run() {
+        for (;;) {
+            try {
+                ioc_.run();
+                return;
+            } catch (const std::exception& e) {
+                shared_.ctx.log.error("http event loop error", {{"error", e.what()}});
+            }
+        }
+    }
+
+    // On the acceptor's strand, waiting (bounded) so that once begin_drain/stop return the port
+    // refuses connections.
+    void close_acceptor() {
+        auto done = std::make_shared<std::promise<void>>();
+        auto fut = done->get_future();
+        net::post(accept_strand_, [this, done] {
+            error_code ec;
+            acceptor_.close(ec);
+            retry_timer_.cancel();
+            done->set_value();
+        });
+        fut.wait_for(std::chrono::seconds(2));
+    }
+
+    std::vector<std::shared_ptr<SessionBase>> live_sessions() {
+        std::vector<std::shared_ptr<SessionBase>> out;
+        std::lock_guard lock(shared_.sessions_mutex);
+        for (auto& [k, w] : shared_.sessions)
+            if (auto s = w.lock()) out.push_back(std::move(s));
+        return out;
+    }
+
+    void do_accept() {
+        if (!acceptor_.is_open()) return;
+        acceptor_.async_accept(net::make_strand(ioc_), [this](const error_code& ec, tcp::socket socket) {
+            on_accept(ec, std::move(socket));
+        });
+    }
+
+    void on_accept(const error_code& ec, tcp::socket socket) {
+        if (ec == net::error::operation_aborted || !acceptor_.is_open()) return;
+        if (ec) {
+            // Out of file descriptors and the like: back off a little instead of spinning.
+            shared_.ctx.log.warn("http accept failed", {{"error", ec.message()}});
+            retry_timer_.expires_after(std::chrono::milliseconds(50));
+            retry_timer_.async_wait([this](const error_code& e) {
+                if (!e) do_accept();
+            });
+            return;
+        }
+        error_code ignored;
+        socket.set_option(tcp::no_delay(true), ignored);
+        const bool reject = shared_.connections.load() >= shared_.ctx.config.max_connections;
+        if (reject && shared_.rejecting.load() >= kMaxRejecting) {
+            socket.close(ignored);
+        } else {
+            std::shared_ptr<SessionBase> s;
+            if (shared_.tls) s = std::make_shared<Session<true>>(shared_, std::move(socket), reject);
+            else s = std::make_shared<Session<false>>(shared_, std::move(socket), reject);
+            {
+                std::lock_guard lock(shared_.sessions_mutex);
+                shared_.sessions.emplace(s.get(), s);
+            }
+            s->start();
+        }
+        do_accept();
+    }
+
+    // Destruction order matters: the io_context (whose pending handlers own the sessions) goes
+    // before the shared state the sessions use; the acceptor and timer before the io_context.
+    Shared shared_;
+    net::io_context ioc_;
+    std::optional<net::executor_work_guard<net::io_context::executor_type>> work_;
+    net::strand<net::io_context::executor_type> accept_strand_;
+    tcp::acceptor acceptor_;
+    net::steady_timer retry_timer_;
+    unsigned thread_count_;
+    std::uint16_t port_ = 0;
+    bool gauge_registered_ = false;
+    std::vector<std::thread> threads_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<HttpServer>> HttpServer::start(ServerContext& ctx) {
+    unsigned threads = ctx.config.http_threads;
+    if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+    auto server = std::make_unique<HttpServerImpl>(ctx, threads);
+    if (Status s = server->open(); !s.ok()) return s.error();
+    return std::unique_ptr<HttpServer>(std::move(server));
+}
+
+}  // namespace tessera::server

@@ -1,0 +1,562 @@
+#include "scheduler.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <map>
+
+#include "tessera/protocol/wire.hpp"
+
+namespace tessera::server {
+
+namespace {
+
+constexpr std::size_t kMessageOverhead = 64;  // bytes charged per message besides its payload
+
+std::size_t message_bytes(const v1::ServerMessage& m) {
+    return kMessageOverhead + (m.has_tile() ? m.tile().payload().size() + m.tile().message().size() : 0);
+}
+
+}  // namespace
+
+struct Scheduler::Pending {
+    float priority = 0;
+    std::uint64_t packed = 0;
+    storage::TileKey key;
+    std::shared_ptr<const StoreHandle> store;
+    std::uint64_t frame = 0;
+    std::uint64_t generation = 0;  // the viewer's batch counter when it was asked for
+    Clock::time_point received{};
+    Clock::time_point deadline{};
+};
+
+struct Scheduler::Viewer {
+    ViewerId id = 0;
+    std::shared_ptr<ViewerSink> sink;
+    std::uint64_t generation = 0;
+    // Pending requests, ascending priority (the next one is at the back). Ties: earlier keys
+    // of the batch first.
+    std::vector<Pending> pending;
+    // Keys of the latest batch: what the viewer still wants.
+    std::unordered_set<FullKey, FullKeyHash> wanted;
+    // Keys being read now, or read and waiting in the outbox.
+    std::unordered_set<FullKey, FullKeyHash> in_flight;
+    unsigned chunks_in_flight = 0;
+    std::deque<OutMessage> outbox;
+    std::uint64_t outbox_bytes = 0;
+    bool writing = false;
+    std::uint64_t served = 0;  // tiles dispatched: the fairness clock
+};
+
+std::size_t Scheduler::FullKeyHash::operator()(const FullKey& k) const noexcept {
+    std::uint64_t h = k.packed ^ (reinterpret_cast<std::uintptr_t>(k.store) * 0x9E3779B97F4A7C15ull);
+    h ^= h >> 33;
+    h *= 0xff51afd7ed558ccdull;
+    h ^= h >> 33;
+    return static_cast<std::size_t>(h);
+}
+
+Scheduler::Scheduler(ServerContext& ctx) : ctx_(ctx) {
+    auto& m = ctx.metrics;
+    const Labels grpc{{"protocol", "grpc"}};
+    batches_ = &m.counter("tessera_grpc_batches_total", "Request batches received on StreamTiles");
+    batches_refused_ = &m.counter("tessera_grpc_batches_refused_total",
+                                  "Batches refused whole (too large, or the server is draining)");
+    requests_ = &m.counter("tessera_grpc_requests_total", "Tile requests received on StreamTiles");
+    tiles_sent_ = &m.counter("tessera_tiles_sent_total", "Tile replies with data handed to the transport", grpc);
+    bytes_sent_ = &m.counter("tessera_bytes_sent_total", "Tile payload bytes handed to the transport", grpc);
+    cancelled_ = &m.counter("tessera_grpc_requests_cancelled_total",
+                            "Requests superseded by a newer batch and dropped unsent");
+    refused_ = &m.counter("tessera_grpc_requests_refused_total",
+                          "Requests refused with RESOURCE_EXHAUSTED (pending queue full)");
+    invalid_ = &m.counter("tessera_grpc_requests_invalid_total",
+                          "Requests answered with an error (unknown store, out of range, malformed)");
+    deadline_exceeded_ = &m.counter("tessera_grpc_requests_deadline_exceeded_total",
+                                    "Requests not started before their deadline");
+    data_loss_ = &m.counter("tessera_grpc_data_loss_total", "Requests answered DATA_LOSS (tile failed its checksum)");
+    latency_ = &m.histogram("tessera_grpc_tile_latency_seconds",
+                            "Tile request received -> reply handed to the transport", {}, latency_buckets_seconds());
+    batch_size_ = &m.histogram("tessera_grpc_batch_requests", "Requests per batch", {},
+                               {1, 4, 16, 64, 256, 1024, 4096, 16384, 65536});
+    m.gauge_callback("tessera_grpc_viewers", "Open StreamTiles calls", {}, [this] { return double(stats().viewers); });
+    m.gauge_callback("tessera_queue_pending", "Admitted tile requests not yet read", {},
+                     [this] { return double(stats().pending); });
+    m.gauge_callback("tessera_queue_in_flight", "Tile requests being read or waiting to be sent", {},
+                     [this] { return double(stats().in_flight); });
+    m.gauge_callback("tessera_queue_outbox_bytes", "Reply bytes waiting to be sent, all viewers", {},
+                     [this] { return double(stats().outbox_bytes); });
+
+    unsigned n = ctx.config.io_threads ? ctx.config.io_threads : std::max(1u, std::thread::hardware_concurrency());
+    for (unsigned i = 0; i < n; ++i) workers_.emplace_back([this] { worker(); });
+}
+
+Scheduler::~Scheduler() {
+    {
+        std::lock_guard lock(mu_);
+        stopping_ = true;
+    }
+    work_cv_.notify_all();
+    for (auto& t : workers_) t.join();
+    ctx_.metrics.remove_callbacks("tessera_grpc_viewers");
+    ctx_.metrics.remove_callbacks("tessera_queue_pending");
+    ctx_.metrics.remove_callbacks("tessera_queue_in_flight");
+    ctx_.metrics.remove_callbacks("tessera_queue_outbox_bytes");
+}
+
+std::optional<Scheduler::ViewerId> Scheduler::add_viewer(std::shared_ptr<ViewerSink> sink) {
+    std::lock_guard lock(mu_);
+    if (draining_ || viewers_.size() >= ctx_.config.max_viewers) return std::nullopt;
+    auto v = std::make_unique<Viewer>();
+    v->id = next_id_++;
+    v->sink = std::move(sink);
+    v->served = virtual_time_;
+    const ViewerId id = v->id;
+    viewers_.emplace(id, std::move(v));
+    return id;
+}
+
+void Scheduler::remove_viewer(ViewerId id) {
+    std::lock_guard lock(mu_);
+    auto it = viewers_.find(id);
+    if (it == viewers_.end()) return;
+    Viewer& v = *it->second;
+    total_pending_ -= v.pending.size();
+    total_outbox_bytes_ -= v.outbox_bytes;
+    // In-flight chunks find the viewer gone and drop their replies (and their in-flight count).
+    viewers_.erase(it);
+}
+
+void Scheduler::push_locked(Viewer& v, OutMessage msg) {
+    msg.bytes = message_bytes(msg.message);
+    v.outbox_bytes += msg.bytes;
+    total_outbox_bytes_ += msg.bytes;
+    v.outbox.push_back(std::move(msg));
+}
+
+void Scheduler::notify(std::vector<std::shared_ptr<ViewerSink>>& sinks) {
+    for (auto& s : sinks)
+        if (s) s->on_outbox_ready();
+    sinks.clear();
+}
+
+void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
+    const auto now = Clock::now();
+    batches_->inc();
+    requests_->inc(static_cast<std::uint64_t>(batch.requests_size()));
+    batch_size_->observe(batch.requests_size());
+
+    // Resolve the batch's store names once (outside the lock: the registry has its own).
+    std::vector<std::shared_ptr<const StoreHandle>> stores;
+    stores.reserve(static_cast<std::size_t>(batch.stores_size()));
+    for (const auto& name : batch.stores()) stores.push_back(ctx_.stores.find(name));
+
+    v1::BatchAck ack;
+    ack.set_frame(batch.frame());
+    std::vector<OutMessage> errors;
+    auto error_reply = [&](const v1::TileRequest& r, v1::TileStatus status, std::string message) {
+        OutMessage m;
+        auto* t = m.message.mutable_tile();
+        auto* k = t->mutable_key();
+        if (r.store() < static_cast<std::uint32_t>(batch.stores_size())) k->set_store(batch.stores(static_cast<int>(r.store())));
+        k->set_level(r.level());
+        k->set_x(r.x());
+        k->set_y(r.y());
+        t->set_frame(batch.frame());
+        t->set_status(status);
+        t->set_message(std::move(message));
+        t->set_kind(v1::KIND_ABSENT);
+        t->set_codec(v1::CODEC_NONE);
+        errors.push_back(std::move(m));
+    };
+
+    std::vector<std::shared_ptr<ViewerSink>> wake;
+    std::unique_lock lock(mu_);
+    auto vit = viewers_.find(id);
+    if (vit == viewers_.end()) return;
+    Viewer& v = *vit->second;
+
+    auto refuse_whole = [&](v1::TileStatus status, std::string message) {
+        batches_refused_->inc();
+        ack.set_status(status);
+        ack.set_message(std::move(message));
+        OutMessage m;
+        *m.message.mutable_ack() = std::move(ack);
+        push_locked(v, std::move(m));
+        wake.push_back(v.sink);
+        lock.unlock();
+        notify(wake);
+    };
+    if (draining_) return refuse_whole(v1::TILE_UNAVAILABLE, "the server is shutting down; reconnect elsewhere");
+    if (static_cast<std::size_t>(batch.requests_size()) > ctx_.config.max_batch) {
+        char buf[128];
+        std::snprintf(buf, sizeof buf, "batch of %d requests exceeds the limit of %zu; it was refused whole",
+                      batch.requests_size(), ctx_.config.max_batch);
+        return refuse_whole(v1::TILE_RESOURCE_EXHAUSTED, buf);
+    }
+
+    // Validate, and collect the new wanted set.
+    const auto deadline =
+        now + (batch.deadline_ms() ? std::chrono::milliseconds(batch.deadline_ms()) : ctx_.config.request_timeout);
+    std::vector<Pending> next;
+    next.reserve(static_cast<std::size_t>(batch.requests_size()));
+    std::unordered_set<FullKey, FullKeyHash> wanted;
+    wanted.reserve(static_cast<std::size_t>(batch.requests_size()));
+    std::uint32_t invalid = 0, already = 0;
+    for (const auto& r : batch.requests()) {
+        if (r.store() >= static_cast<std::uint32_t>(batch.stores_size())) {
+            error_reply(r, v1::TILE_INVALID_ARGUMENT, "store index " + std::to_string(r.store()) + " is not in the batch's store list");
+            ++invalid;
+            continue;
+        }
+        const auto& store = stores[r.store()];
+        if (!store) {
+            const auto& name = batch.stores(static_cast<int>(r.store()));
+            error_reply(r, protocol::valid_store_name(name) ? v1::TILE_NOT_FOUND : v1::TILE_INVALID_ARGUMENT,
+                        protocol::valid_store_name(name) ? "no store named '" + name + "'"
+                                                         : "store names are identifiers ([A-Za-z0-9_.-], no '..')");
+            ++invalid;
+            continue;
+        }
+        if (!std::isfinite(r.priority())) {
+            error_reply(r, v1::TILE_INVALID_ARGUMENT, "priority must be a finite number");
+            ++invalid;
+            continue;
+        }
+        const storage::TileKey key{r.level(), r.x(), r.y()};
+        if (!store->info().contains(key)) {
+            const auto& info = store->info();
+            char buf[160];
+            if (key.level >= info.level_count())
+                std::snprintf(buf, sizeof buf, "level %u is out of range (the store has levels 0..%u)", key.level,
+                              info.level_count() - 1);
+            else
+                std::snprintf(buf, sizeof buf, "tile (%u,%u) is out of range at level %u (%u x %u tiles)", key.x,
+                              key.y, key.level, info.levels[key.level].tiles_x, info.levels[key.level].tiles_y);
+            error_reply(r, v1::TILE_OUT_OF_RANGE, buf);
+            ++invalid;
+            continue;
+        }
+        const FullKey fk{store.get(), protocol::pack_key(key.level, key.x, key.y)};
+        if (!wanted.insert(fk).second || v.in_flight.contains(fk)) {
+            ++already;  // a duplicate in this batch, or already being served: sent once
+            continue;
+        }
+        Pending p;
+        p.priority = r.priority();
+        p.packed = fk.packed;
+        p.key = key;
+        p.store = store;
+        p.frame = batch.frame();
+        p.received = now;
+        p.deadline = deadline;
+        next.push_back(std::move(p));
+    }
+
+    // Superseded: old pending requests the new batch does not list, and read replies waiting in
+    // the outbox for keys it does not list. Both are dropped unsent.
+    std::uint64_t cancelled = 0;
+    for (const auto& p : v.pending)
+        if (!wanted.contains(FullKey{p.store.get(), p.packed})) ++cancelled;
+    for (auto it = v.outbox.begin(); it != v.outbox.end();) {
+        if (it->is_tile && !wanted.contains(FullKey{it->store.get(), it->packed_key})) {
+            v.outbox_bytes -= it->bytes;
+            total_outbox_bytes_ -= it->bytes;
+            v.in_flight.erase(FullKey{it->store.get(), it->packed_key});
+            ++cancelled;
+            it = v.outbox.erase(it);
+        } else {
+            ++it;
+        }
+    }
+
+    // Admission: the pending queue over all viewers is bounded; the lowest priorities are refused.
+    std::stable_sort(next.begin(), next.end(), [](const Pending& a, const Pending& b) { return a.priority > b.priority; });
+    const std::uint64_t others = total_pending_ - v.pending.size();
+    const std::uint64_t room = ctx_.config.max_pending > others ? ctx_.config.max_pending - others : 0;
+    std::uint32_t refused = 0;
+    if (next.size() > room) {
+        for (std::size_t i = room; i < next.size(); ++i) {
+            v1::TileRequest r;
+            r.set_level(next[i].key.level);
+            r.set_x(next[i].key.x);
+            r.set_y(next[i].key.y);
+            OutMessage m;
+            auto* t = m.message.mutable_tile();
+            t->mutable_key()->set_store(next[i].store->name);
+            t->mutable_key()->set_level(next[i].key.level);
+            t->mutable_key()->set_x(next[i].key.x);
+            t->mutable_key()->set_y(next[i].key.y);
+            t->set_frame(batch.frame());
+            t->set_status(v1::TILE_RESOURCE_EXHAUSTED);
+            t->set_message("the server's request queue is full; retry later");
+            t->set_codec(v1::CODEC_NONE);
+            errors.push_back(std::move(m));
+            wanted.erase(FullKey{next[i].store.get(), next[i].packed});
+            ++refused;
+        }
+        next.resize(room);
+    }
+    std::reverse(next.begin(), next.end());  // ascending: the highest priority at the back
+    const std::uint64_t generation = ++v.generation;
+    for (auto& p : next) p.generation = generation;
+
+    total_pending_ = total_pending_ - v.pending.size() + next.size();
+    const bool was_idle = v.pending.empty();
+    v.pending = std::move(next);
+    v.wanted = std::move(wanted);
+    if (was_idle && !v.pending.empty()) v.served = std::max(v.served, virtual_time_);
+
+    ack.set_status(v1::TILE_OK);
+    ack.set_admitted(static_cast<std::uint32_t>(v.pending.size()));
+    ack.set_refused(refused);
+    ack.set_invalid(invalid);
+    ack.set_already_queued(already);
+    ack.set_cancelled(static_cast<std::uint32_t>(cancelled));
+    cancelled_->inc(cancelled);
+    refused_->inc(refused);
+    invalid_->inc(invalid);
+    {
+        OutMessage m;
+        *m.message.mutable_ack() = std::move(ack);
+        push_locked(v, std::move(m));
+    }
+    for (auto& e : errors) push_locked(v, std::move(e));
+    wake.push_back(v.sink);
+    lock.unlock();
+    work_cv_.notify_all();
+    notify(wake);
+}
+
+bool Scheduler::eligible_locked(const Viewer& v) const {
+    return !v.pending.empty() && v.chunks_in_flight < kMaxChunksInFlight &&
+           v.outbox_bytes < ctx_.config.viewer_buffer_bytes && total_outbox_bytes_ < ctx_.config.total_buffer_bytes;
+}
+
+Scheduler::Viewer* Scheduler::pick_locked() {
+    // Fair between viewers: among those within kFairnessSlack of the least-served eligible viewer,
+    // the one whose next request has the highest priority.
+    std::uint64_t min_served = UINT64_MAX;
+    for (auto& [id, v] : viewers_)
+        if (eligible_locked(*v)) min_served = std::min(min_served, v->served);
+    if (min_served == UINT64_MAX) return nullptr;
+    Viewer* best = nullptr;
+    for (auto& [id, v] : viewers_) {
+        if (!eligible_locked(*v) || v->served > min_served + kFairnessSlack) continue;
+        if (!best || v->pending.back().priority > best->pending.back().priority ||
+            (v->pending.back().priority == best->pending.back().priority && v->served < best->served))
+            best = v.get();
+    }
+    virtual_time_ = std::max(virtual_time_, min_served);
+    return best;
+}
+
+void Scheduler::worker() {
+    std::vector<Pending> chunk;
+    std::vector<OutMessage> replies;
+    std::vector<FetchedTile> fetched;
+    std::vector<storage::TileKey> keys;
+    std::vector<std::size_t> index;
+    std::vector<std::shared_ptr<ViewerSink>> wake;
+    for (;;) {
+        ViewerId vid = 0;
+        {
+            std::unique_lock lock(mu_);
+            Viewer* v = nullptr;
+            work_cv_.wait(lock, [&] { return stopping_ || (v = pick_locked()) != nullptr; });
+            if (stopping_) return;
+            vid = v->id;
+            chunk.clear();
+            while (chunk.size() < kChunk && !v->pending.empty()) {
+                Pending p = std::move(v->pending.back());
+                v->pending.pop_back();
+                v->in_flight.insert(FullKey{p.store.get(), p.packed});
+                chunk.push_back(std::move(p));
+            }
+            total_pending_ -= chunk.size();
+            total_in_flight_ += chunk.size();
+            v->served += chunk.size();
+            ++v->chunks_in_flight;
+        }
+
+        // Read: deadlines first, then one fetch per store (cache, then coalesced file reads).
+        const auto now = Clock::now();
+        replies.clear();
+        replies.resize(chunk.size());
+        std::map<const StoreHandle*, std::vector<std::size_t>> by_store;
+        for (std::size_t i = 0; i < chunk.size(); ++i) {
+            if (chunk[i].deadline < now) {
+                auto* t = replies[i].message.mutable_tile();
+                t->set_status(v1::TILE_DEADLINE_EXCEEDED);
+                t->set_message("not started before its deadline");
+                t->set_codec(v1::CODEC_NONE);
+                deadline_exceeded_->inc();
+            } else {
+                by_store[chunk[i].store.get()].push_back(i);
+            }
+        }
+        for (auto& [store, members] : by_store) {
+            keys.clear();
+            for (std::size_t i : members) keys.push_back(chunk[i].key);
+            ctx_.fetcher.fetch(*store, keys, fetched);
+            for (std::size_t j = 0; j < members.size(); ++j) {
+                auto& f = fetched[j];
+                auto* t = replies[members[j]].message.mutable_tile();
+                t->set_status(f.status);
+                if (f.status != v1::TILE_OK) {
+                    t->set_message(std::move(f.message));
+                    t->set_codec(v1::CODEC_NONE);
+                    if (f.status == v1::TILE_DATA_LOSS) data_loss_->inc();
+                    continue;
+                }
+                const auto& tile = *f.tile;
+                t->set_kind(protocol::to_proto(tile.kind));
+                t->set_checksum(tile.checksum);
+                if (tile.kind == storage::TileKind::present) {
+                    t->set_codec(protocol::to_proto(store->info().codec));
+                    t->set_payload(tile.bytes.data(), tile.bytes.size());
+                } else if (tile.kind == storage::TileKind::uniform) {
+                    t->set_codec(v1::CODEC_UNIFORM);
+                    t->set_payload(tile.bytes.data(), tile.bytes.size());
+                } else {
+                    t->set_codec(v1::CODEC_NONE);
+                }
+            }
+        }
+        for (std::size_t i = 0; i < chunk.size(); ++i) {
+            auto& r = replies[i];
+            auto* t = r.message.mutable_tile();
+            auto* k = t->mutable_key();
+            k->set_store(chunk[i].store->name);
+            k->set_level(chunk[i].key.level);
+            k->set_x(chunk[i].key.x);
+            k->set_y(chunk[i].key.y);
+            t->set_store_version(chunk[i].store->version);
+            t->set_frame(chunk[i].frame);
+            r.received = chunk[i].received;
+            r.store = chunk[i].store;
+            r.packed_key = chunk[i].packed;
+            r.is_tile = true;
+        }
+
+        // Hand over, unless the viewer left or no longer wants the tile.
+        {
+            std::lock_guard lock(mu_);
+            total_in_flight_ -= chunk.size();
+            auto it = viewers_.find(vid);
+            if (it != viewers_.end()) {
+                Viewer& v = *it->second;
+                --v.chunks_in_flight;
+                std::uint64_t dropped = 0;
+                for (std::size_t i = 0; i < chunk.size(); ++i) {
+                    const FullKey fk{chunk[i].store.get(), chunk[i].packed};
+                    if (chunk[i].generation != v.generation && !v.wanted.contains(fk)) {
+                        v.in_flight.erase(fk);
+                        ++dropped;  // superseded while it was being read
+                        continue;
+                    }
+                    push_locked(v, std::move(replies[i]));
+                }
+                cancelled_->inc(dropped);
+                wake.push_back(v.sink);
+            }
+        }
+        work_cv_.notify_one();  // this viewer may be eligible again (chunks in flight went down)
+        notify(wake);
+    }
+}
+
+bool Scheduler::next_message(ViewerId id, OutMessage& out) {
+    std::lock_guard lock(mu_);
+    auto it = viewers_.find(id);
+    if (it == viewers_.end()) return false;
+    Viewer& v = *it->second;
+    if (v.writing || v.outbox.empty()) return false;
+    out = std::move(v.outbox.front());
+    v.outbox.pop_front();
+    v.writing = true;
+    if (out.is_tile) {
+        const auto us = std::chrono::duration_cast<std::chrono::microseconds>(Clock::now() - out.received).count();
+        out.message.mutable_tile()->set_server_micros(static_cast<std::uint32_t>(std::min<std::int64_t>(us, UINT32_MAX)));
+    }
+    return true;
+}
+
+void Scheduler::message_written(ViewerId id, const OutMessage& msg, bool ok) {
+    bool wake_workers = false;
+    {
+        std::lock_guard lock(mu_);
+        auto it = viewers_.find(id);
+        if (it != viewers_.end()) {
+            Viewer& v = *it->second;
+            v.writing = false;
+            const bool was_full = v.outbox_bytes >= ctx_.config.viewer_buffer_bytes;
+            v.outbox_bytes -= msg.bytes;
+            total_outbox_bytes_ -= msg.bytes;
+            if (msg.is_tile) v.in_flight.erase(FullKey{msg.store.get(), msg.packed_key});
+            wake_workers = was_full || total_outbox_bytes_ + msg.bytes >= ctx_.config.total_buffer_bytes;
+        }
+    }
+    if (wake_workers) work_cv_.notify_all();
+    if (!ok || !msg.is_tile) return;
+    const auto& t = msg.message.tile();
+    latency_->observe(std::chrono::duration<double>(Clock::now() - msg.received).count());
+    if (t.status() == v1::TILE_OK && t.kind() != v1::KIND_ABSENT) {
+        tiles_sent_->inc();
+        bytes_sent_->inc(t.payload().size());
+        msg.store->metrics.tiles_sent->inc();
+        msg.store->metrics.bytes_sent->inc(t.payload().size());
+    }
+}
+
+bool Scheduler::outbox_full(ViewerId id) const {
+    std::lock_guard lock(mu_);
+    auto it = viewers_.find(id);
+    return it != viewers_.end() && it->second->outbox_bytes >= ctx_.config.viewer_buffer_bytes;
+}
+
+bool Scheduler::viewer_idle(ViewerId id) const {
+    std::lock_guard lock(mu_);
+    auto it = viewers_.find(id);
+    if (it == viewers_.end()) return true;
+    const Viewer& v = *it->second;
+    return v.pending.empty() && v.chunks_in_flight == 0 && v.outbox.empty() && !v.writing;
+}
+
+void Scheduler::begin_drain() {
+    std::vector<std::shared_ptr<ViewerSink>> wake;
+    {
+        std::lock_guard lock(mu_);
+        draining_ = true;
+        for (auto& [id, v] : viewers_) wake.push_back(v->sink);
+    }
+    notify(wake);  // idle viewers can finish now
+}
+
+bool Scheduler::draining() const {
+    std::lock_guard lock(mu_);
+    return draining_;
+}
+
+SchedulerStats Scheduler::stats() const {
+    SchedulerStats s;
+    {
+        std::lock_guard lock(mu_);
+        s.viewers = static_cast<std::uint32_t>(viewers_.size());
+        s.pending = total_pending_;
+        s.in_flight = total_in_flight_;
+        for (const auto& [id, v] : viewers_) s.in_flight += v->outbox.size() + (v->writing ? 1 : 0);
+        s.outbox_bytes = total_outbox_bytes_;
+    }
+    s.batches = batches_->value();
+    s.requests = requests_->value();
+    s.tiles_sent = tiles_sent_->value();
+    s.bytes_sent = bytes_sent_->value();
+    s.cancelled = cancelled_->value();
+    s.refused = refused_->value();
+    s.invalid = invalid_->value();
+    s.deadline_exceeded = deadline_exceeded_->value();
+    s.data_loss = data_loss_->value();
+    return s;
+}
+
+}  // namespace tessera::server

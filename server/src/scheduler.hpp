@@ -1,0 +1,130 @@
+#pragma once
+// The request scheduler behind StreamTiles. Each viewer's pending set is replaced by every batch
+// it sends (superseded requests are dropped before any I/O, or, if already read, before they are
+// sent). A pool of I/O threads serves the pending requests of all viewers: fairly between viewers
+// (the least-served viewer goes next, within a small slack in which the higher priority wins),
+// highest priority first within a viewer, a chunk at a time so that tiles adjacent in the file
+// are read together. Replies wait in a per-viewer outbox bounded in bytes: a viewer that does not
+// read stops being served (gRPC flow control), so it bounds its own memory, not the server's.
+//
+// Owner: the Server. Threads: io_threads workers, owned here. Every queue is bounded: pending
+// by max_pending (over all viewers) and max_batch (per viewer), outboxes by viewer_buffer_bytes
+// and total_buffer_bytes, in-flight reads by kMaxChunksInFlight chunks per viewer.
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include "server_context.hpp"
+#include "tessera.pb.h"
+
+namespace tessera::server {
+
+using Clock = std::chrono::steady_clock;
+
+// Where the scheduler tells a viewer's stream that its outbox has something to write.
+// Called from I/O threads, never with the scheduler's lock held.
+class ViewerSink {
+public:
+    virtual ~ViewerSink() = default;
+    virtual void on_outbox_ready() = 0;
+};
+
+// One message on its way to a viewer.
+struct OutMessage {
+    v1::ServerMessage message;
+    std::size_t bytes = 0;           // charged to the outbox
+    Clock::time_point received{};    // batch arrival (tiles), for latency
+    std::shared_ptr<const StoreHandle> store;  // tiles: per-store accounting
+    std::uint64_t packed_key = 0;
+    bool is_tile = false;
+};
+
+struct SchedulerStats {
+    std::uint32_t viewers = 0;
+    std::uint64_t pending = 0, in_flight = 0;
+    std::uint64_t batches = 0, requests = 0, tiles_sent = 0, bytes_sent = 0;
+    std::uint64_t cancelled = 0, refused = 0, invalid = 0, deadline_exceeded = 0, data_loss = 0;
+    std::uint64_t outbox_bytes = 0;
+};
+
+class Scheduler {
+public:
+    using ViewerId = std::uint64_t;
+    static constexpr std::size_t kChunk = 16;              // requests taken per dispatch
+    static constexpr unsigned kMaxChunksInFlight = 2;      // per viewer
+    static constexpr std::uint64_t kFairnessSlack = kChunk; // tiles of service a priority may jump
+
+    explicit Scheduler(ServerContext& ctx);
+    ~Scheduler();
+    Scheduler(const Scheduler&) = delete;
+    Scheduler& operator=(const Scheduler&) = delete;
+
+    // A new stream. nullopt when max_viewers streams are open (or draining).
+    std::optional<ViewerId> add_viewer(std::shared_ptr<ViewerSink> sink);
+    void remove_viewer(ViewerId id);
+
+    // One batch from a viewer: validates it, replaces the pending set, queues the ack (and error
+    // replies) in the outbox. Wakes the I/O threads.
+    void submit(ViewerId id, const v1::TileBatch& batch);
+
+    // Stream side. next_message moves the next outbox message into out (false: none). While a
+    // message is out, the viewer's writer is busy; message_written ends it.
+    bool next_message(ViewerId id, OutMessage& out);
+    void message_written(ViewerId id, const OutMessage& msg, bool ok);
+    bool outbox_full(ViewerId id) const;
+    // Nothing pending, being read or waiting to be written for this viewer.
+    bool viewer_idle(ViewerId id) const;
+
+    // SIGTERM: new batches are answered UNAVAILABLE; admitted requests are still served.
+    void begin_drain();
+    bool draining() const;
+    SchedulerStats stats() const;
+
+private:
+    struct Pending;
+    struct Viewer;
+    struct FullKey {
+        const StoreHandle* store;
+        std::uint64_t packed;
+        friend bool operator==(const FullKey&, const FullKey&) = default;
+    };
+    struct FullKeyHash {
+        std::size_t operator()(const FullKey& k) const noexcept;
+    };
+
+    void worker();
+    Viewer* pick_locked();
+    bool eligible_locked(const Viewer& v) const;
+    void push_locked(Viewer& v, OutMessage msg);
+    void notify(std::vector<std::shared_ptr<ViewerSink>>& sinks);
+
+    ServerContext& ctx_;
+    mutable std::mutex mu_;
+    std::condition_variable work_cv_;
+    bool stopping_ = false;
+    bool draining_ = false;
+    ViewerId next_id_ = 1;
+    std::unordered_map<ViewerId, std::unique_ptr<Viewer>> viewers_;
+    std::uint64_t total_pending_ = 0;
+    std::uint64_t total_in_flight_ = 0;
+    std::uint64_t total_outbox_bytes_ = 0;
+    std::uint64_t virtual_time_ = 0;  // service level of the least-served active viewer
+
+    // Metrics (owned by ctx_.metrics).
+    Counter *batches_, *requests_, *tiles_sent_, *bytes_sent_, *cancelled_, *refused_, *invalid_,
+        *deadline_exceeded_, *data_loss_, *batches_refused_;
+    Histogram* latency_;
+    Histogram* batch_size_;
+
+    std::vector<std::thread> workers_;
+};
+
+}  // namespace tessera::server

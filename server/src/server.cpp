@@ -1,0 +1,200 @@
+// Server: wires the parts together and owns them, in this order (destroyed in reverse):
+// logger, metrics, stores, cache, fetcher, context, scheduler, gRPC service and server, HTTP
+// server, and the watch thread that rescans the stores.
+#include <grpcpp/grpcpp.h>
+
+#include <condition_variable>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "grpc_service.hpp"
+#include "http_server.hpp"
+#include "log.hpp"
+#include "metrics.hpp"
+#include "scheduler.hpp"
+#include "server_context.hpp"
+#include "store_registry.hpp"
+#include "tessera/server/server.hpp"
+#include "tile_cache.hpp"
+#include "tile_fetcher.hpp"
+
+namespace tessera::server {
+
+namespace {
+
+Result<std::string> read_text_file(const std::string& path, const char* what) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) return Error{Errc::io_error, std::string("cannot read ") + what + " " + path};
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+}
+
+Status validate(const ServerConfig& c) {
+    if (c.store_files.empty() && c.store_dirs.empty())
+        return Error{Errc::invalid_argument, "nothing to serve: give --store FILE or --store-dir DIR"};
+    if (c.grpc_address.empty() && c.http_address.empty())
+        return Error{Errc::invalid_argument, "both gRPC and HTTP are off: give --grpc or --http an address"};
+    if (c.tls_cert_file.empty() != c.tls_key_file.empty())
+        return Error{Errc::invalid_argument, "TLS needs both --tls-cert and --tls-key"};
+    if (c.max_viewers == 0 || c.max_batch == 0 || c.max_pending == 0 || c.max_connections == 0 ||
+        c.max_http_inflight == 0)
+        return Error{Errc::invalid_argument, "limits (--max-*) must be at least 1"};
+    if (c.viewer_buffer_bytes < 64 * 1024 || c.total_buffer_bytes < c.viewer_buffer_bytes)
+        return Error{Errc::invalid_argument, "--viewer-buffer must be at least 64KiB and at most --total-buffer"};
+    if (c.max_message_bytes < 1024) return Error{Errc::invalid_argument, "--max-message must be at least 1KiB"};
+    if (c.max_header_bytes < 1024) return Error{Errc::invalid_argument, "--max-header must be at least 1KiB"};
+    return Status();
+}
+
+class ServerImpl final : public Server {
+public:
+    explicit ServerImpl(const ServerConfig& config)
+        : config_(config),
+          log_(config.log_json ? LogFormat::json : LogFormat::text, config.log_debug ? LogLevel::debug : LogLevel::info),
+          stores_(config.store_files, config.store_dirs, log_, metrics_),
+          cache_(config.cache_bytes),
+          fetcher_(cache_, metrics_, log_),
+          ctx_{config_, log_, metrics_, stores_, fetcher_} {}
+
+    ~ServerImpl() override { shutdown(); }
+
+    Status start() {
+        TESSERA_TRY(stores_.open());
+        scheduler_ = std::make_unique<Scheduler>(ctx_);
+        if (!config_.grpc_address.empty()) TESSERA_TRY(start_grpc());
+        if (!config_.http_address.empty()) {
+            auto http = HttpServer::start(ctx_);
+            if (!http) return http.error();
+            http_ = std::move(*http);
+        }
+        metrics_.gauge_callback("tessera_uptime_seconds", "Seconds since the server started", {}, [this] {
+            return std::chrono::duration<double>(std::chrono::steady_clock::now() - ctx_.started).count();
+        });
+        if (config_.watch_interval.count() > 0) watcher_ = std::thread([this] { watch(); });
+        ctx_.ready = true;
+        log_.info("listening", {{"grpc", grpc_port_ ? host_of(config_.grpc_address) + ":" + std::to_string(grpc_port_) : std::string()},
+                                {"http", http_ ? host_of(config_.http_address) + ":" + std::to_string(http_->port()) : std::string()},
+                                {"stores", static_cast<unsigned long>(stores_.list().size())},
+                                {"tls", !config_.tls_cert_file.empty()},
+                                {"auth", !config_.auth_token.empty()}});
+        return Status();
+    }
+
+    std::uint16_t grpc_port() const override { return static_cast<std::uint16_t>(grpc_port_); }
+    std::uint16_t http_port() const override { return http_ ? http_->port() : 0; }
+
+    void reload() override {
+        const auto r = stores_.reload();
+        log_.info("reload", {{"added", r.added}, {"replaced", r.replaced}, {"removed", r.removed}, {"failed", r.failed}});
+    }
+
+    void shutdown() override {
+        std::lock_guard lock(shutdown_mutex_);
+        if (shut_down_) return;
+        shut_down_ = true;
+        const auto t0 = std::chrono::steady_clock::now();
+        const auto deadline = t0 + config_.drain_timeout;
+        log_.info("draining", {{"timeout_ms", static_cast<long long>(config_.drain_timeout.count())}});
+        ctx_.draining = true;
+        {
+            std::lock_guard wl(watch_mutex_);
+            stop_watch_ = true;
+        }
+        watch_cv_.notify_all();
+        if (watcher_.joinable()) watcher_.join();
+        if (http_) http_->begin_drain();
+        if (scheduler_) scheduler_->begin_drain();
+        // Streams finish once their admitted requests are sent; HTTP requests being served finish.
+        while (scheduler_ && scheduler_->stats().viewers > 0 && std::chrono::steady_clock::now() < deadline)
+            std::this_thread::sleep_for(std::chrono::milliseconds(5));
+        const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+        if (http_) http_->wait_idle(std::max(left, std::chrono::milliseconds(0)));
+        const auto s = scheduler_ ? scheduler_->stats() : SchedulerStats{};
+        if (grpc_server_) grpc_server_->Shutdown(std::chrono::system_clock::now() + std::chrono::milliseconds(200));
+        if (http_) http_->stop();
+        scheduler_.reset();
+        log_.info("stopped", {{"drain_ms", static_cast<long long>(std::chrono::duration_cast<std::chrono::milliseconds>(
+                                               std::chrono::steady_clock::now() - t0).count())},
+                              {"viewers_cut", s.viewers}, {"tiles_sent", s.tiles_sent}});
+        metrics_.remove_callbacks("tessera_uptime_seconds");
+    }
+
+private:
+    static std::string host_of(const std::string& address) {
+        const auto colon = address.rfind(':');
+        return colon == std::string::npos ? address : address.substr(0, colon);
+    }
+
+    Status start_grpc() {
+        std::shared_ptr<grpc::ServerCredentials> creds;
+        if (!config_.tls_cert_file.empty()) {
+            auto cert = read_text_file(config_.tls_cert_file, "TLS certificate");
+            if (!cert) return cert.error();
+            auto key = read_text_file(config_.tls_key_file, "TLS key");
+            if (!key) return key.error();
+            grpc::SslServerCredentialsOptions ssl;
+            ssl.pem_key_cert_pairs.push_back({*key, *cert});
+            creds = grpc::SslServerCredentials(ssl);
+        } else {
+            creds = grpc::InsecureServerCredentials();
+        }
+        service_ = std::make_unique<GrpcService>(ctx_, *scheduler_);
+        grpc::ServerBuilder builder;
+        builder.AddListeningPort(config_.grpc_address, creds, &grpc_port_);
+        builder.RegisterService(service_.get());
+        builder.SetMaxReceiveMessageSize(static_cast<int>(config_.max_message_bytes));
+        builder.SetMaxSendMessageSize(64 << 20);
+        builder.AddChannelArgument(GRPC_ARG_MAX_CONCURRENT_STREAMS, static_cast<int>(std::min<std::size_t>(
+                                                                        config_.max_viewers + 64, 1u << 20)));
+        builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_PERMIT_WITHOUT_CALLS, 1);
+        builder.AddChannelArgument(GRPC_ARG_HTTP2_MIN_RECV_PING_INTERVAL_WITHOUT_DATA_MS, 5000);
+        grpc_server_ = builder.BuildAndStart();
+        if (!grpc_server_ || grpc_port_ == 0)
+            return Error{Errc::io_error, "cannot listen for gRPC on " + config_.grpc_address +
+                                             " (address in use, or not a HOST:PORT this machine has)"};
+        return Status();
+    }
+
+    void watch() {
+        std::unique_lock lock(watch_mutex_);
+        while (!watch_cv_.wait_for(lock, config_.watch_interval, [this] { return stop_watch_; })) {
+            lock.unlock();
+            stores_.reload();
+            lock.lock();
+        }
+    }
+
+    ServerConfig config_;
+    Logger log_;
+    MetricsRegistry metrics_;
+    StoreRegistry stores_;
+    TileCache cache_;
+    TileFetcher fetcher_;
+    ServerContext ctx_;
+    std::unique_ptr<Scheduler> scheduler_;
+    std::unique_ptr<GrpcService> service_;
+    std::unique_ptr<grpc::Server> grpc_server_;
+    int grpc_port_ = 0;
+    std::unique_ptr<HttpServer> http_;
+
+    std::mutex watch_mutex_;
+    std::condition_variable watch_cv_;
+    bool stop_watch_ = false;
+    std::thread watcher_;
+
+    std::mutex shutdown_mutex_;
+    bool shut_down_ = false;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<Server>> Server::start(const ServerConfig& config) {
+    TESSERA_TRY(validate(config));
+    auto server = std::make_unique<ServerImpl>(config);
+    if (auto s = server->start(); !s) return s.error();
+    return std::unique_ptr<Server>(std::move(server));
+}
+
+}  // namespace tessera::server

@@ -1,0 +1,197 @@
+#include "store_registry.hpp"
+
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <map>
+#include <system_error>
+
+#include "tessera/protocol/wire.hpp"
+
+namespace tessera::server {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct FileIdentity {
+    std::uint64_t device = 0, inode = 0, size = 0;
+    std::int64_t mtime_ns = 0;
+    friend bool operator==(const FileIdentity&, const FileIdentity&) = default;
+};
+
+bool identify(const std::string& path, FileIdentity& id) {
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return false;
+    id.device = st.st_dev;
+    id.inode = st.st_ino;
+    id.size = static_cast<std::uint64_t>(st.st_size);
+    id.mtime_ns = std::int64_t(st.st_mtim.tv_sec) * 1'000'000'000 + st.st_mtim.tv_nsec;
+    return true;
+}
+
+FileIdentity identity_of(const StoreHandle& h) { return {h.device, h.inode, h.size, h.mtime_ns}; }
+
+}  // namespace
+
+StoreRegistry::StoreRegistry(std::vector<std::string> files, std::vector<std::string> dirs, Logger& log,
+                             MetricsRegistry& metrics)
+    : files_(std::move(files)),
+      dirs_(std::move(dirs)),
+      log_(log),
+      metrics_(metrics),
+      stores_(std::make_shared<const std::vector<std::shared_ptr<const StoreHandle>>>()) {
+    reloads_ = &metrics_.counter("tessera_store_reloads_total", "Store rescans (start, SIGHUP, watch)");
+    metrics_.gauge_callback("tessera_stores", "Stores being served", {}, [this] { return double(list().size()); });
+}
+
+StoreMetrics StoreRegistry::metrics_for(const std::string& name) {
+    const Labels labels{{"store", name}};
+    StoreMetrics m;
+    m.tiles_sent = &metrics_.counter("tessera_store_tiles_sent_total", "Tiles sent, per store", labels);
+    m.bytes_sent = &metrics_.counter("tessera_store_bytes_sent_total", "Tile payload bytes sent, per store", labels);
+    m.data_loss = &metrics_.counter("tessera_store_data_loss_total",
+                                    "Tiles that failed their checksum and were not served", labels);
+    m.requests = &metrics_.counter("tessera_store_requests_total", "Tile requests received, per store", labels);
+    return m;
+}
+
+Status StoreRegistry::open() {
+    Status first_error = Status();
+    scan(true, &first_error);
+    return first_error;
+}
+
+ReloadReport StoreRegistry::reload() { return scan(false, nullptr); }
+
+ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
+    std::lock_guard scan_lock(reload_mutex_);
+    reloads_->inc();
+    auto fail = [&](Error e) {
+        log_.error("store scan", {{"error", e.message}});
+        if (first_error && first_error->ok()) *first_error = std::move(e);
+    };
+
+    // What the configuration names now: name -> path. Explicit files win over directory entries.
+    std::map<std::string, std::string> wanted;
+    for (const auto& dir : dirs_) {
+        std::error_code ec;
+        fs::directory_iterator it(dir, ec), end;
+        if (ec) {
+            fail(Error(Errc::io_error, "cannot read store directory " + dir + ": " + ec.message()));
+            continue;
+        }
+        for (; it != end; it.increment(ec)) {
+            if (ec) break;
+            const std::string file = it->path().filename().string();
+            if (!file.ends_with(".tsr")) continue;
+            const std::string name = protocol::store_name_of_file(file);
+            if (name.empty()) {
+                if (first) log_.warn("skipping store file: its name is not an identifier", {{"path", it->path().string()}});
+                continue;
+            }
+            wanted[name] = it->path().string();
+        }
+    }
+    for (const auto& file : files_) {
+        const std::string name = protocol::store_name_of_file(fs::path(file).filename().string());
+        if (name.empty()) {
+            fail(Error(Errc::invalid_argument,
+                       "store file " + file + ": the name must be <identifier>.tsr (letters, digits, _ . -)"));
+            continue;
+        }
+        wanted[name] = file;
+    }
+
+    auto current = [&] {
+        std::lock_guard lock(mutex_);
+        return stores_;
+    }();
+    std::map<std::string, std::shared_ptr<const StoreHandle>> old;
+    for (const auto& h : *current) old[h->name] = h;
+
+    ReloadReport report;
+    auto next = std::make_shared<std::vector<std::shared_ptr<const StoreHandle>>>();
+    for (const auto& [name, path] : wanted) {
+        FileIdentity id;
+        const auto prev = old.find(name);
+        if (!identify(path, id)) {
+            fail(Error(Errc::not_found, "store file " + path + " does not exist or is not a regular file"));
+            ++report.failed;
+            if (prev != old.end() && !first) {
+                // Vanished: drop it (a file given by --store that comes back is picked up again).
+                ++report.removed;
+                log_.info("store removed", {{"store", name}, {"path", path}});
+            }
+            continue;
+        }
+        if (prev != old.end() && prev->second->path == path && identity_of(*prev->second) == id) {
+            next->push_back(prev->second);  // unchanged
+            continue;
+        }
+        auto reader = storage::StoreReader::open(path);
+        if (!reader) {
+            fail(Error(reader.error().code, "store " + name + " (" + path + "): " + reader.error().message));
+            ++report.failed;
+            if (prev != old.end()) next->push_back(prev->second);  // keep serving the old version
+            continue;
+        }
+        auto h = std::make_shared<StoreHandle>();
+        h->name = name;
+        h->path = path;
+        h->reader = std::move(*reader);
+        h->version = h->reader->info().store_id;
+        h->metrics = metrics_for(name);
+        h->device = id.device;
+        h->inode = id.inode;
+        h->size = id.size;
+        h->mtime_ns = id.mtime_ns;
+        char version[24];
+        std::snprintf(version, sizeof version, "%016llx", static_cast<unsigned long long>(h->version));
+        if (prev == old.end()) {
+            ++report.added;
+            log_.info("store added", {{"store", name}, {"path", path}, {"version", version},
+                                      {"width", h->info().width}, {"height", h->info().height}});
+        } else {
+            ++report.replaced;
+            log_.info("store replaced", {{"store", name}, {"path", path}, {"version", version}});
+        }
+        next->push_back(std::move(h));
+    }
+    for (const auto& [name, h] : old) {
+        if (!wanted.contains(name)) {
+            ++report.removed;
+            log_.info("store removed", {{"store", name}, {"path", h->path}});
+        }
+    }
+    std::sort(next->begin(), next->end(), [](const auto& a, const auto& b) { return a->name < b->name; });
+    {
+        std::lock_guard lock(mutex_);
+        stores_ = std::move(next);
+    }
+    if (!first && (report.added || report.replaced || report.removed))
+        log_.info("stores reloaded", {{"added", report.added}, {"replaced", report.replaced},
+                                      {"removed", report.removed}, {"failed", report.failed}});
+    return report;
+}
+
+std::shared_ptr<const StoreHandle> StoreRegistry::find(std::string_view name) const {
+    if (!protocol::valid_store_name(name)) return nullptr;
+    std::shared_ptr<const std::vector<std::shared_ptr<const StoreHandle>>> snapshot;
+    {
+        std::lock_guard lock(mutex_);
+        snapshot = stores_;
+    }
+    auto it = std::lower_bound(snapshot->begin(), snapshot->end(), name,
+                               [](const auto& h, std::string_view n) { return h->name < n; });
+    if (it == snapshot->end() || (*it)->name != name) return nullptr;
+    return *it;
+}
+
+std::vector<std::shared_ptr<const StoreHandle>> StoreRegistry::list() const {
+    std::lock_guard lock(mutex_);
+    return *stores_;
+}
+
+}  // namespace tessera::server

@@ -1,0 +1,72 @@
+#pragma once
+// The stores a server hosts, by name. Files given one by one and *.tsr files in directories are
+// opened at start and rescanned on reload(): new files are added, changed files (a different
+// inode, size or mtime) are reopened under a new version, and removed files are dropped.
+// Lookups hand out shared handles, so a request that started on an old version finishes on it.
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "log.hpp"
+#include "metrics.hpp"
+#include "tessera/result.hpp"
+#include "tessera/storage/store_reader.hpp"
+
+namespace tessera::server {
+
+// Counters kept per store name (they survive the store being replaced).
+struct StoreMetrics {
+    Counter* tiles_sent = nullptr;
+    Counter* bytes_sent = nullptr;
+    Counter* data_loss = nullptr;
+    Counter* requests = nullptr;
+};
+
+struct StoreHandle {
+    std::string name;
+    std::string path;
+    std::shared_ptr<storage::StoreReader> reader;
+    std::uint64_t version = 0;  // StoreInfo::store_id: content hash of the index
+    StoreMetrics metrics;
+    // File identity at open time (to notice a replaced file).
+    std::uint64_t device = 0, inode = 0, size = 0;
+    std::int64_t mtime_ns = 0;
+    const storage::StoreInfo& info() const { return reader->info(); }
+};
+
+struct ReloadReport {
+    unsigned added = 0, replaced = 0, removed = 0, failed = 0;
+};
+
+class StoreRegistry {
+public:
+    StoreRegistry(std::vector<std::string> files, std::vector<std::string> dirs, Logger& log,
+                  MetricsRegistry& metrics);
+    // First scan. Errors when a named --store file cannot be opened or a directory is unreadable
+    // (later reloads only log such problems and keep serving what they had).
+    Status open();
+    ReloadReport reload();
+
+    // nullptr for unknown (or invalid) names. Never touches the file system.
+    std::shared_ptr<const StoreHandle> find(std::string_view name) const;
+    std::vector<std::shared_ptr<const StoreHandle>> list() const;  // sorted by name
+
+private:
+    struct Scan;
+    ReloadReport scan(bool first, Status* first_error);
+    StoreMetrics metrics_for(const std::string& name);
+
+    std::vector<std::string> files_;
+    std::vector<std::string> dirs_;
+    Logger& log_;
+    MetricsRegistry& metrics_;
+    Counter* reloads_ = nullptr;
+    std::mutex reload_mutex_;  // one scan at a time
+    mutable std::mutex mutex_; // guards stores_ (a sorted snapshot, replaced whole)
+    std::shared_ptr<const std::vector<std::shared_ptr<const StoreHandle>>> stores_;
+};
+
+}  // namespace tessera::server

@@ -1,0 +1,106 @@
+#include "tile_fetcher.hpp"
+
+#include <cstdio>
+
+namespace tessera::server {
+
+TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log) : cache_(cache), log_(log) {
+    reads_ = &metrics.counter("tessera_store_reads_total", "File reads issued, after coalescing adjacent tiles");
+    tiles_read_ = &metrics.counter("tessera_store_tiles_read_total", "Tiles returned by file reads");
+    read_bytes_ = &metrics.counter("tessera_store_read_bytes_total", "Bytes read from store files, gaps included");
+    cache_hits_ = &metrics.counter("tessera_cache_hits_total", "Tile lookups served from the RAM cache");
+    cache_misses_ = &metrics.counter("tessera_cache_misses_total", "Tile lookups that went to the store file");
+    metrics.gauge_callback("tessera_cache_bytes", "Bytes held by the RAM tile cache", {},
+                           [this] { return double(cache_.stats().bytes); });
+    metrics.gauge_callback("tessera_cache_budget_bytes", "Byte budget of the RAM tile cache", {},
+                           [this] { return double(cache_.stats().budget); });
+    metrics.gauge_callback("tessera_cache_hit_ratio", "Hits / lookups of the RAM tile cache since start", {}, [this] {
+        const double h = double(cache_hits_->value()), m = double(cache_misses_->value());
+        return h + m > 0 ? h / (h + m) : 0.0;
+    });
+}
+
+namespace {
+
+FetchedTile error_tile(v1::TileStatus status, std::string message) {
+    FetchedTile f;
+    f.status = status;
+    f.message = std::move(message);
+    return f;
+}
+
+std::string key_text(const StoreHandle& store, const storage::TileKey& k) {
+    char buf[96];
+    std::snprintf(buf, sizeof buf, "/%u/%u/%u", k.level, k.x, k.y);
+    return store.name + buf;
+}
+
+}  // namespace
+
+void TileFetcher::fetch(const StoreHandle& store, std::span<const storage::TileKey> keys,
+                        std::vector<FetchedTile>& out) {
+    out.assign(keys.size(), FetchedTile{});
+    std::vector<storage::TileKey> misses;
+    std::vector<std::size_t> miss_index;
+    const auto& info = store.info();
+    for (std::size_t i = 0; i < keys.size(); ++i) {
+        const auto& k = keys[i];
+        if (!info.contains(k)) {
+            char buf[160];
+            if (k.level >= info.level_count())
+                std::snprintf(buf, sizeof buf, "level %u is out of range (the store has levels 0..%u)", k.level,
+                              info.level_count() - 1);
+            else
+                std::snprintf(buf, sizeof buf, "tile (%u,%u) is out of range at level %u (%u x %u tiles)", k.x, k.y,
+                              k.level, info.levels[k.level].tiles_x, info.levels[k.level].tiles_y);
+            out[i] = error_tile(v1::TILE_OUT_OF_RANGE, buf);
+            continue;
+        }
+        if (auto hit = cache_.get(CacheKey{store.version, k.level, k.x, k.y})) {
+            cache_hits_->inc();
+            out[i].tile = std::move(hit);
+            continue;
+        }
+        cache_misses_->inc();
+        misses.push_back(k);
+        miss_index.push_back(i);
+    }
+    if (misses.empty()) return;
+
+    storage::BatchStats stats;
+    auto results = store.reader->read_tiles(misses, &stats);
+    reads_->inc(stats.reads);
+    read_bytes_->inc(stats.bytes);
+    tiles_read_->inc(misses.size());
+    for (std::size_t j = 0; j < results.size(); ++j) {
+        auto& r = results[j];
+        const std::size_t i = miss_index[j];
+        if (!r) {
+            const auto& e = r.error();
+            if (e.code == Errc::corrupt) {
+                store.metrics.data_loss->inc();
+                log_.error("tile failed its checksum; not served",
+                           {{"store", store.name}, {"tile", key_text(store, misses[j])}, {"error", e.message}});
+                out[i] = error_tile(v1::TILE_DATA_LOSS, "tile " + key_text(store, misses[j]) + " failed its checksum");
+            } else if (e.code == Errc::out_of_range) {
+                out[i] = error_tile(v1::TILE_OUT_OF_RANGE, e.message);
+            } else {
+                log_.error("tile read failed", {{"store", store.name}, {"tile", key_text(store, misses[j])},
+                                                {"error", e.message}});
+                out[i] = error_tile(v1::TILE_INTERNAL, "reading tile " + key_text(store, misses[j]) + " failed");
+            }
+            continue;
+        }
+        auto tile = std::make_shared<const storage::Tile>(std::move(*r));
+        cache_.put(CacheKey{store.version, misses[j].level, misses[j].x, misses[j].y}, tile);
+        out[i].tile = std::move(tile);
+    }
+}
+
+FetchedTile TileFetcher::fetch_one(const StoreHandle& store, const storage::TileKey& key) {
+    std::vector<FetchedTile> out;
+    fetch(store, std::span<const storage::TileKey>(&key, 1), out);
+    return std::move(out[0]);
+}
+
+}  // namespace tessera::server

@@ -1,0 +1,46 @@
+#pragma once
+// Reads tiles for both front ends (gRPC scheduler workers, HTTP handlers): RAM cache first, then
+// one batch read per store for the misses (the reader coalesces payloads adjacent in the file).
+// Every payload is checksum-verified by the reader; one that fails is answered DATA_LOSS and
+// logged, never served.
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "log.hpp"
+#include "metrics.hpp"
+#include "store_registry.hpp"
+#include "tessera.pb.h"
+#include "tile_cache.hpp"
+
+namespace tessera::server {
+
+struct FetchedTile {
+    v1::TileStatus status = v1::TILE_OK;
+    std::string message;                        // when status != TILE_OK
+    std::shared_ptr<const storage::Tile> tile;  // when status == TILE_OK (kind may be absent)
+};
+
+class TileFetcher {
+public:
+    TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log);
+    // Tiles of one store, results in the order of keys (out is resized to keys.size()).
+    void fetch(const StoreHandle& store, std::span<const storage::TileKey> keys, std::vector<FetchedTile>& out);
+    FetchedTile fetch_one(const StoreHandle& store, const storage::TileKey& key);
+
+    TileCache& cache() { return cache_; }
+    std::uint64_t reads() const { return reads_->value(); }
+    std::uint64_t tiles_read() const { return tiles_read_->value(); }
+
+private:
+    TileCache& cache_;
+    Logger& log_;
+    Counter* reads_;       // file reads after coalescing
+    Counter* tiles_read_;  // tiles those reads returned
+    Counter* read_bytes_;
+    Counter* cache_hits_;
+    Counter* cache_misses_;
+};
+
+}  // namespace tessera::server

@@ -1,0 +1,791 @@
+// The HTTP request handler (server/src/http_handler.*), transport-free: small stores in a scratch
+// directory, a ServerContext made by hand, and requests handed straight to the handler. Also the
+// PNG encoder, checked by inflating and unfiltering its IDAT back to the decoded tile.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+#include <zlib.h>
+
+#include <cctype>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <functional>
+#include <map>
+#include <memory>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "http_handler.hpp"
+#include "log.hpp"
+#include "metrics.hpp"
+#include "png_encode.hpp"
+#include "prometheus_text.hpp"
+#include "server_context.hpp"
+#include "store_registry.hpp"
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "tessera/storage/store_writer.hpp"
+#include "test_util.hpp"
+#include "tile_cache.hpp"
+#include "tile_fetcher.hpp"
+
+using namespace tessera;
+using namespace tessera::server;
+using storage::Codec;
+using storage::ColourSpace;
+using storage::SampleType;
+using storage::StoreSpec;
+using storage::TileKey;
+using storage::TileKind;
+using tessera::test::ScratchDir;
+
+namespace {
+
+std::string hex16(std::uint64_t v) {
+    char buf[17];
+    std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(v));
+    return buf;
+}
+
+std::vector<std::uint8_t> random_bytes(std::size_t n, std::uint32_t seed) {
+    std::vector<std::uint8_t> v(n);
+    std::mt19937 rng(seed);
+    for (auto& b : v) b = static_cast<std::uint8_t>(rng());
+    return v;
+}
+
+// Smooth texels (JPEG-friendly): a gradient plus a little noise.
+std::vector<std::uint8_t> smooth_bytes(std::size_t n, std::uint32_t seed) {
+    std::vector<std::uint8_t> v(n);
+    std::mt19937 rng(seed);
+    for (std::size_t i = 0; i < n; ++i) v[i] = static_cast<std::uint8_t>((i / 7 + rng() % 8) & 0xff);
+    return v;
+}
+
+StoreSpec spec_of(std::uint32_t w, std::uint32_t h, std::uint32_t payload, std::uint32_t border, std::uint32_t channels,
+                  SampleType st, ColourSpace cs, Codec codec, bool alpha = false) {
+    StoreSpec s;
+    s.width = w;
+    s.height = h;
+    s.tile_payload = payload;
+    s.border = border;
+    s.channels = channels;
+    s.sample_type = st;
+    s.colour_space = cs;
+    s.codec = codec;
+    s.has_alpha = alpha;
+    return s;
+}
+
+enum class Make { present, uniform, absent };
+
+// Writes a store with every tile of every level: `kind` decides each tile's kind; present tiles
+// are distinct texels encoded in the store's codec, uniform tiles the texel {7, 7, ...}.
+void write_store(const std::string& path, const StoreSpec& spec,
+                 const std::function<Make(const TileKey&)>& kind = {}) {
+    auto w = storage::StoreWriter::create(path, spec);
+    ASSERT_TRUE(w.ok()) << w.error().message;
+    const storage::StoreInfo info = storage::store_info(spec);
+    std::uint32_t seed = 1;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                const TileKey k{l, x, y};
+                const Make m = kind ? kind(k) : Make::present;
+                if (m == Make::absent) continue;
+                if (m == Make::uniform) {
+                    const std::vector<std::uint8_t> value(info.texel_bytes(), 7);
+                    ASSERT_TRUE((*w)->add_uniform(k, value).ok());
+                    continue;
+                }
+                const auto texels = spec.codec == Codec::jpeg ? smooth_bytes(info.tile_bytes(), seed++)
+                                                              : random_bytes(info.tile_bytes(), seed++);
+                auto payload = storage::encode_tile(info, texels, {});
+                ASSERT_TRUE(payload.ok()) << payload.error().message;
+                ASSERT_TRUE((*w)->add_present(k, *payload).ok());
+            }
+    ASSERT_TRUE((*w)->finish().ok());
+}
+
+// A server context over a scratch directory of stores, made by hand.
+class HandlerTest : public ::testing::Test {
+protected:
+    void SetUp() override {
+        // rgb: 40x30, tiles 16 (payload 12, border 2), 3 levels; level 0 tile (2,2) uniform,
+        // (3,2) absent.
+        write_store(dir_.file("rgb.tsr"), spec_of(40, 30, 12, 2, 3, SampleType::u8, ColourSpace::srgb, Codec::raw),
+                    [](const TileKey& k) {
+                        if (k.level == 0 && k.x == 2 && k.y == 2) return Make::uniform;
+                        if (k.level == 0 && k.x == 3 && k.y == 2) return Make::absent;
+                        return Make::present;
+                    });
+        write_store(dir_.file("photo.tsr"), spec_of(30, 20, 16, 4, 3, SampleType::u8, ColourSpace::srgb, Codec::jpeg));
+        write_store(dir_.file("grey.tsr"), spec_of(16, 16, 16, 0, 1, SampleType::u8, ColourSpace::linear, Codec::jpeg));
+        write_store(dir_.file("heights.tsr"), spec_of(20, 20, 12, 2, 1, SampleType::u16, ColourSpace::linear, Codec::zstd));
+        write_store(dir_.file("greya.tsr"), spec_of(8, 8, 8, 0, 2, SampleType::u8, ColourSpace::srgb, Codec::zstd, true));
+        write_store(dir_.file("rgba16.tsr"), spec_of(8, 8, 4, 2, 4, SampleType::u16, ColourSpace::linear, Codec::raw, true));
+        write_store(dir_.file("floats.tsr"), spec_of(8, 8, 8, 0, 1, SampleType::f32, ColourSpace::linear, Codec::raw));
+        config_.store_dirs = {dir_.path().string()};
+        config_.http_max_age = 60;
+        config_.cache_bytes = 1 << 20;
+    }
+
+    // Opens the registry and builds the context (after the test has arranged its files).
+    void start() {
+        null_fd_ = ::open("/dev/null", O_WRONLY | O_CLOEXEC);
+        log_ = std::make_unique<Logger>(LogFormat::text, LogLevel::error, null_fd_);
+        metrics_ = std::make_unique<MetricsRegistry>();
+        stores_ = std::make_unique<StoreRegistry>(config_.store_files, config_.store_dirs, *log_, *metrics_);
+        ASSERT_TRUE(stores_->open().ok());
+        cache_ = std::make_unique<TileCache>(config_.cache_bytes);
+        fetcher_ = std::make_unique<TileFetcher>(*cache_, *metrics_, *log_);
+        ctx_.reset(new ServerContext{config_, *log_, *metrics_, *stores_, *fetcher_});
+        ctx_->ready = true;
+        handler_ = std::make_unique<HttpHandler>(*ctx_);
+    }
+
+    void TearDown() override {
+        handler_.reset();
+        ctx_.reset();
+        metrics_.reset();  // before the fetcher: its gauge callbacks point into it
+        fetcher_.reset();
+        cache_.reset();
+        stores_.reset();
+        log_.reset();
+        if (null_fd_ >= 0) ::close(null_fd_);
+    }
+
+    HttpResponse get(std::string_view target, std::string_view if_none_match = {}, std::string_view auth = {},
+                     std::string_view method = "GET") {
+        if (!handler_) start();
+        HttpRequestView req;
+        req.method = method;
+        req.target = target;
+        req.authorization = auth;
+        req.if_none_match = if_none_match;
+        return handler_->handle_http_request(req);
+    }
+
+    std::shared_ptr<storage::StoreReader> reader(const std::string& name) {
+        auto r = storage::StoreReader::open(dir_.file(name + ".tsr"));
+        EXPECT_TRUE(r.ok());
+        return r.ok() ? *r : nullptr;
+    }
+
+    ScratchDir dir_;
+    ServerConfig config_;
+    int null_fd_ = -1;
+    std::unique_ptr<Logger> log_;
+    std::unique_ptr<MetricsRegistry> metrics_;
+    std::unique_ptr<StoreRegistry> stores_;
+    std::unique_ptr<TileCache> cache_;
+    std::unique_ptr<TileFetcher> fetcher_;
+    std::unique_ptr<ServerContext> ctx_;
+    std::unique_ptr<HttpHandler> handler_;
+};
+
+std::string body_of(const std::vector<std::uint8_t>& v) { return std::string(v.begin(), v.end()); }
+
+// ---- PNG decoding, for the checks: chunks, CRCs, inflate, unfilter -------------------------
+
+struct Png {
+    std::uint32_t width = 0, height = 0;
+    unsigned bit_depth = 0, colour_type = 0, compression = 0, filter = 0, interlace = 0;
+    std::vector<std::string> chunks;         // types in file order
+    std::map<std::string, std::string> data;  // first chunk of each type (IDAT: all concatenated)
+    std::vector<std::uint8_t> pixels;        // unfiltered; 16-bit samples converted to little-endian
+};
+
+std::uint32_t be32(const std::uint8_t* p) {
+    return (std::uint32_t(p[0]) << 24) | (std::uint32_t(p[1]) << 16) | (std::uint32_t(p[2]) << 8) | p[3];
+}
+
+int paeth(int a, int b, int c) {
+    const int p = a + b - c, pa = std::abs(p - a), pb = std::abs(p - b), pc = std::abs(p - c);
+    if (pa <= pb && pa <= pc) return a;
+    return pb <= pc ? b : c;
+}
+
+// Decodes what encode_png writes (and any non-interlaced grey/GA/RGB/RGBA PNG); failures are
+// gtest failures and an empty result.
+Png decode_png(const std::string& file) {
+    Png png;
+    const auto* p = reinterpret_cast<const std::uint8_t*>(file.data());
+    static const std::uint8_t sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+    if (file.size() < 8 || std::memcmp(p, sig, 8) != 0) {
+        ADD_FAILURE() << "no PNG signature";
+        return {};
+    }
+    std::string idat;
+    for (std::size_t at = 8; at < file.size();) {
+        if (at + 12 > file.size()) {
+            ADD_FAILURE() << "truncated chunk";
+            return {};
+        }
+        const std::uint32_t len = be32(p + at);
+        const std::string type(file.data() + at + 4, 4);
+        if (at + 12 + len > file.size()) {
+            ADD_FAILURE() << "chunk " << type << " overruns the file";
+            return {};
+        }
+        const std::uint32_t crc = be32(p + at + 8 + len);
+        EXPECT_EQ(crc, static_cast<std::uint32_t>(crc32(crc32(0, nullptr, 0), p + at + 4, len + 4))) << "CRC of " << type;
+        const std::string body(file.data() + at + 8, len);
+        png.chunks.push_back(type);
+        if (type == "IDAT") idat += body;
+        else if (!png.data.count(type)) png.data[type] = body;
+        at += 12 + len;
+    }
+    if (png.chunks.empty() || png.chunks.front() != "IHDR" || png.chunks.back() != "IEND") {
+        ADD_FAILURE() << "IHDR must come first and IEND last";
+        return {};
+    }
+    const auto* ih = reinterpret_cast<const std::uint8_t*>(png.data["IHDR"].data());
+    EXPECT_EQ(png.data["IHDR"].size(), 13u);
+    png.width = be32(ih);
+    png.height = be32(ih + 4);
+    png.bit_depth = ih[8];
+    png.colour_type = ih[9];
+    png.compression = ih[10];
+    png.filter = ih[11];
+    png.interlace = ih[12];
+    const unsigned channels = png.colour_type == 0 ? 1 : png.colour_type == 4 ? 2 : png.colour_type == 2 ? 3 : 4;
+    const std::size_t bpp = channels * png.bit_depth / 8;
+    const std::size_t row = png.width * bpp;
+    std::vector<std::uint8_t> raw((row + 1) * png.height);
+    uLongf raw_len = static_cast<uLongf>(raw.size());
+    const int zr = uncompress(raw.data(), &raw_len, reinterpret_cast<const Bytef*>(idat.data()), static_cast<uLong>(idat.size()));
+    if (zr != Z_OK || raw_len != raw.size()) {
+        ADD_FAILURE() << "IDAT does not inflate to " << raw.size() << " bytes (zlib " << zr << ", " << raw_len << ")";
+        return {};
+    }
+    png.pixels.assign(row * png.height, 0);
+    for (std::size_t y = 0; y < png.height; ++y) {
+        const std::uint8_t ft = raw[y * (row + 1)];
+        const std::uint8_t* in = raw.data() + y * (row + 1) + 1;
+        std::uint8_t* out = png.pixels.data() + y * row;
+        const std::uint8_t* up = y ? out - row : nullptr;
+        for (std::size_t i = 0; i < row; ++i) {
+            const int a = i >= bpp ? out[i - bpp] : 0, b = up ? up[i] : 0, c = (up && i >= bpp) ? up[i - bpp] : 0;
+            int pred = 0;
+            switch (ft) {
+                case 0: pred = 0; break;
+                case 1: pred = a; break;
+                case 2: pred = b; break;
+                case 3: pred = (a + b) / 2; break;
+                case 4: pred = paeth(a, b, c); break;
+                default: ADD_FAILURE() << "filter type " << int(ft); return {};
+            }
+            out[i] = static_cast<std::uint8_t>(in[i] + pred);
+        }
+    }
+    if (png.bit_depth == 16)
+        for (std::size_t i = 0; i + 1 < png.pixels.size(); i += 2) std::swap(png.pixels[i], png.pixels[i + 1]);
+    return png;
+}
+
+}  // namespace
+
+// ---- Tiles: bytes, headers, ETags --------------------------------------------------------------
+
+TEST_F(HandlerTest, TileBytesAreTheStoredPayload) {
+    auto r = reader("rgb");
+    const auto& info = r->info();
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                const auto tile = r->read_tile({l, x, y});
+                ASSERT_TRUE(tile.ok());
+                const std::string target = "/v1/stores/rgb/tiles/" + std::to_string(l) + "/" + std::to_string(x) + "/" + std::to_string(y);
+                const HttpResponse res = get(target);
+                SCOPED_TRACE(target);
+                if (tile->kind == TileKind::absent) {
+                    EXPECT_EQ(res.status, 404u);
+                    EXPECT_NE(res.body.find("tile absent in a sparse store"), std::string::npos) << res.body;
+                    continue;
+                }
+                ASSERT_EQ(res.status, 200u) << res.body;
+                EXPECT_EQ(res.route, HttpRoute::tile);
+                EXPECT_EQ(res.body, body_of(tile->bytes));
+                EXPECT_EQ(res.content_type, "application/octet-stream");
+                ASSERT_NE(res.header("X-Tessera-Checksum"), nullptr);
+                EXPECT_EQ(*res.header("X-Tessera-Checksum"), hex16(tile->checksum));
+                EXPECT_EQ(*res.header("X-Tessera-Store-Version"), hex16(info.store_id));
+                EXPECT_EQ(*res.header("X-Tessera-Kind"), tile->kind == TileKind::uniform ? "uniform" : "present");
+                EXPECT_EQ(*res.header("X-Tessera-Codec"), tile->kind == TileKind::uniform ? "uniform" : "raw");
+                EXPECT_EQ(*res.header("ETag"), "\"" + hex16(info.store_id) + "-" + hex16(tile->checksum) + "\"");
+                EXPECT_EQ(*res.header("Cache-Control"), "public, max-age=60");
+                EXPECT_EQ(*res.header("Server"), "tessera/0.1");
+            }
+    // The uniform tile's body is its one texel.
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/2/2").body, std::string(3, '\x07'));
+}
+
+TEST_F(HandlerTest, ContentTypesFollowTheCodec) {
+    EXPECT_EQ(get("/v1/stores/photo/tiles/0/0/0").content_type, "image/jpeg");
+    EXPECT_EQ(*get("/v1/stores/photo/tiles/0/0/0").header("X-Tessera-Codec"), "jpeg");
+    EXPECT_EQ(get("/v1/stores/heights/tiles/0/0/0").content_type, "application/zstd");
+    EXPECT_EQ(*get("/v1/stores/heights/tiles/0/0/0").header("X-Tessera-Codec"), "zstd");
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/0/0").content_type, "application/octet-stream");
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/2/2").content_type, "application/octet-stream");  // uniform
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/0/0?format=png").content_type, "image/png");
+    // JPEG payloads really are JPEG (SOI marker).
+    const std::string jpeg = get("/v1/stores/photo/tiles/0/0/0").body;
+    ASSERT_GE(jpeg.size(), 2u);
+    EXPECT_EQ(static_cast<unsigned char>(jpeg[0]), 0xFF);
+    EXPECT_EQ(static_cast<unsigned char>(jpeg[1]), 0xD8);
+}
+
+TEST_F(HandlerTest, IfNoneMatchAnswers304) {
+    const HttpResponse first = get("/v1/stores/rgb/tiles/1/1/0");
+    ASSERT_EQ(first.status, 200u);
+    const std::string etag = *first.header("ETag");
+    ASSERT_EQ(etag.size(), 2u + 16 + 1 + 16);
+
+    auto expect_304 = [&](std::string_view inm) {
+        SCOPED_TRACE(std::string(inm));
+        const HttpResponse r = get("/v1/stores/rgb/tiles/1/1/0", inm);
+        EXPECT_EQ(r.status, 304u);
+        EXPECT_TRUE(r.body.empty());
+        ASSERT_NE(r.header("ETag"), nullptr);
+        EXPECT_EQ(*r.header("ETag"), etag);
+        ASSERT_NE(r.header("Cache-Control"), nullptr);
+        EXPECT_EQ(*r.header("Cache-Control"), "public, max-age=60");
+    };
+    expect_304(etag);
+    expect_304("*");
+    expect_304("W/" + etag);                       // weak comparison
+    expect_304("\"other\", W/\"x\", " + etag);     // a list
+    expect_304("\"other\",W/" + etag);
+
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/1/1/0", "\"other\"").status, 200u);
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/1/0/0", etag).status, 200u);         // another tile's ETag
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/1/1/0?format=png", etag).status, 200u);  // another representation
+    // No current representation: '*' does not match an absent tile.
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/3/2", "*").status, 404u);
+
+    // The PNG has its own ETag, with a -png suffix inside the quotes.
+    const HttpResponse png = get("/v1/stores/rgb/tiles/1/1/0?format=png");
+    ASSERT_EQ(png.status, 200u);
+    EXPECT_EQ(*png.header("ETag"), etag.substr(0, etag.size() - 1) + "-png\"");
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/1/1/0?format=png", *png.header("ETag")).status, 304u);
+    // Uniform tiles too.
+    const HttpResponse uni = get("/v1/stores/rgb/tiles/0/2/2");
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/2/2", *uni.header("ETag")).status, 304u);
+}
+
+TEST_F(HandlerTest, VersionedUrlsAreImmutable) {
+    const std::string version = hex16(reader("rgb")->info().store_id);
+    const HttpResponse r = get("/v1/stores/rgb/tiles/0/0/0?v=" + version);
+    ASSERT_EQ(r.status, 200u);
+    EXPECT_EQ(*r.header("Cache-Control"), "public, max-age=31536000, immutable");
+    // Either case of hex, and with format.
+    std::string upper = version;
+    for (auto& c : upper) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/0/0?format=png&v=" + upper).status, 200u);
+    // Another version is not served: 404 naming both.
+    const std::string other = hex16(reader("rgb")->info().store_id ^ 1);
+    const HttpResponse stale = get("/v1/stores/rgb/tiles/0/0/0?v=" + other);
+    EXPECT_EQ(stale.status, 404u);
+    EXPECT_NE(stale.body.find(other), std::string::npos) << stale.body;
+    EXPECT_NE(stale.body.find(version), std::string::npos) << stale.body;
+    EXPECT_EQ(*stale.header("Cache-Control"), "no-store");
+}
+
+TEST_F(HandlerTest, HeadGivesTheSameHeadersAndLength) {
+    const HttpResponse g = get("/v1/stores/rgb/tiles/0/1/1");
+    const HttpResponse h = get("/v1/stores/rgb/tiles/0/1/1", {}, {}, "HEAD");
+    EXPECT_EQ(h.status, 200u);
+    EXPECT_EQ(h.body.size(), g.body.size());  // the transport sends only the headers
+    EXPECT_EQ(*h.header("ETag"), *g.header("ETag"));
+    EXPECT_EQ(h.content_type, g.content_type);
+}
+
+// ---- PNG ------------------------------------------------------------------------------------------
+
+TEST_F(HandlerTest, PngDecodesToTheDecodedTileExactly) {
+    struct Case {
+        std::string store;
+        unsigned colour_type, bit_depth;
+        bool srgb;
+    };
+    const std::vector<Case> cases = {
+        {"rgb", 2, 8, true},      {"photo", 2, 8, true},  {"grey", 0, 8, false},
+        {"heights", 0, 16, false}, {"greya", 4, 8, true}, {"rgba16", 6, 16, false},
+    };
+    for (const Case& c : cases) {
+        SCOPED_TRACE(c.store);
+        auto r = reader(c.store);
+        const auto& info = r->info();
+        for (std::uint32_t l = 0; l < info.level_count(); ++l)
+            for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+                for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                    const std::string target = "/v1/stores/" + c.store + "/tiles/" + std::to_string(l) + "/" +
+                                               std::to_string(x) + "/" + std::to_string(y) + "?format=png";
+                    SCOPED_TRACE(target);
+                    const auto tile = r->read_tile({l, x, y});
+                    ASSERT_TRUE(tile.ok());
+                    if (tile->kind == TileKind::absent) continue;
+                    std::vector<std::uint8_t> decoded;
+                    ASSERT_TRUE(storage::decode_tile(info, *tile, decoded).ok());
+                    const HttpResponse res = get(target);
+                    ASSERT_EQ(res.status, 200u) << res.body;
+                    EXPECT_EQ(res.route, HttpRoute::tile_png);
+                    EXPECT_EQ(res.content_type, "image/png");
+                    const Png png = decode_png(res.body);
+                    EXPECT_EQ(png.width, info.tile_size());
+                    EXPECT_EQ(png.height, info.tile_size());
+                    EXPECT_EQ(png.colour_type, c.colour_type);
+                    EXPECT_EQ(png.bit_depth, c.bit_depth);
+                    EXPECT_EQ(png.compression, 0u);
+                    EXPECT_EQ(png.filter, 0u);
+                    EXPECT_EQ(png.interlace, 0u);
+                    if (c.srgb) {
+                        EXPECT_EQ(png.data.count("sRGB"), 1u);
+                        EXPECT_EQ(png.data.count("gAMA"), 0u);
+                    } else {
+                        ASSERT_EQ(png.data.count("gAMA"), 1u);
+                        EXPECT_EQ(be32(reinterpret_cast<const std::uint8_t*>(png.data.at("gAMA").data())), 100000u);
+                        EXPECT_EQ(png.data.count("sRGB"), 0u);
+                    }
+                    EXPECT_EQ(png.pixels, decoded);
+                }
+    }
+}
+
+TEST(PngEncode, RefusesFloatsAndWrongSizes) {
+    storage::StoreInfo info = storage::store_info(spec_of(8, 8, 8, 0, 1, SampleType::f32, ColourSpace::linear, Codec::raw));
+    std::vector<std::uint8_t> texels(info.tile_bytes());
+    auto r = encode_png(info, texels);
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, Errc::unsupported);
+    EXPECT_NE(r.error().message.find("f32"), std::string::npos) << r.error().message;
+    info.sample_type = SampleType::f16;
+    EXPECT_EQ(encode_png(info, std::vector<std::uint8_t>(info.tile_bytes())).error().code, Errc::unsupported);
+    info.sample_type = SampleType::u8;
+    EXPECT_EQ(encode_png(info, std::vector<std::uint8_t>(info.tile_bytes() - 1)).error().code, Errc::invalid_argument);
+    EXPECT_TRUE(encode_png(info, std::vector<std::uint8_t>(info.tile_bytes())).ok());
+}
+
+TEST_F(HandlerTest, FloatStoresHaveNoPng) {
+    const HttpResponse r = get("/v1/stores/floats/tiles/0/0/0?format=png");
+    EXPECT_EQ(r.status, 406u);
+    EXPECT_NE(r.body.find("f32"), std::string::npos) << r.body;
+    EXPECT_EQ(get("/v1/stores/floats/tiles/0/0/0").status, 200u);  // the stored payload is fine
+}
+
+// ---- Bad input, table-driven --------------------------------------------------------------------
+
+TEST_F(HandlerTest, EveryBadInputGetsItsStatus) {
+    const std::uint64_t version = reader("rgb")->info().store_id;
+    const std::vector<std::pair<std::string, unsigned>> table = {
+        {"/v1/stores/rgb/tiles/0/0/0", 200},
+        {"/v1/stores/rgb/tiles/2/0/0", 200},
+        // malformed numbers
+        {"/v1/stores/rgb/tiles/+0/0/0", 400},
+        {"/v1/stores/rgb/tiles/-1/0/0", 400},
+        {"/v1/stores/rgb/tiles/0/-0/0", 400},
+        {"/v1/stores/rgb/tiles/0/a/0", 400},
+        {"/v1/stores/rgb/tiles/0/0x1/0", 400},
+        {"/v1/stores/rgb/tiles/0/1.0/0", 400},
+        {"/v1/stores/rgb/tiles/0/ 1/0", 400},
+        {"/v1/stores/rgb/tiles/00/0/0", 400},
+        {"/v1/stores/rgb/tiles/0/0/4294967296", 400},
+        {"/v1/stores/rgb/tiles/0/0/18446744073709551617", 400},
+        {"/v1/stores/rgb/tiles/0/0/99999999999", 400},
+        // empty and extra segments
+        {"/v1/stores/rgb/tiles/0//0", 400},
+        {"/v1/stores/rgb/tiles//0/0", 400},
+        {"/v1/stores/rgb/tiles/0/0/0/", 400},
+        {"/v1/stores/rgb/tiles/0/0/0/1", 400},
+        {"/v1/stores/rgb/tiles/0/0", 400},
+        {"/v1/stores/rgb/tiles", 400},
+        {"/v1//stores/rgb", 400},
+        {"/v1/stores/", 400},
+        // dot segments, percent-encoded slashes and dots, bad escapes
+        {"/v1/stores/../tiles/0/0/0", 400},
+        {"/v1/stores/./rgb", 400},
+        {"/v1/stores/rgb/tiles/0/0/0/..", 400},
+        {"/v1/stores/%2e%2e/tiles/0/0/0", 400},
+        {"/v1/stores/%2E%2E", 400},
+        {"/v1/stores/a%2fb/tiles/0/0/0", 400},
+        {"/v1/stores/rgb%2Ftiles/0/0/0", 400},
+        {"/v1/stores/rgb/tiles/0/0/0%", 400},
+        {"/v1/stores/rgb/tiles/0/0/0%4", 400},
+        {"/v1/stores/rgb/tiles/0/0/%zz", 400},
+        {"/v1/stores/rgb/tiles/0/0/%00", 400},
+        {"/v1/stores/r%67b/tiles/0/0/0", 200},  // an escaped letter is just the letter
+        // characters that must be encoded, fragments, relative targets
+        {"/v1/stores/rgb/tiles/0/0/0#x", 400},
+        {"/v1/stores/r b", 400},
+        {"/v1/stores/r\"b", 400},
+        {"v1/stores/rgb", 400},
+        {"*", 400},
+        {"http://example.com/v1/stores/rgb", 400},
+        // invalid store names
+        {"/v1/stores/..", 400},
+        {"/v1/stores/a..b", 400},
+        {"/v1/stores/.hidden", 400},
+        {"/v1/stores/-x", 400},
+        {"/v1/stores/a:b/tiles/0/0/0", 400},
+        {"/v1/stores/" + std::string(129, 'a'), 400},
+        // query
+        {"/v1/stores/rgb/tiles/0/0/0?", 200},
+        {"/v1/stores/rgb/tiles/0/0/0?format=png", 200},
+        {"/v1/stores/rgb/tiles/0/0/0?foo=1", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?format=png&x", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?format=jpeg", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?format=", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?format=png&format=png", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?v=", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?v=xyz", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?v=-1", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?v=00000000000000000", 400},
+        {"/v1/stores/rgb/tiles/0/0/0?v=" + hex16(version) + "&v=" + hex16(version), 400},
+        {"/v1/stores/rgb/tiles/0/0/0?v=" + hex16(version), 200},
+        {"/v1/stores/rgb/tiles/0/0/0?v=" + hex16(version ^ 0x10), 404},
+        {"/v1/stores?format=png", 400},
+        {"/v1/stores/rgb?v=1", 400},
+        // unknown things
+        {"/v1/stores/nosuch", 404},
+        {"/v1/stores/nosuch/tiles/0/0/0", 404},
+        {"/v1/stores/rgb/other", 404},
+        {"/v1/other", 404},
+        {"/", 404},
+        {"/nope", 404},
+        // out of range
+        {"/v1/stores/rgb/tiles/3/0/0", 404},
+        {"/v1/stores/rgb/tiles/4294967295/0/0", 404},
+        {"/v1/stores/rgb/tiles/0/4/0", 404},
+        {"/v1/stores/rgb/tiles/0/0/3", 404},
+        {"/v1/stores/rgb/tiles/2/1/0", 404},
+        {"/v1/stores/rgb/tiles/0/0/4294967295", 404},
+        {"/v1/stores/rgb/tiles/0/3/2", 404},  // absent
+        // probes ignore queries
+        {"/healthz?x=1", 200},
+        {"/v1/stores", 200},
+        {"/v1/stores/rgb", 200},
+        {"/metrics", 200},
+    };
+    for (const auto& [target, status] : table) {
+        const HttpResponse r = get(target);
+        EXPECT_EQ(r.status, status) << target << " -> " << r.body;
+        if (status >= 400) {
+            // One line, ending in a newline; JSON under /v1/.
+            ASSERT_FALSE(r.body.empty()) << target;
+            EXPECT_EQ(r.body.back(), '\n') << target;
+            EXPECT_EQ(r.body.find('\n'), r.body.size() - 1) << target;
+            if (target.starts_with("/v1/")) {
+                EXPECT_EQ(r.content_type, "application/json") << target;
+                const auto j = nlohmann::json::parse(r.body, nullptr, false);
+                ASSERT_FALSE(j.is_discarded()) << target << ": " << r.body;
+                EXPECT_TRUE(j.contains("error") && j["error"].is_string()) << target;
+            }
+        }
+    }
+}
+
+TEST_F(HandlerTest, OutOfRangeMessagesGiveTheValidRange) {
+    const HttpResponse l = get("/v1/stores/rgb/tiles/3/0/0");
+    EXPECT_NE(l.body.find("0..2"), std::string::npos) << l.body;
+    const HttpResponse x = get("/v1/stores/rgb/tiles/0/4/0");
+    EXPECT_NE(x.body.find("0..3"), std::string::npos) << x.body;
+    EXPECT_NE(x.body.find("0..2"), std::string::npos) << x.body;
+}
+
+TEST_F(HandlerTest, OnlyGetAndHead) {
+    for (const char* m : {"POST", "PUT", "DELETE", "PATCH", "OPTIONS", "BREW"}) {
+        SCOPED_TRACE(m);
+        const HttpResponse r = get("/v1/stores/rgb/tiles/0/0/0", {}, {}, m);
+        EXPECT_EQ(r.status, 405u);
+        ASSERT_NE(r.header("Allow"), nullptr);
+        EXPECT_EQ(*r.header("Allow"), "GET, HEAD");
+    }
+    EXPECT_EQ(get("/healthz", {}, {}, "POST").status, 405u);
+}
+
+// ---- Probes, metadata, metrics -----------------------------------------------------------------
+
+TEST_F(HandlerTest, HealthAndReadiness) {
+    start();
+    EXPECT_EQ(get("/healthz").status, 200u);
+    EXPECT_EQ(get("/healthz").body, "ok\n");
+    EXPECT_EQ(get("/readyz").status, 200u);
+    ctx_->ready = false;
+    EXPECT_EQ(get("/readyz").status, 503u);
+    ctx_->ready = true;
+    ctx_->draining = true;
+    EXPECT_EQ(get("/readyz").status, 503u);
+    EXPECT_EQ(get("/healthz").status, 200u);
+    // Draining stops new connections, not requests: tiles are still served.
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/0/0").status, 200u);
+}
+
+TEST_F(HandlerTest, StoreListAndMetadata) {
+    const HttpResponse list = get("/v1/stores");
+    ASSERT_EQ(list.status, 200u);
+    EXPECT_EQ(list.content_type, "application/json");
+    const auto j = nlohmann::json::parse(list.body);
+    ASSERT_TRUE(j["stores"].is_array());
+    std::vector<std::string> names;
+    for (const auto& s : j["stores"]) names.push_back(s["name"]);
+    EXPECT_EQ(names, (std::vector<std::string>{"floats", "grey", "greya", "heights", "photo", "rgb", "rgba16"}));
+    const auto info = reader("rgb")->info();
+    const auto& rgb = j["stores"][5];
+    EXPECT_EQ(rgb["version"], hex16(info.store_id));
+    EXPECT_EQ(rgb["width"], 40);
+    EXPECT_EQ(rgb["height"], 30);
+    EXPECT_EQ(rgb["tile_payload"], 12);
+    EXPECT_EQ(rgb["border"], 2);
+    EXPECT_EQ(rgb["channels"], 3);
+    EXPECT_EQ(rgb["sample_type"], "u8");
+    EXPECT_EQ(rgb["colour_space"], "srgb");
+    EXPECT_EQ(rgb["codec"], "raw");
+    EXPECT_EQ(rgb["levels"], 3);
+    EXPECT_EQ(rgb["url"], "/v1/stores/rgb");
+    EXPECT_EQ(j["stores"][3]["codec"], "zstd");
+    EXPECT_EQ(j["stores"][3]["sample_type"], "u16");
+    EXPECT_EQ(j["stores"][3]["colour_space"], "linear");
+
+    const HttpResponse meta = get("/v1/stores/rgb");
+    ASSERT_EQ(meta.status, 200u);
+    const auto m = nlohmann::json::parse(meta.body);
+    EXPECT_EQ(m["name"], "rgb");
+    EXPECT_EQ(m["version"], hex16(info.store_id));
+    EXPECT_EQ(m["file_size"], info.file_size);
+    ASSERT_EQ(m["level_info"].size(), 3u);
+    for (std::size_t l = 0; l < 3; ++l) {
+        EXPECT_EQ(m["level_info"][l]["width"], info.levels[l].width);
+        EXPECT_EQ(m["level_info"][l]["height"], info.levels[l].height);
+        EXPECT_EQ(m["level_info"][l]["tiles_x"], info.levels[l].tiles_x);
+        EXPECT_EQ(m["level_info"][l]["tiles_y"], info.levels[l].tiles_y);
+        EXPECT_EQ(m["level_info"][l]["present"], info.levels[l].present);
+        EXPECT_EQ(m["level_info"][l]["uniform"], info.levels[l].uniform);
+        EXPECT_EQ(m["level_info"][l]["absent"], info.levels[l].absent);
+    }
+    EXPECT_EQ(m["level_info"][0]["absent"], 1);
+    EXPECT_EQ(m["level_info"][0]["uniform"], 1);
+    EXPECT_EQ(get("/v1/stores/nosuch").status, 404u);
+}
+
+TEST_F(HandlerTest, MetricsParseAndCountByFixedRoutes) {
+    get("/healthz");
+    get("/v1/stores");
+    get("/v1/stores/rgb");
+    get("/v1/stores/rgb/tiles/0/0/0");
+    get("/v1/stores/rgb/tiles/0/0/0?format=png");
+    get("/v1/stores/rgb/tiles/0/0/0", {}, {}, "HEAD");
+    get("/v1/stores/%2e%2e/tiles/0/0/0");
+    get("/some/random/path/123");
+    const HttpResponse res = get("/metrics");
+    ASSERT_EQ(res.status, 200u);
+    EXPECT_EQ(res.content_type, "text/plain; version=0.0.4; charset=utf-8");
+    const auto p = tessera::test::parse_prometheus_text(res.body);
+    ASSERT_TRUE(p.ok()) << p.error;
+    EXPECT_EQ(p.value("tessera_http_requests_total", {{"route", "tile"}, {"code", "200"}}), 2.0);  // GET + HEAD
+    EXPECT_EQ(p.value("tessera_http_requests_total", {{"route", "tile_png"}, {"code", "200"}}), 1.0);
+    EXPECT_EQ(p.value("tessera_http_requests_total", {{"route", "healthz"}, {"code", "200"}}), 1.0);
+    EXPECT_EQ(p.value("tessera_http_requests_total", {{"route", "stores"}, {"code", "200"}}), 1.0);
+    EXPECT_EQ(p.value("tessera_http_requests_total", {{"route", "store"}, {"code", "200"}}), 1.0);
+    EXPECT_EQ(p.value("tessera_http_requests_total", {{"route", "other"}, {"code", "404"}}), 1.0);
+    EXPECT_EQ(p.value("tessera_tiles_served_total", {{"store", "rgb"}, {"protocol", "http"}}), 2.0);  // HEAD not counted
+    EXPECT_EQ(p.types.at("tessera_http_request_duration_seconds"), "histogram");
+    EXPECT_EQ(p.value("tessera_http_request_duration_seconds_count", {{"route", "tile"}}), 2.0);
+    EXPECT_EQ(p.value("tessera_http_response_bytes_total", {{"route", "tile"}}),
+              double(reader("rgb")->read_tile({0, 0, 0})->bytes.size()));
+    // The route label is a fixed set: no raw path ever becomes a label value.
+    const std::set<std::string> routes = {"healthz", "readyz", "metrics", "stores", "store", "tile", "tile_png", "other"};
+    for (const auto* s : p.all("tessera_http_requests_total")) EXPECT_EQ(routes.count(s->labels.at("route")), 1u) << s->labels.at("route");
+    EXPECT_EQ(res.body.find("random"), std::string::npos);
+}
+
+// ---- Auth -------------------------------------------------------------------------------------------
+
+TEST_F(HandlerTest, BearerTokenWhenConfigured) {
+    // Off: no header needed.
+    EXPECT_EQ(get("/v1/stores").status, 200u);
+    config_.auth_token = "s3cret-token";
+    EXPECT_EQ(get("/healthz").status, 200u);
+    EXPECT_EQ(get("/readyz").status, 200u);
+    for (const char* target : {"/metrics", "/v1/stores", "/v1/stores/rgb", "/v1/stores/rgb/tiles/0/0/0", "/nope",
+                               "/v1/stores/%2e%2e"}) {
+        SCOPED_TRACE(target);
+        const HttpResponse no = get(target);
+        EXPECT_EQ(no.status, 401u);
+        ASSERT_NE(no.header("WWW-Authenticate"), nullptr);
+        EXPECT_EQ(*no.header("WWW-Authenticate"), "Bearer");
+        EXPECT_EQ(get(target, {}, "Bearer wrong-token").status, 401u);
+        EXPECT_EQ(get(target, {}, "Bearer s3cret-token-and-more").status, 401u);
+        EXPECT_EQ(get(target, {}, "Basic s3cret-token").status, 401u);
+        EXPECT_NE(get(target, {}, "Bearer s3cret-token").status, 401u);
+        EXPECT_NE(get(target, {}, "bearer   s3cret-token").status, 401u);
+    }
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/0/0", {}, "Bearer s3cret-token").status, 200u);
+    // The 401 body never carries the tile.
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/0/0").body.find(body_of(reader("rgb")->read_tile({0, 0, 0})->bytes)),
+              std::string::npos);
+}
+
+// ---- Corruption -------------------------------------------------------------------------------------
+
+TEST_F(HandlerTest, CorruptTileIs500AndNeverItsBytes) {
+    // Flip one payload byte of rgb (1,1,1) on disk.
+    const auto r = reader("rgb");
+    const auto loc = r->locate({1, 1, 1});
+    ASSERT_TRUE(loc.ok());
+    ASSERT_EQ(loc->kind, TileKind::present);
+    const std::vector<std::uint8_t> good = r->read_tile({1, 1, 1})->bytes;
+    {
+        std::fstream f(dir_.file("rgb.tsr"), std::ios::in | std::ios::out | std::ios::binary);
+        f.seekp(static_cast<std::streamoff>(loc->offset + 5));
+        const char bad = static_cast<char>(good[5] ^ 0x5a);
+        f.write(&bad, 1);
+    }
+    std::vector<std::uint8_t> corrupted = good;
+    corrupted[5] ^= 0x5a;
+    for (const char* suffix : {"", "?format=png"}) {
+        SCOPED_TRACE(suffix);
+        const HttpResponse res = get(std::string("/v1/stores/rgb/tiles/1/1/1") + suffix);
+        EXPECT_EQ(res.status, 500u);
+        EXPECT_NE(res.body.find("tile failed its checksum"), std::string::npos) << res.body;
+        EXPECT_LT(res.body.size(), 200u);
+        EXPECT_EQ(res.body.find(body_of(corrupted).substr(0, 32)), std::string::npos);
+        EXPECT_EQ(res.body.find(body_of(good).substr(0, 32)), std::string::npos);
+        EXPECT_EQ(res.header("ETag"), nullptr);
+    }
+    // Its neighbours are fine.
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/1/0/1").status, 200u);
+    const auto p = tessera::test::parse_prometheus_text(get("/metrics").body);
+    ASSERT_TRUE(p.ok()) << p.error;
+    EXPECT_EQ(p.value("tessera_http_requests_total", {{"route", "tile"}, {"code", "500"}}), 1.0);
+}
+
+// ---- Bounds -----------------------------------------------------------------------------------------
+
+TEST_F(HandlerTest, InflightBoundGives503) {
+    config_.max_http_inflight = 0;  // nothing may be in flight: every tile request is refused
+    const HttpResponse r = get("/v1/stores/rgb/tiles/0/0/0");
+    EXPECT_EQ(r.status, 503u);
+    ASSERT_NE(r.header("Retry-After"), nullptr);
+    EXPECT_EQ(get("/v1/stores").status, 200u);  // only tiles are bounded
+    EXPECT_EQ(handler_->tiles_in_flight(), 0u);
+    config_.max_http_inflight = 1;
+    EXPECT_EQ(get("/v1/stores/rgb/tiles/0/0/0").status, 200u);
+}
+
+TEST_F(HandlerTest, FreeFunctionMatchesTheClass) {
+    start();
+    HttpRequestView req;
+    req.method = "GET";
+    req.target = "/v1/stores/rgb/tiles/0/0/0";
+    const HttpResponse a = handle_http_request(*ctx_, req);
+    const HttpResponse b = handler_->handle_http_request(req);
+    EXPECT_EQ(a.status, 200u);
+    EXPECT_EQ(a.body, b.body);
+}

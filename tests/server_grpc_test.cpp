@@ -1,0 +1,602 @@
+// Integration tests of `tessera serve` over gRPC: a real server process on loopback, driven with
+// the generated stub (so the tests control exactly when replies are read).
+#include <gtest/gtest.h>
+#include <grpcpp/grpcpp.h>
+#include <xxhash.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <map>
+#include <random>
+#include <set>
+
+#include "server_process.hpp"
+#include "tessera.grpc.pb.h"
+#include "tessera/storage/store_reader.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+using tessera::test::ScratchDir;
+using tessera::test::ServerProcess;
+namespace v1 = tessera::v1;
+namespace fs = std::filesystem;
+
+// Stores shared by every test (built once): a 16384² JPEG store (6054 tiles: many keys) and a
+// 4096² raw store (big tiles: a few fill any buffer).
+class Stores {
+public:
+    static Stores& get() {
+        static Stores s;
+        return s;
+    }
+    std::string jpeg, raw, small;
+
+private:
+    Stores() {
+        dir_ = std::make_unique<ScratchDir>();
+        jpeg = dir_->file("terrain.tsr");
+        raw = dir_->file("rawterrain.tsr");
+        small = dir_->file("small.tsr");
+        auto build = [](const std::string& args) {
+            auto r = tessera::test::run_tessera("build " + args + " --quiet");
+            if (r.exit_code != 0) throw std::runtime_error("build failed: " + r.out);
+        };
+        build("procedural:terrain:16384 -o " + jpeg);
+        build("procedural:terrain:4096 --codec raw -o " + raw);
+        build("procedural:terrain:1000 --codec zstd -o " + small);
+    }
+    std::unique_ptr<ScratchDir> dir_;
+};
+
+std::shared_ptr<grpc::Channel> channel(const std::string& address) {
+    grpc::ChannelArguments args;
+    args.SetMaxReceiveMessageSize(64 << 20);
+    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);  // each channel its own connection
+    return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
+}
+
+struct Req {
+    std::uint32_t level, x, y;
+    float priority;
+};
+
+v1::TileBatch batch(std::uint64_t frame, const std::string& store, const std::vector<Req>& reqs, std::uint32_t deadline_ms = 0) {
+    v1::TileBatch b;
+    b.set_frame(frame);
+    b.add_stores(store);
+    b.set_deadline_ms(deadline_ms);
+    for (const auto& r : reqs) {
+        auto* q = b.add_requests();
+        q->set_store(0);
+        q->set_level(r.level);
+        q->set_x(r.x);
+        q->set_y(r.y);
+        q->set_priority(r.priority);
+    }
+    return b;
+}
+
+// Every tile key of a level of a store.
+std::vector<Req> level_keys(const std::string& path, std::uint32_t level, float priority = 1) {
+    auto reader = tessera::storage::StoreReader::open(path);
+    EXPECT_TRUE(reader.ok());
+    const auto& l = (*reader)->info().levels[level];
+    std::vector<Req> out;
+    for (std::uint32_t y = 0; y < l.tiles_y; ++y)
+        for (std::uint32_t x = 0; x < l.tiles_x; ++x) out.push_back({level, x, y, priority});
+    return out;
+}
+
+// One viewer: a StreamTiles call with a reader that collects messages.
+struct Viewer {
+    explicit Viewer(const std::string& address, const std::string& token = "")
+        : stub(v1::TileService::NewStub(channel(address))) {
+        if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
+        stream = stub->StreamTiles(&ctx);
+    }
+    bool send(const v1::TileBatch& b) { return stream->Write(b); }
+    // Reads until `pred` holds or the stream ends; false on end.
+    template <class Pred>
+    bool read_until(Pred pred) {
+        v1::ServerMessage m;
+        while (!pred()) {
+            if (!stream->Read(&m)) return false;
+            if (m.has_ack()) acks.push_back(m.ack());
+            else tiles.push_back(m.tile());
+        }
+        return true;
+    }
+    grpc::Status finish() {
+        stream->WritesDone();
+        v1::ServerMessage m;
+        while (stream->Read(&m)) {
+            if (m.has_ack()) acks.push_back(m.ack());
+            else tiles.push_back(m.tile());
+        }
+        return stream->Finish();
+    }
+    std::unique_ptr<v1::TileService::Stub> stub;
+    grpc::ClientContext ctx;
+    std::unique_ptr<grpc::ClientReaderWriter<v1::TileBatch, v1::ServerMessage>> stream;
+    std::vector<v1::BatchAck> acks;
+    std::vector<v1::TileReply> tiles;
+};
+
+v1::ServerStats stats(const std::string& address) {
+    auto stub = v1::TileService::NewStub(channel(address));
+    grpc::ClientContext ctx;
+    v1::ServerStats s;
+    EXPECT_TRUE(stub->GetStats(&ctx, v1::GetStatsRequest(), &s).ok());
+    return s;
+}
+
+class ServerGrpc : public ::testing::Test {
+protected:
+    static void SetUpTestSuite() { Stores::get(); }
+    ScratchDir dir;
+};
+
+TEST_F(ServerGrpc, ListAndDescribeStores) {
+    ServerProcess srv({"--store", Stores::get().jpeg, "--store", Stores::get().small}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
+    grpc::ClientContext c1;
+    v1::ListStoresReply list;
+    ASSERT_TRUE(stub->ListStores(&c1, {}, &list).ok());
+    ASSERT_EQ(list.stores_size(), 2);
+    EXPECT_EQ(list.stores(0).name(), "small");
+    EXPECT_EQ(list.stores(1).name(), "terrain");
+    auto reader = tessera::storage::StoreReader::open(Stores::get().jpeg);
+    ASSERT_TRUE(reader.ok());
+    grpc::ClientContext c2;
+    v1::GetStoreRequest req;
+    req.set_name("terrain");
+    v1::StoreMetadata m;
+    ASSERT_TRUE(stub->GetStore(&c2, req, &m).ok());
+    EXPECT_EQ(m.version(), (*reader)->info().store_id);
+    EXPECT_EQ(m.width(), 16384u);
+    EXPECT_EQ(m.codec(), v1::CODEC_JPEG);
+    EXPECT_EQ(static_cast<std::size_t>(m.levels_size()), (*reader)->info().levels.size());
+}
+
+TEST_F(ServerGrpc, HigherPriorityTilesAreSentFirst) {
+    // One reader thread: strict order. Two viewers contend for it.
+    ServerProcess srv({"--store", Stores::get().jpeg, "--io-threads", "1"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    std::mt19937 rng(7);
+    auto keys = level_keys(Stores::get().jpeg, 1);  // 1089 tiles
+    ASSERT_GE(keys.size(), 1000u);
+    std::shuffle(keys.begin(), keys.end(), rng);
+    std::vector<Req> a(keys.begin(), keys.begin() + 400), b(keys.begin() + 400, keys.begin() + 800);
+    std::uniform_real_distribution<float> pr(0, 1000);
+    for (auto& r : a) r.priority = pr(rng);
+    for (auto& r : b) r.priority = pr(rng);
+    Viewer va(srv.grpc_address()), vb(srv.grpc_address());
+    ASSERT_TRUE(va.send(batch(1, "terrain", a)));
+    ASSERT_TRUE(vb.send(batch(1, "terrain", b)));
+    ASSERT_TRUE(va.read_until([&] { return va.tiles.size() == a.size(); }));
+    ASSERT_TRUE(vb.read_until([&] { return vb.tiles.size() == b.size(); }));
+    for (auto* v : {&va, &vb}) {
+        std::map<std::tuple<unsigned, unsigned, unsigned>, float> prio;
+        for (const auto& r : (v == &va ? a : b)) prio[{r.level, r.x, r.y}] = r.priority;
+        float last = 1e9f;
+        for (const auto& t : v->tiles) {
+            ASSERT_EQ(t.status(), v1::TILE_OK) << t.message();
+            const float p = prio.at({t.key().level(), t.key().x(), t.key().y()});
+            EXPECT_LE(p, last) << "tile (" << t.key().x() << "," << t.key().y() << ") came out of priority order";
+            last = p;
+        }
+        ASSERT_EQ(v->acks.size(), 1u);
+        EXPECT_EQ(v->acks[0].admitted(), 400u);
+    }
+}
+
+TEST_F(ServerGrpc, NewBatchCancelsSupersededRequests) {
+    // A viewer that does not read stops being served (small per-viewer buffer). Its next batch
+    // replaces the first: the first batch's unsent tiles are never sent.
+    ServerProcess srv({"--store", Stores::get().raw, "--viewer-buffer", "64KiB", "--io-threads", "2"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto first = level_keys(Stores::get().raw, 0);   // 17 x 17 raw tiles of ~196 KiB
+    const auto second = level_keys(Stores::get().raw, 2);  // 5 x 5, disjoint from the first
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "rawterrain", first)));
+    std::this_thread::sleep_for(500ms);  // the server fills its buffer and stops
+    ASSERT_TRUE(v.send(batch(2, "rawterrain", second)));
+    std::size_t second_got = 0;
+    ASSERT_TRUE(v.read_until([&] {
+        second_got = static_cast<std::size_t>(std::count_if(v.tiles.begin(), v.tiles.end(), [](const auto& t) { return t.frame() == 2; }));
+        return second_got == second.size();
+    }));
+    const auto first_got = static_cast<std::size_t>(std::count_if(v.tiles.begin(), v.tiles.end(), [](const auto& t) { return t.frame() == 1; }));
+    EXPECT_LT(first_got, 24u) << "superseded tiles were sent";
+    const auto s = stats(srv.grpc_address());
+    // Every request of the first batch was either sent before the second arrived or cancelled.
+    EXPECT_EQ(first_got + s.cancelled(), first.size());
+    ASSERT_EQ(v.acks.size(), 2u);
+    EXPECT_GT(v.acks[1].cancelled(), 200u);
+    EXPECT_TRUE(v.finish().ok());
+}
+
+TEST_F(ServerGrpc, TwoViewersGetFairService) {
+    // A viewer with thousands of requests does not starve one with ten.
+    ServerProcess srv({"--store", Stores::get().jpeg, "--io-threads", "1"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto big = level_keys(Stores::get().jpeg, 0);  // 4356 tiles
+    for (auto& r : big) r.priority = 100;          // and higher priorities than the small viewer's
+    auto small = level_keys(Stores::get().jpeg, 3);
+    small.resize(10);
+    Viewer heavy(srv.grpc_address()), light(srv.grpc_address());
+    ASSERT_TRUE(heavy.send(batch(1, "terrain", big)));
+    ASSERT_TRUE(heavy.read_until([&] { return heavy.tiles.size() >= 50; }));  // it is being served
+    std::atomic<bool> light_done{false};
+    std::thread reader([&] {
+        // Keep the heavy viewer reading (so it is not merely flow-controlled).
+        heavy.read_until([&] { return light_done.load() || heavy.tiles.size() == big.size(); });
+    });
+    const std::size_t heavy_before = heavy.tiles.size();
+    const auto t0 = std::chrono::steady_clock::now();
+    ASSERT_TRUE(light.send(batch(1, "terrain", small)));
+    ASSERT_TRUE(light.read_until([&] { return light.tiles.size() == small.size(); }));
+    const auto light_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    light_done = true;
+    reader.join();
+    const std::size_t heavy_during = heavy.tiles.size() - heavy_before;
+    // Fair share: the light viewer's 10 tiles are served within a few chunks of the heavy one's,
+    // not after its 4000+ (16 per chunk, 2 chunks in flight, plus what the transport buffers).
+    EXPECT_LT(heavy_during, 400u) << "light viewer waited " << light_ms << " ms";
+    EXPECT_LT(heavy.tiles.size(), big.size() / 2);
+}
+
+TEST_F(ServerGrpc, CoalescedReadsReturnExactBytes) {
+    ServerProcess srv({"--store", Stores::get().jpeg, "--cache-size", "0"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto reader = tessera::storage::StoreReader::open(Stores::get().jpeg);
+    ASSERT_TRUE(reader.ok());
+    // An 8 x 8 block of level 0: Morton order puts these next to each other in the file.
+    std::vector<Req> keys;
+    for (std::uint32_t y = 8; y < 16; ++y)
+        for (std::uint32_t x = 8; x < 16; ++x) keys.push_back({0, x, y, 1});
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "terrain", keys)));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == keys.size(); }));
+    for (const auto& t : v.tiles) {
+        ASSERT_EQ(t.status(), v1::TILE_OK) << t.message();
+        auto expect = (*reader)->read_tile({t.key().level(), t.key().x(), t.key().y()});
+        ASSERT_TRUE(expect.ok());
+        ASSERT_EQ(t.payload().size(), expect->bytes.size());
+        EXPECT_EQ(0, std::memcmp(t.payload().data(), expect->bytes.data(), expect->bytes.size()));
+        EXPECT_EQ(t.checksum(), expect->checksum);
+        EXPECT_EQ(t.checksum(), XXH3_64bits(t.payload().data(), t.payload().size()));
+        EXPECT_EQ(t.store_version(), (*reader)->info().store_id);
+    }
+    const auto s = stats(srv.grpc_address());
+    EXPECT_EQ(s.tiles_read(), keys.size());
+    EXPECT_LE(s.reads() * 4, s.tiles_read()) << "adjacent tiles were not read together";
+}
+
+TEST_F(ServerGrpc, OverloadIsRefusedAndTheServerStaysUp) {
+    ServerProcess srv({"--store", Stores::get().jpeg, "--max-pending", "1000", "--max-viewers", "4", "--max-batch",
+                       "5000", "--viewer-buffer", "256KiB", "--total-buffer", "8MiB", "--io-threads", "1"},
+                      dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const long rss_start = srv.rss_kib();
+    const auto keys = level_keys(Stores::get().jpeg, 0);  // 4356
+    std::vector<Req> first(keys.begin(), keys.begin() + 3000);
+    // Queue full: the lowest priorities beyond max-pending are refused.
+    for (std::size_t i = 0; i < first.size(); ++i) first[i].priority = float(i);
+    std::vector<std::unique_ptr<Viewer>> viewers;
+    for (int i = 0; i < 4; ++i) viewers.push_back(std::make_unique<Viewer>(srv.grpc_address()));
+    ASSERT_TRUE(viewers[0]->send(batch(1, "terrain", first)));
+    ASSERT_TRUE(viewers[0]->read_until([&] { return !viewers[0]->acks.empty(); }));
+    EXPECT_EQ(viewers[0]->acks[0].admitted(), 1000u);
+    EXPECT_EQ(viewers[0]->acks[0].refused(), 2000u);
+    std::size_t exhausted = 0;
+    ASSERT_TRUE(viewers[0]->read_until([&] {
+        exhausted = 0;
+        for (const auto& t : viewers[0]->tiles) exhausted += t.status() == v1::TILE_RESOURCE_EXHAUSTED;
+        return exhausted == 2000;
+    }));
+    // The refused ones are the lowest priorities.
+    std::map<std::pair<unsigned, unsigned>, float> prio;
+    for (const auto& r : first) prio[{r.x, r.y}] = r.priority;
+    for (const auto& t : viewers[0]->tiles)
+        if (t.status() == v1::TILE_RESOURCE_EXHAUSTED) EXPECT_LT((prio.at({t.key().x(), t.key().y()})), 2000.0f);
+    // A batch over --max-batch is refused whole.
+    ASSERT_TRUE(viewers[1]->send(batch(1, "terrain", std::vector<Req>(keys.begin(), keys.end()))));
+    ASSERT_TRUE(viewers[1]->read_until([&] { return !viewers[1]->acks.empty(); }));
+    EXPECT_EQ(viewers[1]->acks[0].status(), v1::TILE_RESOURCE_EXHAUSTED);
+    EXPECT_NE(viewers[1]->acks[0].message().find("exceeds the limit"), std::string::npos);
+    // A fifth viewer is refused.
+    Viewer fifth(srv.grpc_address());
+    const auto st = fifth.finish();
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << st.error_message();
+    // Flood: every viewer sends big batches and never reads. Memory stays bounded.
+    for (int round = 0; round < 20; ++round)
+        for (int i = 1; i < 4; ++i) viewers[static_cast<std::size_t>(i)]->send(batch(std::uint64_t(round), "terrain", first));
+    std::this_thread::sleep_for(1s);
+    const long rss_flood = srv.rss_kib();
+    EXPECT_LT(rss_flood - rss_start, 200 * 1024) << "RSS grew from " << rss_start << " to " << rss_flood << " KiB";
+    // Still alive and answering.
+    const auto s = stats(srv.grpc_address());
+    EXPECT_EQ(s.viewers(), 4u);
+    EXPECT_LE(s.pending(), 1000u);
+    EXPECT_GE(s.refused(), 2000u);
+    // Admitted work keeps flowing for a viewer that reads.
+    Viewer* reader = viewers[0].get();
+    ASSERT_TRUE(reader->read_until([&] {
+        std::size_t ok = 0;
+        for (const auto& t : reader->tiles) ok += t.status() == v1::TILE_OK;
+        return ok == 1000;
+    }));
+}
+
+TEST_F(ServerGrpc, BadRequestsGetClearErrors) {
+    ServerProcess srv({"--store", Stores::get().small, "--max-message", "64KiB"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    Viewer v(srv.grpc_address());
+    v1::TileBatch b;
+    b.set_frame(5);
+    b.add_stores("small");
+    b.add_stores("nosuchstore");
+    b.add_stores("../../etc/passwd");
+    auto add = [&](std::uint32_t store, std::uint32_t level, std::uint32_t x, std::uint32_t y, float p) {
+        auto* r = b.add_requests();
+        r->set_store(store);
+        r->set_level(level);
+        r->set_x(x);
+        r->set_y(y);
+        r->set_priority(p);
+    };
+    add(0, 0, 0, 0, 1);                     // fine
+    add(1, 0, 0, 0, 1);                     // unknown store
+    add(2, 0, 0, 0, 1);                     // a path, not a name
+    add(7, 0, 0, 0, 1);                     // store index out of the list
+    add(0, 40, 0, 0, 1);                    // level out of range
+    add(0, 0, 1000000, 0, 1);               // x out of range
+    add(0, 0, 1, 0, std::nanf(""));         // NaN priority
+    add(0, 0, 2, 0, INFINITY);              // infinite priority
+    ASSERT_TRUE(v.send(b));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == 8; }));
+    std::map<std::string, v1::TileStatus> got;
+    for (const auto& t : v.tiles)
+        got[t.key().store() + "/" + std::to_string(t.key().level()) + "/" + std::to_string(t.key().x())] = t.status();
+    EXPECT_EQ(got["small/0/0"], v1::TILE_OK);
+    EXPECT_EQ(got["nosuchstore/0/0"], v1::TILE_NOT_FOUND);
+    EXPECT_EQ(got["../../etc/passwd/0/0"], v1::TILE_INVALID_ARGUMENT);
+    EXPECT_EQ(got["/0/0"], v1::TILE_INVALID_ARGUMENT);  // index 7: no store name to echo
+    EXPECT_EQ(got["small/40/0"], v1::TILE_OUT_OF_RANGE);
+    EXPECT_EQ(got["small/0/1000000"], v1::TILE_OUT_OF_RANGE);
+    EXPECT_EQ(got["small/0/1"], v1::TILE_INVALID_ARGUMENT);
+    EXPECT_EQ(got["small/0/2"], v1::TILE_INVALID_ARGUMENT);
+    for (const auto& t : v.tiles)
+        if (t.status() != v1::TILE_OK) {
+            EXPECT_FALSE(t.message().empty());
+            EXPECT_TRUE(t.payload().empty());
+        }
+    EXPECT_EQ(v.acks.at(0).invalid(), 7u);
+    EXPECT_TRUE(v.finish().ok());
+
+    // Unary calls: a path as a store name, an unknown store.
+    auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
+    for (const auto& [name, code] : std::vector<std::pair<std::string, grpc::StatusCode>>{
+             {"../small", grpc::StatusCode::INVALID_ARGUMENT},
+             {"a/b", grpc::StatusCode::INVALID_ARGUMENT},
+             {"", grpc::StatusCode::INVALID_ARGUMENT},
+             {"missing", grpc::StatusCode::NOT_FOUND}}) {
+        grpc::ClientContext c;
+        v1::GetStoreRequest r;
+        r.set_name(name);
+        v1::StoreMetadata m;
+        EXPECT_EQ(stub->GetStore(&c, r, &m).error_code(), code) << name;
+    }
+    // A message over --max-message ends that stream with RESOURCE_EXHAUSTED; the server lives on.
+    Viewer big(srv.grpc_address());
+    v1::TileBatch huge;
+    huge.add_stores(std::string(100000, 'a'));
+    big.send(huge);
+    EXPECT_EQ(big.finish().error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+    EXPECT_EQ(stats(srv.grpc_address()).viewers(), 0u);
+    // Garbage on the gRPC port does not take it down.
+    {
+        tessera::test::HttpConnection raw(std::stoi(srv.grpc_address().substr(srv.grpc_address().rfind(':') + 1)));
+        raw.send_raw(std::string("PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n") + std::string(5000, '\xff'));
+    }
+    Viewer after(srv.grpc_address());
+    ASSERT_TRUE(after.send(batch(1, "small", {{0, 0, 0, 1}})));
+    ASSERT_TRUE(after.read_until([&] { return after.tiles.size() == 1; }));
+    EXPECT_EQ(after.tiles[0].status(), v1::TILE_OK);
+}
+
+TEST_F(ServerGrpc, AuthTokenIsRequired) {
+    tessera::test::write_file(dir.file("token"), {'s', '3', 'c', 'r', '3', 't', '\n'});
+    ServerProcess srv({"--store", Stores::get().small, "--auth-token-file", dir.file("token")}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
+    {
+        grpc::ClientContext c;
+        v1::ListStoresReply r;
+        EXPECT_EQ(stub->ListStores(&c, {}, &r).error_code(), grpc::StatusCode::UNAUTHENTICATED);
+    }
+    {
+        grpc::ClientContext c;
+        c.AddMetadata("authorization", "Bearer wrong");
+        v1::ListStoresReply r;
+        EXPECT_EQ(stub->ListStores(&c, {}, &r).error_code(), grpc::StatusCode::UNAUTHENTICATED);
+    }
+    {
+        grpc::ClientContext c;
+        c.AddMetadata("authorization", "Bearer s3cr3t");
+        v1::ListStoresReply r;
+        EXPECT_TRUE(stub->ListStores(&c, {}, &r).ok());
+    }
+    Viewer anonymous(srv.grpc_address());
+    EXPECT_EQ(anonymous.finish().error_code(), grpc::StatusCode::UNAUTHENTICATED);
+    Viewer good(srv.grpc_address(), "s3cr3t");
+    ASSERT_TRUE(good.send(batch(1, "small", {{0, 0, 0, 1}})));
+    ASSERT_TRUE(good.read_until([&] { return good.tiles.size() == 1; }));
+    EXPECT_EQ(good.tiles[0].status(), v1::TILE_OK);
+}
+
+TEST_F(ServerGrpc, CorruptTileIsNeverServed) {
+    const std::string path = dir.file("damaged.tsr");
+    fs::copy_file(Stores::get().small, path);
+    std::uint64_t offset = 0;
+    {
+        auto reader = tessera::storage::StoreReader::open(path);
+        ASSERT_TRUE(reader.ok());
+        auto loc = (*reader)->locate({0, 1, 1});
+        ASSERT_TRUE(loc.ok());
+        ASSERT_EQ(loc->kind, tessera::storage::TileKind::present);
+        offset = loc->offset + loc->length / 2;
+    }
+    auto bytes = tessera::test::read_file(path);
+    bytes[offset] ^= 0x5A;
+    tessera::test::write_file(path, bytes);
+    ServerProcess srv({"--store", path}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "damaged", {{0, 1, 1, 2}, {0, 0, 0, 1}})));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == 2; }));
+    for (const auto& t : v.tiles) {
+        if (t.key().x() == 1) {
+            EXPECT_EQ(t.status(), v1::TILE_DATA_LOSS);
+            EXPECT_TRUE(t.payload().empty());
+        } else {
+            EXPECT_EQ(t.status(), v1::TILE_OK);
+        }
+    }
+    // Asked again (a cache must not have kept it either).
+    Viewer again(srv.grpc_address());
+    ASSERT_TRUE(again.send(batch(1, "damaged", {{0, 1, 1, 2}})));
+    ASSERT_TRUE(again.read_until([&] { return again.tiles.size() == 1; }));
+    EXPECT_EQ(again.tiles[0].status(), v1::TILE_DATA_LOSS);
+    EXPECT_NE(srv.log().find("failed its checksum"), std::string::npos);
+    EXPECT_EQ(stats(srv.grpc_address()).data_loss(), 2u);
+}
+
+TEST_F(ServerGrpc, ReloadPicksUpNewAndReplacedStores) {
+    const fs::path stores = dir.path() / "stores";
+    fs::create_directory(stores);
+    fs::copy_file(Stores::get().small, stores / "a.tsr");
+    ServerProcess srv({"--store-dir", stores.string(), "--watch-interval", "0"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
+    auto describe = [&](const std::string& name) -> std::optional<v1::StoreMetadata> {
+        grpc::ClientContext c;
+        v1::GetStoreRequest r;
+        r.set_name(name);
+        v1::StoreMetadata m;
+        if (!stub->GetStore(&c, r, &m).ok()) return std::nullopt;
+        return m;
+    };
+    const auto a1 = describe("a");
+    ASSERT_TRUE(a1);
+    EXPECT_FALSE(describe("b"));
+    // A new file, and a replacement of a.tsr built differently (written beside it, renamed over).
+    fs::copy_file(Stores::get().small, stores / "b.tsr");
+    auto r = tessera::test::run_tessera("build procedural:terrain:900 --codec zstd --quiet -o " + (stores / "a.tmp").string());
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    fs::rename(stores / "a.tmp", stores / "a.tsr");
+    srv.signal(SIGHUP);
+    std::optional<v1::StoreMetadata> a2;
+    for (int i = 0; i < 200 && !(describe("b") && (a2 = describe("a")) && a2->version() != a1->version()); ++i)
+        std::this_thread::sleep_for(20ms);
+    ASSERT_TRUE(describe("b"));
+    ASSERT_TRUE(a2);
+    EXPECT_NE(a2->version(), a1->version());
+    EXPECT_EQ(a2->width(), 900u);
+    // Tiles now come from the new version.
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "a", {{0, 0, 0, 1}})));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == 1; }));
+    EXPECT_EQ(v.tiles[0].store_version(), a2->version());
+    // Removal.
+    fs::remove(stores / "b.tsr");
+    srv.signal(SIGHUP);
+    for (int i = 0; i < 200 && describe("b"); ++i) std::this_thread::sleep_for(20ms);
+    EXPECT_FALSE(describe("b"));
+}
+
+TEST_F(ServerGrpc, WatchPicksUpAReplacedStoreWithoutSignal) {
+    const fs::path stores = dir.path() / "stores";
+    fs::create_directory(stores);
+    fs::copy_file(Stores::get().small, stores / "w.tsr");
+    ServerProcess srv({"--store-dir", stores.string(), "--watch-interval", "100"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto r = tessera::test::run_tessera("build procedural:terrain:700 --codec zstd --quiet -o " + (stores / "w.tsr").string());
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
+    std::uint32_t width = 0;
+    for (int i = 0; i < 200 && width != 700; ++i) {
+        grpc::ClientContext c;
+        v1::GetStoreRequest q;
+        q.set_name("w");
+        v1::StoreMetadata m;
+        if (stub->GetStore(&c, q, &m).ok()) width = m.width();
+        std::this_thread::sleep_for(20ms);
+    }
+    EXPECT_EQ(width, 700u);
+}
+
+TEST_F(ServerGrpc, SigtermDrainsAdmittedRequests) {
+    ServerProcess srv({"--store", Stores::get().raw, "--viewer-buffer", "64KiB", "--io-threads", "1"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto keys = level_keys(Stores::get().raw, 0);  // 289 raw tiles, ~57 MiB
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "rawterrain", keys)));
+    ASSERT_TRUE(v.read_until([&] { return !v.acks.empty() && v.tiles.size() >= 5; }));
+    srv.signal(SIGTERM);
+    std::this_thread::sleep_for(100ms);
+    // New viewers are turned away while the old one is drained.
+    Viewer late(srv.grpc_address());
+    const auto late_status = late.finish();
+    EXPECT_FALSE(late_status.ok());
+    // Every admitted tile still arrives, then the stream ends.
+    const auto st = v.finish();
+    std::size_t ok = 0;
+    for (const auto& t : v.tiles) ok += t.status() == v1::TILE_OK;
+    EXPECT_EQ(ok, keys.size());
+    EXPECT_EQ(st.error_code(), grpc::StatusCode::UNAVAILABLE) << st.error_message();
+    EXPECT_EQ(srv.wait_exit(20s), std::optional<int>(0)) << srv.log();
+    EXPECT_NE(srv.log().find("\"msg\":\"stopped\""), std::string::npos);
+}
+
+TEST_F(ServerGrpc, TlsServesOnlyTls) {
+    const std::string cert = dir.file("cert.pem"), key = dir.file("key.pem");
+    const std::string cmd = "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -subj /CN=localhost "
+                            "-addext subjectAltName=DNS:localhost -days 1 -keyout " + key + " -out " + cert + " 2>/dev/null";
+    ASSERT_EQ(std::system(cmd.c_str()), 0);
+    ServerProcess srv({"--store", Stores::get().small, "--tls-cert", cert, "--tls-key", key}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    grpc::SslCredentialsOptions ssl;
+    ssl.pem_root_certs = tessera::test::slurp(cert);
+    grpc::ChannelArguments args;
+    args.SetSslTargetNameOverride("localhost");
+    auto tls = grpc::CreateCustomChannel(srv.grpc_address(), grpc::SslCredentials(ssl), args);
+    auto stub = v1::TileService::NewStub(tls);
+    grpc::ClientContext c1;
+    v1::ListStoresReply r;
+    EXPECT_TRUE(stub->ListStores(&c1, {}, &r).ok());
+    auto plain = v1::TileService::NewStub(channel(srv.grpc_address()));
+    grpc::ClientContext c2;
+    c2.set_deadline(std::chrono::system_clock::now() + 2s);
+    EXPECT_FALSE(plain->ListStores(&c2, {}, &r).ok());
+}
+
+TEST_F(ServerGrpc, BadCommandLinesAreClearErrors) {
+    for (const auto& args : std::vector<std::string>{
+             "serve",                                                  // nothing to serve
+             "serve --store /nonexistent/x.tsr",                       // missing file
+             "serve --store " + Stores::get().small + " --tls-cert x",  // cert without key
+             "serve --store " + Stores::get().small + " --grpc 127.0.0.1:99999",
+             "serve --store " + Stores::get().small + " --cache-size lots",
+             "serve --store " + Stores::get().small + " --auth-token-file /nonexistent",
+         }) {
+        auto r = tessera::test::run_tessera(args + " --http 127.0.0.1:0");
+        EXPECT_NE(r.exit_code, 0) << args;
+        EXPECT_NE(r.out.find("error"), std::string::npos) << args << ": " << r.out;
+    }
+}
+
+}  // namespace

@@ -1,0 +1,138 @@
+// tessera serve: host .tsr stores over gRPC (viewers) and HTTP (everything else).
+#include <signal.h>
+
+#include <cstdio>
+#include <fstream>
+#include <memory>
+#include <sstream>
+
+#include "commands.hpp"
+#include "tessera/server/server.hpp"
+
+namespace tessera::tools {
+
+namespace {
+
+struct ServeArgs {
+    server::ServerConfig config;
+    std::string auth_token_file;
+    std::string log_format = "json";
+    std::string log_level = "info";
+    long long watch_ms = 2000, timeout_ms = 5000, drain_ms = 10000, idle_ms = 60000;
+    std::size_t cache_bytes = std::size_t(256) << 20;
+    std::size_t viewer_buffer = std::size_t(4) << 20, total_buffer = std::size_t(512) << 20;
+    std::size_t max_message = std::size_t(4) << 20;
+};
+
+std::string read_token(const std::string& path) {
+    std::ifstream in(path);
+    if (!in) throw Failure("cannot read the auth token file " + path);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    std::string t = ss.str();
+    while (!t.empty() && (t.back() == '\n' || t.back() == '\r' || t.back() == ' ' || t.back() == '\t')) t.pop_back();
+    std::size_t start = t.find_first_not_of(" \t\r\n");
+    t = start == std::string::npos ? std::string() : t.substr(start);
+    if (t.empty()) throw Failure("the auth token file " + path + " is empty");
+    for (char ch : t)
+        if (ch <= ' ' || ch > '~') throw Failure("the auth token in " + path + " must be printable ASCII without spaces");
+    return t;
+}
+
+int run_serve(ServeArgs& a) {
+    auto& c = a.config;
+    c.watch_interval = std::chrono::milliseconds(a.watch_ms);
+    c.request_timeout = std::chrono::milliseconds(a.timeout_ms);
+    c.drain_timeout = std::chrono::milliseconds(a.drain_ms);
+    c.idle_timeout = std::chrono::milliseconds(a.idle_ms);
+    c.cache_bytes = a.cache_bytes;
+    c.viewer_buffer_bytes = a.viewer_buffer;
+    c.total_buffer_bytes = a.total_buffer;
+    c.max_message_bytes = a.max_message;
+    c.log_json = a.log_format == "json";
+    c.log_debug = a.log_level == "debug";
+    if (!a.auth_token_file.empty()) c.auth_token = read_token(a.auth_token_file);
+
+    // Signals are taken by this thread with sigwait; every thread the server starts inherits
+    // the mask, so none of them is interrupted.
+    sigset_t signals;
+    sigemptyset(&signals);
+    sigaddset(&signals, SIGTERM);
+    sigaddset(&signals, SIGINT);
+    sigaddset(&signals, SIGHUP);
+    pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+    signal(SIGPIPE, SIG_IGN);
+
+    auto started = server::Server::start(c);
+    if (!started) throw Failure(started.error().message);
+    std::unique_ptr<server::Server> srv = std::move(*started);
+    for (;;) {
+        int sig = 0;
+        if (sigwait(&signals, &sig) != 0) continue;
+        if (sig == SIGHUP) {
+            srv->reload();
+            continue;
+        }
+        srv->shutdown();  // SIGTERM or SIGINT: drain, then exit 0
+        return 0;
+    }
+}
+
+}  // namespace
+
+Command add_serve(CLI::App& app) {
+    auto a = std::make_shared<ServeArgs>();
+    auto& c = a->config;
+    auto* s = app.add_subcommand("serve", "Serve tile stores over gRPC (streaming viewers) and HTTP");
+    s->set_config("--config", "", "Read options from a file (key = value lines named like the long options)");
+    s->add_option("--store", c.store_files, "A store file to serve (repeatable); its name is the file name without .tsr");
+    s->add_option("--store-dir", c.store_dirs, "Serve every *.tsr file in this directory (repeatable)");
+    s->add_option("--grpc", c.grpc_address, "gRPC listen address HOST:PORT (port 0: any; \"\": off)")->capture_default_str();
+    s->add_option("--http", c.http_address, "HTTP listen address HOST:PORT (port 0: any; \"\": off)")->capture_default_str();
+    s->add_option("--tls-cert", c.tls_cert_file, "PEM certificate chain: serve gRPC and HTTP over TLS only");
+    s->add_option("--tls-key", c.tls_key_file, "PEM private key for --tls-cert");
+    s->add_option("--auth-token-file", a->auth_token_file,
+                  "Require \"authorization: Bearer <token>\" with the token in this file (not /healthz, /readyz)");
+    s->add_option("--cache-size", a->cache_bytes, "RAM tile cache budget, e.g. 256MiB (0: off)")
+        ->transform(CLI::AsSizeValue(false))->default_str("256MiB");
+    s->add_option("--io-threads", c.io_threads, "Tile reader threads (0: all cores)")->capture_default_str();
+    s->add_option("--http-threads", c.http_threads, "HTTP event-loop threads (0: all cores)")->capture_default_str();
+    s->add_option("--max-viewers", c.max_viewers, "Concurrent StreamTiles calls; beyond: RESOURCE_EXHAUSTED")
+        ->capture_default_str();
+    s->add_option("--max-batch", c.max_batch, "Requests in one batch; a larger batch is refused whole")
+        ->capture_default_str();
+    s->add_option("--max-pending", c.max_pending, "Admitted requests waiting over all viewers; beyond: RESOURCE_EXHAUSTED")
+        ->capture_default_str();
+    s->add_option("--max-message", a->max_message, "Largest gRPC message accepted, e.g. 4MiB")
+        ->transform(CLI::AsSizeValue(false))->default_str("4MiB");
+    s->add_option("--max-connections", c.max_connections, "Concurrent HTTP connections; beyond: 503")
+        ->capture_default_str();
+    s->add_option("--max-header", c.max_header_bytes, "Largest HTTP request head in bytes; beyond: 431")
+        ->capture_default_str();
+    s->add_option("--max-http-inflight", c.max_http_inflight, "HTTP tile requests served at once; beyond: 503")
+        ->capture_default_str();
+    s->add_option("--viewer-buffer", a->viewer_buffer, "Replies read but unsent, per viewer (flow control), e.g. 4MiB")
+        ->transform(CLI::AsSizeValue(false))->default_str("4MiB");
+    s->add_option("--total-buffer", a->total_buffer, "The same over all viewers, e.g. 512MiB")
+        ->transform(CLI::AsSizeValue(false))->default_str("512MiB");
+    s->add_option("--request-timeout", a->timeout_ms, "Default deadline of a tile request, ms")->capture_default_str()
+        ->check(CLI::Range(1LL, 3600000LL));
+    s->add_option("--watch-interval", a->watch_ms, "Rescan stores this often, ms (0: only on SIGHUP)")
+        ->capture_default_str()->check(CLI::Range(0LL, 86400000LL));
+    s->add_option("--idle-timeout", a->idle_ms, "Close idle HTTP keep-alive connections after this many ms")
+        ->capture_default_str()->check(CLI::Range(100LL, 86400000LL));
+    s->add_option("--drain-timeout", a->drain_ms, "On SIGTERM, wait at most this long for in-flight work, ms")
+        ->capture_default_str()->check(CLI::Range(0LL, 3600000LL));
+    s->add_option("--http-max-age", c.http_max_age, "Cache-Control max-age of tiles, s (URLs with ?v=VERSION: a year)")
+        ->capture_default_str();
+    s->add_option("--log-format", a->log_format, "Log lines: json or text")->capture_default_str()
+        ->check(CLI::IsMember({"json", "text"}));
+    s->add_option("--log-level", a->log_level, "info or debug")->capture_default_str()
+        ->check(CLI::IsMember({"info", "debug"}));
+    s->footer(
+        "Signals: SIGHUP rescans the stores; SIGTERM/SIGINT stop accepting, finish admitted work\n"
+        "(up to --drain-timeout) and exit 0. Logs are one JSON object per line on stderr.");
+    return [a] { return run_serve(*a); };
+}
+
+}  // namespace tessera::tools
