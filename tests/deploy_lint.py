@@ -9,6 +9,9 @@ Checks, each printed as ok / FAIL / SKIP lines under its heading:
               and the directives the unit must keep (sandboxing, reload, stop, limits).
   config      deploy/tessera.conf: CLI11 `key = value` syntax; every key (commented-out examples
               too) is a long option of `tessera serve --help`.
+  runtime     `tessera serve --config tessera.conf` on loopback ports with an empty store
+              directory: the file is really read (a bad value in a probe file is refused),
+              /readyz, /healthz and /metrics answer, SIGTERM exits 0.
   compose     deploy/compose.yaml: structure (build, ports, volumes, healthcheck, restart, grace).
   prometheus  deploy/prometheus.yml: job `tessera`, its targets; `promtool check config` if present.
   kubernetes  deploy/kubernetes/*.yaml: every document has apiVersion/kind/metadata.name; probes,
@@ -507,6 +510,113 @@ def check_conf(rep: Report, ctx: Context) -> None:
     unknown = sorted(k for k in commented if k not in ctx.serve_options)
     rep.check(not unknown, "every commented-out example key is a `tessera serve` long option",
               "commented-out example keys that are not `tessera serve` options: " + ", ".join(unknown))
+
+
+def free_port() -> int:
+    import socket
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def http_get(url: str, timeout: float = 2.0) -> tuple[int, str]:
+    import urllib.error
+    import urllib.request
+    try:
+        with urllib.request.urlopen(url, timeout=timeout) as r:
+            return r.status, r.read(65536).decode("utf-8", "replace")
+    except urllib.error.HTTPError as e:
+        return e.code, ""
+    except OSError:
+        return 0, ""
+
+
+def check_serve_runtime(rep: Report, ctx: Context) -> None:
+    """Starts `tessera serve --config tessera.conf` on loopback ports: the file must be read (an
+    invalid value in it is refused), the probes' endpoints must answer, SIGTERM must exit 0."""
+    rep.begin("runtime: tessera serve --config tessera.conf")
+    if ctx.serve_options is None:
+        rep.skip(f"not started: {ctx.serve_skip_reason}")
+        return
+    conf = ctx.deploy / "tessera.conf"
+    if not conf.is_file():
+        rep.fail(f"{conf} is missing")
+        return
+    import signal
+    import time
+    with tempfile.TemporaryDirectory(prefix="tessera-serve-") as tmp:
+        tmpdir = Path(tmp)
+        stores = tmpdir / "stores"
+        stores.mkdir()
+        log = tmpdir / "serve.log"
+
+        def start(config: Path, http_port: int) -> subprocess.Popen:
+            # The listeners and the stores come from the command line (which wins over the file):
+            # loopback, a free port, an empty directory.
+            with open(log, "w") as out:
+                return subprocess.Popen([str(ctx.tessera), "serve", "--config", str(config),
+                                         "--store-dir", str(stores), "--grpc", "127.0.0.1:0",
+                                         "--http", f"127.0.0.1:{http_port}"],
+                                        stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+
+        def stop(proc: subprocess.Popen, timeout: float) -> int | None:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+            try:
+                return proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+                return None
+
+        def log_tail() -> str:
+            return "\n".join(log.read_text(errors="replace").strip().splitlines()[-5:])
+
+        # 1. Is the file read at all? A value the option's validator refuses must stop the server.
+        probe = tmpdir / "probe.conf"
+        probe.write_text("drain-timeout = -1\n")
+        proc = start(probe, free_port())
+        try:
+            rc = proc.wait(timeout=5)  # a config error stops it while parsing, long before this
+        except subprocess.TimeoutExpired:
+            rc = None
+        if rc is None:
+            stop(proc, 15)
+            rep.fail("`tessera serve --config FILE` ignores FILE: it started with `drain-timeout = -1` in it, "
+                     "so tessera.conf (and the systemd unit) would have no effect. CLI11 reads set_config() "
+                     "files on the main App only (CLIUtils/CLI11#1056); a subcommand must read its file itself.")
+        elif rc != 0:
+            rep.ok(f"--config FILE is read: an invalid drain-timeout in it is refused (status {rc})")
+        else:
+            rep.fail("`tessera serve` exited 0 at once with `drain-timeout = -1` in its config file:\n" + log_tail())
+
+        # 2. The shipped file: starts, answers the probes' endpoints, drains on SIGTERM.
+        port = free_port()
+        proc = start(conf, port)
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 20
+        ready = 0
+        while time.monotonic() < deadline and proc.poll() is None:
+            ready, _ = http_get(base + READY_PATH, timeout=1)
+            if ready == 200:
+                break
+            time.sleep(0.2)
+        if proc.poll() is not None:
+            rep.fail(f"`tessera serve --config tessera.conf` exited with status {proc.returncode}:\n" + log_tail())
+            return
+        rep.check(ready == 200, f"{READY_PATH} answers 200 (stores loaded)", f"{READY_PATH} answered {ready}, "
+                  "not 200, within 20 s")
+        code, body = http_get(base + HEALTH_PATH)
+        rep.check(code == 200, f"{HEALTH_PATH} answers 200", f"{HEALTH_PATH} answered {code}")
+        code, body = http_get(base + "/metrics")
+        rep.check(code == 200 and "# TYPE" in body, "/metrics answers Prometheus text",
+                  f"/metrics answered {code}" + ("" if "# TYPE" in body else " without Prometheus text"))
+        active = parse_conf(conf)[0]
+        drain = int(active["drain-timeout"]) if re.fullmatch(r"\d+", active.get("drain-timeout", "")) else DEFAULT_DRAIN_MS
+        rc = stop(proc, drain / 1000 + 10)
+        rep.check(rc == 0, "SIGTERM: drains and exits 0",
+                  f"after SIGTERM: status {rc if rc is not None else 'none (killed after the drain budget)'}:\n"
+                  + log_tail())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1235,7 +1345,7 @@ def main() -> int:
     print(f"deploy_lint: {deploy.resolve()}; binary: {ctx.tessera or 'none'}"
           + ("" if ctx.serve_options is not None else f" ({ctx.serve_skip_reason})"))
     rep = Report()
-    for check in (check_systemd, check_conf, check_compose, check_prometheus, check_kubernetes,
+    for check in (check_systemd, check_conf, check_serve_runtime, check_compose, check_prometheus, check_kubernetes,
                   check_dockerfile, check_cross):
         try:
             check(rep, ctx)

@@ -132,6 +132,23 @@ Command add_serve(CLI::App& app) {
     s->footer(
         "Signals: SIGHUP rescans the stores; SIGTERM/SIGINT stop accepting, finish admitted work\n"
         "(up to --drain-timeout) and exit 0. Logs are one JSON object per line on stderr.");
+    // Debian 12's CLI11 (2.1) reads config files only for the main app (CLIUtils/CLI11#1056),
+    // so apply --config here: keys are long option names, top level or under [serve]; the
+    // command line wins; an unknown key is an error.
+    s->parse_complete_callback([s] {
+        CLI::Option* cfg = s->get_config_ptr();
+        if (cfg == nullptr || cfg->count() == 0) return;
+        for (const CLI::ConfigItem& item : s->get_config_formatter()->from_file(cfg->as<std::string>())) {
+            if (item.name == "++" || item.name == "--") continue;  // [section] markers
+            if (!(item.parents.empty() || (item.parents.size() == 1 && item.parents[0] == "serve")))
+                throw CLI::ConfigError::Extras(item.fullname());
+            CLI::Option* opt = s->get_option_no_throw("--" + item.name);
+            if (opt == nullptr || opt == cfg) throw CLI::ConfigError::Extras(item.fullname());
+            if (opt->count() > 0) continue;
+            opt->add_result(item.inputs);
+            opt->run_callback();
+        }
+    });
     return [a] { return run_serve(*a); };
 }
 

@@ -75,7 +75,7 @@ struct Shared {
 
     std::mutex sessions_mutex;  // every live session, to drain or close them
     std::condition_variable sessions_cv;
-    std::unordered_map<const void*, std::weak_ptr<SessionBase>> sessions;
+    std::unordered_map<const SessionBase*, std::weak_ptr<SessionBase>> sessions;
 
     explicit Shared(ServerContext& c) : ctx(c), handler(c) {}
 
@@ -113,7 +113,7 @@ public:
         if (reject_) shared_.rejecting.fetch_sub(1);
         else shared_.connections.fetch_sub(1);
         std::lock_guard lock(shared_.sessions_mutex);
-        shared_.sessions.erase(this);
+        shared_.sessions.erase(static_cast<const SessionBase*>(this));
         shared_.sessions_cv.notify_all();
     }
 

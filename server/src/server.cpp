@@ -31,7 +31,20 @@ Result<std::string> read_text_file(const std::string& path, const char* what) {
     return ss.str();
 }
 
+// HOST:PORT with a port in 0..65535 (0: any); HOST may be a bracketed IPv6 literal.
+Status check_address(const std::string& address, const char* flag) {
+    const auto colon = address.rfind(':');
+    const std::string port = colon == std::string::npos ? std::string() : address.substr(colon + 1);
+    bool digits = !port.empty() && port.size() <= 5;
+    for (char ch : port) digits = digits && ch >= '0' && ch <= '9';
+    if (colon == 0 || colon == std::string::npos || !digits || std::stoul(port) > 65535)
+        return Error{Errc::invalid_argument, std::string(flag) + " " + address + ": expected HOST:PORT with a port 0-65535"};
+    return Status();
+}
+
 Status validate(const ServerConfig& c) {
+    if (!c.grpc_address.empty()) TESSERA_TRY(check_address(c.grpc_address, "--grpc"));
+    if (!c.http_address.empty()) TESSERA_TRY(check_address(c.http_address, "--http"));
     if (c.store_files.empty() && c.store_dirs.empty())
         return Error{Errc::invalid_argument, "nothing to serve: give --store FILE or --store-dir DIR"};
     if (c.grpc_address.empty() && c.http_address.empty())

@@ -58,6 +58,7 @@ constexpr int kKeepaliveTimeoutMs = 10000;
 constexpr milliseconds kConnectPollSlice{50};
 // How long destruction lets a live stream's writer half-close before cancelling the call.
 constexpr milliseconds kCloseGrace{100};
+constexpr milliseconds kMaxUnaryTimeout{std::chrono::hours(24 * 365)};
 
 const char* status_code_name(grpc::StatusCode code) {
     switch (code) {
@@ -248,7 +249,6 @@ public:
     }
 
     bool wait_for_data(milliseconds timeout) {
-        if (stats_.tiles_received > 1000000) return true;
         std::unique_lock lk(mu_);
         data_cv_.wait_for(lk, timeout, [&] { return !queue_.empty() || closing_; });
         return !queue_.empty();
@@ -276,7 +276,8 @@ public:
     Result<Reply> unary(const Request& request, milliseconds timeout, Call call) {
         grpc::ClientContext ctx;
         prepare(ctx);
-        ctx.set_deadline(std::chrono::system_clock::now() + timeout);  // gRPC deadlines are system_clock
+        // gRPC deadlines are system_clock; clamp so a huge timeout cannot overflow.
+        ctx.set_deadline(std::chrono::system_clock::now() + std::clamp(timeout, milliseconds(0), kMaxUnaryTimeout));
         Reply reply;
         grpc::Status status = (stub_.get()->*call)(&ctx, request, &reply);
         if (!status.ok()) return to_error(status);
