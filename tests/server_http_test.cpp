@@ -1,0 +1,269 @@
+// Integration tests of `tessera serve` over HTTP: a real server process on loopback, spoken to
+// over plain sockets.
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <filesystem>
+
+#include "prometheus_text.hpp"
+#include "server_process.hpp"
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_reader.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+using tessera::test::HttpConnection;
+using tessera::test::http_get;
+using tessera::test::ScratchDir;
+using tessera::test::ServerProcess;
+namespace fs = std::filesystem;
+
+class ServerHttp : public ::testing::Test {
+protected:
+    static void SetUpTestSuite() {
+        dir_ = new ScratchDir();
+        store_ = dir_->file("terrain.tsr");
+        auto r = tessera::test::run_tessera("build procedural:terrain:2000 --quiet -o " + store_);
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+    }
+    static void TearDownTestSuite() { delete dir_; }
+    static ScratchDir* dir_;
+    static std::string store_;
+    ScratchDir dir;
+};
+ScratchDir* ServerHttp::dir_ = nullptr;
+std::string ServerHttp::store_;
+
+std::string hex16(std::uint64_t v) {
+    char b[17];
+    std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(v));
+    return b;
+}
+
+TEST_F(ServerHttp, TilesWithEtagAnd304) {
+    ServerProcess srv({"--store", store_}, dir.file("log"), false, true);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto reader = tessera::storage::StoreReader::open(store_);
+    ASSERT_TRUE(reader.ok());
+    auto tile = (*reader)->read_tile({1, 2, 1});
+    ASSERT_TRUE(tile.ok());
+    HttpConnection c(srv.http_port());
+    auto r = c.get("/v1/stores/terrain/tiles/1/2/1");
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.headers["content-type"], "image/jpeg");
+    EXPECT_EQ(r.body, std::string(tile->bytes.begin(), tile->bytes.end()));
+    const std::string etag = r.headers["etag"];
+    EXPECT_EQ(etag, "\"" + hex16((*reader)->info().store_id) + "-" + hex16(tile->checksum) + "\"");
+    EXPECT_NE(r.headers["cache-control"].find("max-age="), std::string::npos);
+    // Same connection (keep-alive): revalidation.
+    auto r304 = c.get("/v1/stores/terrain/tiles/1/2/1", {"If-None-Match: " + etag});
+    EXPECT_EQ(r304.status, 304);
+    EXPECT_TRUE(r304.body.empty());
+    EXPECT_EQ(r304.headers["etag"], etag);
+    auto other = c.get("/v1/stores/terrain/tiles/1/2/1", {"If-None-Match: \"0000000000000000-0000000000000000\""});
+    EXPECT_EQ(other.status, 200);
+    // A versioned URL is immutable.
+    auto pinned = c.get("/v1/stores/terrain/tiles/1/2/1?v=" + hex16((*reader)->info().store_id));
+    EXPECT_EQ(pinned.status, 200);
+    EXPECT_NE(pinned.headers["cache-control"].find("immutable"), std::string::npos);
+    EXPECT_EQ(c.get("/v1/stores/terrain/tiles/1/2/1?v=0123456789abcdef").status, 404);
+    // HEAD: headers only.
+    auto head = c.get("/v1/stores/terrain/tiles/1/2/1", {}, "HEAD");
+    EXPECT_EQ(head.status, 200);
+    EXPECT_EQ(head.headers["content-length"], std::to_string(tile->bytes.size()));
+}
+
+TEST_F(ServerHttp, PngIsTheDecodedTile) {
+    ServerProcess srv({"--store", store_}, dir.file("log"), false, true);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto reader = tessera::storage::StoreReader::open(store_);
+    ASSERT_TRUE(reader.ok());
+    const auto& info = (*reader)->info();
+    auto tile = (*reader)->read_tile({0, 3, 2});
+    ASSERT_TRUE(tile.ok());
+    std::vector<std::uint8_t> texels;
+    ASSERT_TRUE(tessera::storage::decode_tile(info, *tile, texels).ok());
+    auto r = http_get(srv.http_port(), "/v1/stores/terrain/tiles/0/3/2?format=png");
+    ASSERT_EQ(r.status, 200) << r.body;
+    EXPECT_EQ(r.headers["content-type"], "image/png");
+    ASSERT_GT(r.body.size(), 33u);
+    EXPECT_EQ(r.body.substr(1, 3), "PNG");
+    // Walk the chunks, inflate IDAT, undo the row filters (Sub or None), compare texels.
+    std::string idat;
+    std::uint32_t w = 0, h = 0;
+    for (std::size_t p = 8; p + 12 <= r.body.size();) {
+        auto be32 = [&](std::size_t o) {
+            return (std::uint32_t(std::uint8_t(r.body[o])) << 24) | (std::uint32_t(std::uint8_t(r.body[o + 1])) << 16) |
+                   (std::uint32_t(std::uint8_t(r.body[o + 2])) << 8) | std::uint32_t(std::uint8_t(r.body[o + 3]));
+        };
+        const std::uint32_t len = be32(p);
+        const std::string type = r.body.substr(p + 4, 4);
+        if (type == "IHDR") {
+            w = be32(p + 8);
+            h = be32(p + 12);
+        }
+        if (type == "IDAT") idat += r.body.substr(p + 8, len);
+        p += 12 + len;
+    }
+    ASSERT_EQ(w, info.tile_size());
+    ASSERT_EQ(h, info.tile_size());
+    const std::size_t pixel = info.channels, row = std::size_t(w) * pixel;
+    std::vector<std::uint8_t> raw((row + 1) * h);
+    uLongf raw_len = static_cast<uLongf>(raw.size());
+    ASSERT_EQ(uncompress(raw.data(), &raw_len, reinterpret_cast<const Bytef*>(idat.data()), static_cast<uLong>(idat.size())), Z_OK);
+    std::vector<std::uint8_t> got(row * h);
+    for (std::uint32_t y = 0; y < h; ++y) {
+        const std::uint8_t* src = raw.data() + y * (row + 1);
+        std::uint8_t* dst = got.data() + y * row;
+        ASSERT_TRUE(src[0] == 0 || src[0] == 1);
+        for (std::size_t i = 0; i < row; ++i)
+            dst[i] = static_cast<std::uint8_t>(src[1 + i] + (src[0] == 1 && i >= pixel ? dst[i - pixel] : 0));
+    }
+    EXPECT_EQ(got, texels);
+}
+
+TEST_F(ServerHttp, MetricsParseAsPrometheusText) {
+    ServerProcess srv({"--store", store_}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    for (int i = 0; i < 5; ++i) EXPECT_EQ(http_get(srv.http_port(), "/v1/stores/terrain/tiles/2/0/" + std::to_string(i % 2)).status, 200);
+    EXPECT_EQ(http_get(srv.http_port(), "/v1/stores/nope/tiles/0/0/0").status, 404);
+    auto r = http_get(srv.http_port(), "/metrics");
+    ASSERT_EQ(r.status, 200);
+    EXPECT_NE(r.headers["content-type"].find("text/plain; version=0.0.4"), std::string::npos);
+    auto parsed = tessera::test::parse_prometheus_text(r.body);
+    ASSERT_TRUE(parsed.ok()) << parsed.error << "\n" << r.body;
+    // Requests, tiles, bytes, latency histograms, queue depths, cache hit ratio, per store.
+    for (const char* family : {"tessera_http_requests_total", "tessera_http_request_duration_seconds",
+                               "tessera_tiles_served_total", "tessera_http_response_bytes_total",
+                               "tessera_grpc_tile_latency_seconds", "tessera_queue_pending", "tessera_cache_hit_ratio",
+                               "tessera_store_data_loss_total", "tessera_stores", "tessera_tiles_sent_total"})
+        EXPECT_TRUE(parsed.types.count(family)) << family << " missing";
+    double tiles = 0;
+    for (const auto& s : parsed.samples)
+        if (s.name == "tessera_tiles_served_total" && s.labels.count("store") && s.labels.at("store") == "terrain")
+            tiles += s.value;
+    EXPECT_EQ(tiles, 5);
+}
+
+TEST_F(ServerHttp, BadRequestsGetClearStatuses) {
+    ServerProcess srv({"--store", store_, "--max-header", "2048"}, dir.file("log"), false, true);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const std::vector<std::pair<std::string, int>> cases{
+        {"/v1/stores/terrain/tiles/0/0/0", 200},
+        {"/v1/stores/nope/tiles/0/0/0", 404},
+        {"/v1/stores/terrain/tiles/99/0/0", 404},
+        {"/v1/stores/terrain/tiles/0/99999/0", 404},
+        {"/v1/stores/terrain/tiles/0/-1/0", 400},
+        {"/v1/stores/terrain/tiles/0/x/0", 400},
+        {"/v1/stores/terrain/tiles/0/99999999999999999999/0", 400},
+        {"/v1/stores/terrain/tiles/0/0", 400},
+        {"/v1/stores/terrain/tiles/0/0/0/0", 400},
+        {"/v1/stores/../etc/passwd", 400},
+        {"/v1/stores/%2e%2e/tiles/0/0/0", 400},
+        {"/v1/stores/a%2Fb/tiles/0/0/0", 400},
+        {"/v1/stores/terrain/tiles/0/0/0?format=gif", 400},
+        {"/v1/stores/terrain/tiles/0/0/0?evil=1", 400},
+        {"/nothing-here", 404},
+        {"/v1/stores/terrain", 200},
+        {"/v1/stores", 200},
+        {"/healthz", 200},
+        {"/readyz", 200},
+    };
+    HttpConnection c(srv.http_port());
+    for (const auto& [target, status] : cases) {
+        auto r = c.get(target);
+        EXPECT_EQ(r.status, status) << target << ": " << r.body;
+        if (status >= 400) {
+            EXPECT_FALSE(r.body.empty()) << target;
+            EXPECT_LT(r.body.size(), 400u) << target;
+        }
+    }
+    EXPECT_EQ(c.get("/v1/stores", {}, "POST").status, 405);
+    // A head over --max-header, and garbage instead of HTTP: errors, and the server lives on.
+    {
+        HttpConnection big(srv.http_port());
+        auto r = big.get("/healthz", {"X-Filler: " + std::string(4000, 'a')});
+        EXPECT_TRUE(r.status == 431 || r.status == 400) << r.status;
+    }
+    {
+        HttpConnection junk(srv.http_port());
+        junk.send_raw("\x16\x03\x01 this is not HTTP\r\n\r\n");
+        auto r = junk.read_reply();
+        EXPECT_EQ(r.status, 400);
+    }
+    EXPECT_EQ(http_get(srv.http_port(), "/healthz").status, 200);
+}
+
+TEST_F(ServerHttp, TooManyConnectionsGet503) {
+    ServerProcess srv({"--store", store_, "--max-connections", "4"}, dir.file("log"), false, true);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    std::vector<std::unique_ptr<HttpConnection>> held;
+    for (int i = 0; i < 4; ++i) {
+        held.push_back(std::make_unique<HttpConnection>(srv.http_port()));
+        ASSERT_EQ(held.back()->get("/healthz").status, 200);
+    }
+    const long rss_before = srv.rss_kib();
+    for (int i = 0; i < 50; ++i) {
+        HttpConnection extra(srv.http_port());
+        auto r = extra.get("/v1/stores/terrain/tiles/0/0/0");
+        EXPECT_EQ(r.status, 503);
+        if (r.status == 503) {
+            EXPECT_FALSE(r.headers["retry-after"].empty());
+        }
+    }
+    EXPECT_LT(srv.rss_kib() - rss_before, 32 * 1024);
+    // The admitted connections are still served.
+    for (auto& c : held) EXPECT_EQ(c->get("/v1/stores/terrain/tiles/0/0/0").status, 200);
+    held.clear();
+    std::this_thread::sleep_for(200ms);
+    EXPECT_EQ(http_get(srv.http_port(), "/healthz").status, 200);
+}
+
+TEST_F(ServerHttp, AuthAndCorruptTiles) {
+    const std::string path = dir.file("broken.tsr");
+    fs::copy_file(store_, path);
+    std::uint64_t offset = 0;
+    {
+        auto reader = tessera::storage::StoreReader::open(path);
+        ASSERT_TRUE(reader.ok());
+        auto loc = (*reader)->locate({0, 2, 2});
+        ASSERT_TRUE(loc.ok());
+        offset = loc->offset + 100;
+    }
+    auto bytes = tessera::test::read_file(path);
+    bytes[offset] ^= 0xFF;
+    tessera::test::write_file(path, bytes);
+    tessera::test::write_file(dir.file("token"), {'t', 'o', 'k'});
+    ServerProcess srv({"--store", path, "--auth-token-file", dir.file("token")}, dir.file("log"), false, true);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    EXPECT_EQ(http_get(srv.http_port(), "/healthz").status, 200);
+    EXPECT_EQ(http_get(srv.http_port(), "/readyz").status, 200);
+    auto unauth = http_get(srv.http_port(), "/v1/stores/broken/tiles/0/0/0");
+    EXPECT_EQ(unauth.status, 401);
+    EXPECT_NE(unauth.headers["www-authenticate"].find("Bearer"), std::string::npos);
+    EXPECT_EQ(http_get(srv.http_port(), "/metrics").status, 401);
+    EXPECT_EQ(http_get(srv.http_port(), "/v1/stores/broken/tiles/0/0/0", {"Authorization: Bearer nope"}).status, 401);
+    EXPECT_EQ(http_get(srv.http_port(), "/v1/stores/broken/tiles/0/0/0", {"Authorization: Bearer tok"}).status, 200);
+    for (int i = 0; i < 2; ++i) {
+        auto bad = http_get(srv.http_port(), "/v1/stores/broken/tiles/0/2/2", {"Authorization: Bearer tok"});
+        EXPECT_EQ(bad.status, 500);
+        EXPECT_LT(bad.body.size(), 200u);
+        auto png = http_get(srv.http_port(), "/v1/stores/broken/tiles/0/2/2?format=png", {"Authorization: Bearer tok"});
+        EXPECT_EQ(png.status, 500);
+    }
+    EXPECT_NE(srv.log().find("failed its checksum"), std::string::npos);
+}
+
+TEST_F(ServerHttp, SigtermStopsAcceptingAndExitsZero) {
+    ServerProcess srv({"--store", store_}, dir.file("log"), false, true);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    HttpConnection c(srv.http_port());
+    ASSERT_EQ(c.get("/readyz").status, 200);
+    srv.signal(SIGTERM);
+    EXPECT_EQ(srv.wait_exit(15s), std::optional<int>(0)) << srv.log();
+    HttpConnection after(srv.http_port());
+    EXPECT_FALSE(after.connected() && after.get("/healthz").status == 200);
+}
+
+}  // namespace

@@ -62,6 +62,7 @@ public:
             if (std::regex_search(log, m, re)) {
                 grpc_address_ = m[1].str();
                 http_port_ = port_of(m[2].str());
+                listening_ = true;
                 return;
             }
             int status = 0;
@@ -82,7 +83,7 @@ public:
     ServerProcess(const ServerProcess&) = delete;
     ServerProcess& operator=(const ServerProcess&) = delete;
 
-    bool running() const { return pid_ > 0 && !grpc_address_.empty(); }
+    bool running() const { return pid_ > 0 && listening_; }
     pid_t pid() const { return pid_; }
     const std::string& grpc_address() const { return grpc_address_; }
     int http_port() const { return http_port_; }
@@ -122,6 +123,7 @@ private:
     std::string log_path_;
     std::string grpc_address_;
     int http_port_ = 0;
+    bool listening_ = false;
     std::optional<int> exit_status_;
 };
 

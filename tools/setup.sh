@@ -10,8 +10,10 @@ packages=(
   libzstd-dev libturbojpeg0-dev libxxhash-dev
   libopenimageio-dev libtiff-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev
+  libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
+  libboost-dev libssl-dev zlib1g-dev openssl
   libgtest-dev libgmock-dev libbenchmark-dev
-  python3 time
+  python3 python3-yaml time systemd   # systemd: systemd-analyze lints deploy/tessera.service
 )
 missing=()
 for p in "${packages[@]}"; do
