@@ -7,17 +7,17 @@ pkg_check_modules(XXHASH REQUIRED IMPORTED_TARGET libxxhash)
 # gRPC and protobuf through pkg-config: Debian 12 ships no protobuf CMake config.
 pkg_check_modules(GRPCPP REQUIRED IMPORTED_TARGET grpc++)
 pkg_check_modules(PROTOBUF REQUIRED IMPORTED_TARGET protobuf)
+find_package(nlohmann_json REQUIRED CONFIG)
+find_package(ZLIB REQUIRED)  # PNG encoding of decoded tiles
 if(NOT TESSERA_FUZZ_ONLY)
   # Debian 12's OpenImageIO CMake config names /usr/include/opencv4 even when OpenCV is not
   # installed; its pkg-config file is sound, so use that.
   pkg_check_modules(OIIO REQUIRED IMPORTED_TARGET OpenImageIO)
   pkg_check_modules(TIFF REQUIRED IMPORTED_TARGET libtiff-4)
   find_package(CLI11 REQUIRED CONFIG)
-  find_package(nlohmann_json REQUIRED CONFIG)
   find_package(fmt REQUIRED CONFIG)
   find_package(Boost 1.74 REQUIRED CONFIG)  # header-only Asio and Beast
   find_package(OpenSSL REQUIRED)
-  find_package(ZLIB REQUIRED)               # PNG encoding of decoded tiles
   if(TESSERA_BUILD_TESTS)
     find_package(GTest REQUIRED)
   endif()

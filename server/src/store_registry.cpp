@@ -46,6 +46,8 @@ StoreRegistry::StoreRegistry(std::vector<std::string> files, std::vector<std::st
     metrics_.gauge_callback("tessera_stores", "Stores being served", {}, [this] { return double(list().size()); });
 }
 
+StoreRegistry::~StoreRegistry() { metrics_.remove_callbacks("tessera_stores"); }
+
 StoreMetrics StoreRegistry::metrics_for(const std::string& name) {
     const Labels labels{{"store", name}};
     StoreMetrics m;

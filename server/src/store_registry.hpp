@@ -45,6 +45,9 @@ class StoreRegistry {
 public:
     StoreRegistry(std::vector<std::string> files, std::vector<std::string> dirs, Logger& log,
                   MetricsRegistry& metrics);
+    ~StoreRegistry();  // removes its gauge callback from the registry
+    StoreRegistry(const StoreRegistry&) = delete;
+    StoreRegistry& operator=(const StoreRegistry&) = delete;
     // First scan. Errors when a named --store file cannot be opened or a directory is unreadable
     // (later reloads only log such problems and keep serving what they had).
     Status open();

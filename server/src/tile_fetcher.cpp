@@ -4,7 +4,8 @@
 
 namespace tessera::server {
 
-TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log) : cache_(cache), log_(log) {
+TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log)
+    : cache_(cache), metrics_(metrics), log_(log) {
     reads_ = &metrics.counter("tessera_store_reads_total", "File reads issued, after coalescing adjacent tiles");
     tiles_read_ = &metrics.counter("tessera_store_tiles_read_total", "Tiles returned by file reads");
     read_bytes_ = &metrics.counter("tessera_store_read_bytes_total", "Bytes read from store files, gaps included");
@@ -18,6 +19,11 @@ TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log
         const double h = double(cache_hits_->value()), m = double(cache_misses_->value());
         return h + m > 0 ? h / (h + m) : 0.0;
     });
+}
+
+TileFetcher::~TileFetcher() {
+    for (const char* name : {"tessera_cache_bytes", "tessera_cache_budget_bytes", "tessera_cache_hit_ratio"})
+        metrics_.remove_callbacks(name);
 }
 
 namespace {

@@ -25,6 +25,9 @@ struct FetchedTile {
 class TileFetcher {
 public:
     TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log);
+    ~TileFetcher();  // removes its gauge callbacks from the registry
+    TileFetcher(const TileFetcher&) = delete;
+    TileFetcher& operator=(const TileFetcher&) = delete;
     // Tiles of one store, results in the order of keys (out is resized to keys.size()).
     void fetch(const StoreHandle& store, std::span<const storage::TileKey> keys, std::vector<FetchedTile>& out);
     FetchedTile fetch_one(const StoreHandle& store, const storage::TileKey& key);
@@ -35,6 +38,7 @@ public:
 
 private:
     TileCache& cache_;
+    MetricsRegistry& metrics_;
     Logger& log_;
     Counter* reads_;       // file reads after coalescing
     Counter* tiles_read_;  // tiles those reads returned
