@@ -222,6 +222,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
             ++invalid;
             continue;
         }
+        store->metrics.requests->inc();
         const storage::TileKey key{r.level(), r.x(), r.y()};
         if (!store->info().contains(key)) {
             const auto& info = store->info();
