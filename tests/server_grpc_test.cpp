@@ -12,6 +12,7 @@
 
 #include "server_process.hpp"
 #include "tessera.grpc.pb.h"
+#include "tessera/client/tile_stream_client.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace {
@@ -588,6 +589,45 @@ TEST_F(ServerGrpc, TlsServesOnlyTls) {
     grpc::ClientContext c2;
     c2.set_deadline(std::chrono::system_clock::now() + 2s);
     EXPECT_FALSE(plain->ListStores(&c2, {}, &r).ok());
+}
+
+TEST_F(ServerGrpc, ClientLibraryRidesOutAServerRestart) {
+    // The shared client library (viewer, load tester): tiles arrive, the server goes away (SIGTERM),
+    // the client backs off, a new server comes up on the same port, and the newest batch is
+    // served by it without the application doing anything.
+    auto srv = std::make_unique<ServerProcess>(std::vector<std::string>{"--store", Stores::get().small}, dir.file("log1"));
+    ASSERT_TRUE(srv->running()) << srv->log();
+    const std::string address = srv->grpc_address();
+    tessera::client::TileStreamOptions options;
+    options.target = address;
+    options.backoff_initial = 50ms;
+    options.backoff_max = 500ms;
+    auto client = tessera::client::TileStreamClient::create(options);
+    std::vector<tessera::client::TileRequest> requests{{"small", 0, 0, 0, 2.f}, {"small", 0, 1, 0, 1.f}};
+    client->send_batch(1, requests);
+    std::vector<tessera::client::ReceivedTile> tiles;
+    for (int i = 0; i < 500 && tiles.size() < 2; ++i)
+        if (client->wait_for_data(20ms)) client->poll(tiles);
+    ASSERT_EQ(tiles.size(), 2u);
+    for (const auto& t : tiles) EXPECT_EQ(t.status, v1::TILE_OK) << t.message;
+
+    srv->signal(SIGTERM);
+    ASSERT_EQ(srv->wait_exit(20s), std::optional<int>(0));
+    srv.reset();
+    for (int i = 0; i < 200 && client->state() == tessera::client::ConnectionState::connected; ++i)
+        std::this_thread::sleep_for(10ms);
+    EXPECT_NE(client->state(), tessera::client::ConnectionState::connected);
+    client->send_batch(2, {{"small", 1, 0, 0, 1.f}});
+
+    ServerProcess again({"--store", Stores::get().small}, dir.file("log2"), address);
+    ASSERT_TRUE(again.running()) << again.log();
+    tiles.clear();
+    for (int i = 0; i < 1000 && tiles.empty(); ++i)
+        if (client->wait_for_data(20ms)) client->poll(tiles);
+    ASSERT_EQ(tiles.size(), 1u);
+    EXPECT_EQ(tiles[0].frame, 2u);
+    EXPECT_EQ(tiles[0].status, v1::TILE_OK);
+    EXPECT_GE(client->stats().reconnects, 1u);  // (a draining server may refuse one attempt first)
 }
 
 TEST_F(ServerGrpc, BadCommandLinesAreClearErrors) {

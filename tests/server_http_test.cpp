@@ -42,7 +42,7 @@ std::string hex16(std::uint64_t v) {
 }
 
 TEST_F(ServerHttp, TilesWithEtagAnd304) {
-    ServerProcess srv({"--store", store_}, dir.file("log"), false, true);
+    ServerProcess srv({"--store", store_}, dir.file("log"), "", true);
     ASSERT_TRUE(srv.running()) << srv.log();
     auto reader = tessera::storage::StoreReader::open(store_);
     ASSERT_TRUE(reader.ok());
@@ -75,7 +75,7 @@ TEST_F(ServerHttp, TilesWithEtagAnd304) {
 }
 
 TEST_F(ServerHttp, PngIsTheDecodedTile) {
-    ServerProcess srv({"--store", store_}, dir.file("log"), false, true);
+    ServerProcess srv({"--store", store_}, dir.file("log"), "", true);
     ASSERT_TRUE(srv.running()) << srv.log();
     auto reader = tessera::storage::StoreReader::open(store_);
     ASSERT_TRUE(reader.ok());
@@ -147,7 +147,7 @@ TEST_F(ServerHttp, MetricsParseAsPrometheusText) {
 }
 
 TEST_F(ServerHttp, BadRequestsGetClearStatuses) {
-    ServerProcess srv({"--store", store_, "--max-header", "2048"}, dir.file("log"), false, true);
+    ServerProcess srv({"--store", store_, "--max-header", "2048"}, dir.file("log"), "", true);
     ASSERT_TRUE(srv.running()) << srv.log();
     const std::vector<std::pair<std::string, int>> cases{
         {"/v1/stores/terrain/tiles/0/0/0", 200},
@@ -196,7 +196,7 @@ TEST_F(ServerHttp, BadRequestsGetClearStatuses) {
 }
 
 TEST_F(ServerHttp, TooManyConnectionsGet503) {
-    ServerProcess srv({"--store", store_, "--max-connections", "4"}, dir.file("log"), false, true);
+    ServerProcess srv({"--store", store_, "--max-connections", "4"}, dir.file("log"), "", true);
     ASSERT_TRUE(srv.running()) << srv.log();
     std::vector<std::unique_ptr<HttpConnection>> held;
     for (int i = 0; i < 4; ++i) {
@@ -235,7 +235,7 @@ TEST_F(ServerHttp, AuthAndCorruptTiles) {
     bytes[offset] ^= 0xFF;
     tessera::test::write_file(path, bytes);
     tessera::test::write_file(dir.file("token"), {'t', 'o', 'k'});
-    ServerProcess srv({"--store", path, "--auth-token-file", dir.file("token")}, dir.file("log"), false, true);
+    ServerProcess srv({"--store", path, "--auth-token-file", dir.file("token")}, dir.file("log"), "", true);
     ASSERT_TRUE(srv.running()) << srv.log();
     EXPECT_EQ(http_get(srv.http_port(), "/healthz").status, 200);
     EXPECT_EQ(http_get(srv.http_port(), "/readyz").status, 200);
@@ -256,7 +256,7 @@ TEST_F(ServerHttp, AuthAndCorruptTiles) {
 }
 
 TEST_F(ServerHttp, SigtermStopsAcceptingAndExitsZero) {
-    ServerProcess srv({"--store", store_}, dir.file("log"), false, true);
+    ServerProcess srv({"--store", store_}, dir.file("log"), "", true);
     ASSERT_TRUE(srv.running()) << srv.log();
     HttpConnection c(srv.http_port());
     ASSERT_EQ(c.get("/readyz").status, 200);

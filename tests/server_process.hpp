@@ -36,12 +36,13 @@ inline std::string slurp(const std::string& path) {
 // ready (ports known) when it returns; SIGKILLed in the destructor if still running.
 class ServerProcess {
 public:
-    ServerProcess(const std::vector<std::string>& args, const std::string& log_path, bool grpc = true,
-                  bool http = true)
+    // grpc: the gRPC address ("" = off); http: whether to serve HTTP on an ephemeral port.
+    ServerProcess(const std::vector<std::string>& args, const std::string& log_path,
+                  const std::string& grpc = "127.0.0.1:0", bool http = true)
         : log_path_(log_path) {
         std::vector<std::string> argv_s{TESSERA_BINARY, "serve"};
         argv_s.insert(argv_s.end(), args.begin(), args.end());
-        argv_s.insert(argv_s.end(), {"--grpc", grpc ? "127.0.0.1:0" : "", "--http", http ? "127.0.0.1:0" : ""});
+        argv_s.insert(argv_s.end(), {"--grpc", grpc, "--http", http ? "127.0.0.1:0" : ""});
         std::vector<char*> argv;
         for (auto& s : argv_s) argv.push_back(s.data());
         argv.push_back(nullptr);
