@@ -81,7 +81,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         std::error_code ec;
         fs::directory_iterator it(dir, ec), end;
         if (ec) {
-            fail(Error(Errc::io_error, "cannot read store directory " + dir + ": " + ec.message()));
+            fail(Error{Errc::io_error, "cannot read store directory " + dir + ": " + ec.message()});
             continue;
         }
         for (; it != end; it.increment(ec)) {
@@ -99,8 +99,8 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
     for (const auto& file : files_) {
         const std::string name = protocol::store_name_of_file(fs::path(file).filename().string());
         if (name.empty()) {
-            fail(Error(Errc::invalid_argument,
-                       "store file " + file + ": the name must be <identifier>.tsr (letters, digits, _ . -)"));
+            fail(Error{Errc::invalid_argument,
+                       "store file " + file + ": the name must be <identifier>.tsr (letters, digits, _ . -)"});
             continue;
         }
         wanted[name] = file;
@@ -119,7 +119,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         FileIdentity id;
         const auto prev = old.find(name);
         if (!identify(path, id)) {
-            fail(Error(Errc::not_found, "store file " + path + " does not exist or is not a regular file"));
+            fail(Error{Errc::not_found, "store file " + path + " does not exist or is not a regular file"});
             ++report.failed;
             if (prev != old.end() && !first) {
                 // Vanished: drop it (a file given by --store that comes back is picked up again).
@@ -134,7 +134,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         }
         auto reader = storage::StoreReader::open(path);
         if (!reader) {
-            fail(Error(reader.error().code, "store " + name + " (" + path + "): " + reader.error().message));
+            fail(Error{reader.error().code, "store " + name + " (" + path + "): " + reader.error().message});
             ++report.failed;
             if (prev != old.end()) next->push_back(prev->second);  // keep serving the old version
             continue;

@@ -2,8 +2,8 @@
 #
 # Included from tests/CMakeLists.txt (TESSERA_FUZZ=ON): builds the libFuzzer targets in a clang
 # sub-build of this same source tree, ${CMAKE_BINARY_DIR}/fuzz-build (-DTESSERA_FUZZ_ONLY=ON, see
-# tests/fuzz/CMakeLists.txt), as part of the normal build, and registers the ctest test
-# store_reader_fuzz, which runs this file as a script.
+# tests/fuzz/CMakeLists.txt), as part of the normal build, and registers the ctest tests
+# store_reader_fuzz and server_request_fuzz, which run this file as a script.
 #
 # Run as a script (cmake -DFUZZER=... -P run_fuzzers.cmake): the test. Makes a fresh corpus
 # directory from make_fuzz_corpus's seeds (the fuzzer adds inputs to it, so it lives in the build
@@ -25,7 +25,7 @@ if(CMAKE_SCRIPT_MODE_FILE)
   file(MAKE_DIRECTORY "${WORK_DIR}/corpus" "${WORK_DIR}/artifacts")
   execute_process(COMMAND "${CORPUS_GEN}" "${WORK_DIR}/corpus" RESULT_VARIABLE rc)
   if(NOT rc EQUAL 0)
-    message(FATAL_ERROR "make_fuzz_corpus failed (${rc})")
+    message(FATAL_ERROR "${CORPUS_GEN} failed (${rc})")
   endif()
   set(options -rss_limit_mb=2048 -timeout=10 "-artifact_prefix=${WORK_DIR}/artifacts/")
   file(GLOB regressions LIST_DIRECTORIES false "${REGRESSIONS_DIR}/*")
@@ -55,7 +55,7 @@ find_program(TESSERA_CLANGXX NAMES clang++ clang++-14)
 find_program(TESSERA_CLANG NAMES clang clang-14)
 if(NOT TESSERA_CLANGXX OR NOT TESSERA_CLANG)
   message(WARNING "TESSERA_FUZZ is ON but clang/clang++ was not found: the fuzz targets and the "
-                  "store_reader_fuzz test are skipped (tools/setup.sh installs clang)")
+                  "store_reader_fuzz and server_request_fuzz tests are skipped (tools/setup.sh installs clang)")
   return()
 endif()
 
@@ -78,6 +78,7 @@ ExternalProject_Add(tessera_fuzz
   BUILD_ALWAYS ON
   INSTALL_COMMAND ""
   BUILD_BYPRODUCTS ${TESSERA_FUZZ_BUILD_DIR}/fuzz/store_reader_fuzz ${TESSERA_FUZZ_BUILD_DIR}/fuzz/make_fuzz_corpus
+                   ${TESSERA_FUZZ_BUILD_DIR}/fuzz/server_request_fuzz ${TESSERA_FUZZ_BUILD_DIR}/fuzz/make_server_fuzz_corpus
   USES_TERMINAL_CONFIGURE ON
   USES_TERMINAL_BUILD ON)
 
@@ -90,3 +91,13 @@ add_test(NAME store_reader_fuzz
     -DFUZZ_SECONDS=30
     -P ${CMAKE_CURRENT_LIST_FILE})
 set_tests_properties(store_reader_fuzz PROPERTIES TIMEOUT 300 LABELS fuzz)
+
+add_test(NAME server_request_fuzz
+  COMMAND ${CMAKE_COMMAND}
+    -DFUZZER=${TESSERA_FUZZ_BUILD_DIR}/fuzz/server_request_fuzz
+    -DCORPUS_GEN=${TESSERA_FUZZ_BUILD_DIR}/fuzz/make_server_fuzz_corpus
+    -DWORK_DIR=${CMAKE_BINARY_DIR}/fuzz-run/server_request_fuzz
+    -DREGRESSIONS_DIR=${CMAKE_CURRENT_LIST_DIR}/regressions-server
+    -DFUZZ_SECONDS=30
+    -P ${CMAKE_CURRENT_LIST_FILE})
+set_tests_properties(server_request_fuzz PROPERTIES TIMEOUT 300 LABELS fuzz)

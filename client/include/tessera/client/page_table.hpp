@@ -1,0 +1,169 @@
+#pragma once
+// PageTable: the CPU copy of one virtual texture's page table, the texture the VT shader reads in
+// one fetch (design, "One frame, end to end", steps 1 and 7).
+//
+// Geometry. Level 0 is the finest level and has pages_x × pages_y pages; level L has
+// ceil(pages_x / 2^L) × ceil(pages_y / 2^L) pages, and the last level is 1×1 (exactly the store's
+// tile grid: ceil(ceil(W / 2^L) / P) == ceil(ceil(W / P) / 2^L)). Page (L, x, y) has the parent
+// (L+1, x/2, y/2) and up to four children (L-1, 2x..2x+1, 2y..2y+1), clipped to level L-1.
+//
+// Storage. One dense array of 32-bit entries per level, rows contiguous (row y of level L starts at
+// y * level_width(L)), all levels in one allocation: sum_L w_L·h_L entries ≈ 4/3 · pages_x ·
+// pages_y · 4 bytes (a 4096×4096-page texture, 2^20 texels per side at 256-texel pages: ~85 MiB).
+// create() refuses a table larger than a bound (default 256 MiB) with a message; much larger
+// virtual textures need a sparse table (issue 6).
+//
+// Entry encoding (what the R32UI page-table texture holds, one texel per page):
+//
+//     bit 31       valid: some page on the path from this page to the root is resident
+//     bits 29..30  reserved, always 0
+//     bits 24..28  resident level R (0..31): the level of the nearest resident page on that path
+//     bits  0..23  slot of that page in the physical pool (0 .. 2^24-1)
+//
+//   An entry with bit 31 clear is exactly 0: nothing resident on the path (the shader draws its
+//   "no data" colour; with the coarsest levels pinned this only happens before they load).
+//   Entry (L, x, y) is "fallback" when R > L: it points at the ancestor (R, x >> (R-L), y >> (R-L))
+//   and the shader samples that page at the level-R position, so the lookup is always one fetch.
+//   Page (L, x, y) is itself mapped exactly when its entry is valid and R == L.
+//   In GLSL:  uint e = texelFetch(table_L, ivec2(page), 0).r;  bool valid = (e >> 31) != 0u;
+//             uint level = (e >> 24) & 31u;  uint slot = e & 0xFFFFFFu;
+//   Note: level sizes round up (ceil), GL's mip chain rounds down, so for page counts that are not
+//   powers of two the levels cannot be the mip levels of one GL texture; upload each level to its
+//   own texture (or layer / atlas region) sized level_width(L) × level_height(L).
+//
+// Incremental update. map(P) writes P's entry and every descendant entry whose nearest resident
+// page is coarser than P (a descent that stops below resident descendants); unmap(P) re-points P
+// and the descendants that pointed at P to P's nearest resident ancestor (or 0). The descent goes
+// level by level over the bounding box of the children of the entries changed one level up, and
+// stops at the first level where nothing changed: its cost is about the entries that change (the
+// bounding boxes of changed entries, doubled), never the whole table. Mapping or unmapping a
+// coarse page over a sparsely resident region rewrites its whole region (up to 4/3 · 4^L
+// entries): inherent to fallback entries; that is why the coarsest levels are pinned.
+//
+// Dirty tracking. Every changed entry is recorded in a short per-level list of rectangles (at most
+// kMaxDirtyRectsPerLevel; rectangles that overlap or abut without waste are merged, and when the
+// list overflows the pair whose union wastes least is merged). take_dirty() hands them out for the
+// uploader and clears them. A new table is all dirty (its entries, all 0, were never uploaded).
+//
+// Not thread-safe; owned by the render thread (Residency wraps it).
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "tessera/client/page.hpp"
+#include "tessera/result.hpp"
+
+namespace tessera::client {
+
+// A rectangle of changed entries of one level: x in [x0, x1), y in [y0, y1) (half-open).
+struct DirtyRect {
+    std::uint32_t level = 0;
+    std::uint32_t x0 = 0, y0 = 0, x1 = 0, y1 = 0;
+    std::uint64_t area() const { return std::uint64_t(x1 - x0) * (y1 - y0); }
+    bool contains(std::uint32_t x, std::uint32_t y) const { return x >= x0 && x < x1 && y >= y0 && y < y1; }
+    friend bool operator==(const DirtyRect&, const DirtyRect&) = default;
+};
+
+using PageEntry = std::uint32_t;
+
+class PageTable {
+public:
+    // Entry encoding (see above).
+    static constexpr PageEntry kValidBit = 1u << 31;
+    static constexpr unsigned kLevelShift = 24;
+    static constexpr PageEntry kLevelMask = 0x1Fu;       // after shifting
+    static constexpr PageEntry kSlotMask = 0xFFFFFFu;
+    static constexpr SlotId kMaxSlots = kSlotMask + 1;  // slots 0 .. 2^24-1 fit an entry
+    static constexpr PageEntry kEmptyEntry = 0;         // nothing resident on the path
+    static constexpr std::uint8_t kNotResident = 255;   // resident_level() when nothing is
+    static constexpr std::size_t kDefaultMaxBytes = std::size_t(256) << 20;
+    static constexpr std::size_t kMaxDirtyRectsPerLevel = 8;
+
+    static constexpr PageEntry make_entry(SlotId slot, std::uint32_t level) {
+        return kValidBit | ((level & kLevelMask) << kLevelShift) | (slot & kSlotMask);
+    }
+    static constexpr bool entry_valid(PageEntry e) { return (e & kValidBit) != 0; }
+    static constexpr std::uint32_t entry_level(PageEntry e) { return (e >> kLevelShift) & kLevelMask; }
+    static constexpr SlotId entry_slot(PageEntry e) { return e & kSlotMask; }
+
+    // The level count of a pyramid whose level 0 has pages_x × pages_y pages (last level 1×1);
+    // 0 when either is 0.
+    static std::uint32_t levels_for(std::uint32_t pages_x, std::uint32_t pages_y);
+    // Bytes of the entries of such a table (all levels).
+    static std::uint64_t table_bytes(std::uint32_t pages_x, std::uint32_t pages_y, std::uint32_t levels);
+
+    // Errors (invalid_argument): a page count of 0 or over kMaxPagesPerAxis, `levels` other than
+    // levels_for(pages_x, pages_y); (resource_exhausted): a table over `max_bytes`.
+    static Result<PageTable> create(TextureId texture, std::uint32_t pages_x, std::uint32_t pages_y,
+                                    std::uint32_t levels, std::size_t max_bytes = kDefaultMaxBytes);
+
+    TextureId texture() const { return texture_; }
+    std::uint32_t levels() const { return static_cast<std::uint32_t>(levels_.size()); }
+    std::uint32_t level_width(std::uint32_t level) const { return levels_[level].width; }
+    std::uint32_t level_height(std::uint32_t level) const { return levels_[level].height; }
+    bool contains(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
+        return level < levels_.size() && x < levels_[level].width && y < levels_[level].height;
+    }
+    std::size_t memory_bytes() const { return entries_.size() * sizeof(PageEntry); }
+    std::size_t mapped_pages() const { return mapped_; }
+
+    // Makes page (level, x, y) resident in `slot`. Errors (invalid_argument): outside the
+    // geometry, slot >= kMaxSlots, the page already mapped. On error nothing changes.
+    Status map(std::uint32_t level, std::uint32_t x, std::uint32_t y, SlotId slot);
+    // Makes page (level, x, y) non-resident. Errors (invalid_argument): outside, not mapped.
+    Status unmap(std::uint32_t level, std::uint32_t x, std::uint32_t y);
+
+    // Queries; the page must be inside the geometry (contains()), except resident_level(), which
+    // answers kNotResident outside it.
+    PageEntry entry(std::uint32_t level, std::uint32_t x, std::uint32_t y) const { return at(level, x, y); }
+    // Level of the nearest resident page among (level, x, y) and its ancestors, or kNotResident.
+    std::uint8_t resident_level(std::uint32_t level, std::uint32_t x, std::uint32_t y) const;
+    bool is_mapped(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
+        const PageEntry e = at(level, x, y);
+        return entry_valid(e) && entry_level(e) == level;
+    }
+    // The slot page (level, x, y) is mapped to, or kNoSlot when it is not mapped.
+    SlotId mapped_slot(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
+        return is_mapped(level, x, y) ? entry_slot(at(level, x, y)) : kNoSlot;
+    }
+
+    // The entries of one level, level_width(level) per row, rows in y order.
+    std::span<const PageEntry> level_entries(std::uint32_t level) const {
+        return {entries_.data() + levels_[level].offset,
+                std::size_t(levels_[level].width) * levels_[level].height};
+    }
+
+    // Appends the rectangles changed since the last call (all levels, finest first) to `out` and
+    // forgets them. Every entry whose value changed lies in a rectangle of its level.
+    void take_dirty(std::vector<DirtyRect>& out);
+    bool has_dirty() const;
+    // Marks every level whole (e.g. after the GPU texture was recreated).
+    void mark_all_dirty();
+
+private:
+    struct Level {
+        std::uint32_t width = 0;
+        std::uint32_t height = 0;
+        std::size_t offset = 0;  // first entry in entries_
+    };
+    PageTable() = default;
+    PageEntry& at(std::uint32_t level, std::uint32_t x, std::uint32_t y) {
+        return entries_[levels_[level].offset + std::size_t(y) * levels_[level].width + x];
+    }
+    const PageEntry& at(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
+        return entries_[levels_[level].offset + std::size_t(y) * levels_[level].width + x];
+    }
+    // Sets (level, x, y) to `e`, then the descendants whose entry does not point at a resident
+    // page finer than `level`; records the changes in the dirty lists.
+    void fill(std::uint32_t level, std::uint32_t x, std::uint32_t y, PageEntry e);
+    void add_dirty(DirtyRect r);
+
+    TextureId texture_ = 0;
+    std::vector<Level> levels_;
+    std::vector<PageEntry> entries_;
+    std::vector<std::vector<DirtyRect>> dirty_;  // per level
+    std::size_t mapped_ = 0;
+};
+
+}  // namespace tessera::client

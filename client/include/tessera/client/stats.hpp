@@ -1,0 +1,132 @@
+#pragma once
+// Client statistics: per-frame counters (FrameStats), a latency histogram (LatencyHistogram, also
+// meant for the load tester) and a summary across frames (StatsSummary). JSON and CSV are written
+// by hand: no dependency. Definitions follow design.md, "Measures": tile latency is request
+// issued -> page mapped.
+#include <array>
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+#include "tessera/client/page.hpp"
+
+namespace tessera::client {
+
+// Durations in a log-linear histogram at microsecond resolution: exact below 16 us, then 16
+// linear buckets per power of two, so a bucket is at most 1/16 (6.25%) of its values wide.
+// Values from 2^40 us (about 12 days) up land in the last bucket. 592 buckets, fixed size.
+class LatencyHistogram {
+public:
+    static constexpr unsigned kSubBits = 4;
+    static constexpr std::uint64_t kSub = 1u << kSubBits;
+    static constexpr unsigned kMaxExp = 40;
+    static constexpr std::size_t kBuckets = kSub + (kMaxExp - kSubBits) * kSub;
+
+    void record_us(std::uint64_t us);
+    void record(std::chrono::nanoseconds d);  // rounded to the nearest microsecond; negative: 0
+    void record_ms(double ms);                // negative or NaN: 0
+    void merge(const LatencyHistogram& other);
+    void reset();
+
+    std::uint64_t count() const { return count_; }
+    double mean_ms() const;  // exact (from the sum), 0 when empty
+    double min_ms() const;   // exact, 0 when empty
+    double max_ms() const;   // exact, 0 when empty
+    // The q-quantile in milliseconds (q clamped to [0, 1]; nearest rank): the middle of the bucket
+    // holding that sample, clamped to [min, max]; so within 3.2% of the true sample. 0 when empty.
+    double quantile(double q) const;
+
+    // Bucket arithmetic (public for tests and for exporting).
+    static std::size_t bucket_of(std::uint64_t us);
+    static std::uint64_t bucket_low(std::size_t bucket);    // smallest value in the bucket, us
+    static std::uint64_t bucket_width(std::size_t bucket);  // us
+    std::uint64_t bucket_count(std::size_t bucket) const { return counts_[bucket]; }
+
+private:
+    std::array<std::uint64_t, kBuckets> counts_{};
+    std::uint64_t count_ = 0;
+    std::uint64_t sum_us_ = 0;
+    std::uint64_t min_us_ = 0;
+    std::uint64_t max_us_ = 0;
+};
+
+using LevelCounts = std::array<std::uint32_t, kMaxLevels>;
+
+// One frame of the client runtime. Filled by the runtime once a frame.
+struct FrameStats {
+    std::uint64_t frame = 0;
+    std::uint32_t pages_wanted = 0;     // unique pages in the frame's feedback, ancestors included
+    std::uint32_t pages_resident = 0;   // mapped pages in the pool, pinned included
+    std::uint32_t pages_requested = 0;  // new requests issued this frame (any source)
+    std::uint32_t pages_arrived = 0;    // pages whose data arrived (RAM, disk or network)
+    std::uint32_t pages_uploaded = 0;   // pages uploaded and mapped
+    std::uint32_t pages_evicted = 0;    // pages unmapped to make room
+    // Where requested pages were found, per level: RAM cache, disk cache, the network (a fetch
+    // from the server; a "hit" of the last tier).
+    LevelCounts ram_hits{};
+    LevelCounts disk_hits{};
+    LevelCounts network{};
+    std::uint64_t bytes_received = 0;  // from the network (payload)
+    std::uint64_t bytes_uploaded = 0;  // to the GPU
+    float lod_bias = 0.0f;
+    // Fraction of feedback pixels whose desired page is not resident: the runtime's estimate of
+    // the fallback rate (the renderer counts the real one; design.md, "Measures").
+    float fallback_estimate = 0.0f;
+
+    std::uint32_t total_ram_hits() const;
+    std::uint32_t total_disk_hits() const;
+    std::uint32_t total_network() const;
+
+    // One JSON object. Per-level arrays run up to the highest level with any count (all three the
+    // same length; empty when none).
+    std::string to_json() const;
+    // CSV: a header line and rows of the same columns (no newline at the end of either). The
+    // per-level hits are summed per tier (ram_hits, disk_hits, network); to_json has them per level.
+    static std::string csv_header();
+    std::string csv_row() const;
+};
+
+// A summary across frames since construction or reset() (reset it to start a new window).
+class StatsSummary {
+public:
+    void add_frame(const FrameStats& f);
+    // One page mapped: its latency, request issued -> page mapped.
+    void record_latency(std::chrono::nanoseconds request_to_mapped) { latency_.record(request_to_mapped); }
+    void reset();
+
+    std::uint64_t frames() const { return frames_; }
+    const LatencyHistogram& latency() const { return latency_; }
+    std::uint64_t pages_requested() const { return requested_; }
+    std::uint64_t pages_arrived() const { return arrived_; }
+    std::uint64_t pages_uploaded() const { return uploaded_; }
+    std::uint64_t pages_evicted() const { return evicted_; }
+    std::uint64_t bytes_received() const { return bytes_received_; }
+    std::uint64_t bytes_uploaded() const { return bytes_uploaded_; }
+    double mean_pages_wanted() const;
+    double mean_pages_resident() const;
+    double mean_lod_bias() const;
+    float max_lod_bias() const { return bias_max_; }
+    float last_lod_bias() const { return bias_last_; }
+    double mean_fallback_estimate() const;
+    const std::array<std::uint64_t, kMaxLevels>& ram_hits() const { return ram_hits_; }
+    const std::array<std::uint64_t, kMaxLevels>& disk_hits() const { return disk_hits_; }
+    const std::array<std::uint64_t, kMaxLevels>& network() const { return network_; }
+
+    // One JSON object: frames, page totals and means, hits per level, bytes, latency (count, mean,
+    // p50, p90, p99, max in ms), LoD bias (last, mean, max), mean fallback estimate.
+    std::string to_json() const;
+
+private:
+    std::uint64_t frames_ = 0;
+    std::uint64_t wanted_sum_ = 0, resident_sum_ = 0;
+    std::uint64_t requested_ = 0, arrived_ = 0, uploaded_ = 0, evicted_ = 0;
+    std::array<std::uint64_t, kMaxLevels> ram_hits_{}, disk_hits_{}, network_{};
+    std::uint64_t bytes_received_ = 0, bytes_uploaded_ = 0;
+    double bias_sum_ = 0.0;
+    float bias_max_ = 0.0f, bias_last_ = 0.0f;
+    double fallback_sum_ = 0.0;
+    LatencyHistogram latency_;
+};
+
+}  // namespace tessera::client

@@ -1,0 +1,137 @@
+#pragma once
+// Client tile caches, first level: the RAM cache (design, "One frame, end to end", steps 4 and 6:
+// a page that is not resident goes RAM cache -> disk cache -> network; replies land in the disk
+// and RAM caches). Also the vocabulary the caches share: TileId (a tile of one *version* of a
+// store) and CachedTile (what a TileReply carries, without protobuf).
+//
+// The key includes the store version, so a rebuilt store (new StoreMetadata.version) can never be
+// served from entries of its old content; erase_store_versions_except() drops the stale ones
+// eagerly instead of waiting for them to age out.
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <list>
+#include <memory>
+#include <mutex>
+#include <span>
+#include <string>
+#include <string_view>
+#include <unordered_map>
+#include <vector>
+
+namespace tessera::client {
+
+// tessera.v1.TileKind values.
+namespace tile_kind {
+constexpr std::uint8_t kAbsent = 0;   // a sparse store has no data here (use the parent)
+constexpr std::uint8_t kPresent = 1;  // payload in the store's codec
+constexpr std::uint8_t kUniform = 2;  // payload is one texel value
+}  // namespace tile_kind
+
+// tessera.v1.Codec values.
+namespace tile_codec {
+constexpr std::uint8_t kRaw = 0;
+constexpr std::uint8_t kZstd = 1;
+constexpr std::uint8_t kJpeg = 2;
+constexpr std::uint8_t kUniform = 3;
+constexpr std::uint8_t kNone = 4;
+}  // namespace tile_codec
+
+// One tile of one version of one store.
+struct TileId {
+    std::string store;           // store name (server side: the file name without .tsr)
+    std::uint64_t version = 0;   // StoreMetadata.version / TileReply.store_version
+    std::uint8_t level = 0;      // 0 is the finest
+    std::uint32_t x = 0;
+    std::uint32_t y = 0;
+    friend bool operator==(const TileId&, const TileId&) = default;
+};
+
+struct TileIdHash {
+    std::size_t operator()(const TileId& id) const noexcept;
+};
+
+// What a TileReply with status TILE_OK carries. `checksum` is XXH3-64 of `payload` (as the server
+// stored it); the caches keep it and the disk cache verifies it on every read.
+struct CachedTile {
+    std::uint8_t kind = tile_kind::kAbsent;
+    std::uint8_t codec = tile_codec::kNone;
+    std::uint64_t checksum = 0;
+    std::vector<std::uint8_t> payload;
+    friend bool operator==(const CachedTile&, const CachedTile&) = default;
+};
+
+// XXH3-64 of `bytes`: the checksum TileReply.checksum and CachedTile.checksum carry.
+std::uint64_t tile_checksum(std::span<const std::uint8_t> bytes);
+
+struct RamCacheStats {
+    std::uint64_t hits = 0;
+    std::uint64_t misses = 0;
+    std::uint64_t bytes = 0;      // sum of charge() over the entries; never above byte_budget
+    std::uint64_t entries = 0;
+    std::uint64_t evictions = 0;  // entries removed to make room (not erase/replace)
+    std::uint64_t rejected = 0;   // puts refused: null tile, or one tile larger than the budget
+    std::uint64_t byte_budget = 0;
+};
+
+// A byte-bounded LRU cache of tiles in memory. Thread-safe (one mutex; every operation is O(1)
+// except erase_store_versions_except, which is O(entries)). Tiles are immutable and shared:
+// get() hands out the same object the cache holds, so a hit copies nothing.
+class RamTileCache {
+public:
+    explicit RamTileCache(std::uint64_t byte_budget);
+    RamTileCache(const RamTileCache&) = delete;
+    RamTileCache& operator=(const RamTileCache&) = delete;
+
+    // The tile, or null on a miss. A hit makes the entry the most recently used.
+    std::shared_ptr<const CachedTile> get(const TileId& id);
+    // Like get() but changes neither the LRU order nor the stats.
+    bool contains(const TileId& id) const;
+
+    // Inserts or replaces, as most recently used, then evicts least recently used entries until
+    // the charge fits the budget. False (nothing cached) when the tile is null or its charge
+    // alone exceeds the budget.
+    bool put(const TileId& id, std::shared_ptr<const CachedTile> tile);
+    bool put(const TileId& id, CachedTile tile);
+
+    bool erase(const TileId& id);
+    // Drops every entry of `store` whose version is not `version` (the store was rebuilt).
+    // Returns how many entries were dropped.
+    std::size_t erase_store_versions_except(std::string_view store, std::uint64_t version);
+    void clear();
+
+    RamCacheStats stats() const;
+    std::uint64_t byte_budget() const { return budget_; }
+
+    // Bytes an entry counts against the budget: the payload plus a fixed bookkeeping overhead.
+    static std::uint64_t charge(const TileId& id, const CachedTile& tile);
+
+private:
+    struct Node {
+        TileId id;
+        std::shared_ptr<const CachedTile> tile;
+        std::uint64_t charge = 0;
+    };
+    using List = std::list<Node>;
+
+    void erase_locked(List::iterator it);
+
+    const std::uint64_t budget_;
+    mutable std::mutex mu_;
+    List lru_;  // front: most recently used
+    std::unordered_map<TileId, List::iterator, TileIdHash> map_;
+    std::uint64_t bytes_ = 0;
+    std::uint64_t hits_ = 0;
+    std::uint64_t misses_ = 0;
+    std::uint64_t evictions_ = 0;
+    std::uint64_t rejected_ = 0;
+};
+
+}  // namespace tessera::client
+
+template <>
+struct std::hash<tessera::client::TileId> {
+    std::size_t operator()(const tessera::client::TileId& id) const noexcept {
+        return tessera::client::TileIdHash{}(id);
+    }
+};

@@ -1,0 +1,61 @@
+#pragma once
+// Where the runtime gets tiles it has in no cache: a Tessera server over gRPC, or a .tsr file read
+// directly (no server needed). Both follow the protocol's rule: each request set replaces the
+// previous one, so requests nobody needs any more are cancelled at the source.
+//
+// A source serves several virtual textures; bind() names the store behind each texture id.
+// Every call is non-blocking: sources own their threads and their bounded queues.
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "tessera/client/page.hpp"
+#include "tessera/client/tile_stream_client.hpp"
+#include "tessera/result.hpp"
+#include "tessera/storage/types.hpp"
+
+namespace tessera::client {
+
+struct SourceRequest {
+    PageKey page;
+    float priority = 0;
+};
+
+// Status values are tessera.proto's TileStatus; kind and codec its TileKind and Codec.
+struct SourceTile {
+    PageKey page;
+    std::uint64_t store_version = 0;
+    int status = 0;  // 0: OK
+    std::string message;
+    std::uint8_t kind = 0;
+    std::uint8_t codec = 0;
+    std::uint64_t checksum = 0;
+    std::vector<std::uint8_t> payload;
+};
+
+class TileSource {
+public:
+    virtual ~TileSource() = default;
+    // The store behind a texture id, and its geometry (for requests and decoding).
+    virtual Result<storage::StoreInfo> bind(TextureId texture, const std::string& store) = 0;
+    // Replaces the outstanding request set (the newest frame wins).
+    virtual void set_requests(std::uint64_t frame, std::span<const SourceRequest> requests) = 0;
+    // Moves up to max arrived tiles into out (appending); returns how many.
+    virtual std::size_t poll(std::vector<SourceTile>& out, std::size_t max = SIZE_MAX) = 0;
+    // False while a remote source is disconnected (rendering goes on with what is resident).
+    virtual bool available() const = 0;
+    virtual std::string describe() const = 0;
+};
+
+// Reads stores directly. `threads` readers serve the newest request set, highest priority first;
+// at most `max_buffered` read tiles wait to be polled (beyond it, reading pauses).
+std::unique_ptr<TileSource> make_local_store_source(unsigned threads = 1, std::size_t max_buffered = 256);
+
+// A Tessera server, through TileStreamClient (reconnects with backoff by itself).
+std::unique_ptr<TileSource> make_grpc_source(TileStreamOptions options);
+
+}  // namespace tessera::client

@@ -1,0 +1,187 @@
+#pragma once
+// The transcode pool (design, "One frame, end to end", step 6): stored tile payloads (JPEG via
+// libjpeg-turbo, zstd, raw, uniform) become GPU-ready pages, written straight into the caller's
+// upload staging memory.
+//
+// Output format: RGBA8, tile_size()^2 texels (border included), row-major, 4 bytes per texel, no
+// row padding. A BC1/BC3/BC7 encode path is a later issue.
+//
+// Conversion rules (samples to 8 bits, then channels to RGBA):
+//   u8        as is
+//   u16       round(v / 257)                       (exact: 0 -> 0, 65535 -> 255)
+//   f16, f32  round(clamp(v, 0, 1) * 255); NaN -> 0
+//   1 channel (v)        -> (v, v, v, 255)
+//   2 channels (v, a)    -> (v, v, v, a)           (read as grey + alpha, whatever has_alpha says)
+//   3 channels (r, g, b) -> (r, g, b, 255)
+//   4 channels           -> as is
+// Float and 16-bit data textures (heights, normals) lose precision here: they need a float /
+// 16-bit page format, which is a later issue. The result equals storage::decode_tile's output
+// converted with these rules, byte for byte (tests/transcode_test.cpp holds that reference).
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <span>
+#include <thread>
+#include <vector>
+
+#include "tessera/client/page.hpp"
+#include "tessera/result.hpp"
+#include "tessera/storage/types.hpp"
+
+namespace tessera::client {
+
+// Tile kinds and codecs as plain integers, with the values of tessera.proto's TileKind and Codec
+// (what a TileReply carries).
+namespace wire_kind {
+constexpr std::uint8_t absent = 0;
+constexpr std::uint8_t present = 1;
+constexpr std::uint8_t uniform = 2;
+}  // namespace wire_kind
+namespace wire_codec {
+constexpr std::uint8_t raw = 0;
+constexpr std::uint8_t zstd = 1;
+constexpr std::uint8_t jpeg = 2;
+constexpr std::uint8_t uniform = 3;
+constexpr std::uint8_t none = 4;
+}  // namespace wire_codec
+
+constexpr std::size_t kRgba8TexelBytes = 4;
+// Bytes of one RGBA8 page of `info`'s tiles.
+inline std::size_t rgba8_page_bytes(const storage::StoreInfo& info) {
+    return std::size_t(info.tile_size()) * info.tile_size() * kRgba8TexelBytes;
+}
+
+class Scratch;
+Status transcode_to_rgba8(const storage::StoreInfo& info, std::uint8_t kind, std::uint8_t codec,
+                          std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch);
+
+// Per-thread decoder state: a libjpeg-turbo handle, a zstd context and a sample buffer, all
+// created on first use and reused, so a warmed-up Scratch decodes without allocating.
+// Not thread-safe: one per thread.
+class Scratch {
+public:
+    Scratch();
+    ~Scratch();
+    Scratch(Scratch&&) noexcept;
+    Scratch& operator=(Scratch&&) noexcept;
+    Scratch(const Scratch&) = delete;
+    Scratch& operator=(const Scratch&) = delete;
+
+private:
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+    friend Status transcode_to_rgba8(const storage::StoreInfo&, std::uint8_t, std::uint8_t,
+                                     std::span<const std::uint8_t>, std::span<std::uint8_t>, Scratch&);
+};
+
+// Decodes one tile payload into `out` (exactly rgba8_page_bytes(info) bytes).
+//   kind: wire_kind; absent is an error (not_found).
+//   codec: wire_codec; the payload's format (normally info.codec). uniform kind or codec: the
+//     payload is one texel value (info.texel_bytes() bytes) and every texel gets it.
+// Errors: invalid_argument (bad `out` size, unknown kind/codec, impossible geometry), corrupt
+// (payload that does not decode to exactly one tile of this store), not_found (absent). On error
+// the contents of `out` are unspecified (it may be partly written): never use them.
+// `out` is written front to back and never read, so write-combined (mapped GL) memory is fine.
+Status transcode_to_rgba8(const storage::StoreInfo& info, std::uint8_t kind, std::uint8_t codec,
+                          std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch);
+
+// ---------------------------------------------------------------------------------------------
+// TranscodePool: N owned worker threads, one bounded priority queue of jobs, one bounded queue of
+// completions polled by the render-facing thread.
+//
+// Ownership: the pool never allocates page memory. A job's `destination` is caller-owned staging
+// memory (a slot of the upload ring); it must stay valid, and must not be reused or read by the
+// caller, from submit() until poll() returns that job's result. Every accepted job produces
+// exactly one result: decoded (status ok), failed (status error), or dropped (never decoded, its
+// destination never written). The payload and StoreInfo are shared, read-only, and released by
+// the pool once the job is finished or dropped.
+//
+// Bounds: at most `capacity` jobs are between submit() and poll() (queued + decoding + waiting to
+// be polled); submit() returns false, without blocking, when that many are outstanding. The
+// completion queue therefore never overflows and workers never wait on the poller.
+struct TranscodeJob {
+    PageKey key;
+    std::uint64_t ticket = 0;  // caller's id (e.g. staging slot or request generation), echoed back
+    std::shared_ptr<const storage::StoreInfo> info;
+    std::uint8_t kind = wire_kind::present;
+    std::uint8_t codec = wire_codec::raw;
+    std::shared_ptr<const std::vector<std::uint8_t>> payload;
+    std::span<std::uint8_t> destination;  // rgba8_page_bytes(*info) bytes of staging memory
+    std::uint32_t priority = 0;           // higher first; equal priorities in submission order
+};
+
+struct TranscodeResult {
+    PageKey key;
+    std::uint64_t ticket = 0;
+    Status status;         // ok: destination holds the page; error: destination unspecified
+    bool dropped = false;  // cancelled or unwanted before decoding (status: cancelled); destination untouched
+};
+
+struct TranscodePoolOptions {
+    unsigned threads = 0;         // 0: hardware_concurrency - 1 (at least 1)
+    std::size_t capacity = 256;   // jobs outstanding between submit() and poll(); at least 1
+    bool start_paused = false;    // workers take no job until resume() (tests, warm-up)
+};
+
+struct TranscodePoolStats {
+    std::uint64_t submitted = 0;  // accepted by submit()
+    std::uint64_t rejected = 0;   // submit() returned false
+    std::uint64_t decoded = 0;    // finished with status ok
+    std::uint64_t failed = 0;     // finished with an error
+    std::uint64_t dropped = 0;    // cancelled or unwanted before decoding
+    std::size_t queued = 0;       // waiting for a worker now
+    std::size_t running = 0;      // being decoded now
+    std::size_t completed = 0;    // results waiting for poll()
+};
+
+class TranscodePool {
+public:
+    explicit TranscodePool(const TranscodePoolOptions& options = {});
+    // shutdown(): prompt (queued jobs are dropped; only the tiles being decoded finish).
+    ~TranscodePool();
+    TranscodePool(const TranscodePool&) = delete;
+    TranscodePool& operator=(const TranscodePool&) = delete;
+
+    // Queues a job. False (and the job is not taken) when `capacity` jobs are outstanding or the
+    // pool is shut down. Never blocks on decoding. A job that cannot be decoded (bad geometry,
+    // null payload, wrong destination size) is accepted and completes with an error.
+    bool submit(TranscodeJob job);
+
+    // Drops queued jobs for `key` (all tickets); returns how many. A job already being decoded is
+    // not interrupted: it completes normally.
+    std::size_t cancel(const PageKey& key);
+    // The runtime's per-frame request set replaces the last one: queued jobs whose key is not
+    // wanted any more are dropped before decoding; returns how many. `wanted` runs on the calling
+    // thread under the pool's lock: it must be cheap and must not call back into the pool.
+    std::size_t retain_only(const std::function<bool(const PageKey&)>& wanted);
+    // Same, and re-prioritises what stays: `f` returns the new priority, or nullopt to drop.
+    std::size_t update_queued(const std::function<std::optional<std::uint32_t>(const PageKey&, std::uint32_t)>& f);
+
+    // Appends every result waiting (decoded, failed, dropped) to `out`; returns how many. Never
+    // waits for a decode: it only takes the pool's lock for the copy. After this, the
+    // destinations of the returned jobs are the caller's again.
+    std::size_t poll(std::vector<TranscodeResult>& out);
+
+    void pause();   // workers finish their current tile and take no more
+    void resume();
+
+    // Stops accepting jobs, drops every queued job (their results stay pollable), lets the
+    // running ones finish and joins the workers. Idempotent.
+    void shutdown();
+
+    TranscodePoolStats stats() const;
+    unsigned threads() const { return static_cast<unsigned>(workers_.size()); }
+    std::size_t capacity() const { return capacity_; }
+
+private:
+    struct State;
+    void worker_loop();
+
+    std::size_t capacity_;
+    std::unique_ptr<State> state_;
+    std::vector<std::thread> workers_;
+};
+
+}  // namespace tessera::client

@@ -1,0 +1,110 @@
+#pragma once
+// The upload side of the render thread (design.md, "One frame", step 7): pages made GPU-ready by
+// the transcode pool wait in an UploadQueue; each frame the render thread takes at most a budget
+// of them (pages and bytes), highest priority first, and hands them to a PageUploader (the GL
+// renderer, or FakeUploader in tests). The queue holds no pixels: a ReadyPage points at staging
+// memory that its producer owns and keeps alive until the page is uploaded or dropped.
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <span>
+#include <vector>
+
+#include "tessera/client/page.hpp"
+
+namespace tessera::client {
+
+// What the renderer does with pages. Called on the render thread only.
+class PageUploader {
+public:
+    virtual ~PageUploader();
+    // Copy one page (tile_size x tile_size texels, RGBA8, rows top to bottom, border included)
+    // into physical slot `slot`. The span is valid only during the call.
+    virtual void upload_page(SlotId slot, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) = 0;
+    // Write a w x h rectangle at (x0, y0) of texture `texture`'s page table for `level`; entries
+    // are row-major, w*h of them, in the renderer's page-table entry format.
+    virtual void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0,
+                                   std::uint32_t w, std::uint32_t h, std::span<const std::uint32_t> entries) = 0;
+};
+
+// Records every call, copying the data, for tests.
+class FakeUploader final : public PageUploader {
+public:
+    struct PageCall {
+        std::uint64_t seq = 0;  // order among all calls, from 0
+        SlotId slot = kNoSlot;
+        std::uint32_t tile_size = 0;
+        std::vector<std::uint8_t> rgba8;
+    };
+    struct TableCall {
+        std::uint64_t seq = 0;
+        TextureId texture = 0;
+        std::uint8_t level = 0;
+        std::uint32_t x0 = 0, y0 = 0, w = 0, h = 0;
+        std::vector<std::uint32_t> entries;
+    };
+
+    void upload_page(SlotId slot, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override;
+    void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
+                           std::uint32_t h, std::span<const std::uint32_t> entries) override;
+
+    const std::vector<PageCall>& pages() const { return pages_; }
+    const std::vector<TableCall>& tables() const { return tables_; }
+    // Calls whose data had the wrong size (rgba8 != tile_size^2 * 4, entries != w * h).
+    std::size_t malformed() const { return malformed_; }
+    void clear();
+
+private:
+    std::uint64_t seq_ = 0;
+    std::vector<PageCall> pages_;
+    std::vector<TableCall> tables_;
+    std::size_t malformed_ = 0;
+};
+
+// A page ready to upload.
+struct ReadyPage {
+    PageKey key;
+    SlotId slot = kNoSlot;    // where it goes (already unmapped by the residency side)
+    float priority = 0.0f;    // higher first (NaN counts as lowest)
+    std::uint64_t ticket = 0;  // request ticket; among equal priorities the lower goes first
+    std::span<const std::uint8_t> rgba8;  // staging memory owned elsewhere
+    std::uint32_t bytes = 0;  // counted against the byte budget (normally rgba8.size())
+    std::chrono::steady_clock::time_point requested{};  // for tile latency (request -> mapped)
+};
+
+// A bounded priority queue (binary heap) of ready pages with a per-frame budget. Not thread-safe:
+// owned by the render thread (the transcode pool hands pages over through its own queue).
+class UploadQueue {
+public:
+    // max_pages_per_frame: pages take_frame returns at most. max_bytes_per_frame: their bytes at
+    // most, except that a frame always takes at least one page when any is queued (and
+    // max_pages_per_frame > 0), so a page larger than the byte budget cannot block the queue.
+    // capacity: pages held at most.
+    UploadQueue(std::size_t max_pages_per_frame, std::size_t max_bytes_per_frame, std::size_t capacity);
+
+    // Queue a page. false (and `page` left untouched) when the queue is full.
+    bool push(ReadyPage&& page);
+    // Append this frame's pages to `out`, highest priority first (ties: lower ticket first),
+    // stopping at the first page that does not fit the budgets; the rest stays queued, so the
+    // order is strict. Returns how many were appended.
+    std::size_t take_frame(std::vector<ReadyPage>& out);
+    // Remove the pages `stale` matches (cancelled, slot reassigned, ...). Returns how many.
+    std::size_t drop_if(const std::function<bool(const ReadyPage&)>& stale);
+
+    std::size_t size() const { return heap_.size(); }
+    bool empty() const { return heap_.empty(); }
+    std::size_t capacity() const { return capacity_; }
+    std::size_t queued_bytes() const { return queued_bytes_; }
+    std::size_t max_pages_per_frame() const { return max_pages_; }
+    std::size_t max_bytes_per_frame() const { return max_bytes_; }
+
+private:
+    std::size_t max_pages_;
+    std::size_t max_bytes_;
+    std::size_t capacity_;
+    std::size_t queued_bytes_ = 0;
+    std::vector<ReadyPage> heap_;  // std::push_heap order: the front is the next to go
+};
+
+}  // namespace tessera::client

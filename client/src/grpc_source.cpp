@@ -1,0 +1,79 @@
+// TileSource over a Tessera server: TileStreamClient does the connection, the replace-semantics
+// batches, the bounded receive buffer and the reconnects; this maps textures to store names.
+#include <map>
+#include <mutex>
+
+#include "tessera/client/tile_source.hpp"
+#include "tessera/protocol/wire.hpp"
+
+namespace tessera::client {
+
+namespace {
+
+class GrpcSource final : public TileSource {
+public:
+    explicit GrpcSource(TileStreamOptions options) : target_(options.target), client_(TileStreamClient::create(options)) {}
+
+    Result<storage::StoreInfo> bind(TextureId texture, const std::string& store) override {
+        auto meta = client_->get_store(store, std::chrono::seconds(10));
+        if (!meta) return meta.error();
+        std::lock_guard lock(mu_);
+        names_[texture] = store;
+        textures_[store] = texture;
+        return protocol::from_proto(*meta);
+    }
+
+    void set_requests(std::uint64_t frame, std::span<const SourceRequest> requests) override {
+        std::vector<TileRequest> batch;
+        batch.reserve(requests.size());
+        {
+            std::lock_guard lock(mu_);
+            for (const auto& r : requests) {
+                auto it = names_.find(r.page.texture);
+                if (it == names_.end()) continue;
+                batch.push_back(TileRequest{it->second, r.page.level, r.page.x, r.page.y, r.priority});
+            }
+        }
+        client_->send_batch(frame, std::move(batch));
+    }
+
+    std::size_t poll(std::vector<SourceTile>& out, std::size_t max) override {
+        received_.clear();
+        const std::size_t n = client_->poll(received_, nullptr, max);
+        std::lock_guard lock(mu_);
+        for (auto& r : received_) {
+            auto it = textures_.find(r.store);
+            if (it == textures_.end()) continue;
+            SourceTile t;
+            t.page = PageKey{it->second, static_cast<std::uint8_t>(r.level), r.x, r.y};
+            t.store_version = r.store_version;
+            t.status = static_cast<int>(r.status);
+            t.message = std::move(r.message);
+            t.kind = static_cast<std::uint8_t>(r.kind);
+            t.codec = static_cast<std::uint8_t>(r.codec);
+            t.checksum = r.checksum;
+            t.payload = std::move(r.payload);
+            out.push_back(std::move(t));
+        }
+        return n;
+    }
+
+    bool available() const override { return client_->state() == ConnectionState::connected; }
+    std::string describe() const override { return "tessera server " + target_; }
+
+private:
+    std::string target_;
+    std::unique_ptr<TileStreamClient> client_;
+    std::mutex mu_;
+    std::map<TextureId, std::string> names_;
+    std::map<std::string, TextureId> textures_;
+    std::vector<ReceivedTile> received_;  // poll() is called from one thread (the runtime's)
+};
+
+}  // namespace
+
+std::unique_ptr<TileSource> make_grpc_source(TileStreamOptions options) {
+    return std::make_unique<GrpcSource>(std::move(options));
+}
+
+}  // namespace tessera::client

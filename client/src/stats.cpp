@@ -1,0 +1,304 @@
+#include "tessera/client/stats.hpp"
+
+#include <algorithm>
+#include <bit>
+#include <charconv>
+#include <cmath>
+
+namespace tessera::client {
+
+// --- LatencyHistogram ---
+
+std::size_t LatencyHistogram::bucket_of(std::uint64_t us) {
+    if (us < kSub) return static_cast<std::size_t>(us);
+    const std::uint64_t cap = (std::uint64_t{1} << kMaxExp) - 1;
+    us = std::min(us, cap);
+    const unsigned e = static_cast<unsigned>(std::bit_width(us)) - 1;  // kSubBits .. kMaxExp-1
+    const unsigned shift = e - kSubBits;
+    return static_cast<std::size_t>(kSub + shift * kSub + ((us >> shift) - kSub));
+}
+
+std::uint64_t LatencyHistogram::bucket_low(std::size_t bucket) {
+    if (bucket < kSub) return bucket;
+    const std::size_t shift = (bucket - kSub) / kSub;
+    const std::uint64_t m = (bucket - kSub) % kSub;
+    return (kSub + m) << shift;
+}
+
+std::uint64_t LatencyHistogram::bucket_width(std::size_t bucket) {
+    if (bucket < kSub) return 1;
+    return std::uint64_t{1} << ((bucket - kSub) / kSub);
+}
+
+void LatencyHistogram::record_us(std::uint64_t us) {
+    ++counts_[bucket_of(us)];
+    if (count_ == 0) {
+        min_us_ = max_us_ = us;
+    } else {
+        min_us_ = std::min(min_us_, us);
+        max_us_ = std::max(max_us_, us);
+    }
+    ++count_;
+    sum_us_ += us;
+}
+
+void LatencyHistogram::record(std::chrono::nanoseconds d) {
+    const auto ns = d.count();
+    record_us(ns <= 0 ? 0 : static_cast<std::uint64_t>((ns + 500) / 1000));
+}
+
+void LatencyHistogram::record_ms(double ms) {
+    if (!(ms > 0.0)) {
+        record_us(0);
+        return;
+    }
+    const double us = std::round(ms * 1000.0);
+    record_us(us >= 1.8e19 ? ~std::uint64_t{0} : static_cast<std::uint64_t>(us));
+}
+
+void LatencyHistogram::merge(const LatencyHistogram& other) {
+    if (other.count_ == 0) return;
+    for (std::size_t i = 0; i < kBuckets; ++i) counts_[i] += other.counts_[i];
+    if (count_ == 0) {
+        min_us_ = other.min_us_;
+        max_us_ = other.max_us_;
+    } else {
+        min_us_ = std::min(min_us_, other.min_us_);
+        max_us_ = std::max(max_us_, other.max_us_);
+    }
+    count_ += other.count_;
+    sum_us_ += other.sum_us_;
+}
+
+void LatencyHistogram::reset() { *this = LatencyHistogram{}; }
+
+double LatencyHistogram::mean_ms() const {
+    return count_ == 0 ? 0.0 : static_cast<double>(sum_us_) / static_cast<double>(count_) / 1000.0;
+}
+double LatencyHistogram::min_ms() const { return static_cast<double>(min_us_) / 1000.0; }
+double LatencyHistogram::max_ms() const { return static_cast<double>(max_us_) / 1000.0; }
+
+double LatencyHistogram::quantile(double q) const {
+    if (count_ == 0) return 0.0;
+    if (!(q > 0.0)) return min_ms();
+    if (q >= 1.0) return max_ms();
+    // Nearest rank: the k-th smallest sample, k = ceil(q * count), at least 1.
+    const auto k = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::ceil(q * static_cast<double>(count_))));
+    std::uint64_t seen = 0;
+    for (std::size_t b = 0; b < kBuckets; ++b) {
+        seen += counts_[b];
+        if (seen >= k) {
+            double mid = static_cast<double>(bucket_low(b));
+            if (b >= kSub) mid += 0.5 * static_cast<double>(bucket_width(b));
+            mid = std::clamp(mid, static_cast<double>(min_us_), static_cast<double>(max_us_));
+            return mid / 1000.0;
+        }
+    }
+    return max_ms();
+}
+
+// --- JSON / CSV helpers ---
+
+namespace {
+
+void put_uint(std::string& s, std::uint64_t v) {
+    char buf[24];
+    auto r = std::to_chars(buf, buf + sizeof buf, v);
+    s.append(buf, r.ptr);
+}
+
+// Shortest round-trip form; JSON has no NaN or infinity: null.
+void put_num(std::string& s, double v) {
+    if (!std::isfinite(v)) {
+        s += "null";
+        return;
+    }
+    char buf[32];
+    auto r = std::to_chars(buf, buf + sizeof buf, v);
+    s.append(buf, r.ptr);
+}
+
+void put_num(std::string& s, float v) {
+    if (!std::isfinite(v)) {
+        s += "null";
+        return;
+    }
+    char buf[32];
+    auto r = std::to_chars(buf, buf + sizeof buf, v);
+    s.append(buf, r.ptr);
+}
+
+template <class Array>
+void put_array(std::string& s, const Array& a, std::size_t n) {
+    s += '[';
+    for (std::size_t i = 0; i < n; ++i) {
+        if (i) s += ',';
+        put_uint(s, a[i]);
+    }
+    s += ']';
+}
+
+// Levels up to the highest one with any count in any of the three arrays.
+template <class Array>
+std::size_t used_levels(const Array& a, const Array& b, const Array& c) {
+    std::size_t n = 0;
+    for (std::size_t i = 0; i < kMaxLevels; ++i)
+        if (a[i] || b[i] || c[i]) n = i + 1;
+    return n;
+}
+
+template <class Array>
+void put_hits(std::string& s, const Array& ram, const Array& disk, const Array& net) {
+    const std::size_t n = used_levels(ram, disk, net);
+    s += "\"hits\":{\"ram\":";
+    put_array(s, ram, n);
+    s += ",\"disk\":";
+    put_array(s, disk, n);
+    s += ",\"network\":";
+    put_array(s, net, n);
+    s += '}';
+}
+
+std::uint32_t sum(const LevelCounts& a) {
+    std::uint64_t t = 0;
+    for (auto v : a) t += v;
+    return static_cast<std::uint32_t>(std::min<std::uint64_t>(t, ~std::uint32_t{0}));
+}
+
+}  // namespace
+
+// --- FrameStats ---
+
+std::uint32_t FrameStats::total_ram_hits() const { return sum(ram_hits); }
+std::uint32_t FrameStats::total_disk_hits() const { return sum(disk_hits); }
+std::uint32_t FrameStats::total_network() const { return sum(network); }
+
+std::string FrameStats::to_json() const {
+    std::string s = "{\"frame\":";
+    put_uint(s, frame);
+    s += ",\"pages\":{\"wanted\":";
+    put_uint(s, pages_wanted);
+    s += ",\"resident\":";
+    put_uint(s, pages_resident);
+    s += ",\"requested\":";
+    put_uint(s, pages_requested);
+    s += ",\"arrived\":";
+    put_uint(s, pages_arrived);
+    s += ",\"uploaded\":";
+    put_uint(s, pages_uploaded);
+    s += ",\"evicted\":";
+    put_uint(s, pages_evicted);
+    s += "},";
+    put_hits(s, ram_hits, disk_hits, network);
+    s += ",\"bytes\":{\"received\":";
+    put_uint(s, bytes_received);
+    s += ",\"uploaded\":";
+    put_uint(s, bytes_uploaded);
+    s += "},\"lod_bias\":";
+    put_num(s, lod_bias);
+    s += ",\"fallback_estimate\":";
+    put_num(s, fallback_estimate);
+    s += '}';
+    return s;
+}
+
+std::string FrameStats::csv_header() {
+    return "frame,pages_wanted,pages_resident,pages_requested,pages_arrived,pages_uploaded,pages_evicted,"
+           "ram_hits,disk_hits,network,bytes_received,bytes_uploaded,lod_bias,fallback_estimate";
+}
+
+std::string FrameStats::csv_row() const {
+    std::string s;
+    const std::uint64_t ints[] = {frame,          pages_wanted,     pages_resident,    pages_requested,
+                                  pages_arrived,  pages_uploaded,   pages_evicted,     total_ram_hits(),
+                                  total_disk_hits(), total_network(), bytes_received, bytes_uploaded};
+    for (auto v : ints) {
+        put_uint(s, v);
+        s += ',';
+    }
+    put_num(s, lod_bias);
+    s += ',';
+    put_num(s, fallback_estimate);
+    return s;
+}
+
+// --- StatsSummary ---
+
+void StatsSummary::add_frame(const FrameStats& f) {
+    ++frames_;
+    wanted_sum_ += f.pages_wanted;
+    resident_sum_ += f.pages_resident;
+    requested_ += f.pages_requested;
+    arrived_ += f.pages_arrived;
+    uploaded_ += f.pages_uploaded;
+    evicted_ += f.pages_evicted;
+    for (std::size_t i = 0; i < kMaxLevels; ++i) {
+        ram_hits_[i] += f.ram_hits[i];
+        disk_hits_[i] += f.disk_hits[i];
+        network_[i] += f.network[i];
+    }
+    bytes_received_ += f.bytes_received;
+    bytes_uploaded_ += f.bytes_uploaded;
+    bias_sum_ += f.lod_bias;
+    bias_max_ = frames_ == 1 ? f.lod_bias : std::max(bias_max_, f.lod_bias);
+    bias_last_ = f.lod_bias;
+    fallback_sum_ += f.fallback_estimate;
+}
+
+void StatsSummary::reset() { *this = StatsSummary{}; }
+
+namespace {
+double mean_of(double sum_, std::uint64_t n) { return n == 0 ? 0.0 : sum_ / static_cast<double>(n); }
+}  // namespace
+
+double StatsSummary::mean_pages_wanted() const { return mean_of(static_cast<double>(wanted_sum_), frames_); }
+double StatsSummary::mean_pages_resident() const { return mean_of(static_cast<double>(resident_sum_), frames_); }
+double StatsSummary::mean_lod_bias() const { return mean_of(bias_sum_, frames_); }
+double StatsSummary::mean_fallback_estimate() const { return mean_of(fallback_sum_, frames_); }
+
+std::string StatsSummary::to_json() const {
+    std::string s = "{\"frames\":";
+    put_uint(s, frames_);
+    s += ",\"pages\":{\"wanted_mean\":";
+    put_num(s, mean_pages_wanted());
+    s += ",\"resident_mean\":";
+    put_num(s, mean_pages_resident());
+    s += ",\"requested\":";
+    put_uint(s, requested_);
+    s += ",\"arrived\":";
+    put_uint(s, arrived_);
+    s += ",\"uploaded\":";
+    put_uint(s, uploaded_);
+    s += ",\"evicted\":";
+    put_uint(s, evicted_);
+    s += "},";
+    put_hits(s, ram_hits_, disk_hits_, network_);
+    s += ",\"bytes\":{\"received\":";
+    put_uint(s, bytes_received_);
+    s += ",\"uploaded\":";
+    put_uint(s, bytes_uploaded_);
+    s += "},\"latency_ms\":{\"count\":";
+    put_uint(s, latency_.count());
+    s += ",\"mean\":";
+    put_num(s, latency_.mean_ms());
+    s += ",\"p50\":";
+    put_num(s, latency_.quantile(0.5));
+    s += ",\"p90\":";
+    put_num(s, latency_.quantile(0.9));
+    s += ",\"p99\":";
+    put_num(s, latency_.quantile(0.99));
+    s += ",\"max\":";
+    put_num(s, latency_.max_ms());
+    s += "},\"lod_bias\":{\"last\":";
+    put_num(s, bias_last_);
+    s += ",\"mean\":";
+    put_num(s, mean_lod_bias());
+    s += ",\"max\":";
+    put_num(s, bias_max_);
+    s += "},\"fallback_estimate_mean\":";
+    put_num(s, mean_fallback_estimate());
+    s += '}';
+    return s;
+}
+
+}  // namespace tessera::client

@@ -1,0 +1,446 @@
+#include "tessera/client/transcode.hpp"
+
+#include <turbojpeg.h>
+#include <zstd.h>
+
+#include <algorithm>
+#include <bit>
+#include <condition_variable>
+#include <cstring>
+#include <iterator>
+#include <map>
+#include <mutex>
+#include <string>
+#include <utility>
+
+namespace tessera::client {
+
+using storage::SampleType;
+using storage::StoreInfo;
+
+// ------------------------------------------------------------------------------------ Scratch
+
+struct Scratch::Impl {
+    tjhandle jpeg = nullptr;
+    ZSTD_DCtx* zstd = nullptr;
+    std::unique_ptr<std::uint8_t[]> samples;  // decompressed zstd tile (never zero-filled)
+    std::size_t samples_size = 0;
+
+    Impl() = default;
+    Impl(const Impl&) = delete;
+    Impl& operator=(const Impl&) = delete;
+    ~Impl() {
+        if (jpeg) tjDestroy(jpeg);
+        if (zstd) ZSTD_freeDCtx(zstd);
+    }
+    tjhandle jpeg_handle() {
+        if (!jpeg) jpeg = tjInitDecompress();
+        return jpeg;
+    }
+    // libjpeg-turbo 2.1 leaves a handle whose tjDecompressHeader3() failed unusable: every later
+    // header read on it fails too ("Bogus marker length", "Bogus Huffman table definition"). So a
+    // handle that reported any error is thrown away and the next tile gets a fresh one.
+    void discard_jpeg_handle() {
+        if (jpeg) tjDestroy(jpeg);
+        jpeg = nullptr;
+    }
+    ZSTD_DCtx* zstd_context() {
+        if (!zstd) zstd = ZSTD_createDCtx();
+        return zstd;
+    }
+    std::uint8_t* sample_buffer(std::size_t n) {
+        if (samples_size < n) {
+            samples = std::make_unique_for_overwrite<std::uint8_t[]>(n);
+            samples_size = n;
+        }
+        return samples.get();
+    }
+};
+
+Scratch::Scratch() : impl_(std::make_unique<Impl>()) {}
+Scratch::~Scratch() = default;
+Scratch::Scratch(Scratch&&) noexcept = default;
+Scratch& Scratch::operator=(Scratch&&) noexcept = default;
+
+// ---------------------------------------------------------------------------- sample conversion
+namespace {
+
+// Samples are little-endian in every payload (docs/store-format.md), whatever the host.
+inline std::uint16_t load_u16(const std::uint8_t* p) { return static_cast<std::uint16_t>(p[0] | (p[1] << 8)); }
+inline std::uint32_t load_u32(const std::uint8_t* p) {
+    return std::uint32_t(p[0]) | (std::uint32_t(p[1]) << 8) | (std::uint32_t(p[2]) << 16) | (std::uint32_t(p[3]) << 24);
+}
+
+inline std::uint8_t unit_float_to_u8(float f) {
+    if (!(f > 0.0f)) return 0;  // also NaN
+    if (f >= 1.0f) return 255;
+    // float * 255 is exact in double, so this rounds half away from zero exactly like
+    // std::lround(v * 255.0).
+    return static_cast<std::uint8_t>(static_cast<double>(f) * 255.0 + 0.5);
+}
+
+inline float half_to_float(std::uint16_t h) {
+    const std::uint32_t sign = std::uint32_t(h & 0x8000u) << 16;
+    const std::uint32_t exp = (h >> 10) & 0x1Fu;
+    const std::uint32_t mant = h & 0x3FFu;
+    if (exp == 0) {
+        const float v = static_cast<float>(mant) * (1.0f / 16777216.0f);  // subnormal: mant * 2^-24
+        return sign ? -v : v;
+    }
+    if (exp == 31) return std::bit_cast<float>(sign | 0x7F800000u | (mant << 13));  // inf / NaN
+    return std::bit_cast<float>(sign | ((exp + 112) << 23) | (mant << 13));
+}
+
+struct LoadU8 {
+    static constexpr std::size_t bytes = 1;
+    std::uint8_t operator()(const std::uint8_t* p) const { return *p; }
+};
+struct LoadU16 {
+    static constexpr std::size_t bytes = 2;
+    // round(v / 257): v = 257k + r rounds up exactly when r >= 129.
+    std::uint8_t operator()(const std::uint8_t* p) const { return static_cast<std::uint8_t>((load_u16(p) + 128u) / 257u); }
+};
+struct LoadF16 {
+    static constexpr std::size_t bytes = 2;
+    std::uint8_t operator()(const std::uint8_t* p) const { return unit_float_to_u8(half_to_float(load_u16(p))); }
+};
+struct LoadF32 {
+    static constexpr std::size_t bytes = 4;
+    std::uint8_t operator()(const std::uint8_t* p) const { return unit_float_to_u8(std::bit_cast<float>(load_u32(p))); }
+};
+
+// n texels of C channels (samples loaded by L) to RGBA8. Writes dst front to back, never reads it.
+template <unsigned C, class L>
+void convert_texels(const std::uint8_t* src, std::uint8_t* dst, std::size_t n) {
+    constexpr std::size_t stride = C * L::bytes;
+    const L load;
+    if constexpr (C == 4 && L::bytes == 1) {
+        std::memcpy(dst, src, n * 4);
+    } else {
+        for (std::size_t i = 0; i < n; ++i, src += stride, dst += 4) {
+            if constexpr (C == 1) {
+                const std::uint8_t v = load(src);
+                dst[0] = v, dst[1] = v, dst[2] = v, dst[3] = 255;
+            } else if constexpr (C == 2) {
+                const std::uint8_t v = load(src);
+                dst[0] = v, dst[1] = v, dst[2] = v, dst[3] = load(src + L::bytes);
+            } else if constexpr (C == 3) {
+                dst[0] = load(src), dst[1] = load(src + L::bytes), dst[2] = load(src + 2 * L::bytes), dst[3] = 255;
+            } else {
+                dst[0] = load(src), dst[1] = load(src + L::bytes), dst[2] = load(src + 2 * L::bytes),
+                dst[3] = load(src + 3 * L::bytes);
+            }
+        }
+    }
+}
+
+template <class L>
+void convert_channels(unsigned channels, const std::uint8_t* src, std::uint8_t* dst, std::size_t n) {
+    switch (channels) {
+        case 1: return convert_texels<1, L>(src, dst, n);
+        case 2: return convert_texels<2, L>(src, dst, n);
+        case 3: return convert_texels<3, L>(src, dst, n);
+        default: return convert_texels<4, L>(src, dst, n);
+    }
+}
+
+// Caller checked channels (1..4) and sample type.
+void convert_samples(const StoreInfo& info, const std::uint8_t* src, std::uint8_t* dst, std::size_t n) {
+    switch (info.sample_type) {
+        case SampleType::u8: return convert_channels<LoadU8>(info.channels, src, dst, n);
+        case SampleType::u16: return convert_channels<LoadU16>(info.channels, src, dst, n);
+        case SampleType::f16: return convert_channels<LoadF16>(info.channels, src, dst, n);
+        case SampleType::f32: return convert_channels<LoadF32>(info.channels, src, dst, n);
+    }
+}
+
+bool known_sample_type(SampleType t) {
+    return t == SampleType::u8 || t == SampleType::u16 || t == SampleType::f16 || t == SampleType::f32;
+}
+
+}  // namespace
+
+// --------------------------------------------------------------------------- transcode_to_rgba8
+
+namespace {
+
+// `d` must be discarded when this fails (see Scratch::Impl::discard_jpeg_handle).
+Status decode_jpeg(const StoreInfo& info, std::span<const std::uint8_t> payload, std::span<std::uint8_t> out,
+                   tjhandle d) {
+    int w = 0, h = 0, samp = 0, cs = 0;
+    if (tjDecompressHeader3(d, payload.data(), static_cast<unsigned long>(payload.size()), &w, &h, &samp, &cs) != 0)
+        return make_error(Errc::corrupt, std::string("JPEG tile header: ") + tjGetErrorStr2(d));
+    const int side = static_cast<int>(info.tile_size());
+    if (w != side || h != side) return make_error(Errc::corrupt, "JPEG tile has the wrong dimensions");
+    if ((info.channels == 1) != (samp == TJSAMP_GRAY))
+        return make_error(Errc::corrupt, "JPEG tile has the wrong channel count");
+    // Straight into the destination as RGBA: libjpeg-turbo expands grey to (v, v, v) itself and
+    // writes alpha 255, with the same IDCT (accurate, as storage::decode_tile) and upsampling, so
+    // the colour channels are the ones decode_tile produces.
+    if (tjDecompress2(d, payload.data(), static_cast<unsigned long>(payload.size()), out.data(), side,
+                      side * static_cast<int>(kRgba8TexelBytes), side, TJPF_RGBA, TJFLAG_ACCURATEDCT) != 0)
+        return make_error(Errc::corrupt, std::string("JPEG tile does not decode: ") + tjGetErrorStr2(d));
+    return {};
+}
+
+}  // namespace
+
+Status transcode_to_rgba8(const StoreInfo& info, std::uint8_t kind, std::uint8_t codec,
+                          std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch) {
+    if (info.channels < 1 || info.channels > 4) return make_error(Errc::invalid_argument, "store has 1..4 channels");
+    if (!known_sample_type(info.sample_type)) return make_error(Errc::invalid_argument, "unknown sample type");
+    if (info.tile_size() == 0 || info.tile_size() > 1u << 14)
+        return make_error(Errc::invalid_argument, "impossible tile size");
+    const std::size_t texels = std::size_t(info.tile_size()) * info.tile_size();
+    if (out.size() != texels * kRgba8TexelBytes)
+        return make_error(Errc::invalid_argument, "destination is not one RGBA8 page of this store");
+    const std::size_t texel_bytes = info.texel_bytes();
+    const std::size_t tile_bytes = info.tile_bytes();
+
+    if (kind == wire_kind::absent) return make_error(Errc::not_found, "tile is absent");
+    if (kind != wire_kind::present && kind != wire_kind::uniform)
+        return make_error(Errc::invalid_argument, "unknown tile kind " + std::to_string(kind));
+
+    if (kind == wire_kind::uniform || codec == wire_codec::uniform) {
+        if (payload.size() != texel_bytes) return make_error(Errc::corrupt, "uniform value has the wrong size");
+        std::uint8_t rgba[4];
+        convert_samples(info, payload.data(), rgba, 1);
+        std::uint32_t pattern;
+        std::memcpy(&pattern, rgba, 4);
+        std::uint8_t* dst = out.data();
+        for (std::size_t i = 0; i < texels; ++i, dst += 4) std::memcpy(dst, &pattern, 4);
+        return {};
+    }
+
+    Scratch::Impl& s = *scratch.impl_;
+    switch (codec) {
+        case wire_codec::raw:
+            if (payload.size() != tile_bytes) return make_error(Errc::corrupt, "raw tile has the wrong size");
+            convert_samples(info, payload.data(), out.data(), texels);
+            return {};
+        case wire_codec::zstd: {
+            const unsigned long long content = ZSTD_getFrameContentSize(payload.data(), payload.size());
+            if (content != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
+            ZSTD_DCtx* ctx = s.zstd_context();
+            if (!ctx) return make_error(Errc::resource_exhausted, "cannot create a zstd context");
+            // Decompressed into scratch, never into the destination: zstd reads back what it wrote
+            // (matches), which would crawl on write-combined staging memory.
+            std::uint8_t* buf = s.sample_buffer(tile_bytes);
+            const std::size_t r = ZSTD_decompressDCtx(ctx, buf, tile_bytes, payload.data(), payload.size());
+            if (ZSTD_isError(r) || r != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not decode");
+            convert_samples(info, buf, out.data(), texels);
+            return {};
+        }
+        case wire_codec::jpeg: {
+            if (info.sample_type != SampleType::u8 || (info.channels != 1 && info.channels != 3))
+                return make_error(Errc::corrupt, "JPEG tiles need 8-bit samples with 1 or 3 channels");
+            if (payload.empty()) return make_error(Errc::corrupt, "JPEG tile is empty");
+            tjhandle d = s.jpeg_handle();
+            if (!d) return make_error(Errc::resource_exhausted, "cannot create a JPEG decompressor");
+            Status st = decode_jpeg(info, payload, out, d);
+            if (!st.ok()) s.discard_jpeg_handle();
+            return st;
+        }
+        default:
+            return make_error(Errc::invalid_argument, "unknown codec " + std::to_string(codec));
+    }
+}
+
+// ------------------------------------------------------------------------------- TranscodePool
+
+namespace {
+
+// Queue order: higher priority first, then submission order.
+struct QueueOrder {
+    std::uint32_t priority = 0;
+    std::uint64_t seq = 0;
+};
+struct QueueOrderLess {
+    bool operator()(const QueueOrder& a, const QueueOrder& b) const {
+        return a.priority != b.priority ? a.priority > b.priority : a.seq < b.seq;
+    }
+};
+
+}  // namespace
+
+struct TranscodePool::State {
+    mutable std::mutex mutex;
+    std::condition_variable work;  // a job was queued, resume() or shutdown()
+    std::mutex join_mutex;         // shutdown() joins once
+
+    using JobQueue = std::map<QueueOrder, TranscodeJob, QueueOrderLess>;
+    JobQueue queue;
+    std::vector<TranscodeResult> completed;
+    std::size_t running = 0;
+    std::uint64_t next_seq = 0;
+    bool paused = false;
+    bool stopping = false;
+    TranscodePoolStats counters;
+
+    std::size_t outstanding() const { return queue.size() + running + completed.size(); }
+
+    // Caller holds `mutex`.
+    void drop(const TranscodeJob& job) {
+        completed.push_back(TranscodeResult{job.key, job.ticket, make_error(Errc::cancelled, "dropped"), true});
+        ++counters.dropped;
+    }
+    template <class Pred>
+    std::size_t drop_if(Pred pred) {
+        std::size_t n = 0;
+        for (auto it = queue.begin(); it != queue.end();) {
+            if (pred(it->second)) {
+                drop(it->second);
+                it = queue.erase(it);
+                ++n;
+            } else {
+                ++it;
+            }
+        }
+        return n;
+    }
+};
+
+TranscodePool::TranscodePool(const TranscodePoolOptions& options)
+    : capacity_(std::max<std::size_t>(1, options.capacity)), state_(std::make_unique<State>()) {
+    unsigned n = options.threads;
+    if (n == 0) {
+        const unsigned hw = std::thread::hardware_concurrency();
+        n = hw > 1 ? hw - 1 : 1;
+    }
+    state_->paused = options.start_paused;
+    state_->completed.reserve(capacity_);
+    workers_.reserve(n);
+    for (unsigned i = 0; i < n; ++i) workers_.emplace_back([this] { worker_loop(); });
+}
+
+TranscodePool::~TranscodePool() { shutdown(); }
+
+bool TranscodePool::submit(TranscodeJob job) {
+    {
+        std::lock_guard lock(state_->mutex);
+        if (state_->stopping || state_->outstanding() >= capacity_) {
+            ++state_->counters.rejected;
+            return false;
+        }
+        const QueueOrder order{job.priority, state_->next_seq++};
+        state_->queue.emplace(order, std::move(job));
+        ++state_->counters.submitted;
+    }
+    state_->work.notify_one();
+    return true;
+}
+
+std::size_t TranscodePool::cancel(const PageKey& key) {
+    std::lock_guard lock(state_->mutex);
+    return state_->drop_if([&](const TranscodeJob& j) { return j.key == key; });
+}
+
+std::size_t TranscodePool::retain_only(const std::function<bool(const PageKey&)>& wanted) {
+    std::lock_guard lock(state_->mutex);
+    return state_->drop_if([&](const TranscodeJob& j) { return !wanted(j.key); });
+}
+
+std::size_t TranscodePool::update_queued(
+    const std::function<std::optional<std::uint32_t>(const PageKey&, std::uint32_t)>& f) {
+    std::lock_guard lock(state_->mutex);
+    auto& q = state_->queue;
+    std::size_t dropped = 0;
+    std::vector<State::JobQueue::node_type> moved;
+    for (auto it = q.begin(); it != q.end();) {
+        const std::optional<std::uint32_t> p = f(it->second.key, it->first.priority);
+        if (!p) {
+            state_->drop(it->second);
+            it = q.erase(it);
+            ++dropped;
+        } else if (*p != it->first.priority) {
+            auto next = std::next(it);
+            auto node = q.extract(it);
+            node.key().priority = *p;  // keeps its sequence number: ties stay in submission order
+            node.mapped().priority = *p;
+            moved.push_back(std::move(node));
+            it = next;
+        } else {
+            ++it;
+        }
+    }
+    for (auto& node : moved) q.insert(std::move(node));
+    return dropped;
+}
+
+std::size_t TranscodePool::poll(std::vector<TranscodeResult>& out) {
+    std::lock_guard lock(state_->mutex);
+    auto& c = state_->completed;
+    const std::size_t n = c.size();
+    out.insert(out.end(), std::make_move_iterator(c.begin()), std::make_move_iterator(c.end()));
+    c.clear();  // keeps its capacity: no allocation on the workers' side
+    return n;
+}
+
+void TranscodePool::pause() {
+    std::lock_guard lock(state_->mutex);
+    state_->paused = true;
+}
+
+void TranscodePool::resume() {
+    {
+        std::lock_guard lock(state_->mutex);
+        state_->paused = false;
+    }
+    state_->work.notify_all();
+}
+
+void TranscodePool::shutdown() {
+    std::lock_guard join_lock(state_->join_mutex);
+    {
+        std::lock_guard lock(state_->mutex);
+        state_->stopping = true;
+        state_->drop_if([](const TranscodeJob&) { return true; });
+    }
+    state_->work.notify_all();
+    for (auto& t : workers_)
+        if (t.joinable()) t.join();
+}
+
+TranscodePoolStats TranscodePool::stats() const {
+    std::lock_guard lock(state_->mutex);
+    TranscodePoolStats s = state_->counters;
+    s.queued = state_->queue.size();
+    s.running = state_->running;
+    s.completed = state_->completed.size();
+    return s;
+}
+
+void TranscodePool::worker_loop() {
+    State& st = *state_;
+    Scratch scratch;
+    std::unique_lock lock(st.mutex);
+    for (;;) {
+        st.work.wait(lock, [&] { return st.stopping || (!st.paused && !st.queue.empty()); });
+        if (st.stopping) return;  // shutdown() dropped the queue
+        auto node = st.queue.extract(st.queue.begin());
+        ++st.running;
+        lock.unlock();
+
+        const TranscodeJob& job = node.mapped();
+        Status status;
+        if (!job.info) {
+            status = make_error(Errc::invalid_argument, "transcode job without store info");
+        } else {
+            const std::span<const std::uint8_t> payload =
+                job.payload ? std::span<const std::uint8_t>(*job.payload) : std::span<const std::uint8_t>();
+            status = transcode_to_rgba8(*job.info, job.kind, job.codec, payload, job.destination, scratch);
+        }
+        TranscodeResult result{job.key, job.ticket, std::move(status), false};
+        node = {};  // releases the payload and info outside the lock
+
+        lock.lock();
+        --st.running;
+        if (result.status.ok())
+            ++st.counters.decoded;
+        else
+            ++st.counters.failed;
+        st.completed.push_back(std::move(result));
+    }
+}
+
+}  // namespace tessera::client
