@@ -101,7 +101,7 @@ Status PageTable::unmap(std::uint32_t level, std::uint32_t x, std::uint32_t y) {
     if (!is_mapped(level, x, y))
         return make_error(Errc::invalid_argument, "unmap: " + page_name(level, x, y) + " is not mapped");
     // The parent's entry already names the nearest resident page above this one.
-    const PageEntry above = kEmptyEntry;
+    const PageEntry above = level + 1 < levels() ? at(level + 1, x >> 1, y >> 1) : kEmptyEntry;
     fill(level, x, y, above);
     --mapped_;
     return {};

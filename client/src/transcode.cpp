@@ -11,6 +11,7 @@
 #include <map>
 #include <mutex>
 #include <string>
+#include <system_error>
 #include <utility>
 
 namespace tessera::client {
@@ -109,6 +110,27 @@ struct LoadF32 {
     std::uint8_t operator()(const std::uint8_t* p) const { return unit_float_to_u8(std::bit_cast<float>(load_u32(p))); }
 };
 
+// 8-bit fast paths, whole 32-bit texels at a time (little-endian hosts: byte 0 is the low byte).
+constexpr bool kLittleEndian = std::endian::native == std::endian::little;
+
+inline void store_texel(std::uint8_t* dst, std::uint32_t rgba) { std::memcpy(dst, &rgba, 4); }
+
+// RGB8 -> RGBA8, four texels (12 bytes in, 16 out) per step. Returns texels done.
+std::size_t rgb8_to_rgba8(const std::uint8_t* src, std::uint8_t* dst, std::size_t n) {
+    std::size_t i = 0;
+    for (; i + 4 <= n; i += 4, src += 12, dst += 16) {
+        std::uint32_t w0, w1, w2;  // r0 g0 b0 r1 | g1 b1 r2 g2 | b2 r3 g3 b3
+        std::memcpy(&w0, src, 4);
+        std::memcpy(&w1, src + 4, 4);
+        std::memcpy(&w2, src + 8, 4);
+        store_texel(dst, w0 | 0xFF000000u);
+        store_texel(dst + 4, (w0 >> 24) | (w1 << 8) | 0xFF000000u);
+        store_texel(dst + 8, (w1 >> 16) | (w2 << 16) | 0xFF000000u);
+        store_texel(dst + 12, (w2 >> 8) | 0xFF000000u);
+    }
+    return i;
+}
+
 // n texels of C channels (samples loaded by L) to RGBA8. Writes dst front to back, never reads it.
 template <unsigned C, class L>
 void convert_texels(const std::uint8_t* src, std::uint8_t* dst, std::size_t n) {
@@ -116,6 +138,15 @@ void convert_texels(const std::uint8_t* src, std::uint8_t* dst, std::size_t n) {
     const L load;
     if constexpr (C == 4 && L::bytes == 1) {
         std::memcpy(dst, src, n * 4);
+    } else if constexpr (kLittleEndian && L::bytes == 1 && C == 1) {
+        for (std::size_t i = 0; i < n; ++i) store_texel(dst + 4 * i, src[i] * 0x010101u | 0xFF000000u);
+    } else if constexpr (kLittleEndian && L::bytes == 1 && C == 2) {
+        for (std::size_t i = 0; i < n; ++i)
+            store_texel(dst + 4 * i, src[2 * i] * 0x010101u | (std::uint32_t(src[2 * i + 1]) << 24));
+    } else if constexpr (kLittleEndian && L::bytes == 1 && C == 3) {
+        const std::size_t done = rgb8_to_rgba8(src, dst, n);
+        for (std::size_t i = done; i < n; ++i)
+            store_texel(dst + 4 * i, src[3 * i] | (src[3 * i + 1] << 8) | (src[3 * i + 2] << 16) | 0xFF000000u);
     } else {
         for (std::size_t i = 0; i < n; ++i, src += stride, dst += 4) {
             if constexpr (C == 1) {
@@ -310,7 +341,12 @@ TranscodePool::TranscodePool(const TranscodePoolOptions& options)
     state_->paused = options.start_paused;
     state_->completed.reserve(capacity_);
     workers_.reserve(n);
-    for (unsigned i = 0; i < n; ++i) workers_.emplace_back([this] { worker_loop(); });
+    try {
+        for (unsigned i = 0; i < n; ++i) workers_.emplace_back([this] { worker_loop(); });
+    } catch (const std::system_error&) {
+        // The OS refused a thread: run with those we have; with none, accept nothing (threads() == 0).
+        if (workers_.empty()) state_->stopping = true;
+    }
 }
 
 TranscodePool::~TranscodePool() { shutdown(); }
@@ -346,24 +382,32 @@ std::size_t TranscodePool::update_queued(
     auto& q = state_->queue;
     std::size_t dropped = 0;
     std::vector<State::JobQueue::node_type> moved;
-    for (auto it = q.begin(); it != q.end();) {
-        const std::optional<std::uint32_t> p = f(it->second.key, it->first.priority);
-        if (!p) {
-            state_->drop(it->second);
-            it = q.erase(it);
-            ++dropped;
-        } else if (*p != it->first.priority) {
-            auto next = std::next(it);
-            auto node = q.extract(it);
-            node.key().priority = *p;  // keeps its sequence number: ties stay in submission order
-            node.mapped().priority = *p;
-            moved.push_back(std::move(node));
-            it = next;
-        } else {
-            ++it;
+    auto reinsert = [&] {
+        for (auto& node : moved) q.insert(std::move(node));
+    };
+    try {
+        for (auto it = q.begin(); it != q.end();) {
+            const std::optional<std::uint32_t> p = f(it->second.key, it->first.priority);
+            if (!p) {
+                state_->drop(it->second);
+                it = q.erase(it);
+                ++dropped;
+            } else if (*p != it->first.priority) {
+                auto next = std::next(it);
+                auto node = q.extract(it);
+                node.key().priority = *p;  // keeps its sequence number: ties stay in submission order
+                node.mapped().priority = *p;
+                moved.push_back(std::move(node));
+                it = next;
+            } else {
+                ++it;
+            }
         }
+    } catch (...) {
+        reinsert();  // no job may vanish without a result, whatever `f` does
+        throw;
     }
-    for (auto& node : moved) q.insert(std::move(node));
+    reinsert();
     return dropped;
 }
 

@@ -83,7 +83,8 @@ private:
 // Errors: invalid_argument (bad `out` size, unknown kind/codec, impossible geometry), corrupt
 // (payload that does not decode to exactly one tile of this store), not_found (absent). On error
 // the contents of `out` are unspecified (it may be partly written): never use them.
-// `out` is written front to back and never read, so write-combined (mapped GL) memory is fine.
+// `out` is only written, row by row in order (zstd decompresses into scratch first, since its
+// match copies read back what they wrote), so write-combined mapped GL memory is a fair target.
 Status transcode_to_rgba8(const storage::StoreInfo& info, std::uint8_t kind, std::uint8_t codec,
                           std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch);
 
@@ -172,6 +173,8 @@ public:
     void shutdown();
 
     TranscodePoolStats stats() const;
+    // Worker threads running: fewer than asked only if the OS refused some; with 0 the pool
+    // accepts no job.
     unsigned threads() const { return static_cast<unsigned>(workers_.size()); }
     std::size_t capacity() const { return capacity_; }
 
