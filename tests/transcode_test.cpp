@@ -13,6 +13,7 @@
 #include <memory>
 #include <random>
 #include <set>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -810,6 +811,30 @@ TEST(TranscodePool, OneThreadTakesHighestPriorityFirst) {
     std::vector<std::uint64_t> order;
     for (const auto& r : results) order.push_back(r.ticket);
     EXPECT_EQ(order, (std::vector<std::uint64_t>{4, 5, 9, 1, 3, 2, 6, 7, 0, 8}));
+}
+
+TEST(TranscodePool, UpdateQueuedThatThrowsLosesNoJob) {
+    const auto& pages = test_pages();
+    TranscodePool pool(TranscodePoolOptions{1, 16, true});
+    Staging staging;
+    for (std::uint64_t i = 0; i < 8; ++i)
+        ASSERT_TRUE(pool.submit(make_job(pages[0], key_of(i), i, staging.slot(i, pages[0].expected.size()), 1)));
+    int calls = 0;
+    EXPECT_THROW(pool.update_queued([&](const PageKey&, std::uint32_t) -> std::optional<std::uint32_t> {
+        if (++calls == 5) throw std::runtime_error("callback failed");
+        return 7;  // moves the job (re-prioritised) before the throw
+    }),
+                 std::runtime_error);
+    EXPECT_EQ(pool.stats().queued, 8u);
+    pool.resume();
+    std::vector<TranscodeResult> results;
+    poll_until(pool, results, 8);
+    std::set<std::uint64_t> tickets;
+    for (const auto& r : results) {
+        EXPECT_TRUE(r.status.ok());
+        tickets.insert(r.ticket);
+    }
+    EXPECT_EQ(tickets.size(), 8u);
 }
 
 TEST(TranscodePool, BadJobsCompleteWithAnError) {

@@ -4,6 +4,10 @@
 #include <bit>
 #include <cmath>
 #include <limits>
+#include <utility>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 namespace tessera::client {
 namespace {
@@ -22,6 +26,28 @@ inline FeedbackId parent_id(FeedbackId id) {
 
 inline std::uint32_t hash_slot(FeedbackId id, std::uint32_t shift) {
     return static_cast<std::uint32_t>((id * 0x9E3779B97F4A7C15ull) >> shift);
+}
+
+// The end of the run of ids equal to *p that starts at p (p < end).
+inline const FeedbackId* run_end(const FeedbackId* p, const FeedbackId* end) {
+    const FeedbackId id = *p;
+    const FeedbackId* q = p + 1;
+#if defined(__SSE2__)
+    // 8 ids (a cache line) a step: 64-bit equality as two 32-bit equalities. (Locating the end
+    // from the compare masks measured slower than finishing with the scalar steps below.)
+    const __m128i v = _mm_set1_epi64x(static_cast<long long>(id));
+    while (end - q >= 8) {
+        const __m128i* m = reinterpret_cast<const __m128i*>(q);
+        const __m128i e = _mm_and_si128(
+            _mm_and_si128(_mm_cmpeq_epi32(_mm_loadu_si128(m), v), _mm_cmpeq_epi32(_mm_loadu_si128(m + 1), v)),
+            _mm_and_si128(_mm_cmpeq_epi32(_mm_loadu_si128(m + 2), v), _mm_cmpeq_epi32(_mm_loadu_si128(m + 3), v)));
+        if (_mm_movemask_epi8(e) != 0xFFFF) break;
+        q += 8;
+    }
+#endif
+    while (end - q >= 4 && ((q[0] ^ id) | (q[1] ^ id) | (q[2] ^ id) | (q[3] ^ id)) == 0) q += 4;
+    while (q < end && *q == id) ++q;
+    return q;
 }
 
 // min |2x + 1 - w| over x0 <= x <= x1: the doubled distance from a run to the centre column. The
@@ -145,9 +171,7 @@ std::span<const WantedPage> FeedbackAnalyzer::analyse(std::span<const FeedbackId
         const FeedbackId* p = row;
         while (p < end) {
             const FeedbackId id = *p;
-            const FeedbackId* q = p + 1;
-            while (end - q >= 4 && ((q[0] ^ id) | (q[1] ^ id) | (q[2] ^ id) | (q[3] ^ id)) == 0) q += 4;
-            while (q < end && *q == id) ++q;
+            const FeedbackId* const q = run_end(p, end);
             const auto len = static_cast<std::uint32_t>(q - p);
             const FeedbackId* const run = p;
             p = q;

@@ -25,9 +25,17 @@ tjhandle compressor() {
     thread_local TjHandle t(true);
     return t.h;
 }
-tjhandle decompressor() {
+TjHandle& decompressor_handle() {
     thread_local TjHandle t(false);
-    return t.h;
+    return t;
+}
+tjhandle decompressor() { return decompressor_handle().h; }
+// libjpeg-turbo 2.1 leaves a decompressor unusable after some header errors ("Bogus marker
+// length" on every later tile): a failed decode gets this thread a fresh handle.
+void reset_decompressor() {
+    auto& t = decompressor_handle();
+    if (t.h) tjDestroy(t.h);
+    t.h = tjInitDecompress();
 }
 
 struct ZstdCCtx {
@@ -113,15 +121,21 @@ Status decode_tile(const StoreInfo& info, const Tile& tile, std::vector<std::uin
                 return make_error(Errc::corrupt, "JPEG tiles need 8-bit samples with 1 or 3 channels");
             int w = 0, h = 0, samp = 0, cs = 0;
             tjhandle d = decompressor();
-            if (tjDecompressHeader3(d, tile.bytes.data(), tile.bytes.size(), &w, &h, &samp, &cs) != 0)
-                return make_error(Errc::corrupt, std::string("JPEG tile header: ") + tjGetErrorStr2(d));
+            if (tjDecompressHeader3(d, tile.bytes.data(), tile.bytes.size(), &w, &h, &samp, &cs) != 0) {
+                auto e = make_error(Errc::corrupt, std::string("JPEG tile header: ") + tjGetErrorStr2(d));
+                reset_decompressor();
+                return e;
+            }
             const int side = static_cast<int>(info.tile_size());
             if (w != side || h != side) return make_error(Errc::corrupt, "JPEG tile has the wrong dimensions");
             if ((info.channels == 1) != (samp == TJSAMP_GRAY)) return make_error(Errc::corrupt, "JPEG tile has the wrong channel count");
             out.resize(n);
             const int pf = info.channels == 1 ? TJPF_GRAY : TJPF_RGB;
-            if (tjDecompress2(d, tile.bytes.data(), tile.bytes.size(), out.data(), side, 0, side, pf, TJFLAG_ACCURATEDCT) != 0)
-                return make_error(Errc::corrupt, std::string("JPEG tile does not decode: ") + tjGetErrorStr2(d));
+            if (tjDecompress2(d, tile.bytes.data(), tile.bytes.size(), out.data(), side, 0, side, pf, TJFLAG_ACCURATEDCT) != 0) {
+                auto e = make_error(Errc::corrupt, std::string("JPEG tile does not decode: ") + tjGetErrorStr2(d));
+                reset_decompressor();
+                return e;
+            }
             return {};
         }
     }

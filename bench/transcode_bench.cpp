@@ -1,0 +1,379 @@
+// Transcode throughput against libjpeg-turbo's own decode speed (design, "Benchmarks": the
+// transcode ceiling). Loads every present tile of a JPEG store (and optionally a zstd store) into
+// memory, then times, on the same tiles, interleaved over several rounds:
+//   libjpeg RGB    tjDecompress2 to RGB, one thread: libjpeg-turbo's own speed, the ceiling
+//   libjpeg RGBA   tjDecompress2 to RGBA, one thread (the same decode, our output format)
+//   transcode      client::transcode_to_rgba8, one thread
+//   pool xN        client::TranscodePool with N workers, end to end (submit, decode, poll)
+// and for zstd: ZSTD_decompressDCtx alone (the ceiling), transcode (decompress + RGBA8 expand),
+// and the pool. Every decode writes into a ring of page-sized staging slots (as an upload ring),
+// not one hot buffer. Prints a table; JSON with --json FILE. Target: transcode >= 0.9x libjpeg RGB.
+//
+//   tessera build procedural:terrain:4096 --codec jpeg -o terrain-jpeg.tsr
+//   tessera build procedural:terrain:4096 --codec zstd -o terrain-zstd.tsr
+//   transcode_bench --jpeg terrain-jpeg.tsr --zstd terrain-zstd.tsr [--rounds 7] [--json out.json]
+#include <turbojpeg.h>
+#include <zstd.h>
+
+#include <time.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "tessera/client/transcode.hpp"
+#include "tessera/storage/store_reader.hpp"
+
+using namespace tessera;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+struct Corpus {
+    std::string path;
+    std::shared_ptr<const storage::StoreInfo> info;
+    std::vector<std::shared_ptr<const std::vector<std::uint8_t>>> payloads;
+    std::uint64_t payload_bytes = 0;
+    std::size_t texels_per_tile() const { return std::size_t(info->tile_size()) * info->tile_size(); }
+};
+
+bool load(const std::string& path, Corpus& c) {
+    auto reader = storage::StoreReader::open(path);
+    if (!reader) {
+        std::fprintf(stderr, "%s: %s\n", path.c_str(), reader.error().message.c_str());
+        return false;
+    }
+    const storage::StoreInfo& info = (*reader)->info();
+    c.path = path;
+    c.info = std::make_shared<const storage::StoreInfo>(info);
+    for (std::uint32_t l = 0; l < info.level_count(); ++l) {
+        std::vector<storage::TileKey> keys;
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) keys.push_back({l, x, y});
+        for (auto& t : (*reader)->read_tiles(keys)) {
+            if (!t) {
+                std::fprintf(stderr, "%s: %s\n", path.c_str(), t.error().message.c_str());
+                return false;
+            }
+            if (t->kind != storage::TileKind::present) continue;  // uniform/absent: nothing to decode
+            c.payload_bytes += t->bytes.size();
+            c.payloads.push_back(std::make_shared<const std::vector<std::uint8_t>>(std::move(t->bytes)));
+        }
+    }
+    return !c.payloads.empty();
+}
+
+// Page-sized staging slots, reused round robin (like an upload ring: not one cache-hot buffer).
+struct Ring {
+    static constexpr std::size_t kSlots = 32;
+    std::size_t slot_bytes;
+    std::vector<std::uint8_t> memory;
+    explicit Ring(std::size_t bytes) : slot_bytes(bytes), memory(kSlots * bytes, 0) {}
+    std::span<std::uint8_t> slot(std::size_t i) { return {memory.data() + (i % kSlots) * slot_bytes, slot_bytes}; }
+};
+
+// Wall time, and CPU time (of the calling thread for one-thread passes, of the whole process
+// for pool passes: workers plus the polling thread). CPU time is what "throughput per thread"
+// means on a shared machine: time other processes take from us does not count against a pass.
+struct Timing {
+    double wall = -1;  // negative: a decode failed
+    double cpu = -1;
+};
+
+double cpu_seconds(clockid_t clock) {
+    timespec ts{};
+    clock_gettime(clock, &ts);
+    return double(ts.tv_sec) + double(ts.tv_nsec) * 1e-9;
+}
+
+class Stopwatch {
+public:
+    explicit Stopwatch(clockid_t cpu_clock) : clock_(cpu_clock), wall0_(Clock::now()), cpu0_(cpu_seconds(cpu_clock)) {}
+    Timing stop(bool ok) const {
+        const double cpu = cpu_seconds(clock_) - cpu0_;
+        const double wall = std::chrono::duration<double>(Clock::now() - wall0_).count();
+        return ok ? Timing{wall, cpu} : Timing{};
+    }
+
+private:
+    clockid_t clock_;
+    Clock::time_point wall0_;
+    double cpu0_;
+};
+
+// One pass over all tiles.
+using Pass = std::function<Timing()>;
+
+Timing pass_tj(const Corpus& c, Ring& ring, int pf) {
+    tjhandle d = tjInitDecompress();
+    const int side = static_cast<int>(c.info->tile_size());
+    const Stopwatch watch(CLOCK_THREAD_CPUTIME_ID);
+    bool ok = true;
+    for (std::size_t i = 0; i < c.payloads.size(); ++i) {
+        const auto& p = *c.payloads[i];
+        ok &= tjDecompress2(d, p.data(), static_cast<unsigned long>(p.size()), ring.slot(i).data(), side, 0, side, pf,
+                            TJFLAG_ACCURATEDCT) == 0;
+    }
+    const Timing t = watch.stop(ok);
+    tjDestroy(d);
+    return t;
+}
+
+Timing pass_zstd_only(const Corpus& c, Ring& ring) {
+    ZSTD_DCtx* d = ZSTD_createDCtx();
+    const std::size_t n = c.info->tile_bytes();
+    const Stopwatch watch(CLOCK_THREAD_CPUTIME_ID);
+    bool ok = true;
+    for (std::size_t i = 0; i < c.payloads.size(); ++i) {
+        const auto& p = *c.payloads[i];
+        ok &= ZSTD_decompressDCtx(d, ring.slot(i).data(), n, p.data(), p.size()) == n;
+    }
+    const Timing t = watch.stop(ok);
+    ZSTD_freeDCtx(d);
+    return t;
+}
+
+Timing pass_transcode(const Corpus& c, Ring& ring) {
+    client::Scratch scratch;
+    const std::uint8_t codec = static_cast<std::uint8_t>(c.info->codec);
+    const Stopwatch watch(CLOCK_THREAD_CPUTIME_ID);
+    bool ok = true;
+    for (std::size_t i = 0; i < c.payloads.size(); ++i)
+        ok &= client::transcode_to_rgba8(*c.info, client::wire_kind::present, codec, *c.payloads[i], ring.slot(i), scratch)
+                  .ok();
+    return watch.stop(ok);
+}
+
+// End to end through the pool: the caller keeps `capacity` jobs in flight (one staging slot
+// each), polls completions and reuses their slots, as the runtime's upload loop would.
+Timing pass_pool(const Corpus& c, Ring& ring, unsigned threads) {
+    client::TranscodePool pool(client::TranscodePoolOptions{threads, Ring::kSlots, false});
+    const std::uint8_t codec = static_cast<std::uint8_t>(c.info->codec);
+    std::vector<std::size_t> free_slots;
+    for (std::size_t s = 0; s < Ring::kSlots; ++s) free_slots.push_back(s);
+    std::vector<client::TranscodeResult> results;
+    results.reserve(Ring::kSlots);
+    const std::size_t n = c.payloads.size();
+    std::size_t next = 0, done = 0;
+    bool ok = true;
+    const Stopwatch watch(CLOCK_PROCESS_CPUTIME_ID);
+    while (done < n) {
+        while (next < n && !free_slots.empty()) {
+            client::TranscodeJob job;
+            job.key = client::PageKey{0, 0, static_cast<std::uint32_t>(next), 0};
+            job.ticket = free_slots.back();
+            job.info = c.info;
+            job.kind = client::wire_kind::present;
+            job.codec = codec;
+            job.payload = c.payloads[next];
+            job.destination = ring.slot(free_slots.back());
+            if (!pool.submit(std::move(job))) break;
+            free_slots.pop_back();
+            ++next;
+        }
+        results.clear();
+        if (pool.poll(results) == 0) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(1));  // a poller (the render thread: once a frame), not a spinner
+            continue;
+        }
+        for (const auto& r : results) {
+            ok &= r.status.ok();
+            free_slots.push_back(static_cast<std::size_t>(r.ticket));
+            ++done;
+        }
+    }
+    return watch.stop(ok);
+}
+
+double median(std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    const std::size_t m = v.size() / 2;
+    return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
+}
+
+struct Row {
+    std::string name;
+    unsigned threads = 1;
+    std::vector<Timing> timings;  // one per round
+};
+
+struct Suite {
+    std::string label;
+    const Corpus* corpus;
+    std::vector<Row> rows;
+    std::vector<Pass> passes;
+    std::string ceiling;  // row name of the ceiling
+    std::string subject;  // row name compared against it
+};
+
+std::string json_number(double v) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%.6g", v);
+    return buf;
+}
+
+std::string cpu_model() {
+    std::ifstream f("/proc/cpuinfo");
+    std::string line;
+    while (std::getline(f, line))
+        if (line.rfind("model name", 0) == 0) {
+            const auto colon = line.find(':');
+            return colon == std::string::npos ? line : line.substr(colon + 2);
+        }
+    return "unknown";
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    std::string jpeg_path, zstd_path, json_path;
+    int rounds = 7;
+    for (int i = 1; i < argc; ++i) {
+        const std::string a = argv[i];
+        auto value = [&]() -> std::string { return i + 1 < argc ? argv[++i] : ""; };
+        if (a == "--jpeg") jpeg_path = value();
+        else if (a == "--zstd") zstd_path = value();
+        else if (a == "--json") json_path = value();
+        else if (a == "--rounds") rounds = std::max(1, std::atoi(value().c_str()));
+        else {
+            std::fprintf(stderr,
+                         "usage: transcode_bench --jpeg STORE.tsr [--zstd STORE.tsr] [--rounds N] [--json FILE]\n"
+                         "  make the stores with: tessera build procedural:terrain:4096 --codec jpeg|zstd -o X.tsr\n");
+            return 2;
+        }
+    }
+    if (jpeg_path.empty() && zstd_path.empty()) {
+        std::fprintf(stderr, "transcode_bench: give --jpeg and/or --zstd (see --help)\n");
+        return 2;
+    }
+
+    Corpus jpeg, zstd;
+    if (!jpeg_path.empty() && !load(jpeg_path, jpeg)) return 1;
+    if (!zstd_path.empty() && !load(zstd_path, zstd)) return 1;
+
+    std::vector<Suite> suites;
+    std::vector<std::unique_ptr<Ring>> rings;
+    auto add_pool_rows = [&](Suite& s, Ring& ring) {
+        for (unsigned t : {1u, 2u}) {
+            s.rows.push_back({"pool x" + std::to_string(t), t, {}});
+            s.passes.push_back([&c = *s.corpus, &ring, t] { return pass_pool(c, ring, t); });
+        }
+    };
+    if (!jpeg.payloads.empty()) {
+        if (jpeg.info->codec != storage::Codec::jpeg) {
+            std::fprintf(stderr, "%s is not a JPEG store\n", jpeg_path.c_str());
+            return 1;
+        }
+        rings.push_back(std::make_unique<Ring>(client::rgba8_page_bytes(*jpeg.info)));
+        Ring& ring = *rings.back();
+        Suite s{"jpeg", &jpeg, {}, {}, "libjpeg RGB", "transcode"};
+        const int rgb_pf = jpeg.info->channels == 1 ? TJPF_GRAY : TJPF_RGB;
+        s.rows.push_back({jpeg.info->channels == 1 ? "libjpeg GRAY" : "libjpeg RGB", 1, {}});
+        s.ceiling = s.rows.back().name;
+        s.passes.push_back([&jpeg, &ring, rgb_pf] { return pass_tj(jpeg, ring, rgb_pf); });
+        s.rows.push_back({"libjpeg RGBA", 1, {}});
+        s.passes.push_back([&jpeg, &ring] { return pass_tj(jpeg, ring, TJPF_RGBA); });
+        s.rows.push_back({"transcode", 1, {}});
+        s.passes.push_back([&jpeg, &ring] { return pass_transcode(jpeg, ring); });
+        add_pool_rows(s, ring);
+        suites.push_back(std::move(s));
+    }
+    if (!zstd.payloads.empty()) {
+        if (zstd.info->codec != storage::Codec::zstd) {
+            std::fprintf(stderr, "%s is not a zstd store\n", zstd_path.c_str());
+            return 1;
+        }
+        rings.push_back(std::make_unique<Ring>(std::max(client::rgba8_page_bytes(*zstd.info), zstd.info->tile_bytes())));
+        Ring& ring = *rings.back();
+        Suite s{"zstd", &zstd, {}, {}, "zstd only", "transcode"};
+        s.rows.push_back({"zstd only", 1, {}});
+        s.passes.push_back([&zstd, &ring] { return pass_zstd_only(zstd, ring); });
+        s.rows.push_back({"transcode", 1, {}});
+        s.passes.push_back([&zstd, &ring] { return pass_transcode(zstd, ring); });
+        add_pool_rows(s, ring);
+        suites.push_back(std::move(s));
+    }
+
+    // Warm-up (page faults in the rings, library init), then interleaved rounds; the order of the
+    // passes rotates each round so no pass always runs first or after the same neighbour.
+    for (auto& s : suites)
+        for (auto& p : s.passes)
+            if (p().wall < 0) {
+                std::fprintf(stderr, "%s: a decode failed\n", s.label.c_str());
+                return 1;
+            }
+    for (int r = 0; r < rounds; ++r)
+        for (auto& s : suites) {
+            const std::size_t n = s.passes.size();
+            for (std::size_t k = 0; k < n; ++k) {
+                const std::size_t i = (k + static_cast<std::size_t>(r)) % n;
+                const Timing t = s.passes[i]();
+                if (t.wall < 0) {
+                    std::fprintf(stderr, "%s %s: a decode failed\n", s.label.c_str(), s.rows[i].name.c_str());
+                    return 1;
+                }
+                s.rows[i].timings.push_back(t);
+            }
+        }
+
+    std::printf("transcode_bench: %s, %u hardware threads, %d rounds (medians), RGBA8 output\n", cpu_model().c_str(),
+                std::thread::hardware_concurrency(), rounds);
+    std::string json = "{\"cpu\":\"" + cpu_model() + "\",\"hardware_threads\":" +
+                       std::to_string(std::thread::hardware_concurrency()) + ",\"rounds\":" + std::to_string(rounds) +
+                       ",\"suites\":[";
+    for (std::size_t si = 0; si < suites.size(); ++si) {
+        const Suite& s = suites[si];
+        const Corpus& c = *s.corpus;
+        const double tiles = static_cast<double>(c.payloads.size());
+        const double mpix = tiles * static_cast<double>(c.texels_per_tile()) / 1e6;
+        std::printf("\n%s: %s, %zu tiles of %ux%u, %u ch %s, %.1f MiB of payloads; ceiling: %s\n", s.label.c_str(),
+                    c.path.c_str(), c.payloads.size(), c.info->tile_size(), c.info->tile_size(), c.info->channels,
+                    std::string(storage::to_string(c.info->sample_type)).c_str(), double(c.payload_bytes) / 1048576.0,
+                    s.ceiling.c_str());
+        std::printf("  %-13s %7s %8s %8s %7s %8s %9s %9s %9s\n", "pass", "threads", "wall ms", "tiles/s", "MP/s",
+                    "CPU ms", "MP/CPU-s", "wall/ceil", "CPU/ceil");
+        const Row* ceiling = nullptr;
+        for (const Row& r : s.rows)
+            if (r.name == s.ceiling) ceiling = &r;
+        json += std::string(si ? "," : "") + "{\"codec\":\"" + s.label + "\",\"store\":\"" + c.path +
+                "\",\"tiles\":" + std::to_string(c.payloads.size()) + ",\"tile_size\":" +
+                std::to_string(c.info->tile_size()) + ",\"megapixels\":" + json_number(mpix) + ",\"ceiling\":\"" +
+                s.ceiling + "\",\"passes\":[";
+        for (std::size_t ri = 0; ri < s.rows.size(); ++ri) {
+            const Row& r = s.rows[ri];
+            std::vector<double> wall, cpu, wall_ratio, cpu_ratio;
+            for (std::size_t k = 0; k < r.timings.size(); ++k) {
+                wall.push_back(r.timings[k].wall);
+                cpu.push_back(r.timings[k].cpu);
+                // Ratios within a round, then their median: robust to the machine drifting.
+                wall_ratio.push_back(ceiling->timings[k].wall / r.timings[k].wall);
+                cpu_ratio.push_back(ceiling->timings[k].cpu / r.timings[k].cpu);
+            }
+            const double w = median(wall), u = median(cpu), wr = median(wall_ratio), ur = median(cpu_ratio);
+            std::printf("  %-13s %7u %8.1f %8.0f %7.1f %8.1f %9.1f %8.3fx %8.3fx\n", r.name.c_str(), r.threads, w * 1e3,
+                        tiles / w, mpix / w, u * 1e3, mpix / u, wr, ur);
+            json += std::string(ri ? "," : "") + "{\"name\":\"" + r.name + "\",\"threads\":" + std::to_string(r.threads) +
+                    ",\"wall_s\":" + json_number(w) + ",\"wall_min_s\":" +
+                    json_number(*std::min_element(wall.begin(), wall.end())) + ",\"cpu_s\":" + json_number(u) +
+                    ",\"tiles_per_s\":" + json_number(tiles / w) + ",\"mpix_per_s\":" + json_number(mpix / w) +
+                    ",\"mpix_per_cpu_s\":" + json_number(mpix / u) + ",\"wall_throughput_vs_ceiling\":" +
+                    json_number(wr) + ",\"per_thread_vs_ceiling\":" + json_number(ur) + "}";
+        }
+        json += "]}";
+    }
+    json += "]}\n";
+    std::printf("\nwall/ceil: throughput (wall clock) over the ceiling pass's, on one thread.\n"
+                "CPU/ceil: work per CPU second over the ceiling's = throughput per thread (pool: workers + poller).\n"
+                "Both are medians of per-round ratios. Target: transcode CPU/ceil >= 0.9 against libjpeg RGB.\n");
+    std::printf("%s", json.c_str());
+    if (!json_path.empty()) std::ofstream(json_path) << json;
+    return 0;
+}

@@ -1,0 +1,67 @@
+#pragma once
+// The client runtime: one call per frame turns the renderer's feedback into resident pages.
+//
+//   frame(feedback) ──► analysis (unique pages + ancestors, by priority)
+//                  ──► resident: touch │ not: RAM cache ─► disk cache (loader thread) ─► source
+//                  ◄── arrivals ─► caches ─► transcode pool (RGBA8 into staging) ─► upload queue
+//                  ──► per-frame budget: acquire a slot (evicting), upload, map, page-table rects
+//                  ──► LoD-bias controller
+//
+// frame() runs on the render thread and never waits on I/O, decoding or the network: everything
+// slow happens on threads owned here (disk loader, transcode pool) or by the sources, behind
+// bounded queues. Each frame's request set replaces the previous one at every stage.
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <span>
+#include <string>
+
+#include "tessera/client/disk_cache.hpp"
+#include "tessera/client/feedback_analysis.hpp"
+#include "tessera/client/lod_bias.hpp"
+#include "tessera/client/page.hpp"
+#include "tessera/client/residency.hpp"
+#include "tessera/client/stats.hpp"
+#include "tessera/client/tile_source.hpp"
+#include "tessera/client/upload.hpp"
+#include "tessera/result.hpp"
+
+namespace tessera::client {
+
+struct RuntimeConfig {
+    ResidencyConfig residency;                     // pool_slots is required
+    std::size_t max_requests_in_flight = 512;      // disk lookups + source requests outstanding
+    std::uint64_t ram_cache_bytes = 128ull << 20;  // 0: no RAM cache
+    std::string disk_cache_dir;                    // empty: no disk cache
+    std::uint64_t disk_cache_bytes = 1ull << 30;
+    // Transcode threads. 0: decode on the calling thread inside frame() — deterministic, for
+    // simulations and tools; a renderer wants >= 1.
+    unsigned transcode_threads = 1;
+    std::size_t upload_pages_per_frame = 32;
+    std::size_t upload_bytes_per_frame = 16u << 20;
+    LodBiasConfig bias;
+    std::size_t max_feedback_pages = 1 << 16;
+};
+
+class Runtime {
+public:
+    static Result<std::unique_ptr<Runtime>> create(const RuntimeConfig& config, PageUploader& uploader);
+    virtual ~Runtime() = default;
+
+    // A virtual texture: the store `store` of `source` (which must outlive the runtime).
+    virtual Result<TextureId> add_texture(TileSource& source, const std::string& store) = 0;
+    virtual const storage::StoreInfo* texture_info(TextureId texture) const = 0;
+
+    // One frame: the feedback buffer of a frame rendered (width*height ids, kNoPage where no
+    // virtual texture is) and the LoD bias it was rendered with (NaN: unknown; then the bias
+    // controller waits a few frames after each change instead). Returns this frame's counters.
+    virtual const FrameStats& frame(std::span<const FeedbackId> feedback, std::uint32_t width, std::uint32_t height,
+                                    float feedback_bias = std::numeric_limits<float>::quiet_NaN()) = 0;
+
+    virtual float lod_bias() const = 0;  // for the next frame's feedback and sampling
+    virtual const Residency& residency() const = 0;
+    virtual const StatsSummary& summary() const = 0;
+    virtual std::size_t in_flight() const = 0;  // pages requested and not yet mapped or dropped
+};
+
+}  // namespace tessera::client

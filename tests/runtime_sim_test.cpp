@@ -1,0 +1,243 @@
+// Deterministic simulation of the client runtime: scripted feedback frames of a camera over a
+// terrain store, a source with injected latency (in frames), synchronous decoding, a fake
+// uploader. Shows residency converging, the LoD bias rising and settling when the pool is too
+// small, churn bounded, and the bias returning to 0 when the pressure goes away.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <deque>
+#include <map>
+
+#include "tessera/client/runtime.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+using namespace tessera::client;
+using tessera::test::ScratchDir;
+
+// Serves a local store with a fixed latency in frames; replace semantics like the real sources.
+class DelayedSource final : public TileSource {
+public:
+    DelayedSource(std::string path, unsigned latency_frames) : path_(std::move(path)), latency_(latency_frames) {}
+    tessera::Result<tessera::storage::StoreInfo> bind(TextureId texture, const std::string&) override {
+        auto r = tessera::storage::StoreReader::open(path_);
+        if (!r) return r.error();
+        reader_ = *r;
+        texture_ = texture;
+        return reader_->info();
+    }
+    void set_requests(std::uint64_t, std::span<const SourceRequest> requests) override {
+        std::map<std::uint64_t, bool> now;
+        for (const auto& r : requests) now[page_hash_key(r.page)] = true;
+        // Pending requests not in the new set are cancelled; new ones start their latency now.
+        std::erase_if(pending_, [&](const auto& p) { return !now.contains(page_hash_key(p.page)); });
+        for (const auto& r : requests) {
+            const bool known = std::any_of(pending_.begin(), pending_.end(), [&](const auto& p) { return p.page == r.page; });
+            if (!known) pending_.push_back({r.page, frame_ + latency_});
+        }
+        ++sets_;
+    }
+    std::size_t poll(std::vector<SourceTile>& out, std::size_t max) override {
+        std::size_t n = 0;
+        for (auto it = pending_.begin(); it != pending_.end() && n < max;) {
+            if (it->due > frame_) {
+                ++it;
+                continue;
+            }
+            auto tile = reader_->read_tile({it->page.level, it->page.x, it->page.y});
+            SourceTile t;
+            t.page = it->page;
+            t.store_version = reader_->info().store_id;
+            t.kind = static_cast<std::uint8_t>(tile->kind);
+            t.codec = tile->kind == tessera::storage::TileKind::uniform ? 3 : static_cast<std::uint8_t>(reader_->info().codec);
+            t.checksum = tile->checksum;
+            t.payload = std::move(tile->bytes);
+            out.push_back(std::move(t));
+            ++served_;
+            it = pending_.erase(it);
+            ++n;
+        }
+        return n;
+    }
+    bool available() const override { return true; }
+    std::string describe() const override { return "delayed"; }
+    void tick() { ++frame_; }
+    std::uint64_t served() const { return served_; }
+
+private:
+    struct Pending {
+        PageKey page;
+        std::uint64_t due;
+    };
+    std::string path_;
+    unsigned latency_;
+    std::shared_ptr<tessera::storage::StoreReader> reader_;
+    TextureId texture_ = 0;
+    std::deque<Pending> pending_;
+    std::uint64_t frame_ = 0;
+    std::uint64_t sets_ = 0, served_ = 0;
+};
+
+// A camera over the ground plane: a 1280x720 view with feedback at 1/8 resolution (160x90). Row r
+// sees texels at a density growing with distance (a perspective view), so one frame wants several
+// levels. tpp: level-0 texels per screen pixel at the bottom row; centre: level-0 texel
+// coordinates of the view centre. Each feedback pixel stands for 8x8 screen pixels.
+std::vector<FeedbackId> feedback(const tessera::storage::StoreInfo& info, std::uint32_t w, std::uint32_t h, double cx,
+                                 double cy, double tpp, float bias) {
+    std::vector<FeedbackId> ids(std::size_t(w) * h, kNoPage);
+    const auto levels = info.level_count();
+    for (std::uint32_t r = 0; r < h; ++r) {
+        const double density = tpp * (1.0 + 3.0 * (h - 1 - r) / double(h));  // farther rows: more texels per pixel
+        for (std::uint32_t c = 0; c < w; ++c) {
+            const double u = cx + (c - w / 2.0) * 8 * density, v = cy + (r - h / 2.0) * 8 * tpp * 2;
+            if (u < 0 || v < 0 || u >= info.width || v >= info.height) continue;
+            const double lod = std::log2(std::max(density, 1e-9)) + bias;
+            const auto level = static_cast<std::uint32_t>(std::clamp(std::floor(lod), 0.0, double(levels - 1)));
+            const double span = double(info.tile_payload) * std::ldexp(1.0, int(level));
+            ids[std::size_t(r) * w + c] = pack_feedback(PageKey{0, static_cast<std::uint8_t>(level),
+                                                                static_cast<std::uint32_t>(u / span),
+                                                                static_cast<std::uint32_t>(v / span)});
+        }
+    }
+    return ids;
+}
+
+class RuntimeSim : public ::testing::Test {
+protected:
+    static void SetUpTestSuite() {
+        dir_ = new ScratchDir();
+        path_ = dir_->file("terrain.tsr");
+        auto r = tessera::test::run_tessera("build procedural:terrain:8192 --quiet -o " + path_);
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+    }
+    static void TearDownTestSuite() { delete dir_; }
+
+    struct Run {
+        std::vector<float> bias;
+        std::vector<std::uint32_t> evicted, uploaded, wanted;
+        std::vector<float> fallback;
+    };
+
+    // Runs `frames` frames of a camera path; the feedback of frame N is rendered with the bias the
+    // runtime reported after frame N-1 (tagged, so the controller knows).
+    static Run run(Runtime& rt, DelayedSource& src, unsigned frames,
+                   const std::function<void(unsigned, double&, double&, double&)>& path) {
+        Run out;
+        const auto& info = *rt.texture_info(0);
+        for (unsigned f = 0; f < frames; ++f) {
+            double cx = 0, cy = 0, tpp = 1;
+            path(f, cx, cy, tpp);
+            const float b = rt.lod_bias();
+            const auto ids = feedback(info, 160, 90, cx, cy, tpp, b);
+            src.tick();
+            const auto& s = rt.frame(ids, 160, 90, b);
+            out.bias.push_back(s.lod_bias);
+            out.evicted.push_back(s.pages_evicted);
+            out.uploaded.push_back(s.pages_uploaded);
+            out.wanted.push_back(s.pages_wanted);
+            out.fallback.push_back(s.fallback_estimate);
+        }
+        return out;
+    }
+
+    static std::unique_ptr<Runtime> make(std::uint32_t pool, FakeUploader& up, DelayedSource& src) {
+        RuntimeConfig c;
+        c.residency.pool_slots = pool;
+        c.transcode_threads = 0;  // deterministic
+        c.ram_cache_bytes = 0;    // every page comes from the source
+        c.upload_pages_per_frame = 8;
+        auto rt = Runtime::create(c, up);
+        EXPECT_TRUE(rt.ok());
+        auto id = (*rt)->add_texture(src, "terrain");
+        EXPECT_TRUE(id.ok()) << id.error().message;
+        return std::move(*rt);
+    }
+
+    static ScratchDir* dir_;
+    static std::string path_;
+};
+ScratchDir* RuntimeSim::dir_ = nullptr;
+std::string RuntimeSim::path_;
+
+TEST_F(RuntimeSim, StaticViewConvergesWithALargePool) {
+    FakeUploader up;
+    DelayedSource src(path_, 3);
+    auto rt = make(1024, up, src);
+    auto r = run(*rt, src, 120, [](unsigned, double& cx, double& cy, double& tpp) { cx = 4000, cy = 4000, tpp = 2; });
+    // Converged: nothing missing, nothing in flight, no bias, no churn.
+    EXPECT_EQ(r.fallback.back(), 0.0f);
+    EXPECT_EQ(rt->in_flight(), 0u);
+    for (float b : r.bias) EXPECT_EQ(b, 0.0f);
+    std::uint32_t evicted = 0;
+    for (auto e : r.evicted) evicted += e;
+    EXPECT_EQ(evicted, 0u);
+    // Every upload mapped a page; the page table followed.
+    EXPECT_EQ(up.malformed(), 0u);
+    EXPECT_GT(up.tables().size(), 0u);
+    EXPECT_EQ(rt->residency().stats().resident_pages, up.pages().size());
+    // Frames to converge: bounded by latency + wanted / upload budget.
+    unsigned converged = 0;
+    while (converged < r.fallback.size() && r.fallback[converged] > 0) ++converged;
+    EXPECT_LT(converged, 3 + r.wanted.back() / 8 + 10u);
+}
+
+TEST_F(RuntimeSim, TooSmallAPoolRaisesTheBiasWhichSettlesWithoutThrashing) {
+    FakeUploader up;
+    DelayedSource src(path_, 2);
+    auto rt = make(24, up, src);  // the view wants far more than 24 pages at bias 0
+    auto r = run(*rt, src, 400, [](unsigned, double& cx, double& cy, double& tpp) { cx = 4000, cy = 4000, tpp = 1; });
+    EXPECT_GT(r.wanted.front(), 24u);
+    EXPECT_GT(r.bias.back(), 0.0f) << "the bias rose";
+    // Settled: no bias change in the last 200 frames, and at most one reversal overall.
+    for (std::size_t f = 200; f < r.bias.size(); ++f) EXPECT_EQ(r.bias[f], r.bias.back()) << "frame " << f;
+    int reversals = 0, last_dir = 0;
+    for (std::size_t f = 1; f < r.bias.size(); ++f) {
+        const int dir = r.bias[f] > r.bias[f - 1] ? 1 : r.bias[f] < r.bias[f - 1] ? -1 : 0;
+        if (dir && last_dir && dir != last_dir) ++reversals;
+        if (dir) last_dir = dir;
+    }
+    EXPECT_LE(reversals, 1);
+    // Churn: once settled, pages are no longer evicted frame after frame.
+    std::uint32_t late_evictions = 0;
+    for (std::size_t f = 300; f < r.evicted.size(); ++f) late_evictions += r.evicted[f];
+    EXPECT_LE(late_evictions, 10u);
+    EXPECT_LE(r.wanted.back(), 24u) << "at the settled bias the view fits the pool";
+}
+
+TEST_F(RuntimeSim, MovingCameraKeepsUpAndTheBiasReturnsWhenPressureGoes) {
+    FakeUploader up;
+    DelayedSource src(path_, 2);
+    auto rt = make(40, up, src);
+    // 0-299: a wide, close view sweeping sideways (too much for the pool); 300-699: zoomed out and
+    // still (little is wanted): the bias must come back down to 0.
+    auto r = run(*rt, src, 700, [](unsigned f, double& cx, double& cy, double& tpp) {
+        if (f < 300) {
+            cx = 1500 + 8.0 * f, cy = 4000, tpp = 0.75;
+        } else {
+            cx = 4000, cy = 4000, tpp = 24;
+        }
+    });
+    float peak = 0;
+    for (std::size_t f = 0; f < 300; ++f) peak = std::max(peak, r.bias[f]);
+    EXPECT_GT(peak, 0.0f) << "wanted at first: " << r.wanted.front();
+    EXPECT_EQ(r.bias.back(), 0.0f);
+    // Churn stays bounded while moving: evictions per frame never exceed the upload budget.
+    for (std::size_t f = 0; f < r.evicted.size(); ++f) EXPECT_LE(r.evicted[f], 8u) << "frame " << f;
+    // Detail comes back: the still view ends fully resident.
+    EXPECT_EQ(r.fallback.back(), 0.0f);
+}
+
+TEST_F(RuntimeSim, DeterministicForTheSameScript) {
+    auto once = [&] {
+        FakeUploader up;
+        DelayedSource src(path_, 2);
+        auto rt = make(48, up, src);
+        auto r = run(*rt, src, 150, [](unsigned f, double& cx, double& cy, double& tpp) { cx = 3000 + 5.0 * f, cy = 4000, tpp = 1; });
+        return std::make_tuple(r.bias, r.evicted, r.uploaded);
+    };
+    EXPECT_EQ(once(), once());
+}
+
+}  // namespace
