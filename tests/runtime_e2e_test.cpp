@@ -1,0 +1,99 @@
+// End to end: the client runtime against a real `tessera serve` process. The runtime fetches the
+// pages a scripted feedback stream asks for; the server is killed and restarted midway, and the
+// client neither crashes nor loses its resident set, then carries on.
+#include <gtest/gtest.h>
+#include <signal.h>
+
+#include <cmath>
+#include <set>
+
+#include "server_process.hpp"
+#include "tessera/client/runtime.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+using namespace tessera::client;
+using tessera::test::ScratchDir;
+using tessera::test::ServerProcess;
+
+// Every page of levels [from, levels) of a texture: what a zoomed-out view of the whole texture wants.
+std::vector<FeedbackId> whole_texture(const tessera::storage::StoreInfo& info, std::uint32_t level) {
+    std::vector<FeedbackId> ids;
+    const auto& l = info.levels[level];
+    for (std::uint32_t y = 0; y < l.tiles_y; ++y)
+        for (std::uint32_t x = 0; x < l.tiles_x; ++x)
+            ids.push_back(pack_feedback(PageKey{0, static_cast<std::uint8_t>(level), x, y}));
+    return ids;
+}
+
+// Runs frames until pred() or the timeout; returns whether pred() held.
+template <class Pred>
+bool frames_until(Runtime& rt, const std::vector<FeedbackId>& ids, Pred pred, std::chrono::seconds timeout) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < deadline) {
+        rt.frame(ids, static_cast<std::uint32_t>(ids.size()), 1);
+        if (pred()) return true;
+        std::this_thread::sleep_for(5ms);
+    }
+    return false;
+}
+
+TEST(RuntimeEndToEnd, FetchesFromARealServerAndSurvivesItsRestart) {
+    ScratchDir dir;
+    const std::string store = dir.file("terrain.tsr");
+    auto built = tessera::test::run_tessera("build procedural:terrain:4096 --quiet -o " + store);
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    auto srv = std::make_unique<ServerProcess>(std::vector<std::string>{"--store", store}, dir.file("log1"));
+    ASSERT_TRUE(srv->running()) << srv->log();
+    const std::string address = srv->grpc_address();
+
+    TileStreamOptions net;
+    net.target = address;
+    net.backoff_initial = 50ms;
+    net.backoff_max = 400ms;
+    auto source = make_grpc_source(net);
+    FakeUploader uploader;
+    RuntimeConfig config;
+    config.residency.pool_slots = 512;  // level 0 (17 x 17) + level 1 + ancestors fit
+    config.transcode_threads = 1;
+    config.disk_cache_dir = dir.file("cache");
+    auto created = Runtime::create(config, uploader);
+    ASSERT_TRUE(created.ok()) << created.error().message;
+    auto& rt = **created;
+    auto tex = rt.add_texture(*source, "terrain");
+    ASSERT_TRUE(tex.ok()) << tex.error().message;
+    const auto& info = *rt.texture_info(*tex);
+
+    // Phase 1: level 1 of the whole texture (9 x 9 pages) plus ancestors arrive and are mapped.
+    const auto level1 = whole_texture(info, 1);
+    ASSERT_TRUE(frames_until(rt, level1, [&] { return rt.frame(level1, std::uint32_t(level1.size()), 1).fallback_estimate == 0.0f; }, 60s))
+        << "resident: " << rt.residency().stats().resident_pages;
+    const auto resident_before = rt.residency().stats().resident_pages;
+    EXPECT_GE(resident_before, level1.size());
+    for (const auto id : level1) EXPECT_TRUE(rt.residency().is_resident(unpack_feedback(id)));
+
+    // Phase 2: the server dies (SIGKILL, no drain). The view moves to level 0: nothing can
+    // arrive, frames go on, and what is resident stays resident (level 1 serves as fallback).
+    srv.reset();  // SIGKILL in the destructor
+    const auto level0 = whole_texture(info, 0);
+    for (int f = 0; f < 100; ++f) {
+        const auto& s = rt.frame(level0, std::uint32_t(level0.size()), 1);
+        EXPECT_GT(s.fallback_estimate, 0.0f);
+        std::this_thread::sleep_for(5ms);
+    }
+    EXPECT_FALSE(source->available());
+    for (const auto id : level1) EXPECT_TRUE(rt.residency().is_resident(unpack_feedback(id)));
+
+    // Phase 3: a new server on the same port; the client reconnects by itself and level 0 arrives.
+    ServerProcess again({"--store", store}, dir.file("log2"), address);
+    ASSERT_TRUE(again.running()) << again.log();
+    ASSERT_TRUE(frames_until(rt, level0, [&] { return rt.frame(level0, std::uint32_t(level0.size()), 1).fallback_estimate == 0.0f; }, 60s))
+        << "resident: " << rt.residency().stats().resident_pages;
+    for (const auto id : level0) EXPECT_TRUE(rt.residency().is_resident(unpack_feedback(id)));
+    EXPECT_TRUE(source->available());
+    EXPECT_EQ(uploader.malformed(), 0u);
+    EXPECT_GT(rt.summary().latency().count(), level0.size());
+}
+
+}  // namespace
