@@ -7,6 +7,7 @@
 #include <cmath>
 #include <deque>
 #include <map>
+#include <set>
 
 #include "tessera/client/runtime.hpp"
 #include "tessera/storage/store_reader.hpp"
@@ -227,6 +228,33 @@ TEST_F(RuntimeSim, MovingCameraKeepsUpAndTheBiasReturnsWhenPressureGoes) {
     for (std::size_t f = 0; f < r.evicted.size(); ++f) EXPECT_LE(r.evicted[f], 8u) << "frame " << f;
     // Detail comes back: the still view ends fully resident.
     EXPECT_EQ(r.fallback.back(), 0.0f);
+}
+
+TEST_F(RuntimeSim, StaleRequestsAreCancelledAtTheSource) {
+    // Frame 1 looks at one corner, then the camera cuts to the opposite corner for good: the first
+    // corner's requests are cancelled at the source before they are served, and never uploaded.
+    FakeUploader up;
+    DelayedSource src(path_, 10);
+    auto rt = make(1024, up, src);
+    auto r = run(*rt, src, 60, [](unsigned f, double& cx, double& cy, double& tpp) {
+        tpp = 0.5;
+        cx = cy = f == 0 ? 700 : 7400;
+    });
+    const auto& info = *rt->texture_info(0);
+    const auto first = feedback(info, 160, 90, 700, 700, 0.5, 0);
+    std::set<std::uint64_t> first_pages, later_pages;
+    for (auto id : first)
+        if (id != kNoPage && unpack_feedback(id).level == 0) first_pages.insert(id);
+    for (auto id : feedback(info, 160, 90, 7400, 7400, 0.5, 0))
+        if (id != kNoPage) later_pages.insert(id);
+    ASSERT_FALSE(first_pages.empty());
+    for (const auto id : first_pages) {
+        EXPECT_FALSE(later_pages.contains(id));
+        EXPECT_FALSE(rt->residency().is_resident(unpack_feedback(id))) << "a stale page was mapped";
+    }
+    // Served = what the later view wanted (and the shared coarse ancestors), not the stale ones.
+    EXPECT_EQ(r.fallback.back(), 0.0f);
+    EXPECT_EQ(src.served(), up.pages().size());
 }
 
 TEST_F(RuntimeSim, DeterministicForTheSameScript) {
