@@ -298,7 +298,7 @@ void FeedbackAnalyzer::rank(std::uint32_t width, std::uint32_t height, const Res
     };
     if (packed && n >= kRadixFrom) {
         radix_sort(first, sort_tmp_.data(), n);
-        for (std::uint32_t i = 0, j; i < n; i = j) {  // equal keys (rare): packed id order
+        for (std::uint32_t i = 0, j; i < n; i = j) {  // equal keys: packed id order
             for (j = i + 1; j < n && first[j].a == first[i].a;) ++j;
             if (j - i > 1) std::sort(first + i, first + j, less_packed);
         }

@@ -55,7 +55,8 @@ public:
     // max_pages bounds the output (pages beyond it are dropped lowest priority first and counted).
     // max_work_pages bounds the pages (with ancestors) one frame may touch before ranking (0:
     // 2 * max_pages); beyond it pages are not tracked (Stats::untracked_*). All memory is
-    // allocated here, once: about 60 bytes per work page plus 28 per output page.
+    // allocated here, once: 108 bytes per work page plus 28 per output page (15 MiB with the
+    // defaults, 1 MiB for max_pages = 4096). A frame only touches what its pages need.
     explicit FeedbackAnalyzer(std::size_t max_pages = 1 << 16, std::size_t max_work_pages = 0);
 
     // Number of levels of a texture (so ancestors stop at its coarsest level, levels - 1). Ids of
@@ -71,6 +72,8 @@ public:
     // ignored. Returns the wanted pages with every ancestor up to each texture's top level, ordered
     // by priority: level_gap desc, subtree_pixels desc, centre_distance asc, then packed id asc
     // (pack_feedback(key)); fully deterministic. Valid until the next call. Never allocates.
+    // Note: a page's ancestors have smaller gaps than it has, so they rank after it, and a
+    // max_pages cut can keep a page while dropping some of its ancestors.
     std::span<const WantedPage> analyse(std::span<const FeedbackId> ids, std::uint32_t width, std::uint32_t height,
                                         const ResidencyView& residency);
 
