@@ -68,8 +68,8 @@ std::uint64_t splitmix(std::uint64_t& s) {
 // this one verify it).
 CachedTile make_tile(const TileId& id, std::size_t size) {
     CachedTile t;
-    t.kind = tile_kind::kPresent;
-    t.codec = tile_codec::kZstd;
+    t.kind = wire_kind::present;
+    t.codec = wire_codec::zstd;
     t.payload.resize(size);
     std::uint64_t s = TileIdHash{}(id) ^ (std::uint64_t{id.level} << 40) ^ id.version;
     for (std::size_t i = 0; i < size; i += 8) {
@@ -291,12 +291,12 @@ TEST(DiskTileCache, RoundTrip) {
     const TileId a = tid(3, 4, 2), b = tid(5, 6, 0, 7, "moon_v2.final-1");
     EXPECT_EQ(must_get(*cache, a), std::nullopt);
     CachedTile absent;  // no payload at all
-    absent.kind = tile_kind::kAbsent;
-    absent.codec = tile_codec::kNone;
+    absent.kind = wire_kind::absent;
+    absent.codec = wire_codec::none;
     absent.checksum = tile_checksum({});
     CachedTile uniform;
-    uniform.kind = tile_kind::kUniform;
-    uniform.codec = tile_codec::kUniform;
+    uniform.kind = wire_kind::uniform;
+    uniform.codec = wire_codec::uniform;
     uniform.payload = {1, 2, 3, 4};
     uniform.checksum = tile_checksum(uniform.payload);
     ASSERT_TRUE(cache->put(a, make_tile(a, 70000)));

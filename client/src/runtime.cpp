@@ -222,7 +222,7 @@ private:
 
     void arrived(const PageKey& page, Work& w, std::shared_ptr<const CachedTile> tile) {
         ++stats_.pages_arrived;
-        if (tile->kind == tile_kind::kAbsent) {  // a sparse store: nothing to fetch, ever
+        if (tile->kind == wire_kind::absent) {  // a sparse store: nothing to fetch, ever
             absent_.insert(page);
             work_.erase(page);
             return;

@@ -107,8 +107,9 @@ void put_uint(std::string& s, std::uint64_t v) {
     s.append(buf, r.ptr);
 }
 
-// Shortest round-trip form; JSON has no NaN or infinity: null.
-void put_num(std::string& s, double v) {
+// Shortest round-trip form (of the value's own type); JSON has no NaN or infinity: null.
+template <class T>
+void put_num(std::string& s, T v) {
     if (!std::isfinite(v)) {
         s += "null";
         return;
@@ -118,15 +119,6 @@ void put_num(std::string& s, double v) {
     s.append(buf, r.ptr);
 }
 
-void put_num(std::string& s, float v) {
-    if (!std::isfinite(v)) {
-        s += "null";
-        return;
-    }
-    char buf[32];
-    auto r = std::to_chars(buf, buf + sizeof buf, v);
-    s.append(buf, r.ptr);
-}
 
 template <class Array>
 void put_array(std::string& s, const Array& a, std::size_t n) {

@@ -49,6 +49,21 @@ struct PageKeyHash {
     }
 };
 
+// What a tile reply carries, as plain integers (tessera.proto's TileKind and Codec values), so
+// client headers need no protobuf.
+namespace wire_kind {
+constexpr std::uint8_t absent = 0;   // a sparse store has no data here (use the parent)
+constexpr std::uint8_t present = 1;  // payload in the store's codec
+constexpr std::uint8_t uniform = 2;  // payload is one texel value
+}  // namespace wire_kind
+namespace wire_codec {
+constexpr std::uint8_t raw = 0;
+constexpr std::uint8_t zstd = 1;
+constexpr std::uint8_t jpeg = 2;
+constexpr std::uint8_t uniform = 3;
+constexpr std::uint8_t none = 4;
+}  // namespace wire_codec
+
 // A slot of the physical page pool (the GPU page atlas), 0..pool_size-1.
 using SlotId = std::uint32_t;
 constexpr SlotId kNoSlot = ~SlotId{0};

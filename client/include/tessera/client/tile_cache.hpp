@@ -19,23 +19,9 @@
 #include <unordered_map>
 #include <vector>
 
+#include "tessera/client/page.hpp"
+
 namespace tessera::client {
-
-// tessera.v1.TileKind values.
-namespace tile_kind {
-constexpr std::uint8_t kAbsent = 0;   // a sparse store has no data here (use the parent)
-constexpr std::uint8_t kPresent = 1;  // payload in the store's codec
-constexpr std::uint8_t kUniform = 2;  // payload is one texel value
-}  // namespace tile_kind
-
-// tessera.v1.Codec values.
-namespace tile_codec {
-constexpr std::uint8_t kRaw = 0;
-constexpr std::uint8_t kZstd = 1;
-constexpr std::uint8_t kJpeg = 2;
-constexpr std::uint8_t kUniform = 3;
-constexpr std::uint8_t kNone = 4;
-}  // namespace tile_codec
 
 // One tile of one version of one store.
 struct TileId {
@@ -54,8 +40,8 @@ struct TileIdHash {
 // What a TileReply with status TILE_OK carries. `checksum` is XXH3-64 of `payload` (as the server
 // stored it); the caches keep it and the disk cache verifies it on every read.
 struct CachedTile {
-    std::uint8_t kind = tile_kind::kAbsent;
-    std::uint8_t codec = tile_codec::kNone;
+    std::uint8_t kind = wire_kind::absent;
+    std::uint8_t codec = wire_codec::none;
     std::uint64_t checksum = 0;
     std::vector<std::uint8_t> payload;
     friend bool operator==(const CachedTile&, const CachedTile&) = default;

@@ -34,18 +34,6 @@ namespace tessera::client {
 
 // Tile kinds and codecs as plain integers, with the values of tessera.proto's TileKind and Codec
 // (what a TileReply carries).
-namespace wire_kind {
-constexpr std::uint8_t absent = 0;
-constexpr std::uint8_t present = 1;
-constexpr std::uint8_t uniform = 2;
-}  // namespace wire_kind
-namespace wire_codec {
-constexpr std::uint8_t raw = 0;
-constexpr std::uint8_t zstd = 1;
-constexpr std::uint8_t jpeg = 2;
-constexpr std::uint8_t uniform = 3;
-constexpr std::uint8_t none = 4;
-}  // namespace wire_codec
 
 constexpr std::size_t kRgba8TexelBytes = 4;
 // Bytes of one RGBA8 page of `info`'s tiles.
