@@ -156,10 +156,10 @@ protected:
     void TearDown() override {
         handler_.reset();
         ctx_.reset();
-        metrics_.reset();  // before the fetcher: its gauge callbacks point into it
-        fetcher_.reset();
+        fetcher_.reset();  // before the registry: they remove their gauge callbacks from it
         cache_.reset();
         stores_.reset();
+        metrics_.reset();
         log_.reset();
         if (null_fd_ >= 0) ::close(null_fd_);
     }
