@@ -11,6 +11,7 @@
 #  2. latency under an open-model load (fixed offered rate; latency from the scheduled send time)
 #     at half of each one's own median peak, with serve_load: HTTP for nginx and tessera
 #     (64 keep-alive connections), gRPC for tessera (VIEWERS viewers ticking at 60 Hz).
+#  3. the same, all three at one common rate (the lowest of the three half-peaks): latency at equal load.
 # Prints a table and writes WORKDIR/results.json (every run's JSON under WORKDIR/runs/).
 #
 #   bench/serve_vs_nginx.sh [ROUNDS] [SECONDS] [WORKDIR]      defaults: 3 10 build/bench-serve
@@ -205,6 +206,17 @@ for r in $(seq 1 "$rounds"); do
     http_open "half-tessera-http-$r" "$tsr_pid" "$tsr_http" "$half_http"; http_open "half-nginx-$r" "$ngx_pid" "$ngx_http" "$half_ngx"
   fi
 done
+common=$(printf '%s\n' "$half_ngx" "$half_http" "$half_grpc" | sort -n | head -1)
+echo "open-model latency at one common rate, $common/s"
+for r in $(seq 1 "$rounds"); do
+  if [ $((r % 2)) = 1 ]; then
+    http_open "same-nginx-$r" "$ngx_pid" "$ngx_http" "$common"; http_open "same-tessera-http-$r" "$tsr_pid" "$tsr_http" "$common"
+    grpc_open "same-tessera-grpc-$r" "$common"
+  else
+    grpc_open "same-tessera-grpc-$r" "$common"
+    http_open "same-tessera-http-$r" "$tsr_pid" "$tsr_http" "$common"; http_open "same-nginx-$r" "$ngx_pid" "$ngx_http" "$common"
+  fi
+done
 
 python3 - "$work" "$static" "$(git rev-parse --short HEAD)" "$rounds" "$secs" "$viewers" "$window" "$conns" <<'PY'
 import glob, json, os, platform, statistics, subprocess, sys
@@ -243,8 +255,8 @@ res = {"commit": commit, "machine": f"{os.cpu_count()} cores, {model}, {platform
        "connections": int(conns), "peers": {}}
 rows = []
 for key, label in (("nginx", "nginx (static files)"), ("tessera-http", "tessera HTTP"), ("tessera-grpc", "tessera gRPC")):
-    peak, half = load(f"peak-{key}-*.json"), load(f"half-{key}-*.json")
-    p = {"peak_runs": peak, "half_runs": half,
+    peak, half, same = load(f"peak-{key}-*.json"), load(f"half-{key}-*.json"), load(f"same-{key}-*.json")
+    p = {"peak_runs": peak, "half_runs": half, "same_runs": same,
          "peak_tiles_per_s": med(peak, lambda r: r["tiles_per_s"]), "peak_mb_per_s": med(peak, lambda r: r["mb_per_s"]),
          "peak_tiles_per_server_cpu_s": med(peak, lambda r: r["tiles_per_server_cpu_s"] or 0),
          "peak_errors": sum(r["errors"] for r in peak),
@@ -257,6 +269,11 @@ for key, label in (("nginx", "nginx (static files)"), ("tessera-http", "tessera 
     for q in ("p50", "p99", "p99_9", "max"):
         p[f"half_{q}_ms"] = med(half, lambda r: r["latency_ms"][q])
     p["half_p99_ms_runs"] = [r["latency_ms"]["p99"] for r in half]
+    p["same_offered_tiles_per_s"] = same[0]["offered_tiles_per_s"]
+    p["same_errors"] = sum(r["errors"] + r["lost"] for r in same)
+    for q in ("p50", "p99", "p99_9", "max"):
+        p[f"same_{q}_ms"] = med(same, lambda r: r["latency_ms"][q])
+    p["same_p99_ms_runs"] = [r["latency_ms"]["p99"] for r in same]
     if key == "tessera-grpc":
         p["peak_duplicates_per_s"] = med(peak, lambda r: r["duplicates"] / (r["seconds"] + r["warmup_s"]))
         p["peak_batch_requests_per_s"] = med(peak, lambda r: r["batch_requests"] / (r["seconds"] + r["warmup_s"]))
@@ -279,9 +296,17 @@ for label, p in rows:
     print(f"{label:22} {p['peak_tiles_per_s']:12.0f} {p['peak_mb_per_s']:7.0f} {p['peak_tiles_per_server_cpu_s']:11.0f} | "
           f"{p['half_offered_tiles_per_s']:13.0f} {p['half_tiles_per_s']:9.0f} {p['half_p50_ms']:7.2f} {p['half_p99_ms']:7.2f} "
           f"{p['half_p99_9_ms']:8.2f} {p['half_errors']:6d}")
-print(f"\ncores busy during the peak runs (median; {os.cpu_count()} in all): server / load tool / everything else (noise)")
+print(f"\ncores busy (median; {os.cpu_count()} in all): server / load tool / everything else (noise); per-run p99 at half load")
 for label, p in rows:
-    print(f"  {label:22} {p['peak_server_cores']:.2f} / {p['peak_client_cores']:.2f} / {p['peak_other_cores']:.2f}")
+    noise = ", ".join("%.2f" % r["other_cores"] for r in p["half_runs"])
+    p99s = ", ".join("%.2f" % x for x in p["half_p99_ms_runs"])
+    print(f"  {label:22} peak {p['peak_server_cores']:.2f} / {p['peak_client_cores']:.2f} / {p['peak_other_cores']:.2f}"
+          f"   half: noise {noise} cores, p99 {p99s} ms")
+print(f"\nat one common rate, {rows[0][1]['same_offered_tiles_per_s']:.0f} tiles/s offered to each:")
+for label, p in rows:
+    noise = ", ".join("%.2f" % r["other_cores"] for r in p["same_runs"])
+    print(f"  {label:22} p50 {p['same_p50_ms']:.2f} ms, p99 {p['same_p99_ms']:.2f} ms, p99.9 {p['same_p99_9_ms']:.2f} ms, "
+          f"errors {p['same_errors']}; per run p99 {', '.join('%.2f' % x for x in p['same_p99_ms_runs'])} ms, noise {noise} cores")
 r = res["ratios"]
 print(f"\ntessera/nginx peak tiles/s: gRPC {r['grpc_over_nginx_tiles_per_s']:.2f}x (target >= 2), HTTP {r['http_over_nginx_tiles_per_s']:.2f}x (target >= 1)")
 print(f"tessera/nginx tiles per server CPU-second: gRPC {r['grpc_over_nginx_tiles_per_server_cpu_s']:.2f}x, HTTP {r['http_over_nginx_tiles_per_server_cpu_s']:.2f}x")
