@@ -221,6 +221,7 @@ struct Results {
     std::map<std::string, std::uint64_t> error_kinds;
     double seconds = 0;            // the window achieved rates are over
     LatencyHistogram latency;
+    LatencyHistogram server_latency;  // gRPC: TileReply.server_micros (latest batch listing it -> transport)
 };
 
 std::string json_escape(const std::string& s) {
@@ -239,6 +240,7 @@ void report(const Options& o, const Results& r) {
     const double mbps = r.seconds > 0 ? double(r.bytes) / r.seconds / 1e6 : 0;
     auto ms = [](std::uint64_t ns) { return double(ns) / 1e6; };
     const auto& h = r.latency;
+    const auto& sh = r.server_latency;  // empty for HTTP
     char line[512];
     std::snprintf(line, sizeof line,
                   "%s %s offered %s: %.0f tiles/s, %.1f MB/s, errors %" PRIu64 ", lost %" PRIu64
@@ -249,14 +251,15 @@ void report(const Options& o, const Results& r) {
                   ms(h.percentile(0.999)), ms(h.max()));
     std::printf("%s", line);
     if (grpc)
-        std::printf(" (dropped %" PRIu64 ", duplicates %" PRIu64 ", %.0f requests/batch)", r.dropped, r.duplicates,
-                    r.batches ? double(r.batch_requests) / double(r.batches) : 0.0);
+        std::printf(" (dropped %" PRIu64 ", duplicates %" PRIu64 ", %.0f requests/batch; server_micros p50 %.3f p99 %.3f ms)",
+                    r.dropped, r.duplicates, r.batches ? double(r.batch_requests) / double(r.batches) : 0.0,
+                    ms(r.server_latency.percentile(0.5)), ms(r.server_latency.percentile(0.99)));
     std::printf("\n");
 
     std::string kinds;
     for (const auto& [k, n] : r.error_kinds)
         kinds += (kinds.empty() ? "" : ",") + std::string("\"") + json_escape(k) + "\":" + std::to_string(n);
-    char buf[2048];
+    char buf[4096];
     std::snprintf(
         buf, sizeof buf,
         "{\"protocol\":\"%s\",\"target\":\"%s\",\"model\":\"%s\",\"offered_tiles_per_s\":%.1f,"
@@ -266,12 +269,14 @@ void report(const Options& o, const Results& r) {
         ",\"duplicates\":%" PRIu64 ",\"batches\":%" PRIu64 ",\"batch_requests\":%" PRIu64
         ",\"error_kinds\":{%s},\"latency_ms\":{\"count\":%" PRIu64
         ",\"mean\":%.4f,\"p50\":%.4f,\"p90\":%.4f,\"p99\":%.4f,\"p99_9\":%.4f,\"max\":%.4f},"
+        "\"server_latency_ms\":{\"count\":%" PRIu64 ",\"p50\":%.4f,\"p90\":%.4f,\"p99\":%.4f,\"p99_9\":%.4f,\"max\":%.4f},"
         "\"histogram\":\"log-linear, 64 buckets per power of two; percentiles are bucket upper bounds (<= 1.6%% high)\"}",
         grpc ? "grpc" : "http", json_escape(grpc ? o.grpc : o.http).c_str(), o.rate > 0 ? "open" : "closed", o.rate,
         grpc ? 0u : o.connections, grpc ? o.viewers : 0u, grpc ? o.tick_hz : 0.0, grpc ? o.window : std::size_t(0),
         o.duration, o.warmup, r.seconds, r.sent, r.ok, r.bytes, tps, mbps, r.errors, r.lost, r.dropped, r.duplicates,
         r.batches, r.batch_requests, kinds.c_str(), h.count(), ms(std::uint64_t(h.mean())), ms(h.percentile(0.5)),
-        ms(h.percentile(0.9)), ms(h.percentile(0.99)), ms(h.percentile(0.999)), ms(h.max()));
+        ms(h.percentile(0.9)), ms(h.percentile(0.99)), ms(h.percentile(0.999)), ms(h.max()), sh.count(),
+        ms(sh.percentile(0.5)), ms(sh.percentile(0.9)), ms(sh.percentile(0.99)), ms(sh.percentile(0.999)), ms(sh.max()));
     if (o.json_path.empty()) {
         std::printf("%s\n", buf);
     } else {
@@ -772,6 +777,7 @@ public:
             r.batch_requests += v->r.batch_requests;
             for (const auto& [k, n] : v->r.error_kinds) r.error_kinds[k] += n;
             r.latency.merge(v->r.latency);
+            r.server_latency.merge(v->r.server_latency);
             last = std::max(last, v->last_completion);
         }
         r.seconds = open ? std::chrono::duration<double>(last - measure_start_).count() : o_.duration;
@@ -971,6 +977,7 @@ private:
                     ++v.r.ok;
                     v.r.bytes += t.payload().size();
                     v.r.latency.record(std::uint64_t(std::chrono::duration_cast<Nanos>(now - asked).count()));
+                    v.r.server_latency.record(std::uint64_t(t.server_micros()) * 1000);
                     v.last_completion = std::max(v.last_completion, now);
                 } else {
                     ++v.r.errors;

@@ -279,6 +279,10 @@ for key, label in (("nginx", "nginx (static files)"), ("tessera-http", "tessera 
         p["peak_batch_requests_per_s"] = med(peak, lambda r: r["batch_requests"] / (r["seconds"] + r["warmup_s"]))
         p["half_duplicates"] = sum(r["duplicates"] for r in half)
         p["half_dropped"] = sum(r["dropped"] for r in half)
+        # Server side (TileReply.server_micros: the latest batch listing the tile -> handed to gRPC).
+        p["half_server_p50_ms"] = med(half, lambda r: r["server_latency_ms"]["p50"])
+        p["half_server_p99_ms"] = med(half, lambda r: r["server_latency_ms"]["p99"])
+        p["same_server_p99_ms"] = med(same, lambda r: r["server_latency_ms"]["p99"])
     res["peers"][key] = p
     rows.append((label, p))
 ng = res["peers"]["nginx"]
@@ -313,6 +317,7 @@ print(f"tessera/nginx tiles per server CPU-second: gRPC {r['grpc_over_nginx_tile
 print(f"p99 at half peak: gRPC {res['peers']['tessera-grpc']['half_p99_ms']:.2f} ms, HTTP {res['peers']['tessera-http']['half_p99_ms']:.2f} ms, "
       f"nginx {ng['half_p99_ms']:.2f} ms (target < 5 ms)")
 g = res["peers"]["tessera-grpc"]
+print(f"gRPC server side (server_micros) at half load: p50 {g['half_server_p50_ms']:.2f} ms, p99 {g['half_server_p99_ms']:.2f} ms")
 print(f"gRPC duplicates (tiles sent twice: re-listed while on the wire): {g['peak_duplicates_per_s']:.0f}/s at peak, {g['half_duplicates']} in the half-load runs")
 json.dump(res, open(os.path.join(work, "results.json"), "w"), indent=2)
 PY
