@@ -73,7 +73,7 @@ public:
         {
             std::unique_lock lock(mu_);
             writing_ = false;
-            if (!ok) {
+            if (!ok || broken_) {  // broken_: cancelled while this write was in flight
                 broken_ = true;
                 finish_locked(lock, grpc::Status(grpc::StatusCode::CANCELLED, "the viewer went away"));
                 return;
