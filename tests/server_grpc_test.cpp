@@ -50,10 +50,16 @@ private:
     std::unique_ptr<ScratchDir> dir_;
 };
 
-std::shared_ptr<grpc::Channel> channel(const std::string& address) {
+// `small_window`: no BDP probing and a 64 KiB receive window, so the transport holds few
+// unread tiles (tests that count tiles in a time window need that bound).
+std::shared_ptr<grpc::Channel> channel(const std::string& address, bool small_window = false) {
     grpc::ChannelArguments args;
     args.SetMaxReceiveMessageSize(64 << 20);
     args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);  // each channel its own connection
+    if (small_window) {
+        args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+        args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 64 << 10);
+    }
     return grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
 }
 
@@ -91,8 +97,8 @@ std::vector<Req> level_keys(const std::string& path, std::uint32_t level, float 
 
 // One viewer: a StreamTiles call with a reader that collects messages.
 struct Viewer {
-    explicit Viewer(const std::string& address, const std::string& token = "")
-        : stub(v1::TileService::NewStub(channel(address))) {
+    explicit Viewer(const std::string& address, const std::string& token = "", bool small_window = false)
+        : stub(v1::TileService::NewStub(channel(address, small_window))) {
         if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
         stream = stub->StreamTiles(&ctx);
     }
@@ -105,6 +111,7 @@ struct Viewer {
             if (!stream->Read(&m)) return false;
             if (m.has_ack()) acks.push_back(m.ack());
             else tiles.push_back(m.tile());
+            tile_count.store(tiles.size());
         }
         return true;
     }
@@ -122,6 +129,7 @@ struct Viewer {
     std::unique_ptr<grpc::ClientReaderWriter<v1::TileBatch, v1::ServerMessage>> stream;
     std::vector<v1::BatchAck> acks;
     std::vector<v1::TileReply> tiles;
+    std::atomic<std::size_t> tile_count{0};  // tiles.size(), readable from another thread
 };
 
 v1::ServerStats stats(const std::string& address) {
@@ -227,7 +235,7 @@ TEST_F(ServerGrpc, TwoViewersGetFairService) {
     for (auto& r : big) r.priority = 100;          // and higher priorities than the small viewer's
     auto small = level_keys(Stores::get().jpeg, 3);
     small.resize(10);
-    Viewer heavy(srv.grpc_address()), light(srv.grpc_address());
+    Viewer heavy(srv.grpc_address(), "", /*small_window=*/true), light(srv.grpc_address());
     ASSERT_TRUE(heavy.send(batch(1, "terrain", big)));
     ASSERT_TRUE(heavy.read_until([&] { return heavy.tiles.size() >= 50; }));  // it is being served
     std::atomic<bool> light_done{false};
@@ -235,17 +243,24 @@ TEST_F(ServerGrpc, TwoViewersGetFairService) {
         // Keep the heavy viewer reading (so it is not merely flow-controlled).
         heavy.read_until([&] { return light_done.load() || heavy.tiles.size() == big.size(); });
     });
-    const std::size_t heavy_before = heavy.tiles.size();
-    const auto t0 = std::chrono::steady_clock::now();
+    // Count the heavy viewer's tiles from the moment the server has admitted the light batch (its
+    // ack), so the time the batch spends getting there on a busy machine does not count.
     ASSERT_TRUE(light.send(batch(1, "terrain", small)));
-    ASSERT_TRUE(light.read_until([&] { return light.tiles.size() == small.size(); }));
+    const bool acked = light.read_until([&] { return !light.acks.empty(); });
+    const std::size_t heavy_before = heavy.tile_count.load();
+    const auto t0 = std::chrono::steady_clock::now();
+    const bool served = acked && light.read_until([&] { return light.tiles.size() == small.size(); });
     const auto light_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    const std::size_t heavy_during = heavy.tile_count.load() - heavy_before;
     light_done = true;
     reader.join();
-    const std::size_t heavy_during = heavy.tiles.size() - heavy_before;
-    // Fair share: the light viewer's 10 tiles are served within a few chunks of the heavy one's,
-    // not after its 4000+ (16 per chunk, 2 chunks in flight, plus what the transport buffers).
-    EXPECT_LT(heavy_during, 400u) << "light viewer waited " << light_ms << " ms";
+    ASSERT_TRUE(served);
+    std::printf("heavy viewer got %zu tiles while the light one waited %.1f ms\n", heavy_during, light_ms);
+    // Fair share: the light viewer's 10 tiles are served within a few chunks of the heavy one's
+    // (16 per chunk, 2 chunks in flight, plus a 64 KiB transport window: typically under 100
+    // tiles), not after its remaining 4000+, which strict priority order would give. The bound
+    // leaves room for a reader thread descheduled on a loaded 2-core machine (up to 262 seen).
+    EXPECT_LT(heavy_during, big.size() / 4);
     EXPECT_LT(heavy.tiles.size(), big.size() / 2);
 }
 
