@@ -18,6 +18,11 @@ if(NOT TESSERA_FUZZ_ONLY)
   find_package(fmt REQUIRED CONFIG)
   find_package(Boost 1.74 REQUIRED CONFIG)  # header-only Asio and Beast
   find_package(OpenSSL REQUIRED)
+  # The GL client: libepoxy dispatches GL calls for both EGL (headless) and GLFW (windowed).
+  pkg_check_modules(EPOXY REQUIRED IMPORTED_TARGET epoxy)
+  pkg_check_modules(EGL REQUIRED IMPORTED_TARGET egl)
+  pkg_check_modules(GLFW REQUIRED IMPORTED_TARGET glfw3)
+  pkg_check_modules(TINYOBJ REQUIRED IMPORTED_TARGET tinyobjloader)
   if(TESSERA_BUILD_TESTS)
     find_package(GTest REQUIRED)
   endif()

@@ -257,6 +257,33 @@ TEST_F(RuntimeSim, StaleRequestsAreCancelledAtTheSource) {
     EXPECT_EQ(src.served(), up.pages().size());
 }
 
+TEST_F(RuntimeSim, FramesWithoutFeedbackKeepLoadingAndCancelNothing) {
+    // A GPU renderer's feedback arrives frames late: frames without it keep the last wanted set.
+    FakeUploader up;
+    DelayedSource src(path_, 3);
+    auto rt = make(1024, up, src);
+    const auto& info = *rt->texture_info(0);
+    const auto ids = feedback(info, 160, 90, 4000, 4000, 2, 0);
+    src.tick();
+    const auto wanted = rt->frame(ids, 160, 90, 0.0f).pages_wanted;
+    const auto requested = rt->in_flight();
+    ASSERT_GT(requested, 8u);
+    std::uint64_t uploaded = 0;
+    for (int f = 0; f < 200 && rt->in_flight() > 0; ++f) {
+        src.tick();
+        const auto& s = rt->frame_without_feedback();
+        EXPECT_EQ(s.pages_wanted, wanted);
+        EXPECT_LE(s.pages_uploaded, 8u);
+        uploaded += s.pages_uploaded;
+    }
+    EXPECT_EQ(rt->in_flight(), 0u);
+    EXPECT_EQ(uploaded, src.served()) << "every request was served and uploaded, none cancelled";
+    EXPECT_GE(uploaded, requested);
+    // The next real feedback finds everything resident.
+    src.tick();
+    EXPECT_EQ(rt->frame(ids, 160, 90, 0.0f).fallback_estimate, 0.0f);
+}
+
 TEST_F(RuntimeSim, DeterministicForTheSameScript) {
     auto once = [&] {
         FakeUploader up;

@@ -12,6 +12,7 @@ packages=(
   libcli11-dev nlohmann-json3-dev libfmt-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libboost-dev libssl-dev zlib1g-dev openssl
+  libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libtinyobjloader-dev  # GL client (llvmpipe headless)
   libgtest-dev libgmock-dev libbenchmark-dev
   python3 python3-yaml time systemd   # systemd: systemd-analyze lints deploy/tessera.service
 )

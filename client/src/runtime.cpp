@@ -192,6 +192,27 @@ public:
         return stats_;
     }
 
+    const FrameStats& frame_without_feedback() override {
+        const auto now = Clock::now();
+        ++frame_no_;
+        const std::uint32_t wanted = stats_.pages_wanted;
+        const float fallback = stats_.fallback_estimate;
+        stats_ = FrameStats{};
+        stats_.frame = frame_no_;
+        stats_.pages_wanted = wanted;
+        stats_.fallback_estimate = fallback;
+        collect_arrivals(now);
+        issue_requests(now);
+        send_request_sets();
+        decode();
+        upload(now);
+        upload_page_tables();
+        stats_.pages_resident = residency_.stats().resident_pages;
+        stats_.lod_bias = bias_.bias();
+        summary_.add_frame(stats_);
+        return stats_;
+    }
+
     float lod_bias() const override { return bias_.bias(); }
     const Residency& residency() const override { return residency_; }
     const StatsSummary& summary() const override { return summary_; }
@@ -467,6 +488,7 @@ private:
             // Unmapped before it is overwritten (acquire_slot did), mapped once complete.
             uploader_.upload_page(grant->slot, p.rgba8, textures_[key.texture].info->tile_size());
             (void)residency_.complete(key, grant->slot);
+            desired_.erase(key);  // resident now: frames without feedback must not ask for it again
             ++stats_.pages_uploaded;
             stats_.bytes_uploaded += p.bytes;
             summary_.record_latency(now - it->second.requested);

@@ -58,6 +58,11 @@ public:
     virtual const FrameStats& frame(std::span<const FeedbackId> feedback, std::uint32_t width, std::uint32_t height,
                                     float feedback_bias = std::numeric_limits<float>::quiet_NaN()) = 0;
 
+    // A frame whose feedback has not come back yet (GPU readbacks arrive frames late): the wanted
+    // set stays the last feedback's (nothing is cancelled or newly protected), while arrivals,
+    // decoding and uploads go on. The bias controller waits for real feedback.
+    virtual const FrameStats& frame_without_feedback() = 0;
+
     virtual float lod_bias() const = 0;  // for the next frame's feedback and sampling
     virtual const Residency& residency() const = 0;
     virtual const StatsSummary& summary() const = 0;

@@ -1,0 +1,59 @@
+#pragma once
+// Geometry the VT renderer draws, GL-free (the load tester and the CPU feedback use it too).
+//
+// Precision (issue 5): texture coordinates are never one float UV over the whole virtual texture.
+// Each chunk carries an integer texel origin (level-0 texels of the virtual texture) and its
+// vertices carry float texel offsets relative to it, small enough to be exact to a fraction of a
+// texel; likewise positions are float offsets from a double-precision chunk origin.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "tessera/result.hpp"
+#include "tessera/scene/camera.hpp"
+
+namespace tessera::scene {
+
+struct Vertex {
+    float position[3];  // world units, relative to Chunk::origin
+    float texel[2];     // level-0 texels of the virtual texture, relative to Chunk::texel_origin
+};
+
+struct Chunk {
+    Vec3d origin{0, 0, 0};                 // world position of local (0, 0, 0)
+    std::uint32_t texel_origin[2] = {0, 0};  // level-0 texel of local texel (0, 0)
+    std::vector<Vertex> vertices;
+    std::vector<std::uint32_t> indices;  // triangles, counter-clockwise seen from the front
+    double bounds_min[3] = {0, 0, 0};    // world-space box of the chunk (for culling)
+    double bounds_max[3] = {0, 0, 0};
+};
+
+struct Scene {
+    std::string name;                  // "terrain", "atlas", ...
+    std::uint32_t vt_width = 0;        // the virtual texture the scene is textured with (texels)
+    std::uint32_t vt_height = 0;
+    std::vector<Chunk> chunks;
+    double bounds_min[3] = {0, 0, 0};  // the whole scene
+    double bounds_max[3] = {0, 0, 0};
+};
+
+struct TerrainOptions {
+    std::uint32_t vt_width = 0;   // the virtual texture's size: the plane is vt_width x vt_height
+    std::uint32_t vt_height = 0;  // world units (one unit per level-0 texel), from (0,0) to (w,h)
+    std::uint32_t chunk_texels = 4096;  // chunk side in level-0 texels (the last row/column may be smaller)
+    std::uint32_t quads_per_chunk = 16;  // grid resolution per chunk side
+    double displacement = 0;  // peak height in world units; 0: a flat plane (z = 0)
+};
+// The `terrain` scene: one virtual texture on a ground plane (optionally displaced by a smooth
+// deterministic height function). Errors: zero sizes, chunk_texels or quads_per_chunk 0.
+Result<Scene> make_terrain(const TerrainOptions& options);
+
+// Height of the displaced terrain at world (x, y) (0 when displacement is 0); what make_terrain uses.
+double terrain_height(const TerrainOptions& options, double x, double y);
+
+// The `atlas` scene: an OBJ file whose texture coordinates address the packed atlas virtual
+// texture (written by `tessera build --atlas`, see atlas.hpp): u, v in [0, 1] of the atlas, v down.
+// Positions are taken as they are (Y up in OBJ; converted to this library's Z up).
+Result<Scene> load_obj_scene(const std::string& obj_path, std::uint32_t vt_width, std::uint32_t vt_height);
+
+}  // namespace tessera::scene
