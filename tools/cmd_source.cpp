@@ -1,5 +1,6 @@
 // tessera source SPEC -o IMAGE: writes a source (e.g. the procedural terrain) to an image file,
 // strip by strip, so other tools (libvips, image viewers) can read exactly what the builder reads.
+// tessera source scene:gallery -o DIR: writes the sample OBJ scene (gallery_scene.hpp).
 #include <fmt/format.h>
 #include <unistd.h>
 
@@ -7,6 +8,7 @@
 #include <thread>
 
 #include "commands.hpp"
+#include "gallery_scene.hpp"
 #include "progress.hpp"
 #include "tessera/storage/image_source.hpp"
 
@@ -19,11 +21,22 @@ Command add_source(CLI::App& app) {
     };
     auto a = std::make_shared<Args>();
     CLI::App* c = app.add_subcommand("source", "Write a build source (e.g. procedural:terrain:SIZE) to an image file");
-    c->add_option("source", a->spec, "procedural:terrain:SIZE or an image file")->required();
-    c->add_option("-o,--output", a->output, "Image file to write; the format follows the extension (.tif, .png, .exr ...)")
+    c->add_option("source", a->spec, "procedural:terrain:SIZE, an image file, or scene:gallery (a sample OBJ scene)")->required();
+    c->add_option("-o,--output", a->output,
+                  "Image file to write; the format follows the extension (.tif, .png, .exr ...). For scene:gallery, a new folder")
         ->required();
     c->add_flag("-q,--quiet", a->quiet, "No progress bar");
     return [a]() -> int {
+        if (a->spec.rfind("scene:", 0) == 0) {
+            if (a->spec != "scene:gallery") throw Failure("unknown scene '" + a->spec + "' (expected scene:gallery)", 2);
+            StderrCapture library_messages;
+            const Status st = write_gallery_scene(a->output);
+            const std::string messages = library_messages.release();
+            if (!st) throw Failure(st.error().message);
+            std::fputs(messages.c_str(), stderr);
+            if (!a->quiet) fmt::print("wrote the gallery scene to {} (gallery.obj, gallery.mtl, textures/)\n", a->output);
+            return 0;
+        }
         ProgressBar bar("source", !a->quiet);
         StderrCapture library_messages;  // libpng prints its own copy of errors we report (see cmd_build.cpp)
         auto src = storage::open_image_source(a->spec);

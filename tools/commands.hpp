@@ -23,5 +23,6 @@ Command add_verify(CLI::App& app);
 Command add_source(CLI::App& app);
 Command add_demo(CLI::App& app);
 Command add_serve(CLI::App& app);
+Command add_view(CLI::App& app);
 
 }  // namespace tessera::tools

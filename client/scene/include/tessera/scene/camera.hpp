@@ -33,4 +33,11 @@ Mat4f view_rotation(const Camera& c);
 Mat4f projection(const Camera& c, double aspect);
 Mat4f multiply(const Mat4f& a, const Mat4f& b);  // a * b
 
+// `origin - camera_position` in double, then rounded once to float: the translation a chunk's
+// vertices get (exact to float rounding of the small difference, however large the coordinates).
+std::array<float, 3> camera_relative(const Vec3d& origin, const Vec3d& camera_position);
+// Clip coordinates (x, y, z, w) of a world point, all in double and camera-relative: the same
+// transform as projection * view_rotation * (world - position). NDC = xyz / w (w > 0 in front).
+std::array<double, 4> world_to_clip(const Camera& c, double aspect, const Vec3d& world);
+
 }  // namespace tessera::scene

@@ -42,9 +42,12 @@ public:
     std::string to_text() const;        // the file format above (round-trips through parse)
     const std::vector<Keyframe>& keyframes() const { return keys_; }
 
+    double fov_y() const { return fov_y_; }
+
 private:
     std::vector<Keyframe> keys_;
     double fov_y_ = 1.0471975511965976;
+    double far_ = 1.0e7;  // far plane of at(): covers the keyframes' reach (and the scene, for built-ins)
 };
 
 }  // namespace tessera::scene

@@ -8,11 +8,16 @@
 // on the render thread; the renderer copies into its staging ring and issues the GL uploads.
 //
 // Sampling (shaders/vt_sample.glsl, one include any shader can use): LoD from the virtual-texel
-// derivatives plus the bias; one page-table fetch (fallback entries point at the nearest resident
-// ancestor); physical coordinates from integer page math (exact far from the origin); bilinear,
-// trilinear (two lookups) or anisotropic (explicit taps along the major axis, up to 8, inside the
-// 4-texel border) filtering. Levels: `lod` = log2(texels per pixel at level 0) + bias, clamped to
-// [0, levels-1]; bilinear samples level floor(lod + 0.5)... see docs/renderer.md for the exact rule.
+// derivatives plus the bias; one page-table fetch per lookup (fallback entries point at the
+// nearest resident ancestor); physical coordinates from integer page math (exact far from the
+// origin) plus the border; bilinear, trilinear (two lookups) or anisotropic (explicit taps along
+// the major axis, up to 8, each a trilinear lookup with its own page-table fetch) filtering.
+// Levels (the rule is tessera/scene/lod.hpp; the GLSL mirrors it): `lod` = log2 of the level-0
+// texels per main-target pixel (anisotropic: of max(minor, major / max_anisotropy)) + bias;
+// bilinear samples level clamp(floor(lod + 0.5), 0, levels - 1); trilinear and anisotropic look up
+// floor(lod) and floor(lod) + 1 of the lod clamped to [0, levels - 1], blended by its fraction.
+// The feedback requests the page of that level (bilinear) or of floor(lod) (the finer one).
+// An empty page-table entry (nothing resident) samples kNoDataColour. See docs/renderer.md.
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -38,16 +43,36 @@ struct RendererConfig {
     std::uint32_t tile_size = 256;     // stored tile size (payload + 2 * border)
     std::uint32_t border = 4;
     bool srgb = true;                  // atlas and target are sRGB: filtering in linear light
-    std::size_t staging_bytes = 32u << 20;  // page staging ring (bounded; a full ring defers uploads)
-    std::uint32_t readback_ring = 3;   // feedback/counter readbacks in flight
+    std::size_t staging_bytes = 32u << 20;  // page + page-table staging ring (bounded; when full, uploads go
+                                            // straight from client memory: RendererStats::direct_uploads)
+    std::uint32_t readback_ring = 3;   // feedback readbacks in flight (counters: 4x as many; 1..64)
 };
 
+// The colour drawn where nothing is resident on a page's path (an empty entry): opaque magenta,
+// linear RGBA. Pixels without geometry are cleared to transparent black.
+inline constexpr float kNoDataColour[4] = {1.0f, 0.0f, 1.0f, 1.0f};
+
 // Fallback counters of one rendered frame (design.md "Measures"), read back some frames later.
+// textured_pixels: pixels the VT pass shaded (each visible pixel once: depth pre-pass, then early
+// fragment tests). An empty entry counts as fallback.
 struct FrameCounters {
     std::uint64_t frame = 0;           // the render() call they belong to
     std::uint64_t textured_pixels = 0;
     std::uint64_t fallback_unbiased = 0;  // sampled level coarser than the level wanted without bias
     std::uint64_t fallback_biased = 0;    // ... coarser than the level wanted with the bias
+};
+
+// What the renderer did since it was created (for logs, tests and the viewer's overlay).
+struct RendererStats {
+    std::uint64_t frames = 0;
+    std::uint64_t pages_uploaded = 0;
+    std::uint64_t table_uploads = 0;          // page-table rectangles
+    std::uint64_t direct_uploads = 0;         // uploads made from client memory: the staging ring was full
+    std::uint64_t malformed_uploads = 0;      // ignored: bad slot, size, texture, level or rectangle
+    std::uint64_t feedback_skipped = 0;       // frames without a feedback readback: every ring slot in flight
+    std::uint64_t counters_skipped = 0;       // frames without counters: every counter slot in flight
+    std::uint64_t gl_errors = 0;              // glGetError reports, checked in finish() (never per frame)
+    std::size_t visible_chunks = 0;           // last frame
 };
 
 // A feedback buffer read back from the GPU.
@@ -88,12 +113,14 @@ public:
     virtual void present(int window_width, int window_height) = 0;
 
     virtual const RendererConfig& config() const = 0;
+    virtual RendererStats stats() const = 0;
 };
 
 // The reference renderer (design.md "Measures"): the same scene and camera drawn from an ordinary
 // mipmapped GL texture with the same filter and LoD rule, no bias, for PSNR and max error.
-// Levels: RGBA8 texels of each level of the virtual texture, level 0 first (sizes as in the store:
-// ceil(size / 2^L)), e.g. decoded from a store's tile interiors.
+// Levels: RGBA8 texels of each level of the virtual texture, level 0 first, rows top to bottom,
+// e.g. decoded from a store's tile interiors; as many levels as the store has (the LoD clamp).
+// Uses config's width, height, filter, max_anisotropy and srgb.
 class ReferenceRenderer {
 public:
     struct Level {
@@ -101,7 +128,8 @@ public:
         std::vector<std::uint8_t> rgba8;
     };
     // Errors: a level 0 larger than GL_MAX_TEXTURE_SIZE ("does not fit": use the VT with every page
-    // resident instead), levels not halving.
+    // resident instead), levels not halving: each level must be max(1, previous / 2) per side (GL's
+    // mip chain rounds down, the store's rounds up: they agree for power-of-two sides).
     static Result<std::unique_ptr<ReferenceRenderer>> create(const RendererConfig& config, std::span<const Level> levels);
     virtual ~ReferenceRenderer() = default;
     virtual Status set_scene(const scene::Scene& scene) = 0;
@@ -110,17 +138,20 @@ public:
 };
 
 // Decodes every tile interior of a store into RGBA8 levels (for ReferenceRenderer). Errors: a
-// store too large (level 0 over max_texels per side), unreadable or undecodable tiles.
+// store too large (level 0 over max_side texels per side), unreadable or undecodable tiles.
+// Absent tiles (sparse stores) decode as transparent black.
 Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side = 16384);
 
 // PSNR (dB, over RGB, 8-bit) and max absolute error of two RGBA8 images of equal size, over the
-// pixels where `mask` (optional, same size, non-zero = count) is set. PSNR is +inf when equal.
+// pixels where `mask` (optional: width*height bytes, one per pixel, non-zero = count) is set.
+// PSNR is +inf when equal (MSE over the counted pixels' R, G and B).
 struct ImageError {
     double psnr = 0;
     int max_error = 0;
     std::uint64_t pixels = 0;
 };
+// Images of the wrong size compare as maximally different (psnr 0, max_error 255, pixels 0).
 ImageError compare_images(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b, std::uint32_t width,
-                          std::uint32_t height);
+                          std::uint32_t height, std::span<const std::uint8_t> mask = {});
 
 }  // namespace tessera::client::gl

@@ -1,0 +1,28 @@
+// feedback.frag: the feedback pass at 1/N resolution, depth-tested against its own depth buffer.
+// Writes the packed id of the page the fragment wants (same LoD math as the VT pass, bias
+// included; derivatives per main-target pixel, see below).
+#include "vt_sample.glsl"
+
+in vec2 v_local;
+in float v_w;  // perspective-correct, so exact at the pixel centre (clipped triangles included)
+uniform uvec2 u_texel_origin;
+// One main-target pixel in feedback pixels: (fb_width / width, fb_height / height), i.e. 1/N.
+uniform vec2 vt_main_pixel;
+
+layout(location = 0) out uvec2 o_id;
+
+void main() {
+    // Derivatives per main-target pixel at this pixel's centre: forward differences one main
+    // pixel right and one main pixel down, exactly as scene::cpu_feedback takes them. (dFdx of
+    // the texel coordinate at 1/N resolution differences across N main pixels: under perspective
+    // that is off by whole levels near the horizon.) local / w and 1 / w are linear in screen
+    // space, so their screen derivatives are exact, and local anywhere near the pixel is
+    // (q + dq) / (r + dr).
+    vec3 p = vec3(v_local, 1.0) / v_w;
+    vec3 px = dFdx(p), py = dFdy(p);
+    vec2 centre = v_local;
+    vec3 right = p + px * vt_main_pixel.x, down = p - py * vt_main_pixel.y;
+    vec2 dx = right.xy / right.z - centre;
+    vec2 dy = down.xy / down.z - centre;
+    o_id = vt_feedback(u_texel_origin, v_local, dx, dy);
+}

@@ -1,0 +1,31 @@
+// reference.frag: the reference renderer (design.md "Measures"): the same LoD rule and filter as
+// the VT (vt_sample.glsl's vt_lod / vt_wanted_level / taps), no bias, sampling an ordinary
+// mipmapped GL texture with textureLod, so bilinear and trilinear pick exactly the VT's levels.
+#include "vt_sample.glsl"
+
+in vec2 v_local;
+uniform uvec2 u_texel_origin;
+uniform sampler2D ref_texture;  // GL_LINEAR_MIPMAP_LINEAR, clamp to edge
+uniform vec2 ref_size;          // level-0 texels
+
+layout(location = 0) out vec4 o_colour;
+
+vec4 ref_trilinear(vec2 texel, float lod) { return textureLod(ref_texture, texel / ref_size, vt_clamped_lod(lod)); }
+
+void main() {
+    vec2 dx = dFdx(v_local), dy = dFdy(v_local);
+    float lod = vt_lod(dx, dy);
+    vec2 texel = vec2(u_texel_origin) + v_local;
+#if VT_FILTER == VT_BILINEAR
+    o_colour = textureLod(ref_texture, texel / ref_size, float(vt_wanted_level(lod)));
+#elif VT_FILTER == VT_TRILINEAR
+    o_colour = ref_trilinear(texel, lod);
+#else
+    vec2 axis;
+    float count;
+    vt_aniso_taps(dx, dy, vt_clamped_lod(lod), axis, count);
+    vec4 sum = vec4(0.0);
+    for (int i = 0; i < int(count); ++i) sum += ref_trilinear(texel + vt_tap_offset(axis, count, i), lod);
+    o_colour = sum / count;
+#endif
+}

@@ -1,0 +1,87 @@
+// decode_store_levels and compare_images (renderer.hpp): GL-free helpers for reference frames.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/transcode.hpp"
+#include "tessera/storage/store_reader.hpp"
+
+namespace tessera::client::gl {
+
+Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side) {
+    auto opened = storage::StoreReader::open(store_path);
+    if (!opened) return opened.error();
+    const auto& reader = **opened;
+    const auto& info = reader.info();
+    if (info.width > max_side || info.height > max_side)
+        return Error{Errc::resource_exhausted, fmt::format("{}: {}x{} texels, over {} per side for a reference texture", store_path,
+                                                           info.width, info.height, max_side)};
+    const std::uint32_t P = info.tile_payload, B = info.border, ts = info.tile_size();
+    std::vector<std::uint8_t> page(rgba8_page_bytes(info));
+    Scratch scratch;
+    std::vector<ReferenceRenderer::Level> out;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l) {
+        const auto& li = info.levels[l];
+        ReferenceRenderer::Level level;
+        level.width = li.width;
+        level.height = li.height;
+        level.rgba8.assign(std::size_t(li.width) * li.height * 4, 0);
+        for (std::uint32_t ty = 0; ty < li.tiles_y; ++ty) {
+            std::vector<storage::TileKey> keys;
+            for (std::uint32_t tx = 0; tx < li.tiles_x; ++tx) keys.push_back(storage::TileKey{l, tx, ty});
+            auto tiles = reader.read_tiles(keys);
+            for (std::uint32_t tx = 0; tx < li.tiles_x; ++tx) {
+                auto& t = tiles[tx];
+                if (!t) return Error{t.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, t.error().message)};
+                if (t->kind == storage::TileKind::absent) continue;  // transparent black
+                const bool uniform = t->kind == storage::TileKind::uniform;
+                Status st = transcode_to_rgba8(info, uniform ? wire_kind::uniform : wire_kind::present,
+                                               uniform ? wire_codec::uniform : static_cast<std::uint8_t>(info.codec), t->bytes, page,
+                                               scratch);
+                if (!st) return Error{st.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, st.error().message)};
+                // The interior [B, B + P) of the tile is level texels [tx * P, (tx + 1) * P).
+                const std::uint32_t x0 = tx * P, y0 = ty * P;
+                const std::uint32_t w = std::min(P, li.width - x0), h = std::min(P, li.height - y0);
+                for (std::uint32_t y = 0; y < h; ++y)
+                    std::memcpy(level.rgba8.data() + (std::size_t(y0 + y) * li.width + x0) * 4,
+                                page.data() + (std::size_t(B + y) * ts + B) * 4, std::size_t(w) * 4);
+            }
+        }
+        out.push_back(std::move(level));
+    }
+    return out;
+}
+
+ImageError compare_images(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b, std::uint32_t width,
+                          std::uint32_t height, std::span<const std::uint8_t> mask) {
+    const std::size_t n = std::size_t(width) * height;
+    ImageError e;
+    if (a.size() != n * 4 || b.size() != n * 4 || (!mask.empty() && mask.size() != n)) {
+        e.psnr = 0;
+        e.max_error = 255;
+        return e;
+    }
+    std::uint64_t sum_sq = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        if (!mask.empty() && mask[i] == 0) continue;
+        ++e.pixels;
+        for (int c = 0; c < 3; ++c) {
+            const int d = std::abs(int(a[i * 4 + c]) - int(b[i * 4 + c]));
+            e.max_error = std::max(e.max_error, d);
+            sum_sq += std::uint64_t(d * d);
+        }
+    }
+    if (e.pixels == 0 || sum_sq == 0) {
+        e.psnr = std::numeric_limits<double>::infinity();
+        return e;
+    }
+    const double mse = double(sum_sq) / double(e.pixels * 3);
+    e.psnr = 10.0 * std::log10(255.0 * 255.0 / mse);
+    return e;
+}
+
+}  // namespace tessera::client::gl

@@ -1,0 +1,126 @@
+// ReferenceRenderer: the scene drawn from an ordinary mipmapped GL texture with the VT's LoD rule
+// and filter (design.md "Measures"). See renderer.hpp.
+#include <fmt/format.h>
+
+#include "gl_util.hpp"
+#include "scene_draw.hpp"
+#include "tessera/client/gl/renderer.hpp"
+
+namespace tessera::client::gl {
+
+namespace {
+
+using namespace detail;
+
+class ReferenceRendererImpl final : public ReferenceRenderer {
+public:
+    explicit ReferenceRendererImpl(const RendererConfig& c) : cfg_(c) {}
+
+    Status init(std::span<const Level> levels) {
+        if (cfg_.width == 0 || cfg_.height == 0) return Error{Errc::invalid_argument, "reference: zero width or height"};
+        if (cfg_.max_anisotropy < 1 || cfg_.max_anisotropy > 8) return Error{Errc::invalid_argument, "reference: max_anisotropy must be 1..8"};
+        if (levels.empty() || levels.size() > 32) return Error{Errc::invalid_argument, "reference: 1..32 levels"};
+        for (std::size_t l = 0; l < levels.size(); ++l) {
+            const auto& lv = levels[l];
+            if (lv.width == 0 || lv.height == 0 || lv.rgba8.size() != std::size_t(lv.width) * lv.height * 4)
+                return Error{Errc::invalid_argument, fmt::format("reference: level {} is {}x{} with {} bytes", l, lv.width, lv.height, lv.rgba8.size())};
+            if (l > 0 && (lv.width != std::max(1u, levels[l - 1].width / 2) || lv.height != std::max(1u, levels[l - 1].height / 2)))
+                return Error{Errc::invalid_argument,
+                             fmt::format("reference: levels not halving: level {} is {}x{} after {}x{} (GL mips round down; "
+                                         "use power-of-two sides)",
+                                         l, lv.width, lv.height, levels[l - 1].width, levels[l - 1].height)};
+        }
+        GLint max_size = 0;
+        glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
+        if (levels[0].width > std::uint32_t(max_size) || levels[0].height > std::uint32_t(max_size))
+            return Error{Errc::resource_exhausted,
+                         fmt::format("reference: level 0 ({}x{}) does not fit the GPU's largest texture ({}^2): use the VT with every "
+                                     "page resident instead",
+                                     levels[0].width, levels[0].height, max_size)};
+        texture_ = make_texture(GL_TEXTURE_2D);
+        glTextureStorage2D(texture_.get(), GLsizei(levels.size()), cfg_.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(levels[0].width),
+                           GLsizei(levels[0].height));
+        glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+        glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
+        glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+        for (std::size_t l = 0; l < levels.size(); ++l)
+            glTextureSubImage2D(texture_.get(), GLint(l), 0, 0, GLsizei(levels[l].width), GLsizei(levels[l].height), GL_RGBA,
+                                GL_UNSIGNED_BYTE, levels[l].rgba8.data());
+        glTextureParameteri(texture_.get(), GL_TEXTURE_BASE_LEVEL, 0);
+        glTextureParameteri(texture_.get(), GL_TEXTURE_MAX_LEVEL, GLint(levels.size() - 1));
+        glTextureParameteri(texture_.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
+        glTextureParameteri(texture_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+        glTextureParameteri(texture_.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+        glTextureParameteri(texture_.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        if (auto e = take_gl_errors("reference texture"); !e.empty()) return Error{Errc::resource_exhausted, e};
+
+        const int filter = cfg_.filter == Filter::bilinear ? 0 : cfg_.filter == Filter::trilinear ? 1 : 2;
+        auto p = build_program("scene.vert", "reference.frag", fmt::format("#define VT_FILTER {}\n", filter));
+        if (!p) return p.error();
+        program_ = std::move(*p);
+        const GLuint id = program_.get();
+        u_view_projection_ = uniform(program_, "u_view_projection");
+        chunk_.chunk_offset = uniform(program_, "u_chunk_offset");
+        chunk_.texel_origin = uniform(program_, "u_texel_origin");
+        glProgramUniform1i(id, uniform(program_, "ref_texture"), 0);
+        glProgramUniform2f(id, uniform(program_, "ref_size"), float(levels[0].width), float(levels[0].height));
+        glProgramUniform1ui(id, uniform(program_, "vt_levels"), std::uint32_t(levels.size()));
+        glProgramUniform1f(id, uniform(program_, "vt_max_anisotropy"), float(cfg_.max_anisotropy));
+
+        auto t = make_colour_target(cfg_.width, cfg_.height, cfg_.srgb);
+        if (!t) return t.error();
+        target_ = std::move(*t);
+        return Status();
+    }
+
+    Status set_scene(const scene::Scene& scene) override { return geometry_.upload(scene); }
+
+    void render(const scene::Camera& camera) override {
+        const double aspect = double(cfg_.width) / double(cfg_.height);
+        const auto vp = view_projection(camera, aspect);
+        geometry_.cull(camera, aspect);
+        glProgramUniformMatrix4fv(program_.get(), u_view_projection_, 1, GL_FALSE, vp.data());
+        glBindFramebuffer(GL_FRAMEBUFFER, target_.fbo.get());
+        glViewport(0, 0, GLsizei(cfg_.width), GLsizei(cfg_.height));
+        if (cfg_.srgb) glEnable(GL_FRAMEBUFFER_SRGB);
+        glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+        glDepthMask(GL_TRUE);
+        glClearBufferfv(GL_COLOR, 0, kBackground);
+        const GLfloat far_depth = 1.0f;
+        glClearBufferfv(GL_DEPTH, 0, &far_depth);
+        glEnable(GL_CULL_FACE);
+        glCullFace(GL_BACK);
+        glFrontFace(GL_CCW);
+        glEnable(GL_DEPTH_TEST);
+        glDepthFunc(GL_LESS);
+        glDisable(GL_BLEND);
+        glDisable(GL_SCISSOR_TEST);
+        glBindTextureUnit(0, texture_.get());
+        glUseProgram(program_.get());
+        geometry_.draw(program_, chunk_, camera);
+        glUseProgram(0);
+        glDisable(GL_FRAMEBUFFER_SRGB);
+        glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    }
+
+    std::vector<std::uint8_t> read_color() override { return read_colour(target_); }
+
+private:
+    RendererConfig cfg_;
+    Texture texture_;
+    Program program_;
+    GLint u_view_projection_ = -1;
+    ChunkUniforms chunk_;
+    SceneGeometry geometry_;
+    ColourTarget target_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<ReferenceRenderer>> ReferenceRenderer::create(const RendererConfig& config, std::span<const Level> levels) {
+    auto r = std::make_unique<ReferenceRendererImpl>(config);
+    if (Status st = r->init(levels); !st) return st.error();
+    return std::unique_ptr<ReferenceRenderer>(std::move(r));
+}
+
+}  // namespace tessera::client::gl

@@ -1,0 +1,173 @@
+#include "scene_draw.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+namespace tessera::client::gl::detail {
+
+SceneGeometry::SceneGeometry() : vao_(make_vertex_array()) {}
+
+Status SceneGeometry::upload(const scene::Scene& s) {
+    std::size_t vertex_count = 0, index_count = 0;
+    for (const auto& c : s.chunks) {
+        vertex_count += c.vertices.size();
+        index_count += c.indices.size();
+        for (const auto i : c.indices)
+            if (i >= c.vertices.size())
+                return Error{Errc::invalid_argument, fmt::format("scene {}: index {} out of range ({} vertices)", s.name, i, c.vertices.size())};
+    }
+    if (vertex_count > std::size_t(std::numeric_limits<GLint>::max()))
+        return Error{Errc::resource_exhausted, fmt::format("scene {}: too many vertices", s.name)};
+    static_assert(sizeof(scene::Vertex) == 5 * sizeof(float), "Vertex must be five packed floats");
+    chunks_.clear();
+    visible_.clear();
+    vertices_ = make_buffer();
+    indices_ = make_buffer();
+    const auto vbytes = static_cast<GLsizeiptr>(std::max<std::size_t>(vertex_count, 1) * sizeof(scene::Vertex));
+    const auto ibytes = static_cast<GLsizeiptr>(std::max<std::size_t>(index_count, 1) * sizeof(std::uint32_t));
+    glNamedBufferStorage(vertices_.get(), vbytes, nullptr, GL_DYNAMIC_STORAGE_BIT);
+    glNamedBufferStorage(indices_.get(), ibytes, nullptr, GL_DYNAMIC_STORAGE_BIT);
+    std::size_t v = 0, i = 0;
+    for (const auto& c : s.chunks) {
+        if (c.indices.empty() || c.vertices.empty()) continue;
+        ChunkDraw d;
+        d.origin = c.origin;
+        d.texel_origin[0] = c.texel_origin[0];
+        d.texel_origin[1] = c.texel_origin[1];
+        d.index_count = static_cast<GLsizei>(c.indices.size());
+        d.index_offset = i * sizeof(std::uint32_t);
+        d.base_vertex = static_cast<GLint>(v);
+        for (int a = 0; a < 3; ++a) {
+            d.bmin[a] = std::numeric_limits<double>::infinity();
+            d.bmax[a] = -std::numeric_limits<double>::infinity();
+        }
+        for (const auto& vx : c.vertices)
+            for (int a = 0; a < 3; ++a) {
+                d.bmin[a] = std::min(d.bmin[a], c.origin[a] + double(vx.position[a]));
+                d.bmax[a] = std::max(d.bmax[a], c.origin[a] + double(vx.position[a]));
+            }
+        glNamedBufferSubData(vertices_.get(), static_cast<GLintptr>(v * sizeof(scene::Vertex)),
+                             static_cast<GLsizeiptr>(c.vertices.size() * sizeof(scene::Vertex)), c.vertices.data());
+        glNamedBufferSubData(indices_.get(), static_cast<GLintptr>(d.index_offset),
+                             static_cast<GLsizeiptr>(c.indices.size() * sizeof(std::uint32_t)), c.indices.data());
+        v += c.vertices.size();
+        i += c.indices.size();
+        chunks_.push_back(d);
+    }
+    const GLuint vao = vao_.get();
+    glVertexArrayVertexBuffer(vao, 0, vertices_.get(), 0, sizeof(scene::Vertex));
+    glVertexArrayElementBuffer(vao, indices_.get());
+    glEnableVertexArrayAttrib(vao, 0);
+    glEnableVertexArrayAttrib(vao, 1);
+    glVertexArrayAttribFormat(vao, 0, 3, GL_FLOAT, GL_FALSE, 0);
+    glVertexArrayAttribFormat(vao, 1, 2, GL_FLOAT, GL_FALSE, 3 * sizeof(float));
+    glVertexArrayAttribBinding(vao, 0, 0);
+    glVertexArrayAttribBinding(vao, 1, 0);
+    if (auto e = take_gl_errors("scene upload"); !e.empty()) return Error{Errc::resource_exhausted, e};
+    return Status();
+}
+
+namespace {
+
+// Rows of clip = P * V * (p - camera), in double (as scene::world_to_clip).
+std::array<std::array<double, 4>, 4> clip_rows(const scene::Camera& c, double aspect) {
+    const auto r = c.right(), u = c.up(), f = c.forward();
+    const double t = 1.0 / std::tan(c.fov_y / 2.0), n = c.near_plane, fa = c.far_plane;
+    const double a = (fa + n) / (n - fa), b = 2.0 * fa * n / (n - fa);
+    std::array<std::array<double, 4>, 4> m{};
+    for (int i = 0; i < 3; ++i) {
+        m[0][i] = t / aspect * r[i];
+        m[1][i] = t * u[i];
+        m[2][i] = -a * f[i];
+        m[3][i] = f[i];  // w = -ez = forward . d
+    }
+    m[2][3] = b;
+    return m;
+}
+
+}  // namespace
+
+void SceneGeometry::cull(const scene::Camera& camera, double aspect) {
+    visible_.clear();
+    const auto m = clip_rows(camera, aspect);
+    for (std::uint32_t k = 0; k < chunks_.size(); ++k) {
+        const auto& d = chunks_[k];
+        // A chunk is outside when all 8 corners are outside one clip plane.
+        int out[6] = {0, 0, 0, 0, 0, 0};
+        for (int corner = 0; corner < 8; ++corner) {
+            const double p[3] = {((corner & 1) ? d.bmax[0] : d.bmin[0]) - camera.position[0],
+                                 ((corner & 2) ? d.bmax[1] : d.bmin[1]) - camera.position[1],
+                                 ((corner & 4) ? d.bmax[2] : d.bmin[2]) - camera.position[2]};
+            double clip[4];
+            for (int row = 0; row < 4; ++row) clip[row] = m[row][0] * p[0] + m[row][1] * p[1] + m[row][2] * p[2] + m[row][3];
+            const double w = clip[3] * (1.0 + 1e-6) + 1e-9;  // a hair of slack
+            out[0] += clip[0] < -w;
+            out[1] += clip[0] > w;
+            out[2] += clip[1] < -w;
+            out[3] += clip[1] > w;
+            out[4] += clip[2] < -w;
+            out[5] += clip[2] > w;
+        }
+        if (std::none_of(std::begin(out), std::end(out), [](int o) { return o == 8; })) visible_.push_back(k);
+    }
+}
+
+void SceneGeometry::draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera) const {
+    glBindVertexArray(vao_.get());
+    for (const auto k : visible_) {
+        const auto& d = chunks_[k];
+        const auto off = scene::camera_relative(d.origin, camera.position);
+        glProgramUniform3f(program.get(), u.chunk_offset, off[0], off[1], off[2]);
+        glProgramUniform2ui(program.get(), u.texel_origin, d.texel_origin[0], d.texel_origin[1]);
+        glDrawElementsBaseVertex(GL_TRIANGLES, d.index_count, GL_UNSIGNED_INT,
+                                 reinterpret_cast<const void*>(d.index_offset), d.base_vertex);
+    }
+    glBindVertexArray(0);
+}
+
+scene::Mat4f view_projection(const scene::Camera& camera, double aspect) {
+    return scene::multiply(scene::projection(camera, aspect), scene::view_rotation(camera));
+}
+
+Result<ColourTarget> make_colour_target(std::uint32_t width, std::uint32_t height, bool srgb) {
+    ColourTarget t;
+    t.width = width;
+    t.height = height;
+    t.srgb = srgb;
+    t.colour = make_texture(GL_TEXTURE_2D);
+    glTextureStorage2D(t.colour.get(), 1, srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(width), GLsizei(height));
+    glTextureParameteri(t.colour.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+    glTextureParameteri(t.colour.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    t.depth = make_renderbuffer();
+    glNamedRenderbufferStorage(t.depth.get(), GL_DEPTH_COMPONENT32F, GLsizei(width), GLsizei(height));
+    t.fbo = make_framebuffer();
+    glNamedFramebufferTexture(t.fbo.get(), GL_COLOR_ATTACHMENT0, t.colour.get(), 0);
+    glNamedFramebufferRenderbuffer(t.fbo.get(), GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, t.depth.get());
+    const GLenum status = glCheckNamedFramebufferStatus(t.fbo.get(), GL_FRAMEBUFFER);
+    if (status != GL_FRAMEBUFFER_COMPLETE)
+        return Error{Errc::unsupported, fmt::format("colour target {}x{} incomplete (0x{:04x})", width, height, status)};
+    if (auto e = take_gl_errors("colour target"); !e.empty()) return Error{Errc::resource_exhausted, e};
+    return t;
+}
+
+std::vector<std::uint8_t> read_colour(const ColourTarget& t) {
+    const std::size_t row = std::size_t(t.width) * 4;
+    std::vector<std::uint8_t> bottom_up(row * t.height), out(row * t.height);
+    glBindBuffer(GL_PIXEL_PACK_BUFFER, 0);
+    glPixelStorei(GL_PACK_ALIGNMENT, 4);
+    glNamedFramebufferReadBuffer(t.fbo.get(), GL_COLOR_ATTACHMENT0);
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, t.fbo.get());
+    glReadPixels(0, 0, GLsizei(t.width), GLsizei(t.height), GL_RGBA, GL_UNSIGNED_BYTE, bottom_up.data());
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
+    // GL's row 0 is the bottom of the image.
+    for (std::uint32_t y = 0; y < t.height; ++y)
+        std::memcpy(out.data() + std::size_t(y) * row, bottom_up.data() + std::size_t(t.height - 1 - y) * row, row);
+    return out;
+}
+
+}  // namespace tessera::client::gl::detail

@@ -1,0 +1,66 @@
+#pragma once
+// What both renderers share: the scene's chunks in GL buffers, drawn camera-relative with
+// frustum culling, and an offscreen colour + depth target.
+#include <cstdint>
+#include <vector>
+
+#include "gl_util.hpp"
+#include "tessera/result.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
+
+namespace tessera::client::gl::detail {
+
+// Uniform locations the scene's draw calls set per chunk.
+struct ChunkUniforms {
+    GLint chunk_offset = -1;  // vec3: float(chunk.origin - camera.position)
+    GLint texel_origin = -1;  // uvec2
+};
+
+class SceneGeometry {
+public:
+    SceneGeometry();
+    // Uploads every chunk (one vertex and one index buffer; per-chunk base vertex and offset).
+    // Bounds for culling are recomputed from the vertices. Errors: indices out of range.
+    Status upload(const scene::Scene& scene);
+    bool empty() const { return chunks_.empty(); }
+    // Picks the chunks inside the camera's frustum (in double, camera-relative).
+    void cull(const scene::Camera& camera, double aspect);
+    // Draws the chunks `cull` kept with the bound program.
+    void draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera) const;
+    std::size_t visible_chunks() const { return visible_.size(); }
+
+private:
+    struct ChunkDraw {
+        scene::Vec3d origin{0, 0, 0};
+        std::uint32_t texel_origin[2] = {0, 0};
+        GLsizei index_count = 0;
+        std::size_t index_offset = 0;  // bytes
+        GLint base_vertex = 0;
+        double bmin[3] = {0, 0, 0}, bmax[3] = {0, 0, 0};
+    };
+    VertexArray vao_;
+    Buffer vertices_, indices_;
+    std::vector<ChunkDraw> chunks_;
+    std::vector<std::uint32_t> visible_;
+};
+
+// The view-projection matrix without translation: projection * view_rotation.
+scene::Mat4f view_projection(const scene::Camera& camera, double aspect);
+
+// An offscreen colour (RGBA8 or SRGB8_ALPHA8) + depth (32F) framebuffer.
+struct ColourTarget {
+    Texture colour;
+    Renderbuffer depth;
+    Framebuffer fbo;
+    std::uint32_t width = 0, height = 0;
+    bool srgb = false;
+};
+Result<ColourTarget> make_colour_target(std::uint32_t width, std::uint32_t height, bool srgb);
+// RGBA8 (the stored bytes: sRGB-encoded for an sRGB target), rows top to bottom. Waits.
+std::vector<std::uint8_t> read_colour(const ColourTarget& t);
+
+// Clear colour of pixels without geometry (linear RGBA; black, alpha 0).
+inline constexpr float kBackground[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+
+}  // namespace tessera::client::gl::detail

@@ -1,0 +1,79 @@
+#include "staging.hpp"
+
+namespace tessera::client::gl::detail {
+
+StagingRing::StagingRing(std::size_t bytes) : bytes_(bytes) {
+    if (bytes_ == 0) return;
+    buffer_ = make_buffer();
+    const GLbitfield flags = GL_MAP_WRITE_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
+    glNamedBufferStorage(buffer_.get(), static_cast<GLsizeiptr>(bytes_), nullptr, flags);
+    map_ = static_cast<std::uint8_t*>(glMapNamedBufferRange(buffer_.get(), 0, static_cast<GLsizeiptr>(bytes_), flags));
+}
+
+StagingRing::~StagingRing() {
+    batches_.clear();
+    if (map_) glUnmapNamedBuffer(buffer_.get());
+}
+
+std::size_t StagingRing::in_use() const {
+    if (batches_.empty()) return 0;
+    const std::size_t tail = batches_.front().begin;
+    return head_ >= tail ? head_ - tail : bytes_ - tail + head_;
+}
+
+void StagingRing::retire() {
+    while (!batches_.empty() && batches_.front().closed && batches_.front().fence.poll()) batches_.pop_front();
+    if (batches_.empty()) head_ = 0;
+}
+
+std::optional<std::size_t> StagingRing::allocate(std::size_t n, std::size_t align) {
+    if (!map_ || n == 0 || n > bytes_) return std::nullopt;
+    retire();
+    const auto aligned = [&](std::size_t x) { return (x + align - 1) & ~(align - 1); };
+    std::size_t at = aligned(head_);
+    if (!batches_.empty()) {
+        const std::size_t tail = batches_.front().begin;
+        if (head_ > tail) {
+            // Live bytes in [tail, head): room after head, else wrap to 0 (room before tail).
+            if (at + n > bytes_) {
+                if (n > tail) return std::nullopt;
+                at = 0;
+            }
+        } else {
+            // Wrapped (or exactly full): live bytes in [tail, end) and [0, head): room in [head, tail).
+            if (at + n > tail) return std::nullopt;
+        }
+    } else if (at + n > bytes_) {
+        at = 0;
+    }
+    // Extend the open batch when contiguous, else close it and open a new one.
+    if (batches_.empty() || batches_.back().closed || batches_.back().end != head_ || at < head_) {
+        if (!batches_.empty() && !batches_.back().closed) {
+            batches_.back().fence.insert();
+            batches_.back().closed = true;
+        }
+        Batch b;
+        b.begin = at;
+        b.end = at;
+        batches_.push_back(std::move(b));
+    }
+    batches_.back().end = at + n;
+    head_ = at + n;
+    return at;
+}
+
+void StagingRing::close_batch() {
+    if (!batches_.empty() && !batches_.back().closed) {
+        batches_.back().fence.insert();
+        batches_.back().closed = true;
+    }
+}
+
+void StagingRing::wait_all() {
+    close_batch();
+    for (auto& b : batches_) b.fence.wait();
+    batches_.clear();
+    head_ = 0;
+}
+
+}  // namespace tessera::client::gl::detail

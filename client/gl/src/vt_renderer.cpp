@@ -1,0 +1,581 @@
+// VtRenderer: the physical page atlas, packed page tables, the staging ring, the feedback, depth
+// and VT passes, and the feedback / counter readback rings. See renderer.hpp and docs/renderer.md.
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <deque>
+#include <map>
+
+#include "gl_util.hpp"
+#include "scene_draw.hpp"
+#include "staging.hpp"
+#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/page_table.hpp"
+
+namespace tessera::client::gl {
+
+namespace {
+
+using namespace detail;
+
+constexpr std::uint32_t kMaxLevels = 32;
+constexpr std::size_t kCounterBytes = 16;              // 4 uints: textured, unbiased, biased, reserved
+constexpr std::size_t kMaxUnpolledCounters = 1024;     // finished counter frames kept for poll_counters
+
+// Uniform locations of a program built with vt_sample.glsl.
+struct VtUniforms {
+    GLint view_projection = -1, bias = -1, main_pixel = -1;
+    GLint table_origin = -1, level_size = -1, levels = -1, payload = -1, border = -1, tile_size = -1;
+    GLint atlas_columns = -1, atlas_texel = -1, texture_id = -1, max_anisotropy = -1, no_data = -1;
+    GLint page_table = -1, atlas = -1;
+    ChunkUniforms chunk;
+
+    explicit VtUniforms(const Program& p = Program()) {
+        if (!p) return;
+        view_projection = uniform(p, "u_view_projection");
+        bias = uniform(p, "vt_bias");
+        main_pixel = uniform(p, "vt_main_pixel");
+        table_origin = uniform(p, "vt_table_origin");
+        level_size = uniform(p, "vt_level_size");
+        levels = uniform(p, "vt_levels");
+        payload = uniform(p, "vt_payload");
+        border = uniform(p, "vt_border");
+        tile_size = uniform(p, "vt_tile_size");
+        atlas_columns = uniform(p, "vt_atlas_columns");
+        atlas_texel = uniform(p, "vt_atlas_texel");
+        texture_id = uniform(p, "vt_texture_id");
+        max_anisotropy = uniform(p, "vt_max_anisotropy");
+        no_data = uniform(p, "vt_no_data_colour");
+        page_table = uniform(p, "vt_page_table");
+        atlas = uniform(p, "vt_atlas");
+        chunk.chunk_offset = uniform(p, "u_chunk_offset");
+        chunk.texel_origin = uniform(p, "u_texel_origin");
+    }
+};
+
+int filter_define(Filter f) {
+    switch (f) {
+        case Filter::bilinear: return 0;
+        case Filter::trilinear: return 1;
+        case Filter::anisotropic: return 2;
+    }
+    return 1;
+}
+
+// A virtual texture's page table on the GPU: every level in one R32UI texture, level 0 at (0, 0),
+// levels 1.. stacked in a column to its right (level sizes round up, so they are no mip chain).
+struct VirtualTexture {
+    TextureId id = 0;
+    std::uint32_t levels = 0, payload = 0, border = 0;
+    std::vector<std::int32_t> origin;      // 2 per level: table texel of the level's entry (0, 0)
+    std::vector<std::uint32_t> pages;      // 2 per level: tiles_x, tiles_y
+    std::vector<std::uint32_t> texels;     // 2 per level: width, height
+    std::uint32_t table_width = 0, table_height = 0;
+    Texture table;
+};
+
+class VtRendererImpl final : public VtRenderer {
+public:
+    explicit VtRendererImpl(const RendererConfig& c) : cfg_(c), staging_(c.staging_bytes) {}
+
+    Status init() {
+        const auto& c = cfg_;
+        if (c.width == 0 || c.height == 0) return Error{Errc::invalid_argument, "renderer: zero width or height"};
+        if (c.feedback_scale == 0) return Error{Errc::invalid_argument, "renderer: feedback_scale must be >= 1"};
+        if (c.max_anisotropy < 1 || c.max_anisotropy > 8) return Error{Errc::invalid_argument, "renderer: max_anisotropy must be 1..8"};
+        if (c.pool_slots == 0 || c.pool_slots > PageTable::kMaxSlots)
+            return Error{Errc::invalid_argument, fmt::format("renderer: pool_slots must be 1..{}", PageTable::kMaxSlots)};
+        if (c.tile_size <= 2 * c.border || c.border == 0)
+            return Error{Errc::invalid_argument, fmt::format("renderer: tile_size {} and border {} leave no payload (border >= 1)", c.tile_size, c.border)};
+        if (c.readback_ring < 1 || c.readback_ring > 64) return Error{Errc::invalid_argument, "renderer: readback_ring must be 1..64"};
+        GLint max_size = 0;
+        glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
+        max_texture_ = static_cast<std::uint32_t>(std::max(max_size, 1));
+        if (!staging_.ok()) return Error{Errc::resource_exhausted, "renderer: cannot map the staging ring"};
+
+        // The atlas: a near-square grid of tile_size cells.
+        const std::uint32_t per_row_max = max_texture_ / c.tile_size;
+        columns_ = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(std::ceil(std::sqrt(double(c.pool_slots)))));
+        columns_ = std::min(columns_, std::max<std::uint32_t>(per_row_max, 1));
+        const std::uint32_t rows = (c.pool_slots + columns_ - 1) / columns_;
+        atlas_width_ = columns_ * c.tile_size;
+        atlas_height_ = rows * c.tile_size;
+        if (per_row_max == 0 || atlas_width_ > max_texture_ || atlas_height_ > max_texture_)
+            return Error{Errc::resource_exhausted,
+                         fmt::format("renderer: a pool of {} slots of {}^2 texels needs a {}x{} atlas; the GPU's largest "
+                                     "texture is {}^2 (fewer slots or smaller tiles)",
+                                     c.pool_slots, c.tile_size, atlas_width_, atlas_height_, max_texture_)};
+        atlas_ = make_texture(GL_TEXTURE_2D);
+        glTextureStorage2D(atlas_.get(), 1, c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(atlas_width_), GLsizei(atlas_height_));
+        glTextureParameteri(atlas_.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+        glTextureParameteri(atlas_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+        glTextureParameteri(atlas_.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+        glTextureParameteri(atlas_.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        const std::uint8_t zero[4] = {0, 0, 0, 0};
+        glClearTexImage(atlas_.get(), 0, GL_RGBA, GL_UNSIGNED_BYTE, zero);
+        if (auto e = take_gl_errors("page atlas"); !e.empty())
+            return Error{Errc::resource_exhausted, fmt::format("renderer: {}x{} atlas: {}", atlas_width_, atlas_height_, e)};
+
+        // Programs.
+        const std::string defines = fmt::format("#define VT_FILTER {}\n", filter_define(c.filter));
+        auto depth = build_program("scene.vert", "depth.frag", defines);
+        if (!depth) return depth.error();
+        auto vt = build_program("scene.vert", "vt.frag", defines);
+        if (!vt) return vt.error();
+        auto fb = build_program("scene.vert", "feedback.frag", defines);
+        if (!fb) return fb.error();
+        depth_program_ = std::move(*depth);
+        vt_program_ = std::move(*vt);
+        feedback_program_ = std::move(*fb);
+        depth_u_ = VtUniforms(depth_program_);
+        vt_u_ = VtUniforms(vt_program_);
+        feedback_u_ = VtUniforms(feedback_program_);
+        for (auto* pu : {&vt_u_, &feedback_u_}) {
+            const GLuint p = pu == &vt_u_ ? vt_program_.get() : feedback_program_.get();
+            const auto& u = *pu;
+            glProgramUniform1i(p, u.page_table, 0);
+            glProgramUniform1i(p, u.atlas, 1);
+            glProgramUniform1ui(p, u.atlas_columns, columns_);
+            glProgramUniform2f(p, u.atlas_texel, 1.0f / float(atlas_width_), 1.0f / float(atlas_height_));
+            glProgramUniform1ui(p, u.tile_size, c.tile_size);
+            glProgramUniform1f(p, u.max_anisotropy, float(c.max_anisotropy));
+            glProgramUniform4fv(p, u.no_data, 1, kNoDataColour);
+        }
+        fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
+        fb_height_ = (c.height + c.feedback_scale - 1) / c.feedback_scale;
+        // Derivatives per main-target pixel: a main pixel is fb_width / width feedback pixels.
+        glProgramUniform2f(feedback_program_.get(), feedback_u_.main_pixel, float(fb_width_) / float(c.width),
+                           float(fb_height_) / float(c.height));
+
+        // Targets.
+        auto main = make_colour_target(c.width, c.height, c.srgb);
+        if (!main) return main.error();
+        main_ = std::move(*main);
+        fb_ids_ = make_texture(GL_TEXTURE_2D);
+        glTextureStorage2D(fb_ids_.get(), 1, GL_RG32UI, GLsizei(fb_width_), GLsizei(fb_height_));
+        glTextureParameteri(fb_ids_.get(), GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+        glTextureParameteri(fb_ids_.get(), GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+        fb_depth_ = make_renderbuffer();
+        glNamedRenderbufferStorage(fb_depth_.get(), GL_DEPTH_COMPONENT32F, GLsizei(fb_width_), GLsizei(fb_height_));
+        fb_fbo_ = make_framebuffer();
+        glNamedFramebufferTexture(fb_fbo_.get(), GL_COLOR_ATTACHMENT0, fb_ids_.get(), 0);
+        glNamedFramebufferRenderbuffer(fb_fbo_.get(), GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, fb_depth_.get());
+        glNamedFramebufferReadBuffer(fb_fbo_.get(), GL_COLOR_ATTACHMENT0);
+        if (glCheckNamedFramebufferStatus(fb_fbo_.get(), GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+            return Error{Errc::unsupported, "renderer: the RG32UI feedback target is incomplete"};
+
+        // Readback rings: persistently mapped, coherent; read once their fence has signalled.
+        const GLbitfield read_flags = GL_MAP_READ_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
+        const std::size_t fb_bytes = std::size_t(fb_width_) * fb_height_ * 8;
+        feedback_slots_.resize(c.readback_ring);
+        for (auto& s : feedback_slots_) {
+            s.pbo = make_buffer();
+            glNamedBufferStorage(s.pbo.get(), GLsizeiptr(fb_bytes), nullptr, read_flags);
+            s.map = static_cast<const std::uint32_t*>(glMapNamedBufferRange(s.pbo.get(), 0, GLsizeiptr(fb_bytes), read_flags));
+            if (!s.map) return Error{Errc::resource_exhausted, "renderer: cannot map a feedback readback buffer"};
+        }
+        counter_slots_.resize(std::size_t(c.readback_ring) * 4);
+        counters_ = make_buffer();
+        glNamedBufferStorage(counters_.get(), kCounterBytes, nullptr, GL_DYNAMIC_STORAGE_BIT);
+        counter_readback_ = make_buffer();
+        const auto ring_bytes = GLsizeiptr(counter_slots_.size() * kCounterBytes);
+        glNamedBufferStorage(counter_readback_.get(), ring_bytes, nullptr, read_flags);
+        counter_map_ = static_cast<const std::uint32_t*>(glMapNamedBufferRange(counter_readback_.get(), 0, ring_bytes, read_flags));
+        if (!counter_map_) return Error{Errc::resource_exhausted, "renderer: cannot map the counter readback ring"};
+        if (auto e = take_gl_errors("renderer setup"); !e.empty()) return Error{Errc::resource_exhausted, e};
+        return Status();
+    }
+
+    ~VtRendererImpl() override {
+        for (auto& s : feedback_slots_)
+            if (s.map) glUnmapNamedBuffer(s.pbo.get());
+        if (counter_map_) glUnmapNamedBuffer(counter_readback_.get());
+    }
+
+    // ---- PageUploader -----------------------------------------------------------------------
+
+    void upload_page(SlotId slot, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override {
+        if (tile_size != cfg_.tile_size || slot >= cfg_.pool_slots || rgba8.size() != std::size_t(tile_size) * tile_size * 4) {
+            ++stats_.malformed_uploads;
+            return;
+        }
+        const auto x = GLint((slot % columns_) * tile_size), y = GLint((slot / columns_) * tile_size);
+        upload(atlas_.get(), x, y, GLsizei(tile_size), GLsizei(tile_size), GL_RGBA, GL_UNSIGNED_BYTE, rgba8.data(), rgba8.size());
+        ++stats_.pages_uploaded;
+    }
+
+    void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
+                           std::uint32_t h, std::span<const std::uint32_t> entries) override {
+        auto it = textures_.find(texture);
+        if (it == textures_.end() || level >= it->second.levels || entries.size() != std::size_t(w) * h || w == 0 ||
+            h == 0) {
+            ++stats_.malformed_uploads;
+            return;
+        }
+        const auto& t = it->second;
+        if (std::uint64_t(x0) + w > t.pages[2 * level] || std::uint64_t(y0) + h > t.pages[2 * level + 1]) {
+            ++stats_.malformed_uploads;
+            return;
+        }
+        upload(t.table.get(), GLint(t.origin[2 * level] + std::int32_t(x0)), GLint(t.origin[2 * level + 1] + std::int32_t(y0)),
+               GLsizei(w), GLsizei(h), GL_RED_INTEGER, GL_UNSIGNED_INT, entries.data(), entries.size_bytes());
+        ++stats_.table_uploads;
+    }
+
+    // ---- Setup ------------------------------------------------------------------------------
+
+    Status add_texture(TextureId texture, const storage::StoreInfo& info) override {
+        if (info.levels.empty() || info.levels.size() > kMaxLevels)
+            return Error{Errc::invalid_argument, fmt::format("texture {}: {} levels (1..{})", texture, info.levels.size(), kMaxLevels)};
+        if (info.tile_size() != cfg_.tile_size || info.border != cfg_.border)
+            return Error{Errc::invalid_argument,
+                         fmt::format("texture {}: tiles of {} texels with border {}, the renderer's pool holds {} with border {}",
+                                     texture, info.tile_size(), info.border, cfg_.tile_size, cfg_.border)};
+        VirtualTexture t;
+        t.id = texture;
+        t.levels = info.level_count();
+        t.payload = info.tile_payload;
+        t.border = info.border;
+        std::uint32_t column_y = 0, column_w = 0;
+        for (std::uint32_t l = 0; l < t.levels; ++l) {
+            const auto& li = info.levels[l];
+            if (li.tiles_x == 0 || li.tiles_y == 0 || li.tiles_x > kMaxPagesPerAxis || li.tiles_y > kMaxPagesPerAxis)
+                return Error{Errc::invalid_argument, fmt::format("texture {}: level {} has {}x{} pages", texture, l, li.tiles_x, li.tiles_y)};
+            t.pages.insert(t.pages.end(), {li.tiles_x, li.tiles_y});
+            t.texels.insert(t.texels.end(), {li.width, li.height});
+            if (l == 0) {
+                t.origin.insert(t.origin.end(), {0, 0});
+            } else {
+                t.origin.insert(t.origin.end(), {std::int32_t(info.levels[0].tiles_x), std::int32_t(column_y)});
+                column_y += li.tiles_y;
+                column_w = std::max(column_w, li.tiles_x);
+            }
+        }
+        t.table_width = info.levels[0].tiles_x + column_w;
+        t.table_height = std::max(info.levels[0].tiles_y, column_y);
+        if (t.table_width > max_texture_ || t.table_height > max_texture_)
+            return Error{Errc::resource_exhausted,
+                         fmt::format("texture {}: its packed page table is {}x{} entries, over the GPU's largest texture ({}^2)",
+                                     texture, t.table_width, t.table_height, max_texture_)};
+        t.table = make_texture(GL_TEXTURE_2D);
+        glTextureStorage2D(t.table.get(), 1, GL_R32UI, GLsizei(t.table_width), GLsizei(t.table_height));
+        glTextureParameteri(t.table.get(), GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+        glTextureParameteri(t.table.get(), GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+        const std::uint32_t zero = 0;
+        glClearTexImage(t.table.get(), 0, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        if (auto e = take_gl_errors("page table"); !e.empty())
+            return Error{Errc::resource_exhausted, fmt::format("texture {}: {}x{} page table: {}", texture, t.table_width, t.table_height, e)};
+        textures_[texture] = std::move(t);
+        return Status();
+    }
+
+    Status set_scene(const scene::Scene& scene, TextureId texture) override {
+        if (!textures_.contains(texture))
+            return Error{Errc::invalid_argument, fmt::format("set_scene: texture {} was not added (add_texture first)", texture)};
+        TESSERA_TRY(geometry_.upload(scene));
+        scene_texture_ = texture;
+        has_scene_ = true;
+        return Status();
+    }
+
+    // ---- Frames -----------------------------------------------------------------------------
+
+    std::uint64_t render(const scene::Camera& camera, float lod_bias) override {
+        ++frame_;
+        ++stats_.frames;
+        staging_.close_batch();  // the uploads since the last frame, fenced together
+        staging_.retire();
+
+        const double aspect = double(cfg_.width) / double(cfg_.height);
+        const auto vp = view_projection(camera, aspect);
+        const VirtualTexture* tex = nullptr;
+        if (has_scene_) {
+            auto it = textures_.find(scene_texture_);
+            if (it != textures_.end()) tex = &it->second;
+        }
+        if (tex) {
+            geometry_.cull(camera, aspect);
+            set_texture_uniforms(vt_program_, vt_u_, *tex);
+            set_texture_uniforms(feedback_program_, feedback_u_, *tex);
+            glBindTextureUnit(0, tex->table.get());
+            glBindTextureUnit(1, atlas_.get());
+        }
+        stats_.visible_chunks = tex ? geometry_.visible_chunks() : 0;
+        for (auto* p : {&depth_program_, &vt_program_, &feedback_program_}) {
+            const VtUniforms& u = p == &depth_program_ ? depth_u_ : p == &vt_program_ ? vt_u_ : feedback_u_;
+            glProgramUniformMatrix4fv(p->get(), u.view_projection, 1, GL_FALSE, vp.data());
+            glProgramUniform1f(p->get(), u.bias, lod_bias);
+        }
+        glEnable(GL_CULL_FACE);
+        glCullFace(GL_BACK);
+        glFrontFace(GL_CCW);
+        glEnable(GL_DEPTH_TEST);
+        glDisable(GL_BLEND);
+        glDisable(GL_SCISSOR_TEST);
+
+        // Feedback pass at 1/N: the ids of the nearest surface (its own depth buffer).
+        if (auto slot = acquire_feedback_slot()) {
+            auto& s = feedback_slots_[*slot];
+            glBindFramebuffer(GL_FRAMEBUFFER, fb_fbo_.get());
+            glViewport(0, 0, GLsizei(fb_width_), GLsizei(fb_height_));
+            glDisable(GL_FRAMEBUFFER_SRGB);
+            glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+            glDepthMask(GL_TRUE);
+            glDepthFunc(GL_LESS);
+            const GLuint none[4] = {0xFFFFFFFFu, 0xFFFFFFFFu, 0, 0};
+            glClearBufferuiv(GL_COLOR, 0, none);
+            const GLfloat far_depth = 1.0f;
+            glClearBufferfv(GL_DEPTH, 0, &far_depth);
+            if (tex) {
+                glUseProgram(feedback_program_.get());
+                geometry_.draw(feedback_program_, feedback_u_.chunk, camera);
+            }
+            glBindBuffer(GL_PIXEL_PACK_BUFFER, s.pbo.get());
+            glPixelStorei(GL_PACK_ALIGNMENT, 4);
+            glReadPixels(0, 0, GLsizei(fb_width_), GLsizei(fb_height_), GL_RG_INTEGER, GL_UNSIGNED_INT, nullptr);
+            glBindBuffer(GL_PIXEL_PACK_BUFFER, 0);
+            s.fence.insert();
+            s.busy = true;
+            s.frame = frame_;
+            s.bias = lod_bias;
+        } else {
+            ++stats_.feedback_skipped;
+        }
+
+        // Main pass: depth pre-pass, then the VT pass at GL_LEQUAL with early fragment tests, so
+        // each visible pixel is shaded and counted once.
+        glBindFramebuffer(GL_FRAMEBUFFER, main_.fbo.get());
+        glViewport(0, 0, GLsizei(cfg_.width), GLsizei(cfg_.height));
+        if (cfg_.srgb) glEnable(GL_FRAMEBUFFER_SRGB);
+        glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+        glDepthMask(GL_TRUE);
+        glClearBufferfv(GL_COLOR, 0, kBackground);
+        const GLfloat far_depth = 1.0f;
+        glClearBufferfv(GL_DEPTH, 0, &far_depth);
+        const std::uint32_t zero = 0;
+        glClearNamedBufferData(counters_.get(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        if (tex) {
+            glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+            glDepthFunc(GL_LESS);
+            glUseProgram(depth_program_.get());
+            geometry_.draw(depth_program_, depth_u_.chunk, camera);
+            glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+            glDepthMask(GL_FALSE);
+            glDepthFunc(GL_LEQUAL);
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, counters_.get());
+            glUseProgram(vt_program_.get());
+            geometry_.draw(vt_program_, vt_u_.chunk, camera);
+            glDepthMask(GL_TRUE);
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, 0);
+        }
+        glUseProgram(0);
+        glDisable(GL_FRAMEBUFFER_SRGB);
+        glBindFramebuffer(GL_FRAMEBUFFER, 0);
+        // The shader's atomics must land before the copy (and before the next frame's clear).
+        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+        if (auto slot = acquire_counter_slot()) {
+            auto& s = counter_slots_[*slot];
+            glCopyNamedBufferSubData(counters_.get(), counter_readback_.get(), 0, GLintptr(*slot * kCounterBytes), kCounterBytes);
+            s.fence.insert();
+            s.busy = true;
+            s.frame = frame_;
+        } else {
+            ++stats_.counters_skipped;
+        }
+        glFlush();  // start the GPU on this frame; never waits
+        return frame_;
+    }
+
+    bool poll_feedback(FeedbackFrame& out) override {
+        collect_feedback(false);
+        if (!has_ready_) return false;
+        std::swap(out, ready_);
+        has_ready_ = false;
+        return true;
+    }
+
+    std::size_t poll_counters(std::vector<FrameCounters>& out) override {
+        collect_counters(false);
+        const std::size_t n = finished_counters_.size();
+        out.insert(out.end(), finished_counters_.begin(), finished_counters_.end());
+        finished_counters_.clear();
+        return n;
+    }
+
+    void finish(std::vector<FrameCounters>* counters, FeedbackFrame* feedback) override {
+        glFinish();
+        while (glGetError() != GL_NO_ERROR) ++stats_.gl_errors;
+        staging_.retire();
+        collect_feedback(true);
+        collect_counters(true);
+        if (counters) {
+            counters->insert(counters->end(), finished_counters_.begin(), finished_counters_.end());
+            finished_counters_.clear();
+        }
+        if (feedback && has_ready_) {
+            std::swap(*feedback, ready_);
+            has_ready_ = false;
+        }
+    }
+
+    std::vector<std::uint8_t> read_color() override { return read_colour(main_); }
+
+    void present(int window_width, int window_height) override {
+        glDisable(GL_FRAMEBUFFER_SRGB);  // copy the stored (encoded) values as they are
+        glDisable(GL_SCISSOR_TEST);
+        glBindFramebuffer(GL_DRAW_FRAMEBUFFER, 0);
+        const GLfloat black[4] = {0, 0, 0, 1};
+        glClearBufferfv(GL_COLOR, 0, black);
+        glBlitNamedFramebuffer(main_.fbo.get(), 0, 0, 0, GLint(cfg_.width), GLint(cfg_.height), 0, 0, window_width,
+                               window_height, GL_COLOR_BUFFER_BIT, GL_LINEAR);
+    }
+
+    const RendererConfig& config() const override { return cfg_; }
+    RendererStats stats() const override { return stats_; }
+
+private:
+    struct FeedbackSlot {
+        Buffer pbo;
+        const std::uint32_t* map = nullptr;
+        Fence fence;
+        bool busy = false;
+        std::uint64_t frame = 0;
+        float bias = 0;
+    };
+    struct CounterSlot {
+        Fence fence;
+        bool busy = false;
+        std::uint64_t frame = 0;
+    };
+
+    // Copies `bytes` of `data` into the staging ring and uploads the rectangle from there; when
+    // the ring has no room, uploads from `data` directly (still correct and in order).
+    void upload(GLuint texture, GLint x, GLint y, GLsizei w, GLsizei h, GLenum format, GLenum type, const void* data,
+                std::size_t bytes) {
+        glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+        glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
+        if (auto off = staging_.allocate(bytes)) {
+            std::memcpy(staging_.data() + *off, data, bytes);
+            glBindBuffer(GL_PIXEL_UNPACK_BUFFER, staging_.buffer());
+            glTextureSubImage2D(texture, 0, x, y, w, h, format, type, reinterpret_cast<const void*>(*off));
+            glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+        } else {
+            ++stats_.direct_uploads;
+            glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+            glTextureSubImage2D(texture, 0, x, y, w, h, format, type, data);
+        }
+    }
+
+    void set_texture_uniforms(const Program& p, const VtUniforms& u, const VirtualTexture& t) {
+        const GLuint id = p.get();
+        glProgramUniform2iv(id, u.table_origin, GLsizei(t.levels), t.origin.data());
+        glProgramUniform2uiv(id, u.level_size, GLsizei(t.levels), t.texels.data());
+        glProgramUniform1ui(id, u.levels, t.levels);
+        glProgramUniform1ui(id, u.payload, t.payload);
+        glProgramUniform1ui(id, u.border, t.border);
+        glProgramUniform1ui(id, u.texture_id, t.id);
+    }
+
+    std::optional<std::size_t> acquire_feedback_slot() {
+        for (int attempt = 0; attempt < 2; ++attempt) {
+            for (std::size_t i = 0; i < feedback_slots_.size(); ++i)
+                if (!feedback_slots_[i].busy) return i;
+            collect_feedback(false);
+        }
+        return std::nullopt;
+    }
+
+    // Finished feedback readbacks: the newest becomes ready_ (older ones are dropped); their slots
+    // are free again. `all`: after glFinish, every busy slot is finished.
+    void collect_feedback(bool all) {
+        FeedbackSlot* newest = nullptr;
+        for (auto& s : feedback_slots_) {
+            if (!s.busy || !(all || s.fence.poll())) continue;
+            s.busy = false;
+            s.fence.reset();
+            if (!newest || s.frame > newest->frame) newest = &s;
+        }
+        if (!newest || (has_ready_ && ready_.frame >= newest->frame)) return;
+        ready_.frame = newest->frame;
+        ready_.bias = newest->bias;
+        ready_.width = fb_width_;
+        ready_.height = fb_height_;
+        ready_.ids.resize(std::size_t(fb_width_) * fb_height_);
+        // GL's row 0 is the bottom; FeedbackFrame's row 0 is the top. RG32UI: low word first.
+        for (std::uint32_t y = 0; y < fb_height_; ++y) {
+            const std::uint32_t* row = newest->map + std::size_t(fb_height_ - 1 - y) * fb_width_ * 2;
+            FeedbackId* dst = ready_.ids.data() + std::size_t(y) * fb_width_;
+            for (std::uint32_t x = 0; x < fb_width_; ++x) dst[x] = FeedbackId(row[2 * x]) | (FeedbackId(row[2 * x + 1]) << 32);
+        }
+        has_ready_ = true;
+    }
+
+    std::optional<std::size_t> acquire_counter_slot() {
+        for (int attempt = 0; attempt < 2; ++attempt) {
+            for (std::size_t i = 0; i < counter_slots_.size(); ++i)
+                if (!counter_slots_[i].busy) return i;
+            collect_counters(false);
+        }
+        return std::nullopt;
+    }
+
+    void collect_counters(bool all) {
+        std::vector<std::size_t> done;
+        for (std::size_t i = 0; i < counter_slots_.size(); ++i) {
+            auto& s = counter_slots_[i];
+            if (s.busy && (all || s.fence.poll())) done.push_back(i);
+        }
+        std::sort(done.begin(), done.end(), [&](std::size_t a, std::size_t b) { return counter_slots_[a].frame < counter_slots_[b].frame; });
+        for (const auto i : done) {
+            auto& s = counter_slots_[i];
+            const std::uint32_t* v = counter_map_ + i * (kCounterBytes / 4);
+            finished_counters_.push_back(FrameCounters{s.frame, v[0], v[1], v[2]});
+            s.busy = false;
+            s.fence.reset();
+        }
+        while (finished_counters_.size() > kMaxUnpolledCounters) finished_counters_.pop_front();
+    }
+
+    RendererConfig cfg_;
+    std::uint32_t max_texture_ = 0;
+    StagingRing staging_;
+    Texture atlas_;
+    std::uint32_t columns_ = 1, atlas_width_ = 0, atlas_height_ = 0;
+    std::map<TextureId, VirtualTexture> textures_;
+    SceneGeometry geometry_;
+    TextureId scene_texture_ = 0;
+    bool has_scene_ = false;
+
+    Program depth_program_, vt_program_, feedback_program_;
+    VtUniforms depth_u_, vt_u_, feedback_u_;
+
+    ColourTarget main_;
+    Texture fb_ids_;
+    Renderbuffer fb_depth_;
+    Framebuffer fb_fbo_;
+    std::uint32_t fb_width_ = 0, fb_height_ = 0;
+
+    std::vector<FeedbackSlot> feedback_slots_;
+    FeedbackFrame ready_;
+    bool has_ready_ = false;
+
+    Buffer counters_, counter_readback_;
+    const std::uint32_t* counter_map_ = nullptr;
+    std::vector<CounterSlot> counter_slots_;
+    std::deque<FrameCounters> finished_counters_;
+
+    std::uint64_t frame_ = 0;
+    RendererStats stats_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<VtRenderer>> VtRenderer::create(const RendererConfig& config) {
+    auto r = std::make_unique<VtRendererImpl>(config);
+    if (Status st = r->init(); !st) return st.error();
+    return std::unique_ptr<VtRenderer>(std::move(r));
+}
+
+}  // namespace tessera::client::gl

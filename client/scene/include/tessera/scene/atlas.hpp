@@ -1,0 +1,63 @@
+#pragma once
+// The OBJ side of `tessera build --atlas` (the image side, packing and composing the atlas, is
+// storage/atlas.hpp): read an OBJ scene and its materials, list the images its materials use, and
+// rewrite the OBJ so that its texture coordinates address the packed atlas. The rewritten OBJ is
+// what load_obj_scene (scene.hpp) reads.
+//
+// Texture coordinates of the rewritten OBJ: u, v in [0, 1] of the whole atlas, u to the right and
+// v DOWN (v = 0 is the atlas's row 0, as texel coordinates of the virtual texture) -- the opposite
+// of the usual OBJ convention (v up), so every v is flipped when rewriting. Its first line names the
+// atlas size ("# tessera-atlas W H"), so a mismatched store is caught by load_obj_scene.
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "tessera/result.hpp"
+
+namespace tessera::scene {
+
+// One image the atlas needs: a material's diffuse texture (map_Kd), or a small solid tile of the
+// material's diffuse colour (Kd) for a material without a texture.
+struct AtlasImageRef {
+    std::string texture;                   // the texture file, resolved against the OBJ's folder; empty: solid
+    std::array<std::uint8_t, 3> colour{};  // solid only: Kd as 8-bit values
+    std::vector<std::string> materials;    // the materials that use this image (for messages)
+};
+
+// Where an image was placed in the atlas: its level-0 texel rectangle (row 0 at the top).
+struct AtlasRect {
+    std::uint32_t x = 0, y = 0, width = 0, height = 0;
+};
+
+class ObjAtlasInput {
+public:
+    // Reads the OBJ and its MTL files (found beside the OBJ). Errors: the OBJ missing or malformed,
+    // a material library or material that cannot be found, no triangles, and a texture that
+    // repeats across a triangle (its u or v range, after shifting the triangle by a whole number of
+    // repeats, does not fit in [0, 1]): the message names the material.
+    static Result<ObjAtlasInput> load(const std::string& obj_path);
+
+    ObjAtlasInput(ObjAtlasInput&&) noexcept;
+    ObjAtlasInput& operator=(ObjAtlasInput&&) noexcept;
+    ~ObjAtlasInput();
+
+    // Distinct images, in first-use order (the same texture file used by two materials is one image).
+    const std::vector<AtlasImageRef>& images() const;
+    std::size_t triangle_count() const;
+
+    // The rewritten OBJ text: positions and normals as they were, texture coordinates mapped into
+    // rects[i] for images()[i] (a solid image's texels all map to its middle texel's centre), one
+    // object per shape, triangles only, no materials. `source_note` goes into a comment.
+    Result<std::string> rewrite(std::span<const AtlasRect> rects, std::uint32_t atlas_width, std::uint32_t atlas_height,
+                                const std::string& source_note) const;
+
+private:
+    struct Impl;
+    explicit ObjAtlasInput(std::unique_ptr<Impl> impl);
+    std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tessera::scene

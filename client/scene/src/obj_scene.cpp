@@ -1,0 +1,137 @@
+// The `atlas` scene: an OBJ whose texture coordinates address the packed atlas (written by
+// `tessera build --atlas`, see atlas.hpp), one chunk per OBJ object.
+#include <tiny_obj_loader.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <unordered_map>
+
+#include "tessera/scene/scene.hpp"
+
+namespace tessera::scene {
+namespace {
+
+std::string one_line(std::string s) {
+    std::replace(s.begin(), s.end(), '\n', ' ');
+    while (!s.empty() && s.back() == ' ') s.pop_back();
+    return s;
+}
+
+// The atlas size named by the first line ("# tessera-atlas W H"), if the file has one.
+bool atlas_size_of(const std::string& path, std::uint64_t& w, std::uint64_t& h) {
+    std::ifstream f(path);
+    std::string line;
+    if (!std::getline(f, line)) return false;
+    unsigned long long a = 0, b = 0;
+    if (std::sscanf(line.c_str(), "# tessera-atlas %llu %llu", &a, &b) != 2) return false;
+    w = a;
+    h = b;
+    return true;
+}
+
+}  // namespace
+
+Result<Scene> load_obj_scene(const std::string& obj_path, std::uint32_t vt_width, std::uint32_t vt_height) {
+    std::error_code ec;
+    if (!std::filesystem::exists(obj_path, ec)) return make_error(Errc::not_found, "OBJ file '" + obj_path + "' does not exist");
+    if (vt_width == 0 || vt_height == 0) return make_error(Errc::invalid_argument, "OBJ scene: the virtual texture has zero size");
+    if (std::uint64_t w = 0, h = 0; atlas_size_of(obj_path, w, h) && (w != vt_width || h != vt_height))
+        return make_error(Errc::invalid_argument, "OBJ '" + obj_path + "' was written for a " + std::to_string(w) + "x" +
+                                                      std::to_string(h) + " atlas, but the virtual texture is " +
+                                                      std::to_string(vt_width) + "x" + std::to_string(vt_height));
+    tinyobj::ObjReaderConfig config;
+    config.triangulate = true;
+    config.vertex_color = false;
+    tinyobj::ObjReader reader;
+    if (!reader.ParseFromFile(obj_path, config))
+        return make_error(Errc::corrupt, "cannot read OBJ '" + obj_path + "': " + one_line(reader.Error()));
+    if (reader.Warning().find("indices out of bounds") != std::string::npos ||
+        reader.Warning().find("invalid vertex index") != std::string::npos)
+        return make_error(Errc::corrupt, "OBJ '" + obj_path + "': " + one_line(reader.Warning()));
+    const tinyobj::attrib_t& a = reader.GetAttrib();
+
+    Scene scene;
+    scene.name = "atlas";
+    scene.vt_width = vt_width;
+    scene.vt_height = vt_height;
+    for (int k = 0; k < 3; ++k) {
+        scene.bounds_min[k] = INFINITY;
+        scene.bounds_max[k] = -INFINITY;
+    }
+    // OBJ is Y up; this library is Z up: (x, y, z) -> (x, -z, y), a rotation (winding is kept).
+    auto world = [&](int v) -> Vec3d {
+        const std::size_t i = 3 * static_cast<std::size_t>(v);
+        return {double(a.vertices[i]), -double(a.vertices[i + 2]), double(a.vertices[i + 1])};
+    };
+    auto texel = [&](int t) -> std::array<double, 2> {
+        if (t < 0) return {0.0, 0.0};
+        const std::size_t i = 2 * static_cast<std::size_t>(t);
+        return {double(a.texcoords[i]) * vt_width, double(a.texcoords[i + 1]) * vt_height};  // v is already down
+    };
+
+    for (const tinyobj::shape_t& s : reader.GetShapes()) {
+        const auto& idx = s.mesh.indices;
+        if (idx.empty()) continue;
+        // Bounds first: the chunk's origin is its box centre, its texel origin the floor of its
+        // smallest texel, so the float offsets stay small.
+        Chunk c;
+        double tmin[2] = {INFINITY, INFINITY};
+        for (int k = 0; k < 3; ++k) {
+            c.bounds_min[k] = INFINITY;
+            c.bounds_max[k] = -INFINITY;
+        }
+        for (const tinyobj::index_t& i : idx) {
+            const Vec3d p = world(i.vertex_index);
+            for (int k = 0; k < 3; ++k) {
+                c.bounds_min[k] = std::min(c.bounds_min[k], p[k]);
+                c.bounds_max[k] = std::max(c.bounds_max[k], p[k]);
+            }
+            const auto t = texel(i.texcoord_index);
+            tmin[0] = std::min(tmin[0], t[0]);
+            tmin[1] = std::min(tmin[1], t[1]);
+        }
+        for (int k = 0; k < 3; ++k) c.origin[k] = 0.5 * (c.bounds_min[k] + c.bounds_max[k]);
+        c.texel_origin[0] = static_cast<std::uint32_t>(std::clamp(std::floor(tmin[0]), 0.0, double(vt_width)));
+        c.texel_origin[1] = static_cast<std::uint32_t>(std::clamp(std::floor(tmin[1]), 0.0, double(vt_height)));
+
+        std::unordered_map<std::uint64_t, std::uint32_t> seen;  // (vertex, texcoord) -> chunk vertex
+        std::size_t offset = 0;
+        for (std::size_t f = 0; f < s.mesh.num_face_vertices.size(); ++f) {
+            const std::size_t nv = s.mesh.num_face_vertices[f];
+            std::uint32_t corner[3] = {0, 0, 0};
+            for (std::size_t k = 1; k + 1 < nv; ++k) {
+                const tinyobj::index_t tri[3] = {idx[offset], idx[offset + k], idx[offset + k + 1]};
+                for (int j = 0; j < 3; ++j) {
+                    const std::uint64_t key = (std::uint64_t(std::uint32_t(tri[j].vertex_index)) << 32) |
+                                              std::uint32_t(tri[j].texcoord_index);
+                    auto [it, inserted] = seen.emplace(key, static_cast<std::uint32_t>(c.vertices.size()));
+                    if (inserted) {
+                        const Vec3d p = world(tri[j].vertex_index);
+                        const auto t = texel(tri[j].texcoord_index);
+                        Vertex v{};
+                        for (int d = 0; d < 3; ++d) v.position[d] = static_cast<float>(p[d] - c.origin[d]);
+                        v.texel[0] = static_cast<float>(t[0] - c.texel_origin[0]);
+                        v.texel[1] = static_cast<float>(t[1] - c.texel_origin[1]);
+                        c.vertices.push_back(v);
+                    }
+                    corner[j] = it->second;
+                }
+                c.indices.insert(c.indices.end(), {corner[0], corner[1], corner[2]});
+            }
+            offset += nv;
+        }
+        if (c.indices.empty()) continue;
+        for (int k = 0; k < 3; ++k) {
+            scene.bounds_min[k] = std::min(scene.bounds_min[k], c.bounds_min[k]);
+            scene.bounds_max[k] = std::max(scene.bounds_max[k], c.bounds_max[k]);
+        }
+        scene.chunks.push_back(std::move(c));
+    }
+    if (scene.chunks.empty()) return make_error(Errc::invalid_argument, "OBJ '" + obj_path + "' has no triangles");
+    return scene;
+}
+
+}  // namespace tessera::scene

@@ -1,0 +1,305 @@
+// `tessera build --atlas` on the generated gallery scene: the store and the rewritten OBJ exist and
+// load, every sampled texel of the atlas at a rewritten texture coordinate equals the original
+// texture's texel at the original coordinate (lossless zstd tiles), padding repeats the edges, the
+// build is deterministic, and bad input fails cleanly leaving nothing behind.
+#include <OpenImageIO/imageio.h>
+#include <gtest/gtest.h>
+#include <tiny_obj_loader.h>
+
+#include <array>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "tessera/scene/scene.hpp"
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+namespace storage = tessera::storage;
+using tessera::test::read_file;
+using tessera::test::run_tessera;
+using tessera::test::RunResult;
+using tessera::test::ScratchDir;
+using tessera::test::write_file;
+
+std::string q(const std::string& s) { return "'" + s + "'"; }
+
+std::set<std::string> entries(const fs::path& dir) {
+    std::set<std::string> out;
+    for (const auto& e : fs::directory_iterator(dir)) out.insert(e.path().filename().string());
+    return out;
+}
+
+// A failed command: non-zero exit (not a crash), one line "tessera: error: ...".
+void expect_one_line_error(const RunResult& r) {
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_LT(r.exit_code, 128) << r.out;
+    EXPECT_EQ(r.out.rfind("tessera: error: ", 0), 0u) << r.out;
+    EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+}
+
+struct Rgb8Image {
+    int width = 0, height = 0;
+    std::vector<std::uint8_t> rgb;
+    std::array<std::uint8_t, 3> at(int x, int y) const {
+        const std::size_t i = (std::size_t(y) * width + x) * 3;
+        return {rgb[i], rgb[i + 1], rgb[i + 2]};
+    }
+};
+
+Rgb8Image read_png(const std::string& path) {
+    Rgb8Image img;
+    auto in = OIIO::ImageInput::open(path);
+    if (!in) return img;
+    img.width = in->spec().width;
+    img.height = in->spec().height;
+    img.rgb.resize(std::size_t(img.width) * img.height * 3);
+    in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, img.rgb.data());
+    in->close();
+    return img;
+}
+
+// Level-0 texels of a store, tile by tile (decoded once each).
+class AtlasTexels {
+public:
+    explicit AtlasTexels(std::shared_ptr<storage::StoreReader> r) : reader_(std::move(r)) {}
+    const storage::StoreInfo& info() const { return reader_->info(); }
+    std::array<std::uint8_t, 3> at(std::uint32_t x, std::uint32_t y) {
+        const storage::StoreInfo& s = reader_->info();
+        const std::uint32_t P = s.tile_payload, B = s.border, T = s.tile_size();
+        const storage::TileKey key{0, x / P, y / P};
+        auto& tile = tiles_[{key.x, key.y}];
+        if (tile.empty()) {
+            auto t = reader_->read_tile(key);
+            EXPECT_TRUE(t.ok());
+            EXPECT_TRUE(storage::decode_tile(s, *t, tile).ok());
+        }
+        const std::size_t i = ((std::size_t(y % P) + B) * T + (x % P) + B) * 3;
+        return {tile[i], tile[i + 1], tile[i + 2]};
+    }
+
+private:
+    std::shared_ptr<storage::StoreReader> reader_;
+    std::map<std::pair<std::uint32_t, std::uint32_t>, std::vector<std::uint8_t>> tiles_;
+};
+
+tinyobj::ObjReader read_obj(const std::string& path) {
+    tinyobj::ObjReader r;
+    tinyobj::ObjReaderConfig config;
+    config.triangulate = true;
+    EXPECT_TRUE(r.ParseFromFile(path, config)) << r.Error();
+    return r;
+}
+
+class AtlasBuild : public ::testing::Test {
+protected:
+    void SetUp() override {
+        gallery_ = dir_.file("gallery");
+        const RunResult src = run_tessera("source scene:gallery -q -o " + q(gallery_));
+        ASSERT_EQ(src.exit_code, 0) << src.out;
+        fs::create_directory(dir_.file("out"));
+    }
+    ScratchDir dir_;
+    std::string gallery_;
+};
+
+TEST_F(AtlasBuild, GalleryTexelsSurviveThePacking) {
+    const std::string store = dir_.file("out/atlas.tsr"), obj = dir_.file("out/atlas.obj");
+    const RunResult r = run_tessera("build -q --codec zstd --atlas " + q(gallery_ + "/gallery.obj") + " -o " + q(store) +
+                                    " --obj-out " + q(obj));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_EQ(entries(dir_.file("out")), (std::set<std::string>{"atlas.tsr", "atlas.obj"}));
+    auto reader = storage::StoreReader::open(store);
+    ASSERT_TRUE(reader.ok()) << reader.error().message;
+    const storage::StoreInfo info = (*reader)->info();
+    EXPECT_EQ(info.codec, storage::Codec::zstd);
+    EXPECT_EQ(info.channels, 3u);
+
+    // The rewritten OBJ loads as the atlas scene: one chunk per object, every texel inside the atlas.
+    auto scene = tessera::scene::load_obj_scene(obj, info.width, info.height);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    EXPECT_EQ(scene->name, "atlas");
+    EXPECT_EQ(scene->chunks.size(), 9u);  // floor, four walls, three boxes, the plinth
+    std::size_t triangles = 0;
+    for (const auto& c : scene->chunks) {
+        triangles += c.indices.size() / 3;
+        for (const auto& v : c.vertices) {
+            EXPECT_GE(c.texel_origin[0] + double(v.texel[0]), 0.0);
+            EXPECT_LE(c.texel_origin[0] + double(v.texel[0]), double(info.width));
+            EXPECT_LE(c.texel_origin[1] + double(v.texel[1]), double(info.height));
+        }
+    }
+    EXPECT_EQ(triangles, 50u);
+    // Z up: the floor at z = 0, the walls up to 4; x and y span the room.
+    EXPECT_NEAR(scene->bounds_min[2], 0.0, 1e-6);
+    EXPECT_NEAR(scene->bounds_max[2], 4.0, 1e-6);
+    EXPECT_NEAR(scene->bounds_max[0] - scene->bounds_min[0], 20.0, 1e-6);
+    EXPECT_NEAR(scene->bounds_max[1] - scene->bounds_min[1], 12.0, 1e-6);
+    // A store of another size is refused (the OBJ names its atlas size).
+    EXPECT_FALSE(tessera::scene::load_obj_scene(obj, info.width + 1, info.height).ok());
+
+    // Texel by texel: original (texture, uv with v up) against atlas (rewritten uv, v down).
+    const tinyobj::ObjReader orig = read_obj(gallery_ + "/gallery.obj");
+    const tinyobj::ObjReader packed = read_obj(obj);
+    ASSERT_EQ(orig.GetShapes().size(), packed.GetShapes().size());
+    AtlasTexels atlas(*reader);
+    std::map<std::string, Rgb8Image> textures;
+    std::size_t compared = 0, solid = 0, edges = 0;
+    for (std::size_t s = 0; s < orig.GetShapes().size(); ++s) {
+        const auto& om = orig.GetShapes()[s].mesh;
+        const auto& pm = packed.GetShapes()[s].mesh;
+        ASSERT_EQ(om.indices.size(), pm.indices.size()) << s;
+        for (std::size_t f = 0; f < om.num_face_vertices.size(); ++f) {
+            const auto& mat = orig.GetMaterials()[static_cast<std::size_t>(om.material_ids[f])];
+            const Rgb8Image* tex = nullptr;
+            if (!mat.diffuse_texname.empty()) {
+                auto& t = textures[mat.diffuse_texname];
+                if (t.width == 0) t = read_png(gallery_ + "/" + mat.diffuse_texname);
+                ASSERT_GT(t.width, 0);
+                tex = &t;
+            }
+            double ouv[3][2], puv[3][2];
+            for (int k = 0; k < 3; ++k) {
+                const auto oi = om.indices[3 * f + k], pi = pm.indices[3 * f + k];
+                for (int a = 0; a < 2; ++a) {
+                    ouv[k][a] = orig.GetAttrib().texcoords[2 * std::size_t(oi.texcoord_index) + a];
+                    puv[k][a] = packed.GetAttrib().texcoords[2 * std::size_t(pi.texcoord_index) + a];
+                }
+            }
+            // The triangle's repeat (the gallery has one box a whole repeat away from [0, 1]).
+            const double ru = std::floor(std::min({ouv[0][0], ouv[1][0], ouv[2][0]}) + 1e-9);
+            const double rv = std::floor(std::min({ouv[0][1], ouv[1][1], ouv[2][1]}) + 1e-9);
+            // Interior points by barycentric weights.
+            for (const auto& w : {std::array<double, 3>{0.3137, 0.3331, 0.3532}, {0.6123, 0.1771, 0.2106}, {0.1913, 0.6247, 0.184},
+                                  {0.2209, 0.1688, 0.6103}, {0.4471, 0.4391, 0.1138}, {0.0917, 0.4626, 0.4457},
+                                  {0.8013, 0.1039, 0.0948}, {0.1219, 0.0811, 0.797}}) {
+                double ou = 0, ov = 0, pu = 0, pv = 0;
+                for (int k = 0; k < 3; ++k) {
+                    ou += w[k] * ouv[k][0];
+                    ov += w[k] * ouv[k][1];
+                    pu += w[k] * puv[k][0];
+                    pv += w[k] * puv[k][1];
+                }
+                const double ax = pu * info.width, ay = pv * info.height;
+                if (ax - std::floor(ax) < 0.02 || std::ceil(ax) - ax < 0.02 || ay - std::floor(ay) < 0.02 || std::ceil(ay) - ay < 0.02)
+                    continue;  // on a texel edge: either texel is right
+                const auto got = atlas.at(static_cast<std::uint32_t>(ax), static_cast<std::uint32_t>(ay));
+                if (!tex) {
+                    const std::array<std::uint8_t, 3> kd = {
+                        static_cast<std::uint8_t>(std::lround(std::clamp(double(mat.diffuse[0]), 0.0, 1.0) * 255)),
+                        static_cast<std::uint8_t>(std::lround(std::clamp(double(mat.diffuse[1]), 0.0, 1.0) * 255)),
+                        static_cast<std::uint8_t>(std::lround(std::clamp(double(mat.diffuse[2]), 0.0, 1.0) * 255))};
+                    EXPECT_EQ(got, kd) << mat.name;
+                    ++solid;
+                    continue;
+                }
+                // Original texel: OBJ's v is up, the image's row 0 is its top.
+                const double tx = (ou - ru) * tex->width, ty = (1.0 - (ov - rv)) * tex->height;
+                const int ix = static_cast<int>(std::floor(tx)), iy = static_cast<int>(std::floor(ty));
+                ASSERT_GE(ix, 0);
+                ASSERT_LT(ix, tex->width);
+                ASSERT_GE(iy, 0);
+                ASSERT_LT(iy, tex->height);
+                EXPECT_EQ(got, tex->at(ix, iy)) << mat.name << " face " << f << " texel " << ix << "," << iy;
+                ++compared;
+            }
+            // Padding: left of a texture's u = 0 edge, the atlas repeats the edge column (16 texels).
+            if (tex) {
+                const double cy = (puv[0][1] + puv[1][1] + puv[2][1]) / 3 * info.height;
+                for (int k = 0; k < 3; ++k) {
+                    if (ouv[k][0] - ru != 0.0) continue;
+                    const auto x_edge = static_cast<std::uint32_t>(std::lround(puv[k][0] * info.width));
+                    const auto y_row = static_cast<std::uint32_t>(std::floor(cy));
+                    ASSERT_GE(x_edge, 16u);
+                    const auto edge = atlas.at(x_edge, y_row);
+                    for (std::uint32_t d = 1; d <= 16; ++d) EXPECT_EQ(atlas.at(x_edge - d, y_row), edge) << mat.name;
+                    ++edges;
+                    break;
+                }
+            }
+        }
+    }
+    EXPECT_GT(compared, 200u);
+    EXPECT_GT(solid, 10u);
+    EXPECT_GT(edges, 10u);
+
+    // Deterministic: the same input gives the same bytes.
+    fs::create_directory(dir_.file("again"));
+    const std::string store2 = dir_.file("again/atlas.tsr"), obj2 = dir_.file("again/atlas.obj");
+    const RunResult r2 = run_tessera("build -q --codec zstd --atlas " + q(gallery_ + "/gallery.obj") + " -o " + q(store2) +
+                                     " --obj-out " + q(obj2));
+    ASSERT_EQ(r2.exit_code, 0) << r2.out;
+    EXPECT_TRUE(read_file(store) == read_file(store2));
+    EXPECT_TRUE(read_file(obj) == read_file(obj2));
+}
+
+TEST_F(AtlasBuild, DefaultsAndSummary) {
+    // --obj-out defaults to the store's name with .obj; the default codec (JPEG) works too.
+    const RunResult r = run_tessera("build --atlas " + q(gallery_ + "/gallery.obj") + " -o " + q(dir_.file("out/a.tsr")));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_NE(r.out.find("9 images"), std::string::npos) << r.out;
+    EXPECT_EQ(entries(dir_.file("out")), (std::set<std::string>{"a.tsr", "a.obj"}));
+    EXPECT_EQ(run_tessera("verify " + q(dir_.file("out/a.tsr"))).exit_code, 0);
+}
+
+TEST_F(AtlasBuild, BadInputFailsAndLeavesNothing) {
+    const std::string out = dir_.file("out");
+    const std::string args = " -o " + q(out + "/atlas.tsr") + " --obj-out " + q(out + "/atlas.obj");
+    auto expect_fails = [&](const std::string& cmd, const std::string& mention) {
+        const RunResult r = run_tessera(cmd);
+        expect_one_line_error(r);
+        EXPECT_NE(r.out.find(mention), std::string::npos) << r.out;
+        EXPECT_TRUE(entries(out).empty()) << cmd;
+    };
+    // A missing OBJ.
+    expect_fails("build --atlas " + q(dir_.file("nosuch.obj")) + args, "nosuch.obj");
+    // A missing texture: the message names the material and the file.
+    fs::copy(gallery_, dir_.file("g2"), fs::copy_options::recursive);
+    fs::remove(dir_.file("g2/textures/box_1.png"));
+    expect_fails("build --atlas " + q(dir_.file("g2/gallery.obj")) + args, "box_1");
+    // An unreadable image.
+    write_file(dir_.file("g2/textures/box_1.png"), std::vector<std::uint8_t>(100, 0x42));
+    expect_fails("build --atlas " + q(dir_.file("g2/gallery.obj")) + args, "box_1");
+    // A truncated image: readable header, broken data (fails while the store is being built).
+    const auto png = read_file(gallery_ + "/textures/floor.png");
+    write_file(dir_.file("g2/textures/box_1.png"), read_file(gallery_ + "/textures/box_1.png"));
+    write_file(dir_.file("g2/textures/floor.png"), std::vector<std::uint8_t>(png.begin(), png.begin() + png.size() / 3));
+    expect_fails("build --atlas " + q(dir_.file("g2/gallery.obj")) + args, "floor");
+    // A missing material library.
+    fs::remove(dir_.file("g2/gallery.mtl"));
+    expect_fails("build --atlas " + q(dir_.file("g2/gallery.obj")) + args, "gallery.obj");
+    // A texture repeating across a triangle.
+    fs::create_directory(dir_.file("rep"));
+    fs::copy_file(gallery_ + "/textures/box_2.png", dir_.file("rep/tile.png"));
+    const std::string mtl = "newmtl tiles\nmap_Kd tile.png\n";
+    const std::string obj = "mtllib rep.mtl\nv 0 0 0\nv 4 0 0\nv 4 0 -4\nv 0 0 -4\nvt 0 0\nvt 3 0\nvt 3 3\nvt 0 3\n"
+                            "usemtl tiles\nf 1/1 2/2 3/3 4/4\n";
+    write_file(dir_.file("rep/rep.mtl"), std::vector<std::uint8_t>(mtl.begin(), mtl.end()));
+    write_file(dir_.file("rep/rep.obj"), std::vector<std::uint8_t>(obj.begin(), obj.end()));
+    const RunResult rep = run_tessera("build --atlas " + q(dir_.file("rep/rep.obj")) + args);
+    expect_one_line_error(rep);
+    EXPECT_NE(rep.out.find("material 'tiles'"), std::string::npos) << rep.out;
+    EXPECT_NE(rep.out.find("texture repeats across a triangle"), std::string::npos) << rep.out;
+    EXPECT_TRUE(entries(out).empty());
+    // Flags: both an input and --atlas, --obj-out without --atlas, the same file twice, a bad alignment.
+    EXPECT_EQ(run_tessera("build procedural:terrain:64 --atlas " + q(gallery_ + "/gallery.obj") + args).exit_code, 2);
+    EXPECT_EQ(run_tessera("build procedural:terrain:64 -o " + q(out + "/a.tsr") + " --obj-out " + q(out + "/a.obj")).exit_code, 2);
+    expect_one_line_error(run_tessera("build --atlas " + q(gallery_ + "/gallery.obj") + " -o " + q(out + "/x") + " --obj-out " + q(out + "/x")));
+    expect_one_line_error(run_tessera("build --atlas " + q(gallery_ + "/gallery.obj") + " -o " + q(out + "/x.tsr") + " --obj-out " +
+                                      q(gallery_ + "/gallery.obj")));
+    EXPECT_EQ(run_tessera("build --atlas " + q(gallery_ + "/gallery.obj") + args + " --atlas-align 48").exit_code, 2);
+    EXPECT_TRUE(entries(out).empty());
+    // The gallery generator refuses a folder that is not empty.
+    expect_one_line_error(run_tessera("source scene:gallery -o " + q(gallery_)));
+    expect_one_line_error(run_tessera("source scene:nosuch -o " + q(dir_.file("x"))));
+    EXPECT_FALSE(fs::exists(dir_.file("x")));
+}
+
+}  // namespace

@@ -1,0 +1,814 @@
+// Rendering tests of tessera::client_gl on Mesa llvmpipe through EGL (headless; skipped when no
+// OpenGL 4.5 context can be made). Small targets: they run on two CPU cores without a GPU.
+//
+//   RenderVsReference   every page resident (the real runtime + local store, lossless tiles): the
+//                       VT frame matches the ordinary mipmapped reference (PSNR >= 50 dB) in every
+//                       filter, over a perspective view spanning several levels; also with a tiny
+//                       staging ring (uploads straight from client memory).
+//   RenderSeams         a smooth pattern with page borders everywhere, at levels 0..4 and at a
+//                       grazing angle, in every filter (anisotropic up to 8): no seams (the VT
+//                       matches the reference within a few 8-bit steps everywhere).
+//   RenderFeedback      the GPU feedback pass requests exactly the pages scene::cpu_feedback does.
+//   RenderAddressing    a 2^20-texel VT: texels near 2^20 come back exactly, coordinates encoded
+//                       in their colours.
+//   RenderCounters      fallback counters: coarsest level only, everything, with a bias, nothing.
+//   RenderFeedbackLoop  render -> feedback -> Runtime -> uploads converges to full detail.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdlib>
+#include <cmath>
+#include <map>
+#include <numbers>
+#include <ostream>
+#include <set>
+#include <thread>
+
+#include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/page_table.hpp"
+#include "tessera/client/runtime.hpp"
+#include "tessera/client/tile_source.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/scene/lod.hpp"
+#include "tessera/scene/scene.hpp"
+#include "tessera/storage/builder.hpp"
+#include "tessera/storage/image_source.hpp"
+#include "test_util.hpp"
+
+namespace tessera::client::gl {
+// Readable parameter names in the test list.
+void PrintTo(Filter f, std::ostream* os) {
+    *os << (f == Filter::bilinear ? "bilinear" : f == Filter::trilinear ? "trilinear" : "anisotropic");
+}
+}  // namespace tessera::client::gl
+
+namespace {
+
+using namespace std::chrono_literals;
+namespace gl = tessera::client::gl;
+namespace sc = tessera::scene;
+namespace st = tessera::storage;
+using tessera::client::FeedbackId;
+using tessera::client::kNoPage;
+using tessera::client::PageKey;
+using tessera::client::PageTable;
+using tessera::test::ScratchDir;
+
+// A current headless context, or the test is skipped with the reason.
+#define REQUIRE_GL(ctx)                                                                        \
+    auto ctx##_made = gl::GlContext::create_headless();                                        \
+    if (!ctx##_made) GTEST_SKIP() << "no headless OpenGL 4.5: " << ctx##_made.error().message; \
+    auto& ctx = *ctx##_made;                                                                   \
+    (void)ctx
+
+constexpr double kPi = std::numbers::pi;
+
+sc::Camera straight_down(double x, double y, double height) {
+    sc::Camera c;
+    c.position = {x, y, height};
+    c.yaw = kPi / 2;  // screen up = +y
+    c.pitch = -kPi / 2;
+    c.near_plane = 0.5;
+    c.far_plane = 1e6;
+    return c;
+}
+
+// Height at which a straight-down camera sees `texels_per_pixel` level-0 texels per pixel.
+double height_for(double texels_per_pixel, const sc::Camera& c, std::uint32_t height_px) {
+    return texels_per_pixel * height_px / (2.0 * std::tan(c.fov_y / 2.0));
+}
+
+sc::Camera looking(double x, double y, double z, double yaw, double pitch) {
+    sc::Camera c;
+    c.position = {x, y, z};
+    c.yaw = yaw;
+    c.pitch = pitch;
+    c.near_plane = 0.5;
+    c.far_plane = 1e6;
+    return c;
+}
+
+// Where the ray through the centre of pixel (i, j) (row 0 at the top) meets z = 0.
+bool pixel_to_ground(const sc::Camera& c, std::uint32_t w, std::uint32_t h, double i, double j, double& x, double& y) {
+    const auto f = c.forward(), r = c.right(), u = c.up();
+    const double sy = std::tan(c.fov_y / 2.0), sx = sy * double(w) / double(h);
+    const double nx = (i + 0.5) / w * 2.0 - 1.0, ny = 1.0 - (j + 0.5) / h * 2.0;
+    double d[3];
+    for (int k = 0; k < 3; ++k) d[k] = f[k] + nx * sx * r[k] + ny * sy * u[k];
+    if (!(d[2] < 0)) return false;
+    const double t = -c.position[2] / d[2];
+    x = c.position[0] + t * d[0];
+    y = c.position[1] + t * d[1];
+    return true;
+}
+
+gl::RendererConfig config(gl::Filter filter, std::uint32_t tile_size, std::uint32_t pool, bool srgb, std::uint32_t w = 256,
+                          std::uint32_t h = 192) {
+    gl::RendererConfig c;
+    c.width = w;
+    c.height = h;
+    c.filter = filter;
+    c.max_anisotropy = 8;
+    c.tile_size = tile_size;
+    c.border = 4;
+    c.pool_slots = pool;
+    c.srgb = srgb;
+    c.staging_bytes = 8u << 20;
+    return c;
+}
+
+sc::SampleFilter scene_filter(gl::Filter f) {
+    return f == gl::Filter::bilinear ? sc::SampleFilter::bilinear
+           : f == gl::Filter::trilinear ? sc::SampleFilter::trilinear
+                                        : sc::SampleFilter::anisotropic;
+}
+
+const char* filter_name(gl::Filter f) {
+    return f == gl::Filter::bilinear ? "bilinear" : f == gl::Filter::trilinear ? "trilinear" : "anisotropic";
+}
+
+// Geometry of a store of this size, without a store file.
+st::StoreInfo geometry(std::uint32_t width, std::uint32_t height, std::uint32_t tile_size, std::uint32_t border = 4) {
+    st::StoreInfo info;
+    info.width = width;
+    info.height = height;
+    info.tile_payload = tile_size - 2 * border;
+    info.border = border;
+    info.channels = 4;
+    info.levels = st::level_geometry(width, height, info.tile_payload);
+    return info;
+}
+
+sc::Scene terrain(std::uint32_t w, std::uint32_t h, std::uint32_t chunk_texels) {
+    sc::TerrainOptions o;
+    o.vt_width = w;
+    o.vt_height = h;
+    o.chunk_texels = chunk_texels;
+    o.quads_per_chunk = 8;
+    auto s = sc::make_terrain(o);
+    EXPECT_TRUE(s.ok()) << s.error().message;
+    return s.ok() ? std::move(*s) : sc::Scene{};
+}
+
+// A smooth RGB pattern: sines of periods 37, 290 and 2300 texels, so neighbouring texels are
+// close everywhere (page borders included) at every level, and a seam (a wrong texel, a border
+// off by one) shows as an error of several 8-bit steps.
+class PatternSource final : public st::ImageSource {
+public:
+    PatternSource(std::uint32_t w, std::uint32_t h) {
+        info_.width = w;
+        info_.height = h;
+        info_.channels = 3;
+        info_.sample_type = st::SampleType::u8;
+        info_.colour_space = st::ColourSpace::linear;
+        info_.description = "smooth pattern";
+    }
+    const st::SourceInfo& info() const override { return info_; }
+    tessera::Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const st::ParallelFor&) override {
+        for (std::uint32_t y = y0; y < y0 + count; ++y)
+            for (std::uint32_t x = 0; x < info_.width; ++x) {
+                std::uint8_t* p = dst + (std::size_t(y - y0) * info_.width + x) * 3;
+                p[0] = value(std::sin(2 * kPi * (x + 0.7 * y) / 37.0));
+                p[1] = value(std::sin(2 * kPi * (0.6 * x - y) / 290.0));
+                p[2] = value(std::cos(2 * kPi * (x + y) / 2300.0));
+            }
+        return tessera::Status();
+    }
+
+private:
+    static std::uint8_t value(double s) { return static_cast<std::uint8_t>(std::lround(128 + 100 * s)); }
+    st::SourceInfo info_;
+};
+
+std::string build_store(const std::string& path, const std::string& input, std::uint32_t tile_size, st::ImageSource* source = nullptr) {
+    st::BuildOptions o;
+    o.tile_size = tile_size;
+    o.border = 4;
+    o.codec = st::Codec::zstd;  // lossless
+    o.threads = 2;
+    auto r = source ? st::build_store(*source, path, o) : st::build_store(input, path, o);
+    EXPECT_TRUE(r.ok()) << r.error().message;
+    return path;
+}
+
+// The runtime over a local store, uploading into a VtRenderer.
+struct Vt {
+    std::unique_ptr<tessera::client::TileSource> source;
+    std::unique_ptr<gl::VtRenderer> renderer;
+    std::unique_ptr<tessera::client::Runtime> runtime;
+    st::StoreInfo info;
+    tessera::client::TextureId texture = 0;
+};
+
+std::unique_ptr<Vt> make_vt(const gl::RendererConfig& cfg, const std::string& store, const sc::Scene& scene) {
+    auto vt = std::make_unique<Vt>();
+    vt->source = tessera::client::make_local_store_source(1);
+    auto r = gl::VtRenderer::create(cfg);
+    EXPECT_TRUE(r.ok()) << r.error().message;
+    if (!r) return nullptr;
+    vt->renderer = std::move(*r);
+    tessera::client::RuntimeConfig rc;
+    rc.residency.pool_slots = cfg.pool_slots;
+    rc.transcode_threads = 1;
+    rc.upload_pages_per_frame = 128;
+    rc.upload_bytes_per_frame = 64u << 20;
+    auto rt = tessera::client::Runtime::create(rc, *vt->renderer);
+    EXPECT_TRUE(rt.ok()) << rt.error().message;
+    if (!rt) return nullptr;
+    vt->runtime = std::move(*rt);
+    auto tex = vt->runtime->add_texture(*vt->source, store);
+    EXPECT_TRUE(tex.ok()) << tex.error().message;
+    if (!tex) return nullptr;
+    vt->texture = *tex;
+    vt->info = *vt->runtime->texture_info(*tex);
+    auto added = vt->renderer->add_texture(vt->texture, vt->info);
+    EXPECT_TRUE(added.ok()) << added.error().message;
+    auto set = vt->renderer->set_scene(scene, vt->texture);
+    EXPECT_TRUE(set.ok()) << set.error().message;
+    if (!added || !set) return nullptr;
+    return vt;
+}
+
+std::uint64_t page_count(const st::StoreInfo& info) {
+    std::uint64_t n = 0;
+    for (const auto& l : info.levels) n += std::uint64_t(l.tiles_x) * l.tiles_y;
+    return n;
+}
+
+// Drives the runtime with a feedback naming every page of every level until all are resident.
+bool load_everything(Vt& vt, std::chrono::seconds timeout = 60s) {
+    std::vector<FeedbackId> ids;
+    for (std::uint32_t l = 0; l < vt.info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < vt.info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < vt.info.levels[l].tiles_x; ++x)
+                ids.push_back(tessera::client::pack_feedback(PageKey{vt.texture, std::uint8_t(l), x, y}));
+    const auto total = page_count(vt.info);
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < deadline) {
+        vt.runtime->frame(ids, std::uint32_t(ids.size()), 1, 0.0f);
+        if (vt.runtime->residency().stats().resident_pages == total && vt.runtime->in_flight() == 0) return true;
+        std::this_thread::sleep_for(2ms);
+    }
+    return false;
+}
+
+struct Frame {
+    std::vector<std::uint8_t> rgba;
+    gl::FrameCounters counters;
+};
+
+Frame render_vt(gl::VtRenderer& r, const sc::Camera& cam, float bias = 0) {
+    const auto n = r.render(cam, bias);
+    std::vector<gl::FrameCounters> counters;
+    r.finish(&counters, nullptr);
+    Frame f;
+    f.rgba = r.read_color();
+    for (const auto& c : counters)
+        if (c.frame == n) f.counters = c;
+    EXPECT_EQ(f.counters.frame, n) << "no counters for frame " << n;
+    EXPECT_EQ(r.stats().gl_errors, 0u);
+    EXPECT_EQ(r.stats().malformed_uploads, 0u);
+    return f;
+}
+
+// Pixels with geometry (alpha set: the textures are opaque, the background is transparent).
+std::vector<std::uint8_t> coverage(const std::vector<std::uint8_t>& rgba) {
+    std::vector<std::uint8_t> m(rgba.size() / 4);
+    for (std::size_t i = 0; i < m.size(); ++i) m[i] = rgba[i * 4 + 3] != 0;
+    return m;
+}
+
+std::size_t count(const std::vector<std::uint8_t>& mask) { return std::size_t(std::count(mask.begin(), mask.end(), 1)); }
+
+// Distinct wanted levels of a view according to the CPU feedback (full resolution).
+std::set<std::uint32_t> levels_in_view(const sc::Camera& cam, const st::StoreInfo& info, const gl::RendererConfig& cfg) {
+    sc::CpuFeedbackParams p;
+    p.main_width = p.fb_width = cfg.width;
+    p.main_height = p.fb_height = cfg.height;
+    p.rule.filter = scene_filter(cfg.filter);
+    std::vector<FeedbackId> ids;
+    sc::cpu_feedback(cam, sc::VtGeometry{info.width, info.height, info.tile_payload, info.level_count()}, p, ids);
+    std::set<std::uint32_t> levels;
+    for (const auto id : ids)
+        if (id != kNoPage) levels.insert(tessera::client::unpack_feedback(id).level);
+    return levels;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+class RenderVsReference : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderVsReference, MatchesTheMipmappedReferenceWithEveryPageResident) {
+    REQUIRE_GL(ctx);
+    ScratchDir dir;
+    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128);
+    const auto cfg = config(GetParam(), 128, 512, /*srgb=*/true);
+    const auto scene = terrain(2048, 2048, 512);
+    auto vt = make_vt(cfg, store, scene);
+    ASSERT_TRUE(vt);
+    ASSERT_TRUE(load_everything(*vt)) << "resident " << vt->runtime->residency().stats().resident_pages << " of " << page_count(vt->info);
+
+    auto levels = gl::decode_store_levels(store);
+    ASSERT_TRUE(levels.ok()) << levels.error().message;
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    ASSERT_TRUE(ref.ok()) << ref.error().message;
+    ASSERT_TRUE((*ref)->set_scene(scene).ok());
+
+    const sc::Camera cameras[] = {
+        looking(1024, -120, 160, kPi / 2, -0.42),   // over the near edge, towards the far one
+        looking(300, 400, 60, 0.6, -0.25),          // low and grazing, turned
+        straight_down(700.5, 900.25, height_for(1.7, straight_down(0, 0, 1), cfg.height)),
+    };
+    for (const auto& cam : cameras) {
+        const auto wanted = levels_in_view(cam, vt->info, cfg);
+        const Frame f = render_vt(*vt->renderer, cam);
+        (*ref)->render(cam);
+        const auto want = (*ref)->read_color();
+        const auto mask = coverage(want);
+        EXPECT_EQ(coverage(f.rgba), mask) << "the VT and the reference cover different pixels";
+        const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
+        EXPECT_GT(e.pixels, cfg.width * cfg.height / 3);
+        EXPECT_GE(e.psnr, 50.0) << filter_name(GetParam()) << ": max error " << e.max_error << " over " << e.pixels << " pixels";
+        EXPECT_LE(e.max_error, 3) << filter_name(GetParam()) << ": a seam or a wrong texel somewhere";
+        EXPECT_EQ(f.counters.textured_pixels, count(mask));
+        EXPECT_EQ(f.counters.fallback_unbiased, 0u);
+        EXPECT_EQ(f.counters.fallback_biased, 0u);
+        std::printf("  %s camera (%.0f, %.0f, %.0f): levels %zu (%u..%u), PSNR %.1f dB, max error %d\n", filter_name(GetParam()),
+                    cam.position[0], cam.position[1], cam.position[2], wanted.size(), *wanted.begin(), *wanted.rbegin(), e.psnr,
+                    e.max_error);
+    }
+    // The first view spans several levels.
+    EXPECT_GE(levels_in_view(cameras[0], vt->info, cfg).size(), 3u);
+}
+
+INSTANTIATE_TEST_SUITE_P(Filters, RenderVsReference,
+                         ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
+                         [](const auto& p) { return std::string(filter_name(p.param)); });
+
+// A staging ring too small for one page: every upload goes straight from client memory, and the
+// frame is still right.
+TEST(RenderVsReferenceSmallRing, UploadsStillLandWhenTheStagingRingIsFull) {
+    REQUIRE_GL(ctx);
+    ScratchDir dir;
+    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:1024", 128);
+    auto cfg = config(gl::Filter::trilinear, 128, 128, /*srgb=*/false, 160, 120);
+    cfg.staging_bytes = 48 * 1024;  // a page is 64 KiB
+    const auto scene = terrain(1024, 1024, 512);
+    auto vt = make_vt(cfg, store, scene);
+    ASSERT_TRUE(vt);
+    ASSERT_TRUE(load_everything(*vt));
+    EXPECT_GT(vt->renderer->stats().direct_uploads, 0u);
+    EXPECT_EQ(vt->renderer->stats().malformed_uploads, 0u);
+    auto levels = gl::decode_store_levels(store);
+    ASSERT_TRUE(levels.ok()) << levels.error().message;
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    ASSERT_TRUE(ref.ok()) << ref.error().message;
+    ASSERT_TRUE((*ref)->set_scene(scene).ok());
+    const auto cam = looking(512, -60, 90, kPi / 2, -0.4);
+    const Frame f = render_vt(*vt->renderer, cam);
+    (*ref)->render(cam);
+    const auto want = (*ref)->read_color();
+    const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, coverage(want));
+    EXPECT_GE(e.psnr, 50.0) << "max error " << e.max_error;
+    EXPECT_EQ(f.counters.fallback_unbiased, 0u);
+}
+
+// ---------------------------------------------------------------------------------------------
+
+class RenderSeams : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderSeams, NoDiscontinuitiesAtPageBordersAtAnyLevel) {
+    REQUIRE_GL(ctx);
+    ScratchDir dir;
+    PatternSource pattern(1024, 1024);
+    const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56: borders everywhere
+    const auto cfg = config(GetParam(), 64, 512, /*srgb=*/false, 192, 144);
+    const auto scene = terrain(1024, 1024, 256);
+    auto vt = make_vt(cfg, store, scene);
+    ASSERT_TRUE(vt);
+    ASSERT_TRUE(load_everything(*vt));
+    auto levels = gl::decode_store_levels(store);
+    ASSERT_TRUE(levels.ok()) << levels.error().message;
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    ASSERT_TRUE(ref.ok()) << ref.error().message;
+    ASSERT_TRUE((*ref)->set_scene(scene).ok());
+
+    struct View {
+        sc::Camera camera;
+        const char* what;
+    };
+    std::vector<View> views;
+    // Straight down at lod -1.3 (magnified), 0.4, 1.5, 2.6, 3.4 and 4.3: each level sampled (and, for
+    // trilinear, blended with the next), the view centred near a page corner.
+    for (const double lod : {-1.3, 0.4, 1.5, 2.6, 3.4, 4.3}) {
+        const double tpp = std::exp2(lod);
+        const double h = height_for(tpp, straight_down(0, 0, 1), cfg.height);
+        views.push_back({straight_down(56.0 * 9 + 3.3, 56.0 * 8 - 2.6, h), "straight down"});
+    }
+    views.push_back({looking(500, -30, 14, kPi / 2 + 0.3, -0.16), "grazing"});  // anisotropy up to the limit
+    views.push_back({looking(-40, 520, 30, 0.05, -0.3), "grazing 2"});
+    for (const auto& v : views) {
+        const Frame f = render_vt(*vt->renderer, v.camera);
+        (*ref)->render(v.camera);
+        const auto want = (*ref)->read_color();
+        const auto mask = coverage(want);
+        const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
+        const auto lv = levels_in_view(v.camera, vt->info, cfg);
+        EXPECT_GE(e.psnr, 50.0) << v.what << " at z " << v.camera.position[2] << ": max error " << e.max_error;
+        EXPECT_LE(e.max_error, 3) << v.what << " at z " << v.camera.position[2];
+        EXPECT_EQ(f.counters.fallback_unbiased, 0u);
+        std::printf("  %s %s z=%.1f levels %u..%u: PSNR %.1f dB, max error %d over %llu px\n", filter_name(GetParam()), v.what,
+                    v.camera.position[2], lv.empty() ? 0 : *lv.begin(), lv.empty() ? 0 : *lv.rbegin(), e.psnr, e.max_error,
+                    static_cast<unsigned long long>(e.pixels));
+    }
+}
+
+INSTANTIATE_TEST_SUITE_P(Filters, RenderSeams,
+                         ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
+                         [](const auto& p) { return std::string(filter_name(p.param)); });
+
+// ---------------------------------------------------------------------------------------------
+
+struct FeedbackCase {
+    gl::Filter filter;
+    float bias;
+};
+
+void PrintTo(const FeedbackCase& c, std::ostream* os) {
+    gl::PrintTo(c.filter, os);
+    *os << " bias " << c.bias;
+}
+
+class RenderFeedback : public ::testing::TestWithParam<FeedbackCase> {};
+
+TEST_P(RenderFeedback, GpuFeedbackRequestsTheCpuFeedbackPages) {
+    REQUIRE_GL(ctx);
+    const auto [filter, bias] = GetParam();
+    // Geometry only: the feedback pass needs no resident page.
+    const auto info = geometry(1u << 16, 1u << 16, 256);
+    auto cfg = config(filter, 256, 16, /*srgb=*/false, 256, 192);
+    cfg.feedback_scale = 8;
+    auto r = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    auto& renderer = **r;
+    ASSERT_TRUE(renderer.add_texture(3, info).ok());
+    ASSERT_TRUE(renderer.set_scene(terrain(info.width, info.height, 4096), 3).ok());
+
+    sc::CpuFeedbackParams p;
+    p.main_width = cfg.width;
+    p.main_height = cfg.height;
+    p.fb_width = cfg.width / 8;
+    p.fb_height = cfg.height / 8;
+    p.bias = bias;
+    p.rule = sc::LodRule{scene_filter(filter), cfg.max_anisotropy};
+    p.texture = 3;
+    const sc::VtGeometry geo{info.width, info.height, info.tile_payload, info.level_count()};
+
+    struct View {
+        sc::Camera camera;
+        bool exact;  // straight down: every pixel must agree
+    };
+    const View views[] = {
+        {straight_down(30000.3, 20000.7, height_for(std::exp2(2.3), straight_down(0, 0, 1), cfg.height)), true},
+        {straight_down(1000.6, 64000.2, height_for(std::exp2(0.7), straight_down(0, 0, 1), cfg.height)), true},
+        {looking(30000, 20000, 300, 0.7, -0.5), false},
+        {looking(12345.6, 54321.2, 1500, 4.0, -0.9), false},
+    };
+    for (const auto& v : views) {
+        const auto frame = renderer.render(v.camera, bias);
+        gl::FeedbackFrame fb;
+        renderer.finish(nullptr, &fb);
+        ASSERT_EQ(fb.frame, frame);
+        ASSERT_EQ(fb.width, p.fb_width);
+        ASSERT_EQ(fb.height, p.fb_height);
+        EXPECT_EQ(fb.bias, bias);
+        std::vector<FeedbackId> cpu;
+        sc::cpu_feedback(v.camera, geo, p, cpu);
+        ASSERT_EQ(cpu.size(), fb.ids.size());
+        std::set<FeedbackId> gpu_set, cpu_set;
+        std::size_t differ = 0, vt_pixels = 0;
+        for (std::size_t i = 0; i < cpu.size(); ++i) {
+            if (fb.ids[i] != kNoPage) gpu_set.insert(fb.ids[i]);
+            if (cpu[i] != kNoPage) cpu_set.insert(cpu[i]), ++vt_pixels;
+            if (fb.ids[i] == cpu[i]) continue;
+            ++differ;
+            // Only neighbours may differ: a level or a page boundary passes through the pixel.
+            ASSERT_NE(fb.ids[i], kNoPage) << "pixel " << i;
+            ASSERT_NE(cpu[i], kNoPage) << "pixel " << i;
+            const auto a = tessera::client::unpack_feedback(fb.ids[i]), b = tessera::client::unpack_feedback(cpu[i]);
+            EXPECT_EQ(a.texture, 3);
+            EXPECT_LE(std::abs(int(a.level) - int(b.level)), 1) << "pixel " << i << ": GPU level " << int(a.level) << " page (" << a.x << ", " << a.y << "), CPU level " << int(b.level) << " page (" << b.x << ", " << b.y << ")";
+            if (a.level == b.level) {
+                EXPECT_LE(std::abs(int(a.x) - int(b.x)), 1);
+                EXPECT_LE(std::abs(int(a.y) - int(b.y)), 1);
+            }
+        }
+        EXPECT_GT(vt_pixels, cpu.size() / 3);
+        if (v.exact) {
+            EXPECT_EQ(differ, 0u);
+        }
+        EXPECT_EQ(gpu_set, cpu_set) << differ << " of " << cpu.size() << " pixels differ";
+        std::printf("  %s bias %.1f camera z=%.0f pitch %.2f: %zu pages, %zu of %zu pixels differ\n", filter_name(filter), bias,
+                    v.camera.position[2], v.camera.pitch, cpu_set.size(), differ, cpu.size());
+    }
+}
+
+INSTANTIATE_TEST_SUITE_P(Cases, RenderFeedback,
+                         ::testing::Values(FeedbackCase{gl::Filter::bilinear, 0.0f}, FeedbackCase{gl::Filter::trilinear, 0.0f},
+                                           FeedbackCase{gl::Filter::trilinear, 1.5f}, FeedbackCase{gl::Filter::anisotropic, 0.0f}),
+                         [](const auto& p) {
+                             return std::string(filter_name(p.param.filter)) + (p.param.bias != 0 ? "_biased" : "");
+                         });
+
+// ---------------------------------------------------------------------------------------------
+
+// Texel (x, y) of level 0 encodes its coordinates: R = x & 255, G = y & 255, B = bits 8..11 of x
+// and y.
+void encode_texel(std::uint32_t x, std::uint32_t y, std::uint8_t* p) {
+    p[0] = std::uint8_t(x & 255);
+    p[1] = std::uint8_t(y & 255);
+    p[2] = std::uint8_t(((x >> 8) & 15) | (((y >> 8) & 15) << 4));
+    p[3] = 255;
+}
+
+TEST(RenderAddressing, TexelsNearTwoToTheTwentyComeBackExactly) {
+    REQUIRE_GL(ctx);
+    constexpr std::uint32_t kSize = 1u << 20;
+    const auto info = geometry(kSize, kSize, 512);  // P = 504
+    const std::uint32_t P = info.tile_payload, B = info.border, ts = info.tile_size();
+    auto cfg = config(gl::Filter::bilinear, ts, 4, /*srgb=*/false, 128, 96);
+    auto r = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    auto& renderer = **r;
+    ASSERT_TRUE(renderer.add_texture(0, info).ok());
+
+    // One chunk: the texture's last 576 x 576 texels, a world unit per texel.
+    const std::uint32_t o = kSize - 576;
+    sc::Scene s;
+    s.vt_width = s.vt_height = kSize;
+    sc::Chunk c;
+    c.origin = {double(o), double(o), 0};
+    c.texel_origin[0] = c.texel_origin[1] = o;
+    for (const auto& [x, y] : {std::pair{0.f, 0.f}, {576.f, 0.f}, {576.f, 576.f}, {0.f, 576.f}}) c.vertices.push_back({{x, y, 0}, {x, y}});
+    c.indices = {0, 1, 2, 0, 2, 3};
+    s.chunks.push_back(c);
+    ASSERT_TRUE(renderer.set_scene(s, 0).ok());
+
+    // Pages (2079..2080, 2079..2080) of level 0, the texture's last: page 2080 holds texels
+    // [1048320, 1048576).
+    const std::uint32_t p0 = (kSize - 300) / P;
+    std::vector<std::uint32_t> entries;
+    std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
+    for (std::uint32_t py = 0; py < 2; ++py)
+        for (std::uint32_t px = 0; px < 2; ++px) {
+            const std::uint32_t slot = py * 2 + px;
+            for (std::uint32_t j = 0; j < ts; ++j)
+                for (std::uint32_t i = 0; i < ts; ++i) {
+                    const auto gx = std::clamp<std::int64_t>(std::int64_t(p0 + px) * P - B + i, 0, kSize - 1);
+                    const auto gy = std::clamp<std::int64_t>(std::int64_t(p0 + py) * P - B + j, 0, kSize - 1);
+                    encode_texel(std::uint32_t(gx), std::uint32_t(gy), page.data() + (std::size_t(j) * ts + i) * 4);
+                }
+            renderer.upload_page(slot, page, ts);
+            entries.push_back(PageTable::make_entry(slot, 0));
+        }
+    renderer.upload_page_table(0, 0, p0, p0, 2, 2, entries);
+    EXPECT_EQ(renderer.stats().malformed_uploads, 0u);
+
+    // One texel per pixel, pixel centres on texel centres (the image centre on a texel corner),
+    // and 4x magnified (every fourth pixel centre on a texel centre). Both views straddle the
+    // page corner (1048320, 1048320).
+    for (const double tpp : {1.0, 0.25}) {
+        const double cx = 1048330 + (tpp < 1 ? 0.125 : 0.0), cy = 1048313 + (tpp < 1 ? 0.125 : 0.0);
+        const auto cam = straight_down(cx, cy, height_for(tpp, straight_down(0, 0, 1), cfg.height));
+        const Frame f = render_vt(renderer, cam);
+        EXPECT_EQ(f.counters.textured_pixels, std::uint64_t(cfg.width) * cfg.height);
+        std::size_t checked = 0, wrong = 0;
+        std::set<std::uint32_t> pages_seen;
+        for (std::uint32_t j = 0; j < cfg.height; ++j)
+            for (std::uint32_t i = 0; i < cfg.width; ++i) {
+                double x, y;
+                ASSERT_TRUE(pixel_to_ground(cam, cfg.width, cfg.height, i, j, x, y));
+                if (std::abs(x - std::floor(x) - 0.5) > 1e-3 || std::abs(y - std::floor(y) - 0.5) > 1e-3) continue;
+                const auto gx = std::uint32_t(std::floor(x)), gy = std::uint32_t(std::floor(y));
+                std::uint8_t want[4];
+                encode_texel(gx, gy, want);
+                const std::uint8_t* got = f.rgba.data() + (std::size_t(j) * cfg.width + i) * 4;
+                ++checked;
+                pages_seen.insert((gx / P) * 4096 + gy / P);
+                if (std::equal(want, want + 4, got)) continue;
+                if (++wrong <= 5)
+                    ADD_FAILURE() << "pixel (" << i << ", " << j << ") texel (" << gx << ", " << gy << "): got " << int(got[0]) << " "
+                                  << int(got[1]) << " " << int(got[2]) << ", want " << int(want[0]) << " " << int(want[1]) << " "
+                                  << int(want[2]);
+            }
+        EXPECT_EQ(wrong, 0u) << "of " << checked;
+        EXPECT_GE(checked, tpp < 1 ? std::size_t(cfg.width * cfg.height / 16) : std::size_t(cfg.width * cfg.height));
+        EXPECT_EQ(pages_seen.size(), 4u);
+        std::printf("  %.2f texels per pixel: %zu pixels checked on texel centres near 2^20, %zu wrong\n", tpp, checked, wrong);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+
+// Maps pages through a client::PageTable (as the runtime does) and uploads its dirty rectangles.
+void upload_dirty(PageTable& table, gl::VtRenderer& r) {
+    std::vector<tessera::client::DirtyRect> dirty;
+    table.take_dirty(dirty);
+    for (const auto& d : dirty) {
+        const auto entries = table.level_entries(d.level);
+        std::vector<std::uint32_t> rect;
+        for (std::uint32_t y = d.y0; y < d.y1; ++y)
+            for (std::uint32_t x = d.x0; x < d.x1; ++x) rect.push_back(entries[std::size_t(y) * table.level_width(d.level) + x]);
+        r.upload_page_table(table.texture(), std::uint8_t(d.level), d.x0, d.y0, d.x1 - d.x0, d.y1 - d.y0, rect);
+    }
+}
+
+TEST(RenderCounters, FallbackPixelsAgainstTheUnbiasedAndTheBiasedLevel) {
+    REQUIRE_GL(ctx);
+    const auto info = geometry(2048, 2048, 128);
+    const std::uint32_t levels = info.level_count(), ts = info.tile_size();
+    auto cfg = config(gl::Filter::trilinear, ts, 512, /*srgb=*/true, 192, 144);
+    auto r = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    auto& renderer = **r;
+    ASSERT_TRUE(renderer.add_texture(0, info).ok());
+    ASSERT_TRUE(renderer.set_scene(terrain(2048, 2048, 512), 0).ok());
+    auto table = PageTable::create(0, info.levels[0].tiles_x, info.levels[0].tiles_y, levels);
+    ASSERT_TRUE(table.ok()) << table.error().message;
+    // Looking down ahead: levels 0..3 in view, nothing wants the coarsest level.
+    const auto cam = looking(1024, 600, 120, kPi / 2, -0.9);
+
+    // The wanted level of every pixel (full-resolution CPU feedback), without and with a bias of 1.
+    const auto wanted = [&](float bias) {
+        sc::CpuFeedbackParams p;
+        p.main_width = p.fb_width = cfg.width;
+        p.main_height = p.fb_height = cfg.height;
+        p.bias = bias;
+        std::vector<FeedbackId> ids;
+        sc::cpu_feedback(cam, sc::VtGeometry{info.width, info.height, info.tile_payload, levels}, p, ids);
+        std::vector<int> out;
+        for (const auto id : ids) out.push_back(id == kNoPage ? -1 : int(tessera::client::unpack_feedback(id).level));
+        return out;
+    };
+    const auto unbiased = wanted(0.0f), biased = wanted(1.0f);
+    const auto pixels_where = [&](const auto& pred) {
+        double n = 0;
+        for (std::size_t i = 0; i < unbiased.size(); ++i) n += unbiased[i] >= 0 && pred(unbiased[i], biased[i]);
+        return n;
+    };
+    // The VT pass differentiates per 2x2 quad, the CPU per pixel: pixels on a level boundary may
+    // disagree.
+    const auto slack = [](double n) { return 0.01 * n + 60; };
+
+    // Nothing resident: every textured pixel is drawn in the no-data colour and is a fallback.
+    upload_dirty(*table, renderer);
+    Frame f = render_vt(renderer, cam);
+    const auto mask = coverage(f.rgba);
+    const std::uint64_t textured = count(mask);
+    ASSERT_GT(textured, std::uint64_t(cfg.width) * cfg.height / 2);
+    EXPECT_NEAR(double(textured), pixels_where([](int, int) { return true; }), 0.01 * double(textured));
+    EXPECT_EQ(f.counters.textured_pixels, textured);
+    EXPECT_EQ(f.counters.fallback_unbiased, textured);
+    EXPECT_EQ(f.counters.fallback_biased, textured);
+    for (std::size_t i = 0; i < mask.size(); ++i)
+        if (mask[i]) {
+            ASSERT_EQ(f.rgba[i * 4 + 0], 255);
+            ASSERT_EQ(f.rgba[i * 4 + 1], 0);
+            ASSERT_EQ(f.rgba[i * 4 + 2], 255);
+        }
+
+    // Only the coarsest level: (almost) every pixel falls back.
+    std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
+    tessera::client::SlotId next = 0;
+    const auto map = [&](std::uint32_t l, std::uint32_t x, std::uint32_t y) {
+        for (std::size_t i = 0; i < page.size(); i += 4) {
+            page[i] = std::uint8_t(40 * l), page[i + 1] = std::uint8_t(x * 13), page[i + 2] = std::uint8_t(y * 29), page[i + 3] = 255;
+        }
+        renderer.upload_page(next, page, ts);
+        ASSERT_TRUE(table->map(l, x, y, next++).ok());
+    };
+    map(levels - 1, 0, 0);
+    upload_dirty(*table, renderer);
+    f = render_vt(renderer, cam);
+    EXPECT_EQ(f.counters.textured_pixels, textured);
+    EXPECT_GE(f.counters.fallback_unbiased, textured * 99 / 100);
+    EXPECT_NEAR(double(f.counters.fallback_unbiased), pixels_where([&](int u, int) { return u < int(levels) - 1; }),
+                slack(double(textured)));
+    EXPECT_EQ(f.counters.fallback_biased, f.counters.fallback_unbiased);
+    // ... and every pixel shows the coarsest page (uniform (200, 0, 0): level 5's colour).
+    for (std::size_t i = 0; i < mask.size(); ++i)
+        if (mask[i]) {
+            ASSERT_NEAR(f.rgba[i * 4 + 0], 200, 1) << "pixel " << i;
+            ASSERT_EQ(f.rgba[i * 4 + 1], 0) << "pixel " << i;
+            ASSERT_EQ(f.rgba[i * 4 + 2], 0) << "pixel " << i;
+        }
+    std::printf("  coarsest level only: %llu of %llu textured pixels fall back\n",
+                static_cast<unsigned long long>(f.counters.fallback_unbiased), static_cast<unsigned long long>(textured));
+
+    // Everything: no fallback.
+    for (std::uint32_t l = 0; l + 1 < levels; ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) map(l, x, y);
+    upload_dirty(*table, renderer);
+    f = render_vt(renderer, cam);
+    EXPECT_EQ(f.counters.textured_pixels, textured);
+    EXPECT_EQ(f.counters.fallback_unbiased, 0u);
+    EXPECT_EQ(f.counters.fallback_biased, 0u);
+
+    // A bias of 1 with everything resident: the pipeline is healthy (no biased fallback) but the
+    // pixels sample a coarser level than the view wants (unbiased fallback).
+    f = render_vt(renderer, cam, 1.0f);
+    EXPECT_EQ(f.counters.fallback_biased, 0u);
+    const double coarser = pixels_where([](int u, int b) { return b > u; });
+    EXPECT_NEAR(double(f.counters.fallback_unbiased), coarser, slack(coarser));
+    std::printf("  bias 1: %llu unbiased fallback pixels, CPU says %.0f\n", static_cast<unsigned long long>(f.counters.fallback_unbiased),
+                coarser);
+
+    // Level 0 unmapped: the pixels that want level 0 fall back to level 1.
+    for (std::uint32_t y = 0; y < info.levels[0].tiles_y; ++y)
+        for (std::uint32_t x = 0; x < info.levels[0].tiles_x; ++x) ASSERT_TRUE(table->unmap(0, x, y).ok());
+    upload_dirty(*table, renderer);
+    f = render_vt(renderer, cam);
+    const double want_level0 = pixels_where([](int u, int) { return u == 0; });
+    ASSERT_GT(want_level0, 1000);
+    EXPECT_NEAR(double(f.counters.fallback_unbiased), want_level0, slack(want_level0));
+    EXPECT_EQ(f.counters.fallback_biased, f.counters.fallback_unbiased);
+    std::printf("  level 0 unmapped: %llu fallback pixels, CPU says %.0f want level 0\n",
+                static_cast<unsigned long long>(f.counters.fallback_unbiased), want_level0);
+
+    // Counters arrive by polling too, in frame order.
+    std::vector<gl::FrameCounters> polled;
+    std::uint64_t last = 0;
+    for (int i = 0; i < 6; ++i) last = renderer.render(cam, 0.0f);
+    renderer.finish(nullptr, nullptr);  // everything finished: poll_counters must now see them all
+    renderer.poll_counters(polled);
+    ASSERT_FALSE(polled.empty());
+    EXPECT_EQ(polled.back().frame, last);
+    for (std::size_t i = 1; i < polled.size(); ++i) EXPECT_LT(polled[i - 1].frame, polled[i].frame);
+}
+
+// ---------------------------------------------------------------------------------------------
+
+TEST(RenderFeedbackLoop, RenderFeedbackRuntimeUploadsConvergeToFullDetail) {
+    REQUIRE_GL(ctx);
+    ScratchDir dir;
+    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128);
+    const auto cfg = config(gl::Filter::trilinear, 128, 512, /*srgb=*/true, 192, 144);
+    const auto scene = terrain(2048, 2048, 512);
+    auto vt = make_vt(cfg, store, scene);
+    ASSERT_TRUE(vt);
+    const auto cam = looking(1024, -150, 180, kPi / 2, -0.45);
+    const auto deadline = std::chrono::steady_clock::now() + 60s;
+    gl::FeedbackFrame fb;
+    std::vector<gl::FrameCounters> counters;
+    gl::FrameCounters first{}, last{};
+    int frames = 0;
+    while (std::chrono::steady_clock::now() < deadline) {
+        vt->renderer->render(cam, vt->runtime->lod_bias());
+        ++frames;
+        if (vt->renderer->poll_feedback(fb))
+            vt->runtime->frame(fb.ids, fb.width, fb.height, fb.bias);
+        else
+            vt->runtime->frame_without_feedback();
+        counters.clear();
+        vt->renderer->poll_counters(counters);
+        for (const auto& c : counters) {
+            if (first.frame == 0) first = c;
+            last = c;
+        }
+        if (last.frame > 0 && last.textured_pixels > 0 && last.fallback_biased == 0 && vt->runtime->in_flight() == 0) break;
+        std::this_thread::sleep_for(1ms);
+    }
+    ASSERT_GT(last.textured_pixels, 0u);
+    EXPECT_GT(first.fallback_unbiased, 0u) << "the first frames have nothing but the pinned levels";
+    EXPECT_EQ(last.fallback_biased, 0u) << "after " << frames << " frames";
+    EXPECT_EQ(vt->runtime->lod_bias(), 0.0f);
+    std::printf("  %d frames; last counted frame %llu: %llu textured, %llu fallback (unbiased), %llu (biased)\n", frames,
+                static_cast<unsigned long long>(last.frame), static_cast<unsigned long long>(last.textured_pixels),
+                static_cast<unsigned long long>(last.fallback_unbiased), static_cast<unsigned long long>(last.fallback_biased));
+}
+
+}  // namespace
+
+namespace {
+
+// Without a display, a window is an error with a message (never a crash); with one, it is a GL
+// 4.5 context (not exercised here: CI has no display).
+TEST(RenderContext, AWindowWithoutADisplayIsAnError) {
+    if (std::getenv("DISPLAY") || std::getenv("WAYLAND_DISPLAY")) GTEST_SKIP() << "a display is available";
+    auto w = gl::GlContext::create_window(64, 64, "tessera test");
+    ASSERT_FALSE(w.ok());
+    EXPECT_FALSE(w.error().message.empty());
+}
+
+TEST(RenderContext, HeadlessContextIsGl45Core) {
+    REQUIRE_GL(ctx);
+    EXPECT_EQ(ctx->window(), nullptr);
+    EXPECT_NE(ctx->renderer().find("4."), std::string::npos) << ctx->renderer();
+    std::printf("  %s\n", ctx->renderer().c_str());
+}
+
+}  // namespace

@@ -1,0 +1,298 @@
+// Camera paths: the text format (parse, round trip, errors with line numbers), interpolation, and
+// the built-ins (in bounds, above the ground, continuous, doing what their names promise).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <set>
+
+#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/scene/path.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+using namespace tessera::scene;
+constexpr double kPi = std::numbers::pi;
+constexpr double kDeg = kPi / 180;
+
+const char* kExample = R"(# tessera camera path v1
+fov 60
+# time_s   x        y        z       yaw_deg  pitch_deg
+0.0        1000     2000     150     45       -20
+2.5        1800     2400     120     60       -15
+
+5          2000     3000     100     90       -10   # trailing comment
+)";
+
+std::string error_of(std::string_view text) {
+    auto p = CameraPath::parse(text, "test.path");
+    return p.ok() ? std::string("(no error)") : p.error().message;
+}
+
+Scene terrain_scene(double w, double h) {
+    Scene s;
+    s.name = "terrain";
+    s.vt_width = static_cast<std::uint32_t>(w);
+    s.vt_height = static_cast<std::uint32_t>(h);
+    s.bounds_max[0] = w;
+    s.bounds_max[1] = h;
+    return s;
+}
+
+TEST(Path, ParsesTheDocumentedFormat) {
+    auto p = CameraPath::parse(kExample, "example");
+    ASSERT_TRUE(p.ok()) << p.error().message;
+    ASSERT_EQ(p->keyframes().size(), 3u);
+    EXPECT_EQ(p->duration(), 5.0);
+    EXPECT_NEAR(p->fov_y(), 60 * kDeg, 1e-15);
+    const Keyframe& k = p->keyframes()[1];
+    EXPECT_EQ(k.time, 2.5);
+    EXPECT_EQ(k.position[0], 1800);
+    EXPECT_EQ(k.position[1], 2400);
+    EXPECT_EQ(k.position[2], 120);
+    EXPECT_NEAR(k.yaw, 60 * kDeg, 1e-15);
+    EXPECT_NEAR(k.pitch, -15 * kDeg, 1e-15);
+    // At a keyframe the camera is exactly there; beyond the ends it is clamped.
+    const Camera c = p->at(2.5);
+    EXPECT_NEAR(c.position[0], 1800, 1e-9);
+    EXPECT_NEAR(c.yaw, 60 * kDeg, 1e-12);
+    EXPECT_NEAR(c.fov_y, 60 * kDeg, 1e-15);
+    EXPECT_NEAR(p->at(-3).position[0], 1000, 1e-9);
+    EXPECT_NEAR(p->at(99).position[1], 3000, 1e-9);
+    EXPECT_NEAR(p->at(std::nan("")).position[0], 1000, 1e-9);
+}
+
+TEST(Path, RoundTripsThroughText) {
+    auto scene = terrain_scene(16384, 16384);
+    for (const std::string& name : CameraPath::builtin_names()) {
+        auto p = CameraPath::builtin(name, scene);
+        ASSERT_TRUE(p.ok()) << name;
+        auto q = CameraPath::parse(p->to_text(), name);
+        ASSERT_TRUE(q.ok()) << name << ": " << q.error().message;
+        ASSERT_EQ(q->keyframes().size(), p->keyframes().size());
+        EXPECT_NEAR(q->fov_y(), p->fov_y(), 1e-12);
+        for (std::size_t i = 0; i < p->keyframes().size(); ++i) {
+            const Keyframe &a = p->keyframes()[i], &b = q->keyframes()[i];
+            EXPECT_EQ(a.time, b.time);
+            for (int d = 0; d < 3; ++d) EXPECT_EQ(a.position[d], b.position[d]);
+            EXPECT_NEAR(a.yaw, b.yaw, 1e-12);
+            EXPECT_NEAR(a.pitch, b.pitch, 1e-12);
+        }
+        for (double t = 0; t <= p->duration(); t += 0.37) {
+            const Camera ca = p->at(t), cb = q->at(t);
+            for (int d = 0; d < 3; ++d) EXPECT_NEAR(ca.position[d], cb.position[d], 1e-6);
+        }
+    }
+    // And through a file.
+    tessera::test::ScratchDir dir;
+    auto p = CameraPath::parse(kExample, "example");
+    ASSERT_TRUE(p.ok());
+    const std::string text = p->to_text();
+    tessera::test::write_file(dir.file("a.path"), std::vector<std::uint8_t>(text.begin(), text.end()));
+    auto loaded = CameraPath::load(dir.file("a.path"));
+    ASSERT_TRUE(loaded.ok()) << loaded.error().message;
+    EXPECT_EQ(loaded->keyframes().size(), 3u);
+    auto missing = CameraPath::load(dir.file("nosuch.path"));
+    ASSERT_FALSE(missing.ok());
+    EXPECT_NE(missing.error().message.find("nosuch.path"), std::string::npos);
+}
+
+TEST(Path, ErrorsNameTheFileAndLine) {
+    // Non-increasing time on line 3.
+    std::string e = error_of("0 0 0 10 0 0\n1 0 0 10 0 0\n1 5 5 10 0 0\n");
+    EXPECT_NE(e.find("test.path:3:"), std::string::npos) << e;
+    EXPECT_NE(e.find("does not increase"), std::string::npos) << e;
+    e = error_of("0 0 0 10 0 0\n\n# c\n-1 0 0 10 0 0\n");
+    EXPECT_NE(e.find("test.path:4:"), std::string::npos) << e;
+    // Too few keyframes.
+    e = error_of("# only one\n0 0 0 10 0 0\n");
+    EXPECT_NE(e.find("test.path:"), std::string::npos) << e;
+    EXPECT_NE(e.find("at least two"), std::string::npos) << e;
+    e = error_of("");
+    EXPECT_NE(e.find("at least two"), std::string::npos) << e;
+    // Bad numbers.
+    e = error_of("0 0 0 10 0 0\n1 0 abc 10 0 0\n");
+    EXPECT_NE(e.find("test.path:2:"), std::string::npos) << e;
+    EXPECT_NE(e.find("'abc' is not a number"), std::string::npos) << e;
+    e = error_of("0 0 0 10 0 0\n1.5x 0 0 10 0 0\n");
+    EXPECT_NE(e.find("test.path:2:"), std::string::npos) << e;
+    e = error_of("0 0 0 10 0 0\n1 0 0 inf 0 0\n");
+    EXPECT_NE(e.find("test.path:2:"), std::string::npos) << e;
+    e = error_of("0 0 0 10 0 0\n1 0 0 10 0\n");  // five numbers
+    EXPECT_NE(e.find("test.path:2:"), std::string::npos) << e;
+    EXPECT_NE(e.find("6 numbers"), std::string::npos) << e;
+    e = error_of("0 0 0 10 0 0\n1 0 0 10 0 91\n");  // pitch beyond 90 degrees
+    EXPECT_NE(e.find("test.path:2:"), std::string::npos) << e;
+    // Unknown directive.
+    e = error_of("fov 60\nspeed 3\n0 0 0 10 0 0\n1 0 0 10 0 0\n");
+    EXPECT_NE(e.find("test.path:2:"), std::string::npos) << e;
+    EXPECT_NE(e.find("unknown directive 'speed'"), std::string::npos) << e;
+    // fov out of range, or twice.
+    EXPECT_NE(error_of("fov 180\n0 0 0 10 0 0\n1 0 0 10 0 0\n").find("test.path:1:"), std::string::npos);
+    EXPECT_NE(error_of("fov 50\nfov 60\n0 0 0 10 0 0\n1 0 0 10 0 0\n").find("test.path:2:"), std::string::npos);
+    // Windows line ends are fine.
+    EXPECT_TRUE(CameraPath::parse("fov 45\r\n0 0 0 10 0 0\r\n1 0 0 10 0 0\r\n", "crlf").ok());
+    // from_keyframes checks the same rules.
+    EXPECT_FALSE(CameraPath::from_keyframes({Keyframe{}}, 1.0).ok());
+    EXPECT_FALSE(CameraPath::from_keyframes({Keyframe{1.0}, Keyframe{1.0}}, 1.0).ok());
+    EXPECT_FALSE(CameraPath::from_keyframes({Keyframe{0.0}, Keyframe{1.0}}, 0.0).ok());
+}
+
+TEST(Path, InterpolationIsLinearForTwoKeysAndTakesTheShortArc) {
+    Keyframe a, b;
+    a.time = 0;
+    a.position = {0, 0, 10};
+    a.yaw = 170 * kDeg;
+    b.time = 2;
+    b.position = {100, -50, 30};
+    b.yaw = -170 * kDeg;
+    b.pitch = -0.5;
+    auto p = CameraPath::from_keyframes({a, b}, 1.0);
+    ASSERT_TRUE(p.ok());
+    const Camera m = p->at(1.0);
+    EXPECT_NEAR(m.position[0], 50, 1e-9);
+    EXPECT_NEAR(m.position[1], -25, 1e-9);
+    EXPECT_NEAR(m.position[2], 20, 1e-9);
+    EXPECT_NEAR(m.pitch, -0.25, 1e-12);
+    // 170 -> -170 degrees passes through 180, not through 0.
+    EXPECT_NEAR(std::abs(std::remainder(m.yaw, 2 * kPi)), kPi, 1e-9);
+    EXPECT_EQ(p->builtin_names().size(), 4u);
+}
+
+// Samples a path at `hz`; checks bounds, height and continuity, and returns the cameras.
+std::vector<Camera> walk_through(const CameraPath& p, const Scene& s, double hz, double ground) {
+    std::vector<Camera> cams;
+    for (int i = 0;; ++i) {
+        const double t = std::min(p.duration(), i / hz);
+        cams.push_back(p.at(t));
+        if (t >= p.duration()) break;
+    }
+    const double size = std::max(s.bounds_max[0] - s.bounds_min[0], s.bounds_max[1] - s.bounds_min[1]);
+    std::vector<double> steps;
+    for (std::size_t i = 0; i < cams.size(); ++i) {
+        const Camera& c = cams[i];
+        EXPECT_GE(c.position[0], s.bounds_min[0]);
+        EXPECT_LE(c.position[0], s.bounds_max[0]);
+        EXPECT_GE(c.position[1], s.bounds_min[1]);
+        EXPECT_LE(c.position[1], s.bounds_max[1]);
+        EXPECT_GT(c.position[2], ground);
+        EXPECT_GE(c.pitch, -kPi / 2);
+        EXPECT_LE(c.pitch, kPi / 2);
+        EXPECT_LT(c.near_plane, c.position[2] - ground);
+        if (i > 0) {
+            const Camera& b = cams[i - 1];
+            steps.push_back(std::hypot(c.position[0] - b.position[0], c.position[1] - b.position[1], c.position[2] - b.position[2]));
+            // No orientation jumps: even the whip turns 180 degrees over a quarter of a second.
+            EXPECT_LT(std::abs(std::remainder(c.yaw - b.yaw, 2 * kPi)), 0.3 * 60 / hz) << "at t=" << i / hz;
+            EXPECT_LT(std::abs(c.pitch - b.pitch), 0.1) << "at t=" << i / hz;
+        }
+    }
+    // No position jumps: each step is in line with its neighbours (the speed changes smoothly).
+    for (std::size_t i = 1; i + 1 < steps.size(); ++i)
+        EXPECT_LE(steps[i], 2.0 * std::max(steps[i - 1], steps[i + 1]) + 1e-6 * size) << "at step " << i;
+    return cams;
+}
+
+TEST(Path, BuiltinsOnATerrain) {
+    const Scene s = terrain_scene(16384, 16384);
+    // flyover: low (a few hundred units), turning, about 20 s.
+    auto fly = CameraPath::builtin("flyover", s);
+    ASSERT_TRUE(fly.ok()) << fly.error().message;
+    EXPECT_NEAR(fly->duration(), 20, 5);
+    double yaw_lo = 1e9, yaw_hi = -1e9;
+    for (const Camera& c : walk_through(*fly, s, 60, 0)) {
+        EXPECT_GT(c.position[2], 100);
+        EXPECT_LT(c.position[2], 1000);
+        EXPECT_LT(c.pitch, 0);
+        yaw_lo = std::min(yaw_lo, c.yaw);
+        yaw_hi = std::max(yaw_hi, c.yaw);
+    }
+    EXPECT_GT(yaw_hi - yaw_lo, 1.0);  // it turns
+    // dive: from the whole texture in view down to a few units above the ground.
+    auto dive = CameraPath::builtin("dive", s);
+    ASSERT_TRUE(dive.ok());
+    const auto dcams = walk_through(*dive, s, 60, 0);
+    const Camera first = dcams.front(), last = dcams.back();
+    for (const Vec3d corner : {Vec3d{0, 0, 0}, Vec3d{16384, 0, 0}, Vec3d{0, 16384, 0}, Vec3d{16384, 16384, 0}}) {
+        const auto clip = world_to_clip(first, 16.0 / 9.0, corner);
+        ASSERT_GT(clip[3], 0);
+        EXPECT_LE(std::abs(clip[0] / clip[3]), 1.0);
+        EXPECT_LE(std::abs(clip[1] / clip[3]), 1.0);
+        EXPECT_LE(clip[2] / clip[3], 1.0);  // inside the far plane
+    }
+    EXPECT_LT(last.position[2], 10);
+    EXPECT_GT(last.position[2], 1);
+    // whip: low, with 180-degree turns within a third of a second.
+    auto whip = CameraPath::builtin("whip", s);
+    ASSERT_TRUE(whip.ok());
+    const auto wcams = walk_through(*whip, s, 60, 0);
+    int fast_turns = 0;
+    std::size_t last_turn = 0;
+    for (std::size_t i = 20; i < wcams.size(); ++i) {  // yaw turned over the last third of a second
+        double turned = 0;
+        for (std::size_t k = i - 20; k < i; ++k) turned += std::remainder(wcams[k + 1].yaw - wcams[k].yaw, 2 * kPi);
+        if (std::abs(turned) > 0.9 * kPi && (fast_turns == 0 || i > last_turn + 40)) {
+            ++fast_turns;
+            last_turn = i;
+        }
+    }
+    EXPECT_GE(fast_turns, 4);
+    for (const Camera& c : wcams) EXPECT_LT(c.position[2], 500);
+    // walk works on any scene: eye height above the floor.
+    auto walk = CameraPath::builtin("walk", s);
+    ASSERT_TRUE(walk.ok());
+    for (const Camera& c : walk_through(*walk, s, 30, 0)) EXPECT_NEAR(c.position[2], 1.7, 1e-9);
+    // Unknown name.
+    auto bad = CameraPath::builtin("orbit", s);
+    ASSERT_FALSE(bad.ok());
+    EXPECT_NE(bad.error().message.find("flyover"), std::string::npos);
+    // An empty scene has no bounds to build from.
+    EXPECT_FALSE(CameraPath::builtin("flyover", Scene{}).ok());
+}
+
+TEST(Path, WalkThroughARoom) {
+    Scene room;  // the gallery: 20 x 12, walls 4 high (Z up)
+    room.name = "atlas";
+    room.bounds_min[0] = -10;
+    room.bounds_min[1] = -6;
+    room.bounds_max[0] = 10;
+    room.bounds_max[1] = 6;
+    room.bounds_max[2] = 4;
+    auto walk = CameraPath::builtin("walk", room);
+    ASSERT_TRUE(walk.ok());
+    EXPECT_GE(walk->duration(), 20);
+    for (const Camera& c : walk_through(*walk, room, 30, 0)) {
+        EXPECT_NEAR(c.position[2], 1.7, 1e-9);
+        // Inside the walls with room to spare, and around the middle (where the boxes stand).
+        EXPECT_LT(std::abs(c.position[0]), 8.0);
+        EXPECT_LT(std::abs(c.position[1]), 4.8);
+        EXPECT_GT(std::hypot(c.position[0] / 6.0, c.position[1] / 3.6), 0.9);
+    }
+}
+
+TEST(Path, DiveNeedsEveryLevel) {
+    // A 16384^2 texture of 248-texel pages has 8 levels; the dive must want each at some point.
+    const Scene s = terrain_scene(16384, 16384);
+    auto dive = CameraPath::builtin("dive", s);
+    ASSERT_TRUE(dive.ok());
+    const VtGeometry vt{16384, 16384, 248, 8};
+    CpuFeedbackParams params;
+    params.main_width = 1280;
+    params.main_height = 720;
+    params.fb_width = 160;
+    params.fb_height = 90;
+    std::vector<tessera::client::FeedbackId> fb;
+    std::set<int> levels;
+    for (double t = 0; t <= dive->duration(); t += 0.25) {
+        cpu_feedback(dive->at(t), vt, params, fb);
+        for (auto id : fb)
+            if (id != tessera::client::kNoPage) levels.insert(tessera::client::unpack_feedback(id).level);
+    }
+    EXPECT_EQ(levels.size(), 8u);
+    EXPECT_EQ(*levels.begin(), 0);
+    EXPECT_EQ(*levels.rbegin(), 7);
+}
+
+}  // namespace

@@ -1,0 +1,31 @@
+#pragma once
+// `tessera build --atlas SCENE.obj -o ATLAS.tsr --obj-out ATLAS.obj`: the materials' textures of an
+// OBJ scene packed into one store (storage/atlas.hpp), and the OBJ rewritten to address it
+// (scene/atlas.hpp). docs/atlas.md describes the layout.
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+#include "tessera/result.hpp"
+#include "tessera/storage/atlas.hpp"
+#include "tessera/storage/builder.hpp"
+
+namespace tessera::tools {
+
+struct AtlasBuildSummary {
+    storage::BuildSummary build;
+    std::size_t images = 0;     // distinct images packed (textures and solid tiles)
+    std::size_t triangles = 0;  // triangles in the rewritten OBJ
+};
+
+// A material without a texture becomes a solid tile this many texels wide (before padding).
+inline constexpr std::uint32_t kSolidTileTexels = 8;
+
+// On any error nothing is left at `store` or `obj_out` (files already there stay untouched until
+// the build succeeds). The OBJ is written to a temporary file beside `obj_out` and renamed into
+// place once the store is complete.
+Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string& store, const std::string& obj_out,
+                                      const storage::BuildOptions& options, const storage::AtlasPackOptions& pack,
+                                      const storage::BuildProgressFn& progress = {});
+
+}  // namespace tessera::tools

@@ -1,0 +1,75 @@
+// tessera view: the networked viewer. A window (GLFW) with a mouse-and-keyboard camera, or
+// headless (EGL) writing PNG frames, per-frame stats and a feedback trace for the load tester.
+#include <fmt/format.h>
+
+#include <cmath>
+#include <cstdio>
+
+#include "commands.hpp"
+#include "viewer_session.hpp"
+
+namespace tessera::tools {
+
+Command add_view(CLI::App& app) {
+    auto o = std::make_shared<ViewerOptions>();
+    auto size = std::make_shared<std::string>("1280x720");
+    auto filter = std::make_shared<std::string>("trilinear");
+    auto quiet = std::make_shared<bool>(false);
+    o->headless = false;
+    CLI::App* c = app.add_subcommand("view", "View a store: windowed (mouse and keyboard camera) or headless");
+    c->add_option("--store", o->store, "FILE.tsr, or a server store: grpc://HOST:PORT/NAME (grpcs:// for TLS)")->required();
+    c->add_option("--scene", o->scene, "terrain, or an atlas OBJ written by `tessera build --atlas --obj-out`")
+        ->capture_default_str();
+    c->add_option("--displacement", o->displacement, "terrain: peak height of the displaced ground (0: flat)")
+        ->capture_default_str();
+    c->add_option("--path", o->path, "camera path: flyover, dive, whip, walk, or a path file (docs/paths.md)")
+        ->capture_default_str();
+    c->add_option("--size", *size, "WIDTHxHEIGHT of the image")->capture_default_str();
+    c->add_flag("--headless", o->headless, "render offscreen (EGL), no window");
+    c->add_option("--frames", o->frames, "frames to render (0: the whole path; windowed: until closed)")->capture_default_str();
+    c->add_option("--fps", o->fps, "frames per second of path time (headless: the path advances 1/fps per frame)")
+        ->capture_default_str();
+    c->add_option("--out", o->out_dir, "directory for PNG frames");
+    c->add_option("--png-count", o->png_count, "PNG frames to write with --out, spread over the run")->capture_default_str();
+    c->add_option("--stats", o->stats_file, "per-frame stats, .csv or .json");
+    c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`");
+    c->add_option("--pool", o->pool, "physical pages in the GPU pool")->capture_default_str();
+    c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
+    c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();
+    c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size")->capture_default_str();
+    c->add_option("--upload-pages", o->upload_pages_per_frame, "pages uploaded per frame at most")->capture_default_str();
+    c->add_option("--ram-cache", o->ram_cache_bytes, "RAM tile cache, bytes (0: off)")->capture_default_str();
+    c->add_option("--disk-cache", o->disk_cache_dir, "disk tile cache directory (persists across runs)");
+    c->add_option("--disk-cache-size", o->disk_cache_bytes, "disk cache bound, bytes")->capture_default_str();
+    c->add_option("--transcode-threads", o->transcode_threads, "decoder threads")->capture_default_str();
+    c->add_option("--psnr-every", o->psnr_every, "compare against the reference renderer every N frames (0: never)")
+        ->capture_default_str();
+    c->add_option("--reference-store", o->reference_store, "local copy of the store for the reference (remote stores)");
+    c->add_option("--token", o->auth_token, "bearer token for the server");
+    c->add_option("--tls-ca", o->tls_ca_file, "PEM roots to verify a grpcs:// server (default: the system's)");
+    c->add_flag("-q,--quiet", *quiet, "no progress, no summary");
+    return [o, size, filter, quiet]() -> int {
+        unsigned w = 0, h = 0;
+        char x = 0, extra = 0;
+        if (std::sscanf(size->c_str(), "%u%c%u%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X'))
+            throw Failure(fmt::format("--size '{}': expected WIDTHxHEIGHT, e.g. 1280x720", *size));
+        o->width = w;
+        o->height = h;
+        if (*filter == "bilinear") o->filter = client::gl::Filter::bilinear;
+        else if (*filter == "trilinear") o->filter = client::gl::Filter::trilinear;
+        else if (*filter == "anisotropic") o->filter = client::gl::Filter::anisotropic;
+        else throw Failure(fmt::format("--filter '{}': expected bilinear, trilinear or anisotropic", *filter));
+        o->progress = !*quiet;
+        const auto rep = run_viewer(*o);
+        if (!o->stats_file.empty()) write_frame_stats(rep, o->stats_file);
+        if (!*quiet) {
+            fmt::print("{}", summary_text(rep));
+            for (const auto& p : rep.pngs) fmt::print("wrote         {}\n", p);
+            if (!o->stats_file.empty()) fmt::print("wrote         {}\n", o->stats_file);
+            if (!o->trace_file.empty()) fmt::print("wrote         {}\n", o->trace_file);
+        }
+        return 0;
+    };
+}
+
+}  // namespace tessera::tools

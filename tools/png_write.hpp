@@ -1,0 +1,14 @@
+#pragma once
+// PNG output for the viewer's frames (OpenImageIO), kept apart: OpenImageIO's headers and
+// protobuf's (through the gRPC source) do not mix in one translation unit.
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace tessera::tools {
+
+// Writes RGBA8 rows (top to bottom) as PNG, to a temporary name renamed into place. Throws
+// tools::Failure on error.
+void write_png(const std::string& path, std::uint32_t width, std::uint32_t height, const std::vector<std::uint8_t>& rgba);
+
+}  // namespace tessera::tools

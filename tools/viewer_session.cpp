@@ -1,0 +1,538 @@
+// The viewer loop: render (feedback + VT pass) -> poll feedback -> runtime frame (requests,
+// arrivals, decoding, uploads) -> poll the GPU's fallback counters. The render thread never waits
+// on I/O: the runtime's sources and transcode pool own the slow work; readbacks are polled.
+#include "viewer_session.hpp"
+
+#include <GLFW/glfw3.h>
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <sstream>
+
+#include "commands.hpp"
+#include "png_write.hpp"
+#include "progress.hpp"
+#include "svg_plot.hpp"
+#include "tessera/client/feedback_trace.hpp"
+#include "tessera/client/gl/context.hpp"
+#include "tessera/client/runtime.hpp"
+#include "tessera/client/tile_source.hpp"
+#include "tessera/scene/path.hpp"
+#include "tessera/scene/scene.hpp"
+
+namespace tessera::tools {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+// Where the tiles come from: a local store file or a server URL.
+struct StoreLocation {
+    bool remote = false;
+    std::string file;     // local
+    std::string address;  // remote HOST:PORT
+    std::string name;     // remote store name
+    bool tls = false;
+};
+
+StoreLocation parse_store(const std::string& spec) {
+    StoreLocation loc;
+    std::string rest = spec;
+    if (rest.rfind("grpc://", 0) == 0) {
+        rest = rest.substr(7);
+        loc.remote = true;
+    } else if (rest.rfind("grpcs://", 0) == 0) {
+        rest = rest.substr(8);
+        loc.remote = loc.tls = true;
+    } else if (!fs::exists(rest) && rest.find(':') != std::string::npos && rest.find('/') != std::string::npos &&
+               !rest.ends_with(".tsr")) {
+        loc.remote = true;  // HOST:PORT/NAME
+    }
+    if (!loc.remote) {
+        std::error_code ec;
+        if (!fs::is_regular_file(spec, ec))
+            throw Failure(fmt::format("--store '{}': no such store file (or use grpc://HOST:PORT/NAME)", spec));
+        loc.file = spec;
+        return loc;
+    }
+    const auto slash = rest.find('/');
+    if (slash == std::string::npos || slash == 0 || slash + 1 == rest.size())
+        throw Failure(fmt::format("--store '{}': a server store is HOST:PORT/NAME", spec));
+    loc.address = rest.substr(0, slash);
+    loc.name = rest.substr(slash + 1);
+    if (loc.address.find(':') == std::string::npos)
+        throw Failure(fmt::format("--store '{}': the server address needs a port (HOST:PORT/NAME)", spec));
+    return loc;
+}
+
+std::string read_file(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw Failure(fmt::format("cannot read '{}'", path));
+    std::ostringstream s;
+    s << in.rdbuf();
+    return s.str();
+}
+
+// Free-flying camera for the windowed viewer: WASD move, Q/E down/up, left-drag looks, scroll
+// changes speed, Space returns to the path, Esc quits.
+struct FreeCamera {
+    bool active = false;
+    scene::Camera camera;
+    double speed = 200;  // world units per second
+    double last_x = 0, last_y = 0;
+    bool dragging = false;
+};
+
+void scroll_callback(GLFWwindow* w, double, double dy) {
+    auto* fc = static_cast<FreeCamera*>(glfwGetWindowUserPointer(w));
+    fc->speed = std::clamp(fc->speed * std::pow(1.25, dy), 1.0, 1e7);
+}
+
+void update_free_camera(GLFWwindow* win, FreeCamera& fc, const scene::Camera& path_camera, double dt) {
+    const auto key = [&](int k) { return glfwGetKey(win, k) == GLFW_PRESS; };
+    if (key(GLFW_KEY_SPACE)) fc.active = false;
+    double mx = 0, my = 0;
+    glfwGetCursorPos(win, &mx, &my);
+    const bool drag = glfwGetMouseButton(win, GLFW_MOUSE_BUTTON_LEFT) == GLFW_PRESS;
+    const bool moving = key(GLFW_KEY_W) || key(GLFW_KEY_A) || key(GLFW_KEY_S) || key(GLFW_KEY_D) || key(GLFW_KEY_Q) ||
+                        key(GLFW_KEY_E);
+    if (!fc.active && (moving || drag)) {
+        fc.active = true;
+        fc.camera = path_camera;
+    }
+    if (!fc.active) return;
+    if (drag && fc.dragging) {
+        fc.camera.yaw -= (mx - fc.last_x) * 0.004;
+        fc.camera.pitch = std::clamp(fc.camera.pitch - (my - fc.last_y) * 0.004, -1.55, 1.55);
+    }
+    fc.dragging = drag;
+    fc.last_x = mx;
+    fc.last_y = my;
+    const auto f = fc.camera.forward(), r = fc.camera.right();
+    const double step = fc.speed * dt;
+    auto move = [&](const scene::Vec3d& d, double s) {
+        for (int i = 0; i < 3; ++i) fc.camera.position[i] += d[i] * s;
+    };
+    if (key(GLFW_KEY_W)) move(f, step);
+    if (key(GLFW_KEY_S)) move(f, -step);
+    if (key(GLFW_KEY_D)) move(r, step);
+    if (key(GLFW_KEY_A)) move(r, -step);
+    if (key(GLFW_KEY_E)) fc.camera.position[2] += step;
+    if (key(GLFW_KEY_Q)) fc.camera.position[2] -= step;
+}
+
+double quantile(std::vector<double> v, double q) {
+    if (v.empty()) return kNaN;
+    std::sort(v.begin(), v.end());
+    const auto i = static_cast<std::size_t>(std::clamp(q, 0.0, 1.0) * double(v.size() - 1) + 0.5);
+    return v[std::min(i, v.size() - 1)];
+}
+
+}  // namespace
+
+ViewerReport run_viewer(const ViewerOptions& o) {
+    if (o.width < 16 || o.height < 16 || o.width > 8192 || o.height > 8192)
+        throw Failure(fmt::format("--size {}x{}: each side must be 16..8192", o.width, o.height));
+    if (o.feedback_scale < 1 || o.feedback_scale > 64) throw Failure("--feedback-scale must be 1..64");
+    if (o.pool < 16) throw Failure("--pool must be at least 16 pages");
+    if (!(o.fps > 0) || o.fps > 1000) throw Failure("--fps must be in (0, 1000]");
+    if (o.anisotropy < 1 || o.anisotropy > 8) throw Failure("--anisotropy must be 1..8");
+
+    // Where tiles come from.
+    const StoreLocation loc = parse_store(o.store);
+    std::unique_ptr<client::TileSource> source;
+    std::string store_name;
+    if (loc.remote) {
+        client::TileStreamOptions so;
+        so.target = loc.address;
+        so.auth_token = o.auth_token;
+        if (loc.tls) {
+            so.tls_root_certs_pem = o.tls_ca_file.empty() ? std::string() : read_file(o.tls_ca_file);
+            if (so.tls_root_certs_pem.empty()) so.tls_root_certs_pem = read_file("/etc/ssl/certs/ca-certificates.crt");
+        }
+        source = client::make_grpc_source(so);
+        store_name = loc.name;
+    } else {
+        source = client::make_local_store_source(2);
+        store_name = loc.file;
+    }
+
+    // GL first: the renderer needs the store's geometry, the runtime needs the renderer.
+    auto ctx = o.headless ? client::gl::GlContext::create_headless()
+                          : client::gl::GlContext::create_window(int(o.width), int(o.height), "tessera view");
+    if (!ctx) throw Failure(ctx.error().message);
+    (*ctx)->make_current();
+
+    // The store's geometry: bind through the source (a remote store is asked for its metadata;
+    // a server that is down is an error here, before anything is drawn).
+    auto info = source->bind(0, store_name);
+    if (!info) throw Failure(fmt::format("--store '{}': {}", o.store, info.error().message));
+    if (info->channels < 1 || info->channels > 4) throw Failure("the store has an unsupported channel count");
+
+    client::gl::RendererConfig rc;
+    rc.width = o.width;
+    rc.height = o.height;
+    rc.feedback_scale = o.feedback_scale;
+    rc.filter = o.filter;
+    rc.max_anisotropy = o.anisotropy;
+    rc.pool_slots = o.pool;
+    rc.tile_size = info->tile_size();
+    rc.border = info->border;
+    rc.srgb = info->colour_space == storage::ColourSpace::srgb;
+    auto renderer = client::gl::VtRenderer::create(rc);
+    if (!renderer) throw Failure(renderer.error().message);
+    auto& r = **renderer;
+
+    client::RuntimeConfig cfg;
+    cfg.residency.pool_slots = o.pool;
+    cfg.ram_cache_bytes = o.ram_cache_bytes;
+    cfg.disk_cache_dir = o.disk_cache_dir;
+    cfg.disk_cache_bytes = o.disk_cache_bytes;
+    cfg.transcode_threads = o.transcode_threads;
+    cfg.upload_pages_per_frame = o.upload_pages_per_frame;
+    cfg.upload_bytes_per_frame = std::size_t(o.upload_pages_per_frame) * info->tile_size() * info->tile_size() * 4;
+    auto runtime = client::Runtime::create(cfg, r);
+    if (!runtime) throw Failure(runtime.error().message);
+    auto& rt = **runtime;
+    auto texture = rt.add_texture(*source, store_name);
+    if (!texture) throw Failure(fmt::format("--store '{}': {}", o.store, texture.error().message));
+    if (auto st = r.add_texture(*texture, *rt.texture_info(*texture)); !st.ok()) throw Failure(st.error().message);
+
+    // Scene and path.
+    Result<scene::Scene> sc = [&]() -> Result<scene::Scene> {
+        if (o.scene == "terrain") {
+            scene::TerrainOptions t;
+            t.vt_width = info->width;
+            t.vt_height = info->height;
+            t.displacement = o.displacement;
+            // Keep the vertex count sane for huge textures: at most 64 chunks per side.
+            while (std::max(info->width, info->height) / t.chunk_texels > 64) t.chunk_texels *= 2;
+            return scene::make_terrain(t);
+        }
+        return scene::load_obj_scene(o.scene, info->width, info->height);
+    }();
+    if (!sc) throw Failure(fmt::format("--scene '{}': {}", o.scene, sc.error().message));
+    if (auto st = r.set_scene(*sc, *texture); !st.ok()) throw Failure(st.error().message);
+    const auto names = scene::CameraPath::builtin_names();
+    auto path = std::find(names.begin(), names.end(), o.path) != names.end() ? scene::CameraPath::builtin(o.path, *sc)
+                                                                               : scene::CameraPath::load(o.path);
+    if (!path) throw Failure(fmt::format("--path '{}': {}", o.path, path.error().message));
+
+    // The reference renderer, for PSNR.
+    std::unique_ptr<client::gl::ReferenceRenderer> reference;
+    if (o.psnr_every > 0) {
+        const std::string ref_store = !o.reference_store.empty() ? o.reference_store : loc.file;
+        if (ref_store.empty())
+            throw Failure("PSNR needs a local copy of the store: --reference-store FILE (the store is remote)");
+        if (o.progress) fmt::print("reference: decoding {} ...\n", ref_store);
+        std::fflush(stdout);
+        auto levels = client::gl::decode_store_levels(ref_store);
+        if (!levels) throw Failure(fmt::format("reference: {}", levels.error().message));
+        auto ref = client::gl::ReferenceRenderer::create(rc, *levels);
+        if (!ref) throw Failure(fmt::format("reference: {}", ref.error().message));
+        reference = std::move(*ref);
+        if (auto st = reference->set_scene(*sc); !st.ok()) throw Failure(st.error().message);
+    }
+
+    // Outputs.
+    std::error_code ec;
+    if (!o.out_dir.empty()) {
+        fs::create_directories(o.out_dir, ec);
+        if (ec || !fs::is_directory(o.out_dir)) throw Failure(fmt::format("--out '{}': cannot create the directory", o.out_dir));
+    }
+    std::unique_ptr<client::TraceWriter> trace;
+    if (!o.trace_file.empty()) {
+        auto t = client::TraceWriter::create(o.trace_file);
+        if (!t) throw Failure(t.error().message);
+        trace = std::move(*t);
+    }
+
+    const std::uint32_t frames =
+        o.frames ? o.frames : static_cast<std::uint32_t>(std::ceil(path->duration() * o.fps)) + 1;
+    std::vector<std::uint32_t> png_frames;
+    if (!o.out_dir.empty() && o.png_count > 0)
+        for (std::uint32_t i = 1; i <= o.png_count; ++i) png_frames.push_back(frames * i / (o.png_count + 1));
+
+    ViewerReport rep;
+    rep.renderer = (*ctx)->renderer();
+    rep.source = source->describe();
+    rep.frames.resize(frames);
+    std::map<std::uint64_t, std::size_t> by_render_frame;  // renderer frame number -> record
+    std::vector<client::gl::FrameCounters> counters;
+    auto take_counters = [&] {
+        for (const auto& c : counters) {
+            auto it = by_render_frame.find(c.frame);
+            if (it == by_render_frame.end()) continue;
+            auto& rec = rep.frames[it->second];
+            rec.counted = true;
+            rec.textured_pixels = c.textured_pixels;
+            rec.fallback_unbiased = c.fallback_unbiased;
+            rec.fallback_biased = c.fallback_biased;
+            by_render_frame.erase(it);
+        }
+        counters.clear();
+    };
+
+    FreeCamera free_cam;
+    GLFWwindow* win = (*ctx)->window();
+    if (win) {
+        glfwSetWindowUserPointer(win, &free_cam);
+        glfwSetScrollCallback(win, scroll_callback);
+    }
+    ProgressBar bar("view", o.progress && o.headless);
+    client::gl::FeedbackFrame fb;
+    const auto start = Clock::now();
+    auto last_title = start;
+    double lat_count = 0, lat_sum_ms = 0;
+    std::uint32_t done = 0;
+    for (std::uint32_t f = 0; f < frames || (win && o.frames == 0); ++f) {
+        const auto t0 = Clock::now();
+        if (win) {
+            glfwPollEvents();
+            if (glfwWindowShouldClose(win) || glfwGetKey(win, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
+        }
+        // Headless: path time advances 1/fps per frame. Windowed: wall time, looping the path.
+        const double t = win ? std::chrono::duration<double>(t0 - start).count() : double(f) / o.fps;
+        scene::Camera cam = win ? path->at(std::fmod(t, std::max(path->duration(), 1e-9))) : path->at(t);
+        if (win) {
+            update_free_camera(win, free_cam, cam, 1.0 / 60.0);
+            if (free_cam.active) cam = free_cam.camera;
+        }
+        const float bias = rt.lod_bias();
+        const std::uint64_t render_frame = r.render(cam, bias);
+        const client::FrameStats* s = nullptr;
+        if (r.poll_feedback(fb)) {
+            s = &rt.frame(fb.ids, fb.width, fb.height, fb.bias);
+            if (trace) {
+                client::TraceFrame tf{fb.frame, t, fb.bias, fb.width, fb.height, fb.ids};
+                if (auto st = trace->write(tf); !st.ok()) throw Failure(st.error().message);
+            }
+        } else {
+            s = &rt.frame_without_feedback();
+        }
+        r.poll_counters(counters);
+
+        if (f >= rep.frames.size()) rep.frames.emplace_back();  // windowed, unbounded
+        auto& rec = rep.frames[f];
+        rec.frame = f;
+        rec.time_s = t;
+        rec.pages_wanted = s->pages_wanted;
+        rec.pages_resident = s->pages_resident;
+        rec.pages_requested = s->pages_requested;
+        rec.pages_uploaded = s->pages_uploaded;
+        rec.pages_evicted = s->pages_evicted;
+        rec.bias = bias;
+        rec.bytes_received = s->bytes_received;
+        const auto& lat = rt.summary().latency();
+        const double n = double(lat.count()), sum = lat.mean_ms() * n;
+        if (n > lat_count) rec.tile_latency_ms = (sum - lat_sum_ms) / (n - lat_count);
+        lat_count = n;
+        lat_sum_ms = sum;
+        by_render_frame[render_frame] = f;
+        take_counters();
+        rec.frame_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+
+        // Measurements that wait for the GPU happen outside the timed part of the frame.
+        const bool png = std::find(png_frames.begin(), png_frames.end(), f) != png_frames.end();
+        const bool psnr = reference && o.psnr_every && (f % o.psnr_every == o.psnr_every - 1 || f + 1 == frames);
+        if (png || psnr) {
+            const auto color = r.read_color();
+            if (png) {
+                const std::string file = (fs::path(o.out_dir) / fmt::format("frame_{:05}.png", f)).string();
+                write_png(file, o.width, o.height, color);
+                rep.pngs.push_back(file);
+            }
+            if (psnr) {
+                reference->render(cam);
+                const auto ref = reference->read_color();
+                const auto err = client::gl::compare_images(color, ref, o.width, o.height);
+                rec.psnr = err.psnr;
+                rec.max_error = err.max_error;
+                if (png) {
+                    const std::string file = (fs::path(o.out_dir) / fmt::format("reference_{:05}.png", f)).string();
+                    write_png(file, o.width, o.height, ref);
+                    rep.pngs.push_back(file);
+                }
+            }
+        }
+        if (win) {
+            int ww = 0, wh = 0;
+            glfwGetFramebufferSize(win, &ww, &wh);
+            r.present(ww, wh);
+            (*ctx)->swap_buffers();
+            if (t0 - last_title > std::chrono::milliseconds(250)) {
+                last_title = t0;
+                const double fr = rec.fallback_rate();
+                glfwSetWindowTitle(win, fmt::format("tessera view | {:.1f} ms | bias {:.2f} | fallback {} | pages {}/{} | "
+                                                    "latency p50 {:.1f} ms | {}",
+                                                    rec.frame_ms, bias,
+                                                    std::isnan(fr) ? std::string("-") : fmt::format("{:.2f}%", 100 * fr),
+                                                    rec.pages_resident, o.pool, lat.quantile(0.5),
+                                                    free_cam.active ? "free camera (Space: path)" : "path (WASD: fly)")
+                                            .c_str());
+            }
+        }
+        bar.update(double(f + 1) / frames, fmt::format("frame {}/{}", f + 1, frames));
+        done = f + 1;
+    }
+    bar.finish();
+    rep.frames.resize(done);
+    r.finish(&counters, nullptr);
+    take_counters();
+    rep.wall_s = std::chrono::duration<double>(Clock::now() - start).count();
+    rep.summary = rt.summary();
+    if (trace) {
+        if (auto st = trace->close(); !st.ok()) throw Failure(st.error().message);
+    }
+    return rep;
+}
+
+double ViewerReport::fallback_rate() const {
+    std::uint64_t fb = 0, px = 0;
+    for (const auto& f : frames) fb += f.fallback_unbiased, px += f.textured_pixels;
+    return px ? double(fb) / double(px) : kNaN;
+}
+double ViewerReport::fallback_rate_biased() const {
+    std::uint64_t fb = 0, px = 0;
+    for (const auto& f : frames) fb += f.fallback_biased, px += f.textured_pixels;
+    return px ? double(fb) / double(px) : kNaN;
+}
+double ViewerReport::mean_psnr() const {
+    double s = 0;
+    int n = 0;
+    for (const auto& f : frames)
+        if (!std::isnan(f.psnr)) s += std::min(f.psnr, 99.0), ++n;  // identical frames count as 99 dB
+    return n ? s / n : kNaN;
+}
+double ViewerReport::min_psnr() const {
+    double m = kNaN;
+    for (const auto& f : frames)
+        if (!std::isnan(f.psnr)) m = std::isnan(m) ? f.psnr : std::min(m, f.psnr);
+    return m;
+}
+int ViewerReport::max_error() const {
+    int m = -1;
+    for (const auto& f : frames) m = std::max(m, f.max_error);
+    return m;
+}
+double ViewerReport::frame_ms_quantile(double q) const {
+    std::vector<double> v;
+    for (const auto& f : frames) v.push_back(f.frame_ms);
+    return quantile(std::move(v), q);
+}
+double ViewerReport::mean_frame_ms() const {
+    double s = 0;
+    for (const auto& f : frames) s += f.frame_ms;
+    return frames.empty() ? kNaN : s / double(frames.size());
+}
+double ViewerReport::cache_hit_ratio() const {
+    std::uint64_t hits = 0, all = 0;
+    for (std::size_t l = 0; l < client::kMaxLevels; ++l) {
+        hits += summary.ram_hits()[l] + summary.disk_hits()[l];
+        all += summary.ram_hits()[l] + summary.disk_hits()[l] + summary.network()[l];
+    }
+    return all ? double(hits) / double(all) : kNaN;
+}
+
+void write_frame_stats(const ViewerReport& rep, const std::string& path) {
+    const fs::path target(path);
+    const fs::path temp = target.parent_path() / ("." + target.filename().string() + ".tmp");
+    const bool json = target.extension() == ".json";
+    const auto num = [](double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : std::string(""); };
+    const auto jnum = [](double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : std::string("null"); };
+    {
+        std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+        if (json) out << "{\"renderer\": \"" << rep.renderer << "\", \"frames\": [\n";
+        else
+            out << "frame,time_s,frame_ms,pages_wanted,pages_resident,pages_requested,pages_uploaded,pages_evicted,"
+                   "lod_bias,textured_pixels,fallback_pixels,fallback_pixels_biased,fallback_rate,fallback_rate_biased,"
+                   "tile_latency_ms,bytes_received,psnr_db,max_error\n";
+        for (std::size_t i = 0; i < rep.frames.size(); ++i) {
+            const auto& f = rep.frames[i];
+            if (json)
+                out << fmt::format(
+                    "{{\"frame\": {}, \"time_s\": {}, \"frame_ms\": {}, \"pages_wanted\": {}, \"pages_resident\": {}, "
+                    "\"pages_requested\": {}, \"pages_uploaded\": {}, \"pages_evicted\": {}, \"lod_bias\": {}, "
+                    "\"textured_pixels\": {}, \"fallback_pixels\": {}, \"fallback_pixels_biased\": {}, "
+                    "\"fallback_rate\": {}, \"fallback_rate_biased\": {}, \"tile_latency_ms\": {}, "
+                    "\"bytes_received\": {}, \"psnr_db\": {}, \"max_error\": {}}}{}\n",
+                    f.frame, jnum(f.time_s), jnum(f.frame_ms), f.pages_wanted, f.pages_resident, f.pages_requested,
+                    f.pages_uploaded, f.pages_evicted, jnum(f.bias), f.textured_pixels, f.fallback_unbiased,
+                    f.fallback_biased, jnum(f.fallback_rate()), jnum(f.fallback_rate_biased()), jnum(f.tile_latency_ms),
+                    f.bytes_received, jnum(std::min(f.psnr, 999.0)), f.max_error < 0 ? "null" : std::to_string(f.max_error),
+                    i + 1 < rep.frames.size() ? "," : "");
+            else
+                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.time_s),
+                                   num(f.frame_ms), f.pages_wanted, f.pages_resident, f.pages_requested,
+                                   f.pages_uploaded, f.pages_evicted, num(f.bias), f.textured_pixels,
+                                   f.fallback_unbiased, f.fallback_biased, num(f.fallback_rate()),
+                                   num(f.fallback_rate_biased()), num(f.tile_latency_ms), f.bytes_received,
+                                   num(std::min(f.psnr, 999.0)), f.max_error < 0 ? "" : std::to_string(f.max_error));
+        }
+        if (json) out << "], \"summary\": " << rep.summary.to_json() << "}\n";
+        if (!out) {
+            std::error_code ec;
+            fs::remove(temp, ec);
+            throw Failure(fmt::format("cannot write '{}'", path));
+        }
+    }
+    std::error_code ec;
+    fs::rename(temp, target, ec);
+    if (ec) throw Failure(fmt::format("cannot write '{}': {}", path, ec.message()));
+}
+
+void write_fallback_plot(const ViewerReport& rep, const std::string& path, const std::string& title) {
+    Plot p;
+    p.title = title;
+    p.x_label = "frame";
+    p.y_label = "fallback pixels (%)";
+    p.y2_label = "LoD bias (levels)";
+    PlotSeries unbiased{"fallback vs the unbiased level", {}, {}, "#d62728"};
+    PlotSeries biased{"fallback vs the biased level", {}, {}, "#ff9896"};
+    PlotSeries bias{"LoD bias", {}, {}, "#1f77b4", false, true};
+    for (const auto& f : rep.frames) {
+        if (f.counted) {
+            unbiased.x.push_back(double(f.frame));
+            unbiased.y.push_back(100 * f.fallback_rate());
+            biased.x.push_back(double(f.frame));
+            biased.y.push_back(100 * f.fallback_rate_biased());
+        }
+        bias.x.push_back(double(f.frame));
+        bias.y.push_back(f.bias);
+    }
+    p.series = {unbiased, biased, bias};
+    write_svg(p, path);
+}
+
+std::string summary_text(const ViewerReport& rep) {
+    const auto& lat = rep.summary.latency();
+    const auto pct = [](double v) { return std::isnan(v) ? std::string("n/a") : fmt::format("{:.3f}%", 100 * v); };
+    std::string s;
+    s += fmt::format("renderer      {}\n", rep.renderer);
+    s += fmt::format("source        {}\n", rep.source);
+    s += fmt::format("frames        {} in {:.1f} s; frame time mean {:.2f} ms, p99 {:.2f} ms\n", rep.frames.size(),
+                     rep.wall_s, rep.mean_frame_ms(), rep.frame_ms_quantile(0.99));
+    s += fmt::format("fallback      {} of textured pixels (vs the biased level: {})\n", pct(rep.fallback_rate()),
+                     pct(rep.fallback_rate_biased()));
+    s += fmt::format("LoD bias      mean {:.2f}, max {:.2f}, last {:.2f}\n", rep.summary.mean_lod_bias(),
+                     rep.summary.max_lod_bias(), rep.summary.last_lod_bias());
+    const double psnr = rep.mean_psnr();
+    if (!std::isnan(psnr))
+        s += fmt::format("PSNR          mean {:.2f} dB, min {:.2f} dB, max error {} (against the reference)\n", psnr,
+                         rep.min_psnr(), rep.max_error());
+    s += fmt::format("tile latency  p50 {:.2f} ms, p99 {:.2f} ms, max {:.2f} ms ({} pages, request -> mapped)\n",
+                     lat.quantile(0.5), lat.quantile(0.99), lat.max_ms(), lat.count());
+    s += fmt::format("bytes         {} received, {} uploaded\n", human_bytes(rep.summary.bytes_received()),
+                     human_bytes(rep.summary.bytes_uploaded()));
+    s += fmt::format("pages         {} requested, {} uploaded, {} evicted; cache hit ratio {}\n",
+                     rep.summary.pages_requested(), rep.summary.pages_uploaded(), rep.summary.pages_evicted(),
+                     pct(rep.cache_hit_ratio()));
+    return s;
+}
+
+}  // namespace tessera::tools

@@ -1,0 +1,92 @@
+#pragma once
+// One viewer run, shared by `tessera view` and `tessera demo`: a store (local file or server),
+// a scene, a camera path, the GL renderer (headless or windowed) driven by the client runtime,
+// per-frame records, and the run's outputs (PNG frames, stats, trace, reference PSNR).
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/stats.hpp"
+
+namespace tessera::tools {
+
+struct ViewerOptions {
+    std::string store;            // FILE.tsr, grpc://HOST:PORT/NAME, grpcs://HOST:PORT/NAME or HOST:PORT/NAME
+    std::string reference_store;  // local .tsr for the PSNR reference (default: `store` when it is a file)
+    std::string scene = "terrain";  // "terrain" or an atlas OBJ file (tessera build --atlas --obj-out)
+    double displacement = 0;      // terrain height, world units (0: flat)
+    std::string path = "flyover";  // built-in name or a path file
+    std::uint32_t width = 1280, height = 720;
+    bool headless = true;
+    std::uint32_t frames = 0;  // 0: the whole path at `fps`
+    double fps = 60;           // headless: the path advances 1/fps per frame, whatever the render speed
+    std::string out_dir;       // PNG frames go here (empty: none)
+    std::uint32_t png_count = 4;  // frames written, spread over the run
+    std::string stats_file;    // .csv or .json per-frame records (empty: none)
+    std::string trace_file;    // feedback trace for `tessera loadtest` (empty: none)
+    std::uint32_t pool = 2048;
+    client::gl::Filter filter = client::gl::Filter::trilinear;
+    std::uint32_t anisotropy = 8;
+    std::uint32_t feedback_scale = 8;
+    std::uint64_t ram_cache_bytes = 256ull << 20;
+    std::string disk_cache_dir;
+    std::uint64_t disk_cache_bytes = 1ull << 30;
+    unsigned transcode_threads = 2;
+    std::uint32_t upload_pages_per_frame = 32;
+    std::uint32_t psnr_every = 0;  // reference comparison every N frames (0: never)
+    std::string auth_token;
+    std::string tls_ca_file;  // grpcs: roots to verify the server with (default: system roots)
+    bool progress = true;
+};
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+struct FrameRecord {
+    std::uint64_t frame = 0;
+    double time_s = 0;   // path time
+    double frame_ms = 0;  // wall time of the frame on the render thread
+    std::uint32_t pages_wanted = 0, pages_resident = 0, pages_requested = 0, pages_uploaded = 0, pages_evicted = 0;
+    float bias = 0;
+    bool counted = false;  // the GPU's fallback counters arrived for this frame
+    std::uint64_t textured_pixels = 0, fallback_unbiased = 0, fallback_biased = 0;
+    double tile_latency_ms = kNaN;  // mean request -> mapped of the pages mapped this frame
+    std::uint64_t bytes_received = 0;
+    double psnr = kNaN;
+    int max_error = -1;
+    double fallback_rate() const { return textured_pixels ? double(fallback_unbiased) / double(textured_pixels) : kNaN; }
+    double fallback_rate_biased() const {
+        return textured_pixels ? double(fallback_biased) / double(textured_pixels) : kNaN;
+    }
+};
+
+struct ViewerReport {
+    std::string renderer;  // GL_RENDERER
+    std::string source;    // what served the tiles
+    std::vector<FrameRecord> frames;
+    client::StatsSummary summary;
+    double wall_s = 0;
+    std::vector<std::string> pngs;
+    // Over the whole run.
+    double fallback_rate() const;         // fallback pixels / textured pixels (unbiased)
+    double fallback_rate_biased() const;
+    double mean_psnr() const;             // over the compared frames (NaN: none)
+    double min_psnr() const;
+    int max_error() const;
+    double frame_ms_quantile(double q) const;
+    double mean_frame_ms() const;
+    double cache_hit_ratio() const;       // (RAM + disk hits) / requests that found data anywhere
+};
+
+// Runs the viewer. Throws tools::Failure with a clear message on bad options or errors.
+ViewerReport run_viewer(const ViewerOptions& options);
+
+// Writes the per-frame records as CSV or JSON (by the file's extension), atomically.
+void write_frame_stats(const ViewerReport& report, const std::string& path);
+// The plot of fallback rate (unbiased and biased) and LoD bias over the run, as SVG.
+void write_fallback_plot(const ViewerReport& report, const std::string& path, const std::string& title);
+// A one-screen summary (frames, frame time, fallback, PSNR, latency, bytes, cache hits).
+std::string summary_text(const ViewerReport& report);
+
+}  // namespace tessera::tools
