@@ -4,7 +4,8 @@
 // sampling and the CPU visible set agree on which page a pixel wants.
 //
 // Inputs: the derivatives of the level-0 texel coordinate per pixel of the *main* colour target
-// (the feedback pass, rendered at 1/N resolution, divides its derivatives by N first).
+// (the feedback pass, rendered at 1/N resolution, computes exact forward differences one main
+// pixel right and one down, as cpu_feedback does; see docs/renderer.md).
 //   rho_x = |(du/dx, dv/dx)|, rho_y = |(du/dy, dv/dy)|, major = max, minor = min
 //   bilinear, trilinear:  lod = log2(major)
 //   anisotropic:          lod = log2(max(minor, major / max_anisotropy))   (taps = ceil(major / 2^lod))
