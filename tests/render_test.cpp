@@ -117,6 +117,7 @@ gl::RendererConfig config(gl::Filter filter, std::uint32_t tile_size, std::uint3
     c.pool_slots = pool;
     c.srgb = srgb;
     c.staging_bytes = 8u << 20;
+    c.feedback_jitter = false;  // feedback at block centres, as cpu_feedback computes it
     return c;
 }
 

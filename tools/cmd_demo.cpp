@@ -29,6 +29,8 @@ Command add_demo(CLI::App& app) {
         std::uint32_t frames = 0;
         std::uint32_t psnr_every = 60;
         std::uint32_t pool = 2048;
+        float prefetch_lod = 0.3f;
+        float guard_band = 0.1f;
     };
     auto a = std::make_shared<Args>();
     CLI::App* c = app.add_subcommand("demo", "Build the procedural demo store (if missing), verify it and summarise it");
@@ -41,6 +43,8 @@ Command add_demo(CLI::App& app) {
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference renderer every N frames (0: never)")
         ->capture_default_str();
     c->add_option("--pool", a->pool, "physical pages in the GPU pool")->capture_default_str();
+    c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
+    c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
     return [a]() -> int {
         namespace fs = std::filesystem;
         std::error_code ec;
@@ -101,6 +105,8 @@ Command add_demo(CLI::App& app) {
         vo.frames = a->frames;
         vo.pool = a->pool;
         vo.psnr_every = a->psnr_every;
+        vo.prefetch_lod = a->prefetch_lod;
+        vo.guard_band = a->guard_band;
         vo.out_dir = (fs::path(a->dir) / "frames").string();
         vo.stats_file = (fs::path(a->dir) / "frames.csv").string();
         vo.trace_file = (fs::path(a->dir) / (a->path + ".trace")).string();

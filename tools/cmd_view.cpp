@@ -37,6 +37,10 @@ Command add_view(CLI::App& app) {
     c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
     c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();
     c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size")->capture_default_str();
+    c->add_option("--prefetch-lod", o->prefetch_lod, "feedback asks for pages this many levels finer than sampled (0..2)")
+        ->capture_default_str();
+    c->add_option("--guard-band", o->guard_band, "feedback sees this fraction more of the scene on each side (0..1)")
+        ->capture_default_str();
     c->add_option("--upload-pages", o->upload_pages_per_frame, "pages uploaded per frame at most")->capture_default_str();
     c->add_option("--ram-cache", o->ram_cache_bytes, "RAM tile cache, bytes (0: off)")->capture_default_str();
     c->add_option("--disk-cache", o->disk_cache_dir, "disk tile cache directory (persists across runs)");
@@ -47,8 +51,11 @@ Command add_view(CLI::App& app) {
     c->add_option("--reference-store", o->reference_store, "local copy of the store for the reference (remote stores)");
     c->add_option("--token", o->auth_token, "bearer token for the server");
     c->add_option("--tls-ca", o->tls_ca_file, "PEM roots to verify a grpcs:// server (default: the system's)");
+    auto no_warmup = std::make_shared<bool>(false);
+    c->add_flag("--no-warmup", *no_warmup, "headless: start the path from an empty pool (default: wait until its first view is at full detail)");
     c->add_flag("-q,--quiet", *quiet, "no progress, no summary");
-    return [o, size, filter, quiet]() -> int {
+    return [o, size, filter, quiet, no_warmup]() -> int {
+        o->warmup = !*no_warmup;
         unsigned w = 0, h = 0;
         char x = 0, extra = 0;
         if (std::sscanf(size->c_str(), "%u%c%u%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X'))

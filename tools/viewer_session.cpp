@@ -180,6 +180,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rc.feedback_scale = o.feedback_scale;
     rc.filter = o.filter;
     rc.max_anisotropy = o.anisotropy;
+    rc.feedback_prefetch_lod = o.prefetch_lod;
+    rc.feedback_guard_band = o.guard_band;
     rc.pool_slots = o.pool;
     rc.tile_size = info->tile_size();
     rc.border = info->border;
@@ -278,14 +280,41 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         counters.clear();
     };
 
-    FreeCamera free_cam;
     GLFWwindow* win = (*ctx)->window();
+    client::gl::FeedbackFrame fb;
+    if (o.warmup && !win) {
+        // The loading screen: the path's first view until it is fully resident.
+        const scene::Camera first = path->at(0);
+        const auto w0 = Clock::now();
+        std::vector<client::gl::FrameCounters> wc;
+        std::uint64_t last_clean = 0;
+        for (;;) {
+            const std::uint64_t rf = r.render(first, rt.lod_bias());
+            if (r.poll_feedback(fb)) rt.frame(fb.ids, fb.width, fb.height, fb.bias);
+            else rt.frame_without_feedback();
+            ++rep.warmup_frames;
+            wc.clear();
+            r.poll_counters(wc);
+            for (const auto& c : wc)
+                if (c.textured_pixels > 0 && c.fallback_unbiased == 0) last_clean = std::max(last_clean, c.frame);
+            // Clean counters for a frame rendered after the pipeline went idle: done.
+            if (rt.in_flight() == 0 && last_clean > 0 && last_clean + 1 >= rf) {
+                rep.warmup_complete = true;
+                break;
+            }
+            if (std::chrono::duration<double>(Clock::now() - w0).count() > o.warmup_timeout_s) break;
+        }
+        rep.warmup_ms = std::chrono::duration<double, std::milli>(Clock::now() - w0).count();
+        r.finish(&wc, nullptr);  // drain the warm-up's readbacks: the path's records start clean
+        rt.frame_without_feedback();
+    }
+
+    FreeCamera free_cam;
     if (win) {
         glfwSetWindowUserPointer(win, &free_cam);
         glfwSetScrollCallback(win, scroll_callback);
     }
     ProgressBar bar("view", o.progress && o.headless);
-    client::gl::FeedbackFrame fb;
     const auto start = Clock::now();
     auto last_title = start;
     double lat_count = 0, lat_sum_ms = 0;
@@ -511,14 +540,18 @@ void write_fallback_plot(const ViewerReport& rep, const std::string& path, const
 
 std::string summary_text(const ViewerReport& rep) {
     const auto& lat = rep.summary.latency();
-    const auto pct = [](double v) { return std::isnan(v) ? std::string("n/a") : fmt::format("{:.3f}%", 100 * v); };
+    const auto pct = [](double v) { return std::isnan(v) ? std::string("n/a") : fmt::format("{:.4f}%", 100 * v); };
     std::string s;
     s += fmt::format("renderer      {}\n", rep.renderer);
     s += fmt::format("source        {}\n", rep.source);
     s += fmt::format("frames        {} in {:.1f} s; frame time mean {:.2f} ms, p99 {:.2f} ms\n", rep.frames.size(),
                      rep.wall_s, rep.mean_frame_ms(), rep.frame_ms_quantile(0.99));
-    s += fmt::format("fallback      {} of textured pixels (vs the biased level: {})\n", pct(rep.fallback_rate()),
-                     pct(rep.fallback_rate_biased()));
+    if (!std::isnan(rep.warmup_ms))
+        s += fmt::format("first view    {} in {:.0f} ms ({} frames; then the path starts)\n",
+                         rep.warmup_complete ? "full detail" : "NOT at full detail (timed out)", rep.warmup_ms,
+                         rep.warmup_frames);
+    s += fmt::format("fallback      {} of textured pixels over the path (vs the biased level: {})\n",
+                     pct(rep.fallback_rate()), pct(rep.fallback_rate_biased()));
     s += fmt::format("LoD bias      mean {:.2f}, max {:.2f}, last {:.2f}\n", rep.summary.mean_lod_bias(),
                      rep.summary.max_lod_bias(), rep.summary.last_lod_bias());
     const double psnr = rep.mean_psnr();

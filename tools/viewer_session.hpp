@@ -30,6 +30,8 @@ struct ViewerOptions {
     client::gl::Filter filter = client::gl::Filter::trilinear;
     std::uint32_t anisotropy = 8;
     std::uint32_t feedback_scale = 8;
+    float prefetch_lod = 0.3f;  // RendererConfig::feedback_prefetch_lod (docs/renderer.md, "Prefetch")
+    float guard_band = 0.1f;    // RendererConfig::feedback_guard_band
     std::uint64_t ram_cache_bytes = 256ull << 20;
     std::string disk_cache_dir;
     std::uint64_t disk_cache_bytes = 1ull << 30;
@@ -38,6 +40,12 @@ struct ViewerOptions {
     std::uint32_t psnr_every = 0;  // reference comparison every N frames (0: never)
     std::string auth_token;
     std::string tls_ca_file;  // grpcs: roots to verify the server with (default: system roots)
+    // Before the path starts (headless), render its first view until it is fully resident (no
+    // fallback pixel, nothing in flight) or warmup_timeout_s passes: a loading screen. The time
+    // it took is reported as the first view's time to full detail; the path's fallback rate then
+    // measures streaming while moving. Off: the path starts from an empty pool.
+    bool warmup = true;
+    double warmup_timeout_s = 20;
     bool progress = true;
 };
 
@@ -68,6 +76,9 @@ struct ViewerReport {
     client::StatsSummary summary;
     double wall_s = 0;
     std::vector<std::string> pngs;
+    double warmup_ms = kNaN;        // first view: time to full detail (NaN: no warm-up)
+    std::uint32_t warmup_frames = 0;
+    bool warmup_complete = false;   // false: it timed out
     // Over the whole run.
     double fallback_rate() const;         // fallback pixels / textured pixels (unbiased)
     double fallback_rate_biased() const;

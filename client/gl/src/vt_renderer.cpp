@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <numeric>
 #include <cmath>
 #include <cstring>
 #include <deque>
@@ -90,6 +91,10 @@ public:
         if (c.tile_size <= 2 * c.border || c.border == 0)
             return Error{Errc::invalid_argument, fmt::format("renderer: tile_size {} and border {} leave no payload (border >= 1)", c.tile_size, c.border)};
         if (c.readback_ring < 1 || c.readback_ring > 64) return Error{Errc::invalid_argument, "renderer: readback_ring must be 1..64"};
+        if (!(c.feedback_prefetch_lod >= 0 && c.feedback_prefetch_lod <= 2))
+            return Error{Errc::invalid_argument, "renderer: feedback_prefetch_lod must be 0..2"};
+        if (!(c.feedback_guard_band >= 0 && c.feedback_guard_band <= 1))
+            return Error{Errc::invalid_argument, "renderer: feedback_guard_band must be 0..1"};
         GLint max_size = 0;
         glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
         max_texture_ = static_cast<std::uint32_t>(std::max(max_size, 1));
@@ -145,9 +150,11 @@ public:
         }
         fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
         fb_height_ = (c.height + c.feedback_scale - 1) / c.feedback_scale;
-        // Derivatives per main-target pixel: a main pixel is fb_width / width feedback pixels.
-        glProgramUniform2f(feedback_program_.get(), feedback_u_.main_pixel, float(fb_width_) / float(c.width),
-                           float(fb_height_) / float(c.height));
+        // Derivatives per main-target pixel: a main pixel is fb_width / width feedback pixels (of a
+        // feedback image widened by the guard band: 1 + g times fewer).
+        const float widen = 1.0f + c.feedback_guard_band;
+        glProgramUniform2f(feedback_program_.get(), feedback_u_.main_pixel, float(fb_width_) / float(c.width) / widen,
+                           float(fb_height_) / float(c.height) / widen);
 
         // Targets.
         auto main = make_colour_target(c.width, c.height, c.srgb);
@@ -317,6 +324,34 @@ public:
 
         // Feedback pass at 1/N: the ids of the nearest surface (its own depth buffer).
         if (auto slot = acquire_feedback_slot()) {
+            // Jitter: shift the feedback pass by a sub-pixel offset (clip-space translation, so
+            // depth and the exact derivatives are unaffected) cycling over the N x N main pixels
+            // one feedback pixel covers.
+            scene::Mat4f fvp = vp;
+            if (cfg_.feedback_jitter && cfg_.feedback_scale > 1) {
+                const std::uint32_t n = cfg_.feedback_scale, cells = n * n;
+                // A full-period stride over the cells (odd multiplier coprime to n*n for n a power
+                // of two; otherwise fall back to 1) spreads consecutive samples across the block.
+                std::uint32_t stride = 2 * n + 1;
+                while (std::gcd(stride, cells) != 1) ++stride;
+                const std::uint32_t cell = std::uint32_t((frame_ * stride) % cells);
+                const double jx = ((cell % n) + 0.5) / n - 0.5, jy = ((cell / n) + 0.5) / n - 0.5;  // feedback pixels
+                const double dx = 2.0 * jx / fb_width_, dy = 2.0 * jy / fb_height_;                // NDC
+                // T * VP with T translating clip x, y by (dx, dy) * w: column-major rows 0 and 1.
+                for (int c = 0; c < 4; ++c) {
+                    fvp[std::size_t(c * 4 + 0)] += float(dx) * vp[std::size_t(c * 4 + 3)];
+                    fvp[std::size_t(c * 4 + 1)] += float(dy) * vp[std::size_t(c * 4 + 3)];
+                }
+            }
+            if (cfg_.feedback_guard_band > 0) {  // clip x, y scaled by 1/(1+g): a wider view
+                const float k = 1.0f / (1.0f + cfg_.feedback_guard_band);
+                for (int c = 0; c < 4; ++c) {
+                    fvp[std::size_t(c * 4 + 0)] *= k;
+                    fvp[std::size_t(c * 4 + 1)] *= k;
+                }
+            }
+            glProgramUniformMatrix4fv(feedback_program_.get(), feedback_u_.view_projection, 1, GL_FALSE, fvp.data());
+            glProgramUniform1f(feedback_program_.get(), feedback_u_.bias, lod_bias - cfg_.feedback_prefetch_lod);
             auto& s = feedback_slots_[*slot];
             glBindFramebuffer(GL_FRAMEBUFFER, fb_fbo_.get());
             glViewport(0, 0, GLsizei(fb_width_), GLsizei(fb_height_));

@@ -46,6 +46,17 @@ struct RendererConfig {
     std::size_t staging_bytes = 32u << 20;  // page + page-table staging ring (bounded; when full, uploads go
                                             // straight from client memory: RendererStats::direct_uploads)
     std::uint32_t readback_ring = 3;   // feedback readbacks in flight (counters: 4x as many; 1..64)
+    // Feedback jitter: each frame the feedback pass samples a different sub-pixel position of its
+    // N x N block of main pixels (a fixed permutation of the N*N positions), so a page visible in
+    // only a few main pixels is requested within N*N frames instead of never. Off: every frame
+    // samples the block centre (what scene::cpu_feedback computes; the exactness tests use that).
+    bool feedback_jitter = true;
+    // Prefetch (docs/renderer.md, "Prefetch"): the feedback asks for pages `feedback_prefetch_lod`
+    // levels finer than the sampling wants (a camera moving closer needs them a few frames later),
+    // and sees `feedback_guard_band` (a fraction) more of the scene on every side than the image
+    // (pages about to turn into view). Both 0: the feedback is exactly what the image samples.
+    float feedback_prefetch_lod = 0.0f;  // 0..2
+    float feedback_guard_band = 0.0f;    // 0..1
 };
 
 // The colour drawn where nothing is resident on a page's path (an empty entry): opaque magenta,

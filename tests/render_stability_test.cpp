@@ -1,0 +1,293 @@
+// Numerical-stability stress, GL side (issue 6; docs/stability.md), on Mesa llvmpipe or a GPU.
+//
+//   RenderStability.LargestAcceptedTexture...  the largest virtual texture add_texture accepts (its
+//       packed page table just fits GL_MAX_TEXTURE_SIZE, 1024-texel tiles); one more page per side
+//       is a clear resource_exhausted error; pages at its far corner mapped by hand at several
+//       levels (0 .. the last) read back exactly at level-L texel centres.
+//   RenderStability.StaticCameraDoesNotFlicker  the same camera rendered twice far from the origin:
+//       identical images and identical feedback.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <numbers>
+#include <string>
+
+#include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/page_table.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
+#include "tessera/storage/types.hpp"
+
+namespace {
+
+namespace gl = tessera::client::gl;
+namespace sc = tessera::scene;
+namespace st = tessera::storage;
+using tessera::Errc;
+using tessera::client::FeedbackId;
+using tessera::client::kNoPage;
+using tessera::client::PageTable;
+
+#define REQUIRE_GL(ctx)                                                                        \
+    auto ctx##_made = gl::GlContext::create_headless();                                        \
+    if (!ctx##_made) GTEST_SKIP() << "no headless OpenGL 4.5: " << ctx##_made.error().message; \
+    auto& ctx = *ctx##_made;                                                                   \
+    (void)ctx
+
+constexpr std::uint32_t kTile = 1024, kBorder = 4, kP = kTile - 2 * kBorder;  // the largest stored tile
+constexpr std::uint32_t kW = 128, kH = 96;
+
+st::StoreInfo geometry(std::uint32_t size) {
+    st::StoreInfo info;
+    info.width = info.height = size;
+    info.tile_payload = kP;
+    info.border = kBorder;
+    info.channels = 4;
+    info.levels = st::level_geometry(size, size, kP);
+    return info;
+}
+
+// The packed page table's size (the renderer's layout: level 0, then levels 1.. in a column).
+std::pair<std::uint64_t, std::uint64_t> packed_table(const st::StoreInfo& info) {
+    std::uint64_t column_w = 0, column_h = 0;
+    for (std::size_t l = 1; l < info.levels.size(); ++l) {
+        column_w = std::max<std::uint64_t>(column_w, info.levels[l].tiles_x);
+        column_h += info.levels[l].tiles_y;
+    }
+    return {info.levels[0].tiles_x + column_w, std::max<std::uint64_t>(info.levels[0].tiles_y, column_h)};
+}
+
+gl::RendererConfig config() {
+    gl::RendererConfig c;
+    c.width = kW;
+    c.height = kH;
+    c.filter = gl::Filter::bilinear;
+    c.tile_size = kTile;
+    c.border = kBorder;
+    c.pool_slots = 4;
+    c.srgb = false;
+    c.staging_bytes = 8u << 20;
+    c.feedback_jitter = false;
+    return c;
+}
+
+void encode_texel(std::uint32_t x, std::uint32_t y, std::uint8_t* p) {
+    p[0] = std::uint8_t(x & 255);
+    p[1] = std::uint8_t(y & 255);
+    p[2] = std::uint8_t(((x >> 8) & 15) | (((y >> 8) & 15) << 4));
+    p[3] = 255;
+}
+
+sc::Camera straight_down(double x, double y, double height) {
+    sc::Camera c;
+    c.position = {x, y, height};
+    c.yaw = std::numbers::pi / 2;
+    c.pitch = -std::numbers::pi / 2;
+    c.near_plane = height * 0.5;
+    c.far_plane = height * 2;
+    return c;
+}
+
+bool pixel_to_ground(const sc::Camera& c, double i, double j, double& x, double& y) {
+    const auto f = c.forward(), r = c.right(), u = c.up();
+    const double sy = std::tan(c.fov_y / 2.0), sx = sy * double(kW) / double(kH);
+    const double nx = (i + 0.5) / kW * 2.0 - 1.0, ny = 1.0 - (j + 0.5) / kH * 2.0;
+    double d[3];
+    for (int k = 0; k < 3; ++k) d[k] = f[k] + nx * sx * r[k] + ny * sy * u[k];
+    if (!(d[2] < 0)) return false;
+    const double t = -c.position[2] / d[2];
+    x = c.position[0] + t * d[0];
+    y = c.position[1] + t * d[1];
+    return true;
+}
+
+// One flat chunk covering level-0 texels [o, size) on both axes, a world unit per texel.
+sc::Scene corner_chunk(std::uint32_t size, std::uint32_t o) {
+    sc::Scene s;
+    s.name = "corner";
+    s.vt_width = s.vt_height = size;
+    sc::Chunk c;
+    c.origin = {double(o), double(o), 0};
+    c.texel_origin[0] = c.texel_origin[1] = o;
+    const float e = float(size - o);
+    for (const auto& [x, y] : {std::pair{0.f, 0.f}, {e, 0.f}, {e, e}, {0.f, e}}) c.vertices.push_back({{x, y, 0}, {x, y}});
+    c.indices = {0, 1, 2, 0, 2, 3};
+    c.bounds_min[0] = c.bounds_min[1] = o;
+    c.bounds_max[0] = c.bounds_max[1] = size;
+    s.bounds_min[0] = s.bounds_min[1] = o;
+    s.bounds_max[0] = s.bounds_max[1] = size;
+    s.chunks.push_back(std::move(c));
+    return s;
+}
+
+// GL_MAX_TEXTURE_SIZE as the renderer reports it when it refuses a texture whose packed table is
+// 1.5 * 2^20 entries wide (2^20 pages per axis, the feedback id's limit): the refusal itself.
+std::uint64_t refused_max_texture(gl::VtRenderer& r) {
+    const std::uint32_t huge = (1u << 20) * kP - 1;  // exactly 2^20 pages per axis
+    const auto s = r.add_texture(9, geometry(huge));
+    EXPECT_FALSE(s.ok());
+    if (s.ok()) return 0;
+    EXPECT_EQ(s.error().code, Errc::resource_exhausted);
+    const std::string& m = s.error().message;
+    EXPECT_NE(m.find("over the GPU's largest texture"), std::string::npos) << m;
+    const auto end = m.rfind("^2)");
+    const auto begin = m.rfind('(', end);
+    if (end == std::string::npos || begin == std::string::npos) return 0;
+    return std::stoull(m.substr(begin + 1, end - begin - 1));
+}
+
+TEST(RenderStability, LargestAcceptedTextureIsExactAtTheFarCornerAtEveryLevel) {
+    REQUIRE_GL(ctx);
+    const auto cfg = config();
+    auto made = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(made.ok()) << made.error().message;
+    gl::VtRenderer& r = **made;
+
+    const std::uint64_t max_texture = refused_max_texture(r);
+    ASSERT_GT(max_texture, 0u);
+    // The largest page count per side whose packed table fits, and its texel size.
+    std::uint32_t n = static_cast<std::uint32_t>(std::min<std::uint64_t>(max_texture, 1u << 20));
+    auto fits = [&](std::uint32_t pages) {
+        const auto [w, h] = packed_table(geometry(pages * kP));
+        return w <= max_texture && h <= max_texture;
+    };
+    while (n > 1 && !fits(n)) --n;
+    const std::uint32_t size = n * kP;
+    // One texel more (one more page per side): a clear error, not a texture with wrong pixels.
+    const auto refused = r.add_texture(0, geometry(size + 1));
+    ASSERT_FALSE(refused.ok());
+    EXPECT_EQ(refused.error().code, Errc::resource_exhausted);
+    std::printf("  GL_MAX_TEXTURE_SIZE %llu: largest VT %u texels per side (2^%.2f, %u pages of %u); %u refused: %s\n",
+                static_cast<unsigned long long>(max_texture), size, std::log2(double(size)), n, kP, size + 1,
+                refused.error().message.c_str());
+
+    const st::StoreInfo info = geometry(size);
+    ASSERT_TRUE(r.add_texture(0, info).ok());
+    const std::uint32_t levels = info.level_count();
+    std::vector<std::uint8_t> page(std::size_t(kTile) * kTile * 4);
+    for (const std::uint32_t level : {0u, 1u, 4u, 9u, levels - 2, levels - 1}) {
+        const std::uint32_t texels = info.levels[level].width, pages = info.levels[level].tiles_x;
+        const std::uint32_t last = pages - 1;
+        // View centre (a level-L texel corner): the corner of the last two pages, or near the end.
+        const std::uint32_t k = pages >= 2 ? last * kP : texels - 40;
+        const std::uint32_t first_page = pages >= 2 ? last - 1 : 0, count = pages >= 2 ? 2 : 1;
+        std::vector<std::uint32_t> entries;
+        for (std::uint32_t py = 0; py < count; ++py)
+            for (std::uint32_t px = 0; px < count; ++px) {
+                const std::uint32_t slot = py * 2 + px;
+                for (std::uint32_t j = 0; j < kTile; ++j)
+                    for (std::uint32_t i = 0; i < kTile; ++i) {
+                        const auto gx = std::clamp<std::int64_t>(std::int64_t(first_page + px) * kP - kBorder + i, 0, texels - 1);
+                        const auto gy = std::clamp<std::int64_t>(std::int64_t(first_page + py) * kP - kBorder + j, 0, texels - 1);
+                        encode_texel(std::uint32_t(gx), std::uint32_t(gy), page.data() + (std::size_t(j) * kTile + i) * 4);
+                    }
+                r.upload_page(slot, page, kTile);
+                entries.push_back(PageTable::make_entry(slot, level));
+            }
+        r.upload_page_table(0, level, first_page, first_page, count, count, entries);
+
+        // The chunk: from an odd origin (low bits set at every level) to the far edge.
+        const double scale = std::ldexp(1.0, int(level));
+        const std::uint64_t span = std::uint64_t((double(size) - (double(k) - 80) * scale)) + 3;
+        const std::uint32_t o = span >= size ? 0 : std::uint32_t(size - span) | 1u;
+        ASSERT_TRUE(r.set_scene(corner_chunk(size, o), 0).ok());
+        const double height = scale * kH / (2.0 * std::tan(sc::Camera{}.fov_y / 2.0));
+        const sc::Camera cam = straight_down(double(k) * scale, double(k) * scale, height);
+        const auto frame = r.render(cam, 0);
+        std::vector<gl::FrameCounters> counters;
+        r.finish(&counters, nullptr);
+        const auto rgba = r.read_color();
+        EXPECT_EQ(r.stats().gl_errors, 0u);
+        EXPECT_EQ(r.stats().malformed_uploads, 0u);
+        std::size_t checked = 0, wrong = 0;
+        for (std::uint32_t j = 0; j < kH; ++j)
+            for (std::uint32_t i = 0; i < kW; ++i) {
+                double x, y;
+                ASSERT_TRUE(pixel_to_ground(cam, i, j, x, y));
+                const double lx = x / scale, ly = y / scale;
+                if (std::abs(lx - std::floor(lx) - 0.5) > 1e-3 || std::abs(ly - std::floor(ly) - 0.5) > 1e-3) continue;
+                if (x < o || y < o || x >= size || y >= size) continue;  // no geometry there (the last texel of a level may overhang)
+                const auto gx = std::uint32_t(std::floor(lx)), gy = std::uint32_t(std::floor(ly));
+                std::uint8_t want[4];
+                encode_texel(gx, gy, want);
+                const std::uint8_t* got = rgba.data() + (std::size_t(j) * kW + i) * 4;
+                ++checked;
+                if (std::equal(want, want + 4, got)) continue;
+                if (++wrong <= 5)
+                    ADD_FAILURE() << "level " << level << " pixel (" << i << ", " << j << ") texel (" << gx << ", " << gy << "): got "
+                                  << int(got[0]) << " " << int(got[1]) << " " << int(got[2]) << " " << int(got[3]) << ", want "
+                                  << int(want[0]) << " " << int(want[1]) << " " << int(want[2]);
+            }
+        EXPECT_EQ(wrong, 0u) << "level " << level << " of " << checked;
+        EXPECT_GE(checked, std::size_t(kW * kH / 4)) << "level " << level;
+        bool counted = false;
+        for (const auto& c : counters)
+            if (c.frame == frame) {
+                counted = true;
+                EXPECT_EQ(c.fallback_unbiased, 0u) << "level " << level << ": a pixel wanted another level";
+            }
+        EXPECT_TRUE(counted);
+        std::printf("  level %u (%u texels, %u pages per side): %zu pixels on texel centres at the far corner, %zu wrong\n", level,
+                    texels, pages, checked, wrong);
+    }
+}
+
+TEST(RenderStability, StaticCameraDoesNotFlicker) {
+    REQUIRE_GL(ctx);
+    auto cfg = config();
+    cfg.filter = gl::Filter::anisotropic;
+    cfg.feedback_scale = 4;
+    auto made = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(made.ok()) << made.error().message;
+    gl::VtRenderer& r = **made;
+    const std::uint32_t size = 8192 * kP;  // 2^23 area: 8.3M texels per side, accepted on llvmpipe
+    const st::StoreInfo info = geometry(size);
+    ASSERT_TRUE(r.add_texture(0, info).ok());
+    // Only the coarsest level (one page) is resident: every other entry is empty or falls back to
+    // it, which is enough to compare two frames.
+    std::vector<std::uint8_t> page(std::size_t(kTile) * kTile * 4);
+    for (std::uint32_t j = 0; j < kTile; ++j)
+        for (std::uint32_t i = 0; i < kTile; ++i) encode_texel(i * 7, j * 13, page.data() + (std::size_t(j) * kTile + i) * 4);
+    r.upload_page(0, page, kTile);
+    const std::uint32_t top = info.level_count() - 1;
+    const std::vector<std::uint32_t> root{PageTable::make_entry(0, top)};
+    r.upload_page_table(0, top, 0, 0, 1, 1, root);
+    ASSERT_TRUE(r.set_scene(corner_chunk(size, size - 65536), 0).ok());
+
+    for (const auto& cam_pose : {std::array<double, 5>{size - 100.5, size - 100.5, 3.0, 1.25 * std::numbers::pi, -0.05},
+                                 std::array<double, 5>{size - 3000.25, size - 2000.75, 400.0, 1.2 * std::numbers::pi, -0.7}}) {
+        sc::Camera cam;
+        cam.position = {cam_pose[0], cam_pose[1], cam_pose[2]};
+        cam.yaw = cam_pose[3];
+        cam.pitch = cam_pose[4];
+        cam.near_plane = 0.5;
+        cam.far_plane = 1e6;
+        std::vector<std::uint8_t> images[2];
+        gl::FeedbackFrame feedback[2];
+        for (int k = 0; k < 2; ++k) {
+            r.render(cam, 0);
+            r.finish(nullptr, &feedback[k]);
+            images[k] = r.read_color();
+        }
+        EXPECT_EQ(r.stats().gl_errors, 0u);
+        EXPECT_EQ(images[0], images[1]) << "the same camera gave two different images";
+        EXPECT_EQ(feedback[0].ids, feedback[1].ids) << "the same camera gave two different feedback buffers";
+        std::size_t vt = 0;
+        for (const FeedbackId id : feedback[0].ids) {
+            if (id == kNoPage) continue;
+            ++vt;
+            const auto key = tessera::client::unpack_feedback(id);
+            ASSERT_LT(key.level, info.level_count());
+            ASSERT_LT(key.x, info.levels[key.level].tiles_x);
+            ASSERT_LT(key.y, info.levels[key.level].tiles_y);
+        }
+        EXPECT_GT(vt, feedback[0].ids.size() / 4);
+        std::printf("  camera (%.2f, %.2f, %.1f): 2 frames identical, %zu feedback pixels on the VT\n", cam.position[0],
+                    cam.position[1], cam.position[2], vt);
+    }
+}
+
+}  // namespace
