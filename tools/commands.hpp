@@ -24,5 +24,6 @@ Command add_source(CLI::App& app);
 Command add_demo(CLI::App& app);
 Command add_serve(CLI::App& app);
 Command add_view(CLI::App& app);
+Command add_loadtest(CLI::App& app);
 
 }  // namespace tessera::tools

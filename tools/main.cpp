@@ -28,6 +28,7 @@ int main(int argc, char** argv) {
     reg(add_source);
     reg(add_serve);
     reg(add_view);
+    reg(add_loadtest);
     reg(add_demo);
     try {
         app.parse(argc, argv);

@@ -53,6 +53,7 @@ public:
             t.codec = static_cast<std::uint8_t>(r.codec);
             t.checksum = r.checksum;
             t.payload = std::move(r.payload);
+            t.received = r.received;
             out.push_back(std::move(t));
         }
         return n;

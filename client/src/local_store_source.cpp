@@ -109,6 +109,7 @@ private:
                     t.payload = std::move(tile->bytes);
                 }
             }
+            t.received = std::chrono::steady_clock::now();
             std::lock_guard lock(mu_);
             if (!wanted_.contains(t.page)) {
                 in_flight_.erase(t.page);  // superseded while it was read

@@ -35,6 +35,9 @@ struct SourceTile {
     std::uint8_t codec = 0;
     std::uint64_t checksum = 0;
     std::vector<std::uint8_t> payload;
+    // When the tile reached the client (read off the stream, read from the store, or delivered by
+    // an emulated link); zero when the source does not say. Polling may happen a frame later.
+    std::chrono::steady_clock::time_point received{};
 };
 
 class TileSource {

@@ -1,0 +1,154 @@
+// VT frame time against plain texturing of the same scene (issue 5; design.md "Benchmarks").
+//
+// The peer is the reference renderer: the same terrain, camera path and filter drawn from one
+// ordinary mipmapped GL texture. The VT frame is the whole VT frame: feedback pass (1/8),
+// depth pre-pass and the VT pass with its fallback counters. Every page is resident first (a
+// loading pass over the path with a pool that holds the whole store), so the comparison is of
+// rendering, not streaming. Frames alternate VT / plain on the same camera, each ended with
+// glFinish, so drift on this shared machine hits both alike. Prints a table and writes JSON.
+//
+//   vt_vs_plain STORE.tsr [--size 640x360] [--frames 240] [--json FILE]
+#include <epoxy/gl.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/runtime.hpp"
+#include "tessera/client/tile_source.hpp"
+#include "tessera/scene/path.hpp"
+#include "tessera/scene/scene.hpp"
+
+namespace {
+
+using namespace tessera;
+using Clock = std::chrono::steady_clock;
+
+double median(std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? 0 : v[v.size() / 2];
+}
+double mean(const std::vector<double>& v) {
+    double s = 0;
+    for (double x : v) s += x;
+    return v.empty() ? 0 : s / double(v.size());
+}
+
+int fail(const std::string& what) {
+    std::fprintf(stderr, "vt_vs_plain: %s\n", what.c_str());
+    return 1;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    if (argc < 2) return fail("usage: vt_vs_plain STORE.tsr [--size WxH] [--frames N] [--json FILE]");
+    std::string store = argv[1], json;
+    unsigned w = 640, h = 360, frames = 240;
+    for (int i = 2; i + 1 < argc; i += 2) {
+        if (!std::strcmp(argv[i], "--size")) std::sscanf(argv[i + 1], "%ux%u", &w, &h);
+        else if (!std::strcmp(argv[i], "--frames")) frames = unsigned(std::atoi(argv[i + 1]));
+        else if (!std::strcmp(argv[i], "--json")) json = argv[i + 1];
+        else return fail(std::string("unknown flag ") + argv[i]);
+    }
+    auto ctx = client::gl::GlContext::create_headless();
+    if (!ctx) return fail(ctx.error().message);
+    (*ctx)->make_current();
+    auto levels = client::gl::decode_store_levels(store);
+    if (!levels) return fail(levels.error().message);
+
+    std::string out_json = "{\"store\": \"" + store + "\", \"size\": \"" + std::to_string(w) + "x" + std::to_string(h) +
+                           "\", \"renderer\": \"" + (*ctx)->renderer() + "\", \"filters\": [";
+    std::printf("VT frame vs plain texturing, %ux%u, %u frames of flyover, %s\n", w, h, frames, (*ctx)->renderer().c_str());
+    std::printf("%-12s %14s %14s %14s %14s %8s\n", "filter", "VT mean ms", "VT median ms", "plain mean ms",
+                "plain med. ms", "ratio");
+    const client::gl::Filter filters[] = {client::gl::Filter::bilinear, client::gl::Filter::trilinear,
+                                          client::gl::Filter::anisotropic};
+    const char* names[] = {"bilinear", "trilinear", "anisotropic"};
+    for (int fi = 0; fi < 3; ++fi) {
+        auto source = client::make_local_store_source(2);
+        auto info = source->bind(0, store);
+        if (!info) return fail(info.error().message);
+        std::uint32_t pages = 0;
+        for (const auto& l : info->levels) pages += l.tiles_x * l.tiles_y;
+        client::gl::RendererConfig rc;
+        rc.width = w;
+        rc.height = h;
+        rc.filter = filters[fi];
+        rc.pool_slots = pages + 16;  // the whole store fits: every page resident
+        rc.tile_size = info->tile_size();
+        rc.border = info->border;
+        rc.srgb = info->colour_space == storage::ColourSpace::srgb;
+        auto vt = client::gl::VtRenderer::create(rc);
+        if (!vt) return fail(vt.error().message);
+        auto ref = client::gl::ReferenceRenderer::create(rc, *levels);
+        if (!ref) return fail(ref.error().message);
+        client::RuntimeConfig cfg;
+        cfg.residency.pool_slots = rc.pool_slots;
+        cfg.upload_pages_per_frame = 256;
+        cfg.upload_bytes_per_frame = 256u << 20;
+        auto rt = client::Runtime::create(cfg, **vt);
+        if (!rt) return fail(rt.error().message);
+        auto tex = (*rt)->add_texture(*source, store);
+        if (!tex) return fail(tex.error().message);
+        if (auto st = (*vt)->add_texture(*tex, *info); !st.ok()) return fail(st.error().message);
+        scene::TerrainOptions t;
+        t.vt_width = info->width;
+        t.vt_height = info->height;
+        auto sc = scene::make_terrain(t);
+        if (!sc) return fail(sc.error().message);
+        if (auto st = (*vt)->set_scene(*sc, *tex); !st.ok()) return fail(st.error().message);
+        if (auto st = (*ref)->set_scene(*sc); !st.ok()) return fail(st.error().message);
+        auto path = scene::CameraPath::builtin("flyover", *sc);
+        if (!path) return fail(path.error().message);
+        const auto cam_at = [&](unsigned f) { return path->at(path->duration() * f / std::max(frames - 1, 1u)); };
+
+        // Loading pass: every frame's pages resident.
+        client::gl::FeedbackFrame fb;
+        for (unsigned f = 0; f < frames; ++f)
+            for (int k = 0; k < 40; ++k) {
+                (*vt)->render(cam_at(f), 0);
+                if ((*vt)->poll_feedback(fb)) (*rt)->frame(fb.ids, fb.width, fb.height, 0);
+                else (*rt)->frame_without_feedback();
+                if ((*rt)->in_flight() == 0 && k > 3) break;
+            }
+        std::vector<client::gl::FrameCounters> counters;
+        (*vt)->finish(&counters, nullptr);
+
+        std::vector<double> vt_ms, plain_ms;
+        for (unsigned f = 0; f < frames; ++f) {
+            const auto cam = cam_at(f);
+            auto t0 = Clock::now();
+            (*vt)->render(cam, 0);
+            glFinish();
+            auto t1 = Clock::now();
+            (*ref)->render(cam);
+            glFinish();
+            auto t2 = Clock::now();
+            (*rt)->frame_without_feedback();  // keeps the readback rings moving, uploads nothing
+            vt_ms.push_back(std::chrono::duration<double, std::milli>(t1 - t0).count());
+            plain_ms.push_back(std::chrono::duration<double, std::milli>(t2 - t1).count());
+            counters.clear();
+            (*vt)->poll_counters(counters);
+        }
+        const double ratio = median(vt_ms) / median(plain_ms);
+        std::printf("%-12s %14.2f %14.2f %14.2f %14.2f %7.2fx\n", names[fi], mean(vt_ms), median(vt_ms), mean(plain_ms),
+                    median(plain_ms), ratio);
+        char buf[512];
+        std::snprintf(buf, sizeof buf,
+                      "%s{\"filter\": \"%s\", \"vt_mean_ms\": %.3f, \"vt_median_ms\": %.3f, \"plain_mean_ms\": %.3f, "
+                      "\"plain_median_ms\": %.3f, \"ratio_median\": %.3f}",
+                      fi ? ", " : "", names[fi], mean(vt_ms), median(vt_ms), mean(plain_ms), median(plain_ms), ratio);
+        out_json += buf;
+    }
+    out_json += "]}\n";
+    if (!json.empty()) std::ofstream(json) << out_json;
+    return 0;
+}

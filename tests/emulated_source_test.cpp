@@ -1,0 +1,148 @@
+// The emulated link (tessera/client/emulated_source.hpp): requests pass through; replies arrive
+// no earlier than latency (+ jitter, bounded), serialized by the bandwidth cap.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <deque>
+#include <mutex>
+#include <thread>
+
+#include "tessera/client/emulated_source.hpp"
+
+using namespace tessera::client;
+using namespace std::chrono_literals;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+// Answers every request at once with a tile of `payload_bytes` bytes.
+class InstantSource final : public TileSource {
+public:
+    explicit InstantSource(std::size_t payload_bytes, std::uint64_t* sets) : bytes_(payload_bytes), sets_(sets) {}
+    tessera::Result<tessera::storage::StoreInfo> bind(TextureId, const std::string&) override {
+        return tessera::storage::StoreInfo{};
+    }
+    void set_requests(std::uint64_t, std::span<const SourceRequest> requests) override {
+        ++*sets_;
+        for (const auto& r : requests) {
+            SourceTile t;
+            t.page = r.page;
+            t.payload.assign(bytes_, 7);
+            t.received = Clock::now();
+            ready_.push_back(std::move(t));
+        }
+    }
+    std::size_t poll(std::vector<SourceTile>& out, std::size_t max) override {
+        std::size_t n = 0;
+        while (n < max && !ready_.empty()) {
+            out.push_back(std::move(ready_.front()));
+            ready_.pop_front();
+            ++n;
+        }
+        return n;
+    }
+    bool available() const override { return true; }
+    std::string describe() const override { return "instant"; }
+
+private:
+    std::size_t bytes_;
+    std::uint64_t* sets_;
+    std::deque<SourceTile> ready_;
+};
+
+std::vector<SourceRequest> requests(std::uint32_t n) {
+    std::vector<SourceRequest> r;
+    for (std::uint32_t i = 0; i < n; ++i) r.push_back(SourceRequest{PageKey{0, 0, i, 0}, 1.0f});
+    return r;
+}
+
+// Polls until `n` tiles came or `limit` passed; returns them with the poll time of each.
+std::vector<std::pair<SourceTile, Clock::time_point>> collect(TileSource& s, std::size_t n,
+                                                               std::chrono::milliseconds limit) {
+    std::vector<std::pair<SourceTile, Clock::time_point>> got;
+    const auto end = Clock::now() + limit;
+    std::vector<SourceTile> buf;
+    while (got.size() < n && Clock::now() < end) {
+        buf.clear();
+        s.poll(buf, SIZE_MAX);
+        const auto now = Clock::now();
+        for (auto& t : buf) got.emplace_back(std::move(t), now);
+        std::this_thread::sleep_for(500us);
+    }
+    return got;
+}
+
+}  // namespace
+
+TEST(EmulatedSource, AddsLatency) {
+    std::uint64_t sets = 0;
+    auto s = make_emulated_source(std::make_unique<InstantSource>(100, &sets), EmulatedLink{30ms, 0us, 0}, 1);
+    const auto reqs = requests(3);
+    const auto t0 = Clock::now();
+    s->set_requests(1, reqs);
+    EXPECT_EQ(sets, 1u);  // forwarded at once
+    std::vector<SourceTile> none;
+    EXPECT_EQ(s->poll(none, SIZE_MAX), 0u);  // nothing before the latency
+    auto got = collect(*s, 3, 2000ms);
+    ASSERT_EQ(got.size(), 3u);
+    for (const auto& [t, at] : got) {
+        EXPECT_GE(at - t0, 30ms);
+        EXPECT_GE(t.received - t0, 30ms);
+        EXPECT_LE(t.received - t0, 30ms + 20ms);
+        EXPECT_EQ(t.payload.size(), 100u);
+    }
+    EXPECT_NE(s->describe().find("instant"), std::string::npos);
+}
+
+TEST(EmulatedSource, JitterIsBounded) {
+    std::uint64_t sets = 0;
+    auto s = make_emulated_source(std::make_unique<InstantSource>(10, &sets), EmulatedLink{5ms, 20ms, 0}, 42);
+    const auto t0 = Clock::now();
+    s->set_requests(1, requests(50));
+    auto got = collect(*s, 50, 2000ms);
+    ASSERT_EQ(got.size(), 50u);
+    Clock::duration lo = Clock::duration::max(), hi = Clock::duration::min();
+    for (const auto& [t, at] : got) {
+        lo = std::min(lo, t.received - t0);
+        hi = std::max(hi, t.received - t0);
+        EXPECT_GE(at, t.received);
+    }
+    EXPECT_GE(lo, 5ms);
+    EXPECT_LE(hi, 5ms + 20ms + 20ms);
+    EXPECT_GT(hi - lo, 2ms);  // 50 uniform draws over 20 ms are not all alike
+}
+
+TEST(EmulatedSource, BandwidthSerializes) {
+    std::uint64_t sets = 0;
+    // 10,000-byte tiles (plus framing) at 4 Mbit/s: about 20 ms each; 4 of them about 80 ms.
+    auto s = make_emulated_source(std::make_unique<InstantSource>(10000, &sets), EmulatedLink{0us, 0us, 4e6}, 3);
+    const auto t0 = Clock::now();
+    s->set_requests(1, requests(4));
+    auto got = collect(*s, 4, 3000ms);
+    ASSERT_EQ(got.size(), 4u);
+    std::sort(got.begin(), got.end(), [](const auto& a, const auto& b) { return a.first.received < b.first.received; });
+    for (std::size_t i = 0; i < got.size(); ++i) EXPECT_GE(got[i].first.received - t0, (i + 1) * 19ms) << i;
+    EXPECT_GE(got.back().second - t0, 76ms);
+}
+
+TEST(EmulatedSource, ReplacedRequestsMayStillArrive) {
+    std::uint64_t sets = 0;
+    auto s = make_emulated_source(std::make_unique<InstantSource>(10, &sets), EmulatedLink{10ms, 0us, 0}, 1);
+    s->set_requests(1, requests(2));
+    std::vector<SourceTile> buf;
+    s->poll(buf, SIZE_MAX);  // into the link
+    s->set_requests(2, {});  // replaced by nothing
+    EXPECT_EQ(sets, 2u);
+    auto got = collect(*s, 2, 2000ms);
+    EXPECT_EQ(got.size(), 2u);  // already on the wire
+}
+
+TEST(EmulatedSource, NoDelayPassesThrough) {
+    std::uint64_t sets = 0;
+    auto s = make_emulated_source(std::make_unique<InstantSource>(10, &sets), EmulatedLink{}, 1);
+    s->set_requests(1, requests(5));
+    std::vector<SourceTile> buf;
+    EXPECT_EQ(s->poll(buf, 3), 3u);
+    EXPECT_EQ(s->poll(buf, SIZE_MAX), 2u);
+}

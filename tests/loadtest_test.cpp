@@ -1,0 +1,135 @@
+// `tessera loadtest` against a real `tessera serve` on loopback: sane figures in the JSON for 1
+// and 4 viewers, an emulated link that adds its latency, a clear error when the server is down,
+// and bad flags rejected. Short runs (about 2 s each): figures, not timings, are checked.
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+#include "server_process.hpp"
+#include "test_util.hpp"
+
+using tessera::test::run_tessera;
+using tessera::test::ScratchDir;
+using tessera::test::ServerProcess;
+
+namespace {
+
+// One server for every test: a 4096² JPEG store named "terrain".
+class Server {
+public:
+    static Server& get() {
+        static Server s;
+        return s;
+    }
+    std::string address() const { return srv_->grpc_address(); }
+    std::string file(const std::string& name) const { return dir_->file(name); }
+
+private:
+    Server() {
+        dir_ = std::make_unique<ScratchDir>();
+        auto r = run_tessera("build procedural:terrain:4096 -o " + dir_->file("terrain.tsr") + " --quiet");
+        if (r.exit_code != 0) throw std::runtime_error("build failed: " + r.out);
+        srv_ = std::make_unique<ServerProcess>(std::vector<std::string>{"--store", dir_->file("terrain.tsr")},
+                                               dir_->file("server.log"), "127.0.0.1:0", false);
+        if (!srv_->running()) throw std::runtime_error("server did not start: " + srv_->log());
+    }
+    std::unique_ptr<ScratchDir> dir_;
+    std::unique_ptr<ServerProcess> srv_;
+};
+
+nlohmann::json load(const std::string& path) {
+    std::ifstream f(path);
+    return nlohmann::json::parse(f);
+}
+
+void check_run(const nlohmann::json& r, unsigned viewers, double duration, double fps) {
+    EXPECT_EQ(r["viewers"].get<unsigned>(), viewers);
+    const double expected = duration * fps * viewers;
+    const auto frames = r["frames"].get<double>() + r["frames_skipped"].get<double>();
+    EXPECT_GT(frames, expected * 0.9) << r.dump();
+    EXPECT_LT(frames, expected * 1.1 + viewers) << r.dump();
+    EXPECT_GT(r["tiles"].get<std::uint64_t>(), 0u);
+    EXPECT_GT(r["bytes_per_s"].get<double>(), 0.0);
+    const auto& l = r["latency_ms"];
+    EXPECT_GT(l["count"].get<std::uint64_t>(), 0u);
+    EXPECT_LE(l["p50"].get<double>(), l["p99"].get<double>());
+    EXPECT_LE(l["p99"].get<double>(), l["p999"].get<double>());
+    EXPECT_LE(l["p999"].get<double>(), l["max"].get<double>());
+    const double fb = r["fallback"].get<double>();
+    EXPECT_GE(fb, 0.0);
+    EXPECT_LE(fb, 1.0);
+    EXPECT_EQ(r["failed"].get<std::uint64_t>(), 0u);
+    EXPECT_EQ(r["per_viewer"].size(), viewers);
+    for (const auto& v : r["per_viewer"])
+        for (const auto& x : v["fallback_by_second"]) {
+            EXPECT_GE(x.get<double>(), 0.0);
+            EXPECT_LE(x.get<double>(), 1.0);
+        }
+}
+
+}  // namespace
+
+TEST(Loadtest, OneAndFourViewers) {
+    auto& s = Server::get();
+    const std::string json = s.file("lt.json"), plot = s.file("lt.svg");
+    auto r = run_tessera("loadtest --server " + s.address() +
+                         " --store terrain --viewers 1,4 --duration 1.5 --warmup 0.2 --fps 30 --seed 7 --json " + json +
+                         " --plot " + plot + " --quiet");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_NE(r.out.find("viewers"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("p99.9"), std::string::npos) << r.out;
+    auto j = load(json);
+    ASSERT_EQ(j["runs"].size(), 2u);
+    check_run(j["runs"][0], 1, 1.5, 30);
+    check_run(j["runs"][1], 4, 1.5, 30);
+    EXPECT_TRUE(std::filesystem::exists(plot));
+}
+
+TEST(Loadtest, EmulatedLinkAddsLatency) {
+    auto& s = Server::get();
+    const std::string json = s.file("link.json");
+    auto r = run_tessera("loadtest --server " + s.address() +
+                         " --store terrain --viewers 2 --duration 1.5 --warmup 0 --fps 30 --latency 40 --jitter 5 "
+                         "--path whip --json " + json + " --quiet");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    auto j = load(json);
+    const auto& l = j["runs"][0]["latency_ms"];
+    ASSERT_GT(l["count"].get<std::uint64_t>(), 0u);
+    // Histogram quantiles are within 3.2% of a sample; the smallest sample is at least 40 ms.
+    EXPECT_GE(l["p50"].get<double>(), 40.0 * 0.96) << l.dump();
+    EXPECT_DOUBLE_EQ(j["link"]["latency_ms"].get<double>(), 40.0);
+}
+
+TEST(Loadtest, ServerDownIsAClearError) {
+    // Port 1 on loopback: nobody listens there.
+    auto r = run_tessera("loadtest --server 127.0.0.1:1 --store terrain --viewers 2 --duration 1 --connect-timeout 1 --quiet");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_NE(r.out.find("tessera: error: --server 127.0.0.1:1"), std::string::npos) << r.out;
+}
+
+TEST(Loadtest, BadFlags) {
+    auto& s = Server::get();
+    const std::string base = "loadtest --server " + s.address() + " --store terrain ";
+    auto r = run_tessera(base + "--viewers 0");
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    r = run_tessera(base + "--fps -5");
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    r = run_tessera(base + "--feedback-size 160by90 --duration 0.5 --warmup 0");
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_NE(r.out.find("--feedback-size"), std::string::npos) << r.out;
+    r = run_tessera(base + "--path nosuchpath --duration 0.5 --warmup 0");
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_NE(r.out.find("--path"), std::string::npos) << r.out;
+    r = run_tessera(base + "--trace /nonexistent/trace --duration 0.5 --warmup 0");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_NE(r.out.find("--trace"), std::string::npos) << r.out;
+    r = run_tessera("loadtest --server " + s.address() + " --store nosuchstore --duration 0.5");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_NE(r.out.find("nosuchstore"), std::string::npos) << r.out;
+    r = run_tessera("loadtest --store terrain");
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+}
