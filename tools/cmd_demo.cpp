@@ -91,6 +91,7 @@ Command add_demo(CLI::App& app) {
         sc.watch_interval = std::chrono::milliseconds(0);
         sc.io_threads = 2;
         sc.log_json = false;
+        sc.log_quiet = true;  // its warnings and errors still show
         auto srv = server::Server::start(sc);
         if (!srv) throw Failure(fmt::format("cannot start the demo server: {}", srv.error().message));
         const std::string url = fmt::format("grpc://127.0.0.1:{}/terrain", (*srv)->grpc_port());

@@ -65,7 +65,7 @@ class ServerImpl final : public Server {
 public:
     explicit ServerImpl(const ServerConfig& config)
         : config_(config),
-          log_(config.log_json ? LogFormat::json : LogFormat::text, config.log_debug ? LogLevel::debug : LogLevel::info),
+          log_(config.log_json ? LogFormat::json : LogFormat::text, config.log_debug ? LogLevel::debug : config.log_quiet ? LogLevel::warn : LogLevel::info),
           stores_(config.store_files, config.store_dirs, log_, metrics_),
           cache_(config.cache_bytes),
           fetcher_(cache_, metrics_, log_),

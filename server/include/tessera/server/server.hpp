@@ -50,6 +50,7 @@ struct ServerConfig {
 
     bool log_json = true;
     bool log_debug = false;
+    bool log_quiet = false;  // warnings and errors only (an embedded server, e.g. `tessera demo`)
 };
 
 class Server {
