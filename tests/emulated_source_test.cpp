@@ -146,3 +146,20 @@ TEST(EmulatedSource, NoDelayPassesThrough) {
     EXPECT_EQ(s->poll(buf, 3), 3u);
     EXPECT_EQ(s->poll(buf, SIZE_MAX), 2u);
 }
+
+TEST(EmulatedSource, PagesInTheLinkAreNotReadAgain) {
+    // A page already read and travelling is not forwarded again when the next request set still
+    // names it (a real server has sent it; the inner source would read it twice).
+    std::uint64_t sets = 0;
+    auto s = make_emulated_source(std::make_unique<InstantSource>(10, &sets), EmulatedLink{40ms, 0us, 0}, 1);
+    s->set_requests(1, requests(3));
+    std::vector<SourceTile> buf;
+    EXPECT_EQ(s->poll(buf, SIZE_MAX), 0u);  // read, now in the link
+    s->set_requests(2, requests(4));         // the same 3 and one more
+    auto got = collect(*s, 4, 2000ms);
+    ASSERT_EQ(got.size(), 4u);
+    EXPECT_EQ(collect(*s, 1, 100ms).size(), 0u) << "no page was delivered twice";
+    // Delivered pages are no longer in the link: asking again reads them again.
+    s->set_requests(3, requests(2));
+    EXPECT_EQ(collect(*s, 2, 2000ms).size(), 2u);
+}

@@ -21,7 +21,8 @@ using tessera::test::ScratchDir;
 // Serves a local store with a fixed latency in frames; replace semantics like the real sources.
 class DelayedSource final : public TileSource {
 public:
-    DelayedSource(std::string path, unsigned latency_frames) : path_(std::move(path)), latency_(latency_frames) {}
+    DelayedSource(std::string path, unsigned latency_frames, bool ignore_cancel = false)
+        : path_(std::move(path)), latency_(latency_frames), ignore_cancel_(ignore_cancel) {}
     tessera::Result<tessera::storage::StoreInfo> bind(TextureId texture, const std::string&) override {
         auto r = tessera::storage::StoreReader::open(path_);
         if (!r) return r.error();
@@ -33,7 +34,7 @@ public:
         std::map<std::uint64_t, bool> now;
         for (const auto& r : requests) now[page_hash_key(r.page)] = true;
         // Pending requests not in the new set are cancelled; new ones start their latency now.
-        std::erase_if(pending_, [&](const auto& p) { return !now.contains(page_hash_key(p.page)); });
+        if (!ignore_cancel_) std::erase_if(pending_, [&](const auto& p) { return !now.contains(page_hash_key(p.page)); });
         for (const auto& r : requests) {
             const bool known = std::any_of(pending_.begin(), pending_.end(), [&](const auto& p) { return p.page == r.page; });
             if (!known) pending_.push_back({r.page, frame_ + latency_});
@@ -74,6 +75,7 @@ private:
     };
     std::string path_;
     unsigned latency_;
+    bool ignore_cancel_;  // a source that serves what it was asked once, even when withdrawn
     std::shared_ptr<tessera::storage::StoreReader> reader_;
     TextureId texture_ = 0;
     std::deque<Pending> pending_;
@@ -293,6 +295,66 @@ TEST_F(RuntimeSim, DeterministicForTheSameScript) {
         return std::make_tuple(r.bias, r.evicted, r.uploaded);
     };
     EXPECT_EQ(once(), once());
+}
+
+}  // namespace
+
+namespace {
+
+// Issue 6: what the runtime skips when a request stops being wanted, counted by stage.
+TEST_F(RuntimeSim, CountsCancellationsByStage) {
+    const auto empty = std::vector<FeedbackId>(160 * 90, kNoPage);
+    auto view = [&](Runtime& rt) { return feedback(*rt.texture_info(0), 160, 90, 4000, 4000, 2, 0); };
+    {  // Withdrawn while waiting on the source (latency 5 frames): all cancelled before arrival.
+        FakeUploader up;
+        DelayedSource src(path_, 5);
+        auto rt = make(1024, up, src);
+        src.tick();
+        const std::uint32_t requested = rt->frame(view(*rt), 160, 90, 0).pages_requested;
+        ASSERT_GT(requested, 0u);
+        src.tick();
+        const auto& s = rt->frame(empty, 160, 90, 0);
+        EXPECT_EQ(s.cancelled_waiting, requested);
+        EXPECT_EQ(s.cancelled_arrived, 0u);
+        for (int f = 0; f < 10; ++f) {
+            src.tick();
+            rt->frame(empty, 160, 90, 0);
+        }
+        EXPECT_EQ(rt->summary().stale_arrivals(), 0u) << "the source dropped them: no I/O";
+        EXPECT_EQ(src.served(), 0u);
+        EXPECT_EQ(rt->summary().cancelled_waiting(), requested);
+        EXPECT_EQ(rt->in_flight(), 0u);
+        EXPECT_NE(rt->summary().to_json().find("\"skipped\":{\"cancelled_waiting\":" + std::to_string(requested)),
+                  std::string::npos);
+    }
+    {  // The same with a source that serves withdrawn requests anyway: the I/O was not saved.
+        FakeUploader up;
+        DelayedSource src(path_, 5, /*ignore_cancel=*/true);
+        auto rt = make(1024, up, src);
+        src.tick();
+        const std::uint32_t requested = rt->frame(view(*rt), 160, 90, 0).pages_requested;
+        for (int f = 0; f < 10; ++f) {
+            src.tick();
+            rt->frame(empty, 160, 90, 0);
+        }
+        EXPECT_EQ(rt->summary().cancelled_waiting(), requested);
+        EXPECT_EQ(rt->summary().stale_arrivals(), requested);
+        EXPECT_EQ(rt->summary().pages_arrived(), 0u);
+    }
+    {  // Withdrawn in the frame the data arrived (latency 1): never decoded.
+        FakeUploader up;
+        DelayedSource src(path_, 1);
+        auto rt = make(1024, up, src);
+        src.tick();
+        const std::uint32_t requested = rt->frame(view(*rt), 160, 90, 0).pages_requested;
+        src.tick();
+        const auto& s = rt->frame(empty, 160, 90, 0);
+        EXPECT_EQ(s.pages_arrived, requested);
+        EXPECT_EQ(s.cancelled_waiting, 0u);
+        EXPECT_EQ(s.cancelled_arrived, requested);
+        EXPECT_EQ(s.pages_uploaded, 0u);
+        EXPECT_EQ(rt->summary().decodes_dropped(), 0u);  // synchronous decoding: no pool to drop in
+    }
 }
 
 }  // namespace

@@ -2,19 +2,24 @@
 // tessera build --atlas SCENE.obj -o ATLAS.tsr [--obj-out ATLAS.obj]
 #include <fmt/format.h>
 
+#include <cstdio>
 #include <filesystem>
 
 #include "atlas_build.hpp"
 #include "commands.hpp"
 #include "progress.hpp"
 #include "store_summary.hpp"
+#include "tessera/scene/visibility.hpp"
 #include "tessera/storage/builder.hpp"
+#include "tessera/storage/store_writer.hpp"
 
 namespace tessera::tools {
 
 Command add_build(CLI::App& app) {
     struct Args {
         std::string input, output, codec, chroma, colour_space = "auto", atlas, obj_out;
+        std::string visibility, visibility_view = "1280x720";
+        double visibility_fps = 30;
         storage::BuildOptions opt;
         storage::AtlasPackOptions pack;
         bool quiet = false;
@@ -37,6 +42,13 @@ Command add_build(CLI::App& app) {
         ->check(CLI::IsMember({"auto", "srgb", "linear"}))
         ->capture_default_str();
     c->add_flag("--sparse", a->opt.sparse, "Store tiles whose alpha is zero everywhere as absent (needs an alpha channel)");
+    c->add_option("--visibility", a->visibility,
+                  "Drop the level-0 tiles these camera paths never want over the flat terrain (comma-separated built-in "
+                  "path names or path files; terrain-like sources only); see docs/visibility.md");
+    c->add_option("--visibility-view", a->visibility_view, "With --visibility: the view the paths are sampled at, WxH")
+        ->capture_default_str();
+    c->add_option("--visibility-fps", a->visibility_fps, "With --visibility: frames sampled per second of path")
+        ->capture_default_str();
     c->add_flag("-q,--quiet", a->quiet, "No progress bar and no summary");
     c->add_option("--atlas", a->atlas,
                   "Pack the textures of this OBJ scene's materials into one store (instead of INPUT); see docs/atlas.md");
@@ -47,7 +59,7 @@ Command add_build(CLI::App& app) {
     c->add_option("--atlas-padding", a->pack.padding, "With --atlas: texels of edge replication around each texture")
         ->capture_default_str();
 
-    return [a]() -> int {
+    return [a, c]() -> int {
         storage::BuildOptions& opt = a->opt;
         if (!a->codec.empty()) opt.codec = storage::parse_codec(a->codec);
         if (!a->chroma.empty()) opt.chroma = a->chroma == "420" ? storage::Chroma::s420 : storage::Chroma::s444;
@@ -65,6 +77,26 @@ Command add_build(CLI::App& app) {
             throw Failure(fmt::format("--atlas-padding must be at most 4096, got {}", a->pack.padding), 2);
         if (!a->atlas.empty() && a->obj_out.empty())
             a->obj_out = std::filesystem::path(a->output).replace_extension(".obj").string();
+
+        const bool visibility_given =
+            c->get_option("--visibility-view")->count() + c->get_option("--visibility-fps")->count() > 0;
+        if (visibility_given && a->visibility.empty())
+            throw Failure("--visibility-view and --visibility-fps need --visibility PATHS", 2);
+        if (!a->visibility.empty() && !a->atlas.empty())
+            throw Failure("--visibility works on the terrain scene of an image source, not with --atlas", 2);
+        scene::VisibilityOptions vis;
+        if (!a->visibility.empty()) {
+            unsigned w = 0, h = 0;
+            char x = 0, extra = 0;
+            if (std::sscanf(a->visibility_view.c_str(), "%u%c%u%c", &w, &x, &h, &extra) != 3 || x != 'x' || w == 0 ||
+                h == 0 || w > 16384 || h > 16384)
+                throw Failure(fmt::format("--visibility-view must be WxH (1 to 16384 each), got '{}'", a->visibility_view), 2);
+            if (!(a->visibility_fps > 0) || a->visibility_fps > 1000)
+                throw Failure(fmt::format("--visibility-fps must be above 0 and at most 1000, got {}", a->visibility_fps), 2);
+            vis.view_width = w;
+            vis.view_height = h;
+            vis.fps = a->visibility_fps;
+        }
 
         ProgressBar bar("build", !a->quiet);
         StderrCapture library_messages;
@@ -93,7 +125,30 @@ Command add_build(CLI::App& app) {
             }
             return 0;
         }
-        auto result = storage::build_store(a->input, a->output, opt, on_progress);
+        auto source = storage::open_image_source(a->input);
+        if (!source) throw Failure(source.error().message);
+        scene::PageSet mask;
+        if (!a->visibility.empty()) {
+            // The level-0 pages the paths want over the flat terrain of the source's size (plus
+            // their 8 neighbours); every other level-0 tile is written absent.
+            const auto& si = (*source)->info();
+            storage::StoreSpec spec;
+            spec.width = si.width;
+            spec.height = si.height;
+            spec.tile_payload = opt.tile_size - 2 * opt.border;
+            spec.border = opt.border;
+            const storage::StoreInfo geo = storage::store_info(spec);
+            auto terrain = scene::visibility_terrain(si.width, si.height);
+            if (!terrain) throw Failure(terrain.error().message);
+            auto paths = scene::parse_path_list(a->visibility, *terrain);
+            if (!paths) throw Failure("--visibility " + paths.error().message, 2);
+            mask = scene::level0_mask(*paths, scene::VtGeometry{si.width, si.height, spec.tile_payload, geo.level_count()}, vis);
+            opt.keep = [&mask](std::uint32_t level, std::uint32_t x, std::uint32_t y) {
+                return level != 0 || mask.contains(0, x, y);
+            };
+        }
+        auto result = storage::build_store(**source, a->output, opt, on_progress);
+        opt.keep = {};  // it refers to `mask`
         bar.finish();
         const std::string messages = library_messages.release();
         if (!result) throw Failure(result.error().message);  // it already holds the libraries' own report
@@ -103,6 +158,12 @@ Command add_build(CLI::App& app) {
             fmt::print("built {} in {} ({:.1f} MP/s)\n", a->output, human_seconds(s.seconds),
                        double(s.source_texels) / 1e6 / std::max(s.seconds, 1e-9));
             print_store_summary(a->output, s.info);
+            if (!s.tiles_dropped.empty()) {
+                const std::uint64_t total = mask.total(0), dropped = s.tiles_dropped[0];
+                fmt::print("visibility ({}, {}x{} at {} fps): level-0 tiles kept {} of {} ({:.1f}%), dropped {}; saved {}\n",
+                           a->visibility, vis.view_width, vis.view_height, vis.fps, total - dropped, total,
+                           total ? 100.0 * double(total - dropped) / double(total) : 0.0, dropped, human_bytes(s.bytes_dropped));
+            }
         }
         return 0;
     };

@@ -25,5 +25,6 @@ Command add_demo(CLI::App& app);
 Command add_serve(CLI::App& app);
 Command add_view(CLI::App& app);
 Command add_loadtest(CLI::App& app);
+Command add_bench(CLI::App& app);
 
 }  // namespace tessera::tools

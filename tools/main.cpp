@@ -29,6 +29,7 @@ int main(int argc, char** argv) {
     reg(add_serve);
     reg(add_view);
     reg(add_loadtest);
+    reg(add_bench);
     reg(add_demo);
     try {
         app.parse(argc, argv);

@@ -13,11 +13,13 @@
 #include <fstream>
 #include <map>
 #include <sstream>
+#include <thread>
 
 #include "commands.hpp"
 #include "png_write.hpp"
 #include "progress.hpp"
 #include "svg_plot.hpp"
+#include "tessera/client/emulated_source.hpp"
 #include "tessera/client/feedback_trace.hpp"
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/runtime.hpp"
@@ -161,6 +163,15 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         source = client::make_local_store_source(2);
         store_name = loc.file;
     }
+    if (o.link_latency_ms < 0 || o.link_jitter_ms < 0 || o.link_bandwidth_bits_per_s < 0)
+        throw Failure("the emulated link's latency, jitter and bandwidth must be >= 0");
+    if (o.link_latency_ms > 0 || o.link_jitter_ms > 0 || o.link_bandwidth_bits_per_s > 0) {
+        client::EmulatedLink link;
+        link.latency = std::chrono::microseconds(std::llround(o.link_latency_ms * 1000));
+        link.jitter = std::chrono::microseconds(std::llround(o.link_jitter_ms * 1000));
+        link.bandwidth_bits_per_s = o.link_bandwidth_bits_per_s;
+        source = client::make_emulated_source(std::move(source), link, o.link_seed);
+    }
 
     // GL first: the renderer needs the store's geometry, the runtime needs the renderer.
     auto ctx = o.headless ? client::gl::GlContext::create_headless()
@@ -192,6 +203,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
 
     client::RuntimeConfig cfg;
     cfg.residency.pool_slots = o.pool;
+    cfg.bias = o.bias;
     cfg.ram_cache_bytes = o.ram_cache_bytes;
     cfg.disk_cache_dir = o.disk_cache_dir;
     cfg.disk_cache_bytes = o.disk_cache_bytes;
@@ -406,6 +418,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
                                             .c_str());
             }
         }
+        if (o.pace && !win) std::this_thread::sleep_until(t0 + std::chrono::duration<double>(1.0 / o.fps));
         bar.update(double(f + 1) / frames, fmt::format("frame {}/{}", f + 1, frames));
         done = f + 1;
     }

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/lod_bias.hpp"
 #include "tessera/client/stats.hpp"
 
 namespace tessera::tools {
@@ -47,6 +48,15 @@ struct ViewerOptions {
     bool warmup = true;
     double warmup_timeout_s = 20;
     bool progress = true;
+    // An emulated network link between the viewer and its source (client/emulated_source.hpp):
+    // used when any of these is > 0 (`tessera bench`). Defaults: no link.
+    double link_latency_ms = 0, link_jitter_ms = 0, link_bandwidth_bits_per_s = 0;
+    std::uint64_t link_seed = 1;
+    // The LoD-bias controller's settings (RuntimeConfig::bias; default: the runtime's default).
+    client::LodBiasConfig bias{};
+    // Headless: hold each frame to at least 1/fps of wall time (a display's refresh), so that
+    // wall-clock delays (the emulated link, decoding) compare with path time as on a real display.
+    bool pace = false;
 };
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <queue>
 #include <random>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -28,8 +29,13 @@ public:
         return inner_->bind(texture, store);
     }
 
+    // Pages already read and travelling in the link are not asked for again: on a real link the
+    // server has sent them, and the inner source would read them a second time.
     void set_requests(std::uint64_t frame, std::span<const SourceRequest> requests) override {
-        inner_->set_requests(frame, requests);
+        forward_.clear();
+        for (const auto& r : requests)
+            if (!in_link_.contains(page_hash_key(r.page))) forward_.push_back(r);
+        inner_->set_requests(frame, forward_);
     }
 
     std::size_t poll(std::vector<SourceTile>& out, std::size_t max) override {
@@ -54,6 +60,7 @@ public:
                     jitter = std::chrono::microseconds(d(rng_));
                 }
                 t.received = sent + link_.latency + jitter;
+                ++in_link_[page_hash_key(t.page)];
                 link_q_.push(Held{t.received, seq_++, std::move(t)});
             }
         }
@@ -62,6 +69,8 @@ public:
         while (n < max && !link_q_.empty() && link_q_.top().arrival <= now) {
             out.push_back(std::move(const_cast<Held&>(link_q_.top()).tile));
             link_q_.pop();
+            if (auto it = in_link_.find(page_hash_key(out.back().page)); it != in_link_.end() && --it->second == 0)
+                in_link_.erase(it);
             ++n;
         }
         return n;
@@ -96,6 +105,8 @@ private:
     Clock::time_point link_free_{};
     std::uint64_t seq_ = 0;
     std::vector<SourceTile> incoming_;
+    std::vector<SourceRequest> forward_;
+    std::unordered_map<std::uint64_t, int> in_link_;  // page -> copies in the link
     std::priority_queue<Held, std::vector<Held>, std::greater<>> link_q_;
 };
 

@@ -273,7 +273,16 @@ private:
             source->poll(received_, 4096);
             for (auto& r : received_) {
                 auto it = work_.find(r.page);
-                if (it == work_.end() || it->second.stage != Stage::source) continue;  // stale
+                if (it == work_.end() || it->second.stage != Stage::source) {  // stale
+                    // Withdrawn (I/O the cancellation came too late to save), or a second
+                    // delivery of a page already arrived, resident or known absent.
+                    if (r.status == 0) {
+                        if (it == work_.end() && !residency_.is_resident(r.page) && !absent_.contains(r.page))
+                            ++stats_.stale_arrivals;
+                        else ++stats_.duplicate_arrivals;
+                    }
+                    continue;
+                }
                 if (r.status != 0) {
                     work_.erase(it);  // asked again next frame if still wanted
                     continue;
@@ -309,6 +318,13 @@ private:
             if (it->second.stage == Stage::decoding) {  // the pool drops or finishes it
                 ++it;
                 continue;
+            }
+            switch (it->second.stage) {
+                case Stage::disk:
+                case Stage::source: ++stats_.cancelled_waiting; break;
+                case Stage::arrived: ++stats_.cancelled_arrived; break;
+                case Stage::ready: ++stats_.cancelled_decoded; break;
+                case Stage::decoding: break;
             }
             if (it->second.staging >= 0) free_staging_.push_back(it->second.staging);
             it = work_.erase(it);
@@ -428,6 +444,7 @@ private:
                 auto it = work_.find(r.key);
                 if (it == work_.end() || it->second.ticket != r.ticket) continue;
                 if (r.dropped) {  // no longer wanted when its turn came
+                    ++stats_.decodes_dropped;
                     free_staging_.push_back(it->second.staging);
                     work_.erase(it);
                     continue;
@@ -440,6 +457,7 @@ private:
     void finish_decode(const PageKey& key, bool ok) {
         auto& w = work_.at(key);
         if (!ok || !desired_.contains(key)) {
+            if (ok) ++stats_.cancelled_decoded;  // decoded, then found unwanted
             free_staging_.push_back(w.staging);
             work_.erase(key);
             return;

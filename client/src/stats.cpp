@@ -235,6 +235,12 @@ void StatsSummary::add_frame(const FrameStats& f) {
     bias_max_ = frames_ == 1 ? f.lod_bias : std::max(bias_max_, f.lod_bias);
     bias_last_ = f.lod_bias;
     fallback_sum_ += f.fallback_estimate;
+    cancelled_waiting_ += f.cancelled_waiting;
+    cancelled_arrived_ += f.cancelled_arrived;
+    cancelled_decoded_ += f.cancelled_decoded;
+    decodes_dropped_ += f.decodes_dropped;
+    stale_arrivals_ += f.stale_arrivals;
+    duplicate_arrivals_ += f.duplicate_arrivals;
 }
 
 void StatsSummary::reset() { *this = StatsSummary{}; }
@@ -289,7 +295,19 @@ std::string StatsSummary::to_json() const {
     put_num(s, bias_max_);
     s += "},\"fallback_estimate_mean\":";
     put_num(s, mean_fallback_estimate());
-    s += '}';
+    s += ",\"skipped\":{\"cancelled_waiting\":";
+    put_uint(s, cancelled_waiting_);
+    s += ",\"cancelled_arrived\":";
+    put_uint(s, cancelled_arrived_);
+    s += ",\"cancelled_decoded\":";
+    put_uint(s, cancelled_decoded_);
+    s += ",\"decodes_dropped\":";
+    put_uint(s, decodes_dropped_);
+    s += ",\"stale_arrivals\":";
+    put_uint(s, stale_arrivals_);
+    s += ",\"duplicate_arrivals\":";
+    put_uint(s, duplicate_arrivals_);
+    s += "}}";
     return s;
 }
 

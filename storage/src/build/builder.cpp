@@ -68,7 +68,7 @@ public:
     PyramidBuilder(const StoreInfo& store, const BuildOptions& opt, const EncodeOptions& enc, StoreWriter& writer,
                    ThreadPool& pool, FirstError& error)
         : store_(store), opt_(opt), enc_(enc), writer_(writer), pool_(pool), error_(error),
-          reducer_(store.channels, store.sample_type, store.colour_space, store.has_alpha) {
+          reducer_(store.channels, store.sample_type, store.colour_space, store.has_alpha), dropped_(store.levels.size()) {
         levels_.resize(store.levels.size());
         for (std::size_t l = 0; l < levels_.size(); ++l) {
             levels_[l].index = static_cast<std::uint32_t>(l);
@@ -79,6 +79,8 @@ public:
 
     std::size_t row_bytes0() const { return levels_[0].row_bytes; }
     std::atomic<std::uint64_t>& tiles_done() { return tiles_done_; }
+    std::uint64_t tiles_dropped(std::size_t level) const { return dropped_[level].load(); }
+    std::uint64_t bytes_dropped() const { return bytes_dropped_.load(); }
 
     // Rows arrive top to bottom in chunks; everything a chunk makes possible is done at once.
     void push(std::uint32_t l, Chunk chunk) {
@@ -160,7 +162,15 @@ private:
         if (error_.failed()) return;
         const std::size_t tb = store_.texel_bytes();
         Status st;
-        if (opt_.sparse && store_.has_alpha && alpha_all_zero(t)) {
+        if (opt_.keep && !opt_.keep(key.level, key.x, key.y)) {
+            // dropped by the caller's mask: absent; its encoded size is what it saves
+            if (!(opt_.sparse && store_.has_alpha && alpha_all_zero(t)) && !all_equal(t, tb)) {
+                auto payload = encode_tile(store_, t, enc_);
+                if (!payload) st = payload.error();
+                else bytes_dropped_.fetch_add(payload->size(), std::memory_order_relaxed);
+            }
+            dropped_[key.level].fetch_add(1, std::memory_order_relaxed);
+        } else if (opt_.sparse && store_.has_alpha && alpha_all_zero(t)) {
             // absent: nothing to write
         } else if (all_equal(t, tb)) {
             st = writer_.add_uniform(key, std::span<const std::uint8_t>(t.data(), tb));
@@ -196,6 +206,8 @@ private:
     MipReducer reducer_;
     std::vector<Level> levels_;
     std::atomic<std::uint64_t> tiles_done_{0};
+    std::vector<std::atomic<std::uint64_t>> dropped_;  // per level
+    std::atomic<std::uint64_t> bytes_dropped_{0};
 };
 
 bool is_pow2(std::uint32_t v) { return v && !(v & (v - 1)); }
@@ -258,6 +270,8 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
     BuildProgress prog;
     for (const auto& l : store.levels) prog.tiles_total += std::uint64_t(l.tiles_x) * l.tiles_y;
     prog.rows_total = si.height;
+    std::vector<std::uint64_t> dropped;
+    std::uint64_t bytes_dropped = 0;
     {
         ThreadPool pool(threads, 2 * threads + 2);
         PyramidBuilder pyramid(store, opt, enc, **writer, pool, error);
@@ -286,6 +300,10 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
         pool.wait_idle();
         if (!error.failed() && !pyramid.complete()) error.set(make_error(Errc::io_error, "internal error: pyramid incomplete"));
         prog.tiles_done = pyramid.tiles_done().load();
+        if (opt.keep) {
+            for (std::size_t l = 0; l < store.levels.size(); ++l) dropped.push_back(pyramid.tiles_dropped(l));
+            bytes_dropped = pyramid.bytes_dropped();
+        }
     }
     if (error.failed()) return error.get();  // the writer's destructor removes its temporary files
 
@@ -301,6 +319,8 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
     BuildSummary summary;
     summary.info = (*reader)->info();
     summary.source_texels = std::uint64_t(si.width) * si.height;
+    summary.tiles_dropped = std::move(dropped);
+    summary.bytes_dropped = bytes_dropped;
     summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return summary;
 }

@@ -73,6 +73,20 @@ struct FrameStats {
     // Fraction of feedback pixels whose desired page is not resident: the runtime's estimate of
     // the fallback rate (the renderer counts the real one; design.md, "Measures").
     float fallback_estimate = 0.0f;
+    // Work skipped because a request stopped being wanted (issue 6, "skip what a scene doesn't
+    // need"; docs/client.md). Requests cancelled before their data arrived (waiting on the disk
+    // cache or the source: if the source had not read it yet, its I/O is saved), after it arrived
+    // but before decoding (never decoded), and after decoding but before upload; decode jobs the
+    // transcode pool dropped unrun (stale by their turn); source deliveries for requests already
+    // cancelled (I/O the cancellation came too late to save); deliveries of a page already
+    // arrived or resident (a source that read it twice). Not in to_json/csv_row (their
+    // columns are fixed); StatsSummary::to_json has them under "skipped".
+    std::uint32_t cancelled_waiting = 0;
+    std::uint32_t cancelled_arrived = 0;
+    std::uint32_t cancelled_decoded = 0;
+    std::uint32_t decodes_dropped = 0;
+    std::uint32_t stale_arrivals = 0;
+    std::uint32_t duplicate_arrivals = 0;
 
     std::uint32_t total_ram_hits() const;
     std::uint32_t total_disk_hits() const;
@@ -109,12 +123,18 @@ public:
     float max_lod_bias() const { return bias_max_; }
     float last_lod_bias() const { return bias_last_; }
     double mean_fallback_estimate() const;
+    std::uint64_t cancelled_waiting() const { return cancelled_waiting_; }
+    std::uint64_t cancelled_arrived() const { return cancelled_arrived_; }
+    std::uint64_t cancelled_decoded() const { return cancelled_decoded_; }
+    std::uint64_t decodes_dropped() const { return decodes_dropped_; }
+    std::uint64_t stale_arrivals() const { return stale_arrivals_; }
+    std::uint64_t duplicate_arrivals() const { return duplicate_arrivals_; }
     const std::array<std::uint64_t, kMaxLevels>& ram_hits() const { return ram_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& disk_hits() const { return disk_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& network() const { return network_; }
 
     // One JSON object: frames, page totals and means, hits per level, bytes, latency (count, mean,
-    // p50, p90, p99, max in ms), LoD bias (last, mean, max), mean fallback estimate.
+    // p50, p90, p99, max in ms), LoD bias (last, mean, max), mean fallback estimate, skipped work.
     std::string to_json() const;
 
 private:
@@ -126,6 +146,8 @@ private:
     double bias_sum_ = 0.0;
     float bias_max_ = 0.0f, bias_last_ = 0.0f;
     double fallback_sum_ = 0.0;
+    std::uint64_t cancelled_waiting_ = 0, cancelled_arrived_ = 0, cancelled_decoded_ = 0, decodes_dropped_ = 0,
+                  stale_arrivals_ = 0, duplicate_arrivals_ = 0;
     LatencyHistogram latency_;
 };
 

@@ -6,6 +6,7 @@
 #include <functional>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "tessera/result.hpp"
 #include "tessera/storage/codec.hpp"
@@ -24,6 +25,11 @@ struct BuildOptions {
     unsigned threads = 0;                // 0: all cores
     bool sparse = false;                 // tiles whose alpha is 0 everywhere are absent
     std::optional<ColourSpace> colour_space;  // default: from the source
+    // Tiles for which `keep` returns false are written as absent, whatever their content (issue 6,
+    // `tessera build --visibility`: level-0 tiles no camera path wants). Called from the worker
+    // threads, concurrently: it must only read. Empty: every tile is kept. Dropped tiles are still
+    // encoded, to report exactly what they would have cost (BuildSummary::bytes_dropped).
+    std::function<bool(std::uint32_t level, std::uint32_t x, std::uint32_t y)> keep;
 };
 
 struct BuildProgress {
@@ -37,6 +43,10 @@ struct BuildSummary {
     StoreInfo info;
     std::uint64_t source_texels = 0;
     double seconds = 0;
+    // BuildOptions::keep: tiles it dropped (per level), and the bytes their payloads would have
+    // taken (uniform tiles cost none). Zero without `keep`.
+    std::vector<std::uint64_t> tiles_dropped;  // indexed by level; empty without `keep`
+    std::uint64_t bytes_dropped = 0;
 };
 
 using BuildProgressFn = std::function<void(const BuildProgress&)>;
