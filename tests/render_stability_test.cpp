@@ -15,6 +15,7 @@
 #include <string>
 
 #include "tessera/client/gl/context.hpp"
+#include "ground_ray.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/page_table.hpp"
 #include "tessera/scene/camera.hpp"
@@ -92,16 +93,7 @@ sc::Camera straight_down(double x, double y, double height) {
 }
 
 bool pixel_to_ground(const sc::Camera& c, double i, double j, double& x, double& y) {
-    const auto f = c.forward(), r = c.right(), u = c.up();
-    const double sy = std::tan(c.fov_y / 2.0), sx = sy * double(kW) / double(kH);
-    const double nx = (i + 0.5) / kW * 2.0 - 1.0, ny = 1.0 - (j + 0.5) / kH * 2.0;
-    double d[3];
-    for (int k = 0; k < 3; ++k) d[k] = f[k] + nx * sx * r[k] + ny * sy * u[k];
-    if (!(d[2] < 0)) return false;
-    const double t = -c.position[2] / d[2];
-    x = c.position[0] + t * d[0];
-    y = c.position[1] + t * d[1];
-    return true;
+    return tessera::test::pixel_to_ground(c, kW, kH, i, j, x, y);
 }
 
 // One flat chunk covering level-0 texels [o, size) on both axes, a world unit per texel.

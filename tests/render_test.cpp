@@ -26,6 +26,7 @@
 #include <thread>
 
 #include "tessera/client/gl/context.hpp"
+#include "ground_ray.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/page_table.hpp"
 #include "tessera/client/runtime.hpp"
@@ -91,19 +92,7 @@ sc::Camera looking(double x, double y, double z, double yaw, double pitch) {
     return c;
 }
 
-// Where the ray through the centre of pixel (i, j) (row 0 at the top) meets z = 0.
-bool pixel_to_ground(const sc::Camera& c, std::uint32_t w, std::uint32_t h, double i, double j, double& x, double& y) {
-    const auto f = c.forward(), r = c.right(), u = c.up();
-    const double sy = std::tan(c.fov_y / 2.0), sx = sy * double(w) / double(h);
-    const double nx = (i + 0.5) / w * 2.0 - 1.0, ny = 1.0 - (j + 0.5) / h * 2.0;
-    double d[3];
-    for (int k = 0; k < 3; ++k) d[k] = f[k] + nx * sx * r[k] + ny * sy * u[k];
-    if (!(d[2] < 0)) return false;
-    const double t = -c.position[2] / d[2];
-    x = c.position[0] + t * d[0];
-    y = c.position[1] + t * d[1];
-    return true;
-}
+using tessera::test::pixel_to_ground;
 
 gl::RendererConfig config(gl::Filter filter, std::uint32_t tile_size, std::uint32_t pool, bool srgb, std::uint32_t w = 256,
                           std::uint32_t h = 192) {
