@@ -463,9 +463,20 @@ TEST(Residency, CreateAndRegister) {
     EXPECT_TRUE(r.add_texture(1, 8, 8, 4).ok());
     EXPECT_FALSE(r.add_texture(1, 8, 8, 4).ok());  // duplicate
     EXPECT_FALSE(r.add_texture(2, 8, 8, 3).ok());  // wrong level count
-    auto big = r.add_texture(3, 65536, 65536, 17);
-    ASSERT_FALSE(big.ok());
-    EXPECT_NE(big.error().message.find("256 MiB bound"), std::string::npos);
+    {
+        // Over the dense bound: refused without sparse tables, a sparse table with them (default).
+        ResidencyConfig dense_only;
+        dense_only.pool_slots = 16;
+        dense_only.sparse_tables = false;
+        auto r2 = Residency::create(dense_only);
+        ASSERT_TRUE(r2.ok());
+        auto big = r2->add_texture(3, 65536, 65536, 17);
+        ASSERT_FALSE(big.ok());
+        EXPECT_NE(big.error().message.find("256 MiB bound"), std::string::npos);
+        Residency r3 = make_residency(16, ResidencyConfig::kAutoPinnedLevels);
+        ASSERT_TRUE(r3.add_texture(3, 65536, 65536, 17).ok());
+        EXPECT_TRUE(r3.table(3)->sparse());
+    }
     ASSERT_NE(r.table(1), nullptr);
     EXPECT_EQ(r.table(2), nullptr);
     EXPECT_EQ(r.table(1)->levels(), 4u);

@@ -161,4 +161,43 @@ TEST(Terrain, BadOptions) {
     EXPECT_EQ(s->chunks[0].bounds_max[1], 7.0);
 }
 
+// The VT renderer skips its depth pre-pass exactly for scenes where no triangle can hide another.
+TEST(Overdraw, OnlyOnePlaneFacingOneWayIsOverdrawFree) {
+    TerrainOptions o;
+    o.vt_width = 9000;
+    o.vt_height = 5000;
+    o.chunk_texels = 2048;
+    auto flat = make_terrain(o);
+    ASSERT_TRUE(flat.ok());
+    ASSERT_GT(flat->chunks.size(), 4u);
+    EXPECT_TRUE(overdraw_free(*flat));
+
+    o.displacement = 300;
+    auto hills = make_terrain(o);
+    ASSERT_TRUE(hills.ok());
+    EXPECT_FALSE(overdraw_free(*hills));
+
+    // One chunk lifted by a unit: two parallel planes, one can hide the other.
+    Scene lifted = *flat;
+    lifted.chunks[1].origin[2] += 1.0;
+    EXPECT_FALSE(overdraw_free(lifted));
+
+    // One triangle wound the other way: it faces down, and seen from below it is drawn alone,
+    // but the scene as a whole is not one plane facing one way.
+    Scene flipped = *flat;
+    std::swap(flipped.chunks[2].indices[0], flipped.chunks[2].indices[1]);
+    EXPECT_FALSE(overdraw_free(flipped));
+
+    // Degenerate triangles cover nothing and do not count; an empty scene is trivially free.
+    Scene empty;
+    EXPECT_TRUE(overdraw_free(empty));
+    Scene degenerate = *flat;
+    degenerate.chunks[0].indices.insert(degenerate.chunks[0].indices.end(), {0, 0, 0});
+    EXPECT_TRUE(overdraw_free(degenerate));
+    // A bad index is never read past: the scene is simply not declared free.
+    Scene broken = *flat;
+    broken.chunks[0].indices.insert(broken.chunks[0].indices.end(), {0, 1, 1000000});
+    EXPECT_FALSE(overdraw_free(broken));
+}
+
 }  // namespace

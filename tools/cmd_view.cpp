@@ -26,6 +26,7 @@ Command add_view(CLI::App& app) {
         ->capture_default_str();
     c->add_option("--size", *size, "WIDTHxHEIGHT of the image")->capture_default_str();
     c->add_flag("--headless", o->headless, "render offscreen (EGL), no window");
+    c->add_flag("!--no-hud", o->hud, "windowed: no statistics overlay (the window title still shows them)");
     c->add_option("--frames", o->frames, "frames to render (0: the whole path; windowed: until closed)")->capture_default_str();
     c->add_option("--fps", o->fps, "frames per second of path time (headless: the path advances 1/fps per frame)")
         ->capture_default_str();

@@ -14,6 +14,7 @@ packages=(
   libboost-dev libssl-dev zlib1g-dev openssl
   libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libtinyobjloader-dev  # GL client (llvmpipe headless)
   libgtest-dev libgmock-dev libbenchmark-dev
+  xvfb xauth                          # windowed-mode tests on an X server without a display
   python3 python3-yaml time systemd   # systemd: systemd-analyze lints deploy/tessera.service
 )
 missing=()

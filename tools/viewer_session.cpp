@@ -22,6 +22,7 @@
 #include "tessera/client/emulated_source.hpp"
 #include "tessera/client/feedback_trace.hpp"
 #include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/hud.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/scene/path.hpp"
@@ -93,6 +94,20 @@ struct FreeCamera {
 void scroll_callback(GLFWwindow* w, double, double dy) {
     auto* fc = static_cast<FreeCamera*>(glfwGetWindowUserPointer(w));
     fc->speed = std::clamp(fc->speed * std::pow(1.25, dy), 1.0, 1e7);
+}
+
+// The HUD's lines (windowed): frame time, bias and fallback, pages, tile latency, camera mode.
+std::vector<std::string> hud_text(const FrameRecord& rec, float bias, std::uint32_t pool, const client::LatencyHistogram& lat,
+                                  std::size_t in_flight, bool free_camera) {
+    const double fr = rec.fallback_rate();
+    return {
+        fmt::format("{:.1f} ms ({:.0f} fps)", rec.frame_ms, rec.frame_ms > 0 ? 1000.0 / rec.frame_ms : 0.0),
+        fmt::format("bias {:.2f}  fallback {}", bias, std::isnan(fr) ? std::string("-") : fmt::format("{:.3f}%", 100 * fr)),
+        fmt::format("pages {} wanted, {}/{} resident", rec.pages_wanted, rec.pages_resident, pool),
+        fmt::format("uploaded {}  requested {}  in flight {}", rec.pages_uploaded, rec.pages_requested, in_flight),
+        fmt::format("tile latency p50 {:.1f} ms  p99 {:.1f} ms", lat.quantile(0.5), lat.quantile(0.99)),
+        free_camera ? std::string("free camera: WASD Q/E, drag, scroll; Space: path") : std::string("path (WASD: fly)"),
+    };
 }
 
 void update_free_camera(GLFWwindow* win, FreeCamera& fc, const scene::Camera& path_camera, double dt) {
@@ -322,9 +337,14 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     }
 
     FreeCamera free_cam;
+    std::unique_ptr<client::gl::Hud> hud;
+    std::vector<std::string> hud_lines;
     if (win) {
         glfwSetWindowUserPointer(win, &free_cam);
         glfwSetScrollCallback(win, scroll_callback);
+        auto made = client::gl::Hud::create();
+        if (!made) throw Failure(made.error().message);
+        hud = std::move(*made);
     }
     ProgressBar bar("view", o.progress && o.headless);
     const auto start = Clock::now();
@@ -405,6 +425,12 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             int ww = 0, wh = 0;
             glfwGetFramebufferSize(win, &ww, &wh);
             r.present(ww, wh);
+            if (o.hud) {
+                // Refreshed four times a second, like the title: readable, and no per-frame formatting.
+                if (hud_lines.empty() || t0 - last_title > std::chrono::milliseconds(250))
+                    hud_lines = hud_text(rec, bias, o.pool, lat, rt.in_flight(), free_cam.active);
+                hud->draw(hud_lines, ww, wh, ww >= 1800 ? 3 : 2);
+            }
             (*ctx)->swap_buffers();
             if (t0 - last_title > std::chrono::milliseconds(250)) {
                 last_title = t0;

@@ -57,6 +57,8 @@ struct ViewerOptions {
     // Headless: hold each frame to at least 1/fps of wall time (a display's refresh), so that
     // wall-clock delays (the emulated link, decoding) compare with path time as on a real display.
     bool pace = false;
+    // Windowed: draw the live statistics over the frame (the window title carries them as well).
+    bool hud = true;
 };
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();

@@ -44,8 +44,16 @@ std::uint64_t PageTable::table_bytes(std::uint32_t pages_x, std::uint32_t pages_
     return entries * sizeof(PageEntry);
 }
 
+bool PageTable::dense_packing_fits(std::uint32_t pages_x, std::uint32_t pages_y) {
+    const std::uint32_t levels = levels_for(pages_x, pages_y);
+    std::uint64_t column = 0;
+    for (std::uint32_t l = 1; l < levels; ++l) column += shrink(pages_y, l);
+    const std::uint64_t width = std::uint64_t(pages_x) + (levels > 1 ? shrink(pages_x, 1) : 0);
+    return width <= kMaxDenseSide && std::max<std::uint64_t>(pages_y, column) <= kMaxDenseSide;
+}
+
 Result<PageTable> PageTable::create(TextureId texture, std::uint32_t pages_x, std::uint32_t pages_y,
-                                    std::uint32_t levels, std::size_t max_bytes) {
+                                    std::uint32_t levels, std::size_t max_bytes, bool allow_sparse) {
     const std::string what = "page table for texture " + std::to_string(texture) + " (" + std::to_string(pages_x) +
                              "x" + std::to_string(pages_y) + " pages, " + std::to_string(levels) + " levels)";
     if (pages_x == 0 || pages_y == 0 || pages_x > kMaxPagesPerAxis || pages_y > kMaxPagesPerAxis)
@@ -56,7 +64,8 @@ Result<PageTable> PageTable::create(TextureId texture, std::uint32_t pages_x, st
         return make_error(Errc::invalid_argument, what + ": expected " + std::to_string(expected) +
                                                       " levels (halving, rounding up, down to 1x1)");
     const std::uint64_t bytes = table_bytes(pages_x, pages_y, levels);
-    if (bytes > max_bytes) {
+    const bool sparse = allow_sparse && (bytes > max_bytes || !dense_packing_fits(pages_x, pages_y));
+    if (bytes > max_bytes && !sparse) {
         const auto mib = [](std::uint64_t b) { return std::to_string((b + (std::uint64_t(1) << 20) - 1) >> 20); };
         return make_error(Errc::resource_exhausted,
                           what + " needs " + mib(bytes) + " MiB, over the " + mib(max_bytes) +
@@ -71,16 +80,28 @@ Result<PageTable> PageTable::create(TextureId texture, std::uint32_t pages_x, st
         t.levels_[l] = Level{shrink(pages_x, l), shrink(pages_y, l), offset};
         offset += std::size_t(t.levels_[l].width) * t.levels_[l].height;
     }
-    t.entries_.assign(offset, kEmptyEntry);
     t.dirty_.resize(levels);
-    t.mark_all_dirty();
+    if (sparse) {
+        t.init_sparse();
+    } else {
+        t.entries_.assign(offset, kEmptyEntry);
+        t.mark_all_dirty();
+    }
     return t;
 }
 
 std::uint8_t PageTable::resident_level(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
     if (!contains(level, x, y)) return kNotResident;
-    const PageEntry e = at(level, x, y);
+    const PageEntry e = entry(level, x, y);
     return entry_valid(e) ? static_cast<std::uint8_t>(entry_level(e)) : kNotResident;
+}
+
+std::size_t PageTable::memory_bytes() const {
+    if (!sparse_) return entries_.size() * sizeof(PageEntry);
+    // The index: a node (key, value, next, cached hash) per block plus a bucket array.
+    return block_data_.capacity() * sizeof(PageEntry) + blocks_.capacity() * sizeof(Block) +
+           free_blocks_.capacity() * sizeof(std::uint32_t) + block_index_.size() * 32 +
+           block_index_.bucket_count() * sizeof(void*);
 }
 
 Status PageTable::map(std::uint32_t level, std::uint32_t x, std::uint32_t y, SlotId slot) {
@@ -90,6 +111,12 @@ Status PageTable::map(std::uint32_t level, std::uint32_t x, std::uint32_t y, Slo
         return make_error(Errc::invalid_argument, "map: slot " + std::to_string(slot) + " does not fit an entry");
     if (is_mapped(level, x, y))
         return make_error(Errc::invalid_argument, "map: " + page_name(level, x, y) + " is already mapped");
+    if (sparse_) {
+        hold_blocks(level, x, y);
+        fill_sparse(level, x, y, make_entry(slot, level));
+        ++mapped_;
+        return {};
+    }
     fill(level, x, y, make_entry(slot, level));
     ++mapped_;
     return {};
@@ -101,7 +128,13 @@ Status PageTable::unmap(std::uint32_t level, std::uint32_t x, std::uint32_t y) {
     if (!is_mapped(level, x, y))
         return make_error(Errc::invalid_argument, "unmap: " + page_name(level, x, y) + " is not mapped");
     // The parent's entry already names the nearest resident page above this one.
-    const PageEntry above = level + 1 < levels() ? at(level + 1, x >> 1, y >> 1) : kEmptyEntry;
+    const PageEntry above = level + 1 < levels() ? entry(level + 1, x >> 1, y >> 1) : kEmptyEntry;
+    if (sparse_) {
+        fill_sparse(level, x, y, above);
+        release_blocks(level, x, y);
+        --mapped_;
+        return {};
+    }
     fill(level, x, y, above);
     --mapped_;
     return {};
@@ -186,10 +219,18 @@ void PageTable::take_dirty(std::vector<DirtyRect>& out) {
 }
 
 bool PageTable::has_dirty() const {
+    if (sparse_)
+        return !freed_blocks_.empty() ||
+               std::any_of(dirty_blocks_.begin(), dirty_blocks_.end(), [&](std::uint32_t i) { return blocks_[i].dirty; });
     return std::any_of(dirty_.begin(), dirty_.end(), [](const auto& l) { return !l.empty(); });
 }
 
 void PageTable::mark_all_dirty() {
+    if (sparse_) {
+        for (std::uint32_t i = 0; i < blocks_.size(); ++i)
+            if (blocks_[i].live) mark_block_dirty(i);
+        return;
+    }
     for (std::uint32_t l = 0; l < levels(); ++l) {
         dirty_[l].clear();
         dirty_[l].push_back(DirtyRect{l, 0, 0, levels_[l].width, levels_[l].height});

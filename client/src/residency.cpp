@@ -41,7 +41,7 @@ Residency::Texture* Residency::find(TextureId texture) {
 Status Residency::add_texture(TextureId texture, std::uint32_t pages_x, std::uint32_t pages_y, std::uint32_t levels) {
     if (find(texture))
         return make_error(Errc::invalid_argument, "residency: texture " + std::to_string(texture) + " already registered");
-    auto table = PageTable::create(texture, pages_x, pages_y, levels, config_.max_table_bytes);
+    auto table = PageTable::create(texture, pages_x, pages_y, levels, config_.max_table_bytes, config_.sparse_tables);
     if (!table) return table.error();
 
     // Pinned levels: the coarsest ones, counted from the last (1x1) level.

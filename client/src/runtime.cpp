@@ -526,6 +526,15 @@ private:
         for (TextureId t = 0; t < textures_.size(); ++t) {
             auto* table = residency_.table_for_upload(t);
             if (!table) continue;
+            if (table->sparse()) {
+                dirty_blocks_.clear();
+                table->take_dirty_blocks(dirty_blocks_);
+                for (const auto& b : dirty_blocks_)
+                    uploader_.upload_page_table_block(
+                        t, static_cast<std::uint8_t>(b.level), b.bx, b.by,
+                        b.allocated ? table->block_entries(b.level, b.bx, b.by) : std::span<const PageEntry>());
+                continue;
+            }
             dirty_.clear();
             table->take_dirty(dirty_);
             for (const auto& r : dirty_) {
@@ -575,6 +584,7 @@ private:
     std::vector<TranscodeResult> results_;
     std::vector<ReadyPage> ready_;
     std::vector<DirtyRect> dirty_;
+    std::vector<DirtyBlock> dirty_blocks_;
     std::vector<std::uint32_t> rect_;
 
     FrameStats stats_;

@@ -4,6 +4,7 @@
 // The including shader is assembled by the renderer as
 //     #version 450 core
 //     #define VT_FILTER <VT_BILINEAR | VT_TRILINEAR | VT_ANISOTROPIC>
+//     [#define VT_SPARSE_TABLE 1]   (vt.frag for two-level page tables: see vt_entry)
 //     <this file> <the shader>
 //
 // Conventions
@@ -25,12 +26,25 @@
 #error "VT_FILTER must be defined"
 #endif
 
+#ifdef VT_SPARSE_TABLE
+// Two-level page table (textures whose dense table does not fit; PageTable, "Storage, sparse"):
+// per level a directory of 32x32-entry blocks (block slot + 1, 0: unallocated) and the pool of
+// allocated blocks. An unallocated block of level L defers to level L + 5 (the one page its
+// region lies under), so a lookup walks up at most ceil(levels / 5) directory entries.
+layout(std430, binding = 1) readonly buffer VtDirectory { uint vt_directory[]; };
+layout(std430, binding = 2) readonly buffer VtBlocks { uint vt_blocks[]; };
+uniform uint vt_dir_offset[32];     // level L's first directory entry
+uniform uint vt_dir_width[32];      // level L's blocks per row
+#else
 uniform usampler2D vt_page_table;   // R32UI: every level of the texture's page table, packed
+#endif
 uniform sampler2D vt_atlas;         // the physical pages (RGBA8 or SRGB8_ALPHA8), GL_LINEAR
 uniform ivec2 vt_table_origin[32];  // where level L's entries start in vt_page_table
 uniform uvec2 vt_level_size[32];    // texels of level L: ceil(size / 2^L)
 uniform uint vt_levels;             // levels of the virtual texture (the last one is one page)
 uniform uint vt_payload;            // P: texels a page covers per side
+uniform float vt_inv_payload;       // 1.0 / P
+uniform float vt_inv_atlas_columns; // 1.0 / vt_atlas_columns
 uniform uint vt_border;             // B: border texels on each side of a page
 uniform uint vt_tile_size;          // P + 2B: atlas cell size
 uniform uint vt_atlas_columns;      // atlas cells per row
@@ -91,9 +105,24 @@ vec2 vt_tap_offset(vec2 axis, float count, int i) { return ((float(i) + 0.5) / c
 
 // ---------------------------------------------------------------------------------------------
 // Exact integer page math.
+// floor(n / d), exact for n < 2^31, 1 <= d < 2^16 and a quotient below 2^22: the float estimate is
+// then within 3 * 2^-24 * (n / d) < 1 of the true quotient, so one correction each way fixes it.
+// Callers stay far inside that: pages per side are at most 2^20 (the feedback-id limit), atlas rows
+// at most 2^20. Integer division by a uniform has no SIMD instruction: software rasterizers
+// (llvmpipe) run it lane by lane, which made it the most expensive part of a lookup.
+uvec2 vt_div(uvec2 n, uint d, float inv_d) {
+    uvec2 q = uvec2(vec2(n) * inv_d);
+    q -= uvec2(greaterThan(q * d, n));
+    q += uvec2(lessThanEqual((q + 1u) * d, n));
+    return q;
+}
+
+ivec2 vt_page_of(ivec2 texel) { return ivec2(vt_div(uvec2(texel), vt_payload, vt_inv_payload)); }
+
 struct VtPos {
     ivec2 texel;  // integer level-L texel
     vec2 frac;    // position inside it, [0, 1]
+    ivec2 page;   // the page holding texel (set by vt_clamp)
 };
 
 // The level-L position of level-0 coordinate origin + local. The integer part is formed in
@@ -118,20 +147,33 @@ VtPos vt_clamp(VtPos p, uint level) {
     bvec2 above = greaterThanEqual(p.texel, size);
     p.frac = mix(mix(p.frac, vec2(0.0), below), vec2(1.0), above);
     p.texel = clamp(p.texel, ivec2(0), size - 1);
+    p.page = vt_page_of(p.texel);
     return p;
 }
 
 uint vt_entry(VtPos p, uint level) {
-    ivec2 page = p.texel / int(vt_payload);
-    return texelFetch(vt_page_table, vt_table_origin[level] + page, 0).r;
+#ifdef VT_SPARSE_TABLE
+    uvec2 page = uvec2(p.page);
+    for (int step = 0; step < 7; ++step) {  // 7 * 5 > 32 levels; the coarse levels always hold a block
+        uvec2 b = page >> 5u;
+        uint d = vt_directory[vt_dir_offset[level] + b.y * vt_dir_width[level] + b.x];
+        if (d != 0u) return vt_blocks[(d - 1u) * 1024u + ((page.y & 31u) << 5u) + (page.x & 31u)];
+        level += 5u;
+        page = b;
+        if (level >= vt_levels) break;
+    }
+    return 0u;
+#else
+    return texelFetch(vt_page_table, vt_table_origin[level] + p.page, 0).r;
+#endif
 }
 
 // Normalised atlas coordinate of position p (level R) in the page at `slot`: slot origin + border
 // + position inside the page; the border makes bilinear footprints at page edges correct.
 vec2 vt_physical(VtPos p, uint slot) {
-    ivec2 page = p.texel / int(vt_payload);
-    vec2 in_page = vec2(p.texel - page * int(vt_payload)) + p.frac;
-    uvec2 cell = uvec2(slot % vt_atlas_columns, slot / vt_atlas_columns);
+    vec2 in_page = vec2(p.texel - p.page * int(vt_payload)) + p.frac;
+    uint row = vt_div(uvec2(slot), vt_atlas_columns, vt_inv_atlas_columns).x;
+    uvec2 cell = uvec2(slot - row * vt_atlas_columns, row);
     return (vec2(cell * vt_tile_size + uvec2(vt_border)) + in_page) * vt_atlas_texel;
 }
 
@@ -212,7 +254,7 @@ VtSample vt_sample(uvec2 origin, vec2 local) {
 // (tessera/client/page.hpp: x 20 bits, y 20, level 5, texture 16).
 uvec2 vt_feedback_id(uvec2 origin, vec2 local, uint level) {
     VtPos p = vt_clamp(vt_level_position(origin, local, level), level);
-    uvec2 page = uvec2(p.texel) / vt_payload;
+    uvec2 page = uvec2(p.page);
     uint lo = (page.x & 0xFFFFFu) | ((page.y & 0xFFFu) << 20);
     uint hi = ((page.y >> 12) & 0xFFu) | ((level & 31u) << 8) | ((vt_texture_id & 0xFFFFu) << 13);
     return uvec2(lo, hi);

@@ -15,6 +15,7 @@ void delete_framebuffer(GLuint id) { glDeleteFramebuffers(1, &id); }
 void delete_renderbuffer(GLuint id) { glDeleteRenderbuffers(1, &id); }
 void delete_vertex_array(GLuint id) { glDeleteVertexArrays(1, &id); }
 void delete_program(GLuint id) { glDeleteProgram(id); }
+void delete_query(GLuint id) { glDeleteQueries(1, &id); }
 
 Texture make_texture(GLenum target) {
     GLuint id = 0;
@@ -40,6 +41,12 @@ VertexArray make_vertex_array() {
     GLuint id = 0;
     glCreateVertexArrays(1, &id);
     return VertexArray(id);
+}
+
+Query make_query(GLenum target) {
+    GLuint id = 0;
+    glCreateQueries(target, 1, &id);
+    return Query(id);
 }
 
 void Fence::insert() {

@@ -46,6 +46,7 @@ void delete_framebuffer(GLuint id);
 void delete_renderbuffer(GLuint id);
 void delete_vertex_array(GLuint id);
 void delete_program(GLuint id);
+void delete_query(GLuint id);
 
 using Texture = Handle<delete_texture>;
 using Buffer = Handle<delete_buffer>;
@@ -53,12 +54,14 @@ using Framebuffer = Handle<delete_framebuffer>;
 using Renderbuffer = Handle<delete_renderbuffer>;
 using VertexArray = Handle<delete_vertex_array>;
 using Program = Handle<delete_program>;
+using Query = Handle<delete_query>;
 
 Texture make_texture(GLenum target);
 Buffer make_buffer();
 Framebuffer make_framebuffer();
 Renderbuffer make_renderbuffer();
 VertexArray make_vertex_array();
+Query make_query(GLenum target);
 
 // An owned fence.
 class Fence {

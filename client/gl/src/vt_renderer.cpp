@@ -8,6 +8,7 @@
 #include <cstring>
 #include <deque>
 #include <map>
+#include <unordered_map>
 
 #include "gl_util.hpp"
 #include "scene_draw.hpp"
@@ -30,7 +31,8 @@ struct VtUniforms {
     GLint view_projection = -1, bias = -1, main_pixel = -1;
     GLint table_origin = -1, level_size = -1, levels = -1, payload = -1, border = -1, tile_size = -1;
     GLint atlas_columns = -1, atlas_texel = -1, texture_id = -1, max_anisotropy = -1, no_data = -1;
-    GLint page_table = -1, atlas = -1;
+    GLint inv_payload = -1, inv_atlas_columns = -1;
+    GLint page_table = -1, atlas = -1, dir_offset = -1, dir_width = -1;
     ChunkUniforms chunk;
 
     explicit VtUniforms(const Program& p = Program()) {
@@ -45,11 +47,15 @@ struct VtUniforms {
         border = uniform(p, "vt_border");
         tile_size = uniform(p, "vt_tile_size");
         atlas_columns = uniform(p, "vt_atlas_columns");
+        inv_payload = uniform(p, "vt_inv_payload");
+        inv_atlas_columns = uniform(p, "vt_inv_atlas_columns");
         atlas_texel = uniform(p, "vt_atlas_texel");
         texture_id = uniform(p, "vt_texture_id");
         max_anisotropy = uniform(p, "vt_max_anisotropy");
         no_data = uniform(p, "vt_no_data_colour");
         page_table = uniform(p, "vt_page_table");
+        dir_offset = uniform(p, "vt_dir_offset");
+        dir_width = uniform(p, "vt_dir_width");
         atlas = uniform(p, "vt_atlas");
         chunk.chunk_offset = uniform(p, "u_chunk_offset");
         chunk.texel_origin = uniform(p, "u_texel_origin");
@@ -75,6 +81,13 @@ struct VirtualTexture {
     std::vector<std::uint32_t> texels;     // 2 per level: width, height
     std::uint32_t table_width = 0, table_height = 0;
     Texture table;
+    // Two-level table (sparse CPU tables; vt_sample.glsl's VT_SPARSE_TABLE) instead of `table`:
+    // a directory per level (block slot + 1, 0: unallocated) and a pool of 32x32-entry blocks.
+    bool sparse = false;
+    std::vector<std::uint32_t> dir_offset, dir_width;  // per level
+    Buffer directory, blocks;
+    std::unordered_map<std::uint64_t, std::uint32_t> block_slot;  // (level, bx, by) -> pool slot
+    std::vector<std::uint32_t> free_blocks;
 };
 
 class VtRendererImpl final : public VtRenderer {
@@ -98,6 +111,7 @@ public:
         GLint max_size = 0;
         glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
         max_texture_ = static_cast<std::uint32_t>(std::max(max_size, 1));
+        glGetInteger64v(GL_MAX_SHADER_STORAGE_BLOCK_SIZE, &max_ssbo_);
         if (!staging_.ok()) return Error{Errc::resource_exhausted, "renderer: cannot map the staging ring"};
 
         // The atlas: a near-square grid of tile_size cells.
@@ -129,6 +143,10 @@ public:
         if (!depth) return depth.error();
         auto vt = build_program("scene.vert", "vt.frag", defines);
         if (!vt) return vt.error();
+        auto vt_sparse = build_program("scene.vert", "vt.frag", defines + "#define VT_SPARSE_TABLE 1\n");
+        if (!vt_sparse) return vt_sparse.error();
+        vt_other_program_ = std::move(*vt_sparse);
+        vt_other_u_ = VtUniforms(vt_other_program_);
         auto fb = build_program("scene.vert", "feedback.frag", defines);
         if (!fb) return fb.error();
         depth_program_ = std::move(*depth);
@@ -137,12 +155,15 @@ public:
         depth_u_ = VtUniforms(depth_program_);
         vt_u_ = VtUniforms(vt_program_);
         feedback_u_ = VtUniforms(feedback_program_);
-        for (auto* pu : {&vt_u_, &feedback_u_}) {
-            const GLuint p = pu == &vt_u_ ? vt_program_.get() : feedback_program_.get();
+        for (auto* pu : {&vt_u_, &feedback_u_, &vt_other_u_}) {
+            const GLuint p = pu == &vt_u_         ? vt_program_.get()
+                             : pu == &feedback_u_ ? feedback_program_.get()
+                                                  : vt_other_program_.get();
             const auto& u = *pu;
             glProgramUniform1i(p, u.page_table, 0);
             glProgramUniform1i(p, u.atlas, 1);
             glProgramUniform1ui(p, u.atlas_columns, columns_);
+            glProgramUniform1f(p, u.inv_atlas_columns, 1.0f / float(columns_));
             glProgramUniform2f(p, u.atlas_texel, 1.0f / float(atlas_width_), 1.0f / float(atlas_height_));
             glProgramUniform1ui(p, u.tile_size, c.tile_size);
             glProgramUniform1f(p, u.max_anisotropy, float(c.max_anisotropy));
@@ -184,6 +205,7 @@ public:
             if (!s.map) return Error{Errc::resource_exhausted, "renderer: cannot map a feedback readback buffer"};
         }
         counter_slots_.resize(std::size_t(c.readback_ring) * 4);
+        for (auto& slot : counter_slots_) slot.textured = make_query(GL_SAMPLES_PASSED);
         counters_ = make_buffer();
         glNamedBufferStorage(counters_.get(), kCounterBytes, nullptr, GL_DYNAMIC_STORAGE_BIT);
         counter_readback_ = make_buffer();
@@ -222,12 +244,65 @@ public:
             return;
         }
         const auto& t = it->second;
-        if (std::uint64_t(x0) + w > t.pages[2 * level] || std::uint64_t(y0) + h > t.pages[2 * level + 1]) {
+        if (t.sparse || std::uint64_t(x0) + w > t.pages[2 * level] || std::uint64_t(y0) + h > t.pages[2 * level + 1]) {
             ++stats_.malformed_uploads;
             return;
         }
         upload(t.table.get(), GLint(t.origin[2 * level] + std::int32_t(x0)), GLint(t.origin[2 * level + 1] + std::int32_t(y0)),
                GLsizei(w), GLsizei(h), GL_RED_INTEGER, GL_UNSIGNED_INT, entries.data(), entries.size_bytes());
+        ++stats_.table_uploads;
+    }
+
+    // Mirrors a sparse PageTable's blocks. A dense texture receiving one turns two-level (its CPU
+    // table chose sparse under a smaller byte bound). Block slots come from the texture's pool,
+    // sized so that it cannot run out while the runtime's pool is the renderer's (PageTable holds
+    // at most 5 blocks per resident page, and frees come first); if it does, the block stays
+    // unallocated here and lookups fall back to a coarser resident page: blurrier, never wrong.
+    void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
+                                 std::span<const std::uint32_t> entries) override {
+        auto it = textures_.find(texture);
+        if (it == textures_.end() || level >= it->second.levels ||
+            (!entries.empty() && entries.size() != PageTable::kBlockEntries)) {
+            ++stats_.malformed_uploads;
+            return;
+        }
+        VirtualTexture& t = it->second;
+        if (!t.sparse && !make_two_level(t).ok()) {
+            ++stats_.malformed_uploads;
+            return;
+        }
+        if (bx >= t.dir_width[level] || std::uint64_t(by) * t.dir_width[level] + bx >= dir_level_blocks(t, level)) {
+            ++stats_.malformed_uploads;
+            return;
+        }
+        const std::uint64_t key = (std::uint64_t(level) << 40) | (std::uint64_t(by) << 20) | bx;
+        const std::size_t dir_at = (std::size_t(t.dir_offset[level]) + std::size_t(by) * t.dir_width[level] + bx) * 4;
+        auto slot = t.block_slot.find(key);
+        if (entries.empty()) {
+            if (slot == t.block_slot.end()) return;
+            const std::uint32_t none = 0;
+            upload_buffer(t.directory.get(), dir_at, &none, 4);
+            t.free_blocks.push_back(slot->second);
+            t.block_slot.erase(slot);
+            ++stats_.table_uploads;
+            return;
+        }
+        if (slot == t.block_slot.end()) {
+            if (t.free_blocks.empty()) {
+                ++stats_.malformed_uploads;
+                return;
+            }
+            slot = t.block_slot.emplace(key, t.free_blocks.back()).first;
+            t.free_blocks.pop_back();
+            // The block's entries land before its directory entry names it (both in stream order).
+            upload_buffer(t.blocks.get(), std::size_t(slot->second) * PageTable::kBlockEntries * 4, entries.data(),
+                          entries.size_bytes());
+            const std::uint32_t named = slot->second + 1;
+            upload_buffer(t.directory.get(), dir_at, &named, 4);
+        } else {
+            upload_buffer(t.blocks.get(), std::size_t(slot->second) * PageTable::kBlockEntries * 4, entries.data(),
+                          entries.size_bytes());
+        }
         ++stats_.table_uploads;
     }
 
@@ -262,6 +337,12 @@ public:
         }
         t.table_width = info.levels[0].tiles_x + column_w;
         t.table_height = std::max(info.levels[0].tiles_y, column_y);
+        // Too large for the dense packing (what PageTable makes sparse): a two-level table.
+        if (!PageTable::dense_packing_fits(info.levels[0].tiles_x, info.levels[0].tiles_y)) {
+            TESSERA_TRY(make_two_level(t));
+            textures_[texture] = std::move(t);
+            return Status();
+        }
         if (t.table_width > max_texture_ || t.table_height > max_texture_)
             return Error{Errc::resource_exhausted,
                          fmt::format("texture {}: its packed page table is {}x{} entries, over the GPU's largest texture ({}^2)",
@@ -282,6 +363,7 @@ public:
         if (!textures_.contains(texture))
             return Error{Errc::invalid_argument, fmt::format("set_scene: texture {} was not added (add_texture first)", texture)};
         TESSERA_TRY(geometry_.upload(scene));
+        depth_prepass_ = !scene::overdraw_free(scene);
         scene_texture_ = texture;
         has_scene_ = true;
         return Status();
@@ -304,9 +386,9 @@ public:
         }
         if (tex) {
             geometry_.cull(camera, aspect);
+            use_page_table(*tex);
             set_texture_uniforms(vt_program_, vt_u_, *tex);
             set_texture_uniforms(feedback_program_, feedback_u_, *tex);
-            glBindTextureUnit(0, tex->table.get());
             glBindTextureUnit(1, atlas_.get());
         }
         stats_.visible_chunks = tex ? geometry_.visible_chunks() : 0;
@@ -322,8 +404,11 @@ public:
         glDisable(GL_BLEND);
         glDisable(GL_SCISSOR_TEST);
 
-        // Feedback pass at 1/N: the ids of the nearest surface (its own depth buffer).
-        if (auto slot = acquire_feedback_slot()) {
+        // Feedback pass at 1/N: the ids of the nearest surface (its own depth buffer). Read back
+        // after the main pass: a software rasterizer finishes a pass when it is read, so reading it
+        // here would hold the CPU until then in the middle of the frame.
+        const auto feedback_slot = acquire_feedback_slot();
+        if (const auto slot = feedback_slot) {
             // Jitter: shift the feedback pass by a sub-pixel offset (clip-space translation, so
             // depth and the exact derivatives are unaffected) cycling over the N x N main pixels
             // one feedback pixel covers.
@@ -352,7 +437,6 @@ public:
             }
             glProgramUniformMatrix4fv(feedback_program_.get(), feedback_u_.view_projection, 1, GL_FALSE, fvp.data());
             glProgramUniform1f(feedback_program_.get(), feedback_u_.bias, lod_bias - cfg_.feedback_prefetch_lod);
-            auto& s = feedback_slots_[*slot];
             glBindFramebuffer(GL_FRAMEBUFFER, fb_fbo_.get());
             glViewport(0, 0, GLsizei(fb_width_), GLsizei(fb_height_));
             glDisable(GL_FRAMEBUFFER_SRGB);
@@ -367,20 +451,14 @@ public:
                 glUseProgram(feedback_program_.get());
                 geometry_.draw(feedback_program_, feedback_u_.chunk, camera);
             }
-            glBindBuffer(GL_PIXEL_PACK_BUFFER, s.pbo.get());
-            glPixelStorei(GL_PACK_ALIGNMENT, 4);
-            glReadPixels(0, 0, GLsizei(fb_width_), GLsizei(fb_height_), GL_RG_INTEGER, GL_UNSIGNED_INT, nullptr);
-            glBindBuffer(GL_PIXEL_PACK_BUFFER, 0);
-            s.fence.insert();
-            s.busy = true;
-            s.frame = frame_;
-            s.bias = lod_bias;
         } else {
             ++stats_.feedback_skipped;
         }
 
         // Main pass: depth pre-pass, then the VT pass at GL_LEQUAL with early fragment tests, so
-        // each visible pixel is shaded and counted once.
+        // each visible pixel is shaded and counted once. A scene where no triangle can hide another
+        // (scene::overdraw_free: the flat terrain) needs no pre-pass: the VT pass alone shades
+        // each pixel once.
         glBindFramebuffer(GL_FRAMEBUFFER, main_.fbo.get());
         glViewport(0, 0, GLsizei(cfg_.width), GLsizei(cfg_.height));
         if (cfg_.srgb) glEnable(GL_FRAMEBUFFER_SRGB);
@@ -391,31 +469,53 @@ public:
         glClearBufferfv(GL_DEPTH, 0, &far_depth);
         const std::uint32_t zero = 0;
         glClearNamedBufferData(counters_.get(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        const auto counter_slot = acquire_counter_slot();
         if (tex) {
-            glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
-            glDepthFunc(GL_LESS);
-            glUseProgram(depth_program_.get());
-            geometry_.draw(depth_program_, depth_u_.chunk, camera);
-            glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-            glDepthMask(GL_FALSE);
-            glDepthFunc(GL_LEQUAL);
+            if (depth_prepass_) {
+                glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+                glDepthFunc(GL_LESS);
+                glUseProgram(depth_program_.get());
+                geometry_.draw(depth_program_, depth_u_.chunk, camera);
+                glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+                glDepthMask(GL_FALSE);
+            }
+            glDepthFunc(depth_prepass_ ? GL_LEQUAL : GL_LESS);
             glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, counters_.get());
             glUseProgram(vt_program_.get());
+            // Textured pixels come from an occlusion query (the VT pass shades each visible pixel
+            // once), not from a per-fragment atomic: atomics on one address from every fragment
+            // serialise a software rasterizer's threads.
+            if (counter_slot) glBeginQuery(GL_SAMPLES_PASSED, counter_slots_[*counter_slot].textured.get());
             geometry_.draw(vt_program_, vt_u_.chunk, camera);
+            if (counter_slot) glEndQuery(GL_SAMPLES_PASSED);
             glDepthMask(GL_TRUE);
             glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, 0);
         }
         glUseProgram(0);
         glDisable(GL_FRAMEBUFFER_SRGB);
-        glBindFramebuffer(GL_FRAMEBUFFER, 0);
-        // The shader's atomics must land before the copy (and before the next frame's clear).
-        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
-        if (auto slot = acquire_counter_slot()) {
-            auto& s = counter_slots_[*slot];
-            glCopyNamedBufferSubData(counters_.get(), counter_readback_.get(), 0, GLintptr(*slot * kCounterBytes), kCounterBytes);
+        if (feedback_slot) {
+            auto& s = feedback_slots_[*feedback_slot];
+            glBindFramebuffer(GL_READ_FRAMEBUFFER, fb_fbo_.get());
+            glBindBuffer(GL_PIXEL_PACK_BUFFER, s.pbo.get());
+            glPixelStorei(GL_PACK_ALIGNMENT, 4);
+            glReadPixels(0, 0, GLsizei(fb_width_), GLsizei(fb_height_), GL_RG_INTEGER, GL_UNSIGNED_INT, nullptr);
+            glBindBuffer(GL_PIXEL_PACK_BUFFER, 0);
             s.fence.insert();
             s.busy = true;
             s.frame = frame_;
+            s.bias = lod_bias;
+        }
+        glBindFramebuffer(GL_FRAMEBUFFER, 0);
+        // The shader's atomics must land before the copy (and before the next frame's clear).
+        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+        if (counter_slot) {
+            auto& s = counter_slots_[*counter_slot];
+            glCopyNamedBufferSubData(counters_.get(), counter_readback_.get(), 0, GLintptr(*counter_slot * kCounterBytes),
+                                     kCounterBytes);
+            s.fence.insert();
+            s.busy = true;
+            s.frame = frame_;
+            s.has_query = bool(tex);
         } else {
             ++stats_.counters_skipped;
         }
@@ -481,6 +581,8 @@ private:
     };
     struct CounterSlot {
         Fence fence;
+        Query textured;  // GL_SAMPLES_PASSED of the VT pass: the textured pixels
+        bool has_query = false;  // the VT pass ran (a frame without a texture counts nothing)
         bool busy = false;
         std::uint64_t frame = 0;
     };
@@ -503,14 +605,94 @@ private:
         }
     }
 
+    static std::uint64_t dir_level_blocks(const VirtualTexture& t, std::uint32_t level) {
+        const std::uint32_t rows = (t.pages[2 * level + 1] + PageTable::kBlockSide - 1) >> PageTable::kBlockShift;
+        return std::uint64_t(t.dir_width[level]) * rows;
+    }
+
+    // The two-level table of `t`: a directory of every level's blocks, all unallocated, and a pool
+    // of 5 blocks per physical page plus the coarse levels' (PageTable's bound on allocated
+    // blocks), or every block of the texture when that is fewer. Both are SSBOs: no
+    // GL_MAX_TEXTURE_SIZE limit, only the largest shader storage block.
+    Status make_two_level(VirtualTexture& t) {
+        std::vector<std::uint32_t> offset, width;
+        std::uint64_t total = 0, coarse = 0;
+        for (std::uint32_t l = 0; l < t.levels; ++l) {
+            const std::uint32_t w = t.pages[2 * l], h = t.pages[2 * l + 1];
+            offset.push_back(std::uint32_t(std::min<std::uint64_t>(total, ~0u)));
+            width.push_back((w + PageTable::kBlockSide - 1) >> PageTable::kBlockShift);
+            total += std::uint64_t(width.back()) * ((h + PageTable::kBlockSide - 1) >> PageTable::kBlockShift);
+            coarse += w <= PageTable::kBlockSide && h <= PageTable::kBlockSide;
+        }
+        const std::uint64_t pool = std::min<std::uint64_t>(total, 5 * std::uint64_t(cfg_.pool_slots) + coarse);
+        const std::uint64_t dir_bytes = total * 4, pool_bytes = pool * PageTable::kBlockEntries * 4;
+        const auto mib = [](std::uint64_t b) { return double(b) / double(1u << 20); };
+        if (std::int64_t(dir_bytes) > max_ssbo_ || std::int64_t(pool_bytes) > max_ssbo_)
+            return Error{Errc::resource_exhausted,
+                         fmt::format("texture {}: its two-level page table needs a {:.1f} MiB directory and a {:.1f} MiB block pool "
+                                     "({} blocks of 32x32 entries for {} pool slots), over the GPU's largest shader storage "
+                                     "block ({:.1f} MiB)",
+                                     t.id, mib(dir_bytes), mib(pool_bytes), pool, cfg_.pool_slots, mib(std::uint64_t(max_ssbo_)))};
+        Buffer directory = make_buffer(), blocks = make_buffer();
+        glNamedBufferStorage(directory.get(), GLsizeiptr(dir_bytes), nullptr, GL_DYNAMIC_STORAGE_BIT);
+        const std::uint32_t zero = 0;
+        glClearNamedBufferData(directory.get(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        glNamedBufferStorage(blocks.get(), GLsizeiptr(pool_bytes), nullptr, GL_DYNAMIC_STORAGE_BIT);
+        if (auto e = take_gl_errors("two-level page table"); !e.empty())
+            return Error{Errc::resource_exhausted, fmt::format("texture {}: {:.1f} MiB directory and {:.1f} MiB block pool: {}", t.id,
+                                                               mib(dir_bytes), mib(pool_bytes), e)};
+        t.sparse = true;
+        t.table = Texture();
+        t.dir_offset = std::move(offset);
+        t.dir_width = std::move(width);
+        t.directory = std::move(directory);
+        t.blocks = std::move(blocks);
+        t.block_slot.clear();
+        t.free_blocks.clear();
+        for (auto s = std::uint32_t(pool); s-- > 0;) t.free_blocks.push_back(s);
+        return Status();
+    }
+
+    // Binds `t`'s page table and puts the VT program of its layout in vt_program_.
+    void use_page_table(const VirtualTexture& t) {
+        if (t.sparse != vt_program_sparse_) {
+            std::swap(vt_program_, vt_other_program_);
+            std::swap(vt_u_, vt_other_u_);
+            vt_program_sparse_ = t.sparse;
+        }
+        if (t.sparse) {
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, t.directory.get());
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, t.blocks.get());
+        } else {
+            glBindTextureUnit(0, t.table.get());
+        }
+    }
+
+    // Copies `bytes` of `data` to `offset` of `buffer` through the staging ring (directly when it
+    // has no room), in stream order with the draws: no wait.
+    void upload_buffer(GLuint buffer, std::size_t offset, const void* data, std::size_t bytes) {
+        if (auto off = staging_.allocate(bytes, 4)) {
+            std::memcpy(staging_.data() + *off, data, bytes);
+            glCopyNamedBufferSubData(staging_.buffer(), buffer, GLintptr(*off), GLintptr(offset), GLsizeiptr(bytes));
+        } else {
+            ++stats_.direct_uploads;
+            glNamedBufferSubData(buffer, GLintptr(offset), GLsizeiptr(bytes), data);
+        }
+    }
+
     void set_texture_uniforms(const Program& p, const VtUniforms& u, const VirtualTexture& t) {
         const GLuint id = p.get();
         glProgramUniform2iv(id, u.table_origin, GLsizei(t.levels), t.origin.data());
         glProgramUniform2uiv(id, u.level_size, GLsizei(t.levels), t.texels.data());
         glProgramUniform1ui(id, u.levels, t.levels);
         glProgramUniform1ui(id, u.payload, t.payload);
+        glProgramUniform1f(id, u.inv_payload, 1.0f / float(t.payload));
         glProgramUniform1ui(id, u.border, t.border);
         glProgramUniform1ui(id, u.texture_id, t.id);
+        if (t.sparse) {
+            glProgramUniform1uiv(id, u.dir_offset, GLsizei(t.levels), t.dir_offset.data());
+            glProgramUniform1uiv(id, u.dir_width, GLsizei(t.levels), t.dir_width.data());
+        }
     }
 
     std::optional<std::size_t> acquire_feedback_slot() {
@@ -566,7 +748,10 @@ private:
         for (const auto i : done) {
             auto& s = counter_slots_[i];
             const std::uint32_t* v = counter_map_ + i * (kCounterBytes / 4);
-            finished_counters_.push_back(FrameCounters{s.frame, v[0], v[1], v[2]});
+            // The query ended before the fence, so its result is there once the fence is.
+            GLuint textured = 0;
+            if (s.has_query) glGetQueryObjectuiv(s.textured.get(), GL_QUERY_RESULT, &textured);
+            finished_counters_.push_back(FrameCounters{s.frame, textured, v[1], v[2]});
             s.busy = false;
             s.fence.reset();
         }
@@ -582,9 +767,16 @@ private:
     SceneGeometry geometry_;
     TextureId scene_texture_ = 0;
     bool has_scene_ = false;
+    bool depth_prepass_ = true;  // false for scenes where no triangle can hide another
 
     Program depth_program_, vt_program_, feedback_program_;
     VtUniforms depth_u_, vt_u_, feedback_u_;
+    // The VT program for the other page-table layout (two-level while vt_program_ is dense, and
+    // the other way round): use_page_table swaps them to the scene texture's.
+    Program vt_other_program_;
+    VtUniforms vt_other_u_;
+    bool vt_program_sparse_ = false;
+    GLint64 max_ssbo_ = 0;
 
     ColourTarget main_;
     Texture fb_ids_;

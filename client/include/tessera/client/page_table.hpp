@@ -7,11 +7,26 @@
 // tile grid: ceil(ceil(W / 2^L) / P) == ceil(ceil(W / P) / 2^L)). Page (L, x, y) has the parent
 // (L+1, x/2, y/2) and up to four children (L-1, 2x..2x+1, 2y..2y+1), clipped to level L-1.
 //
-// Storage. One dense array of 32-bit entries per level, rows contiguous (row y of level L starts at
-// y * level_width(L)), all levels in one allocation: sum_L w_L·h_L entries ≈ 4/3 · pages_x ·
-// pages_y · 4 bytes (a 4096×4096-page texture, 2^20 texels per side at 256-texel pages: ~85 MiB).
-// create() refuses a table larger than a bound (default 256 MiB) with a message; much larger
-// virtual textures need a sparse table (issue 6).
+// Storage, dense (the default). One array of 32-bit entries per level, rows contiguous (row y of
+// level L starts at y * level_width(L)), all levels in one allocation: sum_L w_L·h_L entries ≈ 4/3 ·
+// pages_x · pages_y · 4 bytes (a 4096×4096-page texture, 2^20 texels per side at 256-texel pages:
+// ~85 MiB). create() refuses a table larger than a bound (default 256 MiB) with a message, unless
+// sparse tables are allowed.
+//
+// Storage, sparse (create(..., allow_sparse): chosen when the dense table is over the bound or its
+// renderer packing is over kMaxDenseSide). Each level is cut into blocks of kBlockSide² entries
+// (32×32, 4 KiB); block (L, bx, by) covers pages [32·bx, 32·bx + 32) × [32·by, 32·by + 32) of
+// level L, i.e. the level-L descendants of the one page (L+5, bx, by). A block is allocated while
+// a page of levels L .. L+4 inside that region is resident (each resident page holds at most five
+// blocks), and always for the coarse levels that fit one block (w, h <= 32). Allocated blocks hold
+// the exact entries, as the dense table does. An entry of an unallocated block equals the entry of
+// page (L+5, x >> 5, y >> 5): nothing on the path between them is resident; entry() repeats that
+// step until it meets an allocated block (at most ceil(levels / 5) steps). Memory: at most
+// 5 · resident pages + the coarse levels' blocks, whatever the texture size (a 2^24-texel texture
+// at P = 248, 67,651 pages per side, costs 4 KiB per resident page at most 5 times over, never its
+// 22.7 GiB dense table). Dirty tracking is per block (take_dirty_blocks); the renderer mirrors the
+// blocks in a two-level table (docs/renderer.md). level_entries() and take_dirty() are for dense
+// tables only.
 //
 // Entry encoding (what the R32UI page-table texture holds, one texel per page):
 //
@@ -49,6 +64,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <span>
+#include <unordered_map>
 #include <vector>
 
 #include "tessera/client/page.hpp"
@@ -65,6 +81,14 @@ struct DirtyRect {
     friend bool operator==(const DirtyRect&, const DirtyRect&) = default;
 };
 
+// A block of a sparse table that changed: allocated (upload block_entries()) or freed.
+struct DirtyBlock {
+    std::uint32_t level = 0;
+    std::uint32_t bx = 0, by = 0;
+    bool allocated = false;
+    friend bool operator==(const DirtyBlock&, const DirtyBlock&) = default;
+};
+
 using PageEntry = std::uint32_t;
 
 class PageTable {
@@ -79,6 +103,14 @@ public:
     static constexpr std::uint8_t kNotResident = 255;   // resident_level() when nothing is
     static constexpr std::size_t kDefaultMaxBytes = std::size_t(256) << 20;
     static constexpr std::size_t kMaxDirtyRectsPerLevel = 8;
+    // Sparse tables: blocks of kBlockSide × kBlockSide entries.
+    static constexpr unsigned kBlockShift = 5;
+    static constexpr std::uint32_t kBlockSide = 1u << kBlockShift;
+    static constexpr std::uint32_t kBlockEntries = kBlockSide * kBlockSide;
+    // A dense table is at most this many entries per side in the renderer's packing (level 0 and
+    // a column of levels 1..: (w0 + w1) × max(h0, h1 + h2 + ...)): GL 4.5's smallest allowed
+    // GL_MAX_TEXTURE_SIZE, so a dense table always fits the renderer's dense path.
+    static constexpr std::uint32_t kMaxDenseSide = 16384;
 
     static constexpr PageEntry make_entry(SlotId slot, std::uint32_t level) {
         return kValidBit | ((level & kLevelMask) << kLevelShift) | (slot & kSlotMask);
@@ -93,10 +125,16 @@ public:
     // Bytes of the entries of such a table (all levels).
     static std::uint64_t table_bytes(std::uint32_t pages_x, std::uint32_t pages_y, std::uint32_t levels);
 
-    // Errors (invalid_argument): a page count of 0 or over kMaxPagesPerAxis, `levels` other than
-    // levels_for(pages_x, pages_y); (resource_exhausted): a table over `max_bytes`.
+    // Whether a dense table of this geometry fits the renderer's packing (kMaxDenseSide).
+    static bool dense_packing_fits(std::uint32_t pages_x, std::uint32_t pages_y);
+
+    // Dense when its table fits `max_bytes` (and, with allow_sparse, dense_packing_fits), else
+    // sparse when allow_sparse. Errors (invalid_argument): a page count of 0 or over
+    // kMaxPagesPerAxis, `levels` other than levels_for(pages_x, pages_y); (resource_exhausted): a
+    // dense table over `max_bytes` without allow_sparse.
     static Result<PageTable> create(TextureId texture, std::uint32_t pages_x, std::uint32_t pages_y,
-                                    std::uint32_t levels, std::size_t max_bytes = kDefaultMaxBytes);
+                                    std::uint32_t levels, std::size_t max_bytes = kDefaultMaxBytes,
+                                    bool allow_sparse = false);
 
     TextureId texture() const { return texture_; }
     std::uint32_t levels() const { return static_cast<std::uint32_t>(levels_.size()); }
@@ -105,8 +143,11 @@ public:
     bool contains(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
         return level < levels_.size() && x < levels_[level].width && y < levels_[level].height;
     }
-    std::size_t memory_bytes() const { return entries_.size() * sizeof(PageEntry); }
+    bool sparse() const { return sparse_; }
+    // Bytes held: the dense entries, or the sparse blocks and their index.
+    std::size_t memory_bytes() const;
     std::size_t mapped_pages() const { return mapped_; }
+    std::size_t allocated_blocks() const { return block_index_.size(); }  // sparse tables
 
     // Makes page (level, x, y) resident in `slot`. Errors (invalid_argument): outside the
     // geometry, slot >= kMaxSlots, the page already mapped. On error nothing changes.
@@ -116,29 +157,39 @@ public:
 
     // Queries; the page must be inside the geometry (contains()), except resident_level(), which
     // answers kNotResident outside it.
-    PageEntry entry(std::uint32_t level, std::uint32_t x, std::uint32_t y) const { return at(level, x, y); }
+    PageEntry entry(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
+        return sparse_ ? sparse_entry(level, x, y) : at(level, x, y);
+    }
     // Level of the nearest resident page among (level, x, y) and its ancestors, or kNotResident.
     std::uint8_t resident_level(std::uint32_t level, std::uint32_t x, std::uint32_t y) const;
     bool is_mapped(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
-        const PageEntry e = at(level, x, y);
+        const PageEntry e = entry(level, x, y);
         return entry_valid(e) && entry_level(e) == level;
     }
     // The slot page (level, x, y) is mapped to, or kNoSlot when it is not mapped.
     SlotId mapped_slot(std::uint32_t level, std::uint32_t x, std::uint32_t y) const {
-        return is_mapped(level, x, y) ? entry_slot(at(level, x, y)) : kNoSlot;
+        return is_mapped(level, x, y) ? entry_slot(entry(level, x, y)) : kNoSlot;
     }
 
-    // The entries of one level, level_width(level) per row, rows in y order.
+    // Dense tables: the entries of one level, level_width(level) per row, rows in y order.
     std::span<const PageEntry> level_entries(std::uint32_t level) const {
         return {entries_.data() + levels_[level].offset,
                 std::size_t(levels_[level].width) * levels_[level].height};
     }
+    // Sparse tables: the kBlockEntries entries of block (level, bx, by), rows of kBlockSide
+    // (entries past the level's edge are unused); empty when the block is not allocated.
+    std::span<const PageEntry> block_entries(std::uint32_t level, std::uint32_t bx, std::uint32_t by) const;
 
-    // Appends the rectangles changed since the last call (all levels, finest first) to `out` and
-    // forgets them. Every entry whose value changed lies in a rectangle of its level.
+    // Dense tables: appends the rectangles changed since the last call (all levels, finest first)
+    // to `out` and forgets them. Every entry whose value changed lies in a rectangle of its level.
     void take_dirty(std::vector<DirtyRect>& out);
+    // Sparse tables: appends the blocks freed since the last call, then those allocated or changed
+    // (still allocated), and forgets them. Frees come first, so a mirror applying them in order
+    // never holds more blocks than the table did.
+    void take_dirty_blocks(std::vector<DirtyBlock>& out);
     bool has_dirty() const;
-    // Marks every level whole (e.g. after the GPU texture was recreated).
+    // Marks every level whole (every allocated block for sparse tables), e.g. after the GPU
+    // texture was recreated.
     void mark_all_dirty();
 
 private:
@@ -159,11 +210,44 @@ private:
     void fill(std::uint32_t level, std::uint32_t x, std::uint32_t y, PageEntry e);
     void add_dirty(DirtyRect r);
 
+    // Sparse tables (page_table_sparse.cpp).
+    struct Block {
+        std::uint32_t level = 0, bx = 0, by = 0;
+        std::uint32_t residents = 0;  // resident pages of levels level .. level+4 in its region
+        bool live = false, pinned = false, dirty = false;
+    };
+    static std::uint64_t block_key(std::uint32_t level, std::uint32_t bx, std::uint32_t by) {
+        return (std::uint64_t(level) << 40) | (std::uint64_t(by) << 20) | bx;
+    }
+    void init_sparse();
+    const PageEntry* find_block(std::uint32_t level, std::uint32_t bx, std::uint32_t by) const;
+    PageEntry sparse_entry(std::uint32_t level, std::uint32_t x, std::uint32_t y) const;
+    std::uint32_t ensure_block(std::uint32_t level, std::uint32_t bx, std::uint32_t by);
+    void mark_block_dirty(std::uint32_t index);
+    void free_block(std::uint32_t index);
+    // The blocks holding page (level, x, y)'s descendants of levels level-4 .. level (one per
+    // level): allocates them (map) or releases them (unmap).
+    void hold_blocks(std::uint32_t level, std::uint32_t x, std::uint32_t y);
+    void release_blocks(std::uint32_t level, std::uint32_t x, std::uint32_t y);
+    void fill_sparse(std::uint32_t level, std::uint32_t x, std::uint32_t y, PageEntry e);
+    // Sets every entry of block `index` inside [x0, x1) × [y0, y1) (level coordinates) that does
+    // not point at a resident page finer than `level` to `e`.
+    void fill_block(std::uint32_t index, std::uint32_t x0, std::uint32_t y0, std::uint32_t x1, std::uint32_t y1,
+                    std::uint32_t level, PageEntry e);
+
     TextureId texture_ = 0;
     std::vector<Level> levels_;
     std::vector<PageEntry> entries_;
     std::vector<std::vector<DirtyRect>> dirty_;  // per level
     std::size_t mapped_ = 0;
+
+    bool sparse_ = false;
+    std::unordered_map<std::uint64_t, std::uint32_t> block_index_;  // block_key -> index in blocks_
+    std::vector<Block> blocks_;
+    std::vector<PageEntry> block_data_;  // kBlockEntries per entry of blocks_
+    std::vector<std::uint32_t> free_blocks_;
+    std::vector<std::uint32_t> dirty_blocks_;  // indices (may repeat or be stale: Block::dirty decides)
+    std::vector<DirtyBlock> freed_blocks_;
 };
 
 }  // namespace tessera::client

@@ -57,8 +57,11 @@ struct ResidencyConfig {
     static constexpr std::uint32_t kAutoPinnedLevels = ~0u;
     std::uint32_t pinned_levels = kAutoPinnedLevels;
     std::uint32_t auto_pin_max_pages = 5;
-    // Bound on each texture's page table (PageTable::create).
+    // Bound on each texture's dense page table (PageTable::create).
     std::size_t max_table_bytes = PageTable::kDefaultMaxBytes;
+    // A texture whose dense table is over the bound (or over the renderer's dense packing) gets a
+    // sparse table instead of an error (PageTable::create's allow_sparse).
+    bool sparse_tables = true;
 };
 
 struct ResidencyStats {

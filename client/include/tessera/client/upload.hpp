@@ -26,6 +26,12 @@ public:
     // are row-major, w*h of them, in the renderer's page-table entry format.
     virtual void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0,
                                    std::uint32_t w, std::uint32_t h, std::span<const std::uint32_t> entries) = 0;
+    // Sparse page tables (PageTable::sparse()): block (bx, by) of `level` now holds `entries`
+    // (PageTable::kBlockEntries, rows of kBlockSide), or is unallocated when `entries` is empty
+    // (its entries resolve through level + 5). The default drops the call: for uploaders that
+    // ignore page tables (benchmarks, load tests).
+    virtual void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
+                                         std::span<const std::uint32_t> entries);
 };
 
 // Records every call, copying the data, for tests.
@@ -36,6 +42,13 @@ public:
         SlotId slot = kNoSlot;
         std::uint32_t tile_size = 0;
         std::vector<std::uint8_t> rgba8;
+    };
+    struct BlockCall {
+        std::uint64_t seq = 0;
+        TextureId texture = 0;
+        std::uint8_t level = 0;
+        std::uint32_t bx = 0, by = 0;
+        std::vector<std::uint32_t> entries;  // empty: unallocated
     };
     struct TableCall {
         std::uint64_t seq = 0;
@@ -48,10 +61,14 @@ public:
     void upload_page(SlotId slot, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override;
     void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
                            std::uint32_t h, std::span<const std::uint32_t> entries) override;
+    void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
+                                 std::span<const std::uint32_t> entries) override;
 
     const std::vector<PageCall>& pages() const { return pages_; }
     const std::vector<TableCall>& tables() const { return tables_; }
-    // Calls whose data had the wrong size (rgba8 != tile_size^2 * 4, entries != w * h).
+    const std::vector<BlockCall>& blocks() const { return blocks_; }
+    // Calls whose data had the wrong size (rgba8 != tile_size^2 * 4, entries != w * h, a block's
+    // entries neither kBlockEntries nor empty).
     std::size_t malformed() const { return malformed_; }
     void clear();
 
@@ -59,6 +76,7 @@ private:
     std::uint64_t seq_ = 0;
     std::vector<PageCall> pages_;
     std::vector<TableCall> tables_;
+    std::vector<BlockCall> blocks_;
     std::size_t malformed_ = 0;
 };
 

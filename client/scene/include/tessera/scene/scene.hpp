@@ -48,6 +48,12 @@ struct TerrainOptions {
 // deterministic height function). Errors: zero sizes, chunk_texels or quads_per_chunk 0.
 Result<Scene> make_terrain(const TerrainOptions& options);
 
+// True when no triangle of the scene can hide another: all lie in one plane and face the same way
+// (so with back faces culled a pixel sees at most triangles that overlap in that plane, which a
+// depth pre-pass would not separate either). The flat terrain is; displaced terrain and OBJ scenes
+// are not. The VT renderer skips its depth pre-pass for such scenes.
+bool overdraw_free(const Scene& scene);
+
 // Height of the displaced terrain at world (x, y) (0 when displacement is 0); what make_terrain uses.
 double terrain_height(const TerrainOptions& options, double x, double y);
 

@@ -77,7 +77,7 @@ struct FrameCounters {
 struct RendererStats {
     std::uint64_t frames = 0;
     std::uint64_t pages_uploaded = 0;
-    std::uint64_t table_uploads = 0;          // page-table rectangles
+    std::uint64_t table_uploads = 0;          // page-table rectangles and blocks
     std::uint64_t direct_uploads = 0;         // uploads made from client memory: the staging ring was full
     std::uint64_t malformed_uploads = 0;      // ignored: bad slot, size, texture, level or rectangle
     std::uint64_t feedback_skipped = 0;       // frames without a feedback readback: every ring slot in flight
@@ -102,7 +102,10 @@ public:
     ~VtRenderer() override = default;
 
     // The virtual texture `texture` has the geometry of `info` (a store); one texture per scene
-    // for now. Creates its page-table texture (all levels packed in one R32UI texture).
+    // for now. Creates its page-table texture (all levels packed in one R32UI texture), or, when
+    // that is over 16384 entries per side (PageTable::dense_packing_fits), a two-level table fed
+    // by upload_page_table_block (docs/renderer.md). Errors: a two-level table over the GPU's
+    // largest shader storage block.
     virtual Status add_texture(TextureId texture, const storage::StoreInfo& info) = 0;
     // Uploads the scene's chunks (vertex/index buffers); the scene is drawn with `texture`.
     virtual Status set_scene(const scene::Scene& scene, TextureId texture) = 0;

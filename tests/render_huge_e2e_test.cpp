@@ -1,0 +1,246 @@
+// A 2^24-texel virtual texture end to end (issue 6, docs/stability.md "Reaching 2^24 end to
+// end"), on Mesa llvmpipe or a GPU, through the real client runtime: the renderer's feedback goes
+// to Runtime::frame (analysis, residency, the sparse page table, requests), the on-demand
+// procedural source makes the tiles (procedural:coords, no store file), the transcode pool and
+// upload queue bring them to the renderer, and the two-level page table is fed by the runtime.
+// A straight-down camera at exactly 2^L texels per pixel looks at the far corner of the texture
+// (the last page corner of level L, over a chunk with an odd texel origin); frames run until the
+// counters say nothing falls back, then the image is read back and every pixel on a level-L
+// texel centre must be coords_texel(L, x, y) exactly.
+//
+//   RenderHugeEndToEnd.Size2e24           2^24 texels, 256-texel tiles (67,651 pages per side)
+//   RenderHugeEndToEnd.Size2e24Minus1     2^24 - 1, 512-texel tiles (33,289 pages per side)
+//   RenderHugeEndToEnd.NonPowerOfTwoSize  12,345,679, 1024-texel tiles (12,152 pages per side)
+// Levels 0, 1, 6 and the second coarsest; the table stays sparse (memory follows the resident pages).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <memory>
+#include <numbers>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "ground_ray.hpp"
+#include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/page_table.hpp"
+#include "tessera/client/procedural_source.hpp"
+#include "tessera/client/runtime.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
+#include "tessera/storage/types.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+namespace gl = tessera::client::gl;
+namespace sc = tessera::scene;
+namespace st = tessera::storage;
+using tessera::client::PageKey;
+using tessera::client::PageTable;
+
+#define REQUIRE_GL(ctx)                                                                        \
+    auto ctx##_made = gl::GlContext::create_headless();                                        \
+    if (!ctx##_made) GTEST_SKIP() << "no headless OpenGL 4.5: " << ctx##_made.error().message; \
+    auto& ctx = *ctx##_made;                                                                   \
+    (void)ctx
+
+constexpr std::uint32_t kW = 128, kH = 96;
+
+sc::Camera straight_down(double x, double y, double height) {
+    sc::Camera c;
+    c.position = {x, y, height};
+    c.yaw = std::numbers::pi / 2;
+    c.pitch = -std::numbers::pi / 2;
+    c.near_plane = height * 0.5;
+    c.far_plane = height * 2;
+    return c;
+}
+
+// One chunk from (o, o) to the far corner; an odd o puts low bits in its texel origin at every level.
+sc::Scene corner_chunk(std::uint32_t size, std::uint32_t o) {
+    sc::Scene s;
+    s.name = "corner";
+    s.vt_width = s.vt_height = size;
+    sc::Chunk c;
+    c.origin = {double(o), double(o), 0};
+    c.texel_origin[0] = c.texel_origin[1] = o;
+    const float e = float(size - o);
+    for (const auto& [x, y] : {std::pair{0.f, 0.f}, {e, 0.f}, {e, e}, {0.f, e}}) c.vertices.push_back({{x, y, 0}, {x, y}});
+    c.indices = {0, 1, 2, 0, 2, 3};
+    c.bounds_min[0] = c.bounds_min[1] = o;
+    c.bounds_max[0] = c.bounds_max[1] = size;
+    s.bounds_min[0] = s.bounds_min[1] = o;
+    s.bounds_max[0] = s.bounds_max[1] = size;
+    s.chunks.push_back(std::move(c));
+    return s;
+}
+
+struct LevelRun {
+    int frames = 0;
+    std::size_t checked = 0, wrong = 0;
+    double seconds = 0;
+};
+
+void far_corner_end_to_end(std::uint32_t size, std::uint32_t tile, std::uint32_t pool) {
+    SCOPED_TRACE(testing::Message() << "size " << size << ", tile " << tile);
+    gl::RendererConfig cfg;
+    cfg.width = kW;
+    cfg.height = kH;
+    cfg.feedback_scale = 1;  // every pixel's page is asked for: nothing is left to fall back
+    cfg.filter = gl::Filter::bilinear;
+    cfg.tile_size = tile;
+    cfg.border = 4;
+    cfg.pool_slots = pool;
+    cfg.srgb = false;
+    cfg.staging_bytes = 8u << 20;
+    cfg.feedback_jitter = false;
+    auto made = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(made.ok()) << made.error().message;
+    gl::VtRenderer& renderer = **made;
+
+    auto source = tessera::client::make_procedural_source(2);
+    tessera::client::RuntimeConfig rc;
+    rc.residency.pool_slots = pool;
+    rc.transcode_threads = 1;
+    rc.ram_cache_bytes = 32u << 20;  // a few 1024-texel raw tiles: CI memory
+    auto rt_made = tessera::client::Runtime::create(rc, renderer);
+    ASSERT_TRUE(rt_made.ok()) << rt_made.error().message;
+    tessera::client::Runtime& rt = **rt_made;
+    const std::string spec = "procedural:coords:" + std::to_string(size) + ":" + std::to_string(tile) + ":4";
+    auto tex = rt.add_texture(*source, spec);
+    ASSERT_TRUE(tex.ok()) << tex.error().message;
+    const st::StoreInfo info = *rt.texture_info(*tex);
+    const std::uint32_t n = info.levels[0].tiles_x, levels = info.level_count(), P = info.tile_payload;
+    ASSERT_FALSE(PageTable::dense_packing_fits(n, n)) << "should need the two-level table";
+    auto added = renderer.add_texture(*tex, info);
+    ASSERT_TRUE(added.ok()) << added.error().message;
+    const PageTable* table = rt.residency().table(*tex);
+    ASSERT_NE(table, nullptr);
+    ASSERT_TRUE(table->sparse());
+
+    for (const std::uint32_t level : {0u, 1u, 6u, levels - 2}) {
+        const auto t0 = std::chrono::steady_clock::now();
+        LevelRun run;
+        const std::uint32_t texels = info.levels[level].width, last = info.levels[level].tiles_x - 1;
+        ASSERT_GE(last, 1u);
+        const std::uint32_t k = last * P;  // the last page corner, in level-L texels
+        const double scale = std::ldexp(1.0, int(level));
+        const std::uint64_t span = std::uint64_t(double(size) - (double(k) - 80) * scale) + 3;
+        const std::uint32_t o = std::uint32_t(size - span) | 1u;
+        ASSERT_TRUE(renderer.set_scene(corner_chunk(size, o), *tex).ok());
+        const double height = scale * kH / (2.0 * std::tan(sc::Camera{}.fov_y / 2.0));
+        const sc::Camera cam = straight_down(double(k) * scale, double(k) * scale, height);
+
+        // The render loop of a viewer, bounded: render, feed back, run the runtime.
+        std::uint64_t first = 0;
+        gl::FrameCounters latest{};
+        gl::FeedbackFrame fb;
+        std::vector<gl::FrameCounters> counters;
+        const auto deadline = t0 + 60s;
+        bool converged = false;
+        while (std::chrono::steady_clock::now() < deadline && !converged) {
+            const auto f = renderer.render(cam, rt.lod_bias());
+            if (first == 0) first = f;
+            ++run.frames;
+            if (renderer.poll_feedback(fb))
+                rt.frame(fb.ids, fb.width, fb.height, fb.bias);
+            else
+                rt.frame_without_feedback();
+            counters.clear();
+            renderer.poll_counters(counters);
+            for (const auto& c : counters)
+                if (c.frame >= first) latest = c;  // frames of the previous level do not count
+            converged = latest.frame != 0 && latest.textured_pixels > 0 && latest.fallback_unbiased == 0 &&
+                        latest.fallback_biased == 0 && rt.in_flight() == 0 && rt.lod_bias() == 0.0f;
+            if (!converged) std::this_thread::sleep_for(1ms);
+        }
+        ASSERT_TRUE(converged) << "level " << level << ": after " << run.frames << " frames, " << latest.fallback_unbiased
+                               << " of " << latest.textured_pixels << " pixels fall back, " << rt.in_flight()
+                               << " pages in flight, bias " << rt.lod_bias();
+
+        // The checked frame.
+        const auto frame = renderer.render(cam, 0.0f);
+        counters.clear();
+        renderer.finish(&counters, nullptr);
+        const auto rgba = renderer.read_color();
+        EXPECT_EQ(renderer.stats().gl_errors, 0u);
+        EXPECT_EQ(renderer.stats().malformed_uploads, 0u);
+        bool counted = false;
+        for (const auto& c : counters)
+            if (c.frame == frame) {
+                counted = true;
+                EXPECT_EQ(c.fallback_unbiased, 0u) << "level " << level;
+                EXPECT_EQ(c.fallback_biased, 0u) << "level " << level;
+                EXPECT_GT(c.textured_pixels, std::uint64_t(kW * kH / 4)) << "level " << level;
+            }
+        EXPECT_TRUE(counted) << "level " << level;
+        for (std::uint32_t j = 0; j < kH; ++j)
+            for (std::uint32_t i = 0; i < kW; ++i) {
+                double x, y;
+                ASSERT_TRUE(tessera::test::pixel_to_ground(cam, kW, kH, i, j, x, y));
+                const double lx = x / scale, ly = y / scale;
+                if (std::abs(lx - std::floor(lx) - 0.5) > 1e-3 || std::abs(ly - std::floor(ly) - 0.5) > 1e-3) continue;
+                if (x < o || y < o || x >= size || y >= size) continue;
+                const auto gx = std::uint32_t(std::floor(lx)), gy = std::uint32_t(std::floor(ly));
+                ASSERT_LT(gx, texels);
+                const auto want = tessera::client::coords_texel(level, gx, gy);
+                const std::uint8_t* got = rgba.data() + (std::size_t(j) * kW + i) * 4;
+                ++run.checked;
+                if (std::equal(want.begin(), want.end(), got)) continue;
+                if (++run.wrong <= 5)
+                    ADD_FAILURE() << "level " << level << " pixel (" << i << ", " << j << ") texel (" << gx << ", " << gy
+                                  << "): got " << int(got[0]) << " " << int(got[1]) << " " << int(got[2]) << " " << int(got[3])
+                                  << ", want " << int(want[0]) << " " << int(want[1]) << " " << int(want[2]);
+            }
+        EXPECT_EQ(run.wrong, 0u) << "level " << level << " of " << run.checked;
+        EXPECT_GE(run.checked, std::size_t(kW * kH / 4)) << "level " << level;
+        // The 2 x 2 pages around the corner are what the runtime made resident.
+        for (const std::uint32_t py : {last - 1, last})
+            for (const std::uint32_t px : {last - 1, last})
+                EXPECT_TRUE(rt.residency().is_resident(PageKey{*tex, std::uint8_t(level), px, py}))
+                    << "level " << level << " page (" << px << ", " << py << ")";
+        run.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        const auto rs = rt.residency().stats();
+        std::printf("  %u texels (2^%.4f), tile %u: level %u (%u pages per side): %d frames, %.2f s; %u pages resident, "
+                    "%zu pixels on texel centres, %zu wrong\n",
+                    size, std::log2(double(size)), tile, level, last + 1, run.frames, run.seconds, rs.resident_pages,
+                    run.checked, run.wrong);
+    }
+
+    // Memory follows the resident pages: at most 5 blocks each, plus the coarse levels' blocks.
+    std::size_t coarse = 0;
+    for (std::uint32_t l = 0; l < levels; ++l)
+        coarse += info.levels[l].tiles_x <= PageTable::kBlockSide && info.levels[l].tiles_y <= PageTable::kBlockSide;
+    EXPECT_TRUE(table->sparse());
+    EXPECT_LE(table->allocated_blocks(), 5 * table->mapped_pages() + coarse);
+    EXPECT_LT(table->memory_bytes(), std::size_t(8) << 20);
+    EXPECT_EQ(renderer.stats().malformed_uploads, 0u);
+    std::printf("  sparse table: %zu pages mapped, %zu blocks, %.2f MiB (dense: %.1f MiB); %llu pages uploaded, %llu "
+                "table uploads\n",
+                table->mapped_pages(), table->allocated_blocks(), double(table->memory_bytes()) / (1 << 20),
+                double(PageTable::table_bytes(n, n, levels)) / (1 << 20),
+                static_cast<unsigned long long>(renderer.stats().pages_uploaded),
+                static_cast<unsigned long long>(renderer.stats().table_uploads));
+}
+
+TEST(RenderHugeEndToEnd, Size2e24) {
+    REQUIRE_GL(ctx);
+    far_corner_end_to_end(1u << 24, 256, 128);
+}
+
+TEST(RenderHugeEndToEnd, Size2e24Minus1) {
+    REQUIRE_GL(ctx);
+    far_corner_end_to_end((1u << 24) - 1, 512, 64);
+}
+
+TEST(RenderHugeEndToEnd, NonPowerOfTwoSize) {
+    REQUIRE_GL(ctx);
+    far_corner_end_to_end(12'345'679, 1024, 32);
+}
+
+}  // namespace
