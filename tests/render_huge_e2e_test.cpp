@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "ground_ray.hpp"
+#include "render_util.hpp"
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/page_table.hpp"
@@ -42,43 +43,10 @@ namespace sc = tessera::scene;
 namespace st = tessera::storage;
 using tessera::client::PageKey;
 using tessera::client::PageTable;
-
-#define REQUIRE_GL(ctx)                                                                        \
-    auto ctx##_made = gl::GlContext::create_headless();                                        \
-    if (!ctx##_made) GTEST_SKIP() << "no headless OpenGL 4.5: " << ctx##_made.error().message; \
-    auto& ctx = *ctx##_made;                                                                   \
-    (void)ctx
+using tessera::test::corner_chunk;
+using tessera::test::straight_down;
 
 constexpr std::uint32_t kW = 128, kH = 96;
-
-sc::Camera straight_down(double x, double y, double height) {
-    sc::Camera c;
-    c.position = {x, y, height};
-    c.yaw = std::numbers::pi / 2;
-    c.pitch = -std::numbers::pi / 2;
-    c.near_plane = height * 0.5;
-    c.far_plane = height * 2;
-    return c;
-}
-
-// One chunk from (o, o) to the far corner; an odd o puts low bits in its texel origin at every level.
-sc::Scene corner_chunk(std::uint32_t size, std::uint32_t o) {
-    sc::Scene s;
-    s.name = "corner";
-    s.vt_width = s.vt_height = size;
-    sc::Chunk c;
-    c.origin = {double(o), double(o), 0};
-    c.texel_origin[0] = c.texel_origin[1] = o;
-    const float e = float(size - o);
-    for (const auto& [x, y] : {std::pair{0.f, 0.f}, {e, 0.f}, {e, e}, {0.f, e}}) c.vertices.push_back({{x, y, 0}, {x, y}});
-    c.indices = {0, 1, 2, 0, 2, 3};
-    c.bounds_min[0] = c.bounds_min[1] = o;
-    c.bounds_max[0] = c.bounds_max[1] = size;
-    s.bounds_min[0] = s.bounds_min[1] = o;
-    s.bounds_max[0] = s.bounds_max[1] = size;
-    s.chunks.push_back(std::move(c));
-    return s;
-}
 
 struct LevelRun {
     int frames = 0;
@@ -88,17 +56,8 @@ struct LevelRun {
 
 void far_corner_end_to_end(std::uint32_t size, std::uint32_t tile, std::uint32_t pool) {
     SCOPED_TRACE(testing::Message() << "size " << size << ", tile " << tile);
-    gl::RendererConfig cfg;
-    cfg.width = kW;
-    cfg.height = kH;
+    gl::RendererConfig cfg = tessera::test::exact_config(kW, kH, tile, 4, pool);
     cfg.feedback_scale = 1;  // every pixel's page is asked for: nothing is left to fall back
-    cfg.filter = gl::Filter::bilinear;
-    cfg.tile_size = tile;
-    cfg.border = 4;
-    cfg.pool_slots = pool;
-    cfg.srgb = false;
-    cfg.staging_bytes = 8u << 20;
-    cfg.feedback_jitter = false;
     auto made = gl::VtRenderer::create(cfg);
     ASSERT_TRUE(made.ok()) << made.error().message;
     gl::VtRenderer& renderer = **made;
@@ -179,24 +138,12 @@ void far_corner_end_to_end(std::uint32_t size, std::uint32_t tile, std::uint32_t
                 EXPECT_GT(c.textured_pixels, std::uint64_t(kW * kH / 4)) << "level " << level;
             }
         EXPECT_TRUE(counted) << "level " << level;
-        for (std::uint32_t j = 0; j < kH; ++j)
-            for (std::uint32_t i = 0; i < kW; ++i) {
-                double x, y;
-                ASSERT_TRUE(tessera::test::pixel_to_ground(cam, kW, kH, i, j, x, y));
-                const double lx = x / scale, ly = y / scale;
-                if (std::abs(lx - std::floor(lx) - 0.5) > 1e-3 || std::abs(ly - std::floor(ly) - 0.5) > 1e-3) continue;
-                if (x < o || y < o || x >= size || y >= size) continue;
-                const auto gx = std::uint32_t(std::floor(lx)), gy = std::uint32_t(std::floor(ly));
-                ASSERT_LT(gx, texels);
-                const auto want = tessera::client::coords_texel(level, gx, gy);
-                const std::uint8_t* got = rgba.data() + (std::size_t(j) * kW + i) * 4;
-                ++run.checked;
-                if (std::equal(want.begin(), want.end(), got)) continue;
-                if (++run.wrong <= 5)
-                    ADD_FAILURE() << "level " << level << " pixel (" << i << ", " << j << ") texel (" << gx << ", " << gy
-                                  << "): got " << int(got[0]) << " " << int(got[1]) << " " << int(got[2]) << " " << int(got[3])
-                                  << ", want " << int(want[0]) << " " << int(want[1]) << " " << int(want[2]);
-            }
+        const auto check = tessera::test::check_texel_centres(rgba, cam, kW, kH, level, o, size, [&](std::uint32_t gx, std::uint32_t gy) {
+            EXPECT_LT(gx, texels);
+            return tessera::client::coords_texel(level, gx, gy);
+        });
+        run.checked = check.checked;
+        run.wrong = check.wrong;
         EXPECT_EQ(run.wrong, 0u) << "level " << level << " of " << run.checked;
         EXPECT_GE(run.checked, std::size_t(kW * kH / 4)) << "level " << level;
         // The 2 x 2 pages around the corner are what the runtime made resident.

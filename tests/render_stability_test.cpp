@@ -17,6 +17,7 @@
 
 #include "tessera/client/gl/context.hpp"
 #include "ground_ray.hpp"
+#include "render_util.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/page_table.hpp"
 #include "tessera/scene/camera.hpp"
@@ -32,25 +33,14 @@ using tessera::Errc;
 using tessera::client::FeedbackId;
 using tessera::client::kNoPage;
 using tessera::client::PageTable;
-
-#define REQUIRE_GL(ctx)                                                                        \
-    auto ctx##_made = gl::GlContext::create_headless();                                        \
-    if (!ctx##_made) GTEST_SKIP() << "no headless OpenGL 4.5: " << ctx##_made.error().message; \
-    auto& ctx = *ctx##_made;                                                                   \
-    (void)ctx
+using tessera::test::corner_chunk;
+using tessera::test::encode_texel;
+using tessera::test::straight_down;
 
 constexpr std::uint32_t kTile = 1024, kBorder = 4, kP = kTile - 2 * kBorder;  // the largest stored tile
 constexpr std::uint32_t kW = 128, kH = 96;
 
-st::StoreInfo geometry(std::uint32_t size) {
-    st::StoreInfo info;
-    info.width = info.height = size;
-    info.tile_payload = kP;
-    info.border = kBorder;
-    info.channels = 4;
-    info.levels = st::level_geometry(size, size, kP);
-    return info;
-}
+st::StoreInfo geometry(std::uint32_t size) { return tessera::test::store_geometry(size, size, kTile, kBorder); }
 
 // The packed page table's size (the renderer's layout: level 0, then levels 1.. in a column).
 std::pair<std::uint64_t, std::uint64_t> packed_table(const st::StoreInfo& info) {
@@ -62,59 +52,7 @@ std::pair<std::uint64_t, std::uint64_t> packed_table(const st::StoreInfo& info) 
     return {info.levels[0].tiles_x + column_w, std::max<std::uint64_t>(info.levels[0].tiles_y, column_h)};
 }
 
-gl::RendererConfig config() {
-    gl::RendererConfig c;
-    c.width = kW;
-    c.height = kH;
-    c.filter = gl::Filter::bilinear;
-    c.tile_size = kTile;
-    c.border = kBorder;
-    c.pool_slots = 4;
-    c.srgb = false;
-    c.staging_bytes = 8u << 20;
-    c.feedback_jitter = false;
-    return c;
-}
-
-void encode_texel(std::uint32_t x, std::uint32_t y, std::uint8_t* p) {
-    p[0] = std::uint8_t(x & 255);
-    p[1] = std::uint8_t(y & 255);
-    p[2] = std::uint8_t(((x >> 8) & 15) | (((y >> 8) & 15) << 4));
-    p[3] = 255;
-}
-
-sc::Camera straight_down(double x, double y, double height) {
-    sc::Camera c;
-    c.position = {x, y, height};
-    c.yaw = std::numbers::pi / 2;
-    c.pitch = -std::numbers::pi / 2;
-    c.near_plane = height * 0.5;
-    c.far_plane = height * 2;
-    return c;
-}
-
-bool pixel_to_ground(const sc::Camera& c, double i, double j, double& x, double& y) {
-    return tessera::test::pixel_to_ground(c, kW, kH, i, j, x, y);
-}
-
-// One flat chunk covering level-0 texels [o, size) on both axes, a world unit per texel.
-sc::Scene corner_chunk(std::uint32_t size, std::uint32_t o) {
-    sc::Scene s;
-    s.name = "corner";
-    s.vt_width = s.vt_height = size;
-    sc::Chunk c;
-    c.origin = {double(o), double(o), 0};
-    c.texel_origin[0] = c.texel_origin[1] = o;
-    const float e = float(size - o);
-    for (const auto& [x, y] : {std::pair{0.f, 0.f}, {e, 0.f}, {e, e}, {0.f, e}}) c.vertices.push_back({{x, y, 0}, {x, y}});
-    c.indices = {0, 1, 2, 0, 2, 3};
-    c.bounds_min[0] = c.bounds_min[1] = o;
-    c.bounds_max[0] = c.bounds_max[1] = size;
-    s.bounds_min[0] = s.bounds_min[1] = o;
-    s.bounds_max[0] = s.bounds_max[1] = size;
-    s.chunks.push_back(std::move(c));
-    return s;
-}
+gl::RendererConfig config() { return tessera::test::exact_config(kW, kH, kTile, kBorder, 4); }
 
 // A texture of 2^20 pages per axis (the feedback id's limit) is refused with a clear error: its
 // two-level table's directory (32768^2 blocks at level 0) is over the largest shader storage block.
@@ -169,58 +107,13 @@ TEST(RenderStability, LargestAcceptedTextureIsExactAtTheFarCornerAtEveryLevel) {
         for (std::uint32_t py = 0; py < count; ++py)
             for (std::uint32_t px = 0; px < count; ++px) {
                 const std::uint32_t slot = py * 2 + px;
-                for (std::uint32_t j = 0; j < kTile; ++j)
-                    for (std::uint32_t i = 0; i < kTile; ++i) {
-                        const auto gx = std::clamp<std::int64_t>(std::int64_t(first_page + px) * kP - kBorder + i, 0, texels - 1);
-                        const auto gy = std::clamp<std::int64_t>(std::int64_t(first_page + py) * kP - kBorder + j, 0, texels - 1);
-                        encode_texel(std::uint32_t(gx), std::uint32_t(gy), page.data() + (std::size_t(j) * kTile + i) * 4);
-                    }
+                tessera::test::encode_page(page, kTile, kBorder, first_page + px, first_page + py, texels);
                 r.upload_page(slot, page, kTile);
                 entries.push_back(PageTable::make_entry(slot, level));
             }
         r.upload_page_table(0, level, first_page, first_page, count, count, entries);
 
-        // The chunk: from an odd origin (low bits set at every level) to the far edge.
-        const double scale = std::ldexp(1.0, int(level));
-        const std::uint64_t span = std::uint64_t((double(size) - (double(k) - 80) * scale)) + 3;
-        const std::uint32_t o = span >= size ? 0 : std::uint32_t(size - span) | 1u;
-        ASSERT_TRUE(r.set_scene(corner_chunk(size, o), 0).ok());
-        const double height = scale * kH / (2.0 * std::tan(sc::Camera{}.fov_y / 2.0));
-        const sc::Camera cam = straight_down(double(k) * scale, double(k) * scale, height);
-        const auto frame = r.render(cam, 0);
-        std::vector<gl::FrameCounters> counters;
-        r.finish(&counters, nullptr);
-        const auto rgba = r.read_color();
-        EXPECT_EQ(r.stats().gl_errors, 0u);
-        EXPECT_EQ(r.stats().malformed_uploads, 0u);
-        std::size_t checked = 0, wrong = 0;
-        for (std::uint32_t j = 0; j < kH; ++j)
-            for (std::uint32_t i = 0; i < kW; ++i) {
-                double x, y;
-                ASSERT_TRUE(pixel_to_ground(cam, i, j, x, y));
-                const double lx = x / scale, ly = y / scale;
-                if (std::abs(lx - std::floor(lx) - 0.5) > 1e-3 || std::abs(ly - std::floor(ly) - 0.5) > 1e-3) continue;
-                if (x < o || y < o || x >= size || y >= size) continue;  // no geometry there (the last texel of a level may overhang)
-                const auto gx = std::uint32_t(std::floor(lx)), gy = std::uint32_t(std::floor(ly));
-                std::uint8_t want[4];
-                encode_texel(gx, gy, want);
-                const std::uint8_t* got = rgba.data() + (std::size_t(j) * kW + i) * 4;
-                ++checked;
-                if (std::equal(want, want + 4, got)) continue;
-                if (++wrong <= 5)
-                    ADD_FAILURE() << "level " << level << " pixel (" << i << ", " << j << ") texel (" << gx << ", " << gy << "): got "
-                                  << int(got[0]) << " " << int(got[1]) << " " << int(got[2]) << " " << int(got[3]) << ", want "
-                                  << int(want[0]) << " " << int(want[1]) << " " << int(want[2]);
-            }
-        EXPECT_EQ(wrong, 0u) << "level " << level << " of " << checked;
-        EXPECT_GE(checked, std::size_t(kW * kH / 4)) << "level " << level;
-        bool counted = false;
-        for (const auto& c : counters)
-            if (c.frame == frame) {
-                counted = true;
-                EXPECT_EQ(c.fallback_unbiased, 0u) << "level " << level << ": a pixel wanted another level";
-            }
-        EXPECT_TRUE(counted);
+        const auto [checked, wrong] = tessera::test::render_corner_exactly(r, size, k, level, kW, kH);
         std::printf("  level %u (%u texels, %u pages per side): %zu pixels on texel centres at the far corner, %zu wrong\n", level,
                     texels, pages, checked, wrong);
     }

@@ -27,6 +27,7 @@
 
 #include "tessera/client/gl/context.hpp"
 #include "ground_ray.hpp"
+#include "render_util.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/page_table.hpp"
 #include "tessera/client/runtime.hpp"
@@ -57,13 +58,8 @@ using tessera::client::kNoPage;
 using tessera::client::PageKey;
 using tessera::client::PageTable;
 using tessera::test::ScratchDir;
-
-// A current headless context, or the test is skipped with the reason.
-#define REQUIRE_GL(ctx)                                                                        \
-    auto ctx##_made = gl::GlContext::create_headless();                                        \
-    if (!ctx##_made) GTEST_SKIP() << "no headless OpenGL 4.5: " << ctx##_made.error().message; \
-    auto& ctx = *ctx##_made;                                                                   \
-    (void)ctx
+using tessera::test::encode_texel;
+using tessera::test::store_geometry;
 
 constexpr double kPi = std::numbers::pi;
 
@@ -118,18 +114,6 @@ sc::SampleFilter scene_filter(gl::Filter f) {
 
 const char* filter_name(gl::Filter f) {
     return f == gl::Filter::bilinear ? "bilinear" : f == gl::Filter::trilinear ? "trilinear" : "anisotropic";
-}
-
-// Geometry of a store of this size, without a store file.
-st::StoreInfo geometry(std::uint32_t width, std::uint32_t height, std::uint32_t tile_size, std::uint32_t border = 4) {
-    st::StoreInfo info;
-    info.width = width;
-    info.height = height;
-    info.tile_payload = tile_size - 2 * border;
-    info.border = border;
-    info.channels = 4;
-    info.levels = st::level_geometry(width, height, info.tile_payload);
-    return info;
 }
 
 sc::Scene terrain(std::uint32_t w, std::uint32_t h, std::uint32_t chunk_texels) {
@@ -438,7 +422,7 @@ TEST_P(RenderFeedback, GpuFeedbackRequestsTheCpuFeedbackPages) {
     REQUIRE_GL(ctx);
     const auto [filter, bias] = GetParam();
     // Geometry only: the feedback pass needs no resident page.
-    const auto info = geometry(1u << 16, 1u << 16, 256);
+    const auto info = store_geometry(1u << 16, 1u << 16, 256);
     auto cfg = config(filter, 256, 16, /*srgb=*/false, 256, 192);
     cfg.feedback_scale = 8;
     auto r = gl::VtRenderer::create(cfg);
@@ -515,19 +499,10 @@ INSTANTIATE_TEST_SUITE_P(Cases, RenderFeedback,
 
 // ---------------------------------------------------------------------------------------------
 
-// Texel (x, y) of level 0 encodes its coordinates: R = x & 255, G = y & 255, B = bits 8..11 of x
-// and y.
-void encode_texel(std::uint32_t x, std::uint32_t y, std::uint8_t* p) {
-    p[0] = std::uint8_t(x & 255);
-    p[1] = std::uint8_t(y & 255);
-    p[2] = std::uint8_t(((x >> 8) & 15) | (((y >> 8) & 15) << 4));
-    p[3] = 255;
-}
-
 TEST(RenderAddressing, TexelsNearTwoToTheTwentyComeBackExactly) {
     REQUIRE_GL(ctx);
     constexpr std::uint32_t kSize = 1u << 20;
-    const auto info = geometry(kSize, kSize, 512);  // P = 504
+    const auto info = store_geometry(kSize, kSize, 512);  // P = 504
     const std::uint32_t P = info.tile_payload, B = info.border, ts = info.tile_size();
     auto cfg = config(gl::Filter::bilinear, ts, 4, /*srgb=*/false, 128, 96);
     auto r = gl::VtRenderer::create(cfg);
@@ -618,7 +593,7 @@ void upload_dirty(PageTable& table, gl::VtRenderer& r) {
 
 TEST(RenderCounters, FallbackPixelsAgainstTheUnbiasedAndTheBiasedLevel) {
     REQUIRE_GL(ctx);
-    const auto info = geometry(2048, 2048, 128);
+    const auto info = store_geometry(2048, 2048, 128);
     const std::uint32_t levels = info.level_count(), ts = info.tile_size();
     auto cfg = config(gl::Filter::trilinear, ts, 512, /*srgb=*/true, 192, 144);
     auto r = gl::VtRenderer::create(cfg);
