@@ -19,7 +19,10 @@
 //          set, so resending everything cancels nothing still wanted). A tile's latency runs from
 //          the tick that first asked for it to its arrival. The set is bounded (--max-outstanding);
 //          tiles that do not fit are dropped and counted. Closed: the set is topped up to --window
-//          whenever half of it has arrived (and at least every tick).
+//          whenever half of it has arrived (and at least every tick). Batches ask for protocol
+//          revision --protocol-revision (default 1: several tiles per message; 0: one per message);
+//          replies are decoded straight from gRPC's receive slices (tessera/protocol/stream_codec.hpp),
+//          payloads counted, not copied.
 //
 // Tiles are drawn uniformly from every present tile (the URL list, or the store's index) by a
 // seeded RNG. Requests scheduled in the first --warmup seconds are sent but not measured.
@@ -64,6 +67,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include "tessera.grpc.pb.h"
+#include "tessera/protocol/stream_codec.hpp"
 #include "tessera/protocol/wire.hpp"
 #include "tessera/storage/store_reader.hpp"
 
@@ -150,6 +154,7 @@ struct Options {
     double tick_hz = 60;
     std::size_t window = 512;            // gRPC closed loop: outstanding tiles per viewer
     std::size_t max_outstanding = 4096;  // gRPC open model: bound of a viewer's outstanding set
+    std::uint32_t protocol_revision = tessera::protocol::kProtocolRevision;
     std::uint64_t seed = 1;
 };
 
@@ -157,7 +162,7 @@ void usage() {
     std::fprintf(stderr,
                  "usage: serve_load (--http HOST:PORT --url-file FILE [--prefix P] [--connections C]\n"
                  "                  | --grpc HOST:PORT --store NAME (--url-file FILE | --store-file S.tsr) [--viewers V]\n"
-                 "                    [--tick-hz HZ] [--window W] [--max-outstanding N])\n"
+                 "                    [--tick-hz HZ] [--window W] [--max-outstanding N] [--protocol-revision R])\n"
                  "                  [--rate TILES_PER_S (0: closed loop)] [--duration S] [--warmup S] [--drain S]\n"
                  "                  [--seed N] [--json FILE]\n");
 }
@@ -194,6 +199,7 @@ Options parse(int argc, char** argv) {
         else if (a == "--window") o.window = std::size_t(number());
         else if (a == "--max-outstanding") o.max_outstanding = std::size_t(number());
         else if (a == "--seed") o.seed = std::uint64_t(number());
+        else if (a == "--protocol-revision") o.protocol_revision = std::uint32_t(number());
         else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
         else { usage(); die("unknown option " + a); }
     }
@@ -747,8 +753,10 @@ public:
             v->channel = grpc::CreateCustomChannel(o_.grpc, grpc::InsecureChannelCredentials(), args);
             if (!v->channel->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(5)))
                 die("cannot connect to " + o_.grpc);
-            v->stub = v1::TileService::NewStub(v->channel);
-            v->stream = v->stub->StreamTiles(&v->context);
+            const grpc::internal::RpcMethod method("/tessera.v1.TileService/StreamTiles",
+                                                   grpc::internal::RpcMethod::BIDI_STREAMING, v->channel);
+            v->stream.reset(grpc::internal::ClientReaderWriterFactory<v1::TileBatch, grpc::ByteBuffer>::Create(
+                v->channel.get(), method, &v->context));
             if (!v->stream) die("StreamTiles failed to start");
             viewers_.push_back(std::move(v));
         }
@@ -794,15 +802,15 @@ private:
         unsigned id = 0;
         std::mt19937_64 rng;
         std::shared_ptr<grpc::Channel> channel;
-        std::unique_ptr<v1::TileService::Stub> stub;
         grpc::ClientContext context;
-        std::unique_ptr<grpc::ClientReaderWriter<v1::TileBatch, v1::ServerMessage>> stream;
+        std::unique_ptr<grpc::ClientReaderWriter<v1::TileBatch, grpc::ByteBuffer>> stream;  // raw replies
 
         std::mutex mu;
         std::condition_variable cv;  // closed loop: half the window has arrived
         std::unordered_map<std::uint64_t, Wanted> outstanding;
         std::deque<std::pair<std::uint64_t, std::uint64_t>> order;  // (key, seq), oldest first
         std::uint64_t next_seq = 0;
+        std::uint64_t replies_read = 0;  // tile replies read so far (TileBatch.replies_received)
         bool stream_done = false;
         bool leaving = false;  // the empty batch is out: late tiles are neither counted nor duplicates
         Clock::time_point last_completion{};
@@ -834,6 +842,8 @@ private:
     void build_batch(Viewer& v, v1::TileBatch& batch, std::uint64_t frame) {
         batch.Clear();
         batch.set_frame(frame);
+        batch.set_protocol_revision(o_.protocol_revision);
+        batch.set_replies_received(v.replies_read);
         batch.add_stores(o_.store);
         std::deque<std::pair<std::uint64_t, std::uint64_t>> live;
         for (const auto& [packed, seq] : v.order) {
@@ -947,42 +957,53 @@ private:
     }
 
     void reader(Viewer& v) {
-        v1::ServerMessage m;
+        grpc::ByteBuffer m;
+        tessera::protocol::ServerMessageDecoder d;
+        using Kind = tessera::protocol::ServerMessageDecoder::Kind;
         while (v.stream->Read(&m)) {
-            if (m.has_ack()) {
+            if (!d.decode(m)) {
+                std::lock_guard lock(v.mu);
+                ++v.r.errors;
+                ++v.r.error_kinds["malformed_message"];
+                continue;
+            }
+            if (d.kind() == Kind::ack) {
                 // Refused and invalid requests also come back one by one as tiles with an error
                 // status (counted there); a batch refused whole only shows here.
-                if (m.ack().status() != v1::TILE_OK) {
+                if (d.ack().status() != v1::TILE_OK) {
                     std::lock_guard lock(v.mu);
                     ++v.r.errors;
-                    ++v.r.error_kinds["batch_" + std::string(tessera::protocol::to_string(m.ack().status()))];
+                    ++v.r.error_kinds["batch_" + std::string(tessera::protocol::to_string(d.ack().status()))];
                 }
                 continue;
             }
-            if (!m.has_tile()) continue;
-            const auto& t = m.tile();
-            const std::uint64_t packed = tessera::protocol::pack_key(t.key().level(), t.key().x(), t.key().y());
+            if (d.kind() != Kind::tiles) continue;
             std::lock_guard lock(v.mu);
             const auto now = Clock::now();  // under the lock: never before the tick that asked
-            auto it = v.outstanding.find(packed);
-            if (it == v.outstanding.end()) {
-                if (t.status() == v1::TILE_OK && !v.leaving) ++v.r.duplicates;
-                continue;
-            }
-            const auto asked = it->second.asked;
-            v.outstanding.erase(it);
             const bool open = o_.rate > 0;
-            const bool counted = open ? asked >= measure_start_ : (now >= measure_start_ && now <= end_);
-            if (counted) {
-                if (t.status() == v1::TILE_OK && t.kind() != v1::KIND_ABSENT) {
-                    ++v.r.ok;
-                    v.r.bytes += t.payload().size();
-                    v.r.latency.record(std::uint64_t(std::chrono::duration_cast<Nanos>(now - asked).count()));
-                    v.r.server_latency.record(std::uint64_t(t.server_micros()) * 1000);
-                    v.last_completion = std::max(v.last_completion, now);
-                } else {
-                    ++v.r.errors;
-                    ++v.r.error_kinds[std::string(tessera::protocol::to_string(t.status()))];
+            v.replies_read += d.tile_count();
+            for (std::size_t i = 0; i < d.tile_count(); ++i) {
+                const auto& t = d.tile(i);
+                const std::uint64_t packed = tessera::protocol::pack_key(t.level, t.x, t.y);
+                auto it = v.outstanding.find(packed);
+                if (it == v.outstanding.end()) {
+                    if (t.status == v1::TILE_OK && !v.leaving) ++v.r.duplicates;
+                    continue;
+                }
+                const auto asked = it->second.asked;
+                v.outstanding.erase(it);
+                const bool counted = open ? asked >= measure_start_ : (now >= measure_start_ && now <= end_);
+                if (counted) {
+                    if (t.status == v1::TILE_OK && t.kind != v1::KIND_ABSENT) {
+                        ++v.r.ok;
+                        v.r.bytes += t.payload_size;
+                        v.r.latency.record(std::uint64_t(std::chrono::duration_cast<Nanos>(now - asked).count()));
+                        v.r.server_latency.record(std::uint64_t(t.server_micros) * 1000);
+                        v.last_completion = std::max(v.last_completion, now);
+                    } else {
+                        ++v.r.errors;
+                        ++v.r.error_kinds[std::string(tessera::protocol::to_string(t.status))];
+                    }
                 }
             }
             if (!open && v.outstanding.size() <= o_.window / 2) v.cv.notify_all();

@@ -5,6 +5,7 @@
 #include <xxhash.h>
 
 #include <algorithm>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <random>
@@ -13,6 +14,7 @@
 #include "server_process.hpp"
 #include "tessera.grpc.pb.h"
 #include "tessera/client/tile_stream_client.hpp"
+#include "tessera/protocol/wire.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace {
@@ -68,9 +70,12 @@ struct Req {
     float priority;
 };
 
-v1::TileBatch batch(std::uint64_t frame, const std::string& store, const std::vector<Req>& reqs, std::uint32_t deadline_ms = 0) {
+v1::TileBatch batch(std::uint64_t frame, const std::string& store, const std::vector<Req>& reqs, std::uint32_t deadline_ms = 0,
+                    std::uint32_t revision = 0, std::uint64_t replies_received = 0) {
     v1::TileBatch b;
     b.set_frame(frame);
+    b.set_protocol_revision(revision);
+    b.set_replies_received(replies_received);
     b.add_stores(store);
     b.set_deadline_ms(deadline_ms);
     for (const auto& r : reqs) {
@@ -100,6 +105,8 @@ struct Viewer {
     explicit Viewer(const std::string& address, const std::string& token = "", bool small_window = false)
         : stub(v1::TileService::NewStub(channel(address, small_window))) {
         if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
+        // A reply that never comes fails the test in a minute instead of hanging it.
+        ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
         stream = stub->StreamTiles(&ctx);
     }
     bool send(const v1::TileBatch& b) { return stream->Write(b); }
@@ -109,8 +116,7 @@ struct Viewer {
         v1::ServerMessage m;
         while (!pred()) {
             if (!stream->Read(&m)) return false;
-            if (m.has_ack()) acks.push_back(m.ack());
-            else tiles.push_back(m.tile());
+            take(m);
             tile_count.store(tiles.size());
         }
         return true;
@@ -118,11 +124,20 @@ struct Viewer {
     grpc::Status finish() {
         stream->WritesDone();
         v1::ServerMessage m;
-        while (stream->Read(&m)) {
-            if (m.has_ack()) acks.push_back(m.ack());
-            else tiles.push_back(m.tile());
-        }
+        while (stream->Read(&m)) take(m);
         return stream->Finish();
+    }
+    void take(v1::ServerMessage& m) {
+        ++messages;
+        if (m.has_ack()) {
+            acks.push_back(m.ack());
+        } else if (m.has_tiles()) {  // protocol revision 1
+            max_tiles_per_message = std::max<std::size_t>(max_tiles_per_message, m.tiles().tiles_size());
+            for (auto& t : *m.mutable_tiles()->mutable_tiles()) tiles.push_back(std::move(t));
+        } else {
+            max_tiles_per_message = std::max<std::size_t>(max_tiles_per_message, 1);
+            tiles.push_back(m.tile());
+        }
     }
     std::unique_ptr<v1::TileService::Stub> stub;
     grpc::ClientContext ctx;
@@ -130,6 +145,7 @@ struct Viewer {
     std::vector<v1::BatchAck> acks;
     std::vector<v1::TileReply> tiles;
     std::atomic<std::size_t> tile_count{0};  // tiles.size(), readable from another thread
+    std::size_t messages = 0, max_tiles_per_message = 0;
 };
 
 v1::ServerStats stats(const std::string& address) {
@@ -225,6 +241,116 @@ TEST_F(ServerGrpc, NewBatchCancelsSupersededRequests) {
     ASSERT_EQ(v.acks.size(), 2u);
     EXPECT_GT(v.acks[1].cancelled(), 200u);
     EXPECT_TRUE(v.finish().ok());
+}
+
+TEST_F(ServerGrpc, SeveralTilesPerMessageCarryExactBytes) {
+    // Protocol revision 1: the replies ready when the stream can write go out in one message.
+    // Every tile's bytes must be exactly the stored payload, whichever message carried it.
+    ServerProcess srv({"--store", Stores::get().jpeg, "--store", Stores::get().raw}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    for (const std::string name : {"terrain", "rawterrain"}) {
+        const std::string& path = name == "terrain" ? Stores::get().jpeg : Stores::get().raw;
+        auto keys = level_keys(path, 2);
+        Viewer v(srv.grpc_address());
+        ASSERT_TRUE(v.send(batch(1, name, keys, 0, 1)));
+        std::this_thread::sleep_for(300ms);  // replies pile up in the outbox: the first writes coalesce
+        ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == keys.size(); }));
+        auto reader = tessera::storage::StoreReader::open(path);
+        ASSERT_TRUE(reader.ok());
+        std::set<std::tuple<unsigned, unsigned, unsigned>> seen;
+        for (const auto& t : v.tiles) {
+            ASSERT_EQ(t.status(), v1::TILE_OK) << t.message();
+            EXPECT_EQ(t.key().store(), name);
+            EXPECT_EQ(t.frame(), 1u);
+            EXPECT_EQ(t.store_version(), (*reader)->info().store_id);
+            EXPECT_TRUE(seen.insert({t.key().level(), t.key().x(), t.key().y()}).second) << "sent twice";
+            auto tile = (*reader)->read_tile({t.key().level(), t.key().x(), t.key().y()});
+            ASSERT_TRUE(tile.ok());
+            EXPECT_EQ(t.kind(), tessera::protocol::to_proto(tile->kind));
+            ASSERT_EQ(t.payload().size(), tile->bytes.size());
+            EXPECT_EQ(0, std::memcmp(t.payload().data(), tile->bytes.data(), tile->bytes.size()));
+            EXPECT_EQ(t.checksum(), XXH3_64bits(t.payload().data(), t.payload().size()));
+        }
+        // JPEG tiles (~15 KB) share messages; raw ones (~196 KiB) fill the 256 KiB cap alone.
+        if (name == "terrain") {
+            EXPECT_GT(v.max_tiles_per_message, 1u) << name << ": no message carried more than one tile";
+            EXPECT_LT(v.messages, keys.size() + 1) << name;
+        }
+        std::printf("%s: %zu tiles in %zu messages (ack included), at most %zu per message\n", name.c_str(),
+                    v.tiles.size(), v.messages, v.max_tiles_per_message);
+        EXPECT_TRUE(v.finish().ok());
+    }
+}
+
+TEST_F(ServerGrpc, ReListedTilesAreSentOnceUntilDropped) {
+    // A viewer lists in every batch what it still wants, tiles already on their way included: the
+    // server does not send those again. Once a batch no longer lists a tile, or says (replies
+    // received) that the tile had arrived, listing it asks for it again.
+    ServerProcess srv({"--store", Stores::get().jpeg}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto keys = level_keys(Stores::get().jpeg, 2);
+    ASSERT_GT(keys.size(), 60u);
+    const std::vector<Req> first(keys.begin(), keys.begin() + 50);
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "terrain", first, 0, 1, 0)));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == 50; }));
+    // Made before any of them arrived: they are on the wire. Plus one new tile.
+    std::vector<Req> second = first;
+    second.push_back(keys[50]);
+    ASSERT_TRUE(v.send(batch(2, "terrain", second, 0, 1, 0)));
+    ASSERT_TRUE(v.read_until([&] { return v.acks.size() == 2 && v.tiles.size() == 51; }));
+    EXPECT_EQ(v.acks[1].admitted(), 1u);
+    EXPECT_EQ(v.acks[1].already_queued(), 50u);
+    EXPECT_EQ(v.acks[1].already_sent(), 50u);
+    EXPECT_EQ(v.tiles.back().key().x(), keys[50].x);
+    EXPECT_EQ(v.tiles.back().key().y(), keys[50].y);
+    // Dropped from a batch, then listed again: sent again (keys[51] is still on the wire: 51 read).
+    ASSERT_TRUE(v.send(batch(3, "terrain", {keys[51]}, 0, 1, 51)));
+    ASSERT_TRUE(v.read_until([&] { return v.acks.size() == 3 && v.tiles.size() == 52; }));
+    ASSERT_TRUE(v.send(batch(4, "terrain", {keys[51], first[0], first[1]}, 0, 1, 51)));
+    ASSERT_TRUE(v.read_until([&] { return v.acks.size() == 4 && v.tiles.size() == 54; }));
+    EXPECT_EQ(v.acks[3].admitted(), 2u);
+    EXPECT_EQ(v.acks[3].already_sent(), 1u);
+    std::set<std::pair<unsigned, unsigned>> got;
+    for (std::size_t i = 52; i < v.tiles.size(); ++i) {
+        EXPECT_EQ(v.tiles[i].frame(), 4u);
+        got.insert({v.tiles[i].key().x(), v.tiles[i].key().y()});
+    }
+    EXPECT_EQ(got, (std::set<std::pair<unsigned, unsigned>>{{first[0].x, first[0].y}, {first[1].x, first[1].y}}));
+    // Received (54 read), and asked for again at once: sent again, nothing suppressed.
+    ASSERT_TRUE(v.send(batch(5, "terrain", {keys[51], first[0], first[1], keys[52]}, 0, 1, 54)));
+    ASSERT_TRUE(v.read_until([&] { return v.acks.size() == 5 && v.tiles.size() == 58; }));
+    EXPECT_EQ(v.acks[4].admitted(), 4u);
+    EXPECT_EQ(v.acks[4].already_sent(), 0u);
+    EXPECT_TRUE(v.finish().ok());
+    EXPECT_EQ(v.tiles.size(), 58u);  // nothing else came (finish() reads to the end)
+}
+
+TEST_F(ServerGrpc, RevisionZeroViewersGetOneTilePerMessageAndNoSuppression) {
+    // A viewer that does not send protocol_revision reads one TileReply per message, and, as it
+    // does not say what it has read, a tile it lists again after it arrived is always sent again.
+    ServerProcess srv({"--store", Stores::get().jpeg}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto keys = level_keys(Stores::get().jpeg, 2);
+    ASSERT_GT(keys.size(), 40u);
+    const std::vector<Req> some(keys.begin(), keys.begin() + 40);
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "terrain", some)));
+    std::this_thread::sleep_for(300ms);  // replies pile up: a revision 1 viewer would get them together
+    ASSERT_TRUE(v.read_until([&] { return v.acks.size() == 1 && v.tiles.size() == 40; }));
+    EXPECT_EQ(v.max_tiles_per_message, 1u);
+    EXPECT_EQ(v.messages, 41u);  // one ack, forty tiles
+    ASSERT_TRUE(v.send(batch(2, "terrain", some)));
+    ASSERT_TRUE(v.read_until([&] { return v.acks.size() == 2 && v.tiles.size() == 80; }));
+    EXPECT_EQ(v.acks[1].admitted(), 40u);
+    EXPECT_EQ(v.acks[1].already_sent(), 0u);
+    for (std::size_t i = 0; i < v.tiles.size(); ++i) {
+        EXPECT_EQ(v.tiles[i].status(), v1::TILE_OK) << v.tiles[i].message();
+        EXPECT_EQ(v.tiles[i].frame(), i < 40 ? 1u : 2u);
+        EXPECT_EQ(v.tiles[i].checksum(), XXH3_64bits(v.tiles[i].payload().data(), v.tiles[i].payload().size()));
+    }
+    EXPECT_TRUE(v.finish().ok());
+    EXPECT_EQ(v.tiles.size(), 80u);
 }
 
 TEST_F(ServerGrpc, TwoViewersGetFairService) {

@@ -328,6 +328,41 @@ TEST(TileStreamClient, BatchRepliesArriveWithTheirFields) {
     EXPECT_EQ(stats.buffered_bytes, 0u);
 }
 
+// Protocol revision 1: the client asks for it, and several tiles in one message (ServerMessage.tiles)
+// come out as separate tiles, in order, each with its own bytes; an old-style single tile still works.
+TEST(TileStreamClient, SeveralTilesPerMessageAreSplit) {
+    FakeTileService service;
+    service.respond = [](const v1::TileBatch& batch, Stream& stream) {
+        v1::ServerMessage ack;
+        ack.mutable_ack()->set_frame(batch.frame());
+        if (!stream.Write(ack)) return false;
+        v1::ServerMessage many;
+        for (int i = 0; i + 1 < batch.requests_size(); ++i)
+            *many.mutable_tiles()->add_tiles() = make_tile(batch, batch.requests(i), 1000 + std::size_t(i) * 37).tile();
+        if (!stream.Write(many)) return false;
+        const auto& last = batch.requests(batch.requests_size() - 1);
+        return stream.Write(make_tile(batch, last, 1000 + std::size_t(batch.requests_size() - 1) * 37));
+    };
+    FakeServer server(service);
+    ASSERT_TRUE(server.ok());
+    auto client = TileStreamClient::create(fast_options(server.target()));
+    client->send_batch(3, requests(3, 7));
+    auto tiles = collect(*client, 7);
+    ASSERT_EQ(tiles.size(), 7u) << client->last_error();
+    ASSERT_EQ(service.batches().size(), 1u);
+    EXPECT_EQ(service.batches()[0].protocol_revision(), 1u);
+    for (std::size_t i = 0; i < tiles.size(); ++i) {
+        EXPECT_EQ(tiles[i].x, i);
+        EXPECT_EQ(tiles[i].y, i + 1);
+        EXPECT_EQ(tiles[i].store, i % 2 == 0 ? "alpha" : "beta");
+        EXPECT_EQ(tiles[i].status, v1::TILE_OK);
+        EXPECT_EQ(tiles[i].payload, make_payload(3, tiles[i].x, tiles[i].y, 1000 + i * 37));
+        EXPECT_EQ(tiles[i].server_micros, 77u);
+    }
+    EXPECT_EQ(client->stats().tiles_received, 7u);
+    EXPECT_EQ(client->stats().checksum_failures, 0u);
+}
+
 // poll() honours max, keeps arrival order, and drops acks when none are wanted.
 TEST(TileStreamClient, PollMovesAtMostMaxInArrivalOrder) {
     FakeTileService service;

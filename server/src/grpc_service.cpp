@@ -2,7 +2,10 @@
 
 #include <mutex>
 
+#include <atomic>
+
 #include "auth.hpp"
+#include "reply_buffer.hpp"
 #include "tessera/protocol/wire.hpp"
 
 namespace tessera::server {
@@ -26,7 +29,9 @@ private:
     StreamReactor* reactor_;
 };
 
-class StreamReactor final : public grpc::ServerBidiReactor<v1::TileBatch, v1::ServerMessage> {
+// Raw messages both ways: batches are parsed here, replies are encoded by hand (reply_buffer.hpp)
+// so payloads go out as slices of the cached tiles.
+class StreamReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
 public:
     StreamReactor(ServerContext& ctx, Scheduler& scheduler, grpc::CallbackServerContext* context, bool authorized,
                   Counter* viewers_refused)
@@ -50,7 +55,7 @@ public:
         }
         id_ = *id;
         ctx_.log.debug("viewer connected", {{"viewer", id_}, {"peer", peer_}});
-        StartRead(&batch_);
+        StartRead(&read_buf_);
     }
 
     void OnReadDone(bool ok) override {
@@ -60,16 +65,24 @@ public:
             maybe_finish_locked(lock);
             return;
         }
+        if (!grpc::SerializationTraits<v1::TileBatch>::Deserialize(&read_buf_, &batch_).ok()) {
+            std::unique_lock lock(mu_);
+            broken_ = true;
+            finish_locked(lock, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "malformed TileBatch"));
+            return;
+        }
+        multi_.store(batch_.protocol_revision() >= 1, std::memory_order_relaxed);
         scheduler_.submit(id_, batch_);
         std::lock_guard lock(mu_);
         if (finished_) return;
         // A viewer that sends batches but does not read replies stops being read too.
         if (scheduler_.outbox_full(id_)) read_paused_ = true;
-        else StartRead(&batch_);
+        else StartRead(&read_buf_);
     }
 
     void OnWriteDone(bool ok) override {
-        scheduler_.message_written(id_, current_, ok);
+        const bool full = scheduler_.messages_written(id_, current_, ok);
+        current_.clear();  // releases the tiles
         {
             std::unique_lock lock(mu_);
             writing_ = false;
@@ -78,9 +91,9 @@ public:
                 finish_locked(lock, grpc::Status(grpc::StatusCode::CANCELLED, "the viewer went away"));
                 return;
             }
-            if (read_paused_ && !read_closed_ && !finished_ && !scheduler_.outbox_full(id_)) {
+            if (read_paused_ && !read_closed_ && !finished_ && !full) {
                 read_paused_ = false;
-                StartRead(&batch_);
+                StartRead(&read_buf_);
             }
         }
         kick();
@@ -103,9 +116,12 @@ public:
     void kick() {
         std::unique_lock lock(mu_);
         if (finished_ || writing_ || broken_) return;
-        if (scheduler_.next_message(id_, current_)) {
+        // Revision 1: every reply ready now goes out in one message (natural batching, no waiting).
+        const bool multi = multi_.load(std::memory_order_relaxed);
+        if (scheduler_.next_messages(id_, current_, multi ? ctx_.config.grpc_message_bytes : 0)) {
             writing_ = true;
-            StartWrite(&current_.message);
+            encode_replies(current_, multi, write_buf_, scratch_);
+            StartWrite(&write_buf_);
             return;
         }
         maybe_finish_locked(lock);
@@ -131,8 +147,12 @@ private:
     std::string peer_;
     std::shared_ptr<ReactorLink> link_;
     Scheduler::ViewerId id_ = 0;
-    v1::TileBatch batch_;  // only touched by the read path (one read at a time)
-    OutMessage current_;   // only touched by the write path (one write at a time)
+    grpc::ByteBuffer read_buf_;  // only touched by the read path (one read at a time)
+    v1::TileBatch batch_;
+    std::atomic<bool> multi_{false};  // the latest batch's protocol_revision >= 1
+    std::vector<OutMessage> current_;  // only touched by the write path (one write at a time)
+    grpc::ByteBuffer write_buf_;
+    std::string scratch_;
     // Recursive: Start* calls are made under it, and gRPC may run a reaction inline on the
     // calling thread when an operation completes at once.
     std::recursive_mutex mu_;
@@ -192,7 +212,7 @@ grpc::ServerUnaryReactor* GrpcService::GetStore(grpc::CallbackServerContext* con
     return finish(context, grpc::Status::OK);
 }
 
-grpc::ServerBidiReactor<v1::TileBatch, v1::ServerMessage>* GrpcService::StreamTiles(
+grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* GrpcService::StreamTiles(
     grpc::CallbackServerContext* context) {
     return new StreamReactor(ctx_, scheduler_, context, authorized(context), viewers_refused_);
 }

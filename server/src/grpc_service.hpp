@@ -1,7 +1,8 @@
 #pragma once
 // The gRPC TileService on the callback API: unary metadata and stats calls, and one
 // StreamReactor per StreamTiles call that feeds batches to the Scheduler and writes its outbox,
-// one message at a time (gRPC flow control paces it to what the viewer reads).
+// one write at a time, each carrying every reply ready then (revision 1 viewers; gRPC flow control
+// paces it to what the viewer reads).
 #include <memory>
 
 #include "scheduler.hpp"
@@ -10,7 +11,11 @@
 
 namespace tessera::server {
 
-class GrpcService final : public v1::TileService::CallbackService {
+// StreamTiles is a raw method (ByteBuffer both ways): replies are encoded by hand, without copies.
+using TileServiceBase = v1::TileService::WithCallbackMethod_ListStores<v1::TileService::WithCallbackMethod_GetStore<
+    v1::TileService::WithRawCallbackMethod_StreamTiles<v1::TileService::WithCallbackMethod_GetStats<v1::TileService::Service>>>>;
+
+class GrpcService final : public TileServiceBase {
 public:
     GrpcService(ServerContext& ctx, Scheduler& scheduler);
 
@@ -18,7 +23,7 @@ public:
                                          v1::ListStoresReply* reply) override;
     grpc::ServerUnaryReactor* GetStore(grpc::CallbackServerContext* context, const v1::GetStoreRequest* request,
                                        v1::StoreMetadata* reply) override;
-    grpc::ServerBidiReactor<v1::TileBatch, v1::ServerMessage>* StreamTiles(grpc::CallbackServerContext* context) override;
+    grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* StreamTiles(grpc::CallbackServerContext* context) override;
     grpc::ServerUnaryReactor* GetStats(grpc::CallbackServerContext* context, const v1::GetStatsRequest* request,
                                        v1::ServerStats* reply) override;
 

@@ -16,6 +16,7 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <string_view>
@@ -24,6 +25,7 @@
 #include <vector>
 
 #include "metrics.hpp"
+#include "tessera/storage/store_reader.hpp"
 #include "server_context.hpp"
 
 namespace tessera::server {
@@ -50,6 +52,11 @@ struct HttpResponse {
     std::string body;
     std::vector<std::pair<std::string, std::string>> headers;  // besides Content-Type/-Length
     HttpRoute route = HttpRoute::other;
+    // Set instead of body when the caller asked to borrow payloads: the stored tile is the body
+    // (the transport writes its bytes from the cache; nothing is copied).
+    std::shared_ptr<const storage::Tile> payload;
+
+    std::size_t body_size() const { return payload ? payload->bytes.size() : body.size(); }
 
     // First header with this name (case-insensitive), nullptr when absent.
     const std::string* header(std::string_view name) const;
@@ -67,7 +74,8 @@ public:
     HttpHandler& operator=(const HttpHandler&) = delete;
 
     // Thread-safe; blocking only for the tile read (TileFetcher: RAM cache, else one pread).
-    HttpResponse handle_http_request(const HttpRequestView& req);
+    // borrow_payload: a stored tile's payload comes as HttpResponse::payload, not copied into body.
+    HttpResponse handle_http_request(const HttpRequestView& req, bool borrow_payload = false);
 
     // Counts a response the transport produced on its own (route "other").
     void record_transport_response(unsigned status, std::size_t body_bytes);
@@ -76,10 +84,10 @@ public:
     std::size_t tiles_in_flight() const { return tiles_in_flight_.load(std::memory_order_relaxed); }
 
 private:
-    HttpResponse route(const HttpRequestView& req, HttpRoute& route);
+    HttpResponse route(const HttpRequestView& req, HttpRoute& route, bool borrow_payload);
     HttpResponse tile(const HttpRequestView& req, std::string_view name, std::string_view level,
                       std::string_view x, std::string_view y, bool png, bool has_version,
-                      std::uint64_t version);
+                      std::uint64_t version, bool borrow_payload);
     void record(HttpRoute route, unsigned status, std::size_t body_bytes, double seconds);
     Counter& requests_counter(HttpRoute route, unsigned status);
     Counter& tiles_served_counter(const std::string& store);

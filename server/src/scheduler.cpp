@@ -13,8 +13,10 @@ namespace {
 
 constexpr std::size_t kMessageOverhead = 64;  // bytes charged per message besides its payload
 
-std::size_t message_bytes(const v1::ServerMessage& m) {
-    return kMessageOverhead + (m.has_tile() ? m.tile().payload().size() + m.tile().message().size() : 0);
+std::size_t message_bytes(const OutMessage& m) {
+    if (m.is_tile) return kMessageOverhead + m.payload_size() + m.error.size();
+    const auto& msg = m.message;
+    return kMessageOverhead + (msg.has_tile() ? msg.tile().payload().size() + msg.tile().message().size() : 0);
 }
 
 }  // namespace
@@ -41,6 +43,15 @@ struct Scheduler::Viewer {
     std::unordered_set<FullKey, FullKeyHash> wanted;
     // Keys being read now, or read and waiting in the outbox.
     std::unordered_set<FullKey, FullKeyHash> in_flight;
+    // Keys handed to the transport (TILE_OK): when, and the reply's ordinal on the stream; kept
+    // while every batch lists them. Only for viewers that report replies_received (revision 1).
+    struct Sent {
+        Clock::time_point at;
+        std::uint64_t ordinal;
+    };
+    std::unordered_map<FullKey, Sent, FullKeyHash> sent;
+    std::uint64_t replies_taken = 0;  // tile replies handed to the transport on this stream
+    bool track_sent = false;
     unsigned chunks_in_flight = 0;
     std::deque<OutMessage> outbox;
     std::uint64_t outbox_bytes = 0;
@@ -127,7 +138,7 @@ void Scheduler::remove_viewer(ViewerId id) {
 }
 
 void Scheduler::push_locked(Viewer& v, OutMessage msg) {
-    msg.bytes = message_bytes(msg.message);
+    msg.bytes = message_bytes(msg);
     v.outbox_bytes += msg.bytes;
     total_outbox_bytes_ += msg.bytes;
     v.outbox.push_back(std::move(msg));
@@ -174,6 +185,8 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     auto vit = viewers_.find(id);
     if (vit == viewers_.end()) return;
     Viewer& v = *vit->second;
+    v.track_sent = batch.protocol_revision() >= 1;
+    if (!v.track_sent) v.sent.clear();
 
     auto refuse_whole = [&](v1::TileStatus status, std::string message) {
         batches_refused_->inc();
@@ -201,7 +214,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     next.reserve(static_cast<std::size_t>(batch.requests_size()));
     std::unordered_set<FullKey, FullKeyHash> wanted;
     wanted.reserve(static_cast<std::size_t>(batch.requests_size()));
-    std::uint32_t invalid = 0, already = 0;
+    std::uint32_t invalid = 0, already = 0, already_sent = 0;
     for (const auto& r : batch.requests()) {
         if (r.store() >= static_cast<std::uint32_t>(batch.stores_size())) {
             error_reply(r, v1::TILE_INVALID_ARGUMENT, "store index " + std::to_string(r.store()) + " is not in the batch's store list");
@@ -241,6 +254,15 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
         if (!wanted.insert(fk).second || v.in_flight.contains(fk)) {
             ++already;  // a duplicate in this batch, or already being served: sent once
             continue;
+        }
+        if (auto s = v.sent.find(fk); s != v.sent.end()) {
+            // Still on the wire (the viewer had not read it when it made the batch), and not lost.
+            if (s->second.ordinal > batch.replies_received() && now - s->second.at < ctx_.config.resend_after) {
+                ++already;  // sent, and listed by every batch since: still on its way
+                ++already_sent;
+                continue;
+            }
+            v.sent.erase(s);
         }
         Pending p;
         p.priority = r.priority();
@@ -301,6 +323,10 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     const std::uint64_t generation = ++v.generation;
     for (auto& p : next) p.generation = generation;
 
+    // A sent tile this batch does not list has arrived (or is no longer wanted): forget it, so
+    // that listing it again asks for it again.
+    std::erase_if(v.sent, [&](const auto& e) { return !wanted.contains(e.first); });
+
     total_pending_ = total_pending_ - v.pending.size() + next.size();
     const bool was_idle = v.pending.empty();
     v.pending = std::move(next);
@@ -312,6 +338,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     ack.set_refused(refused);
     ack.set_invalid(invalid);
     ack.set_already_queued(already);
+    ack.set_already_sent(already_sent);
     ack.set_cancelled(static_cast<std::uint32_t>(cancelled));
     cancelled_->inc(cancelled);
     refused_->inc(refused);
@@ -380,16 +407,23 @@ void Scheduler::worker() {
         }
 
         // Read: deadlines first, then one fetch per store (cache, then coalesced file reads).
+        // Replies hold the cached tile itself: the payload is never copied on its way out.
         const auto now = Clock::now();
         replies.clear();
         replies.resize(chunk.size());
         std::map<const StoreHandle*, std::vector<std::size_t>> by_store;
         for (std::size_t i = 0; i < chunk.size(); ++i) {
+            auto& r = replies[i];
+            r.is_tile = true;
+            r.key = chunk[i].key;
+            r.frame = chunk[i].frame;
+            r.received = chunk[i].received;
+            r.store = chunk[i].store;
+            r.packed_key = chunk[i].packed;
             if (chunk[i].deadline < now) {
-                auto* t = replies[i].message.mutable_tile();
-                t->set_status(v1::TILE_DEADLINE_EXCEEDED);
-                t->set_message("not started before its deadline");
-                t->set_codec(v1::CODEC_NONE);
+                r.status = v1::TILE_DEADLINE_EXCEEDED;
+                r.error = "not started before its deadline";
+                r.codec = v1::CODEC_NONE;
                 deadline_exceeded_->inc();
             } else {
                 by_store[chunk[i].store.get()].push_back(i);
@@ -401,42 +435,20 @@ void Scheduler::worker() {
             ctx_.fetcher.fetch(*store, keys, fetched);
             for (std::size_t j = 0; j < members.size(); ++j) {
                 auto& f = fetched[j];
-                auto* t = replies[members[j]].message.mutable_tile();
-                t->set_status(f.status);
+                auto& r = replies[members[j]];
+                r.status = f.status;
                 if (f.status != v1::TILE_OK) {
-                    t->set_message(std::move(f.message));
-                    t->set_codec(v1::CODEC_NONE);
+                    r.error = std::move(f.message);
+                    r.codec = v1::CODEC_NONE;
                     if (f.status == v1::TILE_DATA_LOSS) data_loss_->inc();
                     continue;
                 }
-                const auto& tile = *f.tile;
-                t->set_kind(protocol::to_proto(tile.kind));
-                t->set_checksum(tile.checksum);
-                if (tile.kind == storage::TileKind::present) {
-                    t->set_codec(protocol::to_proto(store->info().codec));
-                    t->set_payload(tile.bytes.data(), tile.bytes.size());
-                } else if (tile.kind == storage::TileKind::uniform) {
-                    t->set_codec(v1::CODEC_UNIFORM);
-                    t->set_payload(tile.bytes.data(), tile.bytes.size());
-                } else {
-                    t->set_codec(v1::CODEC_NONE);
-                }
+                r.kind = protocol::to_proto(f.tile->kind);
+                if (f.tile->kind == storage::TileKind::present) r.codec = protocol::to_proto(store->info().codec);
+                else if (f.tile->kind == storage::TileKind::uniform) r.codec = v1::CODEC_UNIFORM;
+                else r.codec = v1::CODEC_NONE;
+                r.tile = std::move(f.tile);
             }
-        }
-        for (std::size_t i = 0; i < chunk.size(); ++i) {
-            auto& r = replies[i];
-            auto* t = r.message.mutable_tile();
-            auto* k = t->mutable_key();
-            k->set_store(chunk[i].store->name);
-            k->set_level(chunk[i].key.level);
-            k->set_x(chunk[i].key.x);
-            k->set_y(chunk[i].key.y);
-            t->set_store_version(chunk[i].store->version);
-            t->set_frame(chunk[i].frame);
-            r.received = chunk[i].received;
-            r.store = chunk[i].store;
-            r.packed_key = chunk[i].packed;
-            r.is_tile = true;
         }
 
         // Hand over, unless the viewer left or no longer wants the tile.
@@ -466,19 +478,82 @@ void Scheduler::worker() {
     }
 }
 
-bool Scheduler::next_message(ViewerId id, OutMessage& out) {
+bool Scheduler::next_messages(ViewerId id, std::vector<OutMessage>& out, std::size_t max_bytes) {
+    out.clear();
     std::lock_guard lock(mu_);
     auto it = viewers_.find(id);
     if (it == viewers_.end()) return false;
     Viewer& v = *it->second;
     if (v.writing || v.outbox.empty()) return false;
-    out = std::move(v.outbox.front());
-    v.outbox.pop_front();
-    v.writing = true;
-    if (out.is_tile) {
-        const auto us = std::chrono::duration_cast<std::chrono::microseconds>(Clock::now() - out.received).count();
-        out.message.mutable_tile()->set_server_micros(static_cast<std::uint32_t>(std::min<std::int64_t>(us, UINT32_MAX)));
+    const auto now = Clock::now();
+    std::size_t bytes = 0;
+    // An ack goes alone; replies (read tiles and error replies) go together up to max_bytes.
+    const bool ack = v.outbox.front().message.has_ack();
+    while (!v.outbox.empty()) {
+        OutMessage& m = v.outbox.front();
+        if (!out.empty() && (ack || m.message.has_ack() || bytes + m.bytes > max_bytes)) break;
+        bytes += m.bytes;
+        if (m.is_tile || m.message.has_tile()) ++v.replies_taken;
+        if (m.is_tile) {
+            const auto us = std::chrono::duration_cast<std::chrono::microseconds>(now - m.received).count();
+            m.server_micros = static_cast<std::uint32_t>(std::min<std::int64_t>(us, UINT32_MAX));
+            if (m.status == v1::TILE_OK && v.track_sent) {
+                // On its way: from now on the sent set, not in_flight, keeps a batch that still
+                // lists it from asking for it again (revision 0: in_flight until written).
+                const FullKey fk{m.store.get(), m.packed_key};
+                v.in_flight.erase(fk);
+                v.sent.insert_or_assign(fk, Viewer::Sent{now, v.replies_taken});
+                m.left_in_flight = true;
+            }
+        }
+        out.push_back(std::move(m));
+        v.outbox.pop_front();
     }
+    v.writing = true;
+    return true;
+}
+
+void Scheduler::written_locked(Viewer& v, const OutMessage& msg, bool& wake_workers) {
+    const bool was_full = v.outbox_bytes >= ctx_.config.viewer_buffer_bytes;
+    v.outbox_bytes -= msg.bytes;
+    total_outbox_bytes_ -= msg.bytes;
+    if (msg.is_tile && !msg.left_in_flight) v.in_flight.erase(FullKey{msg.store.get(), msg.packed_key});
+    wake_workers = wake_workers || was_full || total_outbox_bytes_ + msg.bytes >= ctx_.config.total_buffer_bytes;
+}
+
+void Scheduler::account_written(const OutMessage& msg, bool ok) {
+    if (!ok || !msg.is_tile) return;
+    latency_->observe(std::chrono::duration<double>(Clock::now() - msg.received).count());
+    if (msg.status == v1::TILE_OK && msg.kind != v1::KIND_ABSENT) {
+        const std::size_t n = msg.payload_size();
+        tiles_sent_->inc();
+        bytes_sent_->inc(n);
+        msg.store->metrics.tiles_sent->inc();
+        msg.store->metrics.bytes_sent->inc(n);
+    }
+}
+
+bool Scheduler::messages_written(ViewerId id, const std::vector<OutMessage>& msgs, bool ok) {
+    bool wake_workers = false, full = false;
+    {
+        std::lock_guard lock(mu_);
+        auto it = viewers_.find(id);
+        if (it != viewers_.end()) {
+            Viewer& v = *it->second;
+            v.writing = false;
+            for (const auto& m : msgs) written_locked(v, m, wake_workers);
+            full = v.outbox_bytes >= ctx_.config.viewer_buffer_bytes;
+        }
+    }
+    if (wake_workers) work_cv_.notify_all();
+    for (const auto& m : msgs) account_written(m, ok);
+    return full;
+}
+
+bool Scheduler::next_message(ViewerId id, OutMessage& out) {
+    std::vector<OutMessage> one;
+    if (!next_messages(id, one, 0)) return false;
+    out = std::move(one.front());
     return true;
 }
 
@@ -490,23 +565,34 @@ void Scheduler::message_written(ViewerId id, const OutMessage& msg, bool ok) {
         if (it != viewers_.end()) {
             Viewer& v = *it->second;
             v.writing = false;
-            const bool was_full = v.outbox_bytes >= ctx_.config.viewer_buffer_bytes;
-            v.outbox_bytes -= msg.bytes;
-            total_outbox_bytes_ -= msg.bytes;
-            if (msg.is_tile) v.in_flight.erase(FullKey{msg.store.get(), msg.packed_key});
-            wake_workers = was_full || total_outbox_bytes_ + msg.bytes >= ctx_.config.total_buffer_bytes;
+            written_locked(v, msg, wake_workers);
         }
     }
     if (wake_workers) work_cv_.notify_all();
-    if (!ok || !msg.is_tile) return;
-    const auto& t = msg.message.tile();
-    latency_->observe(std::chrono::duration<double>(Clock::now() - msg.received).count());
-    if (t.status() == v1::TILE_OK && t.kind() != v1::KIND_ABSENT) {
-        tiles_sent_->inc();
-        bytes_sent_->inc(t.payload().size());
-        msg.store->metrics.tiles_sent->inc();
-        msg.store->metrics.bytes_sent->inc(t.payload().size());
+    account_written(msg, ok);
+}
+
+v1::ServerMessage OutMessage::to_proto() const {
+    if (!is_tile) return message;
+    v1::ServerMessage m;
+    auto* t = m.mutable_tile();
+    auto* k = t->mutable_key();
+    k->set_store(store->name);
+    k->set_level(key.level);
+    k->set_x(key.x);
+    k->set_y(key.y);
+    t->set_store_version(store->version);
+    t->set_frame(frame);
+    t->set_status(status);
+    t->set_message(error);
+    t->set_kind(kind);
+    t->set_codec(codec);
+    if (tile) {
+        t->set_checksum(tile->checksum);
+        if (kind != v1::KIND_ABSENT) t->set_payload(tile->bytes.data(), tile->bytes.size());
     }
+    t->set_server_micros(server_micros);
+    return m;
 }
 
 bool Scheduler::outbox_full(ViewerId id) const {

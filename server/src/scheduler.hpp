@@ -7,6 +7,11 @@
 // are read together. Replies wait in a per-viewer outbox bounded in bytes: a viewer that does not
 // read stops being served (gRPC flow control), so it bounds its own memory, not the server's.
 //
+// Re-listed tiles: a tile handed to the transport stays in the viewer's sent set while every
+// batch since lists it (it is on its way); such a tile is not sent again (BatchAck.already_sent),
+// for at most config.resend_after. A batch that no longer lists it clears it, so a tile listed
+// again after that is served again.
+//
 // Owner: the Server. Threads: io_threads workers, owned here. Every queue is bounded: pending
 // by max_pending (over all viewers) and max_batch (per viewer), outboxes by viewer_buffer_bytes
 // and total_buffer_bytes, in-flight reads by kMaxChunksInFlight chunks per viewer.
@@ -37,14 +42,30 @@ public:
     virtual void on_outbox_ready() = 0;
 };
 
-// One message on its way to a viewer.
+// One message on its way to a viewer: an ack or an error reply found in submit() (message), or
+// a tile an I/O thread read (is_tile: the reply's fields, the payload by reference to the cached
+// tile, never copied; the stream encodes it, see grpc_service.cpp).
 struct OutMessage {
-    v1::ServerMessage message;
+    v1::ServerMessage message;       // !is_tile
     std::size_t bytes = 0;           // charged to the outbox
     Clock::time_point received{};    // batch arrival (tiles), for latency
     std::shared_ptr<const StoreHandle> store;  // tiles: per-store accounting
     std::uint64_t packed_key = 0;
     bool is_tile = false;
+    // is_tile:
+    storage::TileKey key;
+    std::uint64_t frame = 0;
+    v1::TileStatus status = v1::TILE_OK;
+    std::string error;               // when status is not TILE_OK
+    v1::TileKind kind = v1::KIND_ABSENT;
+    v1::Codec codec = v1::CODEC_NONE;
+    std::shared_ptr<const storage::Tile> tile;  // status TILE_OK: payload and checksum
+    std::uint32_t server_micros = 0;            // set when taken from the outbox
+    bool left_in_flight = false;  // taken into the sent set (revision 1): in_flight already cleared
+
+    std::size_t payload_size() const { return is_tile && tile && kind != v1::KIND_ABSENT ? tile->bytes.size() : 0; }
+    // The whole reply as a protobuf message, payload copied (tests and tools; the stream does not).
+    v1::ServerMessage to_proto() const;
 };
 
 struct SchedulerStats {
@@ -75,8 +96,13 @@ public:
     // replies) in the outbox. Wakes the I/O threads.
     void submit(ViewerId id, const v1::TileBatch& batch);
 
-    // Stream side. next_message moves the next outbox message into out (false: none). While a
-    // message is out, the viewer's writer is busy; message_written ends it.
+    // Stream side. next_messages moves the next outbox messages into out (cleared first; false:
+    // none): an ack alone, or the replies at the front, as many as fit in max_bytes (at least
+    // one), all under one lock. While messages are out, the viewer's writer is busy;
+    // messages_written ends it and says whether the outbox is still full.
+    bool next_messages(ViewerId id, std::vector<OutMessage>& out, std::size_t max_bytes);
+    bool messages_written(ViewerId id, const std::vector<OutMessage>& msgs, bool ok);
+    // One message at a time (tests).
     bool next_message(ViewerId id, OutMessage& out);
     void message_written(ViewerId id, const OutMessage& msg, bool ok);
     bool outbox_full(ViewerId id) const;
@@ -104,6 +130,8 @@ private:
     Viewer* pick_locked();
     bool eligible_locked(const Viewer& v) const;
     void push_locked(Viewer& v, OutMessage msg);
+    void written_locked(Viewer& v, const OutMessage& msg, bool& wake_workers);
+    void account_written(const OutMessage& msg, bool ok);
     void notify(std::vector<std::shared_ptr<ViewerSink>>& sinks);
 
     ServerContext& ctx_;

@@ -138,6 +138,7 @@ struct Fixture {
         c0.total_buffer_bytes = 1 << 20;
         c0.cache_bytes = 256 << 10;
         c0.max_viewers = 4;
+        c0.resend_after = std::chrono::hours(1);  // re-listed tiles: never a time-out within one input
         ServerConfig c1 = c0;
         c1.auth_token = std::string(kToken);
         c1.max_batch = 48;
@@ -511,14 +512,15 @@ void classify(const Fixture& fx, const ServerConfig& config, SentBatch& s) {
 
 // Checks one message as it arrives and records it (without its payload).
 void receive(const Fixture& fx, ViewerState& v, const OutMessage& m) {
+    const v1::ServerMessage msg = m.to_proto();  // read tiles carry their payload by reference
     if (kVerbose) {
-        if (m.message.has_ack()) {
-            const auto& a = m.message.ack();
+        if (msg.has_ack()) {
+            const auto& a = msg.ack();
             std::fprintf(stderr, "viewer %llu: ack frame %llu status %d admitted %u refused %u invalid %u already %u cancelled %u\n",
                          static_cast<unsigned long long>(v.id), static_cast<unsigned long long>(a.frame()), a.status(),
                          a.admitted(), a.refused(), a.invalid(), a.already_queued(), a.cancelled());
         } else {
-            const auto& t = m.message.tile();
+            const auto& t = msg.tile();
             std::fprintf(stderr, "viewer %llu: %s %s/%u/%u/%u frame %llu status %d kind %d %zu bytes\n",
                          static_cast<unsigned long long>(v.id), m.is_tile ? "tile" : "error", t.key().store().c_str(),
                          t.key().level(), t.key().x(), t.key().y(), static_cast<unsigned long long>(t.frame()),
@@ -527,11 +529,11 @@ void receive(const Fixture& fx, ViewerState& v, const OutMessage& m) {
     }
     Got g;
     g.is_tile = m.is_tile;
-    g.ack = m.message.has_ack();
-    FUZZ_CHECK(m.message.has_ack() != m.message.has_tile());
+    g.ack = msg.has_ack();
+    FUZZ_CHECK(msg.has_ack() != msg.has_tile());
     FUZZ_CHECK(m.bytes >= 64);
-    if (m.message.has_tile()) {
-        const v1::TileReply& t = m.message.tile();
+    if (msg.has_tile()) {
+        const v1::TileReply& t = msg.tile();
         FUZZ_CHECK(t.has_key());
         if (t.status() == v1::TILE_OK) {
             FUZZ_CHECK(m.is_tile);  // errors found in submit() are never OK
@@ -568,7 +570,7 @@ void receive(const Fixture& fx, ViewerState& v, const OutMessage& m) {
             FUZZ_CHECK(m.store != nullptr && m.store->name == t.key().store());
         }
     }
-    g.msg = m.message;
+    g.msg = msg;
     if (g.msg.has_tile()) g.msg.mutable_tile()->clear_payload();
     v.got.push_back(std::move(g));
 }
@@ -659,7 +661,8 @@ void check_stream(const Fixture& fx, std::vector<SentBatch>& sent, ViewerState& 
     FUZZ_CHECK(next_ack == v.batches.size());  // one ack per batch
 
     // The last batch in force: every key it wants is answered exactly once after it was sent,
-    // and nothing else is.
+    // and nothing else is; except that a tile sent OK while every batch since listed it is not
+    // sent again (re-listed tiles, docs/protocol.md): then no reply after the last batch.
     if (current) {
         std::map<FullKey, unsigned> replies;
         for (std::size_t i = current->prefix; i < v.got.size(); ++i) {
@@ -668,8 +671,32 @@ void check_stream(const Fixture& fx, std::vector<SentBatch>& sent, ViewerState& 
             const v1::TileReply& t = g.msg.tile();
             ++replies[full_key(store_index(fx, t.key().store()), TileKey{t.key().level(), t.key().x(), t.key().y()})];
         }
-        FUZZ_CHECK(replies.size() == current->wanted.size());
         for (const auto& [fk, n] : replies) FUZZ_CHECK(n == 1 && current->wanted.contains(fk));
+        std::size_t pos = 0;  // current's place among this viewer's batches
+        while (&sent[v.batches[pos]] != current) ++pos;
+        for (const FullKey& fk : current->wanted) {
+            if (replies.contains(fk)) continue;
+            // Where the run of batches listing fk began (batches refused whole change nothing).
+            std::size_t start = pos;
+            for (std::size_t j = pos; j-- > 0;) {
+                const SentBatch& b = sent[v.batches[j]];
+                if (b.too_large) continue;
+                if (!b.wanted.contains(fk)) break;
+                start = j;
+            }
+            unsigned ok = 0;
+            v1::TileStatus last = v1::TILE_INTERNAL;
+            for (std::size_t i = sent[v.batches[start]].prefix; i < current->prefix; ++i) {
+                const Got& g = v.got[i];
+                if (!g.is_tile) continue;
+                const v1::TileReply& t = g.msg.tile();
+                if (full_key(store_index(fx, t.key().store()), TileKey{t.key().level(), t.key().x(), t.key().y()}) != fk)
+                    continue;
+                last = t.status();
+                if (last == v1::TILE_OK) ++ok;
+            }
+            FUZZ_CHECK(ok == 1 && last == v1::TILE_OK);
+        }
     }
 }
 
@@ -703,6 +730,10 @@ void fuzz_batches(const Fixture& fx, std::uint8_t flags, std::string_view rest) 
         // Frames name the batch (the checks match replies to batches by frame).
         s.batch.set_frame((s.batch.frame() & ~std::uint64_t(3)) | i);
         s.viewer = i % nviewers;
+        // Re-listed tiles: every batch made before anything arrived (a sent tile is on the wire),
+        // and one revision per input (revision 0 viewers get no re-send suppression).
+        s.batch.set_replies_received(0);
+        if (i > 0) s.batch.set_protocol_revision(sent[0].batch.protocol_revision());
         classify(fx, in.config, s);
         sent.push_back(std::move(s));
     }

@@ -33,6 +33,7 @@
 #include <variant>
 
 #include "tessera.grpc.pb.h"
+#include "tessera/protocol/stream_codec.hpp"
 
 namespace tessera::client {
 
@@ -52,6 +53,8 @@ const char* to_string(ConnectionState s) {
 namespace {
 
 constexpr std::size_t kMaxReceiveMessageBytes = std::size_t(64) << 20;
+constexpr const char* kStreamTilesMethod = "/tessera.v1.TileService/StreamTiles";
+using RawStream = grpc::ClientReaderWriter<v1::TileBatch, grpc::ByteBuffer>;
 constexpr int kKeepaliveTimeMs = 30000;
 constexpr int kKeepaliveTimeoutMs = 10000;
 // How often a connection attempt looks at closing_ while it waits for the channel.
@@ -126,22 +129,26 @@ std::size_t accounted_bytes(const ReceivedTile& t) {
 }
 std::size_t accounted_bytes(const BatchAckInfo& a) { return sizeof(Item) + a.message.size(); }
 
-ReceivedTile decode(v1::TileReply& r, Clock::time_point received) {
+// One reply of a received message; the payload is copied once, from gRPC's receive slices.
+ReceivedTile decode(const protocol::ServerMessageDecoder& d, std::size_t i, Clock::time_point received) {
+    const protocol::DecodedTile& r = d.tile(i);
     ReceivedTile t;
-    t.store = std::move(*r.mutable_key()->mutable_store());
-    t.level = r.key().level();
-    t.x = r.key().x();
-    t.y = r.key().y();
-    t.store_version = r.store_version();
-    t.frame = r.frame();
-    t.status = r.status();
-    t.message = std::move(*r.mutable_message());
-    t.kind = r.kind();
-    t.codec = r.codec();
-    const std::string& payload = r.payload();
-    t.payload.assign(payload.begin(), payload.end());
-    t.checksum = r.checksum();
-    t.server_micros = r.server_micros();
+    t.store = r.store;
+    t.level = r.level;
+    t.x = r.x;
+    t.y = r.y;
+    t.store_version = r.store_version;
+    t.frame = r.frame;
+    t.status = r.status;
+    t.message = r.message;
+    t.kind = r.kind;
+    t.codec = r.codec;
+    if (r.payload_size) {
+        t.payload.resize(r.payload_size);
+        d.copy_payload(i, t.payload.data());
+    }
+    t.checksum = r.checksum;
+    t.server_micros = r.server_micros;
     t.received = received;
     return t;
 }
@@ -200,6 +207,7 @@ public:
     void send_batch(std::uint64_t frame, std::vector<TileRequest>& requests, milliseconds deadline) {
         auto batch = std::make_shared<v1::TileBatch>();
         batch->set_frame(frame);
+        batch->set_protocol_revision(protocol::kProtocolRevision);  // several tiles per message
         batch->set_deadline_ms(static_cast<std::uint32_t>(
             std::clamp<milliseconds::rep>(deadline.count(), 0, std::numeric_limits<std::uint32_t>::max())));
         std::unordered_map<std::string_view, std::uint32_t> store_index;
@@ -220,6 +228,8 @@ public:
         }
         {
             std::lock_guard lk(mu_);
+            // What has arrived so far: the server tells tiles on the wire from tiles asked for again.
+            batch->set_replies_received(replies_on_stream_);
             if (batch_ && written_gen_ != batch_gen_) ++stats_.batches_superseded;
             batch_ = std::move(batch);
             ++batch_gen_;
@@ -376,14 +386,18 @@ private:
             if (closing_) return false;
             ctx_ = ctx.get();  // close() may TryCancel it from now on
         }
-        std::unique_ptr<grpc::ClientReaderWriter<v1::TileBatch, v1::ServerMessage>> stream =
-            stub_->StreamTiles(ctx.get());
+        // Replies are read raw and decoded straight from the receive slices (stream_codec.hpp).
+        const grpc::internal::RpcMethod method(kStreamTilesMethod, grpc::internal::RpcMethod::BIDI_STREAMING, channel_);
+        std::unique_ptr<RawStream> stream(
+            grpc::internal::ClientReaderWriterFactory<v1::TileBatch, grpc::ByteBuffer>::Create(channel_.get(), method,
+                                                                                                ctx.get()));
         {
             std::lock_guard lk(mu_);
             if (!closing_) state_ = ConnectionState::connected;
             ++stats_.connects;
             if (stats_.connects > 1) ++stats_.reconnects;
             written_gen_ = 0;  // the newest batch goes out again on this stream
+            replies_on_stream_ = 0;
             stream_live_ = true;
             read_ended_ = false;
             half_closed_ = false;
@@ -391,7 +405,7 @@ private:
         std::thread writer([this, s = stream.get()] { run_writer(*s); });
 
         bool served = false;
-        v1::ServerMessage msg;
+        grpc::ByteBuffer msg;
         for (;;) {
             {
                 std::unique_lock lk(mu_);
@@ -424,7 +438,7 @@ private:
     }
 
     // The writer thread of one stream: writes each newer batch once; half-closes on close().
-    void run_writer(grpc::ClientReaderWriter<v1::TileBatch, v1::ServerMessage>& stream) {
+    void run_writer(RawStream& stream) {
         std::unique_lock lk(mu_);
         for (;;) {
             batch_cv_.wait(lk, [&] { return closing_ || read_ended_ || (batch_ && written_gen_ != batch_gen_); });
@@ -446,44 +460,57 @@ private:
         wake_cv_.notify_all();
     }
 
-    void deliver(v1::ServerMessage& msg, Clock::time_point received) {
-        Item item;
-        bool is_tile = false;
-        std::size_t payload_bytes = 0;
-        bool bad_checksum = false;
-        if (msg.has_tile()) {
-            ReceivedTile t = decode(*msg.mutable_tile(), received);
-            payload_bytes = t.payload.size();
-            if (t.status == v1::TILE_OK && !t.payload.empty() &&
-                XXH3_64bits(t.payload.data(), t.payload.size()) != t.checksum) {
-                bad_checksum = true;
-                t.status = v1::TILE_DATA_LOSS;
-                t.message = "checksum mismatch in transit";
-                t.payload.clear();
-                t.payload.shrink_to_fit();
+    // Decodes one message (a tile, several tiles, or an ack) and queues its items, under one lock.
+    void deliver(const grpc::ByteBuffer& msg, Clock::time_point received) {
+        items_.clear();
+        std::size_t tiles = 0, payload_bytes = 0, bad_checksums = 0;
+        if (!decoder_.decode(msg)) {
+            std::lock_guard lk(mu_);
+            last_error_ = "INTERNAL: malformed ServerMessage from the server; ignored";
+            return;
+        }
+        if (decoder_.kind() == protocol::ServerMessageDecoder::Kind::tiles) {
+            for (std::size_t i = 0; i < decoder_.tile_count(); ++i) {
+                ReceivedTile t = decode(decoder_, i, received);
+                payload_bytes += t.payload.size();
+                if (t.status == v1::TILE_OK && !t.payload.empty() &&
+                    XXH3_64bits(t.payload.data(), t.payload.size()) != t.checksum) {
+                    ++bad_checksums;
+                    t.status = v1::TILE_DATA_LOSS;
+                    t.message = "checksum mismatch in transit";
+                    t.payload.clear();
+                    t.payload.shrink_to_fit();
+                }
+                Item item;
+                item.bytes = accounted_bytes(t);
+                item.body = std::move(t);
+                items_.push_back(std::move(item));
+                ++tiles;
             }
-            item.bytes = accounted_bytes(t);
-            item.body = std::move(t);
-            is_tile = true;
-        } else if (msg.has_ack()) {
-            BatchAckInfo a = decode(*msg.mutable_ack());
+        } else if (decoder_.kind() == protocol::ServerMessageDecoder::Kind::ack) {
+            BatchAckInfo a = decode(decoder_.mutable_ack());
+            Item item;
             item.bytes = accounted_bytes(a);
             item.body = std::move(a);
+            items_.push_back(std::move(item));
         } else {
             return;  // a body this client does not know (a newer server): ignore it
         }
         {
             std::lock_guard lk(mu_);
-            if (is_tile) {
-                ++stats_.tiles_received;
+            if (decoder_.kind() == protocol::ServerMessageDecoder::Kind::tiles) {
+                replies_on_stream_ += tiles;
+                stats_.tiles_received += tiles;
                 stats_.bytes_received += payload_bytes;
-                if (bad_checksum) ++stats_.checksum_failures;
+                stats_.checksum_failures += bad_checksums;
             } else {
                 ++stats_.acks_received;
             }
-            buffered_bytes_ += item.bytes;
+            for (auto& item : items_) {
+                buffered_bytes_ += item.bytes;
+                queue_.push_back(std::move(item));
+            }
             stats_.peak_buffered_bytes = std::max(stats_.peak_buffered_bytes, buffered_bytes_);
-            queue_.push_back(std::move(item));
         }
         data_cv_.notify_all();
     }
@@ -492,6 +519,8 @@ private:
     std::shared_ptr<grpc::Channel> channel_;
     std::unique_ptr<v1::TileService::Stub> stub_;
     std::mt19937_64 rng_;  // session thread only
+    protocol::ServerMessageDecoder decoder_;  // session thread only (the reader)
+    std::vector<Item> items_;                 // session thread only: one message's items
 
     mutable std::mutex mu_;
     std::condition_variable data_cv_;   // pollers: the queue became non-empty, or closing
@@ -505,6 +534,7 @@ private:
     std::shared_ptr<const v1::TileBatch> batch_;  // the newest batch (the one-slot outgoing queue)
     std::uint64_t batch_gen_ = 0;                 // bumped by every send_batch
     std::uint64_t written_gen_ = 0;               // the generation written on the current stream
+    std::uint64_t replies_on_stream_ = 0;         // tile replies read on the current stream
     grpc::ClientContext* ctx_ = nullptr;          // the current stream's context, owned by the session thread
     bool stream_live_ = false;                    // a stream is open (between open and Finish)
     bool read_ended_ = false;                     // the current stream's read side is done

@@ -44,6 +44,10 @@ struct ServerConfig {
     std::size_t total_buffer_bytes = std::size_t(512) << 20; // the same over all viewers
 
     std::chrono::milliseconds request_timeout{5000};  // default deadline of a tile request
+    // A tile sent to a viewer and listed by every batch since is not sent again for this long
+    // (it is still on its way); see docs/protocol.md, "Re-listed tiles".
+    std::chrono::milliseconds resend_after{2000};
+    std::size_t grpc_message_bytes = 256u << 10;  // replies coalesced into one message (revision 1)
     std::chrono::milliseconds idle_timeout{60000};    // HTTP keep-alive idle limit
     std::chrono::milliseconds drain_timeout{10000};   // SIGTERM: longest wait for in-flight work
     unsigned http_max_age = 60;  // Cache-Control max-age for tiles (versioned URLs: a year)
