@@ -80,14 +80,7 @@ public:
         const auto vp = view_projection(camera, aspect);
         geometry_.cull(camera, aspect);
         glProgramUniformMatrix4fv(program_.get(), u_view_projection_, 1, GL_FALSE, vp.data());
-        glBindFramebuffer(GL_FRAMEBUFFER, target_.fbo.get());
-        glViewport(0, 0, GLsizei(cfg_.width), GLsizei(cfg_.height));
-        if (cfg_.srgb) glEnable(GL_FRAMEBUFFER_SRGB);
-        glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-        glDepthMask(GL_TRUE);
-        glClearBufferfv(GL_COLOR, 0, kBackground);
-        const GLfloat far_depth = 1.0f;
-        glClearBufferfv(GL_DEPTH, 0, &far_depth);
+        begin_colour_pass(target_);
         glEnable(GL_CULL_FACE);
         glCullFace(GL_BACK);
         glFrontFace(GL_CCW);

@@ -134,6 +134,17 @@ scene::Mat4f view_projection(const scene::Camera& camera, double aspect) {
     return scene::multiply(scene::projection(camera, aspect), scene::view_rotation(camera));
 }
 
+void begin_colour_pass(const ColourTarget& t) {
+    glBindFramebuffer(GL_FRAMEBUFFER, t.fbo.get());
+    glViewport(0, 0, GLsizei(t.width), GLsizei(t.height));
+    if (t.srgb) glEnable(GL_FRAMEBUFFER_SRGB);
+    glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+    glDepthMask(GL_TRUE);
+    glClearBufferfv(GL_COLOR, 0, kBackground);
+    const GLfloat far_depth = 1.0f;
+    glClearBufferfv(GL_DEPTH, 0, &far_depth);
+}
+
 Result<ColourTarget> make_colour_target(std::uint32_t width, std::uint32_t height, bool srgb) {
     ColourTarget t;
     t.width = width;

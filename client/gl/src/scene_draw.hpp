@@ -63,4 +63,8 @@ std::vector<std::uint8_t> read_colour(const ColourTarget& t);
 // Clear colour of pixels without geometry (linear RGBA; black, alpha 0).
 inline constexpr float kBackground[4] = {0.0f, 0.0f, 0.0f, 0.0f};
 
+// Binds `t` for drawing over all of it (sRGB encoding on for an sRGB target, colour and depth
+// writes on) and clears it to kBackground and the far depth.
+void begin_colour_pass(const ColourTarget& t);
+
 }  // namespace tessera::client::gl::detail

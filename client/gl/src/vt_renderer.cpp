@@ -459,14 +459,7 @@ public:
         // each visible pixel is shaded and counted once. A scene where no triangle can hide another
         // (scene::overdraw_free: the flat terrain) needs no pre-pass: the VT pass alone shades
         // each pixel once.
-        glBindFramebuffer(GL_FRAMEBUFFER, main_.fbo.get());
-        glViewport(0, 0, GLsizei(cfg_.width), GLsizei(cfg_.height));
-        if (cfg_.srgb) glEnable(GL_FRAMEBUFFER_SRGB);
-        glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-        glDepthMask(GL_TRUE);
-        glClearBufferfv(GL_COLOR, 0, kBackground);
-        const GLfloat far_depth = 1.0f;
-        glClearBufferfv(GL_DEPTH, 0, &far_depth);
+        begin_colour_pass(main_);
         const std::uint32_t zero = 0;
         glClearNamedBufferData(counters_.get(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
         const auto counter_slot = acquire_counter_slot();
