@@ -87,10 +87,7 @@ void far_corner_exact(std::uint32_t size) {
     const std::uint32_t levels = info.level_count();
     std::vector<std::uint8_t> page(std::size_t(kTile) * kTile * 4);
     for (const std::uint32_t level : {0u, 1u, 4u, 9u, levels - 2, levels - 1}) {
-        const std::uint32_t texels = info.levels[level].width, pages = info.levels[level].tiles_x;
-        const std::uint32_t last = pages - 1;
-        const std::uint32_t k = pages >= 2 ? last * kP : texels - 40;
-        const std::uint32_t first_page = pages >= 2 ? last - 1 : 0, count = pages >= 2 ? 2 : 1;
+        const auto [texels, pages, k, first_page, count] = tessera::test::corner_pages(info, level);
         std::vector<std::pair<std::uint32_t, std::uint32_t>> mapped;
         for (std::uint32_t py = 0; py < count; ++py)
             for (std::uint32_t px = 0; px < count; ++px) {

@@ -98,11 +98,7 @@ TEST(RenderStability, LargestAcceptedTextureIsExactAtTheFarCornerAtEveryLevel) {
     const std::uint32_t levels = info.level_count();
     std::vector<std::uint8_t> page(std::size_t(kTile) * kTile * 4);
     for (const std::uint32_t level : {0u, 1u, 4u, 9u, levels - 2, levels - 1}) {
-        const std::uint32_t texels = info.levels[level].width, pages = info.levels[level].tiles_x;
-        const std::uint32_t last = pages - 1;
-        // View centre (a level-L texel corner): the corner of the last two pages, or near the end.
-        const std::uint32_t k = pages >= 2 ? last * kP : texels - 40;
-        const std::uint32_t first_page = pages >= 2 ? last - 1 : 0, count = pages >= 2 ? 2 : 1;
+        const auto [texels, pages, k, first_page, count] = tessera::test::corner_pages(info, level);
         std::vector<std::uint32_t> entries;
         for (std::uint32_t py = 0; py < count; ++py)
             for (std::uint32_t px = 0; px < count; ++px) {

@@ -110,6 +110,24 @@ inline void encode_page(std::vector<std::uint8_t>& page, std::uint32_t tile, std
         }
 }
 
+// The pages the far-corner tests map at `level`: the last 2 x 2 (or the one page of a 1-page
+// level), and the view centre k, a level-L texel corner: where those pages meet, or near the end.
+struct CornerPages {
+    std::uint32_t texels = 0, pages = 0;      // of the level, per side
+    std::uint32_t k = 0;                      // view centre, level-L texels
+    std::uint32_t first_page = 0, count = 0;  // pages first_page .. first_page + count - 1 per axis
+};
+inline CornerPages corner_pages(const storage::StoreInfo& info, std::uint32_t level) {
+    CornerPages c;
+    c.texels = info.levels[level].width;
+    c.pages = info.levels[level].tiles_x;
+    const std::uint32_t last = c.pages - 1;
+    c.k = c.pages >= 2 ? last * info.tile_payload : c.texels - 40;
+    c.first_page = c.pages >= 2 ? last - 1 : 0;
+    c.count = c.pages >= 2 ? 2 : 1;
+    return c;
+}
+
 // The far-corner view: a chunk from an odd origin `o` (low bits set at every level) to the far
 // edge of a size^2 texture, seen straight down at exactly 2^level level-0 texels per pixel (an
 // image height_px pixels high), centred on level-`level` texel corner (k, k).
