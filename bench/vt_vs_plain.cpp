@@ -8,10 +8,11 @@
 // glFinish, so drift on this shared machine hits both alike. Reports wall time and process CPU
 // time (rasterizer threads included) per frame. Prints a table and writes JSON.
 //
-//   vt_vs_plain STORE.tsr [--size 640x360] [--frames 240] [--displacement H] [--json FILE]
+//   vt_vs_plain STORE.tsr [--size 640x360] [--frames 240] [--displacement H] [--filter NAME] [--json FILE]
 //
 // --displacement: terrain with hills of that height (texels) instead of the flat plane, so the VT
 // frame includes its depth pre-pass (a flat plane needs none: no triangle can hide another).
+// --filter: only that filter (bilinear, trilinear or anisotropic) instead of all three.
 #include <epoxy/gl.h>
 
 #include <algorithm>
@@ -62,8 +63,9 @@ int fail(const std::string& what) {
 }  // namespace
 
 int main(int argc, char** argv) {
-    if (argc < 2) return fail("usage: vt_vs_plain STORE.tsr [--size WxH] [--frames N] [--displacement H] [--json FILE]");
-    std::string store = argv[1], json;
+    if (argc < 2)
+        return fail("usage: vt_vs_plain STORE.tsr [--size WxH] [--frames N] [--displacement H] [--filter NAME] [--json FILE]");
+    std::string store = argv[1], json, only;
     unsigned w = 640, h = 360, frames = 240;
     double displacement = 0;
     for (int i = 2; i + 1 < argc; i += 2) {
@@ -71,6 +73,7 @@ int main(int argc, char** argv) {
         else if (!std::strcmp(argv[i], "--frames")) frames = unsigned(std::atoi(argv[i + 1]));
         else if (!std::strcmp(argv[i], "--json")) json = argv[i + 1];
         else if (!std::strcmp(argv[i], "--displacement")) displacement = std::atof(argv[i + 1]);
+        else if (!std::strcmp(argv[i], "--filter")) only = argv[i + 1];
         else return fail(std::string("unknown flag ") + argv[i]);
     }
     auto ctx = client::gl::GlContext::create_headless();
@@ -89,7 +92,11 @@ int main(int argc, char** argv) {
     const client::gl::Filter filters[] = {client::gl::Filter::bilinear, client::gl::Filter::trilinear,
                                           client::gl::Filter::anisotropic};
     const char* names[] = {"bilinear", "trilinear", "anisotropic"};
+    if (!only.empty() && only != "bilinear" && only != "trilinear" && only != "anisotropic")
+        return fail("--filter must be bilinear, trilinear or anisotropic, not " + only);
+    bool first = true;
     for (int fi = 0; fi < 3; ++fi) {
+        if (!only.empty() && only != names[fi]) continue;
         auto source = client::make_local_store_source(2);
         auto info = source->bind(0, store);
         if (!info) return fail(info.error().message);
@@ -140,6 +147,7 @@ int main(int argc, char** argv) {
         std::vector<client::gl::FrameCounters> counters;
         (*vt)->finish(&counters, nullptr);
 
+        setenv("ABL_ON", "1", 1);
         std::vector<double> vt_ms, plain_ms, vt_cpu, plain_cpu;
         for (unsigned f = 0; f < frames; ++f) {
             const auto cam = cam_at(f);
@@ -170,9 +178,10 @@ int main(int argc, char** argv) {
                       "%s{\"filter\": \"%s\", \"vt_mean_ms\": %.3f, \"vt_median_ms\": %.3f, \"plain_mean_ms\": %.3f, "
                       "\"plain_median_ms\": %.3f, \"ratio_median\": %.3f, \"vt_cpu_median_ms\": %.3f, "
                       "\"plain_cpu_median_ms\": %.3f, \"cpu_ratio_median\": %.3f}",
-                      fi ? ", " : "", names[fi], mean(vt_ms), median(vt_ms), mean(plain_ms), median(plain_ms), ratio,
+                      first ? "" : ", ", names[fi], mean(vt_ms), median(vt_ms), mean(plain_ms), median(plain_ms), ratio,
                       median(vt_cpu), median(plain_cpu), cpu_ratio);
         out_json += buf;
+        first = false;
     }
     out_json += "]}\n";
     if (!json.empty()) std::ofstream(json) << out_json;

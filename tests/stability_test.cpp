@@ -4,8 +4,8 @@
 //   StabilityAddressing  the shader's texel addressing (vt_sample.glsl, vt_level_position) mirrored
 //                        in float32 as the GPU runs it, against exact integer math, at every level
 //                        near the far corner of 2^10 .. 2^24-texel textures (and odd sizes); where
-//                        the float local offset stops being exact (chunk size) and where the
-//                        32-bit signed texel index wraps (2^31).
+//                        the float local offset stops being exact (chunk size); no texel index, so
+//                        no wrap below the uint32 chunk origin's 2^32.
 //   StabilityLod         the LoD rule at extreme, degenerate and grazing derivatives; the GPU's
 //                        float evaluation agrees with the double rule; a static camera is
 //                        deterministic and tiny jitter only moves pixels on a boundary.
@@ -55,24 +55,32 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Addressing. vt_level_position in float32, as the GPU evaluates it (one axis):
-//     low = origin & (2^L - 1);  q = ldexp(float(low) + local, -L);  k = floor(q);
-//     texel = int(origin >> L) + int(k);  frac = q - k
-// `local` is the interpolated float offset from the chunk's integer texel origin.
+// Addressing. vt_level_position in float32, as the GPU evaluates it (one axis). The chunk's page
+// frame (SceneGeometry::set_page_layout): page0 = origin / P, base = origin - page0 * P. Then
+//     q0 = base + local;  b = page0 & (2^L - 1);  q = (float(b) * P + q0) * 2^-L
+//     k = floor(q / P) (float), r = q - k * P, corrected into [0, P);  page = (page0 >> L) + k
+// `local` is the interpolated float offset from the chunk's integer texel origin. The GPU may fuse
+// float(b) * P + q0 into one rounding; this mirror rounds twice, the worse case.
 struct GpuPos {
-    std::int32_t texel;
-    float frac;
+    std::int64_t texel;  // page * P + floor(in_page): the texel the position lies in
+    float frac;          // in_page - floor(in_page)
 };
 
 GpuPos gpu_level_position(std::uint32_t origin, float local, std::uint32_t level) {
-    const std::uint32_t low = origin & ((1u << level) - 1u);
-    const float sum = static_cast<float>(low) + local;  // one float add (rounded)
-    const float q = std::ldexp(sum, -static_cast<int>(level));
-    const float k = std::floor(q);
-    // ivec2(origin >> level) + ivec2(k): 32-bit two's complement, as GLSL's int (wraps, no UB here).
-    const auto texel = static_cast<std::int32_t>(static_cast<std::uint32_t>(origin >> level) +
-                                                 static_cast<std::uint32_t>(static_cast<std::int32_t>(k)));
-    return GpuPos{texel, q - k};
+    const std::uint32_t page0 = origin / kPayload;
+    const float base = static_cast<float>(origin - page0 * kPayload);  // below P: exact
+    const float payload = static_cast<float>(kPayload);
+    const float q0 = base + local;
+    const float b = static_cast<float>(static_cast<std::int32_t>(page0 & ((std::uint64_t{1} << level) - 1)));
+    const float scaled = b * payload;
+    const float q = std::ldexp(scaled + q0, -static_cast<int>(level));  // exact: a power-of-two scale
+    const float k = std::floor(q * (1.0f / payload));
+    const float r = q - k * payload;
+    const float fix = static_cast<float>(r >= payload) - static_cast<float>(r < 0.0f);
+    const float in_page = r - fix * payload;
+    const std::int64_t page = static_cast<std::int64_t>(page0 >> level) + static_cast<std::int64_t>(k + fix);
+    const float whole = std::floor(in_page);
+    return GpuPos{page * kPayload + static_cast<std::int64_t>(whole), in_page - whole};
 }
 
 // Exact: level-L texel and fraction of level-0 coordinate t = num / 2^sub (integers).
@@ -140,7 +148,7 @@ std::vector<std::uint32_t> stress_sizes() {
 
 TEST(StabilityAddressing, ExactAtEveryLevelNearTheFarCornerUpTo2To24) {
     const auto t0 = std::chrono::steady_clock::now();
-    std::printf("  size        levels  chunk 4096 (default)    chunk 2^16    chunk 2^18    one chunk (= size)\n");
+    std::printf("  size        levels  chunk 4096 (default)    chunk 2^15    chunk 2^16      chunk 2^18      one chunk (= size)\n");
     for (const std::uint32_t size : stress_sizes()) {
         const std::uint32_t levels = static_cast<std::uint32_t>(st::level_geometry(size, size, kPayload).size());
         const AddressingResult def = check_addressing(size, 4096, levels);
@@ -148,13 +156,16 @@ TEST(StabilityAddressing, ExactAtEveryLevelNearTheFarCornerUpTo2To24) {
         // The default chunking (make_terrain's 4096) is exact everywhere, every level, 1/256 texel.
         EXPECT_EQ(def.wrong_texel, 0u) << size;
         EXPECT_EQ(def.wrong_frac, 0u) << size;
-        // Chunks up to 2^16 texels keep 1/256 of a level-0 texel (8 fraction bits + 16 = 24 bits).
+        // Chunks up to 2^15 texels keep 1/256 of a level-0 texel: base + local < P + 2^15 < 2^16
+        // leaves 8 fraction bits of the float's 24. A 2^16 chunk may lose the last one at level 0.
+        const AddressingResult c15 = check_addressing(size, 1u << 15, levels);
+        EXPECT_EQ(c15.wrong_texel + c15.wrong_frac, 0u) << size;
         const AddressingResult c16 = check_addressing(size, 1u << 16, levels);
-        EXPECT_EQ(c16.wrong_texel + c16.wrong_frac, 0u) << size;
         const AddressingResult c18 = check_addressing(size, 1u << 18, levels);
         const AddressingResult one = check_addressing(size, size, levels);
-        // Up to 2^16 texels one chunk is exact; a 2^18 chunk loses the 1/256 fraction at level 0
-        // (the float's 24 bits: 18 integer + 6 fraction) but the texel at a texel centre stays right.
+        // Up to 2^16 texels one chunk is exact (its origin 0 has base 0); a 2^18 chunk loses the
+        // 1/256 fraction at level 0 (the float's 24 bits: 18 integer + 6 fraction), texel centres
+        // stay right.
         if (size <= (1u << 16)) {
             EXPECT_EQ(one.wrong_texel + one.wrong_frac, 0u) << size;
         }
@@ -162,9 +173,9 @@ TEST(StabilityAddressing, ExactAtEveryLevelNearTheFarCornerUpTo2To24) {
             EXPECT_GT(c18.wrong_texel + c18.wrong_frac, 0u) << size;
         }
         auto cell = [](const AddressingResult& a) {
-            static char buf[4][64];
+            static char buf[8][64];
             static int k = 0;
-            char* b = buf[k++ & 3];
+            char* b = buf[k++ & 7];
             if (a.wrong_texel + a.wrong_frac == 0)
                 std::snprintf(b, 64, "exact");
             else
@@ -172,8 +183,8 @@ TEST(StabilityAddressing, ExactAtEveryLevelNearTheFarCornerUpTo2To24) {
                               static_cast<unsigned long long>(a.checked), a.first_bad_level);
             return b;
         };
-        std::printf("  %-10u  %6u  %-22s  %-12s  %-12s  %s (texels wrong: %llu)\n", size, levels, cell(def), cell(c16), cell(c18),
-                    cell(one), static_cast<unsigned long long>(one.wrong_texel));
+        std::printf("  %-10u  %6u  %-22s  %-12s  %-14s  %-14s  %s (texels wrong: %llu)\n", size, levels, cell(def), cell(c15),
+                    cell(c16), cell(c18), cell(one), static_cast<unsigned long long>(one.wrong_texel));
     }
     EXPECT_LT(seconds_since(t0), 5.0);
 }
@@ -192,17 +203,26 @@ TEST(StabilityAddressing, LocalOffsetPrecisionByChunkSide) {
     }
 }
 
-// The shader's texel index is a 32-bit signed int: exact up to 2^31 - 1 texels, wrapping beyond.
-TEST(StabilityAddressing, SignedTexelIndexLimitIsTwoToThe31) {
-    const std::uint32_t origin_ok = (1u << 31) - 4096;
-    const GpuPos ok = gpu_level_position(origin_ok, 4095.5f, 0);
-    EXPECT_EQ(ok.texel, std::int32_t((1u << 31) - 1));
-    EXPECT_EQ(ok.frac, 0.5f);
-    const GpuPos wrapped = gpu_level_position(1u << 31, 0.5f, 0);
-    EXPECT_LT(wrapped.texel, 0);  // would be clamped to texel 0 by vt_clamp: the limit is 2^31 texels
-    // The stores and the geometry are 32-bit unsigned, and 2^24 is far below: no issue in range.
+// The shader holds no texel index, only pages (int32: page0 < 2^32 / P) and the position in the
+// page: exact across the whole range of the uint32 chunk origin, past 2^31 without a wrap.
+TEST(StabilityAddressing, PageFrameCoversTheWholeUint32Origin) {
+    const GpuPos last = gpu_level_position(0xFFFFFFFFu - 4095u, 4095.5f, 0);
+    EXPECT_EQ(last.texel, (std::int64_t{1} << 32) - 1);
+    EXPECT_EQ(last.frac, 0.5f);
+    const GpuPos past31 = gpu_level_position(1u << 31, 0.5f, 0);
+    EXPECT_EQ(past31.texel, std::int64_t{1} << 31);
+    EXPECT_EQ(past31.frac, 0.5f);
     const GpuPos far = gpu_level_position((1u << 24) - 4096, 4095.5f, 0);
-    EXPECT_EQ(far.texel, std::int32_t((1u << 24) - 1));
+    EXPECT_EQ(far.texel, (std::int64_t{1} << 24) - 1);
+    // The centre of the last texel of every level of a 2^32 - 1 texture, from its 4096-texel chunk.
+    for (std::uint32_t level = 1; level < 32; ++level) {
+        const std::uint64_t final_texel = ((std::uint64_t{1} << 32) - 2) >> level;  // level-L texels of 2^32 - 1, less one
+        const double t = (double(final_texel) + 0.5) * std::ldexp(1.0, int(level));   // level-0 coordinate, exact
+        const auto origin = static_cast<std::uint32_t>(std::uint64_t(t) / 4096 * 4096);
+        const GpuPos g = gpu_level_position(origin, static_cast<float>(t - origin), level);
+        EXPECT_EQ(g.texel, std::int64_t(final_texel)) << level;
+        EXPECT_EQ(g.frac, 0.5f) << level;
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -5,7 +5,6 @@
 
 in vec2 v_local;
 in float v_w;  // perspective-correct, so exact at the pixel centre (clipped triangles included)
-uniform uvec2 u_texel_origin;
 // One main-target pixel in feedback pixels: (fb_width / width, fb_height / height), i.e. 1/N.
 uniform vec2 vt_main_pixel;
 
@@ -24,5 +23,5 @@ void main() {
     vec3 right = p + px * vt_main_pixel.x, down = p - py * vt_main_pixel.y;
     vec2 dx = right.xy / right.z - centre;
     vec2 dy = down.xy / down.z - centre;
-    o_id = vt_feedback(u_texel_origin, v_local, dx, dy);
+    o_id = vt_feedback(v_local, dx, dy);
 }

@@ -10,7 +10,6 @@ layout(early_fragment_tests) in;
 #include "vt_sample.glsl"
 
 in vec2 v_local;
-uniform uvec2 u_texel_origin;  // the chunk's level-0 texel origin
 
 layout(std430, binding = 0) buffer VtCounters {
     uint textured;  // unused: the occlusion query counts these
@@ -22,7 +21,7 @@ layout(std430, binding = 0) buffer VtCounters {
 layout(location = 0) out vec4 o_colour;
 
 void main() {
-    VtSample s = vt_sample(u_texel_origin, v_local);
+    VtSample s = vt_sample(v_local);
     o_colour = s.colour;
     if (s.resident > s.wanted_unbiased) atomicAdd(vt_counters.fallback_unbiased, 1u);
     if (s.resident > s.wanted) atomicAdd(vt_counters.fallback_biased, 1u);

@@ -9,15 +9,17 @@
 //
 // Conventions
 // - Texel coordinates: the level-0 texel coordinate of a fragment is `origin + local`, where
-//   `origin` is the chunk's integer texel origin (a uniform) and `local` a small interpolated float
-//   offset. Never one float UV over the whole virtual texture.
+//   `origin` is the chunk's integer texel origin and `local` a small interpolated float offset.
+//   The shader sees the origin as its page frame (vt_chunk_*, see "Addressing"). Never one float
+//   UV over the whole virtual texture.
 // - Level L has ceil(size / 2^L) texels per side; the continuous level-L coordinate of level-0
 //   coordinate t is t / 2^L (texel i of level L covers [i, i + 1), centre i + 0.5), as GL mips.
 // - The LoD rule is tessera/scene/lod.hpp, line for line (vt_lod, vt_wanted_level).
-// - Page-table entry (tessera/client/page_table.hpp): bit 31 valid, bits 24..28 resident level R,
-//   bits 0..23 slot; R > L: fallback to the ancestor at level R. 0: nothing resident.
-// - The physical atlas is a grid of tile_size squares, vt_atlas_columns per row; a page's texel
-//   (i, j) (border included, rows top to bottom) is atlas texel (col * ts + i, row * ts + j).
+// - Page-table entry as the renderer uploads it (tessera/client/page_table.hpp's, with the slot
+//   replaced by its atlas cell): bit 31 valid, bits 24..28 resident level R, bits 0..11 atlas
+//   column, bits 12..23 atlas row; R > L: fallback to the ancestor at level R. 0: nothing resident.
+// - The physical atlas is a grid of tile_size squares; a page's texel (i, j) (border included,
+//   rows top to bottom) is atlas texel (column * ts + i, row * ts + j).
 
 #define VT_BILINEAR 0
 #define VT_TRILINEAR 1
@@ -38,17 +40,17 @@ uniform uint vt_dir_width[32];      // level L's blocks per row
 #else
 uniform usampler2D vt_page_table;   // R32UI: every level of the texture's page table, packed
 #endif
-uniform sampler2D vt_atlas;         // the physical pages (RGBA8 or SRGB8_ALPHA8), GL_LINEAR
+uniform sampler2DRect vt_atlas;     // the physical pages (RGBA8 or SRGB8_ALPHA8), GL_LINEAR; texel coordinates
 uniform ivec2 vt_table_origin[32];  // where level L's entries start in vt_page_table
-uniform uvec2 vt_level_size[32];    // texels of level L: ceil(size / 2^L)
+// The drawn chunk's page frame (set per draw; SceneGeometry::set_page_layout):
+uniform ivec2 vt_chunk_page;        // the level-0 page holding the chunk's texel origin
+uniform vec2 vt_chunk_base;         // that origin's position in the page: an integer below P
+uniform vec4 vt_chunk_bounds;       // the texture's texels relative to the page's start: xy min, zw max
 uniform uint vt_levels;             // levels of the virtual texture (the last one is one page)
 uniform uint vt_payload;            // P: texels a page covers per side
 uniform float vt_inv_payload;       // 1.0 / P
-uniform float vt_inv_atlas_columns; // 1.0 / vt_atlas_columns
 uniform uint vt_border;             // B: border texels on each side of a page
 uniform uint vt_tile_size;          // P + 2B: atlas cell size
-uniform uint vt_atlas_columns;      // atlas cells per row
-uniform vec2 vt_atlas_texel;        // 1 / atlas size (texels)
 uniform uint vt_texture_id;         // for the feedback id
 uniform float vt_max_anisotropy;    // 1..8 (anisotropic filter)
 uniform float vt_bias;              // LoD bias (0 in the reference renderer)
@@ -71,17 +73,17 @@ float vt_lod(vec2 dx, vec2 dy) {
 // The level a pixel wants for `lod` (bias included): bilinear floor(lod + 0.5), trilinear and
 // anisotropic floor(lod) (the finer of the two lookups), clamped to [0, levels - 1]; NaN and -inf
 // give 0, +inf the last level.
-uint vt_wanted_level(float lod) {
-    uint last = vt_levels - 1u;
-    if (isnan(lod)) return 0u;
+int vt_wanted_level(float lod) {
+    int last = int(vt_levels) - 1;
+    if (isnan(lod)) return 0;
 #if VT_FILTER == VT_BILINEAR
     float l = floor(lod + 0.5);
 #else
     float l = floor(lod);
 #endif
-    if (!(l > 0.0)) return 0u;
+    if (!(l > 0.0)) return 0;
     if (l >= float(last)) return last;
-    return uint(l);
+    return int(l);
 }
 
 // lod clamped to [0, levels - 1] (NaN: 0): what trilinear blends with (GL's textureLod(lambda)).
@@ -104,110 +106,112 @@ void vt_aniso_taps(vec2 dx, vec2 dy, float clamped_lod, out vec2 axis, out float
 vec2 vt_tap_offset(vec2 axis, float count, int i) { return ((float(i) + 0.5) / count - 0.5) * axis; }
 
 // ---------------------------------------------------------------------------------------------
-// Exact integer page math.
-// floor(n / d), exact for n < 2^31, 1 <= d < 2^16 and a quotient below 2^22: the float estimate is
-// then within 3 * 2^-24 * (n / d) < 1 of the true quotient, so one correction each way fixes it.
-// Callers stay far inside that: pages per side are at most 2^20 (the feedback-id limit), atlas rows
-// at most 2^20. Integer division by a uniform has no SIMD instruction: software rasterizers
-// (llvmpipe) run it lane by lane, which made it the most expensive part of a lookup.
-uvec2 vt_div(uvec2 n, uint d, float inv_d) {
-    uvec2 q = uvec2(vec2(n) * inv_d);
-    q -= uvec2(greaterThan(q * d, n));
-    q += uvec2(lessThanEqual((q + 1u) * d, n));
-    return q;
-}
+// Addressing. Every chunk carries the level-0 page its integer texel origin lies in (page0) and
+// the origin's position in that page (base, an integer below P). A fragment's level-0 position
+// relative to page0's start is then q0 = base + local: one float add of numbers below P + chunk
+// side. At level L, with page0 = a * 2^L + b (b = page0 & (2^L - 1)), the position relative to
+// the start of level-L page a is (b * P + q0) / 2^L: below P + chunk side / 2^L, rounded to a
+// float's 24 bits relative to b * P < 2^L * P, i.e. to 2^-15 of a level-L texel at P = 248 at any
+// level. The page and the position in it follow by one division by P of that small number. Only
+// per-chunk uniforms (no array indexed per pixel: a software rasterizer gathers those lane by
+// lane), signed integers and floats (its unsigned conversions are emulated, its integer
+// division by a uniform runs lane by lane): docs/renderer.md, "What a lookup costs".
 
-ivec2 vt_page_of(ivec2 texel) { return ivec2(vt_div(uvec2(texel), vt_payload, vt_inv_payload)); }
+// 2^-n, exactly, for -126 <= n <= 126 (built from the exponent bits: ldexp is lowered to far more).
+float vt_exp2_neg(int n) { return intBitsToFloat((127 - n) << 23); }
 
 struct VtPos {
-    ivec2 texel;  // integer level-L texel
-    vec2 frac;    // position inside it, [0, 1]
-    ivec2 page;   // the page holding texel (set by vt_clamp)
+    ivec2 page;     // level-L page
+    vec2 in_page;   // position inside it, level-L texels in [0, P)
 };
 
-// The level-L position of level-0 coordinate origin + local. The integer part is formed in
-// integers: (origin >> L) + floor(((origin & (2^L - 1)) + local) / 2^L); only that small
-// remainder is a float, so the result is exact to float precision of a few texels wherever the
-// texel lies in a 2^31-texel texture.
-VtPos vt_level_position(uvec2 origin, vec2 local, uint level) {
-    uvec2 low = origin & uvec2((1u << level) - 1u);
-    vec2 q = ldexp(vec2(low) + local, ivec2(-int(level)));  // exact: a power-of-two scale
-    vec2 k = floor(q);
+// The level-L position of the fragment at `local` (level-0 texels from the chunk's origin),
+// clamped to the texture (GL_CLAMP_TO_EDGE), the far bound 1/256 of a level-L texel inside the
+// edge: there the bilinear footprint is the edge texel and its copy in the tile border, and the
+// texel index stays inside the level's last page at any level.
+// q - k * P is exact (k * P an integer no larger than q); the float quotient k may be one off at a
+// page edge, which the range check of the remainder corrects.
+VtPos vt_level_position(vec2 local, int level) {
+    float s = vt_exp2_neg(level);
+    vec2 q0 = clamp(vt_chunk_base + local, vt_chunk_bounds.xy, vt_chunk_bounds.zw - vt_exp2_neg(8 - level));
+    float payload = float(vt_payload);
+    vec2 q = (vec2(vt_chunk_page & ((1 << level) - 1)) * payload + q0) * s;
+    vec2 k = floor(q * vt_inv_payload);
+    vec2 r = q - k * payload;
+    vec2 fix = vec2(greaterThanEqual(r, vec2(payload))) - vec2(lessThan(r, vec2(0.0)));
     VtPos p;
-    p.texel = ivec2(origin >> level) + ivec2(k);
-    p.frac = q - k;
+    p.page = (vt_chunk_page >> level) + ivec2(k + fix);
+    p.in_page = r - fix * payload;
     return p;
 }
 
-// Clamped to the level's texels [0, size]: outside positions sample the edge (GL_CLAMP_TO_EDGE;
-// the tiles' borders are edge-clamped as well).
-VtPos vt_clamp(VtPos p, uint level) {
-    ivec2 size = ivec2(vt_level_size[level]);
-    bvec2 below = lessThan(p.texel, ivec2(0));
-    bvec2 above = greaterThanEqual(p.texel, size);
-    p.frac = mix(mix(p.frac, vec2(0.0), below), vec2(1.0), above);
-    p.texel = clamp(p.texel, ivec2(0), size - 1);
-    p.page = vt_page_of(p.texel);
-    return p;
-}
-
-uint vt_entry(VtPos p, uint level) {
+// The page-table entry of `page` at `level`.
+uint vt_entry(ivec2 page, int level) {
 #ifdef VT_SPARSE_TABLE
-    uvec2 page = uvec2(p.page);
+    uvec2 pg = uvec2(page);
+    uint lv = uint(level);
     for (int step = 0; step < 7; ++step) {  // 7 * 5 > 32 levels; the coarse levels always hold a block
-        uvec2 b = page >> 5u;
-        uint d = vt_directory[vt_dir_offset[level] + b.y * vt_dir_width[level] + b.x];
-        if (d != 0u) return vt_blocks[(d - 1u) * 1024u + ((page.y & 31u) << 5u) + (page.x & 31u)];
-        level += 5u;
-        page = b;
-        if (level >= vt_levels) break;
+        uvec2 b = pg >> 5u;
+        uint d = vt_directory[vt_dir_offset[lv] + b.y * vt_dir_width[lv] + b.x];
+        if (d != 0u) return vt_blocks[(d - 1u) * 1024u + ((pg.y & 31u) << 5u) + (pg.x & 31u)];
+        lv += 5u;
+        pg = b;
+        if (lv >= vt_levels) break;
     }
     return 0u;
 #else
-    return texelFetch(vt_page_table, vt_table_origin[level] + p.page, 0).r;
+    return texelFetch(vt_page_table, vt_table_origin[level] + page, 0).r;
 #endif
 }
 
-// Normalised atlas coordinate of position p (level R) in the page at `slot`: slot origin + border
-// + position inside the page; the border makes bilinear footprints at page edges correct.
-vec2 vt_physical(VtPos p, uint slot) {
-    vec2 in_page = vec2(p.texel - p.page * int(vt_payload)) + p.frac;
-    uint row = vt_div(uvec2(slot), vt_atlas_columns, vt_inv_atlas_columns).x;
-    uvec2 cell = uvec2(slot - row * vt_atlas_columns, row);
-    return (vec2(cell * vt_tile_size + uvec2(vt_border)) + in_page) * vt_atlas_texel;
-}
-
-// One bilinear lookup at level L: one page-table fetch (a fallback entry already points at the
-// nearest resident ancestor: then the position is recomputed at its level), one bilinear sample.
+// One bilinear lookup at level L: one page-table fetch, one bilinear sample. A fallback entry
+// points at the nearest resident ancestor R = L + d, whose position is vt_ancestor_position's.
+// Straight-line code, no branches: a SIMD rasterizer runs both sides of a divergent branch.
+// The entry names the page's atlas cell (column, row): no division to place it.
 // resident: the level sampled, 32 when nothing is resident (the no-data colour).
-vec4 vt_lookup(uvec2 origin, vec2 local, uint level, out uint resident) {
-    VtPos p = vt_clamp(vt_level_position(origin, local, level), level);
-    uint e = vt_entry(p, level);
-    if ((e >> 31) == 0u) {
-        resident = 32u;
-        return vt_no_data_colour;
-    }
-    resident = (e >> 24) & 31u;
-    if (resident != level) p = vt_clamp(vt_level_position(origin, local, resident), resident);
-    return textureLod(vt_atlas, vt_physical(p, e & 0xFFFFFFu), 0.0);
+// p at level L + d: the page is p.page >> d and the position in it
+// ((p.page & (2^d - 1)) * P + p.in_page) / 2^d (nested floor divisions), with no second division.
+VtPos vt_ancestor_position(VtPos p, int d) {
+    VtPos a;
+    a.page = p.page >> d;
+    a.in_page = (vec2(p.page & ((1 << d) - 1)) * float(vt_payload) + p.in_page) * vt_exp2_neg(d);
+    return a;
 }
 
-// The resident level the lookup of (origin + local) at `level` would sample (32: none).
-uint vt_resident_level(uvec2 origin, vec2 local, uint level) {
-    uint e = vt_entry(vt_clamp(vt_level_position(origin, local, level), level), level);
+vec4 vt_lookup_at(VtPos p, int level, out uint resident) {
+    uint e = vt_entry(p.page, level);
+    int r = int((e >> 24) & 31u);
+    vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
+    vec2 cell = vec2(ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu))) * float(vt_tile_size) + float(vt_border);
+    vec4 c = texture(vt_atlas, cell + in_page);
+    bool valid = (e >> 31) != 0u;
+    resident = valid ? uint(r) : 32u;
+    return valid ? c : vt_no_data_colour;
+}
+
+vec4 vt_lookup(vec2 local, int level, out uint resident) {
+    return vt_lookup_at(vt_level_position(local, level), level, resident);
+}
+
+// The resident level the lookup of `local` at `level` would sample (32: none).
+uint vt_resident_level(vec2 local, int level) {
+    uint e = vt_entry(vt_level_position(local, level).page, level);
     return (e >> 31) == 0u ? 32u : ((e >> 24) & 31u);
 }
 
-// Trilinear: levels floor(lod) and floor(lod) + 1 (each its own page-table fetch), blended by the
-// fraction of the clamped lod. resident: of the finer lookup.
-vec4 vt_trilinear(uvec2 origin, vec2 local, float lod, out uint resident) {
+// Trilinear: levels floor(lod) and floor(lod) + 1 (each its own page-table fetch; the coarser
+// position derived from the finer one), blended by the fraction of the clamped lod. resident: of the finer lookup. The second lookup runs for every
+// pixel (at the last level it repeats the first with weight 0): a branch around it would not save
+// it on a SIMD rasterizer, where some pixel of the group blends.
+vec4 vt_trilinear(vec2 local, float lod, out uint resident) {
     float lc = vt_clamped_lod(lod);
-    uint l0 = uint(floor(lc));
-    vec4 c0 = vt_lookup(origin, local, l0, resident);
+    int l0 = int(lc);
+    VtPos p0 = vt_level_position(local, l0);
+    vec4 c0 = vt_lookup_at(p0, l0, resident);
     float w = lc - float(l0);
-    if (w <= 0.0 || l0 + 1u >= vt_levels) return c0;
     uint r1;
-    vec4 c1 = vt_lookup(origin, local, l0 + 1u, r1);
+    int d1 = min(l0 + 1, int(vt_levels) - 1) - l0;  // 0 at the last level
+    vec4 c1 = vt_lookup_at(vt_ancestor_position(p0, d1), l0 + d1, r1);
     return mix(c0, c1, w);
 }
 
@@ -221,18 +225,19 @@ struct VtSample {
 
 // Samples the virtual texture at origin + local with the configured filter. Call it in uniform
 // control flow (it takes derivatives).
-VtSample vt_sample(uvec2 origin, vec2 local) {
+VtSample vt_sample(vec2 local) {
     vec2 dx = dFdx(local);
     vec2 dy = dFdy(local);
     float lod0 = vt_lod(dx, dy);
     float lod = lod0 + vt_bias;
     VtSample s;
-    s.wanted = vt_wanted_level(lod);
-    s.wanted_unbiased = vt_wanted_level(lod0);
+    int wanted = vt_wanted_level(lod);
+    s.wanted = uint(wanted);
+    s.wanted_unbiased = uint(vt_wanted_level(lod0));
 #if VT_FILTER == VT_BILINEAR
-    s.colour = vt_lookup(origin, local, s.wanted, s.resident);
+    s.colour = vt_lookup(local, wanted, s.resident);
 #elif VT_FILTER == VT_TRILINEAR
-    s.colour = vt_trilinear(origin, local, lod, s.resident);
+    s.colour = vt_trilinear(local, lod, s.resident);
 #else
     // Anisotropic: every tap is a trilinear VT lookup with its own page-table fetches, so taps
     // that cross a page edge read the neighbouring page: no clamping, no seams.
@@ -242,26 +247,25 @@ VtSample vt_sample(uvec2 origin, vec2 local) {
     vec4 sum = vec4(0.0);
     for (int i = 0; i < int(count); ++i) {
         uint r;
-        sum += vt_trilinear(origin, local + vt_tap_offset(axis, count, i), lod, r);
+        sum += vt_trilinear(local + vt_tap_offset(axis, count, i), lod, r);
     }
     s.colour = sum / count;
-    s.resident = vt_resident_level(origin, local, s.wanted);
+    s.resident = vt_resident_level(local, wanted);
 #endif
     return s;
 }
 
 // The feedback id of the page `level` wants at origin + local: RG32UI, low word first
 // (tessera/client/page.hpp: x 20 bits, y 20, level 5, texture 16).
-uvec2 vt_feedback_id(uvec2 origin, vec2 local, uint level) {
-    VtPos p = vt_clamp(vt_level_position(origin, local, level), level);
-    uvec2 page = uvec2(p.page);
+uvec2 vt_feedback_id(vec2 local, int level) {
+    uvec2 page = uvec2(vt_level_position(local, level).page);
     uint lo = (page.x & 0xFFFFFu) | ((page.y & 0xFFFu) << 20);
-    uint hi = ((page.y >> 12) & 0xFFu) | ((level & 31u) << 8) | ((vt_texture_id & 0xFFFFu) << 13);
+    uint hi = ((page.y >> 12) & 0xFFu) | ((uint(level) & 31u) << 8) | ((vt_texture_id & 0xFFFFu) << 13);
     return uvec2(lo, hi);
 }
 
 // The feedback of this fragment: the page of the wanted level (bias included). dx, dy: the
 // derivatives per main-target pixel (feedback.frag measures them).
-uvec2 vt_feedback(uvec2 origin, vec2 local, vec2 dx, vec2 dy) {
-    return vt_feedback_id(origin, local, vt_wanted_level(vt_lod(dx, dy) + vt_bias));
+uvec2 vt_feedback(vec2 local, vec2 dx, vec2 dy) {
+    return vt_feedback_id(local, vt_wanted_level(vt_lod(dx, dy) + vt_bias));
 }

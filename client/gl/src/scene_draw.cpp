@@ -117,6 +117,37 @@ void SceneGeometry::cull(const scene::Camera& camera, double aspect) {
     }
 }
 
+namespace {
+
+// x rounded to a float no smaller (up) or no larger (down) than x.
+float float_up(double x) {
+    float f = static_cast<float>(x);
+    return double(f) < x ? std::nextafter(f, std::numeric_limits<float>::infinity()) : f;
+}
+float float_down(double x) {
+    float f = static_cast<float>(x);
+    return double(f) > x ? std::nextafter(f, -std::numeric_limits<float>::infinity()) : f;
+}
+
+}  // namespace
+
+void SceneGeometry::set_page_layout(std::uint32_t payload, std::uint32_t width, std::uint32_t height) {
+    const std::uint32_t size[2] = {width, height};
+    for (auto& d : chunks_) {
+        d.has_frame = true;
+        for (int a = 0; a < 2; ++a) {
+            const std::uint32_t page = d.texel_origin[a] / payload;
+            const double start = double(page) * payload;
+            d.page[a] = static_cast<std::int32_t>(page);
+            d.base[a] = static_cast<float>(d.texel_origin[a] - page * payload);  // below P: exact
+            // Rounded inwards: a bound that is not a float (past 2^24 texels from the chunk's
+            // page) is one no fragment of the chunk gets near.
+            d.bounds[a] = float_up(-start);
+            d.bounds[2 + a] = float_down(double(size[a]) - start);
+        }
+    }
+}
+
 void SceneGeometry::draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera) const {
     glBindVertexArray(vao_.get());
     for (const auto k : visible_) {
@@ -124,6 +155,11 @@ void SceneGeometry::draw(const Program& program, const ChunkUniforms& u, const s
         const auto off = scene::camera_relative(d.origin, camera.position);
         glProgramUniform3f(program.get(), u.chunk_offset, off[0], off[1], off[2]);
         glProgramUniform2ui(program.get(), u.texel_origin, d.texel_origin[0], d.texel_origin[1]);
+        if (u.chunk_page >= 0 && d.has_frame) {
+            glProgramUniform2iv(program.get(), u.chunk_page, 1, d.page);
+            glProgramUniform2fv(program.get(), u.chunk_base, 1, d.base);
+            glProgramUniform4fv(program.get(), u.chunk_bounds, 1, d.bounds);
+        }
         glDrawElementsBaseVertex(GL_TRIANGLES, d.index_count, GL_UNSIGNED_INT,
                                  reinterpret_cast<const void*>(d.index_offset), d.base_vertex);
     }

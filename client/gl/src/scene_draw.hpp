@@ -15,6 +15,9 @@ namespace tessera::client::gl::detail {
 struct ChunkUniforms {
     GLint chunk_offset = -1;  // vec3: float(chunk.origin - camera.position)
     GLint texel_origin = -1;  // uvec2
+    // The chunk's page frame (vt_sample.glsl, "Addressing"): ivec2, vec2, vec4. Set when the
+    // program uses them, once set_page_layout was called.
+    GLint chunk_page = -1, chunk_base = -1, chunk_bounds = -1;
 };
 
 class SceneGeometry {
@@ -26,6 +29,9 @@ public:
     bool empty() const { return chunks_.empty(); }
     // Picks the chunks inside the camera's frustum (in double, camera-relative).
     void cull(const scene::Camera& camera, double aspect);
+    // Each chunk's page frame for a virtual texture of width x height texels with `payload`
+    // texels per page: what the VT shaders address pages with.
+    void set_page_layout(std::uint32_t payload, std::uint32_t width, std::uint32_t height);
     // Draws the chunks `cull` kept with the bound program.
     void draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera) const;
     std::size_t visible_chunks() const { return visible_.size(); }
@@ -38,6 +44,11 @@ private:
         std::size_t index_offset = 0;  // bytes
         GLint base_vertex = 0;
         double bmin[3] = {0, 0, 0}, bmax[3] = {0, 0, 0};
+        // set_page_layout: the level-0 page holding the chunk's texel origin, the origin's
+        // position in it, and the texture's texels relative to that page's start (min, max).
+        bool has_frame = false;
+        std::int32_t page[2] = {0, 0};
+        float base[2] = {0, 0}, bounds[4] = {0, 0, 0, 0};
     };
     VertexArray vao_;
     Buffer vertices_, indices_;

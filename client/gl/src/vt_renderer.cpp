@@ -29,9 +29,9 @@ constexpr std::size_t kMaxUnpolledCounters = 1024;     // finished counter frame
 // Uniform locations of a program built with vt_sample.glsl.
 struct VtUniforms {
     GLint view_projection = -1, bias = -1, main_pixel = -1;
-    GLint table_origin = -1, level_size = -1, levels = -1, payload = -1, border = -1, tile_size = -1;
-    GLint atlas_columns = -1, atlas_texel = -1, texture_id = -1, max_anisotropy = -1, no_data = -1;
-    GLint inv_payload = -1, inv_atlas_columns = -1;
+    GLint table_origin = -1, levels = -1, payload = -1, border = -1, tile_size = -1;
+    GLint texture_id = -1, max_anisotropy = -1, no_data = -1;
+    GLint inv_payload = -1;
     GLint page_table = -1, atlas = -1, dir_offset = -1, dir_width = -1;
     ChunkUniforms chunk;
 
@@ -41,15 +41,11 @@ struct VtUniforms {
         bias = uniform(p, "vt_bias");
         main_pixel = uniform(p, "vt_main_pixel");
         table_origin = uniform(p, "vt_table_origin");
-        level_size = uniform(p, "vt_level_size");
         levels = uniform(p, "vt_levels");
         payload = uniform(p, "vt_payload");
         border = uniform(p, "vt_border");
         tile_size = uniform(p, "vt_tile_size");
-        atlas_columns = uniform(p, "vt_atlas_columns");
         inv_payload = uniform(p, "vt_inv_payload");
-        inv_atlas_columns = uniform(p, "vt_inv_atlas_columns");
-        atlas_texel = uniform(p, "vt_atlas_texel");
         texture_id = uniform(p, "vt_texture_id");
         max_anisotropy = uniform(p, "vt_max_anisotropy");
         no_data = uniform(p, "vt_no_data_colour");
@@ -59,6 +55,9 @@ struct VtUniforms {
         atlas = uniform(p, "vt_atlas");
         chunk.chunk_offset = uniform(p, "u_chunk_offset");
         chunk.texel_origin = uniform(p, "u_texel_origin");
+        chunk.chunk_page = uniform(p, "vt_chunk_page");
+        chunk.chunk_base = uniform(p, "vt_chunk_base");
+        chunk.chunk_bounds = uniform(p, "vt_chunk_bounds");
     }
 };
 
@@ -117,8 +116,12 @@ public:
         // The atlas: a near-square grid of tile_size cells.
         const std::uint32_t per_row_max = max_texture_ / c.tile_size;
         columns_ = std::max<std::uint32_t>(1, static_cast<std::uint32_t>(std::ceil(std::sqrt(double(c.pool_slots)))));
-        columns_ = std::min(columns_, std::max<std::uint32_t>(per_row_max, 1));
+        columns_ = std::min({columns_, std::max<std::uint32_t>(per_row_max, 1), kMaxAtlasCells});
         const std::uint32_t rows = (c.pool_slots + columns_ - 1) / columns_;
+        if (rows > kMaxAtlasCells)
+            return Error{Errc::resource_exhausted, fmt::format("renderer: a pool of {} slots needs {} atlas rows of {} cells; the "
+                                                               "GPU page-table entry holds at most {} (fewer slots)",
+                                                               c.pool_slots, rows, columns_, kMaxAtlasCells)};
         atlas_width_ = columns_ * c.tile_size;
         atlas_height_ = rows * c.tile_size;
         if (per_row_max == 0 || atlas_width_ > max_texture_ || atlas_height_ > max_texture_)
@@ -126,7 +129,9 @@ public:
                          fmt::format("renderer: a pool of {} slots of {}^2 texels needs a {}x{} atlas; the GPU's largest "
                                      "texture is {}^2 (fewer slots or smaller tiles)",
                                      c.pool_slots, c.tile_size, atlas_width_, atlas_height_, max_texture_)};
-        atlas_ = make_texture(GL_TEXTURE_2D);
+        // A rectangle texture: the shader samples it in texel coordinates (no normalisation, no mip
+        // level to select), which costs a software rasterizer fewer instructions per lookup.
+        atlas_ = make_texture(GL_TEXTURE_RECTANGLE);
         glTextureStorage2D(atlas_.get(), 1, c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(atlas_width_), GLsizei(atlas_height_));
         glTextureParameteri(atlas_.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
         glTextureParameteri(atlas_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
@@ -162,9 +167,6 @@ public:
             const auto& u = *pu;
             glProgramUniform1i(p, u.page_table, 0);
             glProgramUniform1i(p, u.atlas, 1);
-            glProgramUniform1ui(p, u.atlas_columns, columns_);
-            glProgramUniform1f(p, u.inv_atlas_columns, 1.0f / float(columns_));
-            glProgramUniform2f(p, u.atlas_texel, 1.0f / float(atlas_width_), 1.0f / float(atlas_height_));
             glProgramUniform1ui(p, u.tile_size, c.tile_size);
             glProgramUniform1f(p, u.max_anisotropy, float(c.max_anisotropy));
             glProgramUniform4fv(p, u.no_data, 1, kNoDataColour);
@@ -248,8 +250,9 @@ public:
             ++stats_.malformed_uploads;
             return;
         }
+        const auto gpu = gpu_entries(entries);
         upload(t.table.get(), GLint(t.origin[2 * level] + std::int32_t(x0)), GLint(t.origin[2 * level + 1] + std::int32_t(y0)),
-               GLsizei(w), GLsizei(h), GL_RED_INTEGER, GL_UNSIGNED_INT, entries.data(), entries.size_bytes());
+               GLsizei(w), GLsizei(h), GL_RED_INTEGER, GL_UNSIGNED_INT, gpu.data(), gpu.size_bytes());
         ++stats_.table_uploads;
     }
 
@@ -295,15 +298,29 @@ public:
             slot = t.block_slot.emplace(key, t.free_blocks.back()).first;
             t.free_blocks.pop_back();
             // The block's entries land before its directory entry names it (both in stream order).
-            upload_buffer(t.blocks.get(), std::size_t(slot->second) * PageTable::kBlockEntries * 4, entries.data(),
-                          entries.size_bytes());
+            const auto gpu = gpu_entries(entries);
+            upload_buffer(t.blocks.get(), std::size_t(slot->second) * PageTable::kBlockEntries * 4, gpu.data(), gpu.size_bytes());
             const std::uint32_t named = slot->second + 1;
             upload_buffer(t.directory.get(), dir_at, &named, 4);
         } else {
-            upload_buffer(t.blocks.get(), std::size_t(slot->second) * PageTable::kBlockEntries * 4, entries.data(),
-                          entries.size_bytes());
+            const auto gpu = gpu_entries(entries);
+            upload_buffer(t.blocks.get(), std::size_t(slot->second) * PageTable::kBlockEntries * 4, gpu.data(), gpu.size_bytes());
         }
         ++stats_.table_uploads;
+    }
+
+    // The GPU's page-table entries: the CPU entry (page_table.hpp: bit 31 valid, bits 24..28
+    // resident level, bits 0..23 slot) with the slot replaced by its atlas cell, column in bits
+    // 0..11 and row in bits 12..23, so the shader places a page without a division. Valid until
+    // the next call.
+    std::span<const std::uint32_t> gpu_entries(std::span<const std::uint32_t> entries) {
+        gpu_entries_.resize(entries.size());
+        for (std::size_t i = 0; i < entries.size(); ++i) {
+            const std::uint32_t e = entries[i];
+            const std::uint32_t slot = e & 0xFFFFFFu;
+            gpu_entries_[i] = (e >> 31) == 0 ? e : (e & 0xFF000000u) | (slot % columns_) | ((slot / columns_) << 12);
+        }
+        return gpu_entries_;
     }
 
     // ---- Setup ------------------------------------------------------------------------------
@@ -340,7 +357,7 @@ public:
         // Too large for the dense packing (what PageTable makes sparse): a two-level table.
         if (!PageTable::dense_packing_fits(info.levels[0].tiles_x, info.levels[0].tiles_y)) {
             TESSERA_TRY(make_two_level(t));
-            textures_[texture] = std::move(t);
+            install_texture(texture, std::move(t));
             return Status();
         }
         if (t.table_width > max_texture_ || t.table_height > max_texture_)
@@ -355,14 +372,22 @@ public:
         glClearTexImage(t.table.get(), 0, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
         if (auto e = take_gl_errors("page table"); !e.empty())
             return Error{Errc::resource_exhausted, fmt::format("texture {}: {}x{} page table: {}", texture, t.table_width, t.table_height, e)};
-        textures_[texture] = std::move(t);
+        install_texture(texture, std::move(t));
         return Status();
+    }
+
+    // A texture replacing the scene's one changes the chunks' page frames.
+    void install_texture(TextureId texture, VirtualTexture&& t) {
+        if (has_scene_ && scene_texture_ == texture) geometry_.set_page_layout(t.payload, t.texels[0], t.texels[1]);
+        textures_[texture] = std::move(t);
     }
 
     Status set_scene(const scene::Scene& scene, TextureId texture) override {
         if (!textures_.contains(texture))
             return Error{Errc::invalid_argument, fmt::format("set_scene: texture {} was not added (add_texture first)", texture)};
         TESSERA_TRY(geometry_.upload(scene));
+        const VirtualTexture& t = textures_.find(texture)->second;
+        geometry_.set_page_layout(t.payload, t.texels[0], t.texels[1]);
         depth_prepass_ = !scene::overdraw_free(scene);
         scene_texture_ = texture;
         has_scene_ = true;
@@ -676,7 +701,6 @@ private:
     void set_texture_uniforms(const Program& p, const VtUniforms& u, const VirtualTexture& t) {
         const GLuint id = p.get();
         glProgramUniform2iv(id, u.table_origin, GLsizei(t.levels), t.origin.data());
-        glProgramUniform2uiv(id, u.level_size, GLsizei(t.levels), t.texels.data());
         glProgramUniform1ui(id, u.levels, t.levels);
         glProgramUniform1ui(id, u.payload, t.payload);
         glProgramUniform1f(id, u.inv_payload, 1.0f / float(t.payload));
@@ -756,6 +780,8 @@ private:
     StagingRing staging_;
     Texture atlas_;
     std::uint32_t columns_ = 1, atlas_width_ = 0, atlas_height_ = 0;
+    static constexpr std::uint32_t kMaxAtlasCells = 4096;  // per side: 12 bits each in a GPU entry
+    std::vector<std::uint32_t> gpu_entries_;               // gpu_entries' scratch
     std::map<TextureId, VirtualTexture> textures_;
     SceneGeometry geometry_;
     TextureId scene_texture_ = 0;
