@@ -32,7 +32,7 @@ using Clock = std::chrono::steady_clock;
 
 class NullUploader final : public client::PageUploader {
 public:
-    void upload_page(client::SlotId, std::span<const std::uint8_t>, std::uint32_t) override {}
+    void upload_page(client::SlotId, const client::PageKey&, std::span<const std::uint8_t>, std::uint32_t) override {}
     void upload_page_table(client::TextureId, std::uint8_t, std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t,
                            std::span<const std::uint32_t>) override {}
 };

@@ -93,7 +93,7 @@ void far_corner_exact(std::uint32_t size) {
             for (std::uint32_t px = 0; px < count; ++px) {
                 const std::uint32_t slot = py * 2 + px;
                 tessera::test::encode_page(page, kTile, kBorder, first_page + px, first_page + py, texels);
-                r.upload_page(slot, page, kTile);
+                r.upload_page(slot, {0, std::uint8_t(level), first_page + px, first_page + py}, page, kTile);
                 ASSERT_TRUE(s->table.map(level, first_page + px, first_page + py, slot).ok());
                 mapped.emplace_back(first_page + px, first_page + py);
             }
@@ -131,12 +131,13 @@ TEST(RenderSparseTable, FallbackThroughUnallocatedBlocks) {
     // Uniform pages: any bilinear sample of one is its colour exactly.
     const std::uint8_t inside[4] = {10, 200, 30, 255}, outside[4] = {250, 20, 90, 255};
     std::vector<std::uint8_t> page(std::size_t(kTile) * kTile * 4);
+    // The level-6 page at the far corner (slot 0), and the root (slot 1).
+    const std::uint32_t px = s->info.levels[fine].tiles_x - 1;
+    const tessera::client::PageKey keys[2] = {{0, std::uint8_t(fine), px, px}, {0, std::uint8_t(levels - 1), 0, 0}};
     for (const auto& [slot, colour] : {std::pair{0u, inside}, {1u, outside}}) {
         for (std::size_t i = 0; i < page.size(); i += 4) std::copy(colour, colour + 4, page.begin() + std::ptrdiff_t(i));
-        r.upload_page(slot, page, kTile);
+        r.upload_page(slot, keys[slot], page, kTile);
     }
-    // The level-6 page at the far corner, and the root.
-    const std::uint32_t px = s->info.levels[fine].tiles_x - 1;
     ASSERT_TRUE(s->table.map(fine, px, px, 0).ok());
     ASSERT_TRUE(s->table.map(levels - 1, 0, 0, 1).ok());
     upload_blocks(s->table, r);

@@ -104,7 +104,7 @@ TEST(RenderStability, LargestAcceptedTextureIsExactAtTheFarCornerAtEveryLevel) {
             for (std::uint32_t px = 0; px < count; ++px) {
                 const std::uint32_t slot = py * 2 + px;
                 tessera::test::encode_page(page, kTile, kBorder, first_page + px, first_page + py, texels);
-                r.upload_page(slot, page, kTile);
+                r.upload_page(slot, {0, std::uint8_t(level), first_page + px, first_page + py}, page, kTile);
                 entries.push_back(PageTable::make_entry(slot, level));
             }
         r.upload_page_table(0, level, first_page, first_page, count, count, entries);
@@ -131,8 +131,8 @@ TEST(RenderStability, StaticCameraDoesNotFlicker) {
     std::vector<std::uint8_t> page(std::size_t(kTile) * kTile * 4);
     for (std::uint32_t j = 0; j < kTile; ++j)
         for (std::uint32_t i = 0; i < kTile; ++i) encode_texel(i * 7, j * 13, page.data() + (std::size_t(j) * kTile + i) * 4);
-    r.upload_page(0, page, kTile);
     const std::uint32_t top = info.level_count() - 1;
+    r.upload_page(0, {0, std::uint8_t(top), 0, 0}, page, kTile);
     const std::vector<std::uint32_t> root{PageTable::make_entry(0, top)};
     r.upload_page_table(0, top, 0, 0, 1, 1, root);
     ASSERT_TRUE(r.set_scene(corner_chunk(size, size - 65536), 0).ok());

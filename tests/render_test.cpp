@@ -536,7 +536,7 @@ TEST(RenderAddressing, TexelsNearTwoToTheTwentyComeBackExactly) {
                     const auto gy = std::clamp<std::int64_t>(std::int64_t(p0 + py) * P - B + j, 0, kSize - 1);
                     encode_texel(std::uint32_t(gx), std::uint32_t(gy), page.data() + (std::size_t(j) * ts + i) * 4);
                 }
-            renderer.upload_page(slot, page, ts);
+            renderer.upload_page(slot, {0, 0, p0 + px, p0 + py}, page, ts);
             entries.push_back(PageTable::make_entry(slot, 0));
         }
     renderer.upload_page_table(0, 0, p0, p0, 2, 2, entries);
@@ -589,6 +589,66 @@ void upload_dirty(PageTable& table, gl::VtRenderer& r) {
             for (std::uint32_t x = d.x0; x < d.x1; ++x) rect.push_back(entries[std::size_t(y) * table.level_width(d.level) + x]);
         r.upload_page_table(table.texture(), std::uint8_t(d.level), d.x0, d.y0, d.x1 - d.x0, d.y1 - d.y0, rect);
     }
+}
+
+// Trilinear takes the coarser of its two levels from the atlas's second level (the page's 2x2
+// means), not from the parent page: with only level 2 (and the root) resident, a view at lod 2.5
+// still matches the reference's blend of levels 2 and 3, texture edges included (the second
+// level is clamped there like the store's next level), and nothing counts as fallback.
+TEST(RenderTrilinear, CoarserLevelIsExactWithoutTheParentPage) {
+    REQUIRE_GL(ctx);
+    ScratchDir dir;
+    PatternSource pattern(1024, 1024);
+    const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56
+    auto levels = gl::decode_store_levels(store);
+    ASSERT_TRUE(levels.ok()) << levels.error().message;
+    const auto info = store_geometry(1024, 1024, 64);
+    const std::uint32_t ts = info.tile_size(), P = info.tile_payload, B = info.border, fine = 2;
+    const auto cfg = config(gl::Filter::trilinear, ts, 64, /*srgb=*/false, 192, 144);
+    auto made = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(made.ok()) << made.error().message;
+    auto& renderer = **made;
+    ASSERT_TRUE(renderer.add_texture(0, info).ok());
+    const auto scene = terrain(1024, 1024, 256);
+    ASSERT_TRUE(renderer.set_scene(scene, 0).ok());
+    auto table = PageTable::create(0, info.levels[0].tiles_x, info.levels[0].tiles_y, info.level_count());
+    ASSERT_TRUE(table.ok()) << table.error().message;
+    // A page cut from the decoded level, its border clamped at the edges (as the builder cuts it).
+    std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
+    tessera::client::SlotId next = 0;
+    const auto upload = [&](std::uint32_t l, std::uint32_t px, std::uint32_t py) {
+        const auto& L = (*levels)[l];
+        for (std::uint32_t j = 0; j < ts; ++j)
+            for (std::uint32_t i = 0; i < ts; ++i) {
+                const auto x = std::clamp<std::int64_t>(std::int64_t(px) * P - B + i, 0, L.width - 1);
+                const auto y = std::clamp<std::int64_t>(std::int64_t(py) * P - B + j, 0, L.height - 1);
+                std::copy_n(&L.rgba8[(std::size_t(y) * L.width + std::size_t(x)) * 4], 4, &page[(std::size_t(j) * ts + i) * 4]);
+            }
+        renderer.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
+        ASSERT_TRUE(table->map(l, px, py, next++).ok());
+    };
+    for (std::uint32_t y = 0; y < info.levels[fine].tiles_y; ++y)
+        for (std::uint32_t x = 0; x < info.levels[fine].tiles_x; ++x) upload(fine, x, y);
+    upload(info.level_count() - 1, 0, 0);
+    upload_dirty(*table, renderer);
+    EXPECT_FALSE(table->resident_level(fine + 1, 0, 0) == fine + 1) << "the parent level must not be resident";
+
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    ASSERT_TRUE(ref.ok()) << ref.error().message;
+    ASSERT_TRUE((*ref)->set_scene(scene).ok());
+    // The whole texture in view (its edges included), at lod 2.5: half level 2, half level 3.
+    const auto cam = straight_down(512, 512, height_for(std::exp2(fine + 0.5), straight_down(0, 0, 1), cfg.height));
+    const Frame f = render_vt(renderer, cam);
+    (*ref)->render(cam);
+    const auto want = (*ref)->read_color();
+    const auto mask = coverage(want);
+    const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
+    EXPECT_GT(e.pixels, 1000u);
+    EXPECT_GE(e.psnr, 50.0) << "max error " << e.max_error;
+    EXPECT_LE(e.max_error, 3);
+    EXPECT_EQ(f.counters.fallback_unbiased, 0u);
+    std::printf("  level %u resident, not %u: PSNR %.1f dB, max error %d over %llu px\n", fine, fine + 1, e.psnr, e.max_error,
+                static_cast<unsigned long long>(e.pixels));
 }
 
 TEST(RenderCounters, FallbackPixelsAgainstTheUnbiasedAndTheBiasedLevel) {
@@ -652,7 +712,7 @@ TEST(RenderCounters, FallbackPixelsAgainstTheUnbiasedAndTheBiasedLevel) {
         for (std::size_t i = 0; i < page.size(); i += 4) {
             page[i] = std::uint8_t(40 * l), page[i + 1] = std::uint8_t(x * 13), page[i + 2] = std::uint8_t(y * 29), page[i + 3] = 255;
         }
-        renderer.upload_page(next, page, ts);
+        renderer.upload_page(next, {0, std::uint8_t(l), x, y}, page, ts);
         ASSERT_TRUE(table->map(l, x, y, next++).ok());
     };
     map(levels - 1, 0, 0);

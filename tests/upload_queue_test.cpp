@@ -171,11 +171,11 @@ TEST(FakeUploader, RecordsCallsInOrderWithCopies) {
     tc::FakeUploader up;
     tc::PageUploader& renderer = up;
     std::vector<std::uint8_t> rgba(2 * 2 * 4, 7);
-    renderer.upload_page(5, rgba, 2);
+    renderer.upload_page(5, tc::PageKey{1, 2, 3, 4}, rgba, 2);
     rgba.assign(rgba.size(), 0);  // the call copied: the record keeps the old bytes
     const std::uint32_t entries[6] = {1, 2, 3, 4, 5, 6};
     renderer.upload_page_table(3, 2, 10, 20, 3, 2, entries);
-    renderer.upload_page(6, std::span<const std::uint8_t>(rgba.data(), 3), 2);  // malformed
+    renderer.upload_page(6, tc::PageKey{}, std::span<const std::uint8_t>(rgba.data(), 3), 2);  // malformed
 
     ASSERT_EQ(up.pages().size(), 2u);
     ASSERT_EQ(up.tables().size(), 1u);
@@ -213,7 +213,7 @@ TEST(FakeUploader, AFrameFromTheQueue) {
     std::vector<tc::ReadyPage> out;
     q.take_frame(out);
     for (const auto& p : out) {
-        up.upload_page(p.slot, p.rgba8, 4);
+        up.upload_page(p.slot, p.key, p.rgba8, 4);
         const std::uint32_t entry = p.slot;
         up.upload_page_table(p.key.texture, p.key.level, p.key.x, p.key.y, 1, 1, std::span(&entry, 1));
     }

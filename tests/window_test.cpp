@@ -222,7 +222,7 @@ TEST(Window, PresentsTheFrameWithTheHudInAnXWindow) {
             p[2] = 60;
             p[3] = 255;
         }
-    (*r)->upload_page(0, page, kTile);
+    (*r)->upload_page(0, {0, 0, 0, 0}, page, kTile);
     auto table = tessera::client::PageTable::create(0, 1, 1, 1);
     ASSERT_TRUE(table.ok()) << table.error().message;
     ASSERT_TRUE(table->map(0, 0, 0, 0).ok());

@@ -66,7 +66,7 @@ struct Options {
 // Discards pixels: a load-test viewer has no GPU.
 class NullUploader final : public client::PageUploader {
 public:
-    void upload_page(client::SlotId, std::span<const std::uint8_t>, std::uint32_t) override {}
+    void upload_page(client::SlotId, const client::PageKey&, std::span<const std::uint8_t>, std::uint32_t) override {}
     void upload_page_table(client::TextureId, std::uint8_t, std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t,
                            std::span<const std::uint32_t>) override {}
 };

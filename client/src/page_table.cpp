@@ -44,12 +44,27 @@ std::uint64_t PageTable::table_bytes(std::uint32_t pages_x, std::uint32_t pages_
     return entries * sizeof(PageEntry);
 }
 
-bool PageTable::dense_packing_fits(std::uint32_t pages_x, std::uint32_t pages_y) {
+std::pair<std::uint32_t, std::uint32_t> PageTable::dense_level_origin(std::uint32_t pages_x, std::uint32_t pages_y,
+                                                                       std::uint32_t level) {
+    if (level == 0 || pages_y == 0) return {0, 0};
+    const std::uint32_t u = pages_y - 1, up = std::min(level - 1, 31u);
+    return {pages_x, up + u - (u >> up)};
+}
+
+std::pair<std::uint64_t, std::uint64_t> PageTable::dense_packed_size(std::uint32_t pages_x, std::uint32_t pages_y) {
     const std::uint32_t levels = levels_for(pages_x, pages_y);
-    std::uint64_t column = 0;
-    for (std::uint32_t l = 1; l < levels; ++l) column += shrink(pages_y, l);
-    const std::uint64_t width = std::uint64_t(pages_x) + (levels > 1 ? shrink(pages_x, 1) : 0);
-    return width <= kMaxDenseSide && std::max<std::uint64_t>(pages_y, column) <= kMaxDenseSide;
+    std::uint64_t width = pages_x, height = pages_y;
+    for (std::uint32_t l = 1; l < levels; ++l) {
+        const auto [x, y] = dense_level_origin(pages_x, pages_y, l);
+        width = std::max<std::uint64_t>(width, std::uint64_t(x) + shrink(pages_x, l));
+        height = std::max<std::uint64_t>(height, std::uint64_t(y) + shrink(pages_y, l));
+    }
+    return {width, height};
+}
+
+bool PageTable::dense_packing_fits(std::uint32_t pages_x, std::uint32_t pages_y) {
+    const auto [width, height] = dense_packed_size(pages_x, pages_y);
+    return width <= kMaxDenseSide && height <= kMaxDenseSide;
 }
 
 Result<PageTable> PageTable::create(TextureId texture, std::uint32_t pages_x, std::uint32_t pages_y,

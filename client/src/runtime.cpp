@@ -504,7 +504,7 @@ private:
                 if (desired_.contains(grant->victim)) ++evicted_wanted_;
             }
             // Unmapped before it is overwritten (acquire_slot did), mapped once complete.
-            uploader_.upload_page(grant->slot, p.rgba8, textures_[key.texture].info->tile_size());
+            uploader_.upload_page(grant->slot, key, p.rgba8, textures_[key.texture].info->tile_size());
             (void)residency_.complete(key, grant->slot);
             desired_.erase(key);  // resident now: frames without feedback must not ask for it again
             ++stats_.pages_uploaded;

@@ -14,9 +14,9 @@ PageUploader::~PageUploader() = default;
 void PageUploader::upload_page_table_block(TextureId, std::uint8_t, std::uint32_t, std::uint32_t,
                                            std::span<const std::uint32_t>) {}
 
-void FakeUploader::upload_page(SlotId slot, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) {
+void FakeUploader::upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) {
     if (rgba8.size() != std::size_t(tile_size) * tile_size * 4) ++malformed_;
-    pages_.push_back(PageCall{seq_++, slot, tile_size, std::vector<std::uint8_t>(rgba8.begin(), rgba8.end())});
+    pages_.push_back(PageCall{seq_++, slot, page, tile_size, std::vector<std::uint8_t>(rgba8.begin(), rgba8.end())});
 }
 
 void FakeUploader::upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0,

@@ -40,8 +40,19 @@ uniform uint vt_dir_width[32];      // level L's blocks per row
 #else
 uniform usampler2D vt_page_table;   // R32UI: every level of the texture's page table, packed
 #endif
+#if VT_FILTER == VT_BILINEAR
 uniform sampler2DRect vt_atlas;     // the physical pages (RGBA8 or SRGB8_ALPHA8), GL_LINEAR; texel coordinates
-uniform ivec2 vt_table_origin[32];  // where level L's entries start in vt_page_table
+#else
+// Trilinear and anisotropic: two levels, the pages and below them each page's 2x2 means (its
+// parent level's texels over the page), GL_LINEAR_MIPMAP_LINEAR: one page-table fetch and one
+// textureLod give both levels of a trilinear lookup.
+uniform sampler2D vt_atlas;
+uniform vec2 vt_inv_atlas_size;     // 1 / the atlas's level-0 size, texels
+#endif
+// Where level L's entries start in vt_page_table (PageTable::dense_level_origin): level 0 at
+// (0, 0), level L >= 1 at (vt_table_column, (L - 1) + U - (U >> (L - 1))), U = vt_table_last_row.
+uniform int vt_table_column;        // level 0's pages per row
+uniform int vt_table_last_row;      // level 0's pages per column - 1
 // The drawn chunk's page frame (set per draw; SceneGeometry::set_page_layout):
 uniform ivec2 vt_chunk_page;        // the level-0 page holding the chunk's texel origin
 uniform vec2 vt_chunk_base;         // that origin's position in the page: an integer below P
@@ -160,7 +171,9 @@ uint vt_entry(ivec2 page, int level) {
     }
     return 0u;
 #else
-    return texelFetch(vt_page_table, vt_table_origin[level] + page, 0).r;
+    int up = max(level - 1, 0);  // level 0 gives row U - U = 0
+    ivec2 origin = ivec2(min(level, 1) * vt_table_column, up + vt_table_last_row - (vt_table_last_row >> up));
+    return texelFetch(vt_page_table, origin + page, 0).r;
 #endif
 }
 
@@ -178,19 +191,26 @@ VtPos vt_ancestor_position(VtPos p, int d) {
     return a;
 }
 
-vec4 vt_lookup_at(VtPos p, int level, out uint resident) {
+// fraction: trilinear's weight of the next coarser level, which the atlas's second level holds for
+// every resident page; a fallback samples its ancestor at its own level only (both trilinear levels
+// would fall back to it). Ignored by the bilinear filter.
+vec4 vt_lookup_at(VtPos p, int level, float fraction, out uint resident) {
     uint e = vt_entry(p.page, level);
     int r = int((e >> 24) & 31u);
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
     vec2 cell = vec2(ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu))) * float(vt_tile_size) + float(vt_border);
+#if VT_FILTER == VT_BILINEAR
     vec4 c = texture(vt_atlas, cell + in_page);
+#else
+    vec4 c = textureLod(vt_atlas, (cell + in_page) * vt_inv_atlas_size, r > level ? 0.0 : fraction);
+#endif
     bool valid = (e >> 31) != 0u;
     resident = valid ? uint(r) : 32u;
     return valid ? c : vt_no_data_colour;
 }
 
 vec4 vt_lookup(vec2 local, int level, out uint resident) {
-    return vt_lookup_at(vt_level_position(local, level), level, resident);
+    return vt_lookup_at(vt_level_position(local, level), level, 0.0, resident);
 }
 
 // The resident level the lookup of `local` at `level` would sample (32: none).
@@ -199,20 +219,14 @@ uint vt_resident_level(vec2 local, int level) {
     return (e >> 31) == 0u ? 32u : ((e >> 24) & 31u);
 }
 
-// Trilinear: levels floor(lod) and floor(lod) + 1 (each its own page-table fetch; the coarser
-// position derived from the finer one), blended by the fraction of the clamped lod. resident: of the finer lookup. The second lookup runs for every
-// pixel (at the last level it repeats the first with weight 0): a branch around it would not save
-// it on a SIMD rasterizer, where some pixel of the group blends.
+// Trilinear: levels floor(lod) and floor(lod) + 1 blended by the fraction of the clamped lod, in
+// one lookup: the finer level's page and, in the atlas's second level, its 2x2 means, which are
+// the coarser level's texels over it. resident: the level sampled. At the last level the fraction
+// is 0.
 vec4 vt_trilinear(vec2 local, float lod, out uint resident) {
     float lc = vt_clamped_lod(lod);
     int l0 = int(lc);
-    VtPos p0 = vt_level_position(local, l0);
-    vec4 c0 = vt_lookup_at(p0, l0, resident);
-    float w = lc - float(l0);
-    uint r1;
-    int d1 = min(l0 + 1, int(vt_levels) - 1) - l0;  // 0 at the last level
-    vec4 c1 = vt_lookup_at(vt_ancestor_position(p0, d1), l0 + d1, r1);
-    return mix(c0, c1, w);
+    return vt_lookup_at(vt_level_position(local, l0), l0, lc - float(l0), resident);
 }
 
 // What vt_sample returns.

@@ -12,6 +12,7 @@
 
 #include "gl_util.hpp"
 #include "scene_draw.hpp"
+#include "page_mips.hpp"
 #include "staging.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/page_table.hpp"
@@ -29,9 +30,9 @@ constexpr std::size_t kMaxUnpolledCounters = 1024;     // finished counter frame
 // Uniform locations of a program built with vt_sample.glsl.
 struct VtUniforms {
     GLint view_projection = -1, bias = -1, main_pixel = -1;
-    GLint table_origin = -1, levels = -1, payload = -1, border = -1, tile_size = -1;
+    GLint table_column = -1, table_last_row = -1, levels = -1, payload = -1, border = -1, tile_size = -1;
     GLint texture_id = -1, max_anisotropy = -1, no_data = -1;
-    GLint inv_payload = -1;
+    GLint inv_payload = -1, inv_atlas_size = -1;
     GLint page_table = -1, atlas = -1, dir_offset = -1, dir_width = -1;
     ChunkUniforms chunk;
 
@@ -40,12 +41,14 @@ struct VtUniforms {
         view_projection = uniform(p, "u_view_projection");
         bias = uniform(p, "vt_bias");
         main_pixel = uniform(p, "vt_main_pixel");
-        table_origin = uniform(p, "vt_table_origin");
+        table_column = uniform(p, "vt_table_column");
+        table_last_row = uniform(p, "vt_table_last_row");
         levels = uniform(p, "vt_levels");
         payload = uniform(p, "vt_payload");
         border = uniform(p, "vt_border");
         tile_size = uniform(p, "vt_tile_size");
         inv_payload = uniform(p, "vt_inv_payload");
+        inv_atlas_size = uniform(p, "vt_inv_atlas_size");
         texture_id = uniform(p, "vt_texture_id");
         max_anisotropy = uniform(p, "vt_max_anisotropy");
         no_data = uniform(p, "vt_no_data_colour");
@@ -54,7 +57,6 @@ struct VtUniforms {
         dir_width = uniform(p, "vt_dir_width");
         atlas = uniform(p, "vt_atlas");
         chunk.chunk_offset = uniform(p, "u_chunk_offset");
-        chunk.texel_origin = uniform(p, "u_texel_origin");
         chunk.chunk_page = uniform(p, "vt_chunk_page");
         chunk.chunk_base = uniform(p, "vt_chunk_base");
         chunk.chunk_bounds = uniform(p, "vt_chunk_bounds");
@@ -71,7 +73,8 @@ int filter_define(Filter f) {
 }
 
 // A virtual texture's page table on the GPU: every level in one R32UI texture, level 0 at (0, 0),
-// levels 1.. stacked in a column to its right (level sizes round up, so they are no mip chain).
+// levels 1.. stacked in a column to its right (PageTable::dense_level_origin: closed-form, so the
+// shader computes it; level sizes round up, so they are no mip chain).
 struct VirtualTexture {
     TextureId id = 0;
     std::uint32_t levels = 0, payload = 0, border = 0;
@@ -102,6 +105,11 @@ public:
             return Error{Errc::invalid_argument, fmt::format("renderer: pool_slots must be 1..{}", PageTable::kMaxSlots)};
         if (c.tile_size <= 2 * c.border || c.border == 0)
             return Error{Errc::invalid_argument, fmt::format("renderer: tile_size {} and border {} leave no payload (border >= 1)", c.tile_size, c.border)};
+        if (c.filter != Filter::bilinear && (c.tile_size % 2 != 0 || c.border % 2 != 0))
+            return Error{Errc::invalid_argument,
+                         fmt::format("renderer: the trilinear and anisotropic filters need an even tile size and border "
+                                     "(the atlas's second level halves pages), got {} and {}",
+                                     c.tile_size, c.border)};
         if (c.readback_ring < 1 || c.readback_ring > 64) return Error{Errc::invalid_argument, "renderer: readback_ring must be 1..64"};
         if (!(c.feedback_prefetch_lod >= 0 && c.feedback_prefetch_lod <= 2))
             return Error{Errc::invalid_argument, "renderer: feedback_prefetch_lod must be 0..2"};
@@ -131,14 +139,20 @@ public:
                                      c.pool_slots, c.tile_size, atlas_width_, atlas_height_, max_texture_)};
         // A rectangle texture: the shader samples it in texel coordinates (no normalisation, no mip
         // level to select), which costs a software rasterizer fewer instructions per lookup.
-        atlas_ = make_texture(GL_TEXTURE_RECTANGLE);
-        glTextureStorage2D(atlas_.get(), 1, c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(atlas_width_), GLsizei(atlas_height_));
-        glTextureParameteri(atlas_.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+        const bool two_levels = c.filter != Filter::bilinear;
+        atlas_ = make_texture(two_levels ? GL_TEXTURE_2D : GL_TEXTURE_RECTANGLE);
+        glTextureStorage2D(atlas_.get(), two_levels ? 2 : 1, c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(atlas_width_), GLsizei(atlas_height_));
+        glTextureParameteri(atlas_.get(), GL_TEXTURE_MIN_FILTER, two_levels ? GL_LINEAR_MIPMAP_LINEAR : GL_LINEAR);
         glTextureParameteri(atlas_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
         glTextureParameteri(atlas_.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
         glTextureParameteri(atlas_.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
         const std::uint8_t zero[4] = {0, 0, 0, 0};
         glClearTexImage(atlas_.get(), 0, GL_RGBA, GL_UNSIGNED_BYTE, zero);
+        if (two_levels) {
+            glClearTexImage(atlas_.get(), 1, GL_RGBA, GL_UNSIGNED_BYTE, zero);
+            TESSERA_TRY(page_mips_.init(atlas_.get(), c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, columns_, rows, c.tile_size, c.srgb));
+        }
+        atlas_mips_ = two_levels;
         if (auto e = take_gl_errors("page atlas"); !e.empty())
             return Error{Errc::resource_exhausted, fmt::format("renderer: {}x{} atlas: {}", atlas_width_, atlas_height_, e)};
 
@@ -168,6 +182,7 @@ public:
             glProgramUniform1i(p, u.page_table, 0);
             glProgramUniform1i(p, u.atlas, 1);
             glProgramUniform1ui(p, u.tile_size, c.tile_size);
+            glProgramUniform2f(p, u.inv_atlas_size, 1.0f / float(atlas_width_), 1.0f / float(atlas_height_));
             glProgramUniform1f(p, u.max_anisotropy, float(c.max_anisotropy));
             glProgramUniform4fv(p, u.no_data, 1, kNoDataColour);
         }
@@ -227,14 +242,30 @@ public:
 
     // ---- PageUploader -----------------------------------------------------------------------
 
-    void upload_page(SlotId slot, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override {
+    void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override {
         if (tile_size != cfg_.tile_size || slot >= cfg_.pool_slots || rgba8.size() != std::size_t(tile_size) * tile_size * 4) {
             ++stats_.malformed_uploads;
             return;
         }
         const auto x = GLint((slot % columns_) * tile_size), y = GLint((slot / columns_) * tile_size);
         upload(atlas_.get(), x, y, GLsizei(tile_size), GLsizei(tile_size), GL_RGBA, GL_UNSIGNED_BYTE, rgba8.data(), rgba8.size());
+        if (atlas_mips_) mark_page_mip(slot, page);
         ++stats_.pages_uploaded;
+    }
+
+    // The cell's second level (trilinear, anisotropic), placed by its page so that it is clamped
+    // at the texture's edges; a page of a texture not added is halved as it is.
+    void mark_page_mip(SlotId slot, const PageKey& page) {
+        std::int32_t ox = 0, oy = 0;
+        std::uint32_t lw = UINT32_MAX, lh = UINT32_MAX;
+        if (auto it = textures_.find(page.texture); it != textures_.end() && page.level < it->second.levels) {
+            const VirtualTexture& t = it->second;
+            ox = std::int32_t(std::int64_t(page.x) * t.payload - t.border);
+            oy = std::int32_t(std::int64_t(page.y) * t.payload - t.border);
+            lw = t.texels[2 * page.level];
+            lh = t.texels[2 * page.level + 1];
+        }
+        page_mips_.mark(slot % columns_, slot / columns_, ox, oy, lw, lh);
     }
 
     void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
@@ -337,23 +368,18 @@ public:
         t.levels = info.level_count();
         t.payload = info.tile_payload;
         t.border = info.border;
-        std::uint32_t column_y = 0, column_w = 0;
         for (std::uint32_t l = 0; l < t.levels; ++l) {
             const auto& li = info.levels[l];
             if (li.tiles_x == 0 || li.tiles_y == 0 || li.tiles_x > kMaxPagesPerAxis || li.tiles_y > kMaxPagesPerAxis)
                 return Error{Errc::invalid_argument, fmt::format("texture {}: level {} has {}x{} pages", texture, l, li.tiles_x, li.tiles_y)};
             t.pages.insert(t.pages.end(), {li.tiles_x, li.tiles_y});
             t.texels.insert(t.texels.end(), {li.width, li.height});
-            if (l == 0) {
-                t.origin.insert(t.origin.end(), {0, 0});
-            } else {
-                t.origin.insert(t.origin.end(), {std::int32_t(info.levels[0].tiles_x), std::int32_t(column_y)});
-                column_y += li.tiles_y;
-                column_w = std::max(column_w, li.tiles_x);
-            }
+            const auto [x, y] = PageTable::dense_level_origin(info.levels[0].tiles_x, info.levels[0].tiles_y, l);
+            t.origin.insert(t.origin.end(), {std::int32_t(x), std::int32_t(y)});
         }
-        t.table_width = info.levels[0].tiles_x + column_w;
-        t.table_height = std::max(info.levels[0].tiles_y, column_y);
+        const auto [table_width, table_height] = PageTable::dense_packed_size(info.levels[0].tiles_x, info.levels[0].tiles_y);
+        t.table_width = std::uint32_t(std::min<std::uint64_t>(table_width, UINT32_MAX));
+        t.table_height = std::uint32_t(std::min<std::uint64_t>(table_height, UINT32_MAX));
         // Too large for the dense packing (what PageTable makes sparse): a two-level table.
         if (!PageTable::dense_packing_fits(info.levels[0].tiles_x, info.levels[0].tiles_y)) {
             TESSERA_TRY(make_two_level(t));
@@ -401,6 +427,7 @@ public:
         ++stats_.frames;
         staging_.close_batch();  // the uploads since the last frame, fenced together
         staging_.retire();
+        if (atlas_mips_) page_mips_.run();  // after the frame's page uploads, in stream order
 
         const double aspect = double(cfg_.width) / double(cfg_.height);
         const auto vp = view_projection(camera, aspect);
@@ -700,7 +727,8 @@ private:
 
     void set_texture_uniforms(const Program& p, const VtUniforms& u, const VirtualTexture& t) {
         const GLuint id = p.get();
-        glProgramUniform2iv(id, u.table_origin, GLsizei(t.levels), t.origin.data());
+        glProgramUniform1i(id, u.table_column, GLint(t.pages[0]));
+        glProgramUniform1i(id, u.table_last_row, GLint(t.pages[1]) - 1);
         glProgramUniform1ui(id, u.levels, t.levels);
         glProgramUniform1ui(id, u.payload, t.payload);
         glProgramUniform1f(id, u.inv_payload, 1.0f / float(t.payload));
@@ -779,6 +807,8 @@ private:
     std::uint32_t max_texture_ = 0;
     StagingRing staging_;
     Texture atlas_;
+    bool atlas_mips_ = false;  // trilinear and anisotropic: the atlas's second level (page_mips.hpp)
+    PageMipPass page_mips_;
     std::uint32_t columns_ = 1, atlas_width_ = 0, atlas_height_ = 0;
     static constexpr std::uint32_t kMaxAtlasCells = 4096;  // per side: 12 bits each in a GPU entry
     std::vector<std::uint32_t> gpu_entries_;               // gpu_entries' scratch

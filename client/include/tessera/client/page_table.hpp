@@ -63,6 +63,7 @@
 // Not thread-safe; owned by the render thread (Residency wraps it).
 #include <cstddef>
 #include <cstdint>
+#include <utility>
 #include <span>
 #include <unordered_map>
 #include <vector>
@@ -108,7 +109,7 @@ public:
     static constexpr std::uint32_t kBlockSide = 1u << kBlockShift;
     static constexpr std::uint32_t kBlockEntries = kBlockSide * kBlockSide;
     // A dense table is at most this many entries per side in the renderer's packing (level 0 and
-    // a column of levels 1..: (w0 + w1) × max(h0, h1 + h2 + ...)): GL 4.5's smallest allowed
+    // a column of levels 1..: dense_packed_size): GL 4.5's smallest allowed
     // GL_MAX_TEXTURE_SIZE, so a dense table always fits the renderer's dense path.
     static constexpr std::uint32_t kMaxDenseSide = 16384;
 
@@ -125,6 +126,16 @@ public:
     // Bytes of the entries of such a table (all levels).
     static std::uint64_t table_bytes(std::uint32_t pages_x, std::uint32_t pages_y, std::uint32_t levels);
 
+    // The renderer's packing of a dense table into one 2D texture: level 0 at (0, 0), levels 1..
+    // in a column to its right at x = pages_x, level L >= 1 from row (L - 1) + U - (U >> (L - 1)),
+    // U = pages_y - 1. That leaves level L 1 + (U >> L) + bit L-1 of U >= ceil(pages_y / 2^L)
+    // rows, and it is closed-form, so the shader computes a level's origin with a shift and two
+    // adds instead of indexing a per-level uniform array per pixel (which a software
+    // rasterizer gathers lane by lane). A few rows over the tight packing (at most levels - 1).
+    static std::pair<std::uint32_t, std::uint32_t> dense_level_origin(std::uint32_t pages_x, std::uint32_t pages_y,
+                                                                      std::uint32_t level);
+    // The texture size of that packing (width, height), entries.
+    static std::pair<std::uint64_t, std::uint64_t> dense_packed_size(std::uint32_t pages_x, std::uint32_t pages_y);
     // Whether a dense table of this geometry fits the renderer's packing (kMaxDenseSide).
     static bool dense_packing_fits(std::uint32_t pages_x, std::uint32_t pages_y);
 

@@ -20,8 +20,11 @@ class PageUploader {
 public:
     virtual ~PageUploader();
     // Copy one page (tile_size x tile_size texels, RGBA8, rows top to bottom, border included)
-    // into physical slot `slot`. The span is valid only during the call.
-    virtual void upload_page(SlotId slot, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) = 0;
+    // into physical slot `slot`. `page` says which page it is (the GL renderer derives each page's
+    // next coarser level from it, clamped at the texture's edges). The span is valid only during
+    // the call.
+    virtual void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8,
+                             std::uint32_t tile_size) = 0;
     // Write a w x h rectangle at (x0, y0) of texture `texture`'s page table for `level`; entries
     // are row-major, w*h of them, in the renderer's page-table entry format.
     virtual void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0,
@@ -40,6 +43,7 @@ public:
     struct PageCall {
         std::uint64_t seq = 0;  // order among all calls, from 0
         SlotId slot = kNoSlot;
+        PageKey page;
         std::uint32_t tile_size = 0;
         std::vector<std::uint8_t> rgba8;
     };
@@ -58,7 +62,7 @@ public:
         std::vector<std::uint32_t> entries;
     };
 
-    void upload_page(SlotId slot, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override;
+    void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override;
     void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
                            std::uint32_t h, std::span<const std::uint32_t> entries) override;
     void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
