@@ -177,11 +177,6 @@ uint vt_entry(ivec2 page, int level) {
 #endif
 }
 
-// One bilinear lookup at level L: one page-table fetch, one bilinear sample. A fallback entry
-// points at the nearest resident ancestor R = L + d, whose position is vt_ancestor_position's.
-// Straight-line code, no branches: a SIMD rasterizer runs both sides of a divergent branch.
-// The entry names the page's atlas cell (column, row): no division to place it.
-// resident: the level sampled, 32 when nothing is resident (the no-data colour).
 // p at level L + d: the page is p.page >> d and the position in it
 // ((p.page & (2^d - 1)) * P + p.in_page) / 2^d (nested floor divisions), with no second division.
 VtPos vt_ancestor_position(VtPos p, int d) {
@@ -191,6 +186,12 @@ VtPos vt_ancestor_position(VtPos p, int d) {
     return a;
 }
 
+// One lookup at level L: one page-table fetch, one sample (bilinear, or trilinear from the
+// atlas's two levels). A fallback entry points at the nearest resident ancestor R = L + d, whose
+// position is vt_ancestor_position's. Straight-line code, no branches: a SIMD rasterizer runs
+// both sides of a divergent branch. The entry names the page's atlas cell (column, row): no
+// division to place it. resident: the level sampled, 32 when nothing is resident (the no-data
+// colour).
 // fraction: trilinear's weight of the next coarser level, which the atlas's second level holds for
 // every resident page; a fallback samples its ancestor at its own level only (both trilinear levels
 // would fall back to it). Ignored by the bilinear filter.
@@ -211,12 +212,6 @@ vec4 vt_lookup_at(VtPos p, int level, float fraction, out uint resident) {
 
 vec4 vt_lookup(vec2 local, int level, out uint resident) {
     return vt_lookup_at(vt_level_position(local, level), level, 0.0, resident);
-}
-
-// The resident level the lookup of `local` at `level` would sample (32: none).
-uint vt_resident_level(vec2 local, int level) {
-    uint e = vt_entry(vt_level_position(local, level).page, level);
-    return (e >> 31) == 0u ? 32u : ((e >> 24) & 31u);
 }
 
 // Trilinear: levels floor(lod) and floor(lod) + 1 blended by the fraction of the clamped lod, in
@@ -253,18 +248,37 @@ VtSample vt_sample(vec2 local) {
 #elif VT_FILTER == VT_TRILINEAR
     s.colour = vt_trilinear(local, lod, s.resident);
 #else
-    // Anisotropic: every tap is a trilinear VT lookup with its own page-table fetches, so taps
-    // that cross a page edge read the neighbouring page: no clamping, no seams.
+    // Anisotropic: count trilinear taps along the major axis. Where they all fall inside the
+    // payload of the page the centre samples at its wanted level (nearly every pixel: the taps
+    // span at most 7 texels of a page's P), they share the centre's page-table entry: one fetch
+    // per pixel. Otherwise every tap is a full trilinear VT lookup with its own fetch, so taps
+    // that cross a page edge read the neighbouring page: no seams. The two cases are loops whose
+    // trip counts are 0 for the other case: a SIMD rasterizer runs both sides of an `if` but
+    // skips a loop that no lane enters.
     vec2 axis;
     float count;
-    vt_aniso_taps(dx, dy, vt_clamped_lod(lod), axis, count);
+    float lc = vt_clamped_lod(lod);
+    vt_aniso_taps(dx, dy, lc, axis, count);
+    int l0 = int(lc);
+    VtPos p = vt_level_position(local, l0);
+    uint e = vt_entry(p.page, l0);
+    s.resident = (e >> 31) != 0u ? ((e >> 24) & 31u) : 32u;
+    vec2 step = axis * (vt_exp2_neg(l0) / count);         // between taps, level-l0 texels
+    vec2 first = p.in_page - step * (0.5 * (count - 1.0));  // tap 0
+    vec2 last = p.in_page + step * (0.5 * (count - 1.0));
+    bool one_page = s.resident == uint(l0) && all(greaterThanEqual(min(first, last), vec2(0.0))) &&
+                    all(lessThan(max(first, last), vec2(float(vt_payload))));
+    vec2 cell = vec2(ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu))) * float(vt_tile_size) + float(vt_border) + first;
     vec4 sum = vec4(0.0);
-    for (int i = 0; i < int(count); ++i) {
+    int shared_taps = one_page ? int(count) : 0;
+    for (int i = 0; i < shared_taps; ++i)
+        sum += textureLod(vt_atlas, (cell + step * float(i)) * vt_inv_atlas_size, lc - float(l0));
+    int own_taps = one_page ? 0 : int(count);
+    for (int i = 0; i < own_taps; ++i) {
         uint r;
         sum += vt_trilinear(local + vt_tap_offset(axis, count, i), lod, r);
     }
     s.colour = sum / count;
-    s.resident = vt_resident_level(local, wanted);
 #endif
     return s;
 }
