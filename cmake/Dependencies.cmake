@@ -7,6 +7,7 @@ pkg_check_modules(XXHASH REQUIRED IMPORTED_TARGET libxxhash)
 # gRPC and protobuf through pkg-config: Debian 12 ships no protobuf CMake config.
 pkg_check_modules(GRPCPP REQUIRED IMPORTED_TARGET grpc++)
 pkg_check_modules(PROTOBUF REQUIRED IMPORTED_TARGET protobuf)
+find_package(absl REQUIRED CONFIG)  # comes with gRPC; the server's flat hash maps
 find_package(nlohmann_json REQUIRED CONFIG)
 find_package(ZLIB REQUIRED)  # PNG encoding of decoded tiles
 if(NOT TESSERA_FUZZ_ONLY)

@@ -1,5 +1,8 @@
 #include "scheduler.hpp"
 
+#include <absl/container/flat_hash_map.h>
+#include <absl/container/flat_hash_set.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -39,17 +42,19 @@ struct Scheduler::Viewer {
     // Pending requests, ascending priority (the next one is at the back). Ties: earlier keys
     // of the batch first.
     std::vector<Pending> pending;
-    // Keys of the latest batch: what the viewer still wants.
-    std::unordered_set<FullKey, FullKeyHash> wanted;
+    // Keys of the latest batch: what the viewer still wants. Flat (open-addressing) sets and
+    // maps: every batch looks up each of its keys in three of them, and node-based ones spent
+    // ~6% of the server's CPU at peak on cache misses and node allocations.
+    absl::flat_hash_set<FullKey, FullKeyHash> wanted;
     // Keys being read now, or read and waiting in the outbox.
-    std::unordered_set<FullKey, FullKeyHash> in_flight;
+    absl::flat_hash_set<FullKey, FullKeyHash> in_flight;
     // Keys handed to the transport (TILE_OK): when, and the reply's ordinal on the stream; kept
     // while every batch lists them. Only for viewers that report replies_received (revision 1).
     struct Sent {
         Clock::time_point at;
         std::uint64_t ordinal;
     };
-    std::unordered_map<FullKey, Sent, FullKeyHash> sent;
+    absl::flat_hash_map<FullKey, Sent, FullKeyHash> sent;
     std::uint64_t replies_taken = 0;  // tile replies handed to the transport on this stream
     bool track_sent = false;
     unsigned chunks_in_flight = 0;
@@ -212,7 +217,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
         now + (batch.deadline_ms() ? std::chrono::milliseconds(batch.deadline_ms()) : ctx_.config.request_timeout);
     std::vector<Pending> next;
     next.reserve(static_cast<std::size_t>(batch.requests_size()));
-    std::unordered_set<FullKey, FullKeyHash> wanted;
+    absl::flat_hash_set<FullKey, FullKeyHash> wanted;
     wanted.reserve(static_cast<std::size_t>(batch.requests_size()));
     std::uint32_t invalid = 0, already = 0, already_sent = 0;
     for (const auto& r : batch.requests()) {
@@ -325,7 +330,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
 
     // A sent tile this batch does not list has arrived (or is no longer wanted): forget it, so
     // that listing it again asks for it again.
-    std::erase_if(v.sent, [&](const auto& e) { return !wanted.contains(e.first); });
+    absl::erase_if(v.sent, [&](const auto& e) { return !wanted.contains(e.first); });
 
     total_pending_ = total_pending_ - v.pending.size() + next.size();
     const bool was_idle = v.pending.empty();

@@ -1,5 +1,7 @@
 #include "tile_cache.hpp"
 
+#include <absl/container/flat_hash_map.h>
+
 #include <deque>
 #include <iterator>
 #include <list>
@@ -110,7 +112,7 @@ struct alignas(64) TileCache::Shard {
     Queue main;
     std::size_t small_bytes = 0;
     std::size_t main_bytes = 0;
-    std::unordered_map<CacheKey, Queue::iterator, KeyHash> index;
+    absl::flat_hash_map<CacheKey, Queue::iterator, KeyHash> index;  // flat: one probe, no node per entry
     Ghost ghost;
     std::uint64_t hits = 0;
     std::uint64_t misses = 0;
