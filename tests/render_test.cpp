@@ -591,12 +591,14 @@ void upload_dirty(PageTable& table, gl::VtRenderer& r) {
     }
 }
 
-// Trilinear takes the coarser of its two levels from the atlas's second level (the page's 2x2
-// means), not from the parent page: with only level 2 (and the root) resident, a view at lod 2.5
-// still matches the reference's blend of levels 2 and 3, texture edges included (the second
-// level is clamped there like the store's next level), and nothing counts as fallback.
-TEST(RenderTrilinear, CoarserLevelIsExactWithoutTheParentPage) {
-    REQUIRE_GL(ctx);
+// Trilinear takes the coarser of its two levels from the atlas's second level, not from a second
+// page-table lookup: the parent page's texels when the parent is in the atlas, else the page's 2x2
+// means. A view at lod 2.5 over the whole texture (its edges included), level 2 and the root
+// resident, and level 3 too when `parents`, uploaded after level 2 (so the children's second
+// levels are redone). `inverted_parents`: level 3 holds other texels than level 2's means (as a
+// lossy codec's separately encoded level does), in the store the reference draws and in the
+// uploaded pages alike. The VT must match the reference: PSNR >= 50 dB, max error <= 3.
+void expect_trilinear_matches(bool parents, bool inverted_parents) {
     ScratchDir dir;
     PatternSource pattern(1024, 1024);
     const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56
@@ -604,6 +606,9 @@ TEST(RenderTrilinear, CoarserLevelIsExactWithoutTheParentPage) {
     ASSERT_TRUE(levels.ok()) << levels.error().message;
     const auto info = store_geometry(1024, 1024, 64);
     const std::uint32_t ts = info.tile_size(), P = info.tile_payload, B = info.border, fine = 2;
+    if (inverted_parents)
+        for (std::size_t i = 0; i < (*levels)[fine + 1].rgba8.size(); ++i)
+            if (i % 4 != 3) (*levels)[fine + 1].rgba8[i] = std::uint8_t(255 - (*levels)[fine + 1].rgba8[i]);
     const auto cfg = config(gl::Filter::trilinear, ts, 64, /*srgb=*/false, 192, 144);
     auto made = gl::VtRenderer::create(cfg);
     ASSERT_TRUE(made.ok()) << made.error().message;
@@ -616,39 +621,51 @@ TEST(RenderTrilinear, CoarserLevelIsExactWithoutTheParentPage) {
     // A page cut from the decoded level, its border clamped at the edges (as the builder cuts it).
     std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
     tessera::client::SlotId next = 0;
-    const auto upload = [&](std::uint32_t l, std::uint32_t px, std::uint32_t py) {
+    const auto upload_level = [&](std::uint32_t l) {
         const auto& L = (*levels)[l];
-        for (std::uint32_t j = 0; j < ts; ++j)
-            for (std::uint32_t i = 0; i < ts; ++i) {
-                const auto x = std::clamp<std::int64_t>(std::int64_t(px) * P - B + i, 0, L.width - 1);
-                const auto y = std::clamp<std::int64_t>(std::int64_t(py) * P - B + j, 0, L.height - 1);
-                std::copy_n(&L.rgba8[(std::size_t(y) * L.width + std::size_t(x)) * 4], 4, &page[(std::size_t(j) * ts + i) * 4]);
+        for (std::uint32_t py = 0; py < info.levels[l].tiles_y; ++py)
+            for (std::uint32_t px = 0; px < info.levels[l].tiles_x; ++px) {
+                for (std::uint32_t j = 0; j < ts; ++j)
+                    for (std::uint32_t i = 0; i < ts; ++i) {
+                        const auto x = std::clamp<std::int64_t>(std::int64_t(px) * P - B + i, 0, L.width - 1);
+                        const auto y = std::clamp<std::int64_t>(std::int64_t(py) * P - B + j, 0, L.height - 1);
+                        std::copy_n(&L.rgba8[(std::size_t(y) * L.width + std::size_t(x)) * 4], 4,
+                                    &page[(std::size_t(j) * ts + i) * 4]);
+                    }
+                renderer.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
+                ASSERT_TRUE(table->map(l, px, py, next++).ok());
             }
-        renderer.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
-        ASSERT_TRUE(table->map(l, px, py, next++).ok());
     };
-    for (std::uint32_t y = 0; y < info.levels[fine].tiles_y; ++y)
-        for (std::uint32_t x = 0; x < info.levels[fine].tiles_x; ++x) upload(fine, x, y);
-    upload(info.level_count() - 1, 0, 0);
+    upload_level(fine);
+    if (parents) upload_level(fine + 1);
+    upload_level(info.level_count() - 1);
     upload_dirty(*table, renderer);
-    EXPECT_FALSE(table->resident_level(fine + 1, 0, 0) == fine + 1) << "the parent level must not be resident";
 
     auto ref = gl::ReferenceRenderer::create(cfg, *levels);
     ASSERT_TRUE(ref.ok()) << ref.error().message;
     ASSERT_TRUE((*ref)->set_scene(scene).ok());
-    // The whole texture in view (its edges included), at lod 2.5: half level 2, half level 3.
     const auto cam = straight_down(512, 512, height_for(std::exp2(fine + 0.5), straight_down(0, 0, 1), cfg.height));
     const Frame f = render_vt(renderer, cam);
     (*ref)->render(cam);
     const auto want = (*ref)->read_color();
-    const auto mask = coverage(want);
-    const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
+    const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, coverage(want));
     EXPECT_GT(e.pixels, 1000u);
     EXPECT_GE(e.psnr, 50.0) << "max error " << e.max_error;
     EXPECT_LE(e.max_error, 3);
     EXPECT_EQ(f.counters.fallback_unbiased, 0u);
-    std::printf("  level %u resident, not %u: PSNR %.1f dB, max error %d over %llu px\n", fine, fine + 1, e.psnr, e.max_error,
+    std::printf("  level %u resident, level %u %s%s: PSNR %.1f dB, max error %d over %llu px\n", fine, fine + 1,
+                parents ? "resident" : "not", inverted_parents ? " (inverted)" : "", e.psnr, e.max_error,
                 static_cast<unsigned long long>(e.pixels));
+}
+
+TEST(RenderTrilinear, CoarserLevelIsExactWithoutTheParentPage) {
+    REQUIRE_GL(ctx);
+    expect_trilinear_matches(/*parents=*/false, /*inverted_parents=*/false);
+}
+
+TEST(RenderTrilinear, CoarserLevelIsTheStoredParentWhenItIsResident) {
+    REQUIRE_GL(ctx);
+    expect_trilinear_matches(/*parents=*/true, /*inverted_parents=*/true);
 }
 
 TEST(RenderCounters, FallbackPixelsAgainstTheUnbiasedAndTheBiasedLevel) {

@@ -18,6 +18,8 @@ Status PageMipPass::init(GLuint atlas, GLenum format, std::uint32_t columns, std
     glProgramUniform1i(program_.get(), glGetUniformLocation(program_.get(), "pm_tile_size"), GLint(tile_size));
     columns_ = columns;
     rows_ = rows;
+    atlas_ = atlas;
+    tile_size_ = tile_size;
     width_ = columns * tile_size / 2;
     height_ = rows * tile_size / 2;
     srgb_ = srgb;
@@ -56,6 +58,24 @@ void PageMipPass::mark(std::uint32_t column, std::uint32_t row, std::int32_t ori
     }
     index = std::int32_t(pending_.size());
     pending_.push_back(c);
+}
+
+void PageMipPass::copy_from_parent(std::uint32_t column, std::uint32_t row, std::uint32_t parent_x, std::uint32_t parent_y) {
+    if (column >= columns_ || row >= rows_) return;
+    std::int32_t& index = pending_index_[std::size_t(row) * columns_ + column];
+    if (index >= 0) {  // swap-remove its pending box
+        const std::size_t i = std::size_t(index);
+        if (i + 1 != pending_.size()) {
+            pending_[i] = pending_.back();
+            pending_index_[std::size_t(pending_[i].row) * columns_ + std::size_t(pending_[i].column)] = std::int32_t(i);
+        }
+        pending_.pop_back();
+        index = -1;
+    }
+    const auto half = GLsizei(tile_size_ / 2);
+    glCopyImageSubData(atlas_, GL_TEXTURE_2D, 0, GLint(parent_x), GLint(parent_y), 0, atlas_, GL_TEXTURE_2D, 1,
+                       GLint(column * tile_size_ / 2), GLint(row * tile_size_ / 2), 0, half, half, 1);
+    ++copied_;
 }
 
 void PageMipPass::run() {

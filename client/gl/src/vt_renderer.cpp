@@ -249,12 +249,48 @@ public:
         }
         const auto x = GLint((slot % columns_) * tile_size), y = GLint((slot / columns_) * tile_size);
         upload(atlas_.get(), x, y, GLsizei(tile_size), GLsizei(tile_size), GL_RGBA, GL_UNSIGNED_BYTE, rgba8.data(), rgba8.size());
-        if (atlas_mips_) mark_page_mip(slot, page);
+        if (atlas_mips_) place_page_mip(slot, page);
         ++stats_.pages_uploaded;
     }
 
-    // The cell's second level (trilinear, anisotropic), placed by its page so that it is clamped
-    // at the texture's edges; a page of a texture not added is halved as it is.
+    // The second level of the cell `slot` now holding `page` (trilinear, anisotropic;
+    // page_mips.hpp): the parent page's texels over it when the parent is in the atlas, else its
+    // 2x2 means; and the page's own texels into the second level of its children in the atlas.
+    void place_page_mip(SlotId slot, const PageKey& page) {
+        if (slot_pages_.size() != cfg_.pool_slots) slot_pages_.assign(cfg_.pool_slots, PageKey{0xFFFF, 31, 0, 0});
+        PageKey& old = slot_pages_[slot];
+        if (auto it = resident_slots_.find(old); it != resident_slots_.end() && it->second == slot) resident_slots_.erase(it);
+        old = page;
+        resident_slots_[page] = slot;
+        const auto t = textures_.find(page.texture);
+        const bool known = t != textures_.end() && page.level < t->second.levels;
+        const bool last = known && std::uint32_t(page.level) + 1 >= t->second.levels;  // blends nothing coarser
+        // Level-0 atlas texel of the corner of the parent tile's quarter over `child`.
+        const auto quarter = [&](const PageKey& child, SlotId parent_slot) {
+            const std::uint32_t ts = cfg_.tile_size, P = ts - 2 * cfg_.border, B = cfg_.border;
+            return std::pair{(parent_slot % columns_) * ts + (child.x & 1) * (P / 2) + B / 2,
+                             (parent_slot / columns_) * ts + (child.y & 1) * (P / 2) + B / 2};
+        };
+        if (!last) {
+            if (auto p = resident_slots_.find(page.parent()); known && p != resident_slots_.end()) {
+                const auto [x, y] = quarter(page, p->second);
+                page_mips_.copy_from_parent(slot % columns_, slot / columns_, x, y);
+            } else {
+                mark_page_mip(slot, page);
+            }
+        }
+        if (!known || page.level == 0) return;
+        for (std::uint32_t k = 0; k < 4; ++k) {
+            const PageKey child{page.texture, std::uint8_t(page.level - 1), 2 * page.x + (k & 1), 2 * page.y + (k >> 1)};
+            if (auto c = resident_slots_.find(child); c != resident_slots_.end()) {
+                const auto [x, y] = quarter(child, slot);
+                page_mips_.copy_from_parent(c->second % columns_, c->second / columns_, x, y);
+            }
+        }
+    }
+
+    // The cell's 2x2 means, placed by its page so that they are clamped at the texture's edges; a
+    // page of a texture not added is halved as it is.
     void mark_page_mip(SlotId slot, const PageKey& page) {
         std::int32_t ox = 0, oy = 0;
         std::uint32_t lw = UINT32_MAX, lh = UINT32_MAX;
@@ -809,6 +845,8 @@ private:
     Texture atlas_;
     bool atlas_mips_ = false;  // trilinear and anisotropic: the atlas's second level (page_mips.hpp)
     PageMipPass page_mips_;
+    std::vector<PageKey> slot_pages_;                               // the page each slot holds (atlas_mips_)
+    std::unordered_map<PageKey, SlotId, PageKeyHash> resident_slots_;  // and back: at most pool_slots
     std::uint32_t columns_ = 1, atlas_width_ = 0, atlas_height_ = 0;
     static constexpr std::uint32_t kMaxAtlasCells = 4096;  // per side: 12 bits each in a GPU entry
     std::vector<std::uint32_t> gpu_entries_;               // gpu_entries' scratch
