@@ -147,7 +147,6 @@ int main(int argc, char** argv) {
         std::vector<client::gl::FrameCounters> counters;
         (*vt)->finish(&counters, nullptr);
 
-        setenv("ABL_ON", "1", 1);
         std::vector<double> vt_ms, plain_ms, vt_cpu, plain_cpu;
         for (unsigned f = 0; f < frames; ++f) {
             const auto cam = cam_at(f);
