@@ -133,6 +133,9 @@ struct Viewer {
             acks.push_back(m.ack());
         } else if (m.has_tiles()) {  // protocol revision 1
             max_tiles_per_message = std::max<std::size_t>(max_tiles_per_message, m.tiles().tiles_size());
+            std::size_t payload = 0;
+            for (const auto& t : m.tiles().tiles()) payload += t.payload().size();
+            if (m.tiles().tiles_size() > 1) max_shared_payload = std::max(max_shared_payload, payload);
             for (auto& t : *m.mutable_tiles()->mutable_tiles()) {
                 tiles.push_back(std::move(t));
                 acks_before.push_back(acks.size());
@@ -148,6 +151,7 @@ struct Viewer {
     std::unique_ptr<grpc::ClientReaderWriter<v1::TileBatch, v1::ServerMessage>> stream;
     std::vector<v1::BatchAck> acks;
     std::vector<v1::TileReply> tiles;
+    std::size_t max_shared_payload = 0;  // largest payload sum of a message with several tiles
     std::vector<std::size_t> acks_before;  // per tile: acks received before it (stream order)
     std::atomic<std::size_t> tile_count{0};  // tiles.size(), readable from another thread
     std::size_t messages = 0, max_tiles_per_message = 0;
@@ -287,7 +291,9 @@ TEST_F(ServerGrpc, SeveralTilesPerMessageCarryExactBytes) {
             EXPECT_EQ(0, std::memcmp(t.payload().data(), tile->bytes.data(), tile->bytes.size()));
             EXPECT_EQ(t.checksum(), XXH3_64bits(t.payload().data(), t.payload().size()));
         }
-        // JPEG tiles (~15 KB) share messages; raw ones (~196 KiB) fill the 256 KiB cap alone.
+        // JPEG tiles (~15 KB) share messages up to the 64 KiB --reply-message default; raw ones
+        // (~196 KiB) are over it alone, and go one per message.
+        EXPECT_LE(v.max_shared_payload, 64u << 10) << name;
         if (name == "terrain") {
             EXPECT_GT(v.max_tiles_per_message, 1u) << name << ": no message carried more than one tile";
             EXPECT_LT(v.messages, keys.size() + 1) << name;
@@ -790,6 +796,20 @@ TEST_F(ServerGrpc, ClientLibraryRidesOutAServerRestart) {
     EXPECT_GE(client->stats().reconnects, 1u);  // (a draining server may refuse one attempt first)
 }
 
+TEST_F(ServerGrpc, ReplyMessageSizeCapsSharedMessages) {
+    ServerProcess srv({"--store", Stores::get().jpeg, "--reply-message", "40KiB"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto keys = level_keys(Stores::get().jpeg, 2);
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "terrain", keys, 0, 1)));
+    std::this_thread::sleep_for(300ms);  // replies pile up: the writes coalesce up to the cap
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == keys.size(); }));
+    EXPECT_GT(v.max_tiles_per_message, 1u);
+    EXPECT_GT(v.max_shared_payload, 0u);
+    EXPECT_LE(v.max_shared_payload, 40u << 10);
+    EXPECT_TRUE(v.finish().ok());
+}
+
 TEST_F(ServerGrpc, BadCommandLinesAreClearErrors) {
     for (const auto& args : std::vector<std::string>{
              "serve",                                                  // nothing to serve
@@ -798,6 +818,7 @@ TEST_F(ServerGrpc, BadCommandLinesAreClearErrors) {
              "serve --store " + Stores::get().small + " --grpc 127.0.0.1:99999",
              "serve --store " + Stores::get().small + " --cache-size lots",
              "serve --store " + Stores::get().small + " --auth-token-file /nonexistent",
+             "serve --store " + Stores::get().small + " --reply-message 100",  // below 1KiB
          }) {
         auto r = tessera::test::run_tessera(args + " --http 127.0.0.1:0");
         EXPECT_NE(r.exit_code, 0) << args;

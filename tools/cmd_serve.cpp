@@ -105,6 +105,9 @@ Command add_serve(CLI::App& app) {
         ->capture_default_str();
     s->add_option("--max-message", a->max_message, "Largest gRPC message accepted, e.g. 4MiB")
         ->transform(CLI::AsSizeValue(false))->default_str("4MiB");
+    s->add_option("--reply-message", c.grpc_message_bytes,
+                  "Tile replies packed into one gRPC message up to this size (revision 1 viewers), e.g. 64KiB")
+        ->transform(CLI::AsSizeValue(false))->default_str("64KiB");
     s->add_option("--max-connections", c.max_connections, "Concurrent HTTP connections; beyond: 503")
         ->capture_default_str();
     s->add_option("--max-header", c.max_header_bytes, "Largest HTTP request head in bytes; beyond: 431")

@@ -57,6 +57,8 @@ Status validate(const ServerConfig& c) {
     if (c.viewer_buffer_bytes < 64 * 1024 || c.total_buffer_bytes < c.viewer_buffer_bytes)
         return Error{Errc::invalid_argument, "--viewer-buffer must be at least 64KiB and at most --total-buffer"};
     if (c.max_message_bytes < 1024) return Error{Errc::invalid_argument, "--max-message must be at least 1KiB"};
+    if (c.grpc_message_bytes < 1024 || c.grpc_message_bytes > (64u << 20))
+        return Error{Errc::invalid_argument, "--reply-message must be between 1KiB and 64MiB"};
     if (c.max_header_bytes < 1024) return Error{Errc::invalid_argument, "--max-header must be at least 1KiB"};
     return Status();
 }
