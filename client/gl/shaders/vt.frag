@@ -4,7 +4,10 @@
 // fragment tests against the pre-pass depth (GL_LEQUAL), so hidden fragments neither shade nor
 // count. An empty entry (nothing resident) counts as fallback. Only fallback pixels touch the
 // counters: they are rare once a view has loaded, and an atomic per fragment on one address is
-// what a software rasterizer's threads would serialise on.
+// what a software rasterizer's threads would serialise on. One atomic, not one per measure: the
+// pixel adds to the counter of its kind (fallback against the unbiased level only, the biased
+// only, or both), and the renderer sums kinds when it reads them back. A SIMD rasterizer pays
+// for each atomic statement whether or not a lane takes it.
 layout(early_fragment_tests) in;
 
 #include "vt_sample.glsl"
@@ -12,10 +15,9 @@ layout(early_fragment_tests) in;
 in vec2 v_local;
 
 layout(std430, binding = 0) buffer VtCounters {
-    uint textured;  // unused: the occlusion query counts these
-    uint fallback_unbiased;
-    uint fallback_biased;
-    uint reserved;
+    // [u + 2 b]: pixels that fall back against the unbiased level (u = 1), the biased level
+    // (b = 1), or both. [0] is unused: the occlusion query counts the textured pixels.
+    uint fallback[4];
 } vt_counters;
 
 layout(location = 0) out vec4 o_colour;
@@ -23,6 +25,6 @@ layout(location = 0) out vec4 o_colour;
 void main() {
     VtSample s = vt_sample(v_local);
     o_colour = s.colour;
-    if (s.resident > s.wanted_unbiased) atomicAdd(vt_counters.fallback_unbiased, 1u);
-    if (s.resident > s.wanted) atomicAdd(vt_counters.fallback_biased, 1u);
+    int kind = int(s.resident > s.wanted_unbiased) + 2 * int(s.resident > s.wanted);
+    if (kind != 0) atomicAdd(vt_counters.fallback[kind], 1u);
 }

@@ -24,7 +24,7 @@ namespace {
 using namespace detail;
 
 constexpr std::uint32_t kMaxLevels = 32;
-constexpr std::size_t kCounterBytes = 16;              // 4 uints: textured, unbiased, biased, reserved
+constexpr std::size_t kCounterBytes = 16;              // 4 uints, by kind: unused, unbiased only, biased only, both (vt.frag)
 constexpr std::size_t kMaxUnpolledCounters = 1024;     // finished counter frames kept for poll_counters
 
 // Uniform locations of a program built with vt_sample.glsl.
@@ -832,7 +832,7 @@ private:
             // The query ended before the fence, so its result is there once the fence is.
             GLuint textured = 0;
             if (s.has_query) glGetQueryObjectuiv(s.textured.get(), GL_QUERY_RESULT, &textured);
-            finished_counters_.push_back(FrameCounters{s.frame, textured, v[1], v[2]});
+            finished_counters_.push_back(FrameCounters{s.frame, textured, v[1] + v[3], v[2] + v[3]});
             s.busy = false;
             s.fence.reset();
         }
