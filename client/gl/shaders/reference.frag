@@ -4,9 +4,9 @@
 #include "vt_sample.glsl"
 
 in vec2 v_local;
-uniform uvec2 u_texel_origin;
-uniform sampler2D ref_texture;  // GL_LINEAR_MIPMAP_LINEAR, clamp to edge
-uniform vec2 ref_size;          // level-0 texels
+flat in uvec2 vt_texel_origin;          // the chunk's (scene.vert)
+uniform sampler2D ref_texture;          // GL_LINEAR_MIPMAP_LINEAR, clamp to edge
+const vec2 ref_size = REF_TEXTURE_SIZE;  // level-0 texels (compiled in, as the VT's constants)
 
 layout(location = 0) out vec4 o_colour;
 
@@ -15,7 +15,7 @@ vec4 ref_trilinear(vec2 texel, float lod) { return textureLod(ref_texture, texel
 void main() {
     vec2 dx = dFdx(v_local), dy = dFdy(v_local);
     float lod = vt_lod(dx, dy);
-    vec2 texel = vec2(u_texel_origin) + v_local;
+    vec2 texel = vec2(vt_texel_origin) + v_local;
 #if VT_FILTER == VT_BILINEAR
     o_colour = textureLod(ref_texture, texel / ref_size, float(vt_wanted_level(lod)));
 #elif VT_FILTER == VT_TRILINEAR

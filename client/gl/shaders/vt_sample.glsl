@@ -4,8 +4,11 @@
 // The including shader is assembled by the renderer as
 //     #version 450 core
 //     #define VT_FILTER <VT_BILINEAR | VT_TRILINEAR | VT_ANISOTROPIC>
+//     #define VT_TILE_SIZE, VT_BORDER, VT_MAX_ANISOTROPY, VT_ATLAS_SIZE, VT_NO_DATA_COLOUR
 //     [#define VT_SPARSE_TABLE 1]   (vt.frag for two-level page tables: see vt_entry)
 //     <this file> <the shader>
+// (detail::vt_shader_defines). It is drawn with scene.vert, which forwards the per-draw,
+// per-texture and per-frame values as flat varyings (see "Inputs").
 //
 // Conventions
 // - Texel coordinates: the level-0 texel coordinate of a fragment is `origin + local`, where
@@ -28,6 +31,38 @@
 #error "VT_FILTER must be defined"
 #endif
 
+#if !defined(VT_TILE_SIZE) || !defined(VT_BORDER) || !defined(VT_MAX_ANISOTROPY) || !defined(VT_ATLAS_SIZE) || !defined(VT_NO_DATA_COLOUR)
+#error "the renderer-wide constants must be defined (detail::vt_shader_defines)"
+#endif
+
+// ---------------------------------------------------------------------------------------------
+// Inputs. Three kinds, by how often they change (docs/renderer.md, "What a lookup costs"):
+// - Renderer-wide constants are compiled in: one tile size, border and anisotropy serve every
+//   texture (add_texture checks), and the atlas never changes size. Constant folding also saves
+//   a GPU the conversions and multiplies.
+// - Values of the draw (the chunk's page frame), the texture (its levels and table layout) and
+//   the frame (the bias) come as flat varyings that scene.vert copies from its uniforms: a
+//   software rasterizer loads a uniform in a fragment shader lane by lane, bounds-checked, at
+//   every read, but a flat input once per block of pixels.
+// - The page table and the atlas are textures (or, two-level, storage buffers).
+const uint vt_tile_size = VT_TILE_SIZE;                 // P + 2B: atlas cell size
+const uint vt_border = VT_BORDER;                       // B: border texels on each side of a page
+const uint vt_payload = VT_TILE_SIZE - 2u * VT_BORDER;  // P: texels a page covers per side
+const float vt_inv_payload = 1.0 / float(vt_payload);
+const float vt_max_anisotropy = VT_MAX_ANISOTROPY;      // 1..8 (anisotropic filter)
+const vec4 vt_no_data_colour = VT_NO_DATA_COLOUR;       // entry 0: nothing resident on the path
+
+flat in uint vt_levels;             // levels of the virtual texture (the last one is one page)
+flat in float vt_bias;              // LoD bias (0 in the reference renderer)
+// Where level L's entries start in vt_page_table (PageTable::dense_level_origin): level 0 at
+// (0, 0), level L >= 1 at (vt_table_column, (L - 1) + U - (U >> (L - 1))), U = vt_table_last_row.
+flat in int vt_table_column;        // level 0's pages per row
+flat in int vt_table_last_row;      // level 0's pages per column - 1
+// The drawn chunk's page frame (SceneGeometry::set_page_layout):
+flat in ivec2 vt_chunk_page;        // the level-0 page holding the chunk's texel origin
+flat in vec2 vt_chunk_base;         // that origin's position in the page: an integer below P
+flat in vec4 vt_chunk_bounds;       // the texture's texels relative to the page's start: xy min, zw max
+
 #ifdef VT_SPARSE_TABLE
 // Two-level page table (textures whose dense table does not fit; PageTable, "Storage, sparse"):
 // per level a directory of 32x32-entry blocks (block slot + 1, 0: unallocated) and the pool of
@@ -47,25 +82,9 @@ uniform sampler2DRect vt_atlas;     // the physical pages (RGBA8 or SRGB8_ALPHA8
 // parent level's texels over the page), GL_LINEAR_MIPMAP_LINEAR: one page-table fetch and one
 // textureLod give both levels of a trilinear lookup.
 uniform sampler2D vt_atlas;
-uniform vec2 vt_inv_atlas_size;     // 1 / the atlas's level-0 size, texels
+const vec2 vt_inv_atlas_size = 1.0 / VT_ATLAS_SIZE;  // 1 / the atlas's level-0 size, texels
 #endif
-// Where level L's entries start in vt_page_table (PageTable::dense_level_origin): level 0 at
-// (0, 0), level L >= 1 at (vt_table_column, (L - 1) + U - (U >> (L - 1))), U = vt_table_last_row.
-uniform int vt_table_column;        // level 0's pages per row
-uniform int vt_table_last_row;      // level 0's pages per column - 1
-// The drawn chunk's page frame (set per draw; SceneGeometry::set_page_layout):
-uniform ivec2 vt_chunk_page;        // the level-0 page holding the chunk's texel origin
-uniform vec2 vt_chunk_base;         // that origin's position in the page: an integer below P
-uniform vec4 vt_chunk_bounds;       // the texture's texels relative to the page's start: xy min, zw max
-uniform uint vt_levels;             // levels of the virtual texture (the last one is one page)
-uniform uint vt_payload;            // P: texels a page covers per side
-uniform float vt_inv_payload;       // 1.0 / P
-uniform uint vt_border;             // B: border texels on each side of a page
-uniform uint vt_tile_size;          // P + 2B: atlas cell size
-uniform uint vt_texture_id;         // for the feedback id
-uniform float vt_max_anisotropy;    // 1..8 (anisotropic filter)
-uniform float vt_bias;              // LoD bias (0 in the reference renderer)
-uniform vec4 vt_no_data_colour;     // entry 0: nothing resident on the path
+uniform uint vt_texture_id;         // for the feedback id (feedback.frag: 1/N of the pixels)
 
 // ---------------------------------------------------------------------------------------------
 // The LoD rule (tessera/scene/lod.hpp). dx, dy: derivatives of the level-0 texel coordinate per

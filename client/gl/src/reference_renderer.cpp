@@ -54,8 +54,9 @@ public:
         glTextureParameteri(texture_.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
         if (auto e = take_gl_errors("reference texture"); !e.empty()) return Error{Errc::resource_exhausted, e};
 
-        const int filter = cfg_.filter == Filter::bilinear ? 0 : cfg_.filter == Filter::trilinear ? 1 : 2;
-        auto p = build_program("scene.vert", "reference.frag", fmt::format("#define VT_FILTER {}\n", filter));
+        auto p = build_program("scene.vert", "reference.frag",
+                               vt_shader_defines(cfg_, 1, 1) +
+                                   fmt::format("#define REF_TEXTURE_SIZE vec2({}.0, {}.0)\n", levels[0].width, levels[0].height));
         if (!p) return p.error();
         program_ = std::move(*p);
         const GLuint id = program_.get();
@@ -63,9 +64,7 @@ public:
         chunk_.chunk_offset = uniform(program_, "u_chunk_offset");
         chunk_.texel_origin = uniform(program_, "u_texel_origin");
         glProgramUniform1i(id, uniform(program_, "ref_texture"), 0);
-        glProgramUniform2f(id, uniform(program_, "ref_size"), float(levels[0].width), float(levels[0].height));
-        glProgramUniform1ui(id, uniform(program_, "vt_levels"), std::uint32_t(levels.size()));
-        glProgramUniform1f(id, uniform(program_, "vt_max_anisotropy"), float(cfg_.max_anisotropy));
+        glProgramUniform1ui(id, uniform(program_, "u_levels"), std::uint32_t(levels.size()));
 
         auto t = make_colour_target(cfg_.width, cfg_.height, cfg_.srgb);
         if (!t) return t.error();

@@ -10,6 +10,15 @@
 
 namespace tessera::client::gl::detail {
 
+std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width, std::uint32_t atlas_height) {
+    const int filter = c.filter == Filter::bilinear ? 0 : c.filter == Filter::trilinear ? 1 : 2;  // vt_sample.glsl's VT_*
+    return fmt::format(
+        "#define VT_FILTER {}\n#define VT_TILE_SIZE {}u\n#define VT_BORDER {}u\n#define VT_MAX_ANISOTROPY float({})\n"
+        "#define VT_ATLAS_SIZE vec2({}.0, {}.0)\n#define VT_NO_DATA_COLOUR vec4({:.9g}, {:.9g}, {:.9g}, {:.9g})\n",
+        filter, c.tile_size, c.border, c.max_anisotropy, atlas_width, atlas_height, kNoDataColour[0], kNoDataColour[1],
+        kNoDataColour[2], kNoDataColour[3]);
+}
+
 SceneGeometry::SceneGeometry() : vao_(make_vertex_array()) {}
 
 Status SceneGeometry::upload(const scene::Scene& s) {

@@ -2,16 +2,23 @@
 // What both renderers share: the scene's chunks in GL buffers, drawn camera-relative with
 // frustum culling, and an offscreen colour + depth target.
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "gl_util.hpp"
+#include "tessera/client/gl/renderer.hpp"
 #include "tessera/result.hpp"
 #include "tessera/scene/camera.hpp"
 #include "tessera/scene/scene.hpp"
 
 namespace tessera::client::gl::detail {
 
-// Uniform locations the scene's draw calls set per chunk.
+// The #defines of a program drawn with scene.vert that includes vt_sample.glsl: the filter and the
+// renderer-wide constants compiled in (vt_sample.glsl, "Inputs"). `atlas_width` x `atlas_height`:
+// the page atlas's texels (the reference renderer has none: 1 x 1).
+std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width, std::uint32_t atlas_height);
+
+// Uniform locations (scene.vert's) the scene's draw calls set per chunk.
 struct ChunkUniforms {
     GLint chunk_offset = -1;  // vec3: float(chunk.origin - camera.position)
     GLint texel_origin = -1;  // uvec2

@@ -27,50 +27,33 @@ constexpr std::uint32_t kMaxLevels = 32;
 constexpr std::size_t kCounterBytes = 16;              // 4 uints, by kind: unused, unbiased only, biased only, both (vt.frag)
 constexpr std::size_t kMaxUnpolledCounters = 1024;     // finished counter frames kept for poll_counters
 
-// Uniform locations of a program built with vt_sample.glsl.
+// Uniform locations of a program built with vt_sample.glsl (scene.vert forwards most of them to
+// the fragment shader: vt_sample.glsl, "Inputs").
 struct VtUniforms {
     GLint view_projection = -1, bias = -1, main_pixel = -1;
-    GLint table_column = -1, table_last_row = -1, levels = -1, payload = -1, border = -1, tile_size = -1;
-    GLint texture_id = -1, max_anisotropy = -1, no_data = -1;
-    GLint inv_payload = -1, inv_atlas_size = -1;
+    GLint table_column = -1, table_last_row = -1, levels = -1, texture_id = -1;
     GLint page_table = -1, atlas = -1, dir_offset = -1, dir_width = -1;
     ChunkUniforms chunk;
 
     explicit VtUniforms(const Program& p = Program()) {
         if (!p) return;
         view_projection = uniform(p, "u_view_projection");
-        bias = uniform(p, "vt_bias");
+        bias = uniform(p, "u_bias");
         main_pixel = uniform(p, "vt_main_pixel");
-        table_column = uniform(p, "vt_table_column");
-        table_last_row = uniform(p, "vt_table_last_row");
-        levels = uniform(p, "vt_levels");
-        payload = uniform(p, "vt_payload");
-        border = uniform(p, "vt_border");
-        tile_size = uniform(p, "vt_tile_size");
-        inv_payload = uniform(p, "vt_inv_payload");
-        inv_atlas_size = uniform(p, "vt_inv_atlas_size");
+        table_column = uniform(p, "u_table_column");
+        table_last_row = uniform(p, "u_table_last_row");
+        levels = uniform(p, "u_levels");
         texture_id = uniform(p, "vt_texture_id");
-        max_anisotropy = uniform(p, "vt_max_anisotropy");
-        no_data = uniform(p, "vt_no_data_colour");
         page_table = uniform(p, "vt_page_table");
         dir_offset = uniform(p, "vt_dir_offset");
         dir_width = uniform(p, "vt_dir_width");
         atlas = uniform(p, "vt_atlas");
         chunk.chunk_offset = uniform(p, "u_chunk_offset");
-        chunk.chunk_page = uniform(p, "vt_chunk_page");
-        chunk.chunk_base = uniform(p, "vt_chunk_base");
-        chunk.chunk_bounds = uniform(p, "vt_chunk_bounds");
+        chunk.chunk_page = uniform(p, "u_chunk_page");
+        chunk.chunk_base = uniform(p, "u_chunk_base");
+        chunk.chunk_bounds = uniform(p, "u_chunk_bounds");
     }
 };
-
-int filter_define(Filter f) {
-    switch (f) {
-        case Filter::bilinear: return 0;
-        case Filter::trilinear: return 1;
-        case Filter::anisotropic: return 2;
-    }
-    return 1;
-}
 
 // A virtual texture's page table on the GPU: every level in one R32UI texture, level 0 at (0, 0),
 // levels 1.. stacked in a column to its right (PageTable::dense_level_origin: closed-form, so the
@@ -157,7 +140,7 @@ public:
             return Error{Errc::resource_exhausted, fmt::format("renderer: {}x{} atlas: {}", atlas_width_, atlas_height_, e)};
 
         // Programs.
-        const std::string defines = fmt::format("#define VT_FILTER {}\n", filter_define(c.filter));
+        const std::string defines = vt_shader_defines(c, atlas_width_, atlas_height_);
         auto depth = build_program("scene.vert", "depth.frag", defines);
         if (!depth) return depth.error();
         auto vt = build_program("scene.vert", "vt.frag", defines);
@@ -181,10 +164,6 @@ public:
             const auto& u = *pu;
             glProgramUniform1i(p, u.page_table, 0);
             glProgramUniform1i(p, u.atlas, 1);
-            glProgramUniform1ui(p, u.tile_size, c.tile_size);
-            glProgramUniform2f(p, u.inv_atlas_size, 1.0f / float(atlas_width_), 1.0f / float(atlas_height_));
-            glProgramUniform1f(p, u.max_anisotropy, float(c.max_anisotropy));
-            glProgramUniform4fv(p, u.no_data, 1, kNoDataColour);
         }
         fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
         fb_height_ = (c.height + c.feedback_scale - 1) / c.feedback_scale;
@@ -766,9 +745,6 @@ private:
         glProgramUniform1i(id, u.table_column, GLint(t.pages[0]));
         glProgramUniform1i(id, u.table_last_row, GLint(t.pages[1]) - 1);
         glProgramUniform1ui(id, u.levels, t.levels);
-        glProgramUniform1ui(id, u.payload, t.payload);
-        glProgramUniform1f(id, u.inv_payload, 1.0f / float(t.payload));
-        glProgramUniform1ui(id, u.border, t.border);
         glProgramUniform1ui(id, u.texture_id, t.id);
         if (t.sparse) {
             glProgramUniform1uiv(id, u.dir_offset, GLsizei(t.levels), t.dir_offset.data());
