@@ -142,3 +142,34 @@ TEST_F(RenderPool, ALargePoolReachesFullDetail) {
 }
 
 }  // namespace
+
+// Configurations the renderer cannot draw correctly are refused with a message naming the limit.
+TEST(RendererConfigErrors, BadConfigsAreClearErrors) {
+    auto made = client::gl::GlContext::create_headless();
+    if (!made) GTEST_SKIP() << "no headless OpenGL 4.5: " << made.error().message;
+    (*made)->make_current();
+    const auto error_of = [](const client::gl::RendererConfig& rc) {
+        auto r = client::gl::VtRenderer::create(rc);
+        return r.ok() ? std::string() : r.error().message;
+    };
+    client::gl::RendererConfig rc;
+    rc.width = 64;
+    rc.height = 32;
+    rc.pool_slots = 4;
+    rc.filter = client::gl::Filter::anisotropic;
+    rc.tile_size = 24;
+    rc.border = 4;  // payload 16: just enough for 8x
+    EXPECT_EQ(error_of(rc), "");
+    rc.tile_size = 22;  // payload 14: the taps at 8x may span two page edges
+    EXPECT_NE(error_of(rc).find("anisotropic filter at 8x needs pages of at least 16 texels"), std::string::npos) << error_of(rc);
+    rc.max_anisotropy = 4;  // 4x spans under 8 texels
+    EXPECT_EQ(error_of(rc), "");
+    rc.max_anisotropy = 9;
+    EXPECT_NE(error_of(rc).find("max_anisotropy must be 1..8"), std::string::npos) << error_of(rc);
+    rc.max_anisotropy = 8;
+    rc.filter = client::gl::Filter::trilinear;
+    rc.tile_size = 23;
+    EXPECT_NE(error_of(rc).find("even tile size"), std::string::npos) << error_of(rc);
+    rc.tile_size = 8;
+    EXPECT_NE(error_of(rc).find("leave no payload"), std::string::npos) << error_of(rc);
+}

@@ -205,8 +205,19 @@ VtPos vt_ancestor_position(VtPos p, int d) {
     return a;
 }
 
-// One lookup at level L: one page-table fetch, one sample (bilinear, or trilinear from the
-// atlas's two levels). A fallback entry points at the nearest resident ancestor R = L + d, whose
+// Where entry e's page starts in the atlas: its cell plus the border, atlas texels.
+vec2 vt_cell_origin(uint e) {
+    return vec2(ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu))) * float(vt_tile_size) + float(vt_border);
+}
+
+// The page a position lies in relative to the page whose frame it is in (level texels from that
+// page's start): -1, 0 or 1 per axis for positions within one page of it.
+ivec2 vt_page_offset(vec2 t) {
+    return ivec2(greaterThanEqual(t, vec2(float(vt_payload)))) - ivec2(lessThan(t, vec2(0.0)));
+}
+
+// One lookup at level L: one page-table fetch (vt_lookup_at; vt_sample_entry with the entry
+// fetched), one sample (bilinear, or trilinear from the atlas's two levels). A fallback entry points at the nearest resident ancestor R = L + d, whose
 // position is vt_ancestor_position's. Straight-line code, no branches: a SIMD rasterizer runs
 // both sides of a divergent branch. The entry names the page's atlas cell (column, row): no
 // division to place it. resident: the level sampled, 32 when nothing is resident (the no-data
@@ -214,11 +225,10 @@ VtPos vt_ancestor_position(VtPos p, int d) {
 // fraction: trilinear's weight of the next coarser level, which the atlas's second level holds for
 // every resident page; a fallback samples its ancestor at its own level only (both trilinear levels
 // would fall back to it). Ignored by the bilinear filter.
-vec4 vt_lookup_at(VtPos p, int level, float fraction, out uint resident) {
-    uint e = vt_entry(p.page, level);
+vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint resident) {
     int r = int((e >> 24) & 31u);
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
-    vec2 cell = vec2(ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu))) * float(vt_tile_size) + float(vt_border);
+    vec2 cell = vt_cell_origin(e);
 #if VT_FILTER == VT_BILINEAR
     vec4 c = texture(vt_atlas, cell + in_page);
 #else
@@ -227,6 +237,10 @@ vec4 vt_lookup_at(VtPos p, int level, float fraction, out uint resident) {
     bool valid = (e >> 31) != 0u;
     resident = valid ? uint(r) : 32u;
     return valid ? c : vt_no_data_colour;
+}
+
+vec4 vt_lookup_at(VtPos p, int level, float fraction, out uint resident) {
+    return vt_sample_entry(p, level, vt_entry(p.page, level), fraction, resident);
 }
 
 vec4 vt_lookup(vec2 local, int level, out uint resident) {
@@ -267,13 +281,16 @@ VtSample vt_sample(vec2 local) {
 #elif VT_FILTER == VT_TRILINEAR
     s.colour = vt_trilinear(local, lod, s.resident);
 #else
-    // Anisotropic: count trilinear taps along the major axis. Where they all fall inside the
-    // payload of the page the centre samples at its wanted level (nearly every pixel: the taps
-    // span at most 7 texels of a page's P), they share the centre's page-table entry: one fetch
-    // per pixel. Otherwise every tap is a full trilinear VT lookup with its own fetch, so taps
-    // that cross a page edge read the neighbouring page: no seams. The two cases are loops whose
-    // trip counts are 0 for the other case: a SIMD rasterizer runs both sides of an `if` but
-    // skips a loop that no lane enters.
+    // Anisotropic: count trilinear taps along the major axis, at level l0 = floor(lod) with the
+    // atlas's second level for the fraction. The taps span under 16 level-l0 texels (count <= 8,
+    // at most 2 texels apart), less than a page's P, so they cross at most one page edge per axis:
+    // they lie in the 2x2 pages made of the centre's page and its neighbours on the sides the end
+    // taps crossed to. Those four entries are fetched once per pixel (the same page when no edge
+    // is crossed), and each tap samples with the entry of the page it lies in, falling back as a
+    // lookup does: no seams, and one code path. (A SIMD rasterizer such as llvmpipe runs every
+    // path of a branch or loop that any lane, or none, takes; at grazing angles one group of
+    // pixels spans tens of texels, so some lane is near a page edge more often than not.) Taps
+    // are clamped to the texture as vt_level_position clamps.
     vec2 axis;
     float count;
     float lc = vt_clamped_lod(lod);
@@ -282,20 +299,28 @@ VtSample vt_sample(vec2 local) {
     VtPos p = vt_level_position(local, l0);
     uint e = vt_entry(p.page, l0);
     s.resident = (e >> 31) != 0u ? ((e >> 24) & 31u) : 32u;
-    vec2 step = axis * (vt_exp2_neg(l0) / count);         // between taps, level-l0 texels
+    // Level-l0 texels from the start of the centre's page; the texture's extent there.
+    float scale = vt_exp2_neg(l0);
+    float payload = float(vt_payload);
+    vec2 page_start = vec2((p.page << l0) - vt_chunk_page) * payload;  // level-0 texels from the chunk's page
+    vec2 lo = (vt_chunk_bounds.xy - page_start) * scale;
+    vec2 hi = (vt_chunk_bounds.zw - page_start) * scale - 1.0 / 256.0;
+    vec2 step = axis * (scale / count);                   // between taps
     vec2 first = p.in_page - step * (0.5 * (count - 1.0));  // tap 0
-    vec2 last = p.in_page + step * (0.5 * (count - 1.0));
-    bool one_page = s.resident == uint(l0) && all(greaterThanEqual(min(first, last), vec2(0.0))) &&
-                    all(lessThan(max(first, last), vec2(float(vt_payload))));
-    vec2 cell = vec2(ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu))) * float(vt_tile_size) + float(vt_border) + first;
+    ivec2 side = vt_page_offset(clamp(first, lo, hi)) + vt_page_offset(clamp(first + step * (count - 1.0), lo, hi));
+    uint e_x = vt_entry(p.page + ivec2(side.x, 0), l0);
+    uint e_y = vt_entry(p.page + ivec2(0, side.y), l0);
+    uint e_xy = vt_entry(p.page + side, l0);
+    float fraction = lc - float(l0);
     vec4 sum = vec4(0.0);
-    int shared_taps = one_page ? int(count) : 0;
-    for (int i = 0; i < shared_taps; ++i)
-        sum += textureLod(vt_atlas, (cell + step * float(i)) * vt_inv_atlas_size, lc - float(l0));
-    int own_taps = one_page ? 0 : int(count);
-    for (int i = 0; i < own_taps; ++i) {
+    for (int i = 0; i < int(count); ++i) {
+        VtPos t;
+        t.in_page = clamp(first + step * float(i), lo, hi);
+        ivec2 d = vt_page_offset(t.in_page);
+        t.page = p.page + d;
+        t.in_page -= vec2(d) * payload;
         uint r;
-        sum += vt_trilinear(local + vt_tap_offset(axis, count, i), lod, r);
+        sum += vt_sample_entry(t, l0, d.y != 0 ? (d.x != 0 ? e_xy : e_y) : (d.x != 0 ? e_x : e), fraction, r);
     }
     s.colour = sum / count;
 #endif

@@ -93,6 +93,13 @@ public:
                          fmt::format("renderer: the trilinear and anisotropic filters need an even tile size and border "
                                      "(the atlas's second level halves pages), got {} and {}",
                                      c.tile_size, c.border)};
+        // The anisotropic taps span under 2 * max_anisotropy texels of one level, and vt_sample.glsl
+        // looks them up in the 2x2 pages around the centre: a page must be wider than that.
+        if (c.filter == Filter::anisotropic && c.tile_size - 2 * c.border < 2 * c.max_anisotropy)
+            return Error{Errc::invalid_argument,
+                         fmt::format("renderer: the anisotropic filter at {}x needs pages of at least {} texels (payload), "
+                                     "got {} (tile size {}, border {})",
+                                     c.max_anisotropy, 2 * c.max_anisotropy, c.tile_size - 2 * c.border, c.tile_size, c.border)};
         if (c.readback_ring < 1 || c.readback_ring > 64) return Error{Errc::invalid_argument, "renderer: readback_ring must be 1..64"};
         if (!(c.feedback_prefetch_lod >= 0 && c.feedback_prefetch_lod <= 2))
             return Error{Errc::invalid_argument, "renderer: feedback_prefetch_lod must be 0..2"};
