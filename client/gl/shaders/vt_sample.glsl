@@ -143,9 +143,10 @@ vec2 vt_tap_offset(vec2 axis, float count, int i) { return ((float(i) + 0.5) / c
 // the start of level-L page a is (b * P + q0) / 2^L: below P + chunk side / 2^L, rounded to a
 // float's 24 bits relative to b * P < 2^L * P, i.e. to 2^-15 of a level-L texel at P = 248 at any
 // level. The page and the position in it follow by one division by P of that small number. Only
-// per-chunk uniforms (no array indexed per pixel: a software rasterizer gathers those lane by
-// lane), signed integers and floats (its unsigned conversions are emulated, its integer
-// division by a uniform runs lane by lane): docs/renderer.md, "What a lookup costs".
+// per-chunk flat inputs and compiled-in constants (no uniform and no array indexed per pixel: a
+// software rasterizer gathers those lane by lane), signed integers and floats (its unsigned
+// conversions are emulated, its integer division runs lane by lane): docs/renderer.md, "What a
+// lookup costs".
 
 // 2^-n, exactly, for -126 <= n <= 126 (built from the exponent bits: ldexp is lowered to far more).
 float vt_exp2_neg(int n) { return intBitsToFloat((127 - n) << 23); }

@@ -10,8 +10,9 @@
 // Sampling (shaders/vt_sample.glsl, one include any shader can use): LoD from the virtual-texel
 // derivatives plus the bias; one page-table fetch per lookup (fallback entries point at the
 // nearest resident ancestor); physical coordinates from integer page math (exact far from the
-// origin) plus the border; bilinear, trilinear (two lookups) or anisotropic (explicit taps along
-// the major axis, up to 8, each a trilinear lookup with its own page-table fetch) filtering.
+// origin) plus the border; bilinear, trilinear (one lookup: the atlas holds each page's next
+// coarser level) or anisotropic (explicit trilinear taps along the major axis, up to 8, looked up
+// in the 2x2 pages around the centre: four fetches per pixel) filtering.
 // Levels (the rule is tessera/scene/lod.hpp; the GLSL mirrors it): `lod` = log2 of the level-0
 // texels per main-target pixel (anisotropic: of max(minor, major / max_anisotropy)) + bias;
 // bilinear samples level clamp(floor(lod + 0.5), 0, levels - 1); trilinear and anisotropic look up
@@ -38,7 +39,7 @@ struct RendererConfig {
     std::uint32_t height = 720;
     std::uint32_t feedback_scale = 8;  // feedback target is ceil(width/N) x ceil(height/N)
     Filter filter = Filter::trilinear;
-    std::uint32_t max_anisotropy = 8;  // 1..8 (anisotropic filter only)
+    std::uint32_t max_anisotropy = 8;  // 1..8 (anisotropic filter only; the page payload must be >= 2x it)
     std::uint32_t pool_slots = 1024;   // physical pages; the atlas is a grid of tile_size squares
     std::uint32_t tile_size = 256;     // stored tile size (payload + 2 * border)
     std::uint32_t border = 4;
