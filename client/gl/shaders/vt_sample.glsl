@@ -217,12 +217,12 @@ ivec2 vt_page_offset(vec2 t) {
     return ivec2(greaterThanEqual(t, vec2(float(vt_payload)))) - ivec2(lessThan(t, vec2(0.0)));
 }
 
-// One lookup at level L: one page-table fetch (vt_lookup_at; vt_sample_entry with the entry
-// fetched), one sample (bilinear, or trilinear from the atlas's two levels). A fallback entry points at the nearest resident ancestor R = L + d, whose
-// position is vt_ancestor_position's. Straight-line code, no branches: a SIMD rasterizer runs
-// both sides of a divergent branch. The entry names the page's atlas cell (column, row): no
-// division to place it. resident: the level sampled, 32 when nothing is resident (the no-data
-// colour).
+// One lookup at level L: one page-table fetch (vt_lookup_at; vt_sample_entry takes an entry
+// already fetched), one sample (bilinear, or trilinear from the atlas's two levels). A fallback
+// entry points at the nearest resident ancestor R = L + d, whose position is
+// vt_ancestor_position's. Straight-line code, no branches: a SIMD rasterizer runs both sides of a
+// divergent branch. The entry names the page's atlas cell (column, row): no division to place
+// it. resident: the level sampled, 32 when nothing is resident (the no-data colour).
 // fraction: trilinear's weight of the next coarser level, which the atlas's second level holds for
 // every resident page; a fallback samples its ancestor at its own level only (both trilinear levels
 // would fall back to it). Ignored by the bilinear filter.
