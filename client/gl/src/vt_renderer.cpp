@@ -416,6 +416,9 @@ public:
         glTextureStorage2D(t.table.get(), 1, GL_R32UI, GLsizei(t.table_width), GLsizei(t.table_height));
         glTextureParameteri(t.table.get(), GL_TEXTURE_MIN_FILTER, GL_NEAREST);
         glTextureParameteri(t.table.get(), GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+        // Clamped: the anisotropic filter gathers 2x2 entries, the second row or column may lie past the edge.
+        glTextureParameteri(t.table.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+        glTextureParameteri(t.table.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
         const std::uint32_t zero = 0;
         glClearTexImage(t.table.get(), 0, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
         if (auto e = take_gl_errors("page table"); !e.empty())
