@@ -136,13 +136,13 @@ void vt_aniso_taps(vec2 dx, vec2 dy, float clamped_lod, out vec2 axis, out float
 vec2 vt_tap_offset(vec2 axis, float count, int i) { return ((float(i) + 0.5) / count - 0.5) * axis; }
 
 // ---------------------------------------------------------------------------------------------
-// Addressing. Every chunk carries the level-0 page its integer texel origin lies in (page0) and
-// the origin's position in that page (base, an integer below P). A fragment's level-0 position
-// relative to page0's start is then q0 = base + local: one float add of numbers below P + chunk
-// side. At level L, with page0 = a * 2^L + b (b = page0 & (2^L - 1)), the position relative to
-// the start of level-L page a is (b * P + q0) / 2^L: below P + chunk side / 2^L, rounded to a
-// float's 24 bits relative to b * P < 2^L * P, i.e. to 2^-15 of a level-L texel at P = 248 at any
-// level. The page and the position in it follow by one division by P of that small number. Only
+// Addressing. Every chunk carries the level-0 page its integer texel origin lies in (the chunk's
+// page) and the origin's position in that page (base, an integer below P). A fragment's level-0
+// position relative to that page's start is then q0 = base + local: one float add of numbers below
+// P + chunk side. One division by P of that small number gives the fragment's level-0 page page0
+// and its position in it, in0. At level L, with page0 = a * 2^L + b (b = page0 & (2^L - 1)), the
+// level-L page is a and the position in it (b * P + in0) / 2^L, rounded to a float's 24 bits
+// relative to b * P < 2^L * P, i.e. to 2^-15 of a level-L texel at P = 248 at any level. Only
 // per-chunk flat inputs and compiled-in constants (no uniform and no array indexed per pixel: a
 // software rasterizer gathers those lane by lane), signed integers and floats (its unsigned
 // conversions are emulated, its integer division runs lane by lane): docs/renderer.md, "What a
@@ -153,26 +153,31 @@ float vt_exp2_neg(int n) { return intBitsToFloat((127 - n) << 23); }
 
 struct VtPos {
     ivec2 page;     // level-L page
-    vec2 in_page;   // position inside it, level-L texels in [0, P)
+    vec2 in_page;   // position inside it, level-L texels in [0, P] (P only at a level's far edge)
 };
 
 // The level-L position of the fragment at `local` (level-0 texels from the chunk's origin),
-// clamped to the texture (GL_CLAMP_TO_EDGE), the far bound 1/256 of a level-L texel inside the
-// edge: there the bilinear footprint is the edge texel and its copy in the tile border, and the
-// texel index stays inside the level's last page at any level.
-// q - k * P is exact (k * P an integer no larger than q); the float quotient k may be one off at a
-// page edge, which the range check of the remainder corrects.
+// clamped to the texture (GL_CLAMP_TO_EDGE) with the far bound 1/256 of a level-0 texel inside
+// the edge. Worked out at level 0 first, which needs no level and so runs beside the LoD
+// arithmetic: the page (one division by P, the float quotient one off at most at a page edge,
+// which the range check of the remainder corrects; q - k * P is exact) and the position in it.
+// Level L then follows without a second division, as an ancestor position: the page by a shift
+// (always the level-L page over the clamped level-0 one, so never past the texture's last page),
+// the position by one multiply-add. That sum may round up to exactly P at the far edge of a level
+// (within 2^-16 of a level-L texel, as any position at level L): the footprint is then the edge
+// texel and its copy in the tile border. (A GPU has time to spare for the LoD chain; a software
+// rasterizer runs these instructions one after the other, and a shorter chain is cheaper.)
 VtPos vt_level_position(vec2 local, int level) {
-    float s = vt_exp2_neg(level);
-    vec2 q0 = clamp(vt_chunk_base + local, vt_chunk_bounds.xy, vt_chunk_bounds.zw - vt_exp2_neg(8 - level));
+    vec2 q0 = clamp(vt_chunk_base + local, vt_chunk_bounds.xy, vt_chunk_bounds.zw - 1.0 / 256.0);
     float payload = float(vt_payload);
-    vec2 q = (vec2(vt_chunk_page & ((1 << level) - 1)) * payload + q0) * s;
-    vec2 k = floor(q * vt_inv_payload);
-    vec2 r = q - k * payload;
+    vec2 k = floor(q0 * vt_inv_payload);
+    vec2 r = q0 - k * payload;
     vec2 fix = vec2(greaterThanEqual(r, vec2(payload))) - vec2(lessThan(r, vec2(0.0)));
+    ivec2 page0 = vt_chunk_page + ivec2(k + fix);
+    vec2 in0 = r - fix * payload;
     VtPos p;
-    p.page = (vt_chunk_page >> level) + ivec2(k + fix);
-    p.in_page = r - fix * payload;
+    p.page = page0 >> level;
+    p.in_page = (vec2(page0 & ((1 << level) - 1)) * payload + in0) * vt_exp2_neg(level);
     return p;
 }
 
