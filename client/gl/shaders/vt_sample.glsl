@@ -216,12 +216,6 @@ vec2 vt_cell_origin(uint e) {
     return vec2(ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu))) * float(vt_tile_size) + float(vt_border);
 }
 
-// The page a position lies in relative to the page whose frame it is in (level texels from that
-// page's start): -1, 0 or 1 per axis for positions within one page of it.
-ivec2 vt_page_offset(vec2 t) {
-    return ivec2(greaterThanEqual(t, vec2(float(vt_payload)))) - ivec2(lessThan(t, vec2(0.0)));
-}
-
 // One lookup at level L: one page-table fetch (vt_lookup_at; vt_sample_entry takes an entry
 // already fetched), one sample (bilinear, or trilinear from the atlas's two levels). A fallback
 // entry points at the nearest resident ancestor R = L + d, whose position is
@@ -328,46 +322,41 @@ VtSample vt_sample(vec2 local) {
     s.colour = vt_trilinear(local, lod, s.resident);
 #else
     // Anisotropic: count trilinear taps along the major axis, at level l0 = floor(lod) with the
-    // atlas's second level for the fraction. The taps span under 16 level-l0 texels (count <= 8,
-    // at most 2 texels apart), less than a page's P, so they cross at most one page edge per axis:
-    // they lie in the 2x2 pages made of the centre's page and its neighbours on the sides the end
-    // taps crossed to. Those four entries are fetched once per pixel (the same page when no edge
-    // is crossed), and each tap samples with the entry of the page it lies in, falling back as a
-    // lookup does: no seams, and one code path. (A SIMD rasterizer such as llvmpipe runs every
-    // path of a branch or loop that any lane, or none, takes; at grazing angles one group of
-    // pixels spans tens of texels, so some lane is near a page edge more often than not.) Taps
-    // are clamped to the texture as vt_level_position clamps.
+    // atlas's second level for the fraction. The taps lie within 8 level-l0 texels of the centre
+    // (count <= 8 taps, under 2 texels apart; at the last level, where that may not hold, the
+    // texture is one page), and a page is P >= 2 * max_anisotropy texels wide (the renderer
+    // checks): so on each axis they can only cross the page edge nearest the centre. The 2x2
+    // pages from `corner` (the centre's page, moved down on the axes where that edge is the lower
+    // one) hold every tap; their entries are one gather, issued as soon as the centre is known, and
+    // each tap samples with the entry of the page it lies in, falling back as a lookup does: no
+    // seams, and one code path. (A SIMD rasterizer such as llvmpipe runs every path of a branch or
+    // loop that any lane, or none, takes; at grazing angles one group of pixels spans tens of
+    // texels, so some lane is near a page edge more often than not.) Taps are clamped to the
+    // texture as vt_level_position clamps.
+    float lc = vt_clamped_lod(lod);
+    int l0 = int(lc);
+    float payload = float(vt_payload);
+    VtPos p = vt_level_position(local, l0);
+    ivec2 low = ivec2(lessThan(p.in_page, vec2(0.5 * payload)));
+    ivec2 corner = p.page - low;
+    uvec4 block = vt_entries_2x2(corner, l0);
+    uint e = low.y != 0 ? (low.x != 0 ? block.y : block.x) : (low.x != 0 ? block.z : block.w);
+    s.resident = (e >> 31) != 0u ? ((e >> 24) & 31u) : 32u;
+    // Level-l0 texels from the start of the corner page from here on; the texture's extent there.
     vec2 axis;
     float count;
-    float lc = vt_clamped_lod(lod);
     vt_aniso_taps(dx, dy, lc, axis, count);
-    int l0 = int(lc);
-    VtPos p = vt_level_position(local, l0);
-    // Level-l0 texels from the start of the centre's page; the texture's extent there.
     float scale = vt_exp2_neg(l0);
-    float payload = float(vt_payload);
-    vec2 page_start = vec2((p.page << l0) - vt_chunk_page) * payload;  // level-0 texels from the chunk's page
+    vec2 page_start = vec2((corner << l0) - vt_chunk_page) * payload;  // level-0 texels from the chunk's page
     vec2 lo = (vt_chunk_bounds.xy - page_start) * scale;
     vec2 hi = (vt_chunk_bounds.zw - page_start) * scale - 1.0 / 256.0;
-    vec2 step = axis * (scale / count);                   // between taps
-    vec2 first = p.in_page - step * (0.5 * (count - 1.0));  // tap 0
-    ivec2 side = vt_page_offset(clamp(first, lo, hi)) + vt_page_offset(clamp(first + step * (count - 1.0), lo, hi));
-    // The 2x2 block of pages from `corner` (the centre's page, moved down by the sides the taps
-    // cross to below it); positions from here on are relative to the corner page's start.
-    ivec2 below = min(side, ivec2(0));
-    ivec2 corner = p.page + below;
-    vec2 shift = -vec2(below) * payload;
-    first += shift;
-    lo += shift;
-    hi += shift;
-    uvec4 block = vt_entries_2x2(corner, l0);
+    vec2 step = axis * (scale / count);                                                // between taps
+    vec2 first = p.in_page + vec2(low) * payload - step * (0.5 * (count - 1.0));  // tap 0
     float fraction = lc - float(l0);
     VtTapMap m00 = vt_tap_map(block.w, corner, ivec2(0, 0), l0, fraction);
     VtTapMap m10 = vt_tap_map(block.z, corner, ivec2(1, 0), l0, fraction);
     VtTapMap m01 = vt_tap_map(block.x, corner, ivec2(0, 1), l0, fraction);
     VtTapMap m11 = vt_tap_map(block.y, corner, ivec2(1, 1), l0, fraction);
-    uint e = -below.y != 0 ? (-below.x != 0 ? block.y : block.x) : (-below.x != 0 ? block.z : block.w);
-    s.resident = (e >> 31) != 0u ? ((e >> 24) & 31u) : 32u;
     vec4 sum = vec4(0.0);
     float valid = 0.0;
     for (int i = 0; i < int(count); ++i) {
