@@ -6,6 +6,8 @@
 //
 //   RenderSparseTable.FarCornerIsExactAtEveryLevel  levels 0, 1, 4, 9 and the last two: every
 //       pixel on a texel centre is the stored texel, no fallback.
+//   RenderSparseTable.AnisotropicFarCornerIsExact  the same at 2^24 with the anisotropic filter,
+//       whose 2x2 block of entries reaches one page past the far edge.
 //   RenderSparseTable.FallbackThroughUnallocatedBlocks  only a level-6 page and the root resident,
 //       viewed at level 0: level 0 .. 4 blocks are unallocated and the walk finds the level-6 page
 //       inside it and the root outside it.
@@ -44,7 +46,12 @@ constexpr std::uint32_t kW = 128, kH = 96;
 
 st::StoreInfo geometry(std::uint32_t size) { return tessera::test::store_geometry(size, size, kTile, kBorder); }
 
-gl::RendererConfig config() { return tessera::test::exact_config(kW, kH, kTile, kBorder, 4); }
+gl::RendererConfig config(gl::Filter filter = gl::Filter::bilinear) {
+    auto c = tessera::test::exact_config(kW, kH, kTile, kBorder, 4);
+    c.filter = filter;
+    c.max_anisotropy = 1;  // one tap per pixel: texel centres read back exactly (see below)
+    return c;
+}
 
 // What Runtime::frame does with a sparse table's changes.
 std::size_t upload_blocks(PageTable& t, gl::VtRenderer& r) {
@@ -62,8 +69,8 @@ struct Setup {
     st::StoreInfo info;
 };
 
-std::optional<Setup> make(std::uint32_t size) {
-    auto made = gl::VtRenderer::create(config());
+std::optional<Setup> make(std::uint32_t size, gl::Filter filter = gl::Filter::bilinear) {
+    auto made = gl::VtRenderer::create(config(filter));
     EXPECT_TRUE(made.ok()) << made.error().message;
     if (!made) return std::nullopt;
     const st::StoreInfo info = geometry(size);
@@ -78,9 +85,9 @@ std::optional<Setup> make(std::uint32_t size) {
     return Setup{std::move(*made), std::move(*table), info};
 }
 
-void far_corner_exact(std::uint32_t size) {
-    SCOPED_TRACE(testing::Message() << "size " << size);
-    auto s = make(size);
+void far_corner_exact(std::uint32_t size, gl::Filter filter = gl::Filter::bilinear) {
+    SCOPED_TRACE(testing::Message() << "size " << size << ", filter " << int(filter));
+    auto s = make(size, filter);
     ASSERT_TRUE(s);
     gl::VtRenderer& r = *s->renderer;
     const st::StoreInfo& info = s->info;
@@ -99,7 +106,11 @@ void far_corner_exact(std::uint32_t size) {
             }
         const std::size_t blocks = upload_blocks(s->table, r);
 
-        const auto [checked, wrong] = tessera::test::render_corner_exactly(r, size, k, level, kW, kH);
+        // Anisotropic wants floor(lod), and at exactly 2^L texels per pixel the lod rounds to either
+        // side of L: the finer level wanted is not mapped, and its pixels count as fallback (while
+        // sampling level L's texels exactly, which is what is checked).
+        const auto [checked, wrong] =
+            tessera::test::render_corner_exactly(r, size, k, level, kW, kH, filter != gl::Filter::anisotropic);
         std::printf("  %u texels (2^%.4f): level %u (%u pages per side), %zu blocks uploaded, %zu pixels on texel centres, "
                     "%zu wrong\n",
                     size, std::log2(double(size)), level, pages, blocks, checked, wrong);
@@ -119,6 +130,15 @@ TEST(RenderSparseTable, FarCornerIsExactAtEveryLevel) {
     far_corner_exact(1u << 24);
     far_corner_exact((1u << 24) - 1);
     far_corner_exact(12'345'679);  // not a power of two: 12,151 pages per side
+}
+
+// Anisotropic, at most one tap (with more, a footprint of exactly 2^L texels per pixel may round
+// to two taps a quarter texel either side of the centre): the shader still reads the 2x2 pages
+// around each centre, which at the far corner reach past the texture's last page, where the
+// two-level table has no directory entries and must read the edge page instead.
+TEST(RenderSparseTable, AnisotropicFarCornerIsExact) {
+    REQUIRE_GL(ctx);
+    far_corner_exact(1u << 24, gl::Filter::anisotropic);
 }
 
 TEST(RenderSparseTable, FallbackThroughUnallocatedBlocks) {

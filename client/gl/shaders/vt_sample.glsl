@@ -261,11 +261,16 @@ vec4 vt_trilinear(vec2 local, float lod, out uint resident) {
 // The entries of the 2x2 block of level-`level` pages from `corner`, in textureGather's order:
 // (0, 1), (1, 1), (1, 0), (0, 0) from the corner. One gather (dense table) instead of four fetches:
 // a software rasterizer pays a fetch's addressing per call. Entries past the level's edge are
-// whatever the table holds there; the anisotropic taps never use them.
+// whatever the (edge-clamped) table holds there; the anisotropic taps never use them.
 uvec4 vt_entries_2x2(ivec2 corner, int level) {
 #ifdef VT_SPARSE_TABLE
-    return uvec4(vt_entry(corner + ivec2(0, 1), level), vt_entry(corner + ivec2(1, 1), level),
-                 vt_entry(corner + ivec2(1, 0), level), vt_entry(corner, level));
+    // The block may reach one page past the texture's edges (no tap reads there), where the
+    // directory has no entries: read the edge page instead.
+    ivec2 c0 = max(corner, ivec2(0));
+    vec2 next_start = vec2(((corner + 1) << level) - vt_chunk_page) * float(vt_payload);  // level-0 texels
+    ivec2 c1 = mix(c0, corner + 1, lessThan(next_start, vt_chunk_bounds.zw));
+    return uvec4(vt_entry(ivec2(c0.x, c1.y), level), vt_entry(c1, level), vt_entry(ivec2(c1.x, c0.y), level),
+                 vt_entry(c0, level));
 #else
     int up = max(level - 1, 0);
     ivec2 origin = ivec2(min(level, 1) * vt_table_column, up + vt_table_last_row - (vt_table_last_row >> up));
