@@ -1,17 +1,18 @@
 // VT frame time against plain texturing of the same scene (issue 5; design.md "Benchmarks").
 //
 // The peer is the reference renderer: the same terrain, camera path and filter drawn from one
-// ordinary mipmapped GL texture. The VT frame is the whole VT frame: feedback pass (1/8),
-// depth pre-pass and the VT pass with its fallback counters. Every page is resident first (a
-// loading pass over the path with a pool that holds the whole store), so the comparison is of
-// rendering, not streaming. Frames alternate VT / plain on the same camera, each ended with
-// glFinish, so drift on this shared machine hits both alike. Reports wall time and process CPU
-// time (rasterizer threads included) per frame. Prints a table and writes JSON.
+// ordinary mipmapped GL texture. The VT frame is the whole VT frame: feedback pass (1/8), depth
+// pre-pass where the scene needs one, and the VT pass with its fallback counters. Every page is
+// resident first (a loading pass over the path with a pool that holds the whole store), so the
+// comparison is of rendering, not streaming. Frames alternate VT / plain on the same camera, each
+// ended with glFinish, so drift on this shared machine hits both alike. Reports wall time and
+// process CPU time (rasterizer threads included) per frame. Prints a table and writes JSON.
 //
 //   vt_vs_plain STORE.tsr [--size 640x360] [--frames 240] [--displacement H] [--filter NAME] [--json FILE]
 //
 // --displacement: terrain with hills of that height (texels) instead of the flat plane, so the VT
-// frame includes its depth pre-pass (a flat plane needs none: no triangle can hide another).
+// frame draws a heightfield where hills hide hills (front to back, so still without a depth
+// pre-pass: docs/renderer.md).
 // --filter: only that filter (bilinear, trilinear or anisotropic) instead of all three.
 #include <epoxy/gl.h>
 

@@ -116,12 +116,13 @@ const char* filter_name(gl::Filter f) {
     return f == gl::Filter::bilinear ? "bilinear" : f == gl::Filter::trilinear ? "trilinear" : "anisotropic";
 }
 
-sc::Scene terrain(std::uint32_t w, std::uint32_t h, std::uint32_t chunk_texels) {
+sc::Scene terrain(std::uint32_t w, std::uint32_t h, std::uint32_t chunk_texels, double displacement = 0) {
     sc::TerrainOptions o;
     o.vt_width = w;
     o.vt_height = h;
     o.chunk_texels = chunk_texels;
     o.quads_per_chunk = 8;
+    o.displacement = displacement;
     auto s = sc::make_terrain(o);
     EXPECT_TRUE(s.ok()) << s.error().message;
     return s.ok() ? std::move(*s) : sc::Scene{};
@@ -324,6 +325,48 @@ INSTANTIATE_TEST_SUITE_P(Filters, RenderVsReference,
 
 // A staging ring too small for one page: every upload goes straight from client memory, and the
 // frame is still right.
+// Displaced terrain (hills hide other hills) drawn front to back instead of with a depth
+// pre-pass: every textured pixel is still counted once (textured = covered pixels) and shaded
+// with what it sees (the reference's image), and the pre-pass never runs. Drawn in any other
+// order, hidden fragments would be counted too.
+TEST(RenderDisplaced, FrontToBackCountsEachVisiblePixelOnceWithoutAPrePass) {
+    REQUIRE_GL(ctx);
+    ScratchDir dir;
+    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128);
+    const auto cfg = config(gl::Filter::bilinear, 128, 512, /*srgb=*/true);
+    const auto scene = terrain(2048, 2048, 512, 300);
+    ASSERT_FALSE(sc::overdraw_free(scene));
+    auto vt = make_vt(cfg, store, scene);
+    ASSERT_TRUE(vt);
+    ASSERT_TRUE(load_everything(*vt)) << "resident " << vt->runtime->residency().stats().resident_pages << " of " << page_count(vt->info);
+    auto levels = gl::decode_store_levels(store);
+    ASSERT_TRUE(levels.ok()) << levels.error().message;
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    ASSERT_TRUE(ref.ok()) << ref.error().message;
+    ASSERT_TRUE((*ref)->set_scene(scene).ok());
+    const auto prepasses = vt->renderer->stats().depth_prepasses;
+    const sc::Camera cameras[] = {
+        looking(1024, -200, 420, kPi / 2, -0.30),  // over the near edge: rows of hills behind each other
+        looking(300, 400, 180, 0.6, -0.12),        // low and grazing, between the hills
+        looking(1900, 1800, 350, -2.4, -0.35),     // from the far corner, looking back
+    };
+    for (const auto& cam : cameras) {
+        const Frame f = render_vt(*vt->renderer, cam);
+        (*ref)->render(cam);
+        const auto want = (*ref)->read_color();
+        const auto mask = coverage(want);
+        EXPECT_EQ(coverage(f.rgba), mask) << "the VT and the reference cover different pixels";
+        const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
+        EXPECT_GT(e.pixels, cfg.width * cfg.height / 3);
+        EXPECT_GE(e.psnr, 50.0) << "max error " << e.max_error << " over " << e.pixels << " pixels";
+        EXPECT_EQ(f.counters.textured_pixels, count(mask)) << "a hidden fragment was counted, or a visible one was not";
+        EXPECT_EQ(f.counters.fallback_unbiased, 0u);
+        std::printf("  camera (%.0f, %.0f, %.0f): %zu textured pixels, PSNR %.1f dB, max error %d\n", cam.position[0],
+                    cam.position[1], cam.position[2], count(mask), e.psnr, e.max_error);
+    }
+    EXPECT_EQ(vt->renderer->stats().depth_prepasses, prepasses) << "the displaced terrain was drawn with a pre-pass";
+}
+
 TEST(RenderVsReferenceSmallRing, UploadsStillLandWhenTheStagingRingIsFull) {
     REQUIRE_GL(ctx);
     ScratchDir dir;

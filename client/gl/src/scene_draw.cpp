@@ -35,6 +35,16 @@ Status SceneGeometry::upload(const scene::Scene& s) {
     static_assert(sizeof(scene::Vertex) == 5 * sizeof(float), "Vertex must be five packed floats");
     chunks_.clear();
     visible_.clear();
+    ordered_ = false;
+    // A heightfield scene only when every chunk is a grid of the one chunk grid.
+    chunk_pitch_ = s.chunk_pitch > 0 && std::all_of(s.chunks.begin(), s.chunks.end(), [](const scene::Chunk& c) {
+                       return c.grid_quads > 0 && c.grid_quads <= 4096 &&
+                              c.indices.size() == std::size_t(c.grid_quads) * c.grid_quads * 6 &&
+                              c.vertices.size() == std::size_t(c.grid_quads + 1) * (c.grid_quads + 1) &&
+                              c.grid_quad_size[0] > 0 && c.grid_quad_size[1] > 0;
+                   })
+                       ? s.chunk_pitch
+                       : 0;
     vertices_ = make_buffer();
     indices_ = make_buffer();
     const auto vbytes = static_cast<GLsizeiptr>(std::max<std::size_t>(vertex_count, 1) * sizeof(scene::Vertex));
@@ -48,6 +58,11 @@ Status SceneGeometry::upload(const scene::Scene& s) {
         d.origin = c.origin;
         d.texel_origin[0] = c.texel_origin[0];
         d.texel_origin[1] = c.texel_origin[1];
+        d.grid_quads = c.grid_quads;
+        d.quad_size[0] = c.grid_quad_size[0];
+        d.quad_size[1] = c.grid_quad_size[1];
+        d.grid_chunk[0] = c.grid_chunk[0];
+        d.grid_chunk[1] = c.grid_chunk[1];
         d.index_count = static_cast<GLsizei>(c.indices.size());
         d.index_offset = i * sizeof(std::uint32_t);
         d.base_vertex = static_cast<GLint>(v);
@@ -103,6 +118,7 @@ std::array<std::array<double, 4>, 4> clip_rows(const scene::Camera& c, double as
 
 void SceneGeometry::cull(const scene::Camera& camera, double aspect) {
     visible_.clear();
+    ordered_ = false;
     const auto m = clip_rows(camera, aspect);
     for (std::uint32_t k = 0; k < chunks_.size(); ++k) {
         const auto& d = chunks_[k];
@@ -157,8 +173,67 @@ void SceneGeometry::set_page_layout(std::uint32_t payload, std::uint32_t width, 
     }
 }
 
+// Why the order is front to back: a ray's path over the ground plane is a straight line from the
+// camera, so the grid cells it crosses get no nearer the camera's cell in either axis: |i - ci|
+// and |j - cj| never decrease along it. A surface point can only hide one in a cell the ray
+// reaches later, which has a larger |i - ci| + |j - cj|; cells are drawn by that sum, chunks of
+// the chunk grid likewise. Within a quad, the ray crosses the diagonal from the camera's side, so
+// the triangle on that side goes first. (Ties between points at equal depth go to the first.)
+bool SceneGeometry::order_front_to_back(const scene::Camera& camera) {
+    if (chunk_pitch_ <= 0) return false;
+    std::size_t quads = 0;
+    for (const auto k : visible_) quads += std::size_t(chunks_[k].grid_quads) * chunks_[k].grid_quads;
+    if (quads > kMaxOrderedQuads) return false;
+    const auto cell_of = [](double x) {  // a cell index; far-away ones clamped (same order)
+        return static_cast<std::int64_t>(std::clamp(std::floor(x), -1e15, 1e15));
+    };
+    const std::int64_t cam_chunk[2] = {cell_of(camera.position[0] / chunk_pitch_), cell_of(camera.position[1] / chunk_pitch_)};
+    const auto chunk_key = [&](std::uint32_t k) {
+        const auto& d = chunks_[k];
+        return std::abs(d.grid_chunk[0] - cam_chunk[0]) + std::abs(d.grid_chunk[1] - cam_chunk[1]);
+    };
+    std::stable_sort(visible_.begin(), visible_.end(), [&](std::uint32_t a, std::uint32_t b) { return chunk_key(a) < chunk_key(b); });
+    order_scratch_.clear();
+    order_scratch_.reserve(quads * 6);
+    for (const auto k : visible_) {
+        auto& d = chunks_[k];
+        const std::uint32_t q = d.grid_quads, n = q + 1;
+        const double cu = (camera.position[0] - d.origin[0]) / d.quad_size[0];
+        const double cv = (camera.position[1] - d.origin[1]) / d.quad_size[1];
+        // The camera's cell, clamped to one past the grid: beyond that the order is the same.
+        const auto ci = std::clamp<std::int64_t>(cell_of(cu), -1, q), cj = std::clamp<std::int64_t>(cell_of(cv), -1, q);
+        // Counting sort of the quads by |i - ci| + |j - cj| (at most 2q + 2).
+        const auto key = [&](std::uint32_t i, std::uint32_t j) {
+            return std::size_t(std::abs(std::int64_t(i) - ci) + std::abs(std::int64_t(j) - cj));
+        };
+        order_count_.assign(2 * std::size_t(q) + 4, 0);
+        for (std::uint32_t j = 0; j < q; ++j)
+            for (std::uint32_t i = 0; i < q; ++i) ++order_count_[key(i, j) + 1];
+        for (std::size_t b = 1; b < order_count_.size(); ++b) order_count_[b] += order_count_[b - 1];
+        d.ordered_offset = order_scratch_.size() * sizeof(std::uint32_t);
+        const std::size_t base = order_scratch_.size();
+        order_scratch_.resize(base + std::size_t(q) * q * 6);
+        for (std::uint32_t j = 0; j < q; ++j)
+            for (std::uint32_t i = 0; i < q; ++i) {
+                const std::uint32_t a = j * n + i, b = a + 1, e = a + n + 1, f = a + n;
+                std::uint32_t* out = order_scratch_.data() + base + std::size_t(order_count_[key(i, j)]++) * 6;
+                // The lower-right triangle (x - y >= i - j) first when the camera is on its side.
+                const std::uint32_t lower[3] = {a, b, e}, upper[3] = {a, e, f};
+                const bool lower_first = cu - cv > double(i) - double(j);
+                std::memcpy(out, lower_first ? lower : upper, sizeof lower);
+                std::memcpy(out + 3, lower_first ? upper : lower, sizeof lower);
+            }
+    }
+    if (!ordered_indices_) ordered_indices_ = make_buffer();
+    glNamedBufferData(ordered_indices_.get(), GLsizeiptr(std::max<std::size_t>(order_scratch_.size(), 1) * sizeof(std::uint32_t)),
+                      order_scratch_.data(), GL_STREAM_DRAW);
+    ordered_ = true;
+    return true;
+}
+
 void SceneGeometry::draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera) const {
     glBindVertexArray(vao_.get());
+    glVertexArrayElementBuffer(vao_.get(), ordered_ ? ordered_indices_.get() : indices_.get());
     for (const auto k : visible_) {
         const auto& d = chunks_[k];
         const auto off = scene::camera_relative(d.origin, camera.position);
@@ -170,7 +245,7 @@ void SceneGeometry::draw(const Program& program, const ChunkUniforms& u, const s
             glProgramUniform4fv(program.get(), u.chunk_bounds, 1, d.bounds);
         }
         glDrawElementsBaseVertex(GL_TRIANGLES, d.index_count, GL_UNSIGNED_INT,
-                                 reinterpret_cast<const void*>(d.index_offset), d.base_vertex);
+                                 reinterpret_cast<const void*>(ordered_ ? d.ordered_offset : d.index_offset), d.base_vertex);
     }
     glBindVertexArray(0);
 }

@@ -39,6 +39,14 @@ public:
     // Each chunk's page frame for a virtual texture of width x height texels with `payload`
     // texels per page: what the VT shaders address pages with.
     void set_page_layout(std::uint32_t payload, std::uint32_t width, std::uint32_t height);
+    // Heightfield scenes (every chunk a grid of one chunk grid: scene::Chunk::grid_quads): puts
+    // the chunks `cull` kept, and each one's triangles, in front-to-back order for `camera`, which
+    // `draw` then follows until the next `cull`. Drawn so with GL_LESS, each pixel's first
+    // fragment is the one it sees and every later one fails the depth test: each visible pixel is
+    // shaded once without a depth pre-pass. False (and the stored order kept) for other scenes,
+    // or when more than kMaxOrderedQuads quads are in view.
+    bool order_front_to_back(const scene::Camera& camera);
+    static constexpr std::size_t kMaxOrderedQuads = 1u << 16;
     // Draws the chunks `cull` kept with the bound program.
     void draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera) const;
     std::size_t visible_chunks() const { return visible_.size(); }
@@ -56,11 +64,22 @@ private:
         bool has_frame = false;
         std::int32_t page[2] = {0, 0};
         float base[2] = {0, 0}, bounds[4] = {0, 0, 0, 0};
+        // The heightfield grid (scene::Chunk's), and where order_front_to_back put its indices.
+        std::uint32_t grid_quads = 0;
+        double quad_size[2] = {0, 0};
+        std::int64_t grid_chunk[2] = {0, 0};
+        std::size_t ordered_offset = 0;  // bytes
     };
     VertexArray vao_;
     Buffer vertices_, indices_;
     std::vector<ChunkDraw> chunks_;
     std::vector<std::uint32_t> visible_;
+    double chunk_pitch_ = 0;  // > 0: a heightfield scene
+    // This frame's front-to-back indices (orphaned and refilled each frame: the GPU may still be
+    // reading the last frame's).
+    Buffer ordered_indices_;
+    bool ordered_ = false;
+    std::vector<std::uint32_t> order_scratch_, order_count_;
 };
 
 // The view-projection matrix without translation: projection * view_rotation.

@@ -461,8 +461,11 @@ public:
             auto it = textures_.find(scene_texture_);
             if (it != textures_.end()) tex = &it->second;
         }
+        bool front_to_back = false;
         if (tex) {
             geometry_.cull(camera, aspect);
+            // A heightfield drawn front to back shades each visible pixel once without the pre-pass.
+            front_to_back = depth_prepass_ && geometry_.order_front_to_back(camera);
             use_page_table(*tex);
             set_texture_uniforms(vt_program_, vt_u_, *tex);
             set_texture_uniforms(feedback_program_, feedback_u_, *tex);
@@ -535,13 +538,16 @@ public:
         // Main pass: depth pre-pass, then the VT pass at GL_LEQUAL with early fragment tests, so
         // each visible pixel is shaded and counted once. A scene where no triangle can hide another
         // (scene::overdraw_free: the flat terrain) needs no pre-pass: the VT pass alone shades
-        // each pixel once.
+        // each pixel once. Nor does a heightfield drawn front to back (displaced terrain): there
+        // each pixel's first fragment is its visible one, and GL_LESS rejects the rest.
+        const bool prepass = depth_prepass_ && !front_to_back;
         begin_colour_pass(main_);
         const std::uint32_t zero = 0;
         glClearNamedBufferData(counters_.get(), GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
         const auto counter_slot = acquire_counter_slot();
         if (tex) {
-            if (depth_prepass_) {
+            if (prepass) {
+                ++stats_.depth_prepasses;
                 glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
                 glDepthFunc(GL_LESS);
                 glUseProgram(depth_program_.get());
@@ -549,7 +555,7 @@ public:
                 glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
                 glDepthMask(GL_FALSE);
             }
-            glDepthFunc(depth_prepass_ ? GL_LEQUAL : GL_LESS);
+            glDepthFunc(prepass ? GL_LEQUAL : GL_LESS);
             glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, counters_.get());
             glUseProgram(vt_program_.get());
             // Textured pixels come from an occlusion query (the VT pass shades each visible pixel

@@ -53,6 +53,7 @@ Result<Scene> make_terrain(const TerrainOptions& o) {
     scene.vt_width = o.vt_width;
     scene.vt_height = o.vt_height;
     scene.chunks.reserve(cx_count * cy_count);
+    scene.chunk_pitch = double(o.chunk_texels);
     scene.bounds_min[0] = scene.bounds_min[1] = scene.bounds_min[2] = INFINITY;
     scene.bounds_max[0] = scene.bounds_max[1] = scene.bounds_max[2] = -INFINITY;
     const std::uint32_t n = static_cast<std::uint32_t>(q) + 1;
@@ -91,6 +92,11 @@ Result<Scene> make_terrain(const TerrainOptions& o) {
                     // Counter-clockwise seen from +Z: (i, j) -> (i+1, j) -> (i+1, j+1), then -> (i, j+1).
                     c.indices.insert(c.indices.end(), {a, b, e, a, e, d});
                 }
+            c.grid_quads = static_cast<std::uint32_t>(q);
+            c.grid_quad_size[0] = sx / double(q);
+            c.grid_quad_size[1] = sy / double(q);
+            c.grid_chunk[0] = static_cast<std::int64_t>(cx);
+            c.grid_chunk[1] = static_cast<std::int64_t>(cy);
             c.bounds_min[0] = c.origin[0];
             c.bounds_min[1] = c.origin[1];
             c.bounds_min[2] = zmin;

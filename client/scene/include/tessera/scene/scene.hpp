@@ -26,6 +26,14 @@ struct Chunk {
     std::vector<std::uint32_t> indices;  // triangles, counter-clockwise seen from the front
     double bounds_min[3] = {0, 0, 0};    // world-space box of the chunk (for culling)
     double bounds_max[3] = {0, 0, 0};
+    // A heightfield over a regular grid (make_terrain's chunks; 0: not one): grid_quads quads per
+    // side, vertex (i, j) at j * (grid_quads + 1) + i and at (i, j) * grid_quad_size from the
+    // origin in x and y, quad (i, j)'s triangles at indices 6 * (j * grid_quads + i): (i, j)
+    // (i+1, j) (i+1, j+1), then (i, j) (i+1, j+1) (i, j+1). grid_chunk: the chunk's column and row
+    // in the scene's chunk grid (Scene::chunk_pitch). Such scenes can be drawn front to back.
+    std::uint32_t grid_quads = 0;
+    double grid_quad_size[2] = {0, 0};
+    std::int64_t grid_chunk[2] = {0, 0};
 };
 
 struct Scene {
@@ -35,6 +43,9 @@ struct Scene {
     std::vector<Chunk> chunks;
     double bounds_min[3] = {0, 0, 0};  // the whole scene
     double bounds_max[3] = {0, 0, 0};
+    // Heightfield scenes: chunk (c, r) of the grid (Chunk::grid_chunk) has its origin at
+    // (c, r) * chunk_pitch in x and y. 0: the chunks are not one grid.
+    double chunk_pitch = 0;
 };
 
 struct TerrainOptions {
@@ -51,7 +62,8 @@ Result<Scene> make_terrain(const TerrainOptions& options);
 // True when no triangle of the scene can hide another: all lie in one plane and face the same way
 // (so with back faces culled a pixel sees at most triangles that overlap in that plane, which a
 // depth pre-pass would not separate either). The flat terrain is; displaced terrain and OBJ scenes
-// are not. The VT renderer skips its depth pre-pass for such scenes.
+// are not. The VT renderer skips its depth pre-pass for such scenes, and for heightfields
+// (Chunk::grid_quads), which it draws front to back.
 bool overdraw_free(const Scene& scene);
 
 // Height of the displaced terrain at world (x, y) (0 when displacement is 0); what make_terrain uses.

@@ -84,6 +84,8 @@ struct RendererStats {
     std::uint64_t feedback_skipped = 0;       // frames without a feedback readback: every ring slot in flight
     std::uint64_t counters_skipped = 0;       // frames without counters: every counter slot in flight
     std::uint64_t gl_errors = 0;              // glGetError reports, checked in finish() (never per frame)
+    std::uint64_t depth_prepasses = 0;        // frames drawn with a depth pre-pass (scenes that need one
+                                              // and cannot be drawn front to back)
     std::size_t visible_chunks = 0;           // last frame
 };
 
