@@ -23,6 +23,7 @@
 #include <numbers>
 #include <ostream>
 #include <set>
+#include <span>
 #include <thread>
 
 #include "tessera/client/gl/context.hpp"
@@ -274,31 +275,38 @@ std::set<std::uint32_t> levels_in_view(const sc::Camera& cam, const st::StoreInf
 
 // ---------------------------------------------------------------------------------------------
 
-class RenderVsReference : public ::testing::TestWithParam<gl::Filter> {};
-
-TEST_P(RenderVsReference, MatchesTheMipmappedReferenceWithEveryPageResident) {
-    REQUIRE_GL(ctx);
+// The VT (runtime + local store, every page resident) against the reference renderer: the
+// procedural 2048^2 store on `scene`, each of `cameras`. The same pixels covered, PSNR >= 50 dB
+// and max error <= 3 over at least a third of the view, every textured pixel counted once
+// (textured = covered pixels), no fallback. Returns the VT for further checks (null on failure).
+std::unique_ptr<Vt> expect_matches_reference(const gl::RendererConfig& cfg, const sc::Scene& scene,
+                                             std::span<const sc::Camera> cameras) {
     ScratchDir dir;
     const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128);
-    const auto cfg = config(GetParam(), 128, 512, /*srgb=*/true);
-    const auto scene = terrain(2048, 2048, 512);
     auto vt = make_vt(cfg, store, scene);
-    ASSERT_TRUE(vt);
-    ASSERT_TRUE(load_everything(*vt)) << "resident " << vt->runtime->residency().stats().resident_pages << " of " << page_count(vt->info);
-
+    if (!vt) {
+        ADD_FAILURE() << "no VT";
+        return nullptr;
+    }
+    if (!load_everything(*vt)) {
+        ADD_FAILURE() << "resident " << vt->runtime->residency().stats().resident_pages << " of " << page_count(vt->info);
+        return nullptr;
+    }
     auto levels = gl::decode_store_levels(store);
-    ASSERT_TRUE(levels.ok()) << levels.error().message;
+    if (!levels) {
+        ADD_FAILURE() << levels.error().message;
+        return nullptr;
+    }
     auto ref = gl::ReferenceRenderer::create(cfg, *levels);
-    ASSERT_TRUE(ref.ok()) << ref.error().message;
-    ASSERT_TRUE((*ref)->set_scene(scene).ok());
-
-    const sc::Camera cameras[] = {
-        looking(1024, -120, 160, kPi / 2, -0.42),   // over the near edge, towards the far one
-        looking(300, 400, 60, 0.6, -0.25),          // low and grazing, turned
-        straight_down(700.5, 900.25, height_for(1.7, straight_down(0, 0, 1), cfg.height)),
-    };
+    if (!ref) {
+        ADD_FAILURE() << ref.error().message;
+        return nullptr;
+    }
+    if (const auto st = (*ref)->set_scene(scene); !st.ok()) {
+        ADD_FAILURE() << st.error().message;
+        return nullptr;
+    }
     for (const auto& cam : cameras) {
-        const auto wanted = levels_in_view(cam, vt->info, cfg);
         const Frame f = render_vt(*vt->renderer, cam);
         (*ref)->render(cam);
         const auto want = (*ref)->read_color();
@@ -306,15 +314,31 @@ TEST_P(RenderVsReference, MatchesTheMipmappedReferenceWithEveryPageResident) {
         EXPECT_EQ(coverage(f.rgba), mask) << "the VT and the reference cover different pixels";
         const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
         EXPECT_GT(e.pixels, cfg.width * cfg.height / 3);
-        EXPECT_GE(e.psnr, 50.0) << filter_name(GetParam()) << ": max error " << e.max_error << " over " << e.pixels << " pixels";
-        EXPECT_LE(e.max_error, 3) << filter_name(GetParam()) << ": a seam or a wrong texel somewhere";
-        EXPECT_EQ(f.counters.textured_pixels, count(mask));
+        EXPECT_GE(e.psnr, 50.0) << filter_name(cfg.filter) << ": max error " << e.max_error << " over " << e.pixels << " pixels";
+        EXPECT_LE(e.max_error, 3) << filter_name(cfg.filter) << ": a seam or a wrong texel somewhere";
+        EXPECT_EQ(f.counters.textured_pixels, count(mask)) << "a hidden fragment was counted, or a visible one was not";
         EXPECT_EQ(f.counters.fallback_unbiased, 0u);
         EXPECT_EQ(f.counters.fallback_biased, 0u);
-        std::printf("  %s camera (%.0f, %.0f, %.0f): levels %zu (%u..%u), PSNR %.1f dB, max error %d\n", filter_name(GetParam()),
-                    cam.position[0], cam.position[1], cam.position[2], wanted.size(), *wanted.begin(), *wanted.rbegin(), e.psnr,
-                    e.max_error);
+        const auto wanted = levels_in_view(cam, vt->info, cfg);
+        std::printf("  %s camera (%.0f, %.0f, %.0f): levels %zu (%u..%u), %zu textured pixels, PSNR %.1f dB, max error %d\n",
+                    filter_name(cfg.filter), cam.position[0], cam.position[1], cam.position[2], wanted.size(), *wanted.begin(),
+                    *wanted.rbegin(), count(mask), e.psnr, e.max_error);
     }
+    return vt;
+}
+
+class RenderVsReference : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderVsReference, MatchesTheMipmappedReferenceWithEveryPageResident) {
+    REQUIRE_GL(ctx);
+    const auto cfg = config(GetParam(), 128, 512, /*srgb=*/true);
+    const sc::Camera cameras[] = {
+        looking(1024, -120, 160, kPi / 2, -0.42),   // over the near edge, towards the far one
+        looking(300, 400, 60, 0.6, -0.25),          // low and grazing, turned
+        straight_down(700.5, 900.25, height_for(1.7, straight_down(0, 0, 1), cfg.height)),
+    };
+    const auto vt = expect_matches_reference(cfg, terrain(2048, 2048, 512), cameras);
+    ASSERT_TRUE(vt);
     // The first view spans several levels.
     EXPECT_GE(levels_in_view(cameras[0], vt->info, cfg).size(), 3u);
 }
@@ -323,50 +347,26 @@ INSTANTIATE_TEST_SUITE_P(Filters, RenderVsReference,
                          ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
                          [](const auto& p) { return std::string(filter_name(p.param)); });
 
-// A staging ring too small for one page: every upload goes straight from client memory, and the
-// frame is still right.
 // Displaced terrain (hills hide other hills) drawn front to back instead of with a depth
 // pre-pass: every textured pixel is still counted once (textured = covered pixels) and shaded
-// with what it sees (the reference's image), and the pre-pass never runs. Drawn in any other
-// order, hidden fragments would be counted too.
+// with what it sees (the reference's image), and no frame needed the pre-pass. Drawn in any
+// other order, hidden fragments would be counted too.
 TEST(RenderDisplaced, FrontToBackCountsEachVisiblePixelOnceWithoutAPrePass) {
     REQUIRE_GL(ctx);
-    ScratchDir dir;
-    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128);
-    const auto cfg = config(gl::Filter::bilinear, 128, 512, /*srgb=*/true);
     const auto scene = terrain(2048, 2048, 512, 300);
     ASSERT_FALSE(sc::overdraw_free(scene));
-    auto vt = make_vt(cfg, store, scene);
-    ASSERT_TRUE(vt);
-    ASSERT_TRUE(load_everything(*vt)) << "resident " << vt->runtime->residency().stats().resident_pages << " of " << page_count(vt->info);
-    auto levels = gl::decode_store_levels(store);
-    ASSERT_TRUE(levels.ok()) << levels.error().message;
-    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
-    ASSERT_TRUE(ref.ok()) << ref.error().message;
-    ASSERT_TRUE((*ref)->set_scene(scene).ok());
-    const auto prepasses = vt->renderer->stats().depth_prepasses;
     const sc::Camera cameras[] = {
         looking(1024, -200, 420, kPi / 2, -0.30),  // over the near edge: rows of hills behind each other
         looking(300, 400, 180, 0.6, -0.12),        // low and grazing, between the hills
         looking(1900, 1800, 350, -2.4, -0.35),     // from the far corner, looking back
     };
-    for (const auto& cam : cameras) {
-        const Frame f = render_vt(*vt->renderer, cam);
-        (*ref)->render(cam);
-        const auto want = (*ref)->read_color();
-        const auto mask = coverage(want);
-        EXPECT_EQ(coverage(f.rgba), mask) << "the VT and the reference cover different pixels";
-        const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
-        EXPECT_GT(e.pixels, cfg.width * cfg.height / 3);
-        EXPECT_GE(e.psnr, 50.0) << "max error " << e.max_error << " over " << e.pixels << " pixels";
-        EXPECT_EQ(f.counters.textured_pixels, count(mask)) << "a hidden fragment was counted, or a visible one was not";
-        EXPECT_EQ(f.counters.fallback_unbiased, 0u);
-        std::printf("  camera (%.0f, %.0f, %.0f): %zu textured pixels, PSNR %.1f dB, max error %d\n", cam.position[0],
-                    cam.position[1], cam.position[2], count(mask), e.psnr, e.max_error);
-    }
-    EXPECT_EQ(vt->renderer->stats().depth_prepasses, prepasses) << "the displaced terrain was drawn with a pre-pass";
+    const auto vt = expect_matches_reference(config(gl::Filter::bilinear, 128, 512, /*srgb=*/true), scene, cameras);
+    ASSERT_TRUE(vt);
+    EXPECT_EQ(vt->renderer->stats().depth_prepasses, 0u) << "the displaced terrain was drawn with a pre-pass";
 }
 
+// A staging ring too small for one page: every upload goes straight from client memory, and the
+// frame is still right.
 TEST(RenderVsReferenceSmallRing, UploadsStillLandWhenTheStagingRingIsFull) {
     REQUIRE_GL(ctx);
     ScratchDir dir;
