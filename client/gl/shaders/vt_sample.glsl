@@ -156,6 +156,15 @@ struct VtPos {
     vec2 in_page;   // position inside it, level-L texels in [0, P] (P only at a level's far edge)
 };
 
+// p at level L + d: the page is p.page >> d and the position in it
+// ((p.page & (2^d - 1)) * P + p.in_page) / 2^d (nested floor divisions), with no second division.
+VtPos vt_ancestor_position(VtPos p, int d) {
+    VtPos a;
+    a.page = p.page >> d;
+    a.in_page = (vec2(p.page & ((1 << d) - 1)) * float(vt_payload) + p.in_page) * vt_exp2_neg(d);
+    return a;
+}
+
 // The level-L position of the fragment at `local` (level-0 texels from the chunk's origin),
 // clamped to the texture (GL_CLAMP_TO_EDGE) with the far bound 1/256 of a level-0 texel inside
 // the edge. Worked out at level 0 first, which needs no level and so runs beside the LoD
@@ -173,12 +182,10 @@ VtPos vt_level_position(vec2 local, int level) {
     vec2 k = floor(q0 * vt_inv_payload);
     vec2 r = q0 - k * payload;
     vec2 fix = vec2(greaterThanEqual(r, vec2(payload))) - vec2(lessThan(r, vec2(0.0)));
-    ivec2 page0 = vt_chunk_page + ivec2(k + fix);
-    vec2 in0 = r - fix * payload;
-    VtPos p;
-    p.page = page0 >> level;
-    p.in_page = (vec2(page0 & ((1 << level) - 1)) * payload + in0) * vt_exp2_neg(level);
-    return p;
+    VtPos p0;
+    p0.page = vt_chunk_page + ivec2(k + fix);
+    p0.in_page = r - fix * payload;
+    return vt_ancestor_position(p0, level);
 }
 
 // The page-table entry of `page` at `level`.
@@ -200,15 +207,6 @@ uint vt_entry(ivec2 page, int level) {
     ivec2 origin = ivec2(min(level, 1) * vt_table_column, up + vt_table_last_row - (vt_table_last_row >> up));
     return texelFetch(vt_page_table, origin + page, 0).r;
 #endif
-}
-
-// p at level L + d: the page is p.page >> d and the position in it
-// ((p.page & (2^d - 1)) * P + p.in_page) / 2^d (nested floor divisions), with no second division.
-VtPos vt_ancestor_position(VtPos p, int d) {
-    VtPos a;
-    a.page = p.page >> d;
-    a.in_page = (vec2(p.page & ((1 << d) - 1)) * float(vt_payload) + p.in_page) * vt_exp2_neg(d);
-    return a;
 }
 
 // Where entry e's page starts in the atlas: its cell plus the border, atlas texels.
