@@ -5,11 +5,13 @@
 #include <xxhash.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cstring>
 #include <filesystem>
 #include <map>
 #include <random>
 #include <set>
+#include <thread>
 
 #include "server_process.hpp"
 #include "tessera.grpc.pb.h"
@@ -455,11 +457,15 @@ TEST_F(ServerGrpc, OverloadIsRefusedAndTheServerStaysUp) {
     ASSERT_TRUE(viewers[0]->read_until([&] { return !viewers[0]->acks.empty(); }));
     EXPECT_EQ(viewers[0]->acks[0].admitted(), 1000u);
     EXPECT_EQ(viewers[0]->acks[0].refused(), 2000u);
+    // The first 256 refused requests get a reply of their own (the bound on error replies per
+    // batch); the ack counts all 2000 and says so.
+    EXPECT_NE(viewers[0]->acks[0].message().find("1744 invalid or refused requests"), std::string::npos)
+        << viewers[0]->acks[0].message();
     std::size_t exhausted = 0;
     ASSERT_TRUE(viewers[0]->read_until([&] {
         exhausted = 0;
         for (const auto& t : viewers[0]->tiles) exhausted += t.status() == v1::TILE_RESOURCE_EXHAUSTED;
-        return exhausted == 2000;
+        return exhausted == 256;
     }));
     // The refused ones are the lowest priorities.
     std::map<std::pair<unsigned, unsigned>, float> prio;
@@ -644,6 +650,280 @@ TEST_F(ServerGrpc, CorruptTileIsNeverServed) {
     EXPECT_EQ(again.tiles[0].status(), v1::TILE_DATA_LOSS);
     EXPECT_NE(srv.log().find("failed its checksum"), std::string::npos);
     EXPECT_EQ(stats(srv.grpc_address()).data_loss(), 2u);
+}
+
+// One message must not make the server hold more than a constant, whatever its fields carry: a
+// batch naming a 1 MB store is refused once (not answered per request with a copy of the name),
+// a batch whose every request needs an error reply gets at most a bounded number of them, and a
+// batch listing thousands of stores is refused whole. Viewers that send such batches and never
+// read cannot grow the server by more than 64 MiB; it gives the memory back when they leave.
+TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
+    ServerProcess srv({"--store", Stores::get().small}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    {  // one tile served first: growth measured below is not the server's first-use allocations
+        Viewer w(srv.grpc_address());
+        ASSERT_TRUE(w.send(batch(1, "small", {{0, 0, 0, 1}})));
+        ASSERT_TRUE(w.read_until([&] { return w.tiles.size() == 1; }));
+        EXPECT_TRUE(w.finish().ok());
+    }
+    const long rss_start = srv.rss_kib();
+    auto huge_name = [](std::uint64_t frame) {
+        v1::TileBatch b;
+        b.set_frame(frame);
+        b.add_stores(std::string(1 << 20, 'a'));
+        for (std::uint32_t i = 0; i < 50; ++i) {
+            auto* r = b.add_requests();
+            r->set_store(0);
+            r->set_x(i);
+            r->set_priority(1);
+        }
+        return b;
+    };
+    auto bad_indices = [](std::uint64_t frame) {  // every request points past the store list
+        v1::TileBatch b;
+        b.set_frame(frame);
+        b.add_stores("small");
+        for (std::uint32_t i = 0; i < 16000; ++i) {
+            auto* r = b.add_requests();
+            r->set_store(1000 + i);
+            r->set_x(i);
+            r->set_priority(1);
+        }
+        return b;
+    };
+    auto many_stores = [](std::uint64_t frame) {
+        v1::TileBatch b;
+        b.set_frame(frame);
+        for (int i = 0; i < 5000; ++i) b.add_stores("s" + std::to_string(i) + std::string(100, 'x'));
+        for (std::uint32_t i = 0; i < 5000; ++i) {
+            auto* r = b.add_requests();
+            r->set_store(i);
+            r->set_priority(1);
+        }
+        return b;
+    };
+    constexpr int kViewers = 4, kRounds = 2;
+    std::vector<std::unique_ptr<Viewer>> viewers;
+    std::vector<std::thread> senders;
+    for (int i = 0; i < kViewers; ++i) viewers.push_back(std::make_unique<Viewer>(srv.grpc_address()));
+    for (auto& v : viewers)
+        senders.emplace_back([&, vp = v.get()] {  // a server that stops reading blocks Write: not this thread
+            for (std::uint64_t round = 0; round < kRounds; ++round)
+                if (!vp->send(huge_name(round)) || !vp->send(bad_indices(round)) || !vp->send(many_stores(round))) return;
+        });
+    std::this_thread::sleep_for(3s);
+    const long rss_flood = srv.rss_kib();
+    EXPECT_LT(rss_flood - rss_start, 64 * 1024) << "RSS grew from " << rss_start << " to " << rss_flood << " KiB";
+
+    // What the first viewer is told: the long name and the long store list once each per batch,
+    // and no more error replies than the bound (the rest counted in the ack).
+    Viewer& first = *viewers[0];
+    ASSERT_TRUE(first.read_until([&] { return first.acks.size() == 3 * kRounds; })) << srv.log();
+    EXPECT_EQ(first.acks[0].status(), v1::TILE_INVALID_ARGUMENT);
+    EXPECT_NE(first.acks[0].message().find("1048576 bytes long"), std::string::npos) << first.acks[0].message();
+    EXPECT_LT(first.acks[0].message().size(), 256u);
+    EXPECT_EQ(first.acks[1].status(), v1::TILE_OK);
+    EXPECT_EQ(first.acks[1].invalid(), 16000u);
+    EXPECT_NE(first.acks[1].message().find("no reply of their own"), std::string::npos) << first.acks[1].message();
+    EXPECT_EQ(first.acks[2].status(), v1::TILE_INVALID_ARGUMENT);
+    EXPECT_NE(first.acks[2].message().find("lists 5000 stores"), std::string::npos) << first.acks[2].message();
+    std::size_t replies = 0;
+    for (const auto& t : first.tiles) {
+        ++replies;
+        EXPECT_EQ(t.status(), v1::TILE_INVALID_ARGUMENT);
+        EXPECT_LT(t.ByteSizeLong(), 512u);
+    }
+    EXPECT_LE(replies, std::size_t(kRounds) * 256);
+
+    // The viewers leave: the server lets go of what they cost.
+    for (auto& v : viewers) v->ctx.TryCancel();
+    for (auto& t : senders) t.join();
+    viewers.clear();
+    std::uint32_t open = 1;
+    for (int i = 0; i < 300 && (open = stats(srv.grpc_address()).viewers()) != 0; ++i) std::this_thread::sleep_for(10ms);
+    EXPECT_EQ(open, 0u);
+    const long rss_after = srv.rss_kib();
+    EXPECT_LT(rss_after - rss_start, 32 * 1024) << "RSS " << rss_start << " KiB at start, " << rss_after << " KiB after";
+    // And it still serves.
+    Viewer after(srv.grpc_address());
+    ASSERT_TRUE(after.send(batch(1, "small", {{0, 0, 0, 1}})));
+    ASSERT_TRUE(after.read_until([&] { return after.tiles.size() == 1; }));
+    EXPECT_EQ(after.tiles[0].status(), v1::TILE_OK);
+}
+
+// SIGTERM while viewers hold streams full of unread tiles and keep batches coming: the process
+// is gone within --drain-timeout plus 2 s, whatever the streams are doing.
+TEST_F(ServerGrpc, SigtermEndsWithinTheDrainTimeoutWhateverTheStreamsDo) {
+    ServerProcess srv({"--store", Stores::get().raw, "--store", Stores::get().small, "--drain-timeout", "1000",
+                       "--viewer-buffer", "64KiB", "--io-threads", "1"},
+                      dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto keys = level_keys(Stores::get().raw, 0);  // 289 raw tiles, ~57 MiB: never all read
+    std::vector<std::unique_ptr<Viewer>> viewers;
+    for (int i = 0; i < 6; ++i) {
+        viewers.push_back(std::make_unique<Viewer>(srv.grpc_address()));
+        ASSERT_TRUE(viewers.back()->send(batch(1, "rawterrain", keys)));
+    }
+    std::atomic<bool> stop{false};
+    std::thread sender([&] {  // one viewer keeps sending big batches with a long store name
+        v1::TileBatch b;
+        b.add_stores(std::string(1 << 20, 'z'));
+        for (std::uint32_t i = 0; i < 100; ++i) b.add_requests()->set_x(i);
+        while (!stop && viewers[0]->send(b)) std::this_thread::sleep_for(5ms);
+    });
+    std::this_thread::sleep_for(500ms);
+    const auto t0 = std::chrono::steady_clock::now();
+    srv.signal(SIGTERM);
+    const auto code = srv.wait_exit(3s);
+    const auto took = std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now() - t0);
+    stop = true;
+    for (auto& v : viewers) v->ctx.TryCancel();
+    sender.join();
+    ASSERT_TRUE(code.has_value()) << "still running 3 s after SIGTERM with --drain-timeout 1000\n" << srv.log();
+    EXPECT_GE(*code, 0) << "died of a signal";
+    EXPECT_LT(took.count(), 3000);
+}
+
+// A store file changed under the server (truncated into its index, index bytes flipped,
+// overwritten in place with `cp` while tiles stream) never takes the server down: that store is
+// answered UNAVAILABLE (HTTP 503) until it opens again as a new version, the other store keeps
+// serving, and no reply ever carries bytes that are not exactly its version's tile.
+TEST_F(ServerGrpc, StoreChangedInPlaceNeverKillsTheServer) {
+    const fs::path stores = dir.path() / "stores";
+    fs::create_directory(stores);
+    const std::string victim = (stores / "victim.tsr").string();
+    fs::copy_file(Stores::get().small, victim);
+    fs::copy_file(Stores::get().small, stores / "other.tsr");
+    const std::string next = dir.file("next.tsr");  // different content: another version
+    auto built = tessera::test::run_tessera("build procedural:terrain:900 --codec zstd --quiet -o " + next);
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    const auto original = tessera::test::read_file(victim);
+    auto old_reader = tessera::storage::StoreReader::open(Stores::get().small);
+    auto new_reader = tessera::storage::StoreReader::open(next);
+    ASSERT_TRUE(old_reader.ok() && new_reader.ok());
+    const auto& old_info = (*old_reader)->info();
+    std::map<std::uint64_t, std::shared_ptr<tessera::storage::StoreReader>> versions{
+        {old_info.store_id, *old_reader}, {(*new_reader)->info().store_id, *new_reader}};
+    ASSERT_EQ(versions.size(), 2u);
+
+    ServerProcess srv({"--store-dir", stores.string(), "--watch-interval", "100"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto alive = [&] { return !srv.wait_exit(20ms).has_value(); };
+    auto write_in_place = [](const std::string& path, const std::vector<std::uint8_t>& bytes, std::size_t from,
+                             std::size_t len) {
+        std::FILE* f = std::fopen(path.c_str(), "r+b");
+        ASSERT_NE(f, nullptr);
+        std::fseek(f, static_cast<long>(from), SEEK_SET);
+        std::fwrite(bytes.data() + from, 1, len, f);
+        std::fclose(f);
+    };
+    // Every tile of every level, and each reply checked against the version it claims.
+    std::vector<Req> all;
+    for (std::uint32_t l = 0; l < old_info.level_count(); ++l)
+        for (const auto& k : level_keys(Stores::get().small, l)) all.push_back(k);
+    std::size_t bad = 0, ok_tiles = 0;
+    auto check = [&](const v1::TileReply& t) {
+        if (t.status() != v1::TILE_OK) return;
+        ++ok_tiles;
+        auto it = versions.find(t.store_version());
+        if (it == versions.end()) return void(++bad);
+        auto want = it->second->read_tile({t.key().level(), t.key().x(), t.key().y()});
+        if (!want.ok() || t.checksum() != want->checksum ||
+            (t.kind() != v1::KIND_ABSENT && t.payload() != std::string(want->bytes.begin(), want->bytes.end())))
+            ++bad;
+    };
+    auto ask_all = [&](const std::string& store) {
+        Viewer v(srv.grpc_address());
+        if (!v.send(batch(1, store, all)) || !v.read_until([&] { return v.tiles.size() == all.size(); })) return v.tiles;
+        for (const auto& t : v.tiles) check(t);
+        return v.tiles;
+    };
+    auto http_status = [&](const std::string& store) {
+        return tessera::test::http_get(srv.http_port(), "/v1/stores/" + store + "/tiles/0/0/0").status;
+    };
+    auto wait_for = [](auto pred) {
+        for (int i = 0; i < 300 && !pred(); ++i) std::this_thread::sleep_for(20ms);
+        return pred();
+    };
+    auto serving_victim = [&] {
+        auto tiles = ask_all("victim");
+        return !tiles.empty() && std::all_of(tiles.begin(), tiles.end(), [](const auto& t) { return t.status() == v1::TILE_OK; });
+    };
+    ASSERT_EQ(http_status("victim"), 200);
+
+    // 1. Truncated into its index (past the level table, inside the index blocks).
+    const std::uint64_t data_offset = [&] {
+        std::uint64_t v;
+        std::memcpy(&v, original.data() + 72, 8);
+        return v;
+    }();
+    fs::resize_file(victim, data_offset - 1000);
+    for (const auto& t : ask_all("victim")) EXPECT_TRUE(t.status() == v1::TILE_OK || t.status() == v1::TILE_UNAVAILABLE);
+    ASSERT_TRUE(alive()) << srv.log();
+    EXPECT_TRUE(wait_for([&] { return http_status("victim") == 503; }));
+    EXPECT_EQ(http_status("other"), 200);
+    for (const auto& t : ask_all("other")) EXPECT_EQ(t.status(), v1::TILE_OK);
+
+    // Written back in place: served again once reopened.
+    tessera::test::write_file(victim, original);
+    EXPECT_TRUE(wait_for(serving_victim)) << srv.log();
+
+    // 2. One byte of a level's block table flipped in place: the entry block's offset points
+    // anywhere now.
+    const std::uint64_t level_table = [&] {
+        std::uint64_t v;
+        std::memcpy(&v, original.data() + 40, 8);
+        return v;
+    }();
+    const std::uint32_t last = old_info.level_count() - 1;
+    std::uint64_t block_table;
+    std::memcpy(&block_table, original.data() + level_table + last * 96 + 24, 8);
+    auto flipped = original;
+    flipped[block_table + 5] ^= 0x40;
+    write_in_place(victim, flipped, block_table + 5, 1);
+    for (const auto& t : ask_all("victim")) EXPECT_TRUE(t.status() == v1::TILE_OK || t.status() == v1::TILE_UNAVAILABLE);
+    ASSERT_TRUE(alive()) << srv.log();
+    EXPECT_TRUE(wait_for([&] { return http_status("victim") == 503; }));
+    EXPECT_EQ(http_status("other"), 200);
+    write_in_place(victim, original, block_table + 5, 1);
+    EXPECT_TRUE(wait_for(serving_victim)) << srv.log();
+
+    // 3. Overwritten in place while tiles stream: slowly (a copy in progress), then with cp.
+    std::atomic<bool> stop{false};
+    std::thread streamer([&] {
+        while (!stop) ask_all("victim");
+    });
+    const auto replacement = tessera::test::read_file(next);
+    {
+        std::FILE* f = std::fopen(victim.c_str(), "wb");  // truncates: the same inode, rewritten
+        ASSERT_NE(f, nullptr);
+        for (std::size_t off = 0; off < replacement.size(); off += 64 * 1024) {
+            std::fwrite(replacement.data() + off, 1, std::min<std::size_t>(64 * 1024, replacement.size() - off), f);
+            std::fflush(f);
+            std::this_thread::sleep_for(5ms);
+        }
+        std::fclose(f);
+    }
+    std::this_thread::sleep_for(500ms);
+    ASSERT_EQ(std::system(("cp " + Stores::get().small + " " + victim).c_str()), 0);
+    std::this_thread::sleep_for(300ms);
+    ASSERT_EQ(std::system(("cp " + next + " " + victim).c_str()), 0);
+    std::this_thread::sleep_for(300ms);
+    stop = true;
+    streamer.join();
+    ASSERT_TRUE(alive()) << srv.log();
+    // Settled on the last copy: every tile from the new version, exactly.
+    const std::uint64_t new_id = (*new_reader)->info().store_id;
+    EXPECT_TRUE(wait_for([&] {
+        std::size_t fresh = 0, other = 0;
+        for (const auto& t : ask_all("victim"))
+            if (t.status() == v1::TILE_OK) ++(t.store_version() == new_id ? fresh : other);
+        return fresh > 0 && other == 0;
+    })) << srv.log();
+    EXPECT_EQ(bad, 0u) << "replies whose bytes are not their version's tile";
+    EXPECT_GT(ok_tiles, 0u);
+    for (const auto& t : ask_all("other")) EXPECT_EQ(t.status(), v1::TILE_OK);
+    EXPECT_NE(srv.log().find("changed in place"), std::string::npos);
 }
 
 TEST_F(ServerGrpc, ReloadPicksUpNewAndReplacedStores) {

@@ -1,10 +1,15 @@
 // tessera serve: host .tsr stores over gRPC (viewers) and HTTP (everything else).
 #include <signal.h>
 
+#include <chrono>
+#include <condition_variable>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <memory>
+#include <mutex>
 #include <sstream>
+#include <thread>
 
 #include "commands.hpp"
 #include "tessera/server/server.hpp"
@@ -12,6 +17,9 @@
 namespace tessera::tools {
 
 namespace {
+
+// How long past --drain-timeout a stop may take before the process exits regardless.
+constexpr std::chrono::milliseconds kStopGrace{1500};
 
 struct ServeArgs {
     server::ServerConfig config;
@@ -73,7 +81,32 @@ int run_serve(ServeArgs& a) {
             srv->reload();
             continue;
         }
-        srv->shutdown();  // SIGTERM or SIGINT: drain, then exit 0
+        // SIGTERM or SIGINT: drain, then exit 0. A watchdog bounds the whole stop: whatever the
+        // streams or the transport are doing, the process is gone within --drain-timeout plus
+        // kStopGrace (an orchestrator's kill deadline is set from the drain timeout).
+        std::mutex m;
+        std::condition_variable cv;
+        bool stopped = false;
+        std::thread watchdog([&] {
+            std::unique_lock lock(m);
+            if (cv.wait_for(lock, c.drain_timeout + kStopGrace, [&] { return stopped; })) return;
+            const long long ms = c.drain_timeout.count();
+            if (c.log_json)
+                std::fprintf(stderr, "{\"level\":\"error\",\"msg\":\"stop overran the drain timeout; exiting now\","
+                                     "\"drain_timeout_ms\":%lld}\n", ms);
+            else
+                std::fprintf(stderr, "error: stop overran the drain timeout (%lld ms); exiting now\n", ms);
+            std::fflush(stderr);
+            std::_Exit(1);
+        });
+        srv->shutdown();
+        srv.reset();
+        {
+            std::lock_guard lock(m);
+            stopped = true;
+        }
+        cv.notify_all();
+        watchdog.join();
         return 0;
     }
 }

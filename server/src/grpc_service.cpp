@@ -12,6 +12,8 @@ namespace tessera::server {
 
 namespace {
 
+constexpr std::size_t kKeepBatchBytes = 256 * 1024;
+
 // Connects the scheduler (which may outlive a stream's reactor by a few microseconds on an I/O
 // thread) to the reactor: the reactor detaches itself in OnDone, under the link's lock.
 class StreamReactor;
@@ -65,6 +67,7 @@ public:
             maybe_finish_locked(lock);
             return;
         }
+        const std::size_t wire_bytes = read_buf_.Length();
         if (!grpc::SerializationTraits<v1::TileBatch>::Deserialize(&read_buf_, &batch_).ok()) {
             std::unique_lock lock(mu_);
             broken_ = true;
@@ -73,6 +76,9 @@ public:
         }
         multi_.store(batch_.protocol_revision() >= 1, std::memory_order_relaxed);
         scheduler_.submit(id_, batch_);
+        // The parsed batch is reused for the next one (its allocations with it), unless it was
+        // large: then it is freed, so an idle stream does not keep a --max-message batch alive.
+        if (wire_bytes > kKeepBatchBytes) v1::TileBatch().Swap(&batch_);
         std::lock_guard lock(mu_);
         if (finished_) return;
         // A viewer that sends batches but does not read replies stops being read too.

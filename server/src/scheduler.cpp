@@ -14,12 +14,19 @@ namespace tessera::server {
 
 namespace {
 
-constexpr std::size_t kMessageOverhead = 64;  // bytes charged per message besides its payload
-
+// What a message costs the server while it waits in an outbox: the record itself, the protobuf
+// objects and strings it owns, and the payload it keeps alive.
 std::size_t message_bytes(const OutMessage& m) {
-    if (m.is_tile) return kMessageOverhead + m.payload_size() + m.error.size();
+    std::size_t n = sizeof(OutMessage) + m.error.capacity() + m.payload_size();
     const auto& msg = m.message;
-    return kMessageOverhead + (msg.has_tile() ? msg.tile().payload().size() + msg.tile().message().size() : 0);
+    if (msg.has_tile()) {
+        const auto& t = msg.tile();
+        n += sizeof(v1::TileReply) + sizeof(v1::TileKey) + t.key().store().capacity() + t.message().capacity() +
+             t.payload().capacity();
+    } else if (msg.has_ack()) {
+        n += sizeof(v1::BatchAck) + msg.ack().message().capacity();
+    }
+    return n;
 }
 
 }  // namespace
@@ -161,15 +168,36 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     requests_->inc(static_cast<std::uint64_t>(batch.requests_size()));
     batch_size_->observe(batch.requests_size());
 
+    // The store list is checked first: a name over the limit refuses the batch once, in a reply
+    // of fixed size, instead of being copied into a reply per request.
+    std::string bad_list;
+    if (static_cast<std::size_t>(batch.stores_size()) > kMaxBatchStores) {
+        bad_list = "the batch lists " + std::to_string(batch.stores_size()) + " stores (the limit is " +
+                   std::to_string(kMaxBatchStores) + "); it was refused whole";
+    } else {
+        for (int i = 0; i < batch.stores_size() && bad_list.empty(); ++i)
+            if (batch.stores(i).size() > protocol::kMaxStoreNameLength)
+                bad_list = "store name " + std::to_string(i) + " of the batch is " + std::to_string(batch.stores(i).size()) +
+                           " bytes long (names are identifiers of at most " +
+                           std::to_string(protocol::kMaxStoreNameLength) + " bytes); the batch was refused whole";
+    }
+
     // Resolve the batch's store names once (outside the lock: the registry has its own).
     std::vector<std::shared_ptr<const StoreHandle>> stores;
-    stores.reserve(static_cast<std::size_t>(batch.stores_size()));
-    for (const auto& name : batch.stores()) stores.push_back(ctx_.stores.find(name));
+    if (bad_list.empty()) {
+        stores.reserve(static_cast<std::size_t>(batch.stores_size()));
+        for (const auto& name : batch.stores()) stores.push_back(ctx_.stores.find(name));
+    }
 
     v1::BatchAck ack;
     ack.set_frame(batch.frame());
     std::vector<OutMessage> errors;
+    std::uint32_t unanswered = 0;  // error replies beyond kMaxErrorReplies: counted in the ack only
     auto error_reply = [&](const v1::TileRequest& r, v1::TileStatus status, std::string message) {
+        if (errors.size() >= kMaxErrorReplies) {
+            ++unanswered;
+            return;
+        }
         OutMessage m;
         auto* t = m.message.mutable_tile();
         auto* k = t->mutable_key();
@@ -205,6 +233,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
         notify(wake);
     };
     if (draining_) return refuse_whole(v1::TILE_UNAVAILABLE, "the server is shutting down; reconnect elsewhere");
+    if (!bad_list.empty()) return refuse_whole(v1::TILE_INVALID_ARGUMENT, std::move(bad_list));
     if (static_cast<std::size_t>(batch.requests_size()) > ctx_.config.max_batch) {
         char buf[128];
         std::snprintf(buf, sizeof buf, "batch of %d requests exceeds the limit of %zu; it was refused whole",
@@ -227,11 +256,11 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
             continue;
         }
         const auto& store = stores[r.store()];
-        if (!store) {
+        if (!store) {  // names are at most kMaxStoreNameLength bytes here (checked above)
             const auto& name = batch.stores(static_cast<int>(r.store()));
-            error_reply(r, protocol::valid_store_name(name) ? v1::TILE_NOT_FOUND : v1::TILE_INVALID_ARGUMENT,
-                        protocol::valid_store_name(name) ? "no store named '" + name + "'"
-                                                         : "store names are identifiers ([A-Za-z0-9_.-], no '..')");
+            const bool valid = protocol::valid_store_name(name);
+            error_reply(r, valid ? v1::TILE_NOT_FOUND : v1::TILE_INVALID_ARGUMENT,
+                        valid ? "no store named '" + name + "'" : "store names are identifiers ([A-Za-z0-9_.-], no '..')");
             ++invalid;
             continue;
         }
@@ -304,10 +333,12 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     std::uint32_t refused = 0;
     if (next.size() > room) {
         for (std::size_t i = room; i < next.size(); ++i) {
-            v1::TileRequest r;
-            r.set_level(next[i].key.level);
-            r.set_x(next[i].key.x);
-            r.set_y(next[i].key.y);
+            wanted.erase(FullKey{next[i].store.get(), next[i].packed});
+            ++refused;
+            if (errors.size() >= kMaxErrorReplies) {
+                ++unanswered;
+                continue;
+            }
             OutMessage m;
             auto* t = m.message.mutable_tile();
             t->mutable_key()->set_store(next[i].store->name);
@@ -319,8 +350,6 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
             t->set_message("the server's request queue is full; retry later");
             t->set_codec(v1::CODEC_NONE);
             errors.push_back(std::move(m));
-            wanted.erase(FullKey{next[i].store.get(), next[i].packed});
-            ++refused;
         }
         next.resize(room);
     }
@@ -345,6 +374,9 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     ack.set_already_queued(already);
     ack.set_already_sent(already_sent);
     ack.set_cancelled(static_cast<std::uint32_t>(cancelled));
+    if (unanswered)
+        ack.set_message(std::to_string(unanswered) + " invalid or refused requests beyond the first " +
+                        std::to_string(kMaxErrorReplies) + " get no reply of their own (counted here)");
     cancelled_->inc(cancelled);
     refused_->inc(refused);
     invalid_->inc(invalid);
@@ -363,6 +395,11 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
 bool Scheduler::eligible_locked(const Viewer& v) const {
     return !v.pending.empty() && v.chunks_in_flight < kMaxChunksInFlight &&
            v.outbox_bytes < ctx_.config.viewer_buffer_bytes && total_outbox_bytes_ < ctx_.config.total_buffer_bytes;
+}
+
+bool Scheduler::full_locked(const Viewer& v) const {
+    return v.outbox_bytes >= ctx_.config.viewer_buffer_bytes ||
+           (v.outbox_bytes > 0 && total_outbox_bytes_ >= ctx_.config.total_buffer_bytes);
 }
 
 Scheduler::Viewer* Scheduler::pick_locked() {
@@ -547,7 +584,7 @@ bool Scheduler::messages_written(ViewerId id, const std::vector<OutMessage>& msg
             Viewer& v = *it->second;
             v.writing = false;
             for (const auto& m : msgs) written_locked(v, m, wake_workers);
-            full = v.outbox_bytes >= ctx_.config.viewer_buffer_bytes;
+            full = full_locked(v);
         }
     }
     if (wake_workers) work_cv_.notify_all();
@@ -603,7 +640,7 @@ v1::ServerMessage OutMessage::to_proto() const {
 bool Scheduler::outbox_full(ViewerId id) const {
     std::lock_guard lock(mu_);
     auto it = viewers_.find(id);
-    return it != viewers_.end() && it->second->outbox_bytes >= ctx_.config.viewer_buffer_bytes;
+    return it != viewers_.end() && full_locked(*it->second);
 }
 
 bool Scheduler::viewer_idle(ViewerId id) const {

@@ -82,6 +82,13 @@ public:
     static constexpr std::size_t kChunk = 16;              // requests taken per dispatch
     static constexpr unsigned kMaxChunksInFlight = 2;      // per viewer
     static constexpr std::uint64_t kFairnessSlack = kChunk; // tiles of service a priority may jump
+    // What one batch can make the server hold is bounded by constants, not by what it carries:
+    // a batch listing more stores, or a name longer than any store name can be
+    // (protocol::kMaxStoreNameLength bytes), is refused whole with one small ack; at most
+    // kMaxErrorReplies requests of a batch get an error reply of their own (the rest are counted
+    // in the ack). docs/protocol.md, "Limits".
+    static constexpr std::size_t kMaxBatchStores = 64;
+    static constexpr std::size_t kMaxErrorReplies = 256;
 
     explicit Scheduler(ServerContext& ctx);
     ~Scheduler();
@@ -101,10 +108,15 @@ public:
     // one), all under one lock. While messages are out, the viewer's writer is busy;
     // messages_written ends it and says whether the outbox is still full.
     bool next_messages(ViewerId id, std::vector<OutMessage>& out, std::size_t max_bytes);
+    // Returns whether the stream should stop reading batches (see outbox_full).
     bool messages_written(ViewerId id, const std::vector<OutMessage>& msgs, bool ok);
     // One message at a time (tests).
     bool next_message(ViewerId id, OutMessage& out);
     void message_written(ViewerId id, const OutMessage& msg, bool ok);
+    // The stream stops reading batches while this holds: the viewer's outbox is at
+    // --viewer-buffer, or it holds anything while all outboxes together are at --total-buffer
+    // (acks and error replies are charged like tiles, so a viewer that sends without reading
+    // stops being read instead of growing the server).
     bool outbox_full(ViewerId id) const;
     // Nothing pending, being read or waiting to be written for this viewer.
     bool viewer_idle(ViewerId id) const;
@@ -129,6 +141,7 @@ private:
     void worker();
     Viewer* pick_locked();
     bool eligible_locked(const Viewer& v) const;
+    bool full_locked(const Viewer& v) const;
     void push_locked(Viewer& v, OutMessage msg);
     void written_locked(Viewer& v, const OutMessage& msg, bool& wake_workers);
     void account_written(const OutMessage& msg, bool ok);

@@ -128,15 +128,23 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
             }
             continue;
         }
-        if (prev != old.end() && prev->second->path == path && identity_of(*prev->second) == id) {
+        const bool same_file = prev != old.end() && prev->second->path == path;
+        if (same_file && identity_of(*prev->second) == id && !prev->second->stale.load()) {
             next->push_back(prev->second);  // unchanged
             continue;
         }
+        // The same inode with a new size or mtime: the old version's bytes are gone from under it.
+        const bool in_place = same_file && prev->second->device == id.device && prev->second->inode == id.inode;
+        if (in_place && !prev->second->stale.exchange(true))
+            log_.error("store file changed in place; not serving it until it opens as a new version",
+                       {{"store", name}, {"path", path}});
         auto reader = storage::StoreReader::open(path);
         if (!reader) {
             fail(Error{reader.error().code, "store " + name + " (" + path + "): " + reader.error().message});
             ++report.failed;
-            if (prev != old.end()) next->push_back(prev->second);  // keep serving the old version
+            // Renamed over: the old file is intact behind its descriptor, keep serving it. Changed
+            // in place: keep the stale handle listed, so its requests are answered UNAVAILABLE.
+            if (prev != old.end()) next->push_back(prev->second);
             continue;
         }
         auto h = std::make_shared<StoreHandle>();

@@ -3,6 +3,13 @@
 // opened at start and rescanned on reload(): new files are added, changed files (a different
 // inode, size or mtime) are reopened under a new version, and removed files are dropped.
 // Lookups hand out shared handles, so a request that started on an old version finishes on it.
+//
+// A file rewritten in place (same inode: `cp new.tsr served.tsr`, truncation, a stray write) can
+// no longer be trusted for the version that was opened from it. Its handle is marked stale: the
+// fetcher answers UNAVAILABLE for it (HTTP 503) instead of reading, until a rescan opens the file
+// again as a new version. A stale handle is noticed by the rescan, or at once by the fetcher when
+// a read fails and the file's size or mtime has changed. docs/server.md, "Replacing a store".
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <mutex>
@@ -34,6 +41,8 @@ struct StoreHandle {
     // File identity at open time (to notice a replaced file).
     std::uint64_t device = 0, inode = 0, size = 0;
     std::int64_t mtime_ns = 0;
+    // The file changed in place under this version: nothing more is read from it.
+    mutable std::atomic<bool> stale{false};
     const storage::StoreInfo& info() const { return reader->info(); }
 };
 

@@ -1,5 +1,6 @@
 #include "tile_fetcher.hpp"
 
+#include <algorithm>
 #include <cstdio>
 
 namespace tessera::server {
@@ -41,10 +42,18 @@ std::string key_text(const StoreHandle& store, const storage::TileKey& k) {
     return store.name + buf;
 }
 
+FetchedTile stale_tile(const StoreHandle& store) {
+    return error_tile(v1::TILE_UNAVAILABLE, "store " + store.name + " changed on disk and is being reopened; retry");
+}
+
 }  // namespace
 
 void TileFetcher::fetch(const StoreHandle& store, std::span<const storage::TileKey> keys,
                         std::vector<FetchedTile>& out) {
+    if (store.stale.load(std::memory_order_relaxed)) {
+        out.assign(keys.size(), stale_tile(store));
+        return;
+    }
     out.assign(keys.size(), FetchedTile{});
     std::vector<storage::TileKey> misses;
     std::vector<std::size_t> miss_index;
@@ -78,6 +87,15 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const storage::TileK
     reads_->inc(stats.reads);
     read_bytes_->inc(stats.bytes);
     tiles_read_->inc(misses.size());
+    // A failure may be the file's fault: changed in place since it was opened. Then this version
+    // is stale (every answer UNAVAILABLE until a rescan reopens the file), not data loss.
+    if (std::any_of(results.begin(), results.end(), [](const auto& r) { return !r; }) && store.reader->file_changed()) {
+        if (!store.stale.exchange(true))
+            log_.error("store file changed in place; not serving it until it opens as a new version",
+                       {{"store", store.name}, {"path", store.path}});
+        for (std::size_t i : miss_index) out[i] = stale_tile(store);
+        return;
+    }
     for (std::size_t j = 0; j < results.size(); ++j) {
         auto& r = results[j];
         const std::size_t i = miss_index[j];

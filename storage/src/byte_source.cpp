@@ -1,7 +1,6 @@
 #include "byte_source.hpp"
 
 #include <fcntl.h>
-#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -13,11 +12,8 @@ namespace {
 
 class FileSource final : public ByteSource {
 public:
-    FileSource(int fd, std::uint64_t size) : fd_(fd), size_(size) {}
-    ~FileSource() override {
-        if (map_ != nullptr) ::munmap(map_, map_len_);
-        ::close(fd_);
-    }
+    FileSource(int fd, std::uint64_t size, timespec mtime) : fd_(fd), size_(size), mtime_(mtime) {}
+    ~FileSource() override { ::close(fd_); }
     FileSource(const FileSource&) = delete;
     FileSource& operator=(const FileSource&) = delete;
 
@@ -39,21 +35,17 @@ public:
         return {};
     }
 
-    Result<const std::uint8_t*> map_prefix(std::uint64_t length) override {
-        if (length > size_) return make_error(Errc::corrupt, "index extends past end of file");
-        if (length == 0) return static_cast<const std::uint8_t*>(nullptr);
-        void* p = ::mmap(nullptr, length, PROT_READ, MAP_SHARED, fd_, 0);
-        if (p == MAP_FAILED) return make_error(Errc::io_error, std::string("mmap failed: ") + std::strerror(errno));
-        map_ = p;
-        map_len_ = length;
-        return static_cast<const std::uint8_t*>(p);
+    bool changed() const override {
+        struct stat st {};
+        if (::fstat(fd_, &st) != 0) return true;
+        return static_cast<std::uint64_t>(st.st_size) != size_ || st.st_mtim.tv_sec != mtime_.tv_sec ||
+               st.st_mtim.tv_nsec != mtime_.tv_nsec;
     }
 
 private:
     int fd_;
     std::uint64_t size_;
-    void* map_ = nullptr;
-    std::size_t map_len_ = 0;
+    timespec mtime_;  // at open
 };
 
 class MemorySource final : public ByteSource {
@@ -66,11 +58,6 @@ public:
         if (length > 0) std::memcpy(dst, bytes_.data() + offset, length);
         return {};
     }
-    Result<const std::uint8_t*> map_prefix(std::uint64_t length) override {
-        if (length > bytes_.size()) return make_error(Errc::corrupt, "index extends past end of buffer");
-        return static_cast<const std::uint8_t*>(bytes_.data());
-    }
-
 private:
     std::vector<std::uint8_t> bytes_;
 };
@@ -89,7 +76,7 @@ Result<std::unique_ptr<ByteSource>> open_file_source(const std::string& path) {
         ::close(fd);
         return make_error(Errc::invalid_argument, "'" + path + "' is not a regular file");
     }
-    return std::unique_ptr<ByteSource>(new FileSource(fd, static_cast<std::uint64_t>(st.st_size)));
+    return std::unique_ptr<ByteSource>(new FileSource(fd, static_cast<std::uint64_t>(st.st_size), st.st_mtim));
 }
 
 std::unique_ptr<ByteSource> memory_source(std::vector<std::uint8_t> bytes) {

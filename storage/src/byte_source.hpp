@@ -1,7 +1,7 @@
 #pragma once
-// Where a reader's bytes come from: a file (the index region memory-mapped, payloads read with
-// pread) or a buffer in memory. Both are immutable for the reader's lifetime: stores are replaced
-// by rename, never rewritten in place.
+// Where a reader's bytes come from: a file (read with pread, never mapped: a file truncated or
+// rewritten under a reader must give errors, not SIGBUS) or a buffer in memory. Stores are meant
+// to be replaced by rename; a file changed in place anyway is noticed by changed().
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -17,8 +17,9 @@ public:
     virtual std::uint64_t size() const = 0;
     // Copies [offset, offset + length) into dst. Fails (corrupt) past the end.
     virtual Status read(std::uint64_t offset, std::uint64_t length, std::uint8_t* dst) const = 0;
-    // Makes [0, length) addressable in memory for the lifetime of the source (the index region).
-    virtual Result<const std::uint8_t*> map_prefix(std::uint64_t length) = 0;
+    // True when the bytes may no longer be those that were opened (a file whose size or
+    // modification time changed since). Costs a system call: ask after a failure, not per read.
+    virtual bool changed() const { return false; }
 };
 
 Result<std::unique_ptr<ByteSource>> open_file_source(const std::string& path);

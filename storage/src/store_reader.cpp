@@ -20,18 +20,32 @@ std::string key_name(const TileKey& k) {
 
 Error corrupt(std::string msg) { return make_error(Errc::corrupt, std::move(msg)); }
 
+// One index block's entries, read from the file and verified against the block table's checksum.
+struct EntryBlock {
+    std::uint8_t bytes[kEntryBlockBytes];
+};
+
 struct LevelIndex {
     std::uint32_t blocks_x = 0, blocks_y = 0;
-    const std::uint8_t* block_table = nullptr;  // blocks_x * blocks_y records
+    std::vector<std::uint8_t> block_table;  // blocks_x * blocks_y records, copied and verified at open
     std::uint64_t data_offset = 0, data_bytes = 0;
-    // Verification state of each entry block: 0 unknown, 1 sound, 2 corrupt. Racing threads may
-    // both verify the same block; the result is the same, so no lock is needed.
-    std::unique_ptr<std::atomic<std::uint8_t>[]> block_state;
+    // Entry blocks, read on first use (checked reads, never a mapping: a file changed under the
+    // reader gives an error, not a signal). Racing threads may both read a block; one copy wins
+    // and the other is freed. corrupt: the block failed its checksum (kept, so it is not re-read).
+    std::unique_ptr<std::atomic<const EntryBlock*>[]> blocks;
+    std::unique_ptr<std::atomic<bool>[]> corrupt;
+    std::size_t count() const { return std::size_t(blocks_x) * blocks_y; }
 };
 
 class Reader final : public StoreReader {
 public:
     explicit Reader(std::unique_ptr<ByteSource> src) : src_(std::move(src)) {}
+    ~Reader() override {
+        for (auto& ix : index_)
+            for (std::size_t b = 0; ix.blocks && b < ix.count(); ++b) delete ix.blocks[b].load(std::memory_order_relaxed);
+    }
+    Reader(const Reader&) = delete;
+    Reader& operator=(const Reader&) = delete;
 
     Status parse() {
         const std::uint64_t fsize = src_->size();
@@ -91,18 +105,19 @@ public:
         if (palette_count_ > (1u << 24) || !inside_index(pal_off, std::uint64_t(palette_count_) * kPaletteValueBytes))
             return corrupt("palette outside the index region");
 
-        auto mapped = src_->map_prefix(data_offset_);
-        if (!mapped) return mapped.error();
-        base_ = *mapped;
-        if (XXH3_64bits(base_ + lt_off, lt_bytes) != load<std::uint64_t>(h, header::level_table_checksum))
+        // The level table and the palette are copied (small), then verified.
+        std::vector<std::uint8_t> level_table(lt_bytes);
+        TESSERA_TRY(src_->read(lt_off, lt_bytes, level_table.data()));
+        if (XXH3_64bits(level_table.data(), lt_bytes) != load<std::uint64_t>(h, header::level_table_checksum))
             return corrupt("level table checksum mismatch");
-        palette_ = base_ + pal_off;
-        if (XXH3_64bits(palette_, std::size_t(palette_count_) * kPaletteValueBytes) != load<std::uint64_t>(h, header::palette_checksum))
+        palette_.resize(std::size_t(palette_count_) * kPaletteValueBytes);
+        TESSERA_TRY(src_->read(pal_off, palette_.size(), palette_.data()));
+        if (XXH3_64bits(palette_.data(), palette_.size()) != load<std::uint64_t>(h, header::palette_checksum))
             return corrupt("palette checksum mismatch");
 
         index_.resize(level_count);
         for (std::uint32_t l = 0; l < level_count; ++l) {
-            const std::uint8_t* r = base_ + lt_off + std::size_t(l) * kLevelRecordBytes;
+            const std::uint8_t* r = level_table.data() + std::size_t(l) * kLevelRecordBytes;
             LevelInfo& li = levels[l];
             if (load<std::uint32_t>(r, level::width) != li.width || load<std::uint32_t>(r, level::height) != li.height ||
                 load<std::uint32_t>(r, level::tiles_x) != li.tiles_x || load<std::uint32_t>(r, level::tiles_y) != li.tiles_y)
@@ -115,8 +130,9 @@ public:
             const std::uint64_t bt_off = load<std::uint64_t>(r, level::block_table_offset);
             const std::uint64_t bt_bytes = std::uint64_t(ix.blocks_x) * ix.blocks_y * kBlockRecordBytes;
             if (!inside_index(bt_off, bt_bytes)) return corrupt("level " + std::to_string(l) + " block table outside the index");
-            ix.block_table = base_ + bt_off;
-            if (XXH3_64bits(ix.block_table, bt_bytes) != load<std::uint64_t>(r, level::block_table_checksum))
+            ix.block_table.resize(bt_bytes);
+            TESSERA_TRY(src_->read(bt_off, bt_bytes, ix.block_table.data()));
+            if (XXH3_64bits(ix.block_table.data(), bt_bytes) != load<std::uint64_t>(r, level::block_table_checksum))
                 return corrupt("level " + std::to_string(l) + " block table checksum mismatch");
             ix.data_offset = load<std::uint64_t>(r, level::data_offset);
             ix.data_bytes = load<std::uint64_t>(r, level::data_bytes);
@@ -131,11 +147,13 @@ public:
             if (li.present > ntiles || li.uniform > ntiles || li.absent > ntiles || li.deduplicated > li.present ||
                 li.present + li.uniform + li.absent != ntiles)
                 return corrupt("level " + std::to_string(l) + " tile counts do not add up");
-            const std::size_t nblocks = std::size_t(ix.blocks_x) * ix.blocks_y;
-            ix.block_state = std::make_unique<std::atomic<std::uint8_t>[]>(nblocks);
+            const std::size_t nblocks = ix.count();
+            ix.blocks = std::make_unique<std::atomic<const EntryBlock*>[]>(nblocks);
+            ix.corrupt = std::make_unique<std::atomic<bool>[]>(nblocks);
             for (std::size_t b = 0; b < nblocks; ++b) {
-                ix.block_state[b].store(0, std::memory_order_relaxed);
-                const std::uint64_t eo = load<std::uint64_t>(ix.block_table, b * kBlockRecordBytes);
+                ix.blocks[b].store(nullptr, std::memory_order_relaxed);
+                ix.corrupt[b].store(false, std::memory_order_relaxed);
+                const std::uint64_t eo = load<std::uint64_t>(ix.block_table.data(), b * kBlockRecordBytes);
                 if (eo != 0 && !inside_index(eo, kEntryBlockBytes))
                     return corrupt("level " + std::to_string(l) + " index block " + std::to_string(b) + " outside the index");
             }
@@ -150,7 +168,7 @@ public:
     bool index_block_empty(std::uint32_t level, std::uint32_t bx, std::uint32_t by) const override {
         if (level >= index_.size() || bx >= index_[level].blocks_x || by >= index_[level].blocks_y) return true;
         const LevelIndex& ix = index_[level];
-        return load<std::uint64_t>(ix.block_table, (std::size_t(by) * ix.blocks_x + bx) * kBlockRecordBytes) == 0;
+        return load<std::uint64_t>(ix.block_table.data(), (std::size_t(by) * ix.blocks_x + bx) * kBlockRecordBytes) == 0;
     }
 
     Result<TileLocation> locate(const TileKey& key) const override {
@@ -158,18 +176,12 @@ public:
             return make_error(Errc::out_of_range, key_name(key) + " is outside the store");
         const LevelIndex& ix = index_[key.level];
         const std::size_t b = std::size_t(key.y >> kBlockShift) * ix.blocks_x + (key.x >> kBlockShift);
-        const std::uint64_t eo = load<std::uint64_t>(ix.block_table, b * kBlockRecordBytes);
+        const std::uint64_t eo = load<std::uint64_t>(ix.block_table.data(), b * kBlockRecordBytes);
         if (eo == 0) return TileLocation{};  // a block with no data at all
-        std::uint8_t state = ix.block_state[b].load(std::memory_order_acquire);
-        if (state == 0) {
-            const bool good = XXH3_64bits(base_ + eo, kEntryBlockBytes) ==
-                              load<std::uint64_t>(ix.block_table, b * kBlockRecordBytes + 8);
-            state = good ? 1 : 2;
-            ix.block_state[b].store(state, std::memory_order_release);
-        }
-        if (state != 1) return corrupt("index block of " + key_name(key) + " fails its checksum");
+        auto block = entry_block(ix, b, eo);
+        if (!block) return make_error(block.error().code, "index block of " + key_name(key) + " " + block.error().message);
         const std::size_t e = (std::size_t(key.y & (kBlockSide - 1)) << kBlockShift) + (key.x & (kBlockSide - 1));
-        const std::uint8_t* p = base_ + eo + e * kEntryBytes;
+        const std::uint8_t* p = (*block)->bytes + e * kEntryBytes;
         TileLocation loc;
         const std::uint8_t kind = p[entry::kind];
         loc.offset = load<std::uint64_t>(p, entry::offset);
@@ -200,7 +212,7 @@ public:
 
     Result<std::vector<std::uint8_t>> palette_value(std::uint64_t index) const override {
         if (index >= palette_count_) return make_error(Errc::out_of_range, "palette index out of range");
-        const std::uint8_t* v = palette_ + index * kPaletteValueBytes;
+        const std::uint8_t* v = palette_.data() + index * kPaletteValueBytes;
         return std::vector<std::uint8_t>(v, v + info_.texel_bytes());
     }
 
@@ -281,11 +293,29 @@ public:
         return out;
     }
 
+    bool file_changed() const override { return src_->changed(); }
+
 private:
+    // Entry block b of a level (at file offset eo), read and verified on first use.
+    Result<const EntryBlock*> entry_block(const LevelIndex& ix, std::size_t b, std::uint64_t eo) const {
+        if (const EntryBlock* got = ix.blocks[b].load(std::memory_order_acquire)) return got;
+        if (ix.corrupt[b].load(std::memory_order_relaxed)) return corrupt("fails its checksum");
+        auto fresh = std::make_unique<EntryBlock>();
+        if (Status st = src_->read(eo, kEntryBlockBytes, fresh->bytes); !st)
+            return make_error(st.error().code, "cannot be read: " + st.error().message);
+        if (XXH3_64bits(fresh->bytes, kEntryBlockBytes) != load<std::uint64_t>(ix.block_table.data(), b * kBlockRecordBytes + 8)) {
+            ix.corrupt[b].store(true, std::memory_order_relaxed);
+            return corrupt("fails its checksum");
+        }
+        const EntryBlock* expected = nullptr;
+        if (ix.blocks[b].compare_exchange_strong(expected, fresh.get(), std::memory_order_acq_rel))
+            return fresh.release();
+        return expected;  // another thread published the same block first
+    }
+
     std::unique_ptr<ByteSource> src_;
     StoreInfo info_;
-    const std::uint8_t* base_ = nullptr;
-    const std::uint8_t* palette_ = nullptr;
+    std::vector<std::uint8_t> palette_;
     std::uint32_t palette_count_ = 0;
     std::uint64_t data_offset_ = 0;
     std::uint64_t max_payload_ = 0;

@@ -1,7 +1,9 @@
 #pragma once
-// Reading a .tsr store. Opening maps only the header and index (milliseconds, whatever the store
-// size); every tile read verifies its checksum, and every index block is verified on first use,
-// so a reader returns an error, never garbage. Thread-safe: one reader serves many threads.
+// Reading a .tsr store. Opening reads only the header, the level table, the block tables and the
+// palette (milliseconds, whatever the store size); an index block is read and verified on first
+// use and kept; every tile read verifies its checksum. All reads are checked (nothing is
+// memory-mapped), so a reader returns an error, never garbage and never a signal, even when its
+// file is truncated or rewritten underneath it. Thread-safe: one reader serves many threads.
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -59,6 +61,9 @@ public:
     // Results are in the order of keys; each one fails or succeeds on its own.
     virtual std::vector<Result<Tile>> read_tiles(std::span<const TileKey> keys,
                                                  BatchStats* stats = nullptr) const = 0;
+    // True when the file was changed since it was opened (size or modification time): reads that
+    // fail now may be the file's fault, not the store's. One fstat; false for stores in memory.
+    virtual bool file_changed() const = 0;
     // The uniform value at a palette index (texel_bytes() bytes).
     virtual Result<std::vector<std::uint8_t>> palette_value(std::uint64_t index) const = 0;
 
