@@ -300,7 +300,7 @@ private:
     Result<const EntryBlock*> entry_block(const LevelIndex& ix, std::size_t b, std::uint64_t eo) const {
         if (const EntryBlock* got = ix.blocks[b].load(std::memory_order_acquire)) return got;
         if (ix.corrupt[b].load(std::memory_order_relaxed)) return corrupt("fails its checksum");
-        auto fresh = std::make_unique<EntryBlock>();
+        std::unique_ptr<EntryBlock> fresh(new EntryBlock);  // not value-initialized: read() fills it
         if (Status st = src_->read(eo, kEntryBlockBytes, fresh->bytes); !st)
             return make_error(st.error().code, "cannot be read: " + st.error().message);
         if (XXH3_64bits(fresh->bytes, kEntryBlockBytes) != load<std::uint64_t>(ix.block_table.data(), b * kBlockRecordBytes + 8)) {
