@@ -702,8 +702,9 @@ std::string summary_text(const ViewerReport& rep) {
         if (rep.unserved_s == 0 && rep.outages == 0)
             s += fmt::format("server        0.0 s unserved of {:.1f} s (connected throughout)\n", rep.run_s);
         else
-            s += fmt::format("server        {:.1f} s unserved of {:.1f} s: unreachable {} time{}{}{}\n", rep.unserved_s,
-                             rep.run_s, rep.outages, rep.outages == 1 ? "" : "s",
+            s += fmt::format("server        {:.1f} s unserved of {:.1f} s: {}{}{}\n", rep.unserved_s, rep.run_s,
+                             rep.outages == 0 ? std::string("brief drops only, none reported")
+                                              : fmt::format("unreachable {} time{}", rep.outages, rep.outages == 1 ? "" : "s"),
                              rep.down_at_end ? ", still down at the end" : "",
                              rep.last_link_error.empty() ? std::string() : " (last error: " + rep.last_link_error + ")");
     }
