@@ -5,9 +5,13 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <memory>
+#include <sstream>
+#include <vector>
 
 #include "server_process.hpp"
 #include "test_util.hpp"
@@ -102,6 +106,43 @@ TEST(Loadtest, EmulatedLinkAddsLatency) {
     // Histogram quantiles are within 3.2% of a sample; the smallest sample is at least 40 ms.
     EXPECT_GE(l["p50"].get<double>(), 40.0 * 0.96) << l.dump();
     EXPECT_DOUBLE_EQ(j["link"]["latency_ms"].get<double>(), 40.0);
+}
+
+// More viewers than the server admits: the table shows the refused streams and the frames run
+// with the stream down, not only the JSON.
+TEST(Loadtest, RefusedStreamsShowInTheTable) {
+    ScratchDir dir;
+    auto b = run_tessera("build procedural:terrain:1024 -o " + dir.file("terrain.tsr") + " --quiet");
+    ASSERT_EQ(b.exit_code, 0) << b.out;
+    ServerProcess srv({"--store", dir.file("terrain.tsr"), "--max-viewers", "2"}, dir.file("server.log"), "127.0.0.1:0",
+                      false);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const std::string json = dir.file("refused.json");
+    auto r = run_tessera("loadtest --server " + srv.grpc_address() +
+                         " --store terrain --viewers 4 --duration 2 --warmup 0 --fps 30 --seed 3 --json " + json +
+                         " --quiet");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    // The column header line names the columns; the row for 4 viewers has a value under each.
+    std::istringstream lines(r.out);
+    std::vector<std::string> header, row;
+    for (std::string line; std::getline(lines, line);) {
+        std::istringstream words(line);
+        std::vector<std::string> w{std::istream_iterator<std::string>(words), {}};
+        if (!w.empty() && w[0] == "viewers") header = w;
+        else if (!header.empty() && row.empty() && w.size() == header.size() && w[0] == "4") row = w;
+    }
+    ASSERT_FALSE(row.empty()) << r.out;
+    const auto column = [&](const std::string& name) -> long {
+        const auto it = std::find(header.begin(), header.end(), name);
+        return it == header.end() ? -1 : std::stol(row[static_cast<std::size_t>(it - header.begin())]);
+    };
+    EXPECT_GT(column("streams"), 0) << r.out;  // under "refused"
+    EXPECT_GT(column("discon"), 0) << r.out;
+    EXPECT_NE(r.out.find("refused streams"), std::string::npos) << r.out;
+    const auto run = load(json)["runs"][0];
+    EXPECT_EQ(run["streams_refused"].get<long>(), column("streams")) << run.dump();
+    EXPECT_EQ(run["frames_disconnected"].get<long>(), column("discon")) << run.dump();
+    EXPECT_FALSE(run["pass"].get<bool>());
 }
 
 TEST(Loadtest, ServerDownIsAClearError) {

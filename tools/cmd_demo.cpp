@@ -126,6 +126,9 @@ Command add_demo(CLI::App& app) {
                    "tessera loadtest)\n",
                    plot, vo.stats_file, vo.trace_file);
         fmt::print("\nmore: tessera view --store {} (a window)    tessera inspect {} --json\n", store, store);
+        std::fflush(stdout);
+        // The server is in this process: an outage here means the stream broke, not a server gone.
+        check_outage(view, kDefaultMaxOutageSeconds, "the demo's limit of");
         return 0;
     };
 }

@@ -148,6 +148,7 @@ public:
         return n;
     }
     bool available() const override { return inner_->available(); }
+    client::SourceLink link() const override { return inner_->link(); }
     std::string describe() const override { return inner_->describe(); }
 
 private:
@@ -179,6 +180,9 @@ struct Viewer {
     // Schedule and counters (touched only by the owning driver thread).
     std::uint64_t next_frame = 0;
     std::uint64_t frames = 0, late = 0, skipped = 0, unavailable = 0;
+    // The source's count of refused streams at the first and the latest measured frame.
+    std::optional<std::uint64_t> streams_refused_first;
+    std::uint64_t streams_refused_last = 0;
     double fallback_px = 0, pixels = 0;
     LatencyHistogram lateness;
     Buckets buckets;
@@ -187,7 +191,7 @@ struct Viewer {
 struct RunResult {
     unsigned viewers = 0, threads = 0;
     double seconds = 0;
-    std::uint64_t frames = 0, late = 0, skipped = 0, unavailable = 0;
+    std::uint64_t frames = 0, late = 0, skipped = 0, unavailable = 0, streams_refused = 0;
     std::uint64_t tiles = 0, bytes = 0, refused = 0, failed = 0, stale = 0, cancelled = 0;
     LatencyHistogram latency, lateness;
     double fallback = 0;  // pixel-weighted
@@ -302,6 +306,9 @@ public:
             r.late += v->late;
             r.skipped += v->skipped;
             r.unavailable += v->unavailable;
+            const std::uint64_t streams_refused =
+                v->streams_refused_first ? v->streams_refused_last - *v->streams_refused_first : 0;
+            r.streams_refused += streams_refused;
             r.tiles += s.tiles;
             r.bytes += s.bytes;
             r.refused += s.refused;
@@ -322,6 +329,8 @@ public:
                                     {"frames", v->frames},
                                     {"late", v->late},
                                     {"skipped", v->skipped},
+                                    {"disconnected", v->unavailable},
+                                    {"streams_refused", streams_refused},
                                     {"tiles", s.tiles},
                                     {"refused", s.refused},
                                     {"failed", s.failed},
@@ -337,8 +346,9 @@ public:
             r.p99_by_second.push_back(all.latency[b].count() ? all.latency[b].quantile(0.99) : std::nan(""));
         }
         r.fallback = px > 0 ? fpx / px : 0.0;
+        // A step where the server turned viewers away does not hold, whatever the others saw.
         r.pass = r.latency.quantile(0.99) <= o_.ramp_p99_ms && r.fallback <= o_.ramp_fallback && r.tiles > 0 &&
-                 r.failed == 0;
+                 r.failed == 0 && r.streams_refused == 0;
         // Runtimes go before their sources (Viewer member order); both before the next run starts.
         viewers.clear();
         return r;
@@ -364,7 +374,10 @@ private:
                 ++v->frames;
                 v->lateness.record(began - at);
                 if (began - at > period / 4) ++v->late;
-                if (!v->source->available()) ++v->unavailable;
+                const client::SourceLink link = v->source->link();
+                if (!link.connected) ++v->unavailable;
+                if (!v->streams_refused_first) v->streams_refused_first = link.streams_refused;
+                v->streams_refused_last = link.streams_refused;
                 std::uint64_t px = 0;
                 for (const auto id : v->ids) px += id != client::kNoPage;
                 const double fallback = double(fallback_rate) * double(px);
@@ -414,17 +427,26 @@ private:
 };
 
 void print_table(const std::vector<RunResult>& runs) {
-    fmt::print("{:>7} {:>8} {:>6} {:>7} {:>8} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>6} {:>9}\n", "viewers",
-               "frames", "late", "skipped", "tiles/s", "MB/s", "p50", "p90", "p99", "p99.9", "max", "refused", "failed",
-               "fallback");
+    // Two header lines: the latency columns and the refusal columns (whole streams, single tiles)
+    // are grouped. 57: the width of the columns before the latency's.
+    std::string groups = fmt::format("{:57} {:^39} {:^14}", "", "tile latency (ms)", "refused");
+    groups.erase(groups.find_last_not_of(' ') + 1);
+    fmt::print("{}\n", groups);
+    fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>6} {:>6} {:>9}\n",
+               "viewers", "frames", "late", "skipped", "discon", "tiles/s", "MB/s", "p50", "p90", "p99", "p99.9", "max",
+               "streams", "tiles", "failed", "fallback");
     for (const auto& r : runs) {
         const auto& h = r.latency;
-        fmt::print("{:>7} {:>8} {:>6} {:>7} {:>8.0f} {:>8.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7} {:>6} {:>8.3f}%\n",
-                   r.viewers, r.frames, r.late, r.skipped, r.tiles / r.seconds, r.bytes / r.seconds / 1e6,
-                   h.quantile(0.5), h.quantile(0.9), h.quantile(0.99), h.quantile(0.999), h.max_ms(), r.refused,
-                   r.failed, r.fallback * 100);
+        fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8.0f} {:>8.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7} "
+                   "{:>6} {:>6} {:>8.3f}%\n",
+                   r.viewers, r.frames, r.late, r.skipped, r.unavailable, r.tiles / r.seconds, r.bytes / r.seconds / 1e6,
+                   h.quantile(0.5), h.quantile(0.9), h.quantile(0.99), h.quantile(0.999), h.max_ms(), r.streams_refused,
+                   r.refused, r.failed, r.fallback * 100);
     }
     fmt::print("latency: ms, request issued (scheduled frame time) -> tile received; fallback: pixel-weighted\n");
+    fmt::print("discon: frames run while the viewer's stream was down; refused streams: streams the server turned "
+               "away (RESOURCE_EXHAUSTED: too many viewers); refused tiles: TILE_RESOURCE_EXHAUSTED replies (queues "
+               "full); failed: other non-OK replies\n");
 }
 
 nlohmann::json run_json(const RunResult& r) {
@@ -435,6 +457,7 @@ nlohmann::json run_json(const RunResult& r) {
             {"frames_late", r.late},
             {"frames_skipped", r.skipped},
             {"frames_disconnected", r.unavailable},
+            {"streams_refused", r.streams_refused},
             {"frame_lateness_ms", latency_json(r.lateness)},
             {"tiles", r.tiles},
             {"tiles_per_s", r.tiles / r.seconds},

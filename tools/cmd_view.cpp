@@ -30,6 +30,7 @@ Command add_view(CLI::App& app) {
     c->add_option("--frames", o->frames, "frames to render (0: the whole path; windowed: until closed)")->capture_default_str();
     c->add_option("--fps", o->fps, "frames per second of path time (headless: the path advances 1/fps per frame)")
         ->capture_default_str();
+    c->add_flag("--pace", o->pace, "headless: hold each frame to at least 1/fps of wall time, like a display");
     c->add_option("--out", o->out_dir, "directory for PNG frames");
     c->add_option("--png-count", o->png_count, "PNG frames to write with --out, spread over the run")->capture_default_str();
     c->add_option("--stats", o->stats_file, "per-frame stats, .csv or .json");
@@ -52,10 +53,15 @@ Command add_view(CLI::App& app) {
     c->add_option("--reference-store", o->reference_store, "local copy of the store for the reference (remote stores)");
     c->add_option("--token", o->auth_token, "bearer token for the server");
     c->add_option("--tls-ca", o->tls_ca_file, "PEM roots to verify a grpcs:// server (default: the system's)");
+    auto max_outage = std::make_shared<double>(kDefaultMaxOutageSeconds);
+    c->add_option("--max-outage", *max_outage,
+                  "exit 3 when the server was unreachable for more than this many seconds of the run "
+                  "(0: any outage; negative: never)")
+        ->capture_default_str();
     auto no_warmup = std::make_shared<bool>(false);
     c->add_flag("--no-warmup", *no_warmup, "headless: start the path from an empty pool (default: wait until its first view is at full detail)");
     c->add_flag("-q,--quiet", *quiet, "no progress, no summary");
-    return [o, size, filter, quiet, no_warmup]() -> int {
+    return [o, size, filter, quiet, no_warmup, max_outage]() -> int {
         o->warmup = !*no_warmup;
         unsigned w = 0, h = 0;
         char x = 0, extra = 0;
@@ -68,6 +74,7 @@ Command add_view(CLI::App& app) {
         else if (*filter == "anisotropic") o->filter = client::gl::Filter::anisotropic;
         else throw Failure(fmt::format("--filter '{}': expected bilinear, trilinear or anisotropic", *filter));
         o->progress = !*quiet;
+        if (!std::isfinite(*max_outage)) throw Failure("--max-outage must be a number of seconds", 2);
         const auto rep = run_viewer(*o);
         if (!o->stats_file.empty()) write_frame_stats(rep, o->stats_file);
         if (!*quiet) {
@@ -76,6 +83,8 @@ Command add_view(CLI::App& app) {
             if (!o->stats_file.empty()) fmt::print("wrote         {}\n", o->stats_file);
             if (!o->trace_file.empty()) fmt::print("wrote         {}\n", o->trace_file);
         }
+        std::fflush(stdout);
+        check_outage(rep, *max_outage, "--max-outage");
         return 0;
     };
 }

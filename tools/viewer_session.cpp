@@ -97,10 +97,11 @@ void scroll_callback(GLFWwindow* w, double, double dy) {
 }
 
 // The HUD's lines (windowed): frame time, bias and fallback, pages, tile latency, camera mode.
+// server_line: the link to the server ("" for a local store); it goes first while the server is unreachable.
 std::vector<std::string> hud_text(const FrameRecord& rec, float bias, std::uint32_t pool, const client::LatencyHistogram& lat,
-                                  std::size_t in_flight, bool free_camera) {
+                                  std::size_t in_flight, bool free_camera, const std::string& server_line, bool link_down) {
     const double fr = rec.fallback_rate();
-    return {
+    std::vector<std::string> lines{
         fmt::format("{:.1f} ms ({:.0f} fps)", rec.frame_ms, rec.frame_ms > 0 ? 1000.0 / rec.frame_ms : 0.0),
         fmt::format("bias {:.2f}  fallback {}", bias, std::isnan(fr) ? std::string("-") : fmt::format("{:.3f}%", 100 * fr)),
         fmt::format("pages {} wanted, {}/{} resident", rec.pages_wanted, rec.pages_resident, pool),
@@ -108,6 +109,8 @@ std::vector<std::string> hud_text(const FrameRecord& rec, float bias, std::uint3
         fmt::format("tile latency p50 {:.1f} ms  p99 {:.1f} ms", lat.quantile(0.5), lat.quantile(0.99)),
         free_camera ? std::string("free camera: WASD Q/E, drag, scroll; Space: path") : std::string("path (WASD: fly)"),
     };
+    if (!server_line.empty()) lines.insert(link_down ? lines.begin() : lines.end() - 1, server_line);
+    return lines;
 }
 
 void update_free_camera(GLFWwindow* win, FreeCamera& fc, const scene::Camera& path_camera, double dt) {
@@ -142,6 +145,57 @@ void update_free_camera(GLFWwindow* win, FreeCamera& fc, const scene::Camera& pa
     if (key(GLFW_KEY_E)) fc.camera.position[2] += step;
     if (key(GLFW_KEY_Q)) fc.camera.position[2] -= step;
 }
+
+// Watches the tile source's link once per frame. Time with the link down is counted as it passes;
+// a change of state is reported (stderr, HUD) once it has held for kLinkDebounce, so a link that
+// flaps (a server refusing the stream while the client retries) gives one line, not one per try.
+constexpr std::chrono::milliseconds kLinkDebounce{500};
+
+class LinkMonitor {
+public:
+    LinkMonitor(const client::TileSource& source, std::string server, Clock::time_point start)
+        : source_(source), server_(std::move(server)), start_(start), last_(start), changed_(start) {}
+
+    // Samples the link at `now`; returns the line to print when the reported state changes.
+    std::string sample(Clock::time_point now) {
+        link_ = source_.link();
+        if (!link_.connected) unserved_ += now - last_;
+        last_ = now;
+        if (link_.connected != up_) {
+            up_ = link_.connected;
+            changed_ = now;
+        }
+        if (up_ == reported_up_ || now - changed_ < kLinkDebounce) return {};
+        reported_up_ = up_;
+        const double at = seconds(changed_ - start_);
+        if (!up_) {
+            ++outages_;
+            down_since_ = changed_;
+            return fmt::format("view: server {} unreachable at {:.1f} s ({}); drawing what is resident", server_, at,
+                               link_.last_error.empty() ? "no stream" : link_.last_error);
+        }
+        return fmt::format("view: server {} back at {:.1f} s after {:.1f} s unreachable ({:.1f} s unserved so far)",
+                           server_, at, seconds(changed_ - down_since_), unserved_s());
+    }
+
+    bool connected() const { return link_.connected; }  // as last sampled
+    bool reported_down() const { return !reported_up_; }
+    double outage_s(Clock::time_point now) const { return reported_up_ ? 0.0 : seconds(now - down_since_); }
+    double unserved_s() const { return seconds(unserved_); }
+    double watched_s() const { return seconds(last_ - start_); }
+    std::uint32_t outages() const { return outages_; }
+    const std::string& last_error() const { return link_.last_error; }
+
+private:
+    static double seconds(Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+    const client::TileSource& source_;
+    std::string server_;
+    Clock::time_point start_, last_, changed_, down_since_;
+    client::SourceLink link_;
+    bool up_ = true, reported_up_ = true;
+    Clock::duration unserved_{};
+    std::uint32_t outages_ = 0;
+};
 
 double quantile(std::vector<double> v, double q) {
     if (v.empty()) return kNaN;
@@ -307,6 +361,24 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         counters.clear();
     };
 
+    // The stream opens in the background once bind() has reached the server: start with it open,
+    // so that a healthy run has no unserved time. If it does not open, the wait counts as unserved.
+    const auto link_start = Clock::now();
+    while (!source->available() &&
+           std::chrono::duration<double>(Clock::now() - link_start).count() < o.connect_wait_s)
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    LinkMonitor link_monitor(*source, loc.remote ? loc.address : loc.file, link_start);
+    rep.remote = loc.remote;
+    ProgressBar* shown_bar = nullptr;  // cleared before a link line, redrawn by its next update
+    auto watch_link = [&](Clock::time_point now) {
+        const std::string line = link_monitor.sample(now);
+        if (line.empty()) return;
+        if (shown_bar) shown_bar->finish();
+        std::fflush(stdout);
+        fmt::print(stderr, "{}\n", line);
+        std::fflush(stderr);
+    };
+
     GLFWwindow* win = (*ctx)->window();
     client::gl::FeedbackFrame fb;
     if (o.warmup && !win) {
@@ -316,6 +388,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         std::vector<client::gl::FrameCounters> wc;
         std::uint64_t last_clean = 0;
         for (;;) {
+            watch_link(Clock::now());
             const std::uint64_t rf = r.render(first, rt.lod_bias());
             if (r.poll_feedback(fb)) rt.frame(fb.ids, fb.width, fb.height, fb.bias);
             else rt.frame_without_feedback();
@@ -347,12 +420,14 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         hud = std::move(*made);
     }
     ProgressBar bar("view", o.progress && o.headless);
+    shown_bar = &bar;
     const auto start = Clock::now();
     auto last_title = start;
     double lat_count = 0, lat_sum_ms = 0;
     std::uint32_t done = 0;
     for (std::uint32_t f = 0; f < frames || (win && o.frames == 0); ++f) {
         const auto t0 = Clock::now();
+        watch_link(t0);
         if (win) {
             glfwPollEvents();
             if (glfwWindowShouldClose(win) || glfwGetKey(win, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
@@ -389,6 +464,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         rec.pages_evicted = s->pages_evicted;
         rec.bias = bias;
         rec.bytes_received = s->bytes_received;
+        rec.connected = link_monitor.connected();
+        rec.unserved_s = link_monitor.unserved_s();
         const auto& lat = rt.summary().latency();
         const double n = double(lat.count()), sum = lat.mean_ms() * n;
         if (n > lat_count) rec.tile_latency_ms = (sum - lat_sum_ms) / (n - lat_count);
@@ -427,17 +504,25 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             r.present(ww, wh);
             if (o.hud) {
                 // Refreshed four times a second, like the title: readable, and no per-frame formatting.
-                if (hud_lines.empty() || t0 - last_title > std::chrono::milliseconds(250))
-                    hud_lines = hud_text(rec, bias, o.pool, lat, rt.in_flight(), free_cam.active);
+                if (hud_lines.empty() || t0 - last_title > std::chrono::milliseconds(250)) {
+                    std::string server;
+                    if (loc.remote)
+                        server = link_monitor.reported_down()
+                                     ? fmt::format("SERVER UNREACHABLE for {:.0f} s  (unserved {:.1f} s)",
+                                                   link_monitor.outage_s(t0), link_monitor.unserved_s())
+                                     : fmt::format("server connected  (unserved {:.1f} s)", link_monitor.unserved_s());
+                    hud_lines = hud_text(rec, bias, o.pool, lat, rt.in_flight(), free_cam.active, server,
+                                         link_monitor.reported_down());
+                }
                 hud->draw(hud_lines, ww, wh, ww >= 1800 ? 3 : 2);
             }
             (*ctx)->swap_buffers();
             if (t0 - last_title > std::chrono::milliseconds(250)) {
                 last_title = t0;
                 const double fr = rec.fallback_rate();
-                glfwSetWindowTitle(win, fmt::format("tessera view | {:.1f} ms | bias {:.2f} | fallback {} | pages {}/{} | "
+                glfwSetWindowTitle(win, fmt::format("tessera view{} | {:.1f} ms | bias {:.2f} | fallback {} | pages {}/{} | "
                                                     "latency p50 {:.1f} ms | {}",
-                                                    rec.frame_ms, bias,
+                                                    link_monitor.reported_down() ? " | SERVER UNREACHABLE" : "", rec.frame_ms, bias,
                                                     std::isnan(fr) ? std::string("-") : fmt::format("{:.2f}%", 100 * fr),
                                                     rec.pages_resident, o.pool, lat.quantile(0.5),
                                                     free_cam.active ? "free camera (Space: path)" : "path (WASD: fly)")
@@ -449,10 +534,18 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         done = f + 1;
     }
     bar.finish();
+    shown_bar = nullptr;
     rep.frames.resize(done);
     r.finish(&counters, nullptr);
     take_counters();
-    rep.wall_s = std::chrono::duration<double>(Clock::now() - start).count();
+    const auto end = Clock::now();
+    rep.wall_s = std::chrono::duration<double>(end - start).count();
+    watch_link(end);
+    rep.run_s = link_monitor.watched_s();
+    rep.unserved_s = link_monitor.unserved_s();
+    rep.outages = link_monitor.outages();
+    rep.down_at_end = !link_monitor.connected();
+    rep.last_link_error = link_monitor.last_error();
     rep.summary = rt.summary();
     if (trace) {
         if (auto st = trace->close(); !st.ok()) throw Failure(st.error().message);
@@ -519,7 +612,7 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
         else
             out << "frame,time_s,frame_ms,pages_wanted,pages_resident,pages_requested,pages_uploaded,pages_evicted,"
                    "lod_bias,textured_pixels,fallback_pixels,fallback_pixels_biased,fallback_rate,fallback_rate_biased,"
-                   "tile_latency_ms,bytes_received,psnr_db,max_error\n";
+                   "tile_latency_ms,bytes_received,psnr_db,max_error,connected,unserved_s\n";
         for (std::size_t i = 0; i < rep.frames.size(); ++i) {
             const auto& f = rep.frames[i];
             if (json)
@@ -528,19 +621,20 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
                     "\"pages_requested\": {}, \"pages_uploaded\": {}, \"pages_evicted\": {}, \"lod_bias\": {}, "
                     "\"textured_pixels\": {}, \"fallback_pixels\": {}, \"fallback_pixels_biased\": {}, "
                     "\"fallback_rate\": {}, \"fallback_rate_biased\": {}, \"tile_latency_ms\": {}, "
-                    "\"bytes_received\": {}, \"psnr_db\": {}, \"max_error\": {}}}{}\n",
+                    "\"bytes_received\": {}, \"psnr_db\": {}, \"max_error\": {}, \"connected\": {}, \"unserved_s\": {}}}{}\n",
                     f.frame, jnum(f.time_s), jnum(f.frame_ms), f.pages_wanted, f.pages_resident, f.pages_requested,
                     f.pages_uploaded, f.pages_evicted, jnum(f.bias), f.textured_pixels, f.fallback_unbiased,
                     f.fallback_biased, jnum(f.fallback_rate()), jnum(f.fallback_rate_biased()), jnum(f.tile_latency_ms),
                     f.bytes_received, jnum(std::min(f.psnr, 999.0)), f.max_error < 0 ? "null" : std::to_string(f.max_error),
-                    i + 1 < rep.frames.size() ? "," : "");
+                    f.connected, jnum(f.unserved_s), i + 1 < rep.frames.size() ? "," : "");
             else
-                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.time_s),
+                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.time_s),
                                    num(f.frame_ms), f.pages_wanted, f.pages_resident, f.pages_requested,
                                    f.pages_uploaded, f.pages_evicted, num(f.bias), f.textured_pixels,
                                    f.fallback_unbiased, f.fallback_biased, num(f.fallback_rate()),
                                    num(f.fallback_rate_biased()), num(f.tile_latency_ms), f.bytes_received,
-                                   num(std::min(f.psnr, 999.0)), f.max_error < 0 ? "" : std::to_string(f.max_error));
+                                   num(std::min(f.psnr, 999.0)), f.max_error < 0 ? "" : std::to_string(f.max_error),
+                                   f.connected ? 1 : 0, num(f.unserved_s));
         }
         if (json) out << "], \"summary\": " << rep.summary.to_json() << "}\n";
         if (!out) {
@@ -604,7 +698,24 @@ std::string summary_text(const ViewerReport& rep) {
     s += fmt::format("pages         {} requested, {} uploaded, {} evicted; cache hit ratio {}\n",
                      rep.summary.pages_requested(), rep.summary.pages_uploaded(), rep.summary.pages_evicted(),
                      pct(rep.cache_hit_ratio()));
+    if (rep.remote) {
+        if (rep.unserved_s == 0 && rep.outages == 0)
+            s += fmt::format("server        0.0 s unserved of {:.1f} s (connected throughout)\n", rep.run_s);
+        else
+            s += fmt::format("server        {:.1f} s unserved of {:.1f} s: {}{}{}\n", rep.unserved_s, rep.run_s,
+                             rep.outages == 0 ? std::string("brief drops only, none reported")
+                                              : fmt::format("unreachable {} time{}", rep.outages, rep.outages == 1 ? "" : "s"),
+                             rep.down_at_end ? ", still down at the end" : "",
+                             rep.last_link_error.empty() ? std::string() : " (last error: " + rep.last_link_error + ")");
+    }
     return s;
+}
+
+void check_outage(const ViewerReport& rep, double max_outage_s, const std::string& flag) {
+    if (max_outage_s < 0 || !(rep.unserved_s > max_outage_s)) return;
+    throw Failure(fmt::format("the tile server was unreachable for {:.1f} s of the run, more than {} {:g} s",
+                              rep.unserved_s, flag, max_outage_s),
+                  kOutageExitCode);
 }
 
 }  // namespace tessera::tools

@@ -59,7 +59,15 @@ struct ViewerOptions {
     bool pace = false;
     // Windowed: draw the live statistics over the frame (the window title carries them as well).
     bool hud = true;
+    // Before the first frame, wait up to this long for the tile source's stream to be connected
+    // (a server store: bind() has reached the server, the stream opens in the background).
+    double connect_wait_s = 5;
 };
+
+// `tessera view --max-outage` and `tessera demo`: a run whose tile source was unserved for longer
+// than this (seconds) exits with kOutageExitCode.
+constexpr double kDefaultMaxOutageSeconds = 5;
+constexpr int kOutageExitCode = 3;
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
@@ -75,6 +83,8 @@ struct FrameRecord {
     std::uint64_t bytes_received = 0;
     double psnr = kNaN;
     int max_error = -1;
+    bool connected = true;  // the tile source's link was up when the frame ran
+    double unserved_s = 0;  // seconds the link has been down so far in the run (warm-up included)
     double fallback_rate() const { return textured_pixels ? double(fallback_unbiased) / double(textured_pixels) : kNaN; }
     double fallback_rate_biased() const {
         return textured_pixels ? double(fallback_biased) / double(textured_pixels) : kNaN;
@@ -91,6 +101,13 @@ struct ViewerReport {
     double warmup_ms = kNaN;        // first view: time to full detail (NaN: no warm-up)
     std::uint32_t warmup_frames = 0;
     bool warmup_complete = false;   // false: it timed out
+    // The tile source's link over the whole run, warm-up included (a local store: always up).
+    bool remote = false;            // tiles came from a server
+    double run_s = 0;               // wall time the link was watched (warm-up and path)
+    double unserved_s = 0;          // of which the link was down: no tile could come
+    std::uint32_t outages = 0;      // times the link was reported down (stderr, HUD)
+    bool down_at_end = false;       // still down when the run ended
+    std::string last_link_error;    // the source's last stream error, when it had one
     // Over the whole run.
     double fallback_rate() const;         // fallback pixels / textured pixels (unbiased)
     double fallback_rate_biased() const;
@@ -109,7 +126,11 @@ ViewerReport run_viewer(const ViewerOptions& options);
 void write_frame_stats(const ViewerReport& report, const std::string& path);
 // The plot of fallback rate (unbiased and biased) and LoD bias over the run, as SVG.
 void write_fallback_plot(const ViewerReport& report, const std::string& path, const std::string& title);
-// A one-screen summary (frames, frame time, fallback, PSNR, latency, bytes, cache hits).
+// A one-screen summary (frames, frame time, fallback, PSNR, latency, bytes, cache hits, and for a
+// server store the seconds it was unreachable).
 std::string summary_text(const ViewerReport& report);
+// Throws Failure (exit kOutageExitCode) when the run was unserved for longer than max_outage_s;
+// a negative max_outage_s never throws. `flag` names the setting in the message.
+void check_outage(const ViewerReport& report, double max_outage_s, const std::string& flag);
 
 }  // namespace tessera::tools

@@ -77,6 +77,7 @@ public:
     }
 
     bool available() const override { return inner_->available(); }
+    SourceLink link() const override { return inner_->link(); }
 
     std::string describe() const override {
         std::string s = inner_->describe() + " over an emulated link (latency " +

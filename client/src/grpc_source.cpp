@@ -60,6 +60,9 @@ public:
     }
 
     bool available() const override { return client_->state() == ConnectionState::connected; }
+    SourceLink link() const override {
+        return SourceLink{available(), client_->last_error(), client_->stats().streams_refused};
+    }
     std::string describe() const override { return "tessera server " + target_; }
 
 private:

@@ -430,6 +430,7 @@ private:
             stream_live_ = false;
             if (!closing_) {
                 ++stats_.stream_errors;
+                if (status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED) ++stats_.streams_refused;
                 last_error_ = status.ok() ? std::string("OK: the server ended the stream") : describe(status);
             }
         }

@@ -40,6 +40,13 @@ struct SourceTile {
     std::chrono::steady_clock::time_point received{};
 };
 
+// How a source's link to its server stands. A local source is always connected.
+struct SourceLink {
+    bool connected = true;
+    std::string last_error;             // the last stream error ("UNAVAILABLE: ..."), or empty
+    std::uint64_t streams_refused = 0;  // streams the server ended with RESOURCE_EXHAUSTED (too many viewers)
+};
+
 class TileSource {
 public:
     virtual ~TileSource() = default;
@@ -51,6 +58,8 @@ public:
     virtual std::size_t poll(std::vector<SourceTile>& out, std::size_t max = SIZE_MAX) = 0;
     // False while a remote source is disconnected (rendering goes on with what is resident).
     virtual bool available() const = 0;
+    // available() with what a remote source knows about its link (default: available() alone).
+    virtual SourceLink link() const { return SourceLink{available(), {}, 0}; }
     virtual std::string describe() const = 0;
 };
 

@@ -82,6 +82,9 @@ struct TileStreamStats {
     std::uint64_t reconnects = 0;          // streams opened after the first
     std::uint64_t connect_failures = 0;    // attempts where the channel did not become ready in time
     std::uint64_t stream_errors = 0;       // streams that ended while the client was not closing
+    // Of those, streams the server ended with RESOURCE_EXHAUSTED: it refused the viewer (more
+    // than its --max-viewers streams) or a message over its limit.
+    std::uint64_t streams_refused = 0;
     std::uint64_t backoffs = 0;            // times the client entered backing_off
     std::uint64_t batches_sent = 0;        // batches written to a stream (resends included)
     std::uint64_t batches_superseded = 0;  // batches replaced by a newer one before being written
