@@ -246,14 +246,22 @@ private:
     // The body is written from where it lies (held_: the response's string, or the cached tile
     // itself for stored payloads), in one gather write with the hand-written head: no copy into
     // a body, no per-header allocation.
+    //
+    // The two buffers go as a buffers_cat, not a std::array of two. For a two-element std::array,
+    // Asio's async_write hands the stream an empty first buffer once the head is written; Beast's
+    // ssl_stream (a flat_stream) sends a first buffer alone when the next one would take the write
+    // past 16 KiB: here 0 bytes, which async_write takes for the end of the write. Over TLS every
+    // body over 16 KiB was dropped and the next response followed the head. Asio's general path,
+    // which buffers_cat takes, skips consumed buffers.
     void send(HttpResponse r, unsigned version, bool head, bool keep_alive) {
         held_ = std::move(r);
         const bool bodiless = bodiless_status(held_.status);
         const std::size_t length = held_.body_size();
         write_response_head(head_, held_, version, keep_alive, length);
-        std::array<net::const_buffer, 2> buffers{net::buffer(head_), net::const_buffer()};
+        net::const_buffer body;
         if (!head && !bodiless && length > 0)
-            buffers[1] = held_.payload ? net::buffer(held_.payload->bytes.data(), length) : net::buffer(held_.body);
+            body = held_.payload ? net::buffer(held_.payload->bytes.data(), length) : net::buffer(held_.body);
+        const auto buffers = beast::buffers_cat(net::buffer(head_), body);
         tcp().expires_after(shared_.ctx.config.idle_timeout);
         net::async_write(stream_, buffers, [self = self(), keep_alive](const error_code& ec, std::size_t) {
             self->end_request();
