@@ -8,9 +8,10 @@
 // Bounds: at most config.max_connections sessions; beyond that a connection gets its request
 // answered 503 "too many connections" (Retry-After: 1) and is closed (at most kMaxRejecting such
 // connections at once; beyond that they are closed unanswered). Request line + headers at most
-// config.max_header_bytes (431), a body at most kMaxBodyBytes (413), any other malformed request
-// 400; all three close the connection. config.idle_timeout bounds waiting for a request and
-// every read and write.
+// config.max_header_bytes (431); any request body 413 (GET and HEAD take none); a
+// Transfer-Encoding that does not end in chunked, or one in an HTTP/1.0 request, 400 (RFC 9112
+// 6.1, 6.3); a transfer coding besides chunked 501; any other malformed request 400. All of these
+// close the connection. config.idle_timeout bounds waiting for a request and every read and write.
 // GCC 12 warns (-Wtsan) that std::atomic_thread_fence, which Asio's handler fences use, is not
 // understood by ThreadSanitizer; Asio's real synchronisation is its mutexes, so the warning is
 // noise here, and -Werror would make it fatal in the sanitizer build. Before any include: the
@@ -34,6 +35,7 @@
 #include <thread>
 #include <type_traits>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include <boost/asio/ip/tcp.hpp>
@@ -58,7 +60,6 @@ namespace http = boost::beast::http;
 using tcp = boost::asio::ip::tcp;
 using error_code = boost::system::error_code;
 
-constexpr std::uint64_t kMaxBodyBytes = 64 * 1024;  // GET only: anything larger is 413
 constexpr std::size_t kMaxRejecting = 64;           // over-limit connections being answered 503
 constexpr std::chrono::seconds kLingerTimeout{2};   // reading what a closing client still sends
 constexpr std::size_t kLingerBytes = 256 * 1024;
@@ -178,7 +179,8 @@ private:
         state_ = State::reading;
         parser_.emplace();
         parser_->header_limit(static_cast<std::uint32_t>(std::min<std::size_t>(shared_.ctx.config.max_header_bytes, UINT32_MAX)));
-        parser_->body_limit(kMaxBodyBytes);
+        // No request takes a body: one is refused (413) as soon as its header says so.
+        parser_->body_limit(0);
         tcp().expires_after(read_timeout());
         http::async_read(stream_, buffer_, *parser_,
                          [self = self()](const error_code& ec, std::size_t) { self->on_read(ec); });
@@ -186,10 +188,17 @@ private:
 
     void on_read(const error_code& ec) {
         if (state_ == State::closed) return;
+        // body_limit comes once the whole header is parsed: the framing is checked first, so a
+        // bad Transfer-Encoding is 400 whether or not a body follows.
+        if (!ec || ec == http::error::body_limit) {
+            const bool head = parser_->get().method() == http::verb::head;
+            if (auto bad = bad_transfer_encoding(parser_->get(), parser_->chunked()))
+                return write_error(bad->first, bad->second, head);
+            if (ec) return write_error(413, "request body not accepted (GET and HEAD take none)", head);
+        }
         if (ec) {
             if (ec == http::error::end_of_stream) return graceful_close();
             if (ec == http::error::header_limit) return write_error(431, "request header fields too large");
-            if (ec == http::error::body_limit) return write_error(413, "request body too large (GET takes none)");
             const error_code any_http_error = http::error::bad_method;
             if (ec.category() == any_http_error.category() && ec != http::error::partial_message)
                 return write_error(400, "malformed request: " + ec.message());
@@ -225,12 +234,29 @@ private:
         send(std::move(r), req.version(), req.method() == http::verb::head, keep_alive);
     }
 
-    // A response the transport makes itself (the request could not be parsed): sent, then closed.
-    void write_error(unsigned status, const std::string& message) {
+    // RFC 9112 6.1 and 6.3: a request's Transfer-Encoding must end in chunked (else its length
+    // cannot be known: 400, or the rest would be read as the next request), is faulty framing in
+    // HTTP/1.0 (400), and chunked is the only coding served (others: 501). nullopt: acceptable.
+    static std::optional<std::pair<unsigned, std::string>> bad_transfer_encoding(
+        const http::request<http::string_body>& req, bool chunked_last) {
+        const auto range = req.equal_range(http::field::transfer_encoding);
+        if (range.first == range.second) return std::nullopt;
+        if (req.version() < 11) return std::pair{400u, std::string("Transfer-Encoding in an HTTP/1.0 request")};
+        if (!chunked_last) return std::pair{400u, std::string("Transfer-Encoding must end in chunked")};
+        for (auto it = range.first; it != range.second; ++it)
+            for (const auto coding : http::token_list{it->value()})
+                if (!beast::iequals(coding, "chunked"))
+                    return std::pair{501u, "transfer coding '" + std::string(sv(coding)) + "' not implemented (only chunked)"};
+        return std::nullopt;
+    }
+
+    // A response the transport makes itself (the request could not be parsed or is refused as
+    // framed): sent, then closed. head: the request is known to be a HEAD (no body then).
+    void write_error(unsigned status, const std::string& message, bool head = false) {
         begin_request();
         HttpResponse r = http_error_response(status, message);
-        shared_.handler.record_transport_response(status, r.body.size());
-        send(std::move(r), 11, false, false);
+        shared_.handler.record_transport_response(status, head ? 0 : r.body.size());
+        send(std::move(r), 11, head, false);
     }
 
     void begin_request() {
