@@ -926,3 +926,84 @@ TEST_F(HttpServerTest, TransferCodingsOtherThanChunkedAreRefused) {
         EXPECT_TRUE(c.closed_by_peer());  // nothing more: no answer to a smuggled request
     }
 }
+
+namespace {
+
+// Holds `count` TCP connections to the port that never send a byte.
+std::vector<std::unique_ptr<tcp::socket>> silent_connections(net::io_context& ioc, std::uint16_t port, int count) {
+    std::vector<std::unique_ptr<tcp::socket>> out;
+    for (int i = 0; i < count; ++i) {
+        auto s = std::make_unique<tcp::socket>(ioc);
+        error_code ec;
+        s->connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port), ec);
+        EXPECT_FALSE(ec) << ec.message();
+        out.push_back(std::move(s));
+    }
+    return out;
+}
+
+}  // namespace
+
+// Every client past --max-connections is answered 503, however many there are at once: 80
+// connections past the limit that never send a request stay open, and the clients after them
+// are still answered (and so are the silent ones).
+TEST_F(HttpServerTest, EveryConnectionBeyondTheLimitGets503) {
+    config_.max_connections = 1;
+    start();
+    PlainClient admitted;
+    ASSERT_FALSE(admitted.connect(server_->port()));
+    auto first = admitted.request(http::verb::get, "/healthz");
+    ASSERT_TRUE(first);
+    ASSERT_EQ(first->result_int(), 200);
+    net::io_context ioc;
+    const auto silent = silent_connections(ioc, server_->port(), 80);
+    for (int i = 0; i < 10; ++i) {
+        SCOPED_TRACE(i);
+        PlainClient extra;
+        ASSERT_FALSE(extra.connect(server_->port()));
+        auto r = extra.request(http::verb::get, "/v1/stores/rgb/tiles/0/0/0");
+        ASSERT_TRUE(r) << "no answer";
+        EXPECT_EQ(r->result_int(), 503);
+        EXPECT_EQ((*r)[http::field::retry_after], "1");
+        EXPECT_TRUE(extra.closed_by_peer());
+    }
+    // The silent ones were answered too, without having asked.
+    for (std::size_t i = 0; i < silent.size(); i += 20) {
+        std::string got(512, '\0');
+        error_code ec;
+        const std::size_t n = silent[i]->read_some(net::buffer(got), ec);
+        EXPECT_EQ(got.substr(0, std::min<std::size_t>(n, 12)), "HTTP/1.1 503") << ec.message();
+    }
+    auto still = admitted.request(http::verb::get, "/healthz");
+    ASSERT_TRUE(still);
+    EXPECT_EQ(still->result_int(), 200);
+}
+
+TEST_F(HttpServerTest, EveryTlsConnectionBeyondTheLimitGets503) {
+    std::string cert, key;
+    ASSERT_TRUE(make_certificate(cert, key));
+    config_.tls_cert_file = cert;
+    config_.tls_key_file = key;
+    config_.max_connections = 1;
+    start();
+    ssl::context tls = client_tls(cert);
+    TlsClient admitted(&tls);
+    ASSERT_FALSE(admitted.connect(server_->port()));
+    auto first = admitted.request(http::verb::get, "/healthz");
+    ASSERT_TRUE(first);
+    ASSERT_EQ(first->result_int(), 200);
+    net::io_context ioc;
+    const auto silent = silent_connections(ioc, server_->port(), 80);  // not even a handshake
+    for (int i = 0; i < 10; ++i) {
+        SCOPED_TRACE(i);
+        TlsClient extra(&tls);
+        ASSERT_FALSE(extra.connect(server_->port()));
+        auto r = extra.request(http::verb::get, "/healthz");
+        ASSERT_TRUE(r) << "no answer";
+        EXPECT_EQ(r->result_int(), 503);
+        EXPECT_EQ(r->body(), "too many connections\n");
+    }
+    auto still = admitted.request(http::verb::get, "/healthz");
+    ASSERT_TRUE(still);
+    EXPECT_EQ(still->result_int(), 200);
+}

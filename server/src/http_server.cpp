@@ -5,13 +5,15 @@
 // request at a time (keep-alive, pipelined requests answered in order), calling the transport-free
 // HttpHandler and writing its response.
 //
-// Bounds: at most config.max_connections sessions; beyond that a connection gets its request
-// answered 503 "too many connections" (Retry-After: 1) and is closed (at most kMaxRejecting such
-// connections at once; beyond that they are closed unanswered). Request line + headers at most
-// config.max_header_bytes (431); any request body 413 (GET and HEAD take none); a
-// Transfer-Encoding that does not end in chunked, or one in an HTTP/1.0 request, 400 (RFC 9112
-// 6.1, 6.3); a transfer coding besides chunked 501; any other malformed request 400. All of these
-// close the connection. config.idle_timeout bounds waiting for a request and every read and write.
+// Bounds: at most config.max_connections sessions; beyond that a connection is answered 503
+// "too many connections" (Retry-After: 1) at once, without its request being read, and closed
+// (TLS: after the handshake, bounded by kRejectTimeout; then the usual bounded close). A reject
+// holds no request buffer and lives a few seconds at most, so every client past the limit gets
+// its answer. Request line + headers at most config.max_header_bytes (431); any request body 413
+// (GET and HEAD take none); a Transfer-Encoding that does not end in chunked, or one in an
+// HTTP/1.0 request, 400 (RFC 9112 6.1, 6.3); a transfer coding besides chunked 501; any other
+// malformed request 400. All of these close the connection. config.idle_timeout bounds waiting
+// for a request and every read and write.
 // GCC 12 warns (-Wtsan) that std::atomic_thread_fence, which Asio's handler fences use, is not
 // understood by ThreadSanitizer; Asio's real synchronisation is its mutexes, so the warning is
 // noise here, and -Werror would make it fatal in the sanitizer build. Before any include: the
@@ -60,10 +62,9 @@ namespace http = boost::beast::http;
 using tcp = boost::asio::ip::tcp;
 using error_code = boost::system::error_code;
 
-constexpr std::size_t kMaxRejecting = 64;           // over-limit connections being answered 503
-constexpr std::chrono::seconds kLingerTimeout{2};   // reading what a closing client still sends
+constexpr std::chrono::seconds kLingerTimeout{2};  // reading what a closing client still sends
 constexpr std::size_t kLingerBytes = 256 * 1024;
-constexpr std::chrono::seconds kRejectTimeout{5};   // an over-limit connection's request must come soon
+constexpr std::chrono::seconds kRejectTimeout{5};  // an over-limit TLS connection's handshake must come soon
 
 std::string_view sv(beast::string_view s) { return {s.data(), s.size()}; }
 
@@ -79,7 +80,6 @@ struct Shared {
     std::atomic<bool> draining{false};
     std::atomic<bool> stopped{false};
     std::atomic<std::size_t> connections{0};  // admitted sessions
-    std::atomic<std::size_t> rejecting{0};    // over-limit sessions being answered 503
 
     std::mutex idle_mutex;  // busy: requests read and not yet answered
     std::condition_variable idle_cv;
@@ -117,13 +117,11 @@ class Session final : public SessionBase {
 public:
     Session(Shared& shared, tcp::socket&& socket, bool reject)
         : shared_(shared), stream_(make_stream(shared, std::move(socket))), reject_(reject) {
-        if (reject_) shared_.rejecting.fetch_add(1);
-        else shared_.connections.fetch_add(1);
+        if (!reject_) shared_.connections.fetch_add(1);
     }
     ~Session() override {
         if (in_request_) shared_.request_end();
-        if (reject_) shared_.rejecting.fetch_sub(1);
-        else shared_.connections.fetch_sub(1);
+        if (!reject_) shared_.connections.fetch_sub(1);
         std::lock_guard lock(shared_.sessions_mutex);
         shared_.sessions.erase(static_cast<const SessionBase*>(this));
         shared_.sessions_cv.notify_all();
@@ -136,10 +134,10 @@ public:
                 self->tcp().expires_after(self->read_timeout());
                 self->stream_.async_handshake(ssl::stream_base::server, [self](const error_code& ec) {
                     if (ec) return self->close();
-                    self->do_read();
+                    self->first_step();
                 });
             } else {
-                self->do_read();
+                self->first_step();
             }
         });
     }
@@ -171,6 +169,11 @@ private:
     std::chrono::steady_clock::duration read_timeout() const {
         const std::chrono::steady_clock::duration idle = shared_.ctx.config.idle_timeout;
         return reject_ ? std::min<std::chrono::steady_clock::duration>(idle, kRejectTimeout) : idle;
+    }
+
+    void first_step() {
+        if (reject_) send_reject();
+        else do_read();
     }
 
     void do_read() {
@@ -207,30 +210,23 @@ private:
         ++requests_;
         begin_request();
         const auto& req = parser_->get();
-        HttpResponse r;
-        if (reject_) {
-            r = http_error_response(503, "too many connections");
-            r.headers.emplace_back("Retry-After", "1");
-            shared_.handler.record_transport_response(503, r.body.size());
-        } else {
-            std::string if_none_match;
-            const auto range = req.equal_range(http::field::if_none_match);
-            for (auto it = range.first; it != range.second; ++it) {
-                if (!if_none_match.empty()) if_none_match += ", ";
-                if_none_match.append(it->value().data(), it->value().size());
-            }
-            const HttpRequestView view{sv(req.method_string()), sv(req.target()),
-                                       sv(req[http::field::authorization]), if_none_match,
-                                       sv(req[http::field::accept])};
-            try {
-                r = shared_.handler.handle_http_request(view, /*borrow_payload=*/true);
-            } catch (const std::exception& e) {
-                // The handler catches its own errors; this is only allocation failure and the like.
-                shared_.ctx.log.error("http handler threw", {{"error", e.what()}});
-                r = http_error_response(500, "internal error");
-            }
+        std::string if_none_match;
+        const auto range = req.equal_range(http::field::if_none_match);
+        for (auto it = range.first; it != range.second; ++it) {
+            if (!if_none_match.empty()) if_none_match += ", ";
+            if_none_match.append(it->value().data(), it->value().size());
         }
-        const bool keep_alive = !reject_ && req.keep_alive() && !shared_.closing_connections();
+        const HttpRequestView view{sv(req.method_string()), sv(req.target()), sv(req[http::field::authorization]),
+                                   if_none_match, sv(req[http::field::accept])};
+        HttpResponse r;
+        try {
+            r = shared_.handler.handle_http_request(view, /*borrow_payload=*/true);
+        } catch (const std::exception& e) {
+            // The handler catches its own errors; this is only allocation failure and the like.
+            shared_.ctx.log.error("http handler threw", {{"error", e.what()}});
+            r = http_error_response(500, "internal error");
+        }
+        const bool keep_alive = req.keep_alive() && !shared_.closing_connections();
         send(std::move(r), req.version(), req.method() == http::verb::head, keep_alive);
     }
 
@@ -248,6 +244,16 @@ private:
                 if (!beast::iequals(coding, "chunked"))
                     return std::pair{501u, "transfer coding '" + std::string(sv(coding)) + "' not implemented (only chunked)"};
         return std::nullopt;
+    }
+
+    // Over the connection limit: answered at once, the request (if any) never parsed, only
+    // drained by the close. A reject costs a small session for a few seconds at most.
+    void send_reject() {
+        begin_request();
+        HttpResponse r = http_error_response(503, "too many connections");
+        r.headers.emplace_back("Retry-After", "1");
+        shared_.handler.record_transport_response(503, r.body.size());
+        send(std::move(r), 11, false, false);
     }
 
     // A response the transport makes itself (the request could not be parsed or is refused as
@@ -551,18 +557,14 @@ private:
         error_code ignored;
         socket.set_option(tcp::no_delay(true), ignored);
         const bool reject = shared_.connections.load() >= shared_.ctx.config.max_connections;
-        if (reject && shared_.rejecting.load() >= kMaxRejecting) {
-            socket.close(ignored);
-        } else {
-            std::shared_ptr<SessionBase> s;
-            if (shared_.tls) s = std::make_shared<Session<true>>(shared_, std::move(socket), reject);
-            else s = std::make_shared<Session<false>>(shared_, std::move(socket), reject);
-            {
-                std::lock_guard lock(shared_.sessions_mutex);
-                shared_.sessions.emplace(s.get(), s);
-            }
-            s->start();
+        std::shared_ptr<SessionBase> s;
+        if (shared_.tls) s = std::make_shared<Session<true>>(shared_, std::move(socket), reject);
+        else s = std::make_shared<Session<false>>(shared_, std::move(socket), reject);
+        {
+            std::lock_guard lock(shared_.sessions_mutex);
+            shared_.sessions.emplace(s.get(), s);
         }
+        s->start();
         do_accept();
     }
 
