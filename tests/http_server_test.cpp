@@ -1,6 +1,8 @@
 // The HTTP transport (server/src/http_server.cpp) in-process on 127.0.0.1:0, with a Beast client:
-// keep-alive and pipelining, HEAD, connection and header limits, malformed requests, idle
-// timeout, TLS with a self-signed certificate made by the openssl CLI, draining and stopping.
+// keep-alive and pipelining, HEAD, connection and header limits, request bodies and transfer
+// codings, malformed requests, idle timeout, TLS with a self-signed certificate made by the
+// openssl CLI (tools/setup.sh installs it; without it the TLS tests fail), responses of every
+// route at sizes around TLS's 16 KiB record, draining and stopping.
 // GCC 12 warns (-Wtsan) that std::atomic_thread_fence, which Asio's handler fences use, is not
 // understood by ThreadSanitizer; Asio's real synchronisation is its mutexes, so the warning is
 // noise here, and -Werror would make it fatal in the sanitizer build. Before any include: the
@@ -15,9 +17,15 @@
 #include <atomic>
 #include <chrono>
 #include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <map>
 #include <memory>
+#include <sstream>
 #include <optional>
 #include <random>
+#include <set>
 #include <string>
 #include <thread>
 #include <vector>
@@ -30,12 +38,14 @@
 #include <boost/beast/http.hpp>
 #include <boost/beast/ssl.hpp>
 
+#include "http_handler.hpp"
 #include "http_server.hpp"
 #include "log.hpp"
 #include "metrics.hpp"
 #include "prometheus_text.hpp"
 #include "server_context.hpp"
 #include "store_registry.hpp"
+#include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
 #include "test_util.hpp"
@@ -161,6 +171,67 @@ std::string hex16(std::uint64_t v) {
     return buf;
 }
 
+// A zstd store whose level-0 tiles (x, 0) have payloads of exactly sizes[x] bytes: the tile's
+// zstd frame (all-zero texels) and a zstd skippable frame padding it to size, so the payloads
+// still decode (zstd passes over skippable frames). Returns the payloads. Tiles are 352^2 RGBA:
+// a reader refuses payloads over twice the decoded tile (+ 64 KiB), and this one takes 1 MiB.
+std::vector<std::string> write_sized_store(const std::string& path, const std::vector<std::size_t>& sizes) {
+    storage::StoreSpec spec;
+    spec.width = 348 * static_cast<std::uint32_t>(sizes.size());
+    spec.height = 348;
+    spec.tile_payload = 348;
+    spec.border = 2;
+    spec.channels = 4;
+    spec.sample_type = storage::SampleType::u8;
+    spec.colour_space = storage::ColourSpace::srgb;
+    spec.codec = storage::Codec::zstd;
+    auto w = storage::StoreWriter::create(path, spec);
+    EXPECT_TRUE(w.ok());
+    if (!w.ok()) return {};
+    const storage::StoreInfo info = storage::store_info(spec);
+    const std::vector<std::uint8_t> zeros(info.tile_bytes());
+    const auto frame = storage::encode_tile(info, zeros, {});
+    EXPECT_TRUE(frame.ok());
+    if (!frame.ok()) return {};
+    std::mt19937 rng(11);
+    std::vector<std::string> payloads;
+    for (std::uint32_t x = 0; x < sizes.size(); ++x) {
+        std::string p(frame->begin(), frame->end());
+        EXPECT_GE(sizes[x], p.size() + 8) << "too small for a zstd frame and a skippable frame";
+        const auto pad = static_cast<std::uint32_t>(sizes[x] - p.size() - 8);
+        for (std::uint32_t v : {0x184D2A50u, pad})
+            for (int i = 0; i < 4; ++i) p.push_back(static_cast<char>(v >> (8 * i)));
+        for (std::uint32_t i = 0; i < pad; ++i) p.push_back(static_cast<char>(rng()));
+        EXPECT_EQ(p.size(), sizes[x]);
+        EXPECT_TRUE((*w)->add_present({0, x, 0}, {reinterpret_cast<const std::uint8_t*>(p.data()), p.size()}).ok());
+        payloads.push_back(std::move(p));
+    }
+    EXPECT_TRUE((*w)->finish().ok());
+    return payloads;
+}
+
+// A one-tile raw RGBA store of random texels (incompressible: its PNG is a little larger than
+// side^2 * 4 bytes).
+void write_noise_store(const std::string& path, std::uint32_t side) {
+    storage::StoreSpec spec;
+    spec.width = side - 4;
+    spec.height = side - 4;
+    spec.tile_payload = side - 4;
+    spec.border = 2;
+    spec.channels = 4;
+    spec.has_alpha = true;
+    spec.sample_type = storage::SampleType::u8;
+    spec.colour_space = storage::ColourSpace::srgb;
+    spec.codec = storage::Codec::raw;
+    auto w = storage::StoreWriter::create(path, spec);
+    ASSERT_TRUE(w.ok());
+    std::mt19937 rng(side);
+    std::vector<std::uint8_t> texels(storage::store_info(spec).tile_bytes());
+    for (auto& b : texels) b = static_cast<std::uint8_t>(rng());
+    ASSERT_TRUE((*w)->add_present({0, 0, 0}, texels).ok());
+    ASSERT_TRUE((*w)->finish().ok());
+}
+
 class HttpServerTest : public ::testing::Test {
 protected:
     void SetUp() override {
@@ -233,15 +304,160 @@ protected:
         return std::string(t->bytes.begin(), t->bytes.end());
     }
 
-    // Generates a self-signed P-256 certificate for localhost with the openssl CLI.
-    bool make_certificate(std::string& cert, std::string& key) {
+    // Generates a self-signed P-256 certificate for localhost with the openssl CLI. A failure is
+    // the test's failure, with openssl's own output: tools/setup.sh installs openssl.
+    ::testing::AssertionResult make_certificate(std::string& cert, std::string& key) {
         cert = dir_.file("cert.pem");
         key = dir_.file("key.pem");
+        const std::string out = dir_.file("openssl.out");
         const std::string cmd = "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes "
                                 "-subj /CN=localhost -addext subjectAltName=DNS:localhost,IP:127.0.0.1 -days 1 "
-                                "-keyout " + key + " -out " + cert + " >/dev/null 2>&1";
-        return std::system(cmd.c_str()) == 0;
+                                "-keyout " + key + " -out " + cert + " >" + out + " 2>&1";
+        const int rc = std::system(cmd.c_str());
+        if (rc == 0) return ::testing::AssertionSuccess();
+        std::ifstream in(out);
+        std::stringstream said;
+        said << in.rdbuf();
+        return ::testing::AssertionFailure()
+               << "cannot make a TLS test certificate with the openssl CLI (tools/setup.sh installs openssl): `"
+               << cmd << "` failed (std::system returned " << rc << "): " << said.str();
     }
+
+    // A client TLS context that trusts exactly the certificate made above.
+    static ssl::context client_tls(const std::string& cert) {
+        ssl::context tls(ssl::context::tls_client);
+        tls.load_verify_file(cert);
+        tls.set_verify_mode(ssl::verify_peer);
+        tls.set_verify_callback(ssl::host_name_verification("localhost"));
+        return tls;
+    }
+
+    // One request of the route/size matrix and what must come back.
+    struct RouteCase {
+        std::string target;
+        bool head = false;
+        std::vector<std::pair<std::string, std::string>> headers;
+        unsigned status = 200;
+        std::string body;  // the exact body expected (HEAD: the GET's, whose length is Content-Length)
+        std::function<void(const std::string&)> check_body;  // instead of body, for /metrics
+    };
+
+    // Stores that give every route bodies on both sides of 16 KiB (TLS's record size and Beast's
+    // flat_stream limit): stored tiles of exact sizes, PNGs from ~1 KB to ~1 MB, a store listing
+    // over 16 KiB (64 stores), /metrics over 16 KiB (padding series), 0-byte bodies (304, HEAD).
+    // Call before start(); add_metrics_padding() after.
+    void write_route_stores() {
+        sized_payloads_ = write_sized_store(dir_.file("sizes.tsr"), kSizes);
+        write_noise_store(dir_.file("noise64.tsr"), 64);
+        write_noise_store(dir_.file("noise512.tsr"), 512);
+        for (int i = 0; i < 60; ++i)
+            std::filesystem::copy_file(dir_.file("rgb.tsr"), dir_.file("listing-padding-" + std::to_string(i) + ".tsr"));
+    }
+    void add_metrics_padding() {
+        for (int i = 0; i < 2000; ++i)
+            metrics_->counter("tessera_test_padding_total", "Padding for a large /metrics", {{"i", std::to_string(i)}});
+    }
+
+    // The expected answers come from the handler itself (no transport): the transport must
+    // deliver exactly those bytes.
+    std::vector<RouteCase> route_cases() {
+        auto direct = [&](const std::string& target, std::string_view if_none_match = {}) {
+            return handle_http_request(*ctx_, HttpRequestView{"GET", target, "", if_none_match, ""});
+        };
+        std::vector<RouteCase> cases;
+        auto add = [&](const std::string& target) {
+            const HttpResponse r = direct(target);
+            EXPECT_EQ(r.status, 200u) << target;
+            cases.push_back({target, false, {}, r.status, r.body, {}});
+            cases.push_back({"/healthz", false, {}, 200, "ok\n", {}});  // right behind each, pipelined
+        };
+        for (std::size_t x = 0; x < kSizes.size(); ++x) {
+            const std::string target = "/v1/stores/sizes/tiles/0/" + std::to_string(x) + "/0";
+            EXPECT_TRUE(direct(target).body == sized_payloads_[x]) << target;
+            add(target);
+        }
+        for (const char* png : {"/v1/stores/rgb/tiles/0/0/0?format=png", "/v1/stores/sizes/tiles/0/4/0?format=png",
+                                "/v1/stores/noise64/tiles/0/0/0?format=png", "/v1/stores/noise512/tiles/0/0/0?format=png"})
+            add(png);
+        add("/v1/stores");
+        add("/v1/stores/sizes");
+        add("/v1/stores/noise512/tiles/0/0/0");  // 1 MiB raw
+        add("/readyz");
+        // Bodiless: a 304 revalidation and a HEAD (Content-Length of the GET, nothing after it).
+        const std::string big = "/v1/stores/sizes/tiles/0/" + std::to_string(kSizes.size() - 1) + "/0";
+        const HttpResponse full = direct(big);
+        const std::string* etag = full.header("ETag");
+        EXPECT_TRUE(etag);
+        cases.push_back({big, false, {{"If-None-Match", etag ? *etag : ""}}, 304, "", {}});
+        cases.push_back({big, true, {}, 200, full.body, {}});
+        cases.push_back({"/healthz", false, {}, 200, "ok\n", {}});
+        cases.push_back({"/metrics", false, {}, 200, "", [](const std::string& body) {
+                             EXPECT_GT(body.size(), 16u * 1024);
+                             const auto p = test::parse_prometheus_text(body);
+                             ASSERT_TRUE(p.ok()) << p.error;
+                             EXPECT_EQ(p.value("tessera_test_padding_total", {{"i", "1999"}}), 0.0);
+                         }});
+        cases.push_back({"/healthz", false, {}, 200, "ok\n", {}});
+        // The sizes the matrix is about are really there.
+        std::set<std::size_t> sizes;
+        for (const auto& c : cases) sizes.insert(c.body.size());
+        for (std::size_t n : {std::size_t(0), std::size_t(16383), std::size_t(16384), std::size_t(16385)})
+            EXPECT_TRUE(sizes.count(n)) << n;
+        EXPECT_GT(*sizes.rbegin(), std::size_t(1) << 20);
+        std::size_t over = 0;  // non-tile routes over 16 KiB: PNG, listing
+        for (const auto& c : cases) over += c.target.find("format=png") != std::string::npos && c.body.size() > 16384;
+        EXPECT_GE(over, 2u);
+        for (const auto& c : cases)
+            if (c.target == "/v1/stores") {
+                EXPECT_GT(c.body.size(), 16384u);
+            }
+        return cases;
+    }
+
+    // Sends every case on one keep-alive connection, one at a time or all written at once, and
+    // checks every response in order, byte for byte.
+    template <bool Tls>
+    void check_route_cases(Client<Tls>& c, const std::vector<RouteCase>& cases, bool pipelined) {
+        auto request_text = [](const RouteCase& rc) {
+            std::string t = std::string(rc.head ? "HEAD " : "GET ") + rc.target + " HTTP/1.1\r\nHost: localhost\r\n";
+            for (const auto& [k, v] : rc.headers) t += k + ": " + v + "\r\n";
+            return t + "\r\n";
+        };
+        if (pipelined) {
+            std::string all;
+            for (const auto& rc : cases) all += request_text(rc);
+            ASSERT_FALSE(c.write_raw(all));
+        }
+        for (std::size_t i = 0; i < cases.size(); ++i) {
+            const RouteCase& rc = cases[i];
+            SCOPED_TRACE(std::to_string(i) + ": " + (rc.head ? "HEAD " : "GET ") + rc.target +
+                         (pipelined ? " (pipelined)" : ""));
+            if (!pipelined) {
+                ASSERT_FALSE(c.write_raw(request_text(rc)));
+            }
+            typename Client<Tls>::Response r;
+            ASSERT_FALSE(c.read(r, rc.head));
+            ASSERT_EQ(r.result_int(), rc.status) << r.body().substr(0, 200);
+            EXPECT_TRUE(r.keep_alive());
+            if (rc.head || rc.status == 304) {
+                EXPECT_TRUE(r.body().empty());
+                if (rc.head) {
+                    EXPECT_EQ(r[http::field::content_length], std::to_string(rc.body.size()));
+                }
+            } else if (rc.check_body) {
+                EXPECT_EQ(r[http::field::content_length], std::to_string(r.body().size()));
+                rc.check_body(r.body());
+            } else {
+                EXPECT_EQ(r[http::field::content_length], std::to_string(rc.body.size()));
+                ASSERT_EQ(r.body().size(), rc.body.size());
+                EXPECT_TRUE(r.body() == rc.body) << "body differs";
+            }
+        }
+    }
+
+    // Stored-tile payload sizes: tiny, around head + body = 16 KiB, around body = 16 KiB, 1 MiB.
+    const std::vector<std::size_t> kSizes{100, 16000, 16100, 16383, 16384, 16385, (std::size_t(1) << 20) + 3};
+    std::vector<std::string> sized_payloads_;
 
     ScratchDir dir_;
     ServerConfig config_;
@@ -392,15 +608,6 @@ TEST_F(HttpServerTest, OversizedHeadersBodiesAndGarbageAreRefused) {
         EXPECT_EQ(r.result_int(), 400);
         EXPECT_TRUE(c.closed_by_peer());
     }
-    {
-        // A small body on a GET is read and ignored.
-        PlainClient c;
-        ASSERT_FALSE(c.connect(server_->port()));
-        ASSERT_FALSE(c.write_raw("GET /healthz HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\n\r\nhello"));
-        PlainClient::Response r;
-        ASSERT_FALSE(c.read(r));
-        EXPECT_EQ(r.result_int(), 200);
-    }
     // The server is fine afterwards, and counted what it refused.
     PlainClient c;
     ASSERT_FALSE(c.connect(server_->port()));
@@ -435,15 +642,12 @@ TEST_F(HttpServerTest, IdleConnectionsTimeOut) {
 
 TEST_F(HttpServerTest, ServesOverTls) {
     std::string cert, key;
-    if (!make_certificate(cert, key)) GTEST_SKIP() << "openssl CLI not available";
+    ASSERT_TRUE(make_certificate(cert, key));
     config_.tls_cert_file = cert;
     config_.tls_key_file = key;
     start();
 
-    ssl::context tls(ssl::context::tls_client);
-    tls.load_verify_file(cert);
-    tls.set_verify_mode(ssl::verify_peer);
-    tls.set_verify_callback(ssl::host_name_verification("localhost"));
+    ssl::context tls = client_tls(cert);
     TlsClient c(&tls);
     ASSERT_FALSE(c.connect(server_->port()));
     auto r = c.request(http::verb::get, "/healthz");
@@ -470,7 +674,7 @@ TEST_F(HttpServerTest, ServesOverTls) {
 
 TEST_F(HttpServerTest, BadTlsFilesFailStart) {
     std::string cert, key;
-    if (!make_certificate(cert, key)) GTEST_SKIP() << "openssl CLI not available";
+    ASSERT_TRUE(make_certificate(cert, key));
     config_.tls_cert_file = dir_.file("missing.pem");
     config_.tls_key_file = key;
     auto s = start_server();
@@ -618,7 +822,7 @@ TEST_F(HttpServerTest, ManyClientsAtOnceGetTheRightBytes) {
                 ++failures;
                 return;
             }
-            for (int i = 0; i < 40; ++i) {
+            for (int i = 0; i < 60; ++i) {
                 const std::uint32_t n = static_cast<std::uint32_t>((i * 7 + t) % 12);
                 auto r = c.request(http::verb::get, "/v1/stores/rgb/tiles/0/" + std::to_string(n % 4) + "/" +
                                                         std::to_string(n / 4) + (i % 5 == 0 ? "?format=png" : ""));
@@ -628,4 +832,178 @@ TEST_F(HttpServerTest, ManyClientsAtOnceGetTheRightBytes) {
     for (auto& th : threads) th.join();
     EXPECT_EQ(failures.load(), 0);
     EXPECT_TRUE(server_->wait_idle(std::chrono::seconds(1)));
+}
+
+// Every route's responses arrive whole over TLS, at sizes on both sides of the 16 KiB TLS record
+// (and Beast's flat_stream limit): one request at a time and pipelined, on one keep-alive
+// connection, each response checked byte for byte before the next is read.
+TEST_F(HttpServerTest, TlsResponsesOfEveryRouteAndSizeArriveWhole) {
+    std::string cert, key;
+    ASSERT_TRUE(make_certificate(cert, key));
+    config_.tls_cert_file = cert;
+    config_.tls_key_file = key;
+    write_route_stores();
+    start();
+    add_metrics_padding();
+    const auto cases = route_cases();
+    ssl::context tls = client_tls(cert);
+    for (bool pipelined : {false, true}) {
+        TlsClient c(&tls);
+        ASSERT_FALSE(c.connect(server_->port()));
+        check_route_cases(c, cases, pipelined);
+    }
+}
+
+// The same over plain HTTP (the zero-copy gather write).
+TEST_F(HttpServerTest, PlainResponsesOfEveryRouteAndSizeArriveWhole) {
+    write_route_stores();
+    start();
+    add_metrics_padding();
+    const auto cases = route_cases();
+    for (bool pipelined : {false, true}) {
+        PlainClient c;
+        ASSERT_FALSE(c.connect(server_->port()));
+        check_route_cases(c, cases, pipelined);
+    }
+}
+
+// docs/protocol.md: a request body is 413 (no route takes one), whatever its size; an empty one
+// is no body.
+TEST_F(HttpServerTest, AnyRequestBodyIs413) {
+    start();
+    const std::vector<std::pair<std::string, int>> cases{
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\n\r\nhello", 413},
+        {"GET /v1/stores/rgb/tiles/0/0/0 HTTP/1.1\r\nHost: x\r\nContent-Length: 1\r\n\r\nx", 413},
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nContent-Length: 65536\r\n\r\n" + std::string(65536, 'b'), 413},
+        {"HEAD /healthz HTTP/1.1\r\nHost: x\r\nContent-Length: 3\r\n\r\nabc", 413},
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n5\r\nhello\r\n0\r\n\r\n", 413},
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\n\r\n", 200},
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n", 200},
+    };
+    for (const auto& [request, status] : cases) {
+        SCOPED_TRACE(request.substr(0, 80));
+        PlainClient c;
+        ASSERT_FALSE(c.connect(server_->port()));
+        ASSERT_FALSE(c.write_raw(request));
+        PlainClient::Response r;
+        ASSERT_FALSE(c.read(r, request.starts_with("HEAD")));
+        EXPECT_EQ(r.result_int(), status) << r.body();
+        if (status == 413) {
+            EXPECT_FALSE(r.keep_alive());
+            EXPECT_TRUE(c.closed_by_peer());
+        } else {
+            auto again = c.request(http::verb::get, "/healthz");  // the connection stays usable
+            ASSERT_TRUE(again);
+            EXPECT_EQ(again->result_int(), 200);
+        }
+    }
+}
+
+// RFC 9112 6.1, 6.3: a request's Transfer-Encoding must end in chunked (400: its length cannot be
+// known, and what follows must not be read as another request), is faulty framing in HTTP/1.0
+// (400); chunked is the only coding implemented (501 for others before it).
+TEST_F(HttpServerTest, TransferCodingsOtherThanChunkedAreRefused) {
+    start();
+    const std::vector<std::pair<std::string, int>> cases{
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: gzip\r\n\r\n", 400},
+        // Smuggling: without the 400, the "body" would be answered as a second request.
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: identity\r\n\r\nGET /readyz HTTP/1.1\r\nHost: x\r\n\r\n", 400},
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked, gzip\r\n\r\n0\r\n\r\n", 400},
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: gzip\r\nContent-Length: 5\r\n\r\nhello", 400},
+        {"GET /healthz HTTP/1.0\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n", 400},
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: gzip, chunked\r\n\r\n0\r\n\r\n", 501},
+        {"GET /healthz HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: gzip\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n", 501},
+    };
+    for (const auto& [request, status] : cases) {
+        SCOPED_TRACE(request);
+        PlainClient c;
+        ASSERT_FALSE(c.connect(server_->port()));
+        ASSERT_FALSE(c.write_raw(request));
+        PlainClient::Response r;
+        ASSERT_FALSE(c.read(r));
+        EXPECT_EQ(r.result_int(), status) << r.body();
+        EXPECT_FALSE(r.keep_alive());
+        EXPECT_TRUE(c.closed_by_peer());  // nothing more: no answer to a smuggled request
+    }
+}
+
+namespace {
+
+// Holds `count` TCP connections to the port that never send a byte.
+std::vector<std::unique_ptr<tcp::socket>> silent_connections(net::io_context& ioc, std::uint16_t port, int count) {
+    std::vector<std::unique_ptr<tcp::socket>> out;
+    for (int i = 0; i < count; ++i) {
+        auto s = std::make_unique<tcp::socket>(ioc);
+        error_code ec;
+        s->connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), port), ec);
+        EXPECT_FALSE(ec) << ec.message();
+        out.push_back(std::move(s));
+    }
+    return out;
+}
+
+}  // namespace
+
+// Every client past --max-connections is answered 503, however many there are at once: 80
+// connections past the limit that never send a request stay open, and the clients after them
+// are still answered (and so are the silent ones).
+TEST_F(HttpServerTest, EveryConnectionBeyondTheLimitGets503) {
+    config_.max_connections = 1;
+    start();
+    PlainClient admitted;
+    ASSERT_FALSE(admitted.connect(server_->port()));
+    auto first = admitted.request(http::verb::get, "/healthz");
+    ASSERT_TRUE(first);
+    ASSERT_EQ(first->result_int(), 200);
+    net::io_context ioc;
+    const auto silent = silent_connections(ioc, server_->port(), 80);
+    for (int i = 0; i < 10; ++i) {
+        SCOPED_TRACE(i);
+        PlainClient extra;
+        ASSERT_FALSE(extra.connect(server_->port()));
+        auto r = extra.request(http::verb::get, "/v1/stores/rgb/tiles/0/0/0");
+        ASSERT_TRUE(r) << "no answer";
+        EXPECT_EQ(r->result_int(), 503);
+        EXPECT_EQ((*r)[http::field::retry_after], "1");
+        EXPECT_TRUE(extra.closed_by_peer());
+    }
+    // The silent ones were answered too, without having asked.
+    for (std::size_t i = 0; i < silent.size(); i += 20) {
+        std::string got(512, '\0');
+        error_code ec;
+        const std::size_t n = silent[i]->read_some(net::buffer(got), ec);
+        EXPECT_EQ(got.substr(0, std::min<std::size_t>(n, 12)), "HTTP/1.1 503") << ec.message();
+    }
+    auto still = admitted.request(http::verb::get, "/healthz");
+    ASSERT_TRUE(still);
+    EXPECT_EQ(still->result_int(), 200);
+}
+
+TEST_F(HttpServerTest, EveryTlsConnectionBeyondTheLimitGets503) {
+    std::string cert, key;
+    ASSERT_TRUE(make_certificate(cert, key));
+    config_.tls_cert_file = cert;
+    config_.tls_key_file = key;
+    config_.max_connections = 1;
+    start();
+    ssl::context tls = client_tls(cert);
+    TlsClient admitted(&tls);
+    ASSERT_FALSE(admitted.connect(server_->port()));
+    auto first = admitted.request(http::verb::get, "/healthz");
+    ASSERT_TRUE(first);
+    ASSERT_EQ(first->result_int(), 200);
+    net::io_context ioc;
+    const auto silent = silent_connections(ioc, server_->port(), 80);  // not even a handshake
+    for (int i = 0; i < 10; ++i) {
+        SCOPED_TRACE(i);
+        TlsClient extra(&tls);
+        ASSERT_FALSE(extra.connect(server_->port()));
+        auto r = extra.request(http::verb::get, "/healthz");
+        ASSERT_TRUE(r) << "no answer";
+        EXPECT_EQ(r->result_int(), 503);
+        EXPECT_EQ(r->body(), "too many connections\n");
+    }
+    auto still = admitted.request(http::verb::get, "/healthz");
+    ASSERT_TRUE(still);
+    EXPECT_EQ(still->result_int(), 200);
 }

@@ -6,12 +6,14 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <map>
 #include <random>
 #include <set>
 #include <thread>
+#include <tuple>
 
 #include "server_process.hpp"
 #include "tessera.grpc.pb.h"
@@ -102,10 +104,39 @@ std::vector<Req> level_keys(const std::string& path, std::uint32_t level, float 
     return out;
 }
 
+// A self-signed P-256 certificate for localhost, made with the openssl CLI. A failure is the
+// test's failure, with openssl's own output: tools/setup.sh installs openssl.
+::testing::AssertionResult make_certificate(const ScratchDir& dir, std::string& cert, std::string& key) {
+    cert = dir.file("cert.pem");
+    key = dir.file("key.pem");
+    const std::string out = dir.file("openssl.out");
+    const std::string cmd = "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -subj /CN=localhost "
+                            "-addext subjectAltName=DNS:localhost -days 1 -keyout " + key + " -out " + cert + " >" + out +
+                            " 2>&1";
+    const int rc = std::system(cmd.c_str());
+    if (rc == 0) return ::testing::AssertionSuccess();
+    return ::testing::AssertionFailure()
+           << "cannot make a TLS test certificate with the openssl CLI (tools/setup.sh installs openssl): `" << cmd
+           << "` failed (std::system returned " << rc << "): " << tessera::test::slurp(out);
+}
+
+// A channel that trusts exactly that certificate.
+std::shared_ptr<grpc::Channel> tls_channel(const std::string& address, const std::string& cert) {
+    grpc::SslCredentialsOptions ssl;
+    ssl.pem_root_certs = tessera::test::slurp(cert);
+    grpc::ChannelArguments args;
+    args.SetSslTargetNameOverride("localhost");
+    args.SetMaxReceiveMessageSize(64 << 20);
+    args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+    return grpc::CreateCustomChannel(address, grpc::SslCredentials(ssl), args);
+}
+
 // One viewer: a StreamTiles call with a reader that collects messages.
 struct Viewer {
     explicit Viewer(const std::string& address, const std::string& token = "", bool small_window = false)
-        : stub(v1::TileService::NewStub(channel(address, small_window))) {
+        : Viewer(channel(address, small_window), token) {}
+    Viewer(const std::shared_ptr<grpc::Channel>& ch, const std::string& token)
+        : stub(v1::TileService::NewStub(ch)) {
         if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
         // A reply that never comes fails the test in a minute instead of hanging it.
         ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
@@ -1016,18 +1047,11 @@ TEST_F(ServerGrpc, SigtermDrainsAdmittedRequests) {
 }
 
 TEST_F(ServerGrpc, TlsServesOnlyTls) {
-    const std::string cert = dir.file("cert.pem"), key = dir.file("key.pem");
-    const std::string cmd = "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -subj /CN=localhost "
-                            "-addext subjectAltName=DNS:localhost -days 1 -keyout " + key + " -out " + cert + " 2>/dev/null";
-    ASSERT_EQ(std::system(cmd.c_str()), 0);
+    std::string cert, key;
+    ASSERT_TRUE(make_certificate(dir, cert, key));
     ServerProcess srv({"--store", Stores::get().small, "--tls-cert", cert, "--tls-key", key}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    grpc::SslCredentialsOptions ssl;
-    ssl.pem_root_certs = tessera::test::slurp(cert);
-    grpc::ChannelArguments args;
-    args.SetSslTargetNameOverride("localhost");
-    auto tls = grpc::CreateCustomChannel(srv.grpc_address(), grpc::SslCredentials(ssl), args);
-    auto stub = v1::TileService::NewStub(tls);
+    auto stub = v1::TileService::NewStub(tls_channel(srv.grpc_address(), cert));
     grpc::ClientContext c1;
     v1::ListStoresReply r;
     EXPECT_TRUE(stub->ListStores(&c1, {}, &r).ok());
@@ -1035,6 +1059,44 @@ TEST_F(ServerGrpc, TlsServesOnlyTls) {
     grpc::ClientContext c2;
     c2.set_deadline(std::chrono::system_clock::now() + 2s);
     EXPECT_FALSE(plain->ListStores(&c2, {}, &r).ok());
+}
+
+TEST_F(ServerGrpc, TlsRepliesOver16KiBCarryExactBytes) {
+    // Replies larger than a TLS record (16 KiB): raw tiles of ~196 KiB, alone in their messages,
+    // and JPEG tiles, several to a message, over TLS. Each tile's bytes and checksum must be the
+    // stored payload's.
+    std::string cert, key;
+    ASSERT_TRUE(make_certificate(dir, cert, key));
+    ServerProcess srv({"--store", Stores::get().jpeg, "--store", Stores::get().raw, "--tls-cert", cert, "--tls-key", key},
+                      dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    for (const std::string name : {"rawterrain", "terrain"}) {
+        SCOPED_TRACE(name);
+        const std::string& path = name == "terrain" ? Stores::get().jpeg : Stores::get().raw;
+        auto keys = level_keys(path, 2);
+        Viewer v(tls_channel(srv.grpc_address(), cert), "");
+        ASSERT_TRUE(v.send(batch(1, name, keys, 0, 1)));
+        ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == keys.size(); }));
+        auto reader = tessera::storage::StoreReader::open(path);
+        ASSERT_TRUE(reader.ok());
+        std::size_t over_16k = 0;
+        std::set<std::tuple<unsigned, unsigned, unsigned>> seen;
+        for (const auto& t : v.tiles) {
+            ASSERT_EQ(t.status(), v1::TILE_OK) << t.message();
+            EXPECT_TRUE(seen.insert({t.key().level(), t.key().x(), t.key().y()}).second) << "sent twice";
+            auto tile = (*reader)->read_tile({t.key().level(), t.key().x(), t.key().y()});
+            ASSERT_TRUE(tile.ok());
+            ASSERT_EQ(t.payload().size(), tile->bytes.size());
+            EXPECT_EQ(0, std::memcmp(t.payload().data(), tile->bytes.data(), tile->bytes.size()));
+            EXPECT_EQ(t.checksum(), tile->checksum);
+            EXPECT_EQ(t.checksum(), XXH3_64bits(t.payload().data(), t.payload().size()));
+            over_16k += t.payload().size() > (16u << 10);
+        }
+        if (name == "rawterrain") {
+            EXPECT_EQ(over_16k, keys.size());
+        }
+        EXPECT_TRUE(v.finish().ok());
+    }
 }
 
 TEST_F(ServerGrpc, ClientLibraryRidesOutAServerRestart) {

@@ -5,12 +5,15 @@
 // request at a time (keep-alive, pipelined requests answered in order), calling the transport-free
 // HttpHandler and writing its response.
 //
-// Bounds: at most config.max_connections sessions; beyond that a connection gets its request
-// answered 503 "too many connections" (Retry-After: 1) and is closed (at most kMaxRejecting such
-// connections at once; beyond that they are closed unanswered). Request line + headers at most
-// config.max_header_bytes (431), a body at most kMaxBodyBytes (413), any other malformed request
-// 400; all three close the connection. config.idle_timeout bounds waiting for a request and
-// every read and write.
+// Bounds: at most config.max_connections sessions; beyond that a connection is answered 503
+// "too many connections" (Retry-After: 1) at once, without its request being read, and closed
+// (TLS: after the handshake, bounded by kRejectTimeout; then the usual bounded close). A reject
+// holds no request buffer and lives a few seconds at most, so every client past the limit gets
+// its answer. Request line + headers at most config.max_header_bytes (431); any request body 413
+// (GET and HEAD take none); a Transfer-Encoding that does not end in chunked, or one in an
+// HTTP/1.0 request, 400 (RFC 9112 6.1, 6.3); a transfer coding besides chunked 501; any other
+// malformed request 400. All of these close the connection. config.idle_timeout bounds waiting
+// for a request and every read and write.
 // GCC 12 warns (-Wtsan) that std::atomic_thread_fence, which Asio's handler fences use, is not
 // understood by ThreadSanitizer; Asio's real synchronisation is its mutexes, so the warning is
 // noise here, and -Werror would make it fatal in the sanitizer build. Before any include: the
@@ -34,6 +37,7 @@
 #include <thread>
 #include <type_traits>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include <boost/asio/ip/tcp.hpp>
@@ -58,11 +62,9 @@ namespace http = boost::beast::http;
 using tcp = boost::asio::ip::tcp;
 using error_code = boost::system::error_code;
 
-constexpr std::uint64_t kMaxBodyBytes = 64 * 1024;  // GET only: anything larger is 413
-constexpr std::size_t kMaxRejecting = 64;           // over-limit connections being answered 503
-constexpr std::chrono::seconds kLingerTimeout{2};   // reading what a closing client still sends
+constexpr std::chrono::seconds kLingerTimeout{2};  // reading what a closing client still sends
 constexpr std::size_t kLingerBytes = 256 * 1024;
-constexpr std::chrono::seconds kRejectTimeout{5};   // an over-limit connection's request must come soon
+constexpr std::chrono::seconds kRejectTimeout{5};  // an over-limit TLS connection's handshake must come soon
 
 std::string_view sv(beast::string_view s) { return {s.data(), s.size()}; }
 
@@ -78,7 +80,6 @@ struct Shared {
     std::atomic<bool> draining{false};
     std::atomic<bool> stopped{false};
     std::atomic<std::size_t> connections{0};  // admitted sessions
-    std::atomic<std::size_t> rejecting{0};    // over-limit sessions being answered 503
 
     std::mutex idle_mutex;  // busy: requests read and not yet answered
     std::condition_variable idle_cv;
@@ -116,13 +117,11 @@ class Session final : public SessionBase {
 public:
     Session(Shared& shared, tcp::socket&& socket, bool reject)
         : shared_(shared), stream_(make_stream(shared, std::move(socket))), reject_(reject) {
-        if (reject_) shared_.rejecting.fetch_add(1);
-        else shared_.connections.fetch_add(1);
+        if (!reject_) shared_.connections.fetch_add(1);
     }
     ~Session() override {
         if (in_request_) shared_.request_end();
-        if (reject_) shared_.rejecting.fetch_sub(1);
-        else shared_.connections.fetch_sub(1);
+        if (!reject_) shared_.connections.fetch_sub(1);
         std::lock_guard lock(shared_.sessions_mutex);
         shared_.sessions.erase(static_cast<const SessionBase*>(this));
         shared_.sessions_cv.notify_all();
@@ -135,10 +134,10 @@ public:
                 self->tcp().expires_after(self->read_timeout());
                 self->stream_.async_handshake(ssl::stream_base::server, [self](const error_code& ec) {
                     if (ec) return self->close();
-                    self->do_read();
+                    self->first_step();
                 });
             } else {
-                self->do_read();
+                self->first_step();
             }
         });
     }
@@ -172,13 +171,19 @@ private:
         return reject_ ? std::min<std::chrono::steady_clock::duration>(idle, kRejectTimeout) : idle;
     }
 
+    void first_step() {
+        if (reject_) send_reject();
+        else do_read();
+    }
+
     void do_read() {
         if (state_ == State::closed || state_ == State::closing) return;
         if (shared_.closing_connections() && requests_ > 0) return graceful_close();
         state_ = State::reading;
         parser_.emplace();
         parser_->header_limit(static_cast<std::uint32_t>(std::min<std::size_t>(shared_.ctx.config.max_header_bytes, UINT32_MAX)));
-        parser_->body_limit(kMaxBodyBytes);
+        // No request takes a body: one is refused (413) as soon as its header says so.
+        parser_->body_limit(0);
         tcp().expires_after(read_timeout());
         http::async_read(stream_, buffer_, *parser_,
                          [self = self()](const error_code& ec, std::size_t) { self->on_read(ec); });
@@ -186,10 +191,17 @@ private:
 
     void on_read(const error_code& ec) {
         if (state_ == State::closed) return;
+        // body_limit comes once the whole header is parsed: the framing is checked first, so a
+        // bad Transfer-Encoding is 400 whether or not a body follows.
+        if (!ec || ec == http::error::body_limit) {
+            const bool head = parser_->get().method() == http::verb::head;
+            if (auto bad = bad_transfer_encoding(parser_->get(), parser_->chunked()))
+                return write_error(bad->first, bad->second, head);
+            if (ec) return write_error(413, "request body not accepted (GET and HEAD take none)", head);
+        }
         if (ec) {
             if (ec == http::error::end_of_stream) return graceful_close();
             if (ec == http::error::header_limit) return write_error(431, "request header fields too large");
-            if (ec == http::error::body_limit) return write_error(413, "request body too large (GET takes none)");
             const error_code any_http_error = http::error::bad_method;
             if (ec.category() == any_http_error.category() && ec != http::error::partial_message)
                 return write_error(400, "malformed request: " + ec.message());
@@ -198,39 +210,59 @@ private:
         ++requests_;
         begin_request();
         const auto& req = parser_->get();
-        HttpResponse r;
-        if (reject_) {
-            r = http_error_response(503, "too many connections");
-            r.headers.emplace_back("Retry-After", "1");
-            shared_.handler.record_transport_response(503, r.body.size());
-        } else {
-            std::string if_none_match;
-            const auto range = req.equal_range(http::field::if_none_match);
-            for (auto it = range.first; it != range.second; ++it) {
-                if (!if_none_match.empty()) if_none_match += ", ";
-                if_none_match.append(it->value().data(), it->value().size());
-            }
-            const HttpRequestView view{sv(req.method_string()), sv(req.target()),
-                                       sv(req[http::field::authorization]), if_none_match,
-                                       sv(req[http::field::accept])};
-            try {
-                r = shared_.handler.handle_http_request(view, /*borrow_payload=*/true);
-            } catch (const std::exception& e) {
-                // The handler catches its own errors; this is only allocation failure and the like.
-                shared_.ctx.log.error("http handler threw", {{"error", e.what()}});
-                r = http_error_response(500, "internal error");
-            }
+        std::string if_none_match;
+        const auto range = req.equal_range(http::field::if_none_match);
+        for (auto it = range.first; it != range.second; ++it) {
+            if (!if_none_match.empty()) if_none_match += ", ";
+            if_none_match.append(it->value().data(), it->value().size());
         }
-        const bool keep_alive = !reject_ && req.keep_alive() && !shared_.closing_connections();
+        const HttpRequestView view{sv(req.method_string()), sv(req.target()), sv(req[http::field::authorization]),
+                                   if_none_match, sv(req[http::field::accept])};
+        HttpResponse r;
+        try {
+            r = shared_.handler.handle_http_request(view, /*borrow_payload=*/true);
+        } catch (const std::exception& e) {
+            // The handler catches its own errors; this is only allocation failure and the like.
+            shared_.ctx.log.error("http handler threw", {{"error", e.what()}});
+            r = http_error_response(500, "internal error");
+        }
+        const bool keep_alive = req.keep_alive() && !shared_.closing_connections();
         send(std::move(r), req.version(), req.method() == http::verb::head, keep_alive);
     }
 
-    // A response the transport makes itself (the request could not be parsed): sent, then closed.
-    void write_error(unsigned status, const std::string& message) {
+    // RFC 9112 6.1 and 6.3: a request's Transfer-Encoding must end in chunked (else its length
+    // cannot be known: 400, or the rest would be read as the next request), is faulty framing in
+    // HTTP/1.0 (400), and chunked is the only coding served (others: 501). nullopt: acceptable.
+    static std::optional<std::pair<unsigned, std::string>> bad_transfer_encoding(
+        const http::request<http::string_body>& req, bool chunked_last) {
+        const auto range = req.equal_range(http::field::transfer_encoding);
+        if (range.first == range.second) return std::nullopt;
+        if (req.version() < 11) return std::pair{400u, std::string("Transfer-Encoding in an HTTP/1.0 request")};
+        if (!chunked_last) return std::pair{400u, std::string("Transfer-Encoding must end in chunked")};
+        for (auto it = range.first; it != range.second; ++it)
+            for (const auto coding : http::token_list{it->value()})
+                if (!beast::iequals(coding, "chunked"))
+                    return std::pair{501u, "transfer coding '" + std::string(sv(coding)) + "' not implemented (only chunked)"};
+        return std::nullopt;
+    }
+
+    // Over the connection limit: answered at once, the request (if any) never parsed, only
+    // drained by the close. A reject costs a small session for a few seconds at most.
+    void send_reject() {
+        begin_request();
+        HttpResponse r = http_error_response(503, "too many connections");
+        r.headers.emplace_back("Retry-After", "1");
+        shared_.handler.record_transport_response(503, r.body.size());
+        send(std::move(r), 11, false, false);
+    }
+
+    // A response the transport makes itself (the request could not be parsed or is refused as
+    // framed): sent, then closed. head: the request is known to be a HEAD (no body then).
+    void write_error(unsigned status, const std::string& message, bool head = false) {
         begin_request();
         HttpResponse r = http_error_response(status, message);
-        shared_.handler.record_transport_response(status, r.body.size());
-        send(std::move(r), 11, false, false);
+        shared_.handler.record_transport_response(status, head ? 0 : r.body.size());
+        send(std::move(r), 11, head, false);
     }
 
     void begin_request() {
@@ -246,14 +278,22 @@ private:
     // The body is written from where it lies (held_: the response's string, or the cached tile
     // itself for stored payloads), in one gather write with the hand-written head: no copy into
     // a body, no per-header allocation.
+    //
+    // The two buffers go as a buffers_cat, not a std::array of two. For a two-element std::array,
+    // Asio's async_write hands the stream an empty first buffer once the head is written; Beast's
+    // ssl_stream (a flat_stream) sends a first buffer alone when the next one would take the write
+    // past 16 KiB: here 0 bytes, which async_write takes for the end of the write. Over TLS every
+    // body over 16 KiB was dropped and the next response followed the head. Asio's general path,
+    // which buffers_cat takes, skips consumed buffers.
     void send(HttpResponse r, unsigned version, bool head, bool keep_alive) {
         held_ = std::move(r);
         const bool bodiless = bodiless_status(held_.status);
         const std::size_t length = held_.body_size();
         write_response_head(head_, held_, version, keep_alive, length);
-        std::array<net::const_buffer, 2> buffers{net::buffer(head_), net::const_buffer()};
+        net::const_buffer body;
         if (!head && !bodiless && length > 0)
-            buffers[1] = held_.payload ? net::buffer(held_.payload->bytes.data(), length) : net::buffer(held_.body);
+            body = held_.payload ? net::buffer(held_.payload->bytes.data(), length) : net::buffer(held_.body);
+        const auto buffers = beast::buffers_cat(net::buffer(head_), body);
         tcp().expires_after(shared_.ctx.config.idle_timeout);
         net::async_write(stream_, buffers, [self = self(), keep_alive](const error_code& ec, std::size_t) {
             self->end_request();
@@ -517,18 +557,14 @@ private:
         error_code ignored;
         socket.set_option(tcp::no_delay(true), ignored);
         const bool reject = shared_.connections.load() >= shared_.ctx.config.max_connections;
-        if (reject && shared_.rejecting.load() >= kMaxRejecting) {
-            socket.close(ignored);
-        } else {
-            std::shared_ptr<SessionBase> s;
-            if (shared_.tls) s = std::make_shared<Session<true>>(shared_, std::move(socket), reject);
-            else s = std::make_shared<Session<false>>(shared_, std::move(socket), reject);
-            {
-                std::lock_guard lock(shared_.sessions_mutex);
-                shared_.sessions.emplace(s.get(), s);
-            }
-            s->start();
+        std::shared_ptr<SessionBase> s;
+        if (shared_.tls) s = std::make_shared<Session<true>>(shared_, std::move(socket), reject);
+        else s = std::make_shared<Session<false>>(shared_, std::move(socket), reject);
+        {
+            std::lock_guard lock(shared_.sessions_mutex);
+            shared_.sessions.emplace(s.get(), s);
         }
+        s->start();
         do_accept();
     }
 
