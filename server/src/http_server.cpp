@@ -9,7 +9,8 @@
 // "too many connections" (Retry-After: 1) at once, without its request being read, and closed
 // (TLS: after the handshake, bounded by kRejectTimeout; then the usual bounded close). A reject
 // holds no request buffer and lives a few seconds at most, so every client past the limit gets
-// its answer. Request line + headers at most config.max_header_bytes (431); any request body 413
+// its answer; past kMaxRejectSessions such sessions, a plain connection gets a canned 503 written
+// on the spot and a TLS one is closed, so a flood holds no more than that. Request line + headers at most config.max_header_bytes (431); any request body 413
 // (GET and HEAD take none); a Transfer-Encoding that does not end in chunked, or one in an
 // HTTP/1.0 request, 400 (RFC 9112 6.1, 6.3); a transfer coding besides chunked 501; any other
 // malformed request 400. All of these close the connection. config.idle_timeout bounds waiting
@@ -65,6 +66,9 @@ using error_code = boost::system::error_code;
 constexpr std::chrono::seconds kLingerTimeout{2};  // reading what a closing client still sends
 constexpr std::size_t kLingerBytes = 256 * 1024;
 constexpr std::chrono::seconds kRejectTimeout{5};  // an over-limit TLS connection's handshake must come soon
+// Reject sessions (each a few KiB and a descriptor, for a few seconds) at most; past it a
+// connection is answered (plain) or closed (TLS) on the spot, holding nothing.
+constexpr std::size_t kMaxRejectSessions = 1024;
 
 std::string_view sv(beast::string_view s) { return {s.data(), s.size()}; }
 
@@ -80,6 +84,7 @@ struct Shared {
     std::atomic<bool> draining{false};
     std::atomic<bool> stopped{false};
     std::atomic<std::size_t> connections{0};  // admitted sessions
+    std::atomic<std::size_t> rejects{0};      // sessions answering 503 past max_connections
 
     std::mutex idle_mutex;  // busy: requests read and not yet answered
     std::condition_variable idle_cv;
@@ -117,11 +122,11 @@ class Session final : public SessionBase {
 public:
     Session(Shared& shared, tcp::socket&& socket, bool reject)
         : shared_(shared), stream_(make_stream(shared, std::move(socket))), reject_(reject) {
-        if (!reject_) shared_.connections.fetch_add(1);
+        (reject_ ? shared_.rejects : shared_.connections).fetch_add(1);
     }
     ~Session() override {
         if (in_request_) shared_.request_end();
-        if (!reject_) shared_.connections.fetch_sub(1);
+        (reject_ ? shared_.rejects : shared_.connections).fetch_sub(1);
         std::lock_guard lock(shared_.sessions_mutex);
         shared_.sessions.erase(static_cast<const SessionBase*>(this));
         shared_.sessions_cv.notify_all();
@@ -557,6 +562,22 @@ private:
         error_code ignored;
         socket.set_option(tcp::no_delay(true), ignored);
         const bool reject = shared_.connections.load() >= shared_.ctx.config.max_connections;
+        if (reject && shared_.rejects.load() >= kMaxRejectSessions) {
+            // A flood past the limit: no session at all. Plain HTTP still gets its 503, written
+            // into the new socket's empty send buffer without waiting; TLS cannot answer without
+            // a handshake, so it is closed.
+            if (!shared_.tls) {
+                static const std::string canned = "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\n"
+                                                  "Retry-After: 1\r\nConnection: close\r\nContent-Length: 21\r\n\r\n"
+                                                  "too many connections\n";
+                socket.non_blocking(true, ignored);
+                socket.write_some(net::buffer(canned), ignored);
+                socket.shutdown(tcp::socket::shutdown_send, ignored);
+            }
+            shared_.handler.record_transport_response(503, 21);
+            socket.close(ignored);
+            return do_accept();
+        }
         std::shared_ptr<SessionBase> s;
         if (shared_.tls) s = std::make_shared<Session<true>>(shared_, std::move(socket), reject);
         else s = std::make_shared<Session<false>>(shared_, std::move(socket), reject);
