@@ -1,5 +1,5 @@
 // page_mip.frag: a texel of a cell's second level is the level-(L+1) texel over it: the mean of
-// its 2x2 level-L texels, edge-clamped like the store's builder (storage/src/build/mip_reducer),
+// its 2x2 level-L texels, edge-clamped like the store's builder (storage/src/builder/mip_reducer),
 // and clamped to the level at the texture's edges, where the page's border holds copies of the
 // edge texel rather than its neighbours. For an sRGB atlas texelFetch decodes and the sRGB target
 // encodes, so the mean is taken in linear light, as the builder takes it.
