@@ -632,9 +632,10 @@ TEST(StabilityPriority, MillionDistinctPagesOrderedDeterministically) {
     EXPECT_EQ(c.stats().dropped_pages, r1.size() - (1u << 16));
 
     // The cost grows with the pages, not faster: a quarter of the pages takes about a quarter of
-    // the time (hashing and a radix sort are linear; measured 4.1 - 5.9, the larger work set missing
-    // the caches more); a step quadratic in the pages would make the ratio 16. Thread CPU time, the best of several runs of each size on warm analysers, so a busy
-    // machine or a sanitizer build slows both sizes alike.
+    // the time (hashing and a radix sort are linear; measured 4.1 - 5.9, the larger work set
+    // missing the caches more); a step quadratic in the pages would make the ratio 16. Thread CPU
+    // time, the best of several runs of each size on warm analysers, so a busy machine or a
+    // sanitizer build slows both sizes alike.
     const std::vector<FeedbackId> quarter = distinct_pages(W / 2, H / 2);
     double cpu_quarter = 1e30;
     for (int run = 0; run < 3; ++run) {
