@@ -10,4 +10,11 @@ if(TESSERA_SANITIZE)
   message(STATUS "Tessera: sanitizers ${TESSERA_SANITIZE}")
   add_compile_options(-fsanitize=${TESSERA_SANITIZE} -fno-omit-frame-pointer -fno-sanitize-recover=all)
   add_link_options(-fsanitize=${TESSERA_SANITIZE})
+  if(CMAKE_CXX_COMPILER_ID STREQUAL "GNU")
+    # The sanitizers' instrumentation confuses GCC's flow analysis: -Wmaybe-uninitialized fires on
+    # code that is sound without it (Boost.Beast's parser in server/src/http_server.cpp at
+    # RelWithDebInfo, GCC 12), and GCC's manual advises against -Werror with sanitizers for that
+    # reason. The warning stays on, shown but not fatal; plain builds keep it an error.
+    target_compile_options(tessera_warnings INTERFACE -Wno-error=maybe-uninitialized)
+  endif()
 endif()

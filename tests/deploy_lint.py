@@ -3,7 +3,12 @@
 
     python3 tests/deploy_lint.py [--tessera BUILD/tessera] [--deploy-dir DIR]
 
-Checks, each printed as ok / FAIL / SKIP lines under its heading:
+Checks, each printed as ok / FAIL / SKIP lines under its heading. SKIP is only for what is optional:
+Docker Compose, promtool and kubectl (not installed by tools/setup.sh), and the checks that need a
+binary when none is given. A missing systemd-analyze (setup.sh installs systemd), a systemd too old
+for `security --offline`, or a --tessera binary that does not run is a FAIL: on a machine set up by
+setup.sh those checks must run, and a skip would let the ctest run pass without them.
+
   systemd     deploy/tessera.service: `systemd-analyze verify` on a copy whose ExecStart points at
               --tessera (a stub when none is given), `systemd-analyze security --offline` exposure,
               and the directives the unit must keep (sandboxing, reload, stop, limits).
@@ -19,7 +24,7 @@ Checks, each printed as ok / FAIL / SKIP lines under its heading:
   dockerfile  deploy/Dockerfile: instructions, stages, COPY --from, base tags, EXPOSE, user,
               healthcheck; deploy/Dockerfile.dockerignore keeps every source file in the context.
   cross       the same ports, endpoints and drain budget everywhere; every `tessera serve` flag
-              used anywhere exists (needs a binary whose `serve --help` works, else SKIP).
+              used anywhere exists (needs a binary whose `serve --help` works).
 
 Exit status: 0 when nothing failed (SKIPs allowed), 1 otherwise. Needs python3 and PyYAML
 (Debian: python3-yaml).
@@ -377,7 +382,7 @@ def check_systemd(rep: Report, ctx: Context) -> None:
 def verify_with_systemd_analyze(rep: Report, ctx: Context, unit: Path, text: str) -> None:
     sa = shutil.which("systemd-analyze")
     if sa is None:
-        rep.skip("systemd-analyze not found: unit not verified by systemd")
+        rep.fail("systemd-analyze not found: unit not verified by systemd (tools/setup.sh installs systemd)")
         return
     with tempfile.TemporaryDirectory(prefix="tessera-unit-") as tmp:
         tmpdir = Path(tmp)
@@ -389,7 +394,13 @@ def verify_with_systemd_analyze(rep: Report, ctx: Context, unit: Path, text: str
             binary.write_text("#!/bin/sh\nexit 0\n")
             binary.chmod(0o755)
         if re.search(r"\s", str(binary)):
-            rep.skip(f"binary path {binary} has white space: unit not verified")
+            # ExecStart= splits on white space: verify a link to the binary instead.
+            link = tmpdir / "bin" / "tessera"
+            link.parent.mkdir(exist_ok=True)
+            link.symlink_to(binary)
+            binary = link
+        if re.search(r"\s", str(binary)):
+            rep.fail(f"temporary directory {tmpdir} has white space: unit not verified (set TMPDIR)")
             return
         # Point every Exec*= that runs a `tessera` at the binary we have (paths only, no other edit).
         rewritten = re.sub(r"^(Exec[A-Za-z]+=[-@:+!]*)(/\S*/)?tessera(?=\s|$)",
@@ -429,7 +440,8 @@ def verify_with_systemd_analyze(rep: Report, ctx: Context, unit: Path, text: str
                 rep.check(p.returncode == 0, f"systemd-analyze security: exposure {score}, at most 3.0",
                           f"systemd-analyze security: exposure {score}, above 3.0: sandboxing was weakened")
         else:
-            rep.skip("systemd-analyze security --offline unsupported here")
+            rep.fail("systemd-analyze has no `security --offline` (systemd 252, Debian 12's, has it): "
+                     "exposure not rated")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1253,7 +1265,7 @@ def check_dockerignore(rep: Report, ctx: Context) -> None:
     root = ctx.deploy.resolve().parent
     if not ign.is_file():
         if not (root / ".dockerignore").is_file():
-            rep.skip("no deploy/Dockerfile.dockerignore nor .dockerignore: the whole tree (build/ too) "
+            rep.fail("no deploy/Dockerfile.dockerignore nor .dockerignore: the whole tree (build/ too) "
                      "goes into the build context")
         return
     rules = []
@@ -1345,6 +1357,10 @@ def main() -> int:
     print(f"deploy_lint: {deploy.resolve()}; binary: {ctx.tessera or 'none'}"
           + ("" if ctx.serve_options is not None else f" ({ctx.serve_skip_reason})"))
     rep = Report()
+    if ctx.tessera is not None and ctx.serve_options is None:
+        # A binary was named (ctest always names one): the checks that need it must run.
+        rep.begin("binary")
+        rep.fail(f"--tessera given but unusable: {ctx.serve_skip_reason}")
     for check in (check_systemd, check_conf, check_serve_runtime, check_compose, check_prometheus, check_kubernetes,
                   check_dockerfile, check_cross):
         try:

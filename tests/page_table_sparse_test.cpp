@@ -1,4 +1,4 @@
-// Sparse PageTable (issue 6, "Reaching 2^24 end to end"): every lookup equals the nearest resident
+// Sparse PageTable (docs/stability.md, "Reaching 2^24 end to end"): every lookup equals the nearest resident
 // ancestor, checked against a brute-force reference of resident pages (a map, so 2^24-texel
 // geometries cost nothing), against the dense table where both fit, and through a mirror that
 // applies take_dirty_blocks() the way the renderer's two-level table does; memory follows the

@@ -1,8 +1,8 @@
-// A 2^24-texel virtual texture end to end (issue 6, docs/stability.md "Reaching 2^24 end to
-// end"), on Mesa llvmpipe or a GPU, through the real client runtime: the renderer's feedback goes
-// to Runtime::frame (analysis, residency, the sparse page table, requests), the on-demand
-// procedural source makes the tiles (procedural:coords, no store file), the transcode pool and
-// upload queue bring them to the renderer, and the two-level page table is fed by the runtime.
+// A 2^24-texel virtual texture end to end (docs/stability.md, "Reaching 2^24 end to end"), on Mesa
+// llvmpipe or a GPU, through the real client runtime: the renderer's feedback goes to
+// Runtime::frame (analysis, residency, the sparse page table, requests), the on-demand procedural
+// source makes the tiles (procedural:coords, no store file), the transcode pool and upload queue
+// bring them to the renderer, and the two-level page table is fed by the runtime.
 // A straight-down camera at exactly 2^L texels per pixel looks at the far corner of the texture
 // (the last page corner of level L, over a chunk with an odd texel origin); frames run until the
 // counters say nothing falls back, then the image is read back and every pixel on a level-L

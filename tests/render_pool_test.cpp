@@ -11,6 +11,7 @@
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/scene/scene.hpp"
+#include "render_util.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -40,7 +41,7 @@ protected:
 
     void SetUp() override {
         auto ctx = client::gl::GlContext::create_headless();
-        if (!ctx) GTEST_SKIP() << "no headless GL 4.5 context: " << ctx.error().message;
+        if (!ctx) GTEST_FAIL() << tessera::test::no_gl_message(ctx.error().message);
         ctx_ = std::move(*ctx);
         ctx_->make_current();
     }
@@ -146,7 +147,7 @@ TEST_F(RenderPool, ALargePoolReachesFullDetail) {
 // Configurations the renderer cannot draw correctly are refused with a message naming the limit.
 TEST(RendererConfigErrors, BadConfigsAreClearErrors) {
     auto made = client::gl::GlContext::create_headless();
-    if (!made) GTEST_SKIP() << "no headless OpenGL 4.5: " << made.error().message;
+    if (!made) GTEST_FAIL() << tessera::test::no_gl_message(made.error().message);
     (*made)->make_current();
     const auto error_of = [](const client::gl::RendererConfig& rc) {
         auto r = client::gl::VtRenderer::create(rc);

@@ -1,8 +1,9 @@
-// The two-level page table end to end (issue 6, "Reaching 2^24 end to end"), on Mesa llvmpipe or
-// a GPU: textures whose dense table does not fit (2^24, 2^24 - 1 and a non-power-of-two size at
-// 1024-texel tiles) get a sparse CPU PageTable and the renderer's two-level table; pages at the
-// far corner are mapped in the CPU table, its dirty blocks uploaded with upload_page_table_block
-// exactly as the runtime does, and the image read back at level-L texel centres.
+// The two-level page table end to end (docs/stability.md, "Reaching 2^24 end to end"), on Mesa
+// llvmpipe or a GPU: textures whose dense table does not fit (2^24, 2^24 - 1 and a non-power-of-two
+// size at 1024-texel tiles) get a sparse CPU PageTable and the renderer's two-level table; pages at
+// the far corner are mapped in the CPU table, its dirty blocks uploaded with
+// upload_page_table_block exactly as the runtime does, and the image read back at level-L texel
+// centres.
 //
 //   RenderSparseTable.FarCornerIsExactAtEveryLevel  levels 0, 1, 4, 9 and the last two: every
 //       pixel on a texel centre is the stored texel, no fallback.

@@ -1,4 +1,4 @@
-// Numerical-stability stress, GL side (issue 6; docs/stability.md), on Mesa llvmpipe or a GPU.
+// Numerical-stability stress, GL side (docs/stability.md), on Mesa llvmpipe or a GPU.
 //
 //   RenderStability.LargestAcceptedTexture...  the largest virtual texture whose packed dense page
 //       table fits GL_MAX_TEXTURE_SIZE (1024-texel tiles); one more page per side takes the

@@ -301,7 +301,7 @@ TEST_F(RuntimeSim, DeterministicForTheSameScript) {
 
 namespace {
 
-// Issue 6: what the runtime skips when a request stops being wanted, counted by stage.
+// What the runtime skips when a request stops being wanted, counted by stage (docs/visibility.md).
 TEST_F(RuntimeSim, CountsCancellationsByStage) {
     const auto empty = std::vector<FeedbackId>(160 * 90, kNoPage);
     auto view = [&](Runtime& rt) { return feedback(*rt.texture_info(0), 160, 90, 4000, 4000, 2, 0); };

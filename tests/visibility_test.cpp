@@ -1,5 +1,5 @@
-// `tessera build --visibility` (issue 6, "skip what a scene doesn't need"): the level-0 tiles a set
-// of camera paths never wants over the flat terrain are written absent, nothing else changes.
+// `tessera build --visibility` (docs/visibility.md): the level-0 tiles a set of camera paths never
+// wants over the flat terrain are written absent, nothing else changes.
 #include <gtest/gtest.h>
 
 #include <filesystem>

@@ -1,7 +1,7 @@
 // The HUD (text drawn exactly from its 5x7 font, clipped, non-ASCII replaced) and windowed mode:
 // a GLFW window with a GL 4.5 core context on an X server (Xvfb, started by the test when there is
-// no display; skipped when Xvfb is not installed), the renderer's frame presented into it with the
-// HUD on top, read back from the window's back buffer.
+// no display; a failure when Xvfb, which tools/setup.sh installs, is missing), the renderer's
+// frame presented into it with the HUD on top, read back from the window's back buffer.
 #include <epoxy/gl.h>
 #include <fcntl.h>
 #include <poll.h>
@@ -22,6 +22,7 @@
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/page_table.hpp"
 #include "tessera/scene/scene.hpp"
+#include "render_util.hpp"
 
 namespace {
 
@@ -96,7 +97,7 @@ struct Target {
 
 TEST(Hud, GlyphsAreDrawnExactlyAtEveryScale) {
     auto ctx = gl::GlContext::create_headless();
-    if (!ctx) GTEST_SKIP() << "no headless OpenGL 4.5: " << ctx.error().message;
+    if (!ctx) GTEST_FAIL() << tessera::test::no_gl_message(ctx.error().message);
     auto hud = Hud::create();
     ASSERT_TRUE(hud.ok()) << hud.error().message;
     const int w = 300, h = 90;
@@ -122,7 +123,7 @@ TEST(Hud, GlyphsAreDrawnExactlyAtEveryScale) {
 
 TEST(Hud, LongLinesAndManyLinesAreCutNotOverrun) {
     auto ctx = gl::GlContext::create_headless();
-    if (!ctx) GTEST_SKIP() << "no headless OpenGL 4.5: " << ctx.error().message;
+    if (!ctx) GTEST_FAIL() << tessera::test::no_gl_message(ctx.error().message);
     auto hud = Hud::create();
     ASSERT_TRUE(hud.ok()) << hud.error().message;
     const int w = Hud::kMargin * 2 + Hud::kMaxColumns * Hud::kCellWidth + 10;
@@ -186,7 +187,7 @@ private:
 
 TEST(Window, PresentsTheFrameWithTheHudInAnXWindow) {
     XServer server;
-    if (!server.ok()) GTEST_SKIP() << "no display and no Xvfb (install xvfb)";
+    ASSERT_TRUE(server.ok()) << "no display and Xvfb did not start (tools/setup.sh installs xvfb)";
     const int w = 160, h = 96;
     auto ctx = gl::GlContext::create_window(w, h, "tessera window test");
     ASSERT_TRUE(ctx.ok()) << ctx.error().message;
