@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <mutex>
 #include <random>
 #include <set>
 #include <thread>
@@ -29,31 +30,37 @@ using tessera::test::ServerProcess;
 namespace v1 = tessera::v1;
 namespace fs = std::filesystem;
 
-// Stores shared by every test (built once): a 16384² JPEG store (6054 tiles: many keys) and a
-// 4096² raw store (big tiles: a few fill any buffer).
+// Stores shared by the tests of one process, each built on first use (ctest runs every test in
+// a process of its own, so a test pays only for the stores it uses): a 16384² JPEG store (6054
+// tiles: many keys), a 4096² raw store (big tiles: a few fill any buffer) and a small zstd one.
 class Stores {
 public:
+    static const std::string& jpeg() { return get().built(get().jpeg_, "procedural:terrain:16384", "terrain.tsr"); }
+    static const std::string& raw() {
+        return get().built(get().raw_, "procedural:terrain:4096 --codec raw", "rawterrain.tsr");
+    }
+    static const std::string& small() {
+        return get().built(get().small_, "procedural:terrain:1000 --codec zstd", "small.tsr");
+    }
+
+private:
     static Stores& get() {
         static Stores s;
         return s;
     }
-    std::string jpeg, raw, small;
-
-private:
-    Stores() {
-        dir_ = std::make_unique<ScratchDir>();
-        jpeg = dir_->file("terrain.tsr");
-        raw = dir_->file("rawterrain.tsr");
-        small = dir_->file("small.tsr");
-        auto build = [](const std::string& args) {
-            auto r = tessera::test::run_tessera("build " + args + " --quiet");
+    const std::string& built(std::string& path, const std::string& source, const std::string& file) {
+        std::lock_guard lock(mu_);
+        if (path.empty()) {
+            const std::string out = dir_.file(file);
+            auto r = tessera::test::run_tessera("build " + source + " -o " + out + " --quiet");
             if (r.exit_code != 0) throw std::runtime_error("build failed: " + r.out);
-        };
-        build("procedural:terrain:16384 -o " + jpeg);
-        build("procedural:terrain:4096 --codec raw -o " + raw);
-        build("procedural:terrain:1000 --codec zstd -o " + small);
+            path = out;
+        }
+        return path;
     }
-    std::unique_ptr<ScratchDir> dir_;
+    std::mutex mu_;
+    ScratchDir dir_;
+    std::string jpeg_, raw_, small_;
 };
 
 // `small_window`: no BDP probing and a 64 KiB receive window, so the transport holds few
@@ -200,12 +207,11 @@ v1::ServerStats stats(const std::string& address) {
 
 class ServerGrpc : public ::testing::Test {
 protected:
-    static void SetUpTestSuite() { Stores::get(); }
     ScratchDir dir;
 };
 
 TEST_F(ServerGrpc, ListAndDescribeStores) {
-    ServerProcess srv({"--store", Stores::get().jpeg, "--store", Stores::get().small}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::jpeg(), "--store", Stores::small()}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
     grpc::ClientContext c1;
@@ -214,7 +220,7 @@ TEST_F(ServerGrpc, ListAndDescribeStores) {
     ASSERT_EQ(list.stores_size(), 2);
     EXPECT_EQ(list.stores(0).name(), "small");
     EXPECT_EQ(list.stores(1).name(), "terrain");
-    auto reader = tessera::storage::StoreReader::open(Stores::get().jpeg);
+    auto reader = tessera::storage::StoreReader::open(Stores::jpeg());
     ASSERT_TRUE(reader.ok());
     grpc::ClientContext c2;
     v1::GetStoreRequest req;
@@ -229,10 +235,10 @@ TEST_F(ServerGrpc, ListAndDescribeStores) {
 
 TEST_F(ServerGrpc, HigherPriorityTilesAreSentFirst) {
     // One reader thread: strict order. Two viewers contend for it.
-    ServerProcess srv({"--store", Stores::get().jpeg, "--io-threads", "1"}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::jpeg(), "--io-threads", "1"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     std::mt19937 rng(7);
-    auto keys = level_keys(Stores::get().jpeg, 1);  // 1089 tiles
+    auto keys = level_keys(Stores::jpeg(), 1);  // 1089 tiles
     ASSERT_GE(keys.size(), 1000u);
     std::shuffle(keys.begin(), keys.end(), rng);
     std::vector<Req> a(keys.begin(), keys.begin() + 400), b(keys.begin() + 400, keys.begin() + 800);
@@ -262,10 +268,10 @@ TEST_F(ServerGrpc, HigherPriorityTilesAreSentFirst) {
 TEST_F(ServerGrpc, NewBatchCancelsSupersededRequests) {
     // A viewer that does not read stops being served (small per-viewer buffer). Its next batch
     // replaces the first: the first batch's unsent tiles are never sent.
-    ServerProcess srv({"--store", Stores::get().raw, "--viewer-buffer", "64KiB", "--io-threads", "2"}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::raw(), "--viewer-buffer", "64KiB", "--io-threads", "2"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    const auto first = level_keys(Stores::get().raw, 0);   // 17 x 17 raw tiles of ~196 KiB
-    const auto second = level_keys(Stores::get().raw, 2);  // 5 x 5, disjoint from the first
+    const auto first = level_keys(Stores::raw(), 0);   // 17 x 17 raw tiles of ~196 KiB
+    const auto second = level_keys(Stores::raw(), 2);  // 5 x 5, disjoint from the first
     // A small transport window: with BDP probing the window grows to megabytes, and how many
     // first-batch tiles the transport then takes before the second batch depends on the timing.
     Viewer v(srv.grpc_address(), "", /*small_window=*/true);
@@ -299,10 +305,10 @@ TEST_F(ServerGrpc, NewBatchCancelsSupersededRequests) {
 TEST_F(ServerGrpc, SeveralTilesPerMessageCarryExactBytes) {
     // Protocol revision 1: the replies ready when the stream can write go out in one message.
     // Every tile's bytes must be exactly the stored payload, whichever message carried it.
-    ServerProcess srv({"--store", Stores::get().jpeg, "--store", Stores::get().raw}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::jpeg(), "--store", Stores::raw()}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     for (const std::string name : {"terrain", "rawterrain"}) {
-        const std::string& path = name == "terrain" ? Stores::get().jpeg : Stores::get().raw;
+        const std::string& path = name == "terrain" ? Stores::jpeg() : Stores::raw();
         auto keys = level_keys(path, 2);
         Viewer v(srv.grpc_address());
         ASSERT_TRUE(v.send(batch(1, name, keys, 0, 1)));
@@ -341,9 +347,9 @@ TEST_F(ServerGrpc, ReListedTilesAreSentOnceUntilDropped) {
     // A viewer lists in every batch what it still wants, tiles already on their way included: the
     // server does not send those again. Once a batch no longer lists a tile, or says (replies
     // received) that the tile had arrived, listing it asks for it again.
-    ServerProcess srv({"--store", Stores::get().jpeg}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::jpeg()}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    const auto keys = level_keys(Stores::get().jpeg, 2);
+    const auto keys = level_keys(Stores::jpeg(), 2);
     ASSERT_GT(keys.size(), 60u);
     const std::vector<Req> first(keys.begin(), keys.begin() + 50);
     Viewer v(srv.grpc_address());
@@ -384,9 +390,9 @@ TEST_F(ServerGrpc, ReListedTilesAreSentOnceUntilDropped) {
 TEST_F(ServerGrpc, RevisionZeroViewersGetOneTilePerMessageAndNoSuppression) {
     // A viewer that does not send protocol_revision reads one TileReply per message, and, as it
     // does not say what it has read, a tile it lists again after it arrived is always sent again.
-    ServerProcess srv({"--store", Stores::get().jpeg}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::jpeg()}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    const auto keys = level_keys(Stores::get().jpeg, 2);
+    const auto keys = level_keys(Stores::jpeg(), 2);
     ASSERT_GT(keys.size(), 40u);
     const std::vector<Req> some(keys.begin(), keys.begin() + 40);
     Viewer v(srv.grpc_address());
@@ -410,11 +416,11 @@ TEST_F(ServerGrpc, RevisionZeroViewersGetOneTilePerMessageAndNoSuppression) {
 
 TEST_F(ServerGrpc, TwoViewersGetFairService) {
     // A viewer with thousands of requests does not starve one with ten.
-    ServerProcess srv({"--store", Stores::get().jpeg, "--io-threads", "1"}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::jpeg(), "--io-threads", "1"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    auto big = level_keys(Stores::get().jpeg, 0);  // 4356 tiles
+    auto big = level_keys(Stores::jpeg(), 0);  // 4356 tiles
     for (auto& r : big) r.priority = 100;          // and higher priorities than the small viewer's
-    auto small = level_keys(Stores::get().jpeg, 3);
+    auto small = level_keys(Stores::jpeg(), 3);
     small.resize(10);
     Viewer heavy(srv.grpc_address(), "", /*small_window=*/true), light(srv.grpc_address());
     ASSERT_TRUE(heavy.send(batch(1, "terrain", big)));
@@ -446,9 +452,9 @@ TEST_F(ServerGrpc, TwoViewersGetFairService) {
 }
 
 TEST_F(ServerGrpc, CoalescedReadsReturnExactBytes) {
-    ServerProcess srv({"--store", Stores::get().jpeg, "--cache-size", "0"}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::jpeg(), "--cache-size", "0"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    auto reader = tessera::storage::StoreReader::open(Stores::get().jpeg);
+    auto reader = tessera::storage::StoreReader::open(Stores::jpeg());
     ASSERT_TRUE(reader.ok());
     // An 8 x 8 block of level 0: Morton order puts these next to each other in the file.
     std::vector<Req> keys;
@@ -479,12 +485,12 @@ TEST_F(ServerGrpc, OverloadIsRefusedAndTheServerStaysUp) {
     // Measured: +19 to +22 MiB in all.
     constexpr long kTotalBufferMiB = 8, kCacheMiB = 8, kMarginMiB = 32;
     const std::string total_buffer = std::to_string(kTotalBufferMiB) + "MiB", cache = std::to_string(kCacheMiB) + "MiB";
-    ServerProcess srv({"--store", Stores::get().jpeg, "--max-pending", "1000", "--max-viewers", "4", "--max-batch", "4000",
+    ServerProcess srv({"--store", Stores::jpeg(), "--max-pending", "1000", "--max-viewers", "4", "--max-batch", "4000",
                        "--viewer-buffer", "256KiB", "--total-buffer", total_buffer, "--cache-size", cache, "--io-threads", "1"},
                       dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     const long rss_start = srv.rss_kib();
-    const auto keys = level_keys(Stores::get().jpeg, 0);  // 4356
+    const auto keys = level_keys(Stores::jpeg(), 0);  // 4356
     std::vector<Req> first(keys.begin(), keys.begin() + 3000);
     // Queue full: the lowest priorities beyond max-pending are refused.
     for (std::size_t i = 0; i < first.size(); ++i) first[i].priority = float(i);
@@ -548,7 +554,7 @@ TEST_F(ServerGrpc, OverloadIsRefusedAndTheServerStaysUp) {
 }
 
 TEST_F(ServerGrpc, BadRequestsGetClearErrors) {
-    ServerProcess srv({"--store", Stores::get().small, "--max-message", "64KiB"}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::small(), "--max-message", "64KiB"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     Viewer v(srv.grpc_address());
     v1::TileBatch b;
@@ -630,7 +636,7 @@ TEST_F(ServerGrpc, BadRequestsGetClearErrors) {
 
 TEST_F(ServerGrpc, AuthTokenIsRequired) {
     tessera::test::write_file(dir.file("token"), {'s', '3', 'c', 'r', '3', 't', '\n'});
-    ServerProcess srv({"--store", Stores::get().small, "--auth-token-file", dir.file("token")}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::small(), "--auth-token-file", dir.file("token")}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
     {
@@ -660,7 +666,7 @@ TEST_F(ServerGrpc, AuthTokenIsRequired) {
 
 TEST_F(ServerGrpc, CorruptTileIsNeverServed) {
     const std::string path = dir.file("damaged.tsr");
-    fs::copy_file(Stores::get().small, path);
+    fs::copy_file(Stores::small(), path);
     std::uint64_t offset = 0;
     {
         auto reader = tessera::storage::StoreReader::open(path);
@@ -701,7 +707,7 @@ TEST_F(ServerGrpc, CorruptTileIsNeverServed) {
 // batch listing thousands of stores is refused whole. Viewers that send such batches and never
 // read cannot grow the server by more than 64 MiB; it gives the memory back when they leave.
 TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
-    ServerProcess srv({"--store", Stores::get().small}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::small()}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     {  // one tile served first: growth measured below is not the server's first-use allocations
         Viewer w(srv.grpc_address());
@@ -797,11 +803,11 @@ TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
 // SIGTERM while viewers hold streams full of unread tiles and keep batches coming: the process
 // is gone within --drain-timeout plus 2 s, whatever the streams are doing.
 TEST_F(ServerGrpc, SigtermEndsWithinTheDrainTimeoutWhateverTheStreamsDo) {
-    ServerProcess srv({"--store", Stores::get().raw, "--store", Stores::get().small, "--drain-timeout", "1000",
+    ServerProcess srv({"--store", Stores::raw(), "--store", Stores::small(), "--drain-timeout", "1000",
                        "--viewer-buffer", "64KiB", "--io-threads", "1"},
                       dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    const auto keys = level_keys(Stores::get().raw, 0);  // 289 raw tiles, ~57 MiB: never all read
+    const auto keys = level_keys(Stores::raw(), 0);  // 289 raw tiles, ~57 MiB: never all read
     std::vector<std::unique_ptr<Viewer>> viewers;
     for (int i = 0; i < 6; ++i) {
         viewers.push_back(std::make_unique<Viewer>(srv.grpc_address()));
@@ -835,13 +841,13 @@ TEST_F(ServerGrpc, StoreChangedInPlaceNeverKillsTheServer) {
     const fs::path stores = dir.path() / "stores";
     fs::create_directory(stores);
     const std::string victim = (stores / "victim.tsr").string();
-    fs::copy_file(Stores::get().small, victim);
-    fs::copy_file(Stores::get().small, stores / "other.tsr");
+    fs::copy_file(Stores::small(), victim);
+    fs::copy_file(Stores::small(), stores / "other.tsr");
     const std::string next = dir.file("next.tsr");  // different content: another version
     auto built = tessera::test::run_tessera("build procedural:terrain:900 --codec zstd --quiet -o " + next);
     ASSERT_EQ(built.exit_code, 0) << built.out;
     const auto original = tessera::test::read_file(victim);
-    auto old_reader = tessera::storage::StoreReader::open(Stores::get().small);
+    auto old_reader = tessera::storage::StoreReader::open(Stores::small());
     auto new_reader = tessera::storage::StoreReader::open(next);
     ASSERT_TRUE(old_reader.ok() && new_reader.ok());
     const auto& old_info = (*old_reader)->info();
@@ -863,7 +869,7 @@ TEST_F(ServerGrpc, StoreChangedInPlaceNeverKillsTheServer) {
     // Every tile of every level, and each reply checked against the version it claims.
     std::vector<Req> all;
     for (std::uint32_t l = 0; l < old_info.level_count(); ++l)
-        for (const auto& k : level_keys(Stores::get().small, l)) all.push_back(k);
+        for (const auto& k : level_keys(Stores::small(), l)) all.push_back(k);
     std::size_t bad = 0, ok_tiles = 0;
     auto check = [&](const v1::TileReply& t) {
         if (t.status() != v1::TILE_OK) return;
@@ -948,7 +954,7 @@ TEST_F(ServerGrpc, StoreChangedInPlaceNeverKillsTheServer) {
         std::fclose(f);
     }
     std::this_thread::sleep_for(500ms);
-    ASSERT_EQ(std::system(("cp " + Stores::get().small + " " + victim).c_str()), 0);
+    ASSERT_EQ(std::system(("cp " + Stores::small() + " " + victim).c_str()), 0);
     std::this_thread::sleep_for(300ms);
     ASSERT_EQ(std::system(("cp " + next + " " + victim).c_str()), 0);
     std::this_thread::sleep_for(300ms);
@@ -972,7 +978,7 @@ TEST_F(ServerGrpc, StoreChangedInPlaceNeverKillsTheServer) {
 TEST_F(ServerGrpc, ReloadPicksUpNewAndReplacedStores) {
     const fs::path stores = dir.path() / "stores";
     fs::create_directory(stores);
-    fs::copy_file(Stores::get().small, stores / "a.tsr");
+    fs::copy_file(Stores::small(), stores / "a.tsr");
     ServerProcess srv({"--store-dir", stores.string(), "--watch-interval", "0"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
@@ -988,7 +994,7 @@ TEST_F(ServerGrpc, ReloadPicksUpNewAndReplacedStores) {
     ASSERT_TRUE(a1);
     EXPECT_FALSE(describe("b"));
     // A new file, and a replacement of a.tsr built differently (written beside it, renamed over).
-    fs::copy_file(Stores::get().small, stores / "b.tsr");
+    fs::copy_file(Stores::small(), stores / "b.tsr");
     auto r = tessera::test::run_tessera("build procedural:terrain:900 --codec zstd --quiet -o " + (stores / "a.tmp").string());
     ASSERT_EQ(r.exit_code, 0) << r.out;
     fs::rename(stores / "a.tmp", stores / "a.tsr");
@@ -1015,7 +1021,7 @@ TEST_F(ServerGrpc, ReloadPicksUpNewAndReplacedStores) {
 TEST_F(ServerGrpc, WatchPicksUpAReplacedStoreWithoutSignal) {
     const fs::path stores = dir.path() / "stores";
     fs::create_directory(stores);
-    fs::copy_file(Stores::get().small, stores / "w.tsr");
+    fs::copy_file(Stores::small(), stores / "w.tsr");
     ServerProcess srv({"--store-dir", stores.string(), "--watch-interval", "100"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     auto r = tessera::test::run_tessera("build procedural:terrain:700 --codec zstd --quiet -o " + (stores / "w.tsr").string());
@@ -1034,9 +1040,9 @@ TEST_F(ServerGrpc, WatchPicksUpAReplacedStoreWithoutSignal) {
 }
 
 TEST_F(ServerGrpc, SigtermDrainsAdmittedRequests) {
-    ServerProcess srv({"--store", Stores::get().raw, "--viewer-buffer", "64KiB", "--io-threads", "1"}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::raw(), "--viewer-buffer", "64KiB", "--io-threads", "1"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    const auto keys = level_keys(Stores::get().raw, 0);  // 289 raw tiles, ~57 MiB
+    const auto keys = level_keys(Stores::raw(), 0);  // 289 raw tiles, ~57 MiB
     Viewer v(srv.grpc_address());
     ASSERT_TRUE(v.send(batch(1, "rawterrain", keys)));
     ASSERT_TRUE(v.read_until([&] { return !v.acks.empty() && v.tiles.size() >= 5; }));
@@ -1061,7 +1067,7 @@ TEST_F(ServerGrpc, SigtermDrainsAdmittedRequests) {
 TEST_F(ServerGrpc, TlsServesOnlyTls) {
     std::string cert, key;
     ASSERT_TRUE(make_certificate(dir, cert, key));
-    ServerProcess srv({"--store", Stores::get().small, "--tls-cert", cert, "--tls-key", key}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::small(), "--tls-cert", cert, "--tls-key", key}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     auto stub = v1::TileService::NewStub(tls_channel(srv.grpc_address(), cert));
     grpc::ClientContext c1;
@@ -1079,12 +1085,12 @@ TEST_F(ServerGrpc, TlsRepliesOver16KiBCarryExactBytes) {
     // stored payload's.
     std::string cert, key;
     ASSERT_TRUE(make_certificate(dir, cert, key));
-    ServerProcess srv({"--store", Stores::get().jpeg, "--store", Stores::get().raw, "--tls-cert", cert, "--tls-key", key},
+    ServerProcess srv({"--store", Stores::jpeg(), "--store", Stores::raw(), "--tls-cert", cert, "--tls-key", key},
                       dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     for (const std::string name : {"rawterrain", "terrain"}) {
         SCOPED_TRACE(name);
-        const std::string& path = name == "terrain" ? Stores::get().jpeg : Stores::get().raw;
+        const std::string& path = name == "terrain" ? Stores::jpeg() : Stores::raw();
         auto keys = level_keys(path, 2);
         Viewer v(tls_channel(srv.grpc_address(), cert), "");
         ASSERT_TRUE(v.send(batch(1, name, keys, 0, 1)));
@@ -1115,7 +1121,7 @@ TEST_F(ServerGrpc, ClientLibraryRidesOutAServerRestart) {
     // The shared client library (viewer, load tester): tiles arrive, the server goes away (SIGTERM),
     // the client backs off, a new server comes up on the same port, and the newest batch is
     // served by it without the application doing anything.
-    auto srv = std::make_unique<ServerProcess>(std::vector<std::string>{"--store", Stores::get().small}, dir.file("log1"));
+    auto srv = std::make_unique<ServerProcess>(std::vector<std::string>{"--store", Stores::small()}, dir.file("log1"));
     ASSERT_TRUE(srv->running()) << srv->log();
     const std::string address = srv->grpc_address();
     tessera::client::TileStreamOptions options;
@@ -1139,7 +1145,7 @@ TEST_F(ServerGrpc, ClientLibraryRidesOutAServerRestart) {
     EXPECT_NE(client->state(), tessera::client::ConnectionState::connected);
     client->send_batch(2, {{"small", 1, 0, 0, 1.f}});
 
-    ServerProcess again({"--store", Stores::get().small}, dir.file("log2"), address);
+    ServerProcess again({"--store", Stores::small()}, dir.file("log2"), address);
     ASSERT_TRUE(again.running()) << again.log();
     tiles.clear();
     for (int i = 0; i < 1000 && tiles.empty(); ++i)
@@ -1151,9 +1157,9 @@ TEST_F(ServerGrpc, ClientLibraryRidesOutAServerRestart) {
 }
 
 TEST_F(ServerGrpc, ReplyMessageSizeCapsSharedMessages) {
-    ServerProcess srv({"--store", Stores::get().jpeg, "--reply-message", "40KiB"}, dir.file("log"));
+    ServerProcess srv({"--store", Stores::jpeg(), "--reply-message", "40KiB"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    auto keys = level_keys(Stores::get().jpeg, 2);
+    auto keys = level_keys(Stores::jpeg(), 2);
     Viewer v(srv.grpc_address());
     ASSERT_TRUE(v.send(batch(1, "terrain", keys, 0, 1)));
     std::this_thread::sleep_for(300ms);  // replies pile up: the writes coalesce up to the cap
@@ -1168,11 +1174,11 @@ TEST_F(ServerGrpc, BadCommandLinesAreClearErrors) {
     for (const auto& args : std::vector<std::string>{
              "serve",                                                  // nothing to serve
              "serve --store /nonexistent/x.tsr",                       // missing file
-             "serve --store " + Stores::get().small + " --tls-cert x",  // cert without key
-             "serve --store " + Stores::get().small + " --grpc 127.0.0.1:99999",
-             "serve --store " + Stores::get().small + " --cache-size lots",
-             "serve --store " + Stores::get().small + " --auth-token-file /nonexistent",
-             "serve --store " + Stores::get().small + " --reply-message 100",  // below 1KiB
+             "serve --store " + Stores::small() + " --tls-cert x",  // cert without key
+             "serve --store " + Stores::small() + " --grpc 127.0.0.1:99999",
+             "serve --store " + Stores::small() + " --cache-size lots",
+             "serve --store " + Stores::small() + " --auth-token-file /nonexistent",
+             "serve --store " + Stores::small() + " --reply-message 100",  // below 1KiB
          }) {
         auto r = tessera::test::run_tessera(args + " --http 127.0.0.1:0");
         EXPECT_NE(r.exit_code, 0) << args;
