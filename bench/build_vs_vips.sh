@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Build benchmark: `tessera build` against `vips dzsave` on the same source, tile size, overlap
-# and JPEG quality, interleaved in one session (this machine is shared and noisy: compare ratios,
+# and JPEG quality, interleaved in one run (the machine is shared and noisy: compare ratios,
 # not absolute times). Prints a table and writes JSON.
 #
 #   bench/build_vs_vips.sh [SIZE] [REPS] [WORKDIR]     defaults: 16384 3 /tmp/tessera-bench

@@ -1,5 +1,5 @@
-// Feedback analysis time (issue 4 target: <= 30 us median at 160x90 on one core; van Waveren
-// reported 0.5 ms for 80x60). Single thread.
+// Feedback analysis time (target: <= 30 us median at 160x90 on one core; van Waveren reported
+// 0.5 ms for 80x60). Single thread.
 //
 // Buffers:
 //   terrain   what a terrain camera writes: a pinhole camera 300 texels above a ground plane

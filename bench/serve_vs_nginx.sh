@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Serving benchmark: `tessera serve` (gRPC StreamTiles and HTTP) against nginx serving the same
-# tiles as static files, on this machine, in one session, interleaved (this machine is shared and
+# tiles as static files, on this machine, in one run, interleaved (the machine is shared and
 # noisy: compare ratios, not absolute numbers). Both servers, wrk and the load generator share the
 # same cores; nothing is pinned.
 #

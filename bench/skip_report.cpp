@@ -1,5 +1,5 @@
-// Skip what a scene doesn't need, measured (issue 6; docs/benchmarks.md): for a store and a camera
-// path over the flat terrain,
+// Skip what a scene doesn't need, measured (docs/benchmarks.md, docs/visibility.md): for a store
+// and a camera path over the flat terrain,
 //  1. the share of the store's tiles the path touches (every page cpu_feedback wants along the
 //     path, sampled at --fps; all levels and level 0), and of its stored (non-absent) tiles;
 //  2. a client runtime run along the path in real time (no GL: a null uploader; a local store

@@ -1,5 +1,5 @@
-// Transcode throughput against libjpeg-turbo's own decode speed (design, "Benchmarks": the
-// transcode ceiling). Loads every present tile of a JPEG store (and optionally a zstd store) into
+// Transcode throughput against libjpeg-turbo's own decode speed, the transcode ceiling
+// (docs/benchmarks.md). Loads every present tile of a JPEG store (and optionally a zstd store) into
 // memory, then times, on the same tiles, interleaved over several rounds:
 //   libjpeg RGB    tjDecompress2 to RGB, one thread: libjpeg-turbo's own speed, the ceiling
 //   libjpeg RGBA   tjDecompress2 to RGBA, one thread (the same decode, our output format)

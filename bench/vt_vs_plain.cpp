@@ -1,4 +1,4 @@
-// VT frame time against plain texturing of the same scene (issue 5; design.md "Benchmarks").
+// VT frame time against plain texturing of the same scene (docs/benchmarks.md, "Renderer").
 //
 // The peer is the reference renderer: the same terrain, camera path and filter drawn from one
 // ordinary mipmapped GL texture. The VT frame is the whole VT frame: feedback pass (1/8), depth

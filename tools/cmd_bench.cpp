@@ -1,9 +1,9 @@
-// tessera bench: run time against error (issue 6). A one-factor-at-a-time sweep around a baseline
-// over the procedural terrain store: tile size, border, codec and quality, feedback scale, pool
-// size, LoD-bias policy, upload budget, network latency (emulated) and prefetch. Each point is one
-// headless viewer run over a camera path, paced at 60 frames per second of wall time, measured as
-// run time (build time, frame time, time to full detail, bytes moved) against error (PSNR and max
-// error against a lossless reference, fallback rate). Writes bench.csv, bench.json and
+// tessera bench: run time against error (docs/bench.md). A one-factor-at-a-time sweep around a
+// baseline over the procedural terrain store: tile size, border, codec and quality, feedback scale,
+// pool size, LoD-bias policy, upload budget, network latency (emulated) and prefetch. Each point is
+// one headless viewer run over a camera path, paced at 60 frames per second of wall time, measured
+// as run time (build time, frame time, time to full detail, bytes moved) against error (PSNR and
+// max error against a lossless reference, fallback rate). Writes bench.csv, bench.json and
 // pareto_*.svg, prints the table and a recommended default (docs/bench.md).
 //
 // Error is against the true source: the reference renderer draws from a lossless (zstd) store of
@@ -182,8 +182,8 @@ void pareto_plot(const std::vector<Point>& pts, const std::string& file, const s
     write_svg(p, file);
 }
 
-// The recommended default: among the points whose fallback rate is at most 0.01% (the design's
-// "full detail"), whose first view reached full detail and which move at most twice the
+// The recommended default: among the points whose fallback rate is at most 0.01% (full detail
+// but for a few pixels), whose first view reached full detail and which move at most twice the
 // baseline's bytes, those with a mean frame time within 20% of the fastest of them; of these the
 // highest mean PSNR; PSNR ties (within 0.1 dB) go to fewer bytes received.
 const Point* recommend(const std::vector<Point>& pts) {

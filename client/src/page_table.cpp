@@ -85,7 +85,8 @@ Result<PageTable> PageTable::create(TextureId texture, std::uint32_t pages_x, st
         return make_error(Errc::resource_exhausted,
                           what + " needs " + mib(bytes) + " MiB, over the " + mib(max_bytes) +
                               " MiB bound for dense page tables (4 bytes per page, all levels); "
-                              "use larger pages or raise the bound (sparse tables for huge textures: issue 6)");
+                              "use larger pages, raise the bound or allow sparse tables "
+                              "(ResidencyConfig::sparse_tables)");
     }
     PageTable t;
     t.texture_ = texture;

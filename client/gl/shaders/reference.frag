@@ -1,5 +1,5 @@
-// reference.frag: the reference renderer (design.md "Measures"): the same LoD rule and filter as
-// the VT (vt_sample.glsl's vt_lod / vt_wanted_level / taps), no bias, sampling an ordinary
+// reference.frag: the reference renderer (docs/viewer.md, "Measures"): the same LoD rule and filter
+// as the VT (vt_sample.glsl's vt_lod / vt_wanted_level / taps), no bias, sampling an ordinary
 // mipmapped GL texture with textureLod, so bilinear and trilinear pick exactly the VT's levels.
 #include "vt_sample.glsl"
 

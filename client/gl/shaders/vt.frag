@@ -1,13 +1,13 @@
 // vt.frag: the VT pass. Samples the virtual texture and counts, per frame, fallback pixels
-// (design.md "Measures": the sampled page is coarser than the level wanted, without and with the
-// bias); the renderer counts the textured pixels with an occlusion query around this pass. Early
-// fragment tests against the pre-pass depth (GL_LEQUAL), so hidden fragments neither shade nor
-// count. An empty entry (nothing resident) counts as fallback. Only fallback pixels touch the
-// counters: they are rare once a view has loaded, and an atomic per fragment on one address is
-// what a software rasterizer's threads would serialise on. One atomic, not one per measure: the
-// pixel adds to the counter of its kind (fallback against the unbiased level only, the biased
-// only, or both), and the renderer sums kinds when it reads them back. A SIMD rasterizer pays
-// for each atomic statement whether or not a lane takes it.
+// (docs/viewer.md, "Measures": the sampled page is coarser than the level wanted, without and with
+// the bias); the renderer counts the textured pixels with an occlusion query around this pass.
+// Early fragment tests against the pre-pass depth (GL_LEQUAL), so hidden fragments neither shade
+// nor count. An empty entry (nothing resident) counts as fallback. Only fallback pixels touch the
+// counters: they are rare once a view has loaded, and an atomic per fragment on one address is what
+// a software rasterizer's threads would serialise on. One atomic, not one per measure: the pixel
+// adds to the counter of its kind (fallback against the unbiased level only, the biased only, or
+// both), and the renderer sums kinds when it reads them back. A SIMD rasterizer pays for each
+// atomic statement whether or not a lane takes it.
 layout(early_fragment_tests) in;
 
 #include "vt_sample.glsl"

@@ -1,5 +1,5 @@
 // vt_sample.glsl: the virtual-texture sampling function, the one include every VT shader uses
-// (design.md, "One frame, end to end", steps 1 and 2; docs/renderer.md).
+// (docs/client.md, "One frame, end to end", steps 1 and 2; docs/renderer.md, "Sampling").
 //
 // The including shader is assembled by the renderer as
 //     #version 450 core

@@ -1,5 +1,5 @@
 // ReferenceRenderer: the scene drawn from an ordinary mipmapped GL texture with the VT's LoD rule
-// and filter (design.md "Measures"). See renderer.hpp.
+// and filter, for PSNR and max error (docs/viewer.md, "Measures"). See renderer.hpp.
 #include <fmt/format.h>
 
 #include "gl_util.hpp"

@@ -1,7 +1,8 @@
 #pragma once
 // The staging ring: one persistently mapped GL_PIXEL_UNPACK_BUFFER used as a byte ring, through
-// which pages and page-table rectangles reach their textures (design.md step 7). The CPU copies
-// into the ring and issues glTextureSubImage2D from the buffer offset; the GPU reads it later.
+// which pages and page-table rectangles reach their textures (docs/client.md, "One frame, end to
+// end", step 7). The CPU copies into the ring and issues glTextureSubImage2D from the buffer
+// offset; the GPU reads it later.
 //
 // Regions are fenced in batches: close_batch() (once a frame, before the frame's draws) puts a
 // fence after the uploads issued since the last one; a region is reused only once its batch's

@@ -1,5 +1,5 @@
 #pragma once
-// Errors as values at library boundaries (design: "errors as values, exceptions only inside tools").
+// Errors as values at library boundaries; exceptions are used only inside the tools.
 #include <cassert>
 #include <string>
 #include <utility>

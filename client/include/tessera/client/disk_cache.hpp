@@ -1,11 +1,11 @@
 #pragma once
-// Client tile caches, second level: the disk cache (design, "One frame, end to end", steps 4 and
-// 6). It persists across runs, is bounded in bytes, is keyed by store name *and* store version (a
-// rebuilt store never serves old tiles), and never returns a corrupt tile: every entry carries a
-// checksummed header and the payload's XXH3-64, and is written to a temporary file and renamed
-// into place, so a crash or kill -9 at any moment leaves either the old entry, the new one or
-// none. Whatever fails verification on read (bit rot, truncation, a power cut with fsync off,
-// a file copied under the wrong name) is deleted, counted and reported as a miss, so the caller
+// Client tile caches, second level: the disk cache (docs/client.md, "One frame, end to end", steps
+// 4 and 6). It persists across runs, is bounded in bytes, is keyed by store name *and* store
+// version (a rebuilt store never serves old tiles), and never returns a corrupt tile: every entry
+// carries a checksummed header and the payload's XXH3-64, and is written to a temporary file and
+// renamed into place, so a crash or kill -9 at any moment leaves either the old entry, the new one
+// or none. Whatever fails verification on read (bit rot, truncation, a power cut with fsync off, a
+// file copied under the wrong name) is deleted, counted and reported as a miss, so the caller
 // refetches it.
 //
 // Layout (one file per tile):

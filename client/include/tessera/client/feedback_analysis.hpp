@@ -1,7 +1,8 @@
 #pragma once
-// Feedback analysis (design.md, "One frame, end to end", steps 3 and 4): turns one frame's
+// Feedback analysis (docs/client.md, "One frame, end to end", steps 3 and 4): turns one frame's
 // feedback buffer (one packed FeedbackId per pixel) into the set of pages the view wants, with
-// their ancestors, ordered by priority. Runs on the analysis thread; one analyser per thread.
+// their ancestors, ordered by priority. Runs on the thread that calls it (Runtime::frame: the
+// render thread); one analyser per thread.
 //
 // Cost model: one pass over the pixels that skips runs of identical ids (neighbouring pixels
 // mostly repeat), one hash lookup per run, one lookup per wanted page for its parent, one

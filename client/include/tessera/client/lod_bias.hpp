@@ -1,7 +1,7 @@
 #pragma once
-// LodBiasController: oversubscription control (design.md, "One frame", step 8). Once a frame, the
-// runtime tells it how many pages the (biased) feedback wanted against the pool, and it returns
-// the LoD bias the next frames' feedback (and shader) should use.
+// LodBiasController: oversubscription control (docs/client.md, "One frame, end to end", step 8).
+// Once a frame, the runtime tells it how many pages the (biased) feedback wanted against the pool,
+// and it returns the LoD bias the next frames' feedback (and shader) should use.
 //
 // The physics: raising the bias by d levels divides the pages a view wants by about 4^d (two
 // axes), so pressure p = pages_wanted / pool_slots falls by about 4^d too. The rule:

@@ -1,6 +1,6 @@
 #pragma once
 // PageTable: the CPU copy of one virtual texture's page table, the texture the VT shader reads in
-// one fetch (design, "One frame, end to end", steps 1 and 7).
+// one fetch (docs/client.md, "One frame, end to end", steps 1 and 7).
 //
 // Geometry. Level 0 is the finest level and has pages_x × pages_y pages; level L has
 // ceil(pages_x / 2^L) × ceil(pages_y / 2^L) pages, and the last level is 1×1 (exactly the store's

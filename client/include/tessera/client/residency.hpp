@@ -1,7 +1,7 @@
 #pragma once
 // Residency: the physical page pool (N slots of the GPU page atlas) shared by several virtual
-// textures, which pages live in it, which one to replace, and each texture's PageTable (design,
-// "One frame, end to end", steps 4 and 7).
+// textures, which pages live in it, which one to replace, and each texture's PageTable
+// (docs/client.md, "One frame, end to end", steps 4 and 7).
 //
 // Protocol (render thread):
 //   begin_frame(f)                 once per frame, f never decreasing
@@ -15,8 +15,8 @@
 //   complete(page, slot)           maps the page ("map after complete"); last seen = f
 //   cancel(slot)                   instead of complete: the upload was abandoned, the slot is free
 //
-// Replacement order (the design's "not seen recently first, finer levels before coarser, LRU among
-// equals"), read as one sort key, smallest evicted first:
+// Replacement order (not seen recently first, finer levels before coarser, LRU among equals;
+// docs/client.md, "Replacement"), read as one sort key, smallest evicted first:
 //   1. last-seen frame, older first (exact frame numbers, not buckets);
 //   2. among pages last seen in the same frame: finer level first (level 0 before level 1);
 //   3. among those: least recently touched (or completed) first.

@@ -1,7 +1,7 @@
 #pragma once
 // Client statistics: per-frame counters (FrameStats), a latency histogram (LatencyHistogram, also
 // meant for the load tester) and a summary across frames (StatsSummary). JSON and CSV are written
-// by hand: no dependency. Definitions follow design.md, "Measures": tile latency is request
+// by hand: no dependency. Definitions follow docs/viewer.md, "Measures": tile latency is request
 // issued -> page mapped.
 #include <array>
 #include <chrono>
@@ -71,16 +71,16 @@ struct FrameStats {
     std::uint64_t bytes_uploaded = 0;  // to the GPU
     float lod_bias = 0.0f;
     // Fraction of feedback pixels whose desired page is not resident: the runtime's estimate of
-    // the fallback rate (the renderer counts the real one; design.md, "Measures").
+    // the fallback rate (the renderer counts the real one; docs/viewer.md, "Measures").
     float fallback_estimate = 0.0f;
-    // Work skipped because a request stopped being wanted (issue 6, "skip what a scene doesn't
-    // need"; docs/client.md). Requests cancelled before their data arrived (waiting on the disk
-    // cache or the source: if the source had not read it yet, its I/O is saved), after it arrived
-    // but before decoding (never decoded), and after decoding but before upload; decode jobs the
-    // transcode pool dropped unrun (stale by their turn); source deliveries for requests already
-    // cancelled (I/O the cancellation came too late to save); deliveries of a page already
-    // arrived or resident (a source that read it twice). Not in to_json/csv_row (their
-    // columns are fixed); StatsSummary::to_json has them under "skipped".
+    // Work skipped because a request stopped being wanted (docs/client.md, "Inside Runtime::frame",
+    // step 3). Requests cancelled before their data arrived (waiting on the disk cache or the
+    // source: if the source had not read it yet, its I/O is saved), after it arrived but before
+    // decoding (never decoded), and after decoding but before upload; decode jobs the transcode
+    // pool dropped unrun (stale by their turn); source deliveries for requests already cancelled
+    // (I/O the cancellation came too late to save); deliveries of a page already arrived or
+    // resident (a source that read it twice). Not in to_json/csv_row (their columns are fixed);
+    // StatsSummary::to_json has them under "skipped".
     std::uint32_t cancelled_waiting = 0;
     std::uint32_t cancelled_arrived = 0;
     std::uint32_t cancelled_decoded = 0;

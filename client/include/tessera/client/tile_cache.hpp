@@ -1,7 +1,7 @@
 #pragma once
-// Client tile caches, first level: the RAM cache (design, "One frame, end to end", steps 4 and 6:
-// a page that is not resident goes RAM cache -> disk cache -> network; replies land in the disk
-// and RAM caches). Also the vocabulary the caches share: TileId (a tile of one *version* of a
+// Client tile caches, first level: the RAM cache (docs/client.md, "One frame, end to end", steps 4
+// and 6: a page that is not resident goes RAM cache -> disk cache -> network; replies land in the
+// disk and RAM caches). Also the vocabulary the caches share: TileId (a tile of one *version* of a
 // store) and CachedTile (what a TileReply carries, without protobuf).
 //
 // The key includes the store version, so a rebuilt store (new StoreMetadata.version) can never be

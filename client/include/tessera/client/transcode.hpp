@@ -1,6 +1,6 @@
 #pragma once
-// The transcode pool (design, "One frame, end to end", step 6): stored tile payloads (JPEG via
-// libjpeg-turbo, zstd, raw, uniform) become GPU-ready pages, written straight into the caller's
+// The transcode pool (docs/client.md, "One frame, end to end", step 6): stored tile payloads (JPEG
+// via libjpeg-turbo, zstd, raw, uniform) become GPU-ready pages, written straight into the caller's
 // upload staging memory.
 //
 // Output format: RGBA8, tile_size()^2 texels (border included), row-major, 4 bytes per texel, no

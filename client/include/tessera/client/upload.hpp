@@ -1,9 +1,10 @@
 #pragma once
-// The upload side of the render thread (design.md, "One frame", step 7): pages made GPU-ready by
-// the transcode pool wait in an UploadQueue; each frame the render thread takes at most a budget
-// of them (pages and bytes), highest priority first, and hands them to a PageUploader (the GL
-// renderer, or FakeUploader in tests). The queue holds no pixels: a ReadyPage points at staging
-// memory that its producer owns and keeps alive until the page is uploaded or dropped.
+// The upload side of the render thread (docs/client.md, "One frame, end to end", step 7): pages
+// made GPU-ready by the transcode pool wait in an UploadQueue; each frame the render thread takes
+// at most a budget of them (pages and bytes), highest priority first, and hands them to a
+// PageUploader (the GL renderer, or FakeUploader in tests). The queue holds no pixels: a ReadyPage
+// points at staging memory that its producer owns and keeps alive until the page is uploaded or
+// dropped.
 #include <chrono>
 #include <cstddef>
 #include <cstdint>

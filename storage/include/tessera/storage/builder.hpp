@@ -25,10 +25,10 @@ struct BuildOptions {
     unsigned threads = 0;                // 0: all cores
     bool sparse = false;                 // tiles whose alpha is 0 everywhere are absent
     std::optional<ColourSpace> colour_space;  // default: from the source
-    // Tiles for which `keep` returns false are written as absent, whatever their content (issue 6,
-    // `tessera build --visibility`: level-0 tiles no camera path wants). Called from the worker
-    // threads, concurrently: it must only read. Empty: every tile is kept. Dropped tiles are still
-    // encoded, to report exactly what they would have cost (BuildSummary::bytes_dropped).
+    // Tiles for which `keep` returns false are written as absent, whatever their content (`tessera
+    // build --visibility`, docs/visibility.md: level-0 tiles no camera path wants). Called from the
+    // worker threads, concurrently: it must only read. Empty: every tile is kept. Dropped tiles are
+    // still encoded, to report exactly what they would have cost (BuildSummary::bytes_dropped).
     std::function<bool(std::uint32_t level, std::uint32_t x, std::uint32_t y)> keep;
 };
 

@@ -1,10 +1,10 @@
 #pragma once
 // Geometry the VT renderer draws, GL-free (the load tester and the CPU feedback use it too).
 //
-// Precision (issue 5): texture coordinates are never one float UV over the whole virtual texture.
-// Each chunk carries an integer texel origin (level-0 texels of the virtual texture) and its
-// vertices carry float texel offsets relative to it, small enough to be exact to a fraction of a
-// texel; likewise positions are float offsets from a double-precision chunk origin.
+// Precision (docs/stability.md): texture coordinates are never one float UV over the whole virtual
+// texture. Each chunk carries an integer texel origin (level-0 texels of the virtual texture) and
+// its vertices carry float texel offsets relative to it, small enough to be exact to a fraction of
+// a texel; likewise positions are float offsets from a double-precision chunk origin.
 #include <cstdint>
 #include <string>
 #include <vector>

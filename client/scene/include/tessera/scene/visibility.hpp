@@ -1,8 +1,8 @@
 #pragma once
-// Which pages a set of camera paths over the flat `terrain` scene ever wants (issue 6, "skip what a
-// scene doesn't need"): the CPU feedback (cpu_feedback.hpp) of every frame along each path, at a
-// fixed frame rate. Used by `tessera build --visibility` (level-0 tiles no path wants are written
-// absent) and by bench/skip_report (the share of a store a path touches).
+// Which pages a set of camera paths over the flat `terrain` scene ever wants (docs/visibility.md):
+// the CPU feedback (cpu_feedback.hpp) of every frame along each path, at a fixed frame rate. Used
+// by `tessera build --visibility` (level-0 tiles no path wants are written absent) and by
+// bench/skip_report (the share of a store a path touches).
 //
 // Sampling: frames at t = 0, 1/fps, 2/fps, ... up to and including the path's duration; the
 // feedback target is view / 8 per side, rounded up (1280x720 -> 160x90, what the renderer uses);

@@ -1,8 +1,9 @@
 #pragma once
-// The GL side of the client (design.md, "One frame, end to end", steps 1-3 and 7): a physical page
-// atlas, page-table textures, page and page-table uploads through staging rings (fences, never
-// glFinish), the VT pass, the feedback pass at 1/N resolution read back through a PBO ring
-// (polled, never waited on), and the per-frame fallback counters reduced on the GPU.
+// The GL side of the client (docs/client.md, "One frame, end to end", steps 1-3 and 7; details in
+// docs/renderer.md): a physical page atlas, page-table textures, page and page-table uploads
+// through staging rings (fences, never glFinish), the VT pass, the feedback pass at 1/N resolution
+// read back through a PBO ring (polled, never waited on), and the per-frame fallback counters
+// reduced on the GPU.
 //
 // VtRenderer is the runtime's PageUploader: Runtime::frame() calls upload_page/upload_page_table
 // on the render thread; the renderer copies into its staging ring and issues the GL uploads.
@@ -64,9 +65,9 @@ struct RendererConfig {
 // linear RGBA. Pixels without geometry are cleared to transparent black.
 inline constexpr float kNoDataColour[4] = {1.0f, 0.0f, 1.0f, 1.0f};
 
-// Fallback counters of one rendered frame (design.md "Measures"), read back some frames later.
-// textured_pixels: pixels the VT pass shaded (each visible pixel once: depth pre-pass, then early
-// fragment tests). An empty entry counts as fallback.
+// Fallback counters of one rendered frame (docs/viewer.md, "Measures"), read back some frames
+// later. textured_pixels: pixels the VT pass shaded (each visible pixel once: depth pre-pass, then
+// early fragment tests). An empty entry counts as fallback.
 struct FrameCounters {
     std::uint64_t frame = 0;           // the render() call they belong to
     std::uint64_t textured_pixels = 0;
@@ -133,11 +134,11 @@ public:
     virtual RendererStats stats() const = 0;
 };
 
-// The reference renderer (design.md "Measures"): the same scene and camera drawn from an ordinary
-// mipmapped GL texture with the same filter and LoD rule, no bias, for PSNR and max error.
+// The reference renderer (docs/viewer.md, "Measures"): the same scene and camera drawn from an
+// ordinary mipmapped GL texture with the same filter and LoD rule, no bias, for PSNR and max error.
 // Levels: RGBA8 texels of each level of the virtual texture, level 0 first, rows top to bottom,
-// e.g. decoded from a store's tile interiors; as many levels as the store has (the LoD clamp).
-// Uses config's width, height, filter, max_anisotropy and srgb.
+// e.g. decoded from a store's tile interiors; as many levels as the store has (the LoD clamp). Uses
+// config's width, height, filter, max_anisotropy and srgb.
 class ReferenceRenderer {
 public:
     struct Level {
