@@ -421,7 +421,8 @@ struct SentBatch {
     v1::TileBatch batch;
     std::size_t viewer = 0;
     std::size_t prefix = 0;        // messages the viewer had read when this was submitted
-    bool too_large = false;        // refused whole
+    bool too_large = false;        // refused whole: more requests than max_batch
+    bool bad_store_list = false;   // refused whole: too many stores, or a name no store can have
     std::uint32_t valid = 0;       // requests that pass validation (admitted, refused or already queued)
     std::vector<ExpectedError> invalid;  // error replies, in request order
     std::set<FullKey> valid_keys;
@@ -476,6 +477,9 @@ v1::TileBatch raw_batch(std::string_view bytes) {
 void classify(const Fixture& fx, const ServerConfig& config, SentBatch& s) {
     const v1::TileBatch& b = s.batch;
     s.too_large = static_cast<std::size_t>(b.requests_size()) > config.max_batch;
+    s.bad_store_list = static_cast<std::size_t>(b.stores_size()) > Scheduler::kMaxBatchStores ||
+                       std::any_of(b.stores().begin(), b.stores().end(),
+                                   [](const std::string& n) { return n.size() > protocol::kMaxStoreNameLength; });
     for (const auto& name : b.stores()) {
         // A name that could be a path is never a valid store name.
         if (name.find('/') != std::string::npos || name.find("..") != std::string::npos || name.empty())
@@ -598,9 +602,11 @@ void check_stream(const Fixture& fx, std::vector<SentBatch>& sent, ViewerState& 
             SentBatch& b = sent[v.batches[next_ack++]];
             const v1::BatchAck& a = g.msg.ack();
             FUZZ_CHECK(a.frame() == b.batch.frame());
-            if (b.too_large) {
-                // Refused whole; the earlier batch's requests stay in force.
-                FUZZ_CHECK(a.status() == v1::TILE_RESOURCE_EXHAUSTED && !a.message().empty());
+            if (b.too_large || b.bad_store_list) {
+                // Refused whole (the store list is checked first); the earlier batch's requests
+                // stay in force.
+                FUZZ_CHECK(a.status() == (b.bad_store_list ? v1::TILE_INVALID_ARGUMENT : v1::TILE_RESOURCE_EXHAUSTED));
+                FUZZ_CHECK(!a.message().empty() && a.message().size() < 512);
                 FUZZ_CHECK(a.admitted() == 0 && a.refused() == 0 && a.invalid() == 0 && a.already_queued() == 0);
                 continue;
             }
@@ -680,7 +686,7 @@ void check_stream(const Fixture& fx, std::vector<SentBatch>& sent, ViewerState& 
             std::size_t start = pos;
             for (std::size_t j = pos; j-- > 0;) {
                 const SentBatch& b = sent[v.batches[j]];
-                if (b.too_large) continue;
+                if (b.too_large || b.bad_store_list) continue;
                 if (!b.wanted.contains(fk)) break;
                 start = j;
             }
