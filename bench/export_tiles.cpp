@@ -16,6 +16,7 @@
 
 #include "tessera/storage/store_reader.hpp"
 
+using namespace tessera;
 using namespace tessera::storage;
 namespace fs = std::filesystem;
 

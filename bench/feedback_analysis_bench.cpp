@@ -28,7 +28,7 @@
 #include <utility>
 #include <vector>
 
-#include "tessera/client/feedback_analysis.hpp"
+#include "feedback_analysis.hpp"
 
 using namespace tessera::client;
 using Clock = std::chrono::steady_clock;

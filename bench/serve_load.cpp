@@ -306,9 +306,7 @@ std::vector<std::string> read_urls(const std::string& path) {
     return urls;
 }
 
-struct Key {
-    std::uint32_t level, x, y;
-};
+using Key = tessera::TileKey;
 
 // The last three path components of each URL: .../{level}/{x}/{y}.
 std::vector<Key> keys_from_urls(const std::vector<std::string>& urls) {
@@ -336,7 +334,7 @@ std::vector<Key> keys_from_store(const std::string& path) {
         for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
             for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
                 auto loc = (*r)->locate({l, x, y});
-                if (loc && loc->kind == tessera::storage::TileKind::present) keys.push_back({l, x, y});
+                if (loc && loc->kind == tessera::TileKind::present) keys.push_back({l, x, y});
             }
     if (keys.empty()) die(path + " has no present tiles");
     return keys;
@@ -818,7 +816,7 @@ private:
         Results r;
     };
 
-    static std::uint64_t pack(const Key& k) { return tessera::protocol::pack_key(k.level, k.x, k.y); }
+    static std::uint64_t pack(const Key& k) { return tessera::pack_key(k); }
 
     // Adds one new random tile (not already outstanding, if a few draws can find one).
     void add_random(Viewer& v, Clock::time_point asked, bool measured) {
@@ -974,7 +972,7 @@ private:
                 if (d.ack().status() != v1::TILE_OK) {
                     std::lock_guard lock(v.mu);
                     ++v.r.errors;
-                    ++v.r.error_kinds["batch_" + std::string(tessera::protocol::to_string(d.ack().status()))];
+                    ++v.r.error_kinds["batch_" + std::string(to_string(tessera::protocol::from_proto(d.ack().status())))];
                 }
                 continue;
             }
@@ -985,7 +983,7 @@ private:
             v.replies_read += d.tile_count();
             for (std::size_t i = 0; i < d.tile_count(); ++i) {
                 const auto& t = d.tile(i);
-                const std::uint64_t packed = tessera::protocol::pack_key(t.level, t.x, t.y);
+                const std::uint64_t packed = tessera::pack_key(t.key);
                 auto it = v.outstanding.find(packed);
                 if (it == v.outstanding.end()) {
                     if (t.status == v1::TILE_OK && !v.leaving) ++v.r.duplicates;
@@ -1003,7 +1001,7 @@ private:
                         v.last_completion = std::max(v.last_completion, now);
                     } else {
                         ++v.r.errors;
-                        ++v.r.error_kinds[std::string(tessera::protocol::to_string(t.status))];
+                        ++v.r.error_kinds[std::string(to_string(tessera::protocol::from_proto(t.status)))];
                     }
                 }
             }

@@ -19,23 +19,17 @@
 #include <vector>
 
 #include "tessera/client/emulated_source.hpp"
+#include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
-#include "tessera/scene/cpu_feedback.hpp"
-#include "tessera/scene/visibility.hpp"
+#include "tessera/client/scene/cpu_feedback.hpp"
+#include "tessera/client/scene/visibility.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace {
 
 using namespace tessera;
 using Clock = std::chrono::steady_clock;
-
-class NullUploader final : public client::PageUploader {
-public:
-    void upload_page(client::SlotId, const client::PageKey&, std::span<const std::uint8_t>, std::uint32_t) override {}
-    void upload_page_table(client::TextureId, std::uint8_t, std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t,
-                           std::span<const std::uint32_t>) override {}
-};
 
 [[noreturn]] void die(const std::string& msg) {
     std::fprintf(stderr, "skip_report: %s\n", msg.c_str());
@@ -94,8 +88,8 @@ int main(int argc, char** argv) {
         std::uint64_t stored = 0, touched_stored = 0, n_touched = 0;
         for (std::uint32_t y = 0; y < L.tiles_y; ++y)
             for (std::uint32_t x = 0; x < L.tiles_x; ++x) {
-                auto e = (*reader)->locate(storage::TileKey{l, x, y});
-                const bool present = e && e->kind != storage::TileKind::absent;
+                auto e = (*reader)->locate(tessera::TileKey{l, x, y});
+                const bool present = e && e->kind != tessera::TileKind::absent;
                 const bool t = touched.contains(l, x, y);
                 stored += present;
                 n_touched += t;
@@ -115,7 +109,7 @@ int main(int argc, char** argv) {
                 (unsigned long long)all_touched_stored, pct(all_touched_stored, all_stored));
 
     // 2. The runtime along the path, in real time.
-    NullUploader uploader;
+    client::NullUploader uploader;
     client::RuntimeConfig cfg;
     cfg.residency.pool_slots = pool;
     cfg.transcode_threads = transcode_threads;

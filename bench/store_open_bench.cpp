@@ -11,6 +11,7 @@
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
 
+using namespace tessera;
 using namespace tessera::storage;
 using Clock = std::chrono::steady_clock;
 

@@ -29,7 +29,7 @@
 #include <thread>
 #include <vector>
 
-#include "tessera/client/transcode.hpp"
+#include "transcode.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 using namespace tessera;
@@ -55,7 +55,7 @@ bool load(const std::string& path, Corpus& c) {
     c.path = path;
     c.info = std::make_shared<const storage::StoreInfo>(info);
     for (std::uint32_t l = 0; l < info.level_count(); ++l) {
-        std::vector<storage::TileKey> keys;
+        std::vector<tessera::TileKey> keys;
         for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
             for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) keys.push_back({l, x, y});
         for (auto& t : (*reader)->read_tiles(keys)) {
@@ -63,7 +63,7 @@ bool load(const std::string& path, Corpus& c) {
                 std::fprintf(stderr, "%s: %s\n", path.c_str(), t.error().message.c_str());
                 return false;
             }
-            if (t->kind != storage::TileKind::present) continue;  // uniform/absent: nothing to decode
+            if (t->kind != tessera::TileKind::present) continue;  // uniform/absent: nothing to decode
             c.payload_bytes += t->bytes.size();
             c.payloads.push_back(std::make_shared<const std::vector<std::uint8_t>>(std::move(t->bytes)));
         }
@@ -143,11 +143,11 @@ Timing pass_zstd_only(const Corpus& c, Ring& ring) {
 
 Timing pass_transcode(const Corpus& c, Ring& ring) {
     client::Scratch scratch;
-    const std::uint8_t codec = static_cast<std::uint8_t>(c.info->codec);
+    const Codec codec = c.info->codec;
     const Stopwatch watch(CLOCK_THREAD_CPUTIME_ID);
     bool ok = true;
     for (std::size_t i = 0; i < c.payloads.size(); ++i)
-        ok &= client::transcode_to_rgba8(*c.info, client::wire_kind::present, codec, *c.payloads[i], ring.slot(i), scratch)
+        ok &= client::transcode_to_rgba8(*c.info, TileKind::present, codec, *c.payloads[i], ring.slot(i), scratch)
                   .ok();
     return watch.stop(ok);
 }
@@ -156,7 +156,7 @@ Timing pass_transcode(const Corpus& c, Ring& ring) {
 // each), polls completions and reuses their slots, as the runtime's upload loop would.
 Timing pass_pool(const Corpus& c, Ring& ring, unsigned threads) {
     client::TranscodePool pool(client::TranscodePoolOptions{threads, Ring::kSlots, false});
-    const std::uint8_t codec = static_cast<std::uint8_t>(c.info->codec);
+    const Codec codec = c.info->codec;
     std::vector<std::size_t> free_slots;
     for (std::size_t s = 0; s < Ring::kSlots; ++s) free_slots.push_back(s);
     std::vector<client::TranscodeResult> results;
@@ -171,7 +171,7 @@ Timing pass_pool(const Corpus& c, Ring& ring, unsigned threads) {
             job.key = client::PageKey{0, 0, static_cast<std::uint32_t>(next), 0};
             job.ticket = free_slots.back();
             job.info = c.info;
-            job.kind = client::wire_kind::present;
+            job.kind = TileKind::present;
             job.codec = codec;
             job.payload = c.payloads[next];
             job.destination = ring.slot(free_slots.back());
@@ -268,7 +268,7 @@ int main(int argc, char** argv) {
         }
     };
     if (!jpeg.payloads.empty()) {
-        if (jpeg.info->codec != storage::Codec::jpeg) {
+        if (jpeg.info->codec != tessera::Codec::jpeg) {
             std::fprintf(stderr, "%s is not a JPEG store\n", jpeg_path.c_str());
             return 1;
         }
@@ -287,7 +287,7 @@ int main(int argc, char** argv) {
         suites.push_back(std::move(s));
     }
     if (!zstd.payloads.empty()) {
-        if (zstd.info->codec != storage::Codec::zstd) {
+        if (zstd.info->codec != tessera::Codec::zstd) {
             std::fprintf(stderr, "%s is not a zstd store\n", zstd_path.c_str());
             return 1;
         }

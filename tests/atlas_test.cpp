@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-#include "tessera/scene/scene.hpp"
+#include "tessera/client/scene/scene.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"
@@ -74,7 +74,7 @@ public:
     std::array<std::uint8_t, 3> at(std::uint32_t x, std::uint32_t y) {
         const storage::StoreInfo& s = reader_->info();
         const std::uint32_t P = s.tile_payload, B = s.border, T = s.tile_size();
-        const storage::TileKey key{0, x / P, y / P};
+        const tessera::TileKey key{0, x / P, y / P};
         auto& tile = tiles_[{key.x, key.y}];
         if (tile.empty()) {
             auto t = reader_->read_tile(key);
@@ -119,7 +119,7 @@ TEST_F(AtlasBuild, GalleryTexelsSurviveThePacking) {
     auto reader = storage::StoreReader::open(store);
     ASSERT_TRUE(reader.ok()) << reader.error().message;
     const storage::StoreInfo info = (*reader)->info();
-    EXPECT_EQ(info.codec, storage::Codec::zstd);
+    EXPECT_EQ(info.codec, tessera::Codec::zstd);
     EXPECT_EQ(info.channels, 3u);
 
     // The rewritten OBJ loads as the atlas scene: one chunk per object, every texel inside the atlas.

@@ -505,7 +505,7 @@ TEST(CliVerify, BadStoreFiles) {
 struct PayloadMap {
     struct Span {
         std::uint64_t begin = 0, end = 0;
-        std::vector<storage::TileKey> keys;  // more than one when deduplicated
+        std::vector<tessera::TileKey> keys;  // more than one when deduplicated
     };
     std::vector<Span> spans;  // sorted by begin
     std::uint64_t data_begin = UINT64_MAX;
@@ -530,7 +530,7 @@ PayloadMap map_payloads(const std::string& store) {
             for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
                 auto loc = (*reader)->locate({l, x, y});
                 EXPECT_TRUE(loc) << loc.error().message;
-                if (!loc || loc->kind != storage::TileKind::present) continue;
+                if (!loc || loc->kind != tessera::TileKind::present) continue;
                 auto& s = by_offset[loc->offset];
                 s.begin = loc->offset;
                 s.end = loc->offset + loc->length;
@@ -543,7 +543,7 @@ PayloadMap map_payloads(const std::string& store) {
     return m;
 }
 
-std::string tile_name(const storage::TileKey& k) {
+std::string tile_name(const tessera::TileKey& k) {
     return "level " + std::to_string(k.level) + " tile (" + std::to_string(k.x) + "," + std::to_string(k.y) + ")";
 }
 

@@ -24,8 +24,8 @@
 #include <thread>
 #include <vector>
 
-#include "tessera/client/disk_cache.hpp"
-#include "tessera/client/tile_cache.hpp"
+#include "disk_cache.hpp"
+#include "ram_cache.hpp"
 
 using namespace tessera;
 using namespace tessera::client;
@@ -55,7 +55,7 @@ private:
 
 TileId tid(std::uint32_t x, std::uint32_t y = 0, std::uint8_t level = 0, std::uint64_t version = 1,
            std::string store = "earth") {
-    return TileId{std::move(store), version, level, x, y};
+    return TileId{std::move(store), version, {level, x, y}};
 }
 
 std::uint64_t splitmix(std::uint64_t& s) {
@@ -67,12 +67,12 @@ std::uint64_t splitmix(std::uint64_t& s) {
 
 // A present tile whose bytes are derived from its key alone (so another process can write it and
 // this one verify it).
-CachedTile make_tile(const TileId& id, std::size_t size) {
-    CachedTile t;
-    t.kind = wire_kind::present;
-    t.codec = wire_codec::zstd;
+TileData make_tile(const TileId& id, std::size_t size) {
+    TileData t;
+    t.kind = tessera::TileKind::present;
+    t.codec = tessera::Codec::zstd;
     t.payload.resize(size);
-    std::uint64_t s = TileIdHash{}(id) ^ (std::uint64_t{id.level} << 40) ^ id.version;
+    std::uint64_t s = TileIdHash{}(id) ^ (std::uint64_t{id.tile.level} << 40) ^ id.version;
     for (std::size_t i = 0; i < size; i += 8) {
         const std::uint64_t v = splitmix(s);
         for (std::size_t j = 0; j < 8 && i + j < size; ++j) t.payload[i + j] = static_cast<std::uint8_t>(v >> (8 * j));
@@ -107,7 +107,7 @@ TEST(RamTileCache, HitMissReplaceErase) {
     s = cache.stats();
     EXPECT_EQ(s.entries, 0u);
     EXPECT_EQ(s.bytes, 0u);
-    EXPECT_FALSE(cache.put(b, std::shared_ptr<const CachedTile>{}));
+    EXPECT_FALSE(cache.put(b, std::shared_ptr<const TileData>{}));
 }
 
 TEST(RamTileCache, TileLargerThanBudgetIsRejected) {
@@ -161,7 +161,7 @@ TEST(RamTileCache, BudgetNeverExceededUnderRandomPuts) {
         const int op = static_cast<int>(rng() % 10);
         if (op < 6) {
             const std::size_t size = rng() % 50 == 0 ? kBudget : rng() % 20000;  // a few too big
-            const CachedTile t = make_tile(id, size);
+            const TileData t = make_tile(id, size);
             const std::uint64_t c = RamTileCache::charge(id, t);
             const bool ok = cache.put(id, t);
             ASSERT_EQ(ok, c <= kBudget);
@@ -231,9 +231,9 @@ TEST(RamTileCache, ConcurrentUse) {
             for (int i = 0; i < 5000; ++i) {
                 const TileId id = tid(rng() % 32, 0, 0, 1 + rng() % 2);
                 if (rng() % 2) {
-                    (void)cache.put(id, make_tile(id, 100 + id.x * 50));
+                    (void)cache.put(id, make_tile(id, 100 + id.tile.x * 50));
                 } else if (auto got = cache.get(id)) {
-                    if (*got != make_tile(id, 100 + id.x * 50)) bad = true;
+                    if (*got != make_tile(id, 100 + id.tile.x * 50)) bad = true;
                 }
                 if (i % 500 == 0) (void)cache.erase_store_versions_except("earth", 1 + rng() % 2);
                 if (cache.stats().bytes > kBudget) bad = true;
@@ -260,7 +260,7 @@ std::unique_ptr<DiskTileCache> open_cache(const std::string& dir, std::uint64_t 
     return open_cache(dir, std::move(opt));
 }
 
-std::optional<CachedTile> must_get(DiskTileCache& c, const TileId& id) {
+std::optional<TileData> must_get(DiskTileCache& c, const TileId& id) {
     auto r = c.get(id);
     if (!r.ok()) {
         ADD_FAILURE() << "get: " << r.error().message;
@@ -291,17 +291,17 @@ TEST(DiskTileCache, RoundTrip) {
     ASSERT_TRUE(cache);
     const TileId a = tid(3, 4, 2), b = tid(5, 6, 0, 7, "moon_v2.final-1");
     EXPECT_EQ(must_get(*cache, a), std::nullopt);
-    CachedTile absent;  // no payload at all
-    absent.kind = wire_kind::absent;
-    absent.codec = wire_codec::none;
+    TileData absent;  // no payload at all
+    absent.kind = tessera::TileKind::absent;
+    absent.codec = tessera::Codec::raw;
     absent.checksum = tile_checksum({});
-    CachedTile uniform;
-    uniform.kind = wire_kind::uniform;
-    uniform.codec = wire_codec::uniform;
+    TileData uniform;
+    uniform.kind = tessera::TileKind::uniform;
+    uniform.codec = tessera::Codec::raw;
     uniform.payload = {1, 2, 3, 4};
     uniform.checksum = tile_checksum(uniform.payload);
     ASSERT_TRUE(cache->put(a, make_tile(a, 70000)));
-    ASSERT_TRUE(cache->put(b, std::make_shared<const CachedTile>(uniform)));
+    ASSERT_TRUE(cache->put(b, std::make_shared<const TileData>(uniform)));
     const TileId c = tid(0, 0, 9);
     ASSERT_TRUE(cache->put(c, absent));
     cache->flush();
@@ -346,7 +346,7 @@ TEST(DiskTileCache, RejectsBadInput) {
     EXPECT_FALSE(DiskTileCache::valid_store_name(std::string(201, 'a')));
 
     // A payload that does not match its checksum is never written.
-    CachedTile bad = make_tile(tid(1), 100);
+    TileData bad = make_tile(tid(1), 100);
     bad.checksum ^= 1;
     EXPECT_TRUE(cache->put(tid(1), bad));
     // Larger than the whole budget: refused at once.
@@ -740,7 +740,7 @@ TEST(DiskTileCache, ConcurrentGetsAndPuts) {
             std::mt19937 rng(static_cast<unsigned>(t) + 1);
             for (int i = 0; i < 1500; ++i) {
                 const TileId id = tid(rng() % 64, 0, 0, 1 + rng() % 2);
-                const std::size_t size = 1000 + id.x * 97;
+                const std::size_t size = 1000 + id.tile.x * 97;
                 if (rng() % 3 == 0) {
                     (void)cache->put(id, make_tile(id, size));
                 } else {
@@ -849,8 +849,8 @@ TEST(DiskTileCache, FullQueueDropsPutsWithoutBlocking) {
     auto cache = open_cache(dir.str(), std::move(opt));
     ASSERT_TRUE(cache);
     cache->flush();
-    std::vector<std::shared_ptr<const CachedTile>> tiles;
-    for (std::uint32_t x = 0; x < 200; ++x) tiles.push_back(std::make_shared<const CachedTile>(make_tile(tid(x), 16 * 1024)));
+    std::vector<std::shared_ptr<const TileData>> tiles;
+    for (std::uint32_t x = 0; x < 200; ++x) tiles.push_back(std::make_shared<const TileData>(make_tile(tid(x), 16 * 1024)));
     ASSERT_TRUE(cache->put(tid(0), tiles[0]));
     stalled.get_future().wait();  // the writer holds tile 0 and waits
 
@@ -899,8 +899,8 @@ TEST(DiskTileCache, TinyQueueBurstDrops) {
     auto cache = open_cache(dir.str(), std::move(opt));
     ASSERT_TRUE(cache);
     cache->flush();
-    std::vector<std::shared_ptr<const CachedTile>> tiles;
-    for (std::uint32_t x = 0; x < 300; ++x) tiles.push_back(std::make_shared<const CachedTile>(make_tile(tid(x), 32 * 1024)));
+    std::vector<std::shared_ptr<const TileData>> tiles;
+    for (std::uint32_t x = 0; x < 300; ++x) tiles.push_back(std::make_shared<const TileData>(make_tile(tid(x), 32 * 1024)));
     std::uint64_t accepted = 0;
     for (std::uint32_t x = 0; x < 300; ++x) accepted += cache->put(tid(x), tiles[x]) ? 1 : 0;
     cache->flush();

@@ -28,7 +28,7 @@ public:
         for (const auto& r : requests) {
             SourceTile t;
             t.page = r.page;
-            t.payload.assign(bytes_, 7);
+            t.data.payload.assign(bytes_, 7);
             t.received = Clock::now();
             ready_.push_back(std::move(t));
         }
@@ -90,7 +90,7 @@ TEST(EmulatedSource, AddsLatency) {
         EXPECT_GE(at - t0, 30ms);
         EXPECT_GE(t.received - t0, 30ms);
         EXPECT_LE(t.received - t0, 30ms + 20ms);
-        EXPECT_EQ(t.payload.size(), 100u);
+        EXPECT_EQ(t.data.payload.size(), 100u);
     }
     EXPECT_NE(s->describe().find("instant"), std::string::npos);
 }

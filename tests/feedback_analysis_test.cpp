@@ -1,7 +1,7 @@
 // Feedback analysis: against a brute-force std::map reference on random buffers, the ancestor
 // sums, each ordering rule, invalid ids, the max_pages bound, id packing at its limits, and no
 // allocation per frame (a counting global operator new below).
-#include "tessera/client/feedback_analysis.hpp"
+#include "feedback_analysis.hpp"
 
 #include <gtest/gtest.h>
 

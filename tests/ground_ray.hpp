@@ -3,7 +3,7 @@
 #include <cmath>
 #include <cstdint>
 
-#include "tessera/scene/camera.hpp"
+#include "tessera/client/scene/camera.hpp"
 
 namespace tessera::test {
 

@@ -40,12 +40,12 @@
 
 using namespace tessera;
 using namespace tessera::server;
-using storage::Codec;
+using tessera::Codec;
 using storage::ColourSpace;
 using storage::SampleType;
 using storage::StoreSpec;
-using storage::TileKey;
-using storage::TileKind;
+using tessera::TileKey;
+using tessera::TileKind;
 using tessera::test::ScratchDir;
 
 namespace {

@@ -184,7 +184,7 @@ std::vector<std::string> write_sized_store(const std::string& path, const std::v
     spec.channels = 4;
     spec.sample_type = storage::SampleType::u8;
     spec.colour_space = storage::ColourSpace::srgb;
-    spec.codec = storage::Codec::zstd;
+    spec.codec = tessera::Codec::zstd;
     auto w = storage::StoreWriter::create(path, spec);
     EXPECT_TRUE(w.ok());
     if (!w.ok()) return {};
@@ -222,7 +222,7 @@ void write_noise_store(const std::string& path, std::uint32_t side) {
     spec.has_alpha = true;
     spec.sample_type = storage::SampleType::u8;
     spec.colour_space = storage::ColourSpace::srgb;
-    spec.codec = storage::Codec::raw;
+    spec.codec = tessera::Codec::raw;
     auto w = storage::StoreWriter::create(path, spec);
     ASSERT_TRUE(w.ok());
     std::mt19937 rng(side);
@@ -243,7 +243,7 @@ protected:
         spec.channels = 3;
         spec.sample_type = storage::SampleType::u8;
         spec.colour_space = storage::ColourSpace::srgb;
-        spec.codec = storage::Codec::raw;
+        spec.codec = tessera::Codec::raw;
         auto w = storage::StoreWriter::create(dir_.file("rgb.tsr"), spec);
         ASSERT_TRUE(w.ok());
         const storage::StoreInfo info = storage::store_info(spec);

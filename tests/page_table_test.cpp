@@ -12,8 +12,8 @@
 #include <tuple>
 #include <vector>
 
-#include "tessera/client/page_table.hpp"
-#include "tessera/client/residency.hpp"
+#include "page_table.hpp"
+#include "residency.hpp"
 
 namespace tessera::client {
 namespace {

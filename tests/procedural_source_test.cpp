@@ -9,8 +9,8 @@
 #include <random>
 #include <thread>
 
-#include "tessera/client/procedural_source.hpp"
-#include "tessera/client/transcode.hpp"
+#include "procedural_source.hpp"
+#include "transcode.hpp"
 
 namespace {
 
@@ -37,7 +37,7 @@ TEST(ProceduralSource, SpecsGiveStoreGeometry) {
     EXPECT_EQ(big->level_count(), 18u);
     EXPECT_EQ(big->levels.back().tiles_x, 1u);
     EXPECT_EQ(big->channels, 4u);
-    EXPECT_EQ(big->codec, tessera::storage::Codec::raw);
+    EXPECT_EQ(big->codec, tessera::Codec::raw);
 
     auto tiled = procedural_store_info("procedural:coords:12345679:1024:8");
     ASSERT_TRUE(tiled.ok()) << tiled.error().message;
@@ -124,13 +124,13 @@ TEST(ProceduralSource, ServesTheFormulaWithClampedBordersAtTheFarCorner) {
     std::size_t clamped = 0;
     for (const auto& t : got) {
         SCOPED_TRACE(testing::Message() << "tile (" << int(t.page.level) << ", " << t.page.x << ", " << t.page.y << ")");
-        ASSERT_EQ(t.status, 0) << t.message;
+        ASSERT_EQ(t.status, tessera::TileStatus::ok) << t.message;
         EXPECT_EQ(t.page.texture, 5);
         EXPECT_EQ(t.store_version, info->store_id);
-        EXPECT_EQ(t.kind, wire_kind::present);
-        EXPECT_EQ(t.codec, wire_codec::raw);
-        EXPECT_EQ(t.checksum, XXH3_64bits(t.payload.data(), t.payload.size()));
-        ASSERT_EQ(t.payload.size(), info->tile_bytes());
+        EXPECT_EQ(t.data.kind, tessera::TileKind::present);
+        EXPECT_EQ(t.data.codec, tessera::Codec::raw);
+        EXPECT_EQ(t.data.checksum, XXH3_64bits(t.data.payload.data(), t.data.payload.size()));
+        ASSERT_EQ(t.data.payload.size(), info->tile_bytes());
         const auto& l = info->levels[t.page.level];
         std::size_t wrong = 0;
         for (std::uint32_t j = 0; j < info->tile_size(); ++j)
@@ -139,12 +139,12 @@ TEST(ProceduralSource, ServesTheFormulaWithClampedBordersAtTheFarCorner) {
                 const auto cx = std::clamp<std::int64_t>(x, 0, l.width - 1), cy = std::clamp<std::int64_t>(y, 0, l.height - 1);
                 clamped += cx != x || cy != y;
                 const auto want = coords_texel(t.page.level, std::uint32_t(cx), std::uint32_t(cy));
-                wrong += !std::equal(want.begin(), want.end(), t.payload.begin() + (std::ptrdiff_t(j) * info->tile_size() + i) * 4);
+                wrong += !std::equal(want.begin(), want.end(), t.data.payload.begin() + (std::ptrdiff_t(j) * info->tile_size() + i) * 4);
             }
         EXPECT_EQ(wrong, 0u);
         // What the runtime makes of it: the same bytes (RGBA8 in, RGBA8 out).
-        ASSERT_TRUE(transcode_to_rgba8(*info, t.kind, t.codec, t.payload, rgba, scratch).ok());
-        EXPECT_EQ(rgba, t.payload);
+        ASSERT_TRUE(transcode_to_rgba8(*info, t.data.kind, t.data.codec, t.data.payload, rgba, scratch).ok());
+        EXPECT_EQ(rgba, t.data.payload);
     }
     EXPECT_GT(clamped, 0u) << "borders past the edges were exercised";
 }
@@ -160,9 +160,9 @@ TEST(ProceduralSource, OutsideTheTextureAndUnboundTexturesAreErrors) {
     const auto got = collect(*src, reqs.size());
     ASSERT_EQ(got.size(), reqs.size());
     for (const auto& t : got) {
-        EXPECT_EQ(t.status, t.page.texture == 1 ? 1 : 2) << t.message;  // TILE_NOT_FOUND, TILE_OUT_OF_RANGE
+        EXPECT_EQ(t.status, t.page.texture == 1 ? tessera::TileStatus::not_found : tessera::TileStatus::out_of_range) << t.message;
         EXPECT_FALSE(t.message.empty());
-        EXPECT_TRUE(t.payload.empty());
+        EXPECT_TRUE(t.data.payload.empty());
     }
 }
 

@@ -27,9 +27,9 @@
 #include "render_util.hpp"
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/gl/renderer.hpp"
-#include "tessera/client/page_table.hpp"
-#include "tessera/scene/camera.hpp"
-#include "tessera/scene/scene.hpp"
+#include "page_table.hpp"
+#include "tessera/client/scene/camera.hpp"
+#include "tessera/client/scene/scene.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace {

@@ -30,13 +30,14 @@
 #include "ground_ray.hpp"
 #include "render_util.hpp"
 #include "tessera/client/gl/renderer.hpp"
-#include "tessera/client/page_table.hpp"
+#include "page_table.hpp"
 #include "tessera/client/runtime.hpp"
+#include "residency.hpp"
 #include "tessera/client/tile_source.hpp"
-#include "tessera/scene/camera.hpp"
-#include "tessera/scene/cpu_feedback.hpp"
-#include "tessera/scene/lod.hpp"
-#include "tessera/scene/scene.hpp"
+#include "tessera/client/scene/camera.hpp"
+#include "tessera/client/scene/cpu_feedback.hpp"
+#include "tessera/client/scene/lod.hpp"
+#include "tessera/client/scene/scene.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/image_source.hpp"
 #include "test_util.hpp"
@@ -163,7 +164,7 @@ std::string build_store(const std::string& path, const std::string& input, std::
     st::BuildOptions o;
     o.tile_size = tile_size;
     o.border = 4;
-    o.codec = st::Codec::zstd;  // lossless
+    o.codec = tessera::Codec::zstd;  // lossless
     o.threads = 2;
     auto r = source ? st::build_store(*source, path, o) : st::build_store(input, path, o);
     EXPECT_TRUE(r.ok()) << r.error().message;

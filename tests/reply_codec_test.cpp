@@ -17,6 +17,7 @@
 #include "store_registry.hpp"
 #include "tessera.pb.h"
 #include "tessera/protocol/stream_codec.hpp"
+#include "tessera/protocol/wire.hpp"
 
 namespace {
 
@@ -56,19 +57,15 @@ struct Maker {
         return s;
     }();
 
-    OutMessage tile(storage::TileKind kind, std::size_t size, std::uint32_t level, std::uint32_t x, std::uint32_t y) {
+    OutMessage tile(tessera::TileKind kind, std::size_t size, std::uint32_t level, std::uint32_t x, std::uint32_t y) {
         OutMessage m;
         m.is_tile = true;
         m.store = store;
         m.key = {level, x, y};
         m.frame = rng() >> (rng() % 64);
-        m.status = v1::TILE_OK;
-        m.kind = kind == storage::TileKind::present ? v1::KIND_PRESENT
-                 : kind == storage::TileKind::uniform ? v1::KIND_UNIFORM
-                                                      : v1::KIND_ABSENT;
-        m.codec = kind == storage::TileKind::present ? v1::CODEC_JPEG
-                  : kind == storage::TileKind::uniform ? v1::CODEC_UNIFORM
-                                                       : v1::CODEC_NONE;
+        m.status = tessera::TileStatus::ok;
+        m.kind = kind;
+        m.codec = tessera::Codec::jpeg;  // the store's codec; the reply names it for present tiles only
         auto t = std::make_shared<storage::Tile>();
         t->kind = kind;
         t->bytes.resize(size);
@@ -78,7 +75,7 @@ struct Maker {
         m.server_micros = static_cast<std::uint32_t>(rng() % 100000);
         return m;
     }
-    OutMessage read_error(v1::TileStatus status, std::string text) {
+    OutMessage read_error(tessera::TileStatus status, std::string text) {
         OutMessage m;
         m.is_tile = true;
         m.store = store;
@@ -86,7 +83,6 @@ struct Maker {
         m.frame = 9;
         m.status = status;
         m.error = std::move(text);
-        m.codec = v1::CODEC_NONE;
         return m;
     }
     // An error found in submit(): a ready-made protobuf TileReply.
@@ -105,13 +101,13 @@ struct Maker {
 
 std::vector<OutMessage> mixed(Maker& mk) {
     std::vector<OutMessage> msgs;
-    msgs.push_back(mk.tile(storage::TileKind::present, 15000, 2, 17, 300));
-    msgs.push_back(mk.tile(storage::TileKind::uniform, 4, 0, 0, 0));   // zero key fields: omitted
-    msgs.push_back(mk.tile(storage::TileKind::absent, 0, 5, 1, 1));    // no payload at all
-    msgs.push_back(mk.read_error(v1::TILE_DEADLINE_EXCEEDED, "not started before its deadline"));
+    msgs.push_back(mk.tile(tessera::TileKind::present, 15000, 2, 17, 300));
+    msgs.push_back(mk.tile(tessera::TileKind::uniform, 4, 0, 0, 0));   // zero key fields: omitted
+    msgs.push_back(mk.tile(tessera::TileKind::absent, 0, 5, 1, 1));    // no payload at all
+    msgs.push_back(mk.read_error(tessera::TileStatus::deadline_exceeded, "not started before its deadline"));
     msgs.push_back(mk.submit_error());
-    msgs.push_back(mk.tile(storage::TileKind::present, 1, 1, 0, 1));
-    msgs.push_back(mk.tile(storage::TileKind::present, 200000, 30, 0xFFFFFFFFu, 128));  // multi-byte lengths
+    msgs.push_back(mk.tile(tessera::TileKind::present, 1, 1, 0, 1));
+    msgs.push_back(mk.tile(tessera::TileKind::present, 200000, 30, 0xFFFFFFFFu, 128));  // multi-byte lengths
     return msgs;
 }
 
@@ -174,9 +170,9 @@ TEST(ReplyCodec, OneReplyPerMessageForRevisionZero) {
 void expect_decoded(const protocol::ServerMessageDecoder& d, std::size_t i, const v1::TileReply& want) {
     const auto& t = d.tile(i);
     EXPECT_EQ(t.store, want.key().store());
-    EXPECT_EQ(t.level, want.key().level());
-    EXPECT_EQ(t.x, want.key().x());
-    EXPECT_EQ(t.y, want.key().y());
+    EXPECT_EQ(t.key.level, want.key().level());
+    EXPECT_EQ(t.key.x, want.key().x());
+    EXPECT_EQ(t.key.y, want.key().y());
     EXPECT_EQ(t.store_version, want.store_version());
     EXPECT_EQ(t.frame, want.frame());
     EXPECT_EQ(t.status, want.status());
@@ -246,6 +242,29 @@ TEST(ReplyCodec, DecoderRejectsTruncatedMessages) {
         const std::string part = bytes.substr(0, n);
         EXPECT_FALSE(d.decode(cut(part, {n / 3}))) << "truncated to " << n << " bytes";
     }
+}
+
+// The wire's enums and the tile vocabulary convert both ways, and a reply's codec and kind read as
+// the client must: CODEC_UNIFORM alone makes a tile uniform; the codec a reply names follows from
+// status, kind and the store's codec.
+TEST(ReplyCodec, CodecUniformMakesAUniformTile) {
+    EXPECT_EQ(protocol::reply_kind(v1::KIND_PRESENT, v1::CODEC_UNIFORM), TileKind::uniform);
+    EXPECT_EQ(protocol::reply_kind(v1::KIND_UNIFORM, v1::CODEC_UNIFORM), TileKind::uniform);
+    EXPECT_EQ(protocol::reply_kind(v1::KIND_PRESENT, v1::CODEC_JPEG), TileKind::present);
+    EXPECT_EQ(protocol::reply_kind(v1::KIND_ABSENT, v1::CODEC_UNIFORM), TileKind::absent);
+    EXPECT_EQ(protocol::reply_codec(TileStatus::ok, TileKind::present, Codec::zstd), v1::CODEC_ZSTD);
+    EXPECT_EQ(protocol::reply_codec(TileStatus::ok, TileKind::uniform, Codec::zstd), v1::CODEC_UNIFORM);
+    EXPECT_EQ(protocol::reply_codec(TileStatus::ok, TileKind::absent, Codec::zstd), v1::CODEC_NONE);
+    EXPECT_EQ(protocol::reply_codec(TileStatus::data_loss, TileKind::present, Codec::zstd), v1::CODEC_NONE);
+    for (int s = 0; s <= 8; ++s) {
+        const auto status = static_cast<TileStatus>(s);
+        EXPECT_EQ(protocol::from_proto(protocol::to_proto(status)), status) << to_string(status);
+        EXPECT_EQ(int(protocol::to_proto(status)), s) << "tessera.proto's TileStatus values";
+    }
+    EXPECT_EQ(protocol::from_proto(static_cast<v1::TileStatus>(99)), TileStatus::internal);
+    for (auto c : {Codec::raw, Codec::zstd, Codec::jpeg}) EXPECT_EQ(protocol::from_proto(protocol::to_proto(c)), c);
+    for (auto k : {TileKind::absent, TileKind::present, TileKind::uniform})
+        EXPECT_EQ(protocol::from_proto(protocol::to_proto(k)), k);
 }
 
 }  // namespace

@@ -8,7 +8,9 @@
 #include <set>
 
 #include "server_process.hpp"
+#include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/runtime.hpp"
+#include "residency.hpp"
 
 namespace {
 

@@ -9,7 +9,9 @@
 #include <map>
 #include <set>
 
+#include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/runtime.hpp"
+#include "residency.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"
 
@@ -52,10 +54,10 @@ public:
             SourceTile t;
             t.page = it->page;
             t.store_version = reader_->info().store_id;
-            t.kind = static_cast<std::uint8_t>(tile->kind);
-            t.codec = tile->kind == tessera::storage::TileKind::uniform ? 3 : static_cast<std::uint8_t>(reader_->info().codec);
-            t.checksum = tile->checksum;
-            t.payload = std::move(tile->bytes);
+            t.data.kind = tile->kind;
+            t.data.codec = reader_->info().codec;
+            t.data.checksum = tile->checksum;
+            t.data.payload = std::move(tile->bytes);
             out.push_back(std::move(t));
             ++served_;
             it = pending_.erase(it);

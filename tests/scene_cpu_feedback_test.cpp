@@ -8,7 +8,7 @@
 #include <set>
 #include <tuple>
 
-#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/client/scene/cpu_feedback.hpp"
 
 namespace {
 

@@ -7,8 +7,8 @@
 #include <numbers>
 #include <set>
 
-#include "tessera/scene/cpu_feedback.hpp"
-#include "tessera/scene/path.hpp"
+#include "tessera/client/scene/cpu_feedback.hpp"
+#include "tessera/client/scene/path.hpp"
 #include "test_util.hpp"
 
 namespace {

@@ -18,7 +18,7 @@
 
 #include "server_process.hpp"
 #include "tessera.grpc.pb.h"
-#include "tessera/client/tile_stream_client.hpp"
+#include "tessera/client/net/tile_stream_client.hpp"
 #include "tessera/protocol/wire.hpp"
 #include "tessera/storage/store_reader.hpp"
 
@@ -673,7 +673,7 @@ TEST_F(ServerGrpc, CorruptTileIsNeverServed) {
         ASSERT_TRUE(reader.ok());
         auto loc = (*reader)->locate({0, 1, 1});
         ASSERT_TRUE(loc.ok());
-        ASSERT_EQ(loc->kind, tessera::storage::TileKind::present);
+        ASSERT_EQ(loc->kind, tessera::TileKind::present);
         offset = loc->offset + loc->length / 2;
     }
     auto bytes = tessera::test::read_file(path);
@@ -1135,7 +1135,7 @@ TEST_F(ServerGrpc, ClientLibraryRidesOutAServerRestart) {
     for (int i = 0; i < 500 && tiles.size() < 2; ++i)
         if (client->wait_for_data(20ms)) client->poll(tiles);
     ASSERT_EQ(tiles.size(), 2u);
-    for (const auto& t : tiles) EXPECT_EQ(t.status, v1::TILE_OK) << t.message;
+    for (const auto& t : tiles) EXPECT_EQ(t.status, tessera::TileStatus::ok) << t.message;
 
     srv->signal(SIGTERM);
     ASSERT_EQ(srv->wait_exit(20s), std::optional<int>(0));
@@ -1152,7 +1152,7 @@ TEST_F(ServerGrpc, ClientLibraryRidesOutAServerRestart) {
         if (client->wait_for_data(20ms)) client->poll(tiles);
     ASSERT_EQ(tiles.size(), 1u);
     EXPECT_EQ(tiles[0].frame, 2u);
-    EXPECT_EQ(tiles[0].status, v1::TILE_OK);
+    EXPECT_EQ(tiles[0].status, tessera::TileStatus::ok);
     EXPECT_GE(client->stats().reconnects, 1u);  // (a draining server may refuse one attempt first)
 }
 

@@ -26,12 +26,12 @@
 #include <numbers>
 #include <vector>
 
-#include "tessera/client/feedback_analysis.hpp"
+#include "feedback_analysis.hpp"
 #include "tessera/client/page.hpp"
-#include "tessera/client/page_table.hpp"
-#include "tessera/scene/camera.hpp"
-#include "tessera/scene/cpu_feedback.hpp"
-#include "tessera/scene/lod.hpp"
+#include "page_table.hpp"
+#include "tessera/client/scene/camera.hpp"
+#include "tessera/client/scene/cpu_feedback.hpp"
+#include "tessera/client/scene/lod.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace {

@@ -23,14 +23,14 @@ namespace {
 constexpr std::size_t kOverhead = 128;  // what TileCache::charge adds to the payload
 
 CacheKey key(std::uint32_t x, std::uint32_t y = 0, std::uint32_t level = 0, std::uint64_t version = 1) {
-    return CacheKey{version, level, x, y};
+    return CacheKey{version, {level, x, y}};
 }
 
 // A present tile of `payload` bytes whose contents identify the key it was made for.
 std::shared_ptr<const Tile> make_tile(const CacheKey& k, std::size_t payload) {
     auto t = std::make_shared<Tile>();
-    t->key = {k.level, k.x, k.y};
-    t->kind = storage::TileKind::present;
+    t->key = k.tile;
+    t->kind = tessera::TileKind::present;
     t->bytes.assign(payload, static_cast<std::uint8_t>(k.store_version));
     return t;
 }
@@ -45,7 +45,7 @@ void expect_consistent(const CacheStats& s) {
 struct KeyHash {
     std::size_t operator()(const CacheKey& k) const {
         std::uint64_t h = k.store_version * 0x9e3779b97f4a7c15ULL;
-        h ^= (std::uint64_t{k.level} << 48) ^ (std::uint64_t{k.x} << 24) ^ k.y;
+        h ^= (std::uint64_t{k.tile.level} << 48) ^ (std::uint64_t{k.tile.x} << 24) ^ k.tile.y;
         return std::hash<std::uint64_t>{}(h);
     }
 };
@@ -223,7 +223,7 @@ TEST(TileCacheTest, ByteBudgetNeverExceeded) {
         const CacheKey k = key(pick_key(rng), 0, 0, pick_op(rng) < 5 ? 1 : 2);
         if (pick_op(rng) < 4) {
             if (const auto got = cache.get(k)) {
-                EXPECT_EQ(got->key.x, k.x);
+                EXPECT_EQ(got->key.x, k.tile.x);
                 EXPECT_EQ(got->bytes.empty() ? k.store_version : got->bytes[0], k.store_version);
             }
         } else {
@@ -322,7 +322,7 @@ TEST(TileCacheTest, ConcurrentGetAndPutKeepInvariants) {
     TileCache cache(kBudget, 8);
     // Each key always gets the same size and contents, so any tile served can be checked.
     const auto size_of = [](const CacheKey& k) {
-        return std::size_t{(k.x * 7919u + k.y * 104'729u) % 4000u};
+        return std::size_t{(k.tile.x * 7919u + k.tile.y * 104'729u) % 4000u};
     };
     std::vector<std::thread> threads;
     std::vector<std::uint64_t> gets(kThreads, 0);
@@ -337,7 +337,7 @@ TEST(TileCacheTest, ConcurrentGetAndPutKeepInvariants) {
                 if (pick(rng) < 70) {
                     ++gets[static_cast<std::size_t>(t)];
                     if (const auto tile = cache.get(k)) {
-                        const bool ok = tile->key.x == k.x && tile->key.y == k.y &&
+                        const bool ok = tile->key.x == k.tile.x && tile->key.y == k.tile.y &&
                                         tile->bytes.size() == size_of(k) &&
                                         (tile->bytes.empty() || tile->bytes.back() == k.store_version);
                         if (!ok) ++bad[static_cast<std::size_t>(t)];

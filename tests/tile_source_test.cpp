@@ -50,12 +50,12 @@ TEST_F(LocalSource, ServesTheStoredBytesHighestPriorityFirst) {
     const auto got = collect(*src, reqs.size());
     ASSERT_EQ(got.size(), reqs.size());
     for (const auto& t : got) {
-        EXPECT_EQ(t.status, 0) << t.message;
+        EXPECT_EQ(t.status, tessera::TileStatus::ok) << t.message;
         EXPECT_EQ(t.page.texture, 3);
         auto expect = (*reader)->read_tile({0, t.page.x, 0});
         ASSERT_TRUE(expect.ok());
-        EXPECT_EQ(t.payload, expect->bytes);
-        EXPECT_EQ(t.checksum, expect->checksum);
+        EXPECT_EQ(t.data.payload, expect->bytes);
+        EXPECT_EQ(t.data.checksum, expect->checksum);
         EXPECT_EQ(t.store_version, (*reader)->info().store_id);
     }
     // One reader, all requests queued before it started: highest priority first (x = 7 first).
@@ -89,7 +89,7 @@ TEST_F(LocalSource, MissingStoreAndUnboundTexture) {
     src->set_requests(1, std::span<const SourceRequest>(&r, 1));
     const auto got = collect(*src, 1);
     ASSERT_EQ(got.size(), 1u);
-    EXPECT_NE(got[0].status, 0);
+    EXPECT_NE(got[0].status, tessera::TileStatus::ok);
     EXPECT_FALSE(got[0].message.empty());
 }
 

@@ -1,7 +1,7 @@
 // TileStreamClient against an in-process fake TileService (gRPC sync server on 127.0.0.1:0): replies
 // and their fields, newest-batch-wins, reconnect with resend, checksum verification, auth metadata,
 // prompt destruction, the bounded receive buffer, TLS, retry after RESOURCE_EXHAUSTED, unary calls.
-#include "tessera/client/tile_stream_client.hpp"
+#include "tessera/client/net/tile_stream_client.hpp"
 
 #include <gtest/gtest.h>
 #include <xxhash.h>
@@ -280,7 +280,7 @@ TEST(TileStreamClient, BatchRepliesArriveWithTheirFields) {
     ASSERT_EQ(tiles.size(), 6u) << client->last_error();
     ASSERT_EQ(acks.size(), 1u);
     EXPECT_EQ(acks[0].frame, 5u);
-    EXPECT_EQ(acks[0].status, v1::TILE_OK);
+    EXPECT_EQ(acks[0].status, tessera::TileStatus::ok);
     EXPECT_EQ(acks[0].admitted, 6u);
     EXPECT_EQ(acks[0].cancelled, 3u);
 
@@ -299,17 +299,17 @@ TEST(TileStreamClient, BatchRepliesArriveWithTheirFields) {
     for (std::size_t i = 0; i < tiles.size(); ++i) {
         const ReceivedTile& t = tiles[i];
         EXPECT_EQ(t.store, i % 2 == 0 ? "alpha" : "beta");
-        EXPECT_EQ(t.level, 5u);
-        EXPECT_EQ(t.x, i);
-        EXPECT_EQ(t.y, i + 1);
+        EXPECT_EQ(t.key.level, 5u);
+        EXPECT_EQ(t.key.x, i);
+        EXPECT_EQ(t.key.y, i + 1);
         EXPECT_EQ(t.store_version, 0x1234567890abcdefULL);
         EXPECT_EQ(t.frame, 5u);
-        EXPECT_EQ(t.status, v1::TILE_OK);
+        EXPECT_EQ(t.status, tessera::TileStatus::ok);
         EXPECT_TRUE(t.message.empty());
-        EXPECT_EQ(t.kind, v1::KIND_PRESENT);
-        EXPECT_EQ(t.codec, v1::CODEC_RAW);
-        EXPECT_EQ(t.payload, make_payload(5, t.x, t.y, 100));
-        EXPECT_EQ(t.checksum, XXH3_64bits(t.payload.data(), t.payload.size()));
+        EXPECT_EQ(t.data.kind, tessera::TileKind::present);
+        EXPECT_EQ(t.data.codec, tessera::Codec::raw);
+        EXPECT_EQ(t.data.payload, make_payload(5, t.key.x, t.key.y, 100));
+        EXPECT_EQ(t.data.checksum, XXH3_64bits(t.data.payload.data(), t.data.payload.size()));
         EXPECT_EQ(t.server_micros, 77u);
         EXPECT_LE(t.received, before);
     }
@@ -352,11 +352,11 @@ TEST(TileStreamClient, SeveralTilesPerMessageAreSplit) {
     ASSERT_EQ(service.batches().size(), 1u);
     EXPECT_EQ(service.batches()[0].protocol_revision(), 1u);
     for (std::size_t i = 0; i < tiles.size(); ++i) {
-        EXPECT_EQ(tiles[i].x, i);
-        EXPECT_EQ(tiles[i].y, i + 1);
+        EXPECT_EQ(tiles[i].key.x, i);
+        EXPECT_EQ(tiles[i].key.y, i + 1);
         EXPECT_EQ(tiles[i].store, i % 2 == 0 ? "alpha" : "beta");
-        EXPECT_EQ(tiles[i].status, v1::TILE_OK);
-        EXPECT_EQ(tiles[i].payload, make_payload(3, tiles[i].x, tiles[i].y, 1000 + i * 37));
+        EXPECT_EQ(tiles[i].status, tessera::TileStatus::ok);
+        EXPECT_EQ(tiles[i].data.payload, make_payload(3, tiles[i].key.x, tiles[i].key.y, 1000 + i * 37));
         EXPECT_EQ(tiles[i].server_micros, 77u);
     }
     EXPECT_EQ(client->stats().tiles_received, 7u);
@@ -378,8 +378,8 @@ TEST(TileStreamClient, PollMovesAtMostMaxInArrivalOrder) {
     EXPECT_TRUE(tiles.empty());
     EXPECT_EQ(client->poll(tiles, &acks, 2), 2u);
     ASSERT_EQ(tiles.size(), 2u);
-    EXPECT_EQ(tiles[0].x, 0u);
-    EXPECT_EQ(tiles[1].x, 1u);
+    EXPECT_EQ(tiles[0].key.x, 0u);
+    EXPECT_EQ(tiles[1].key.x, 1u);
     EXPECT_EQ(client->poll(tiles), 2u);
     EXPECT_EQ(client->poll(tiles), 0u);
     EXPECT_FALSE(client->wait_for_data(10ms));
@@ -506,13 +506,13 @@ TEST(TileStreamClient, ChecksumMismatchIsDataLoss) {
     client->send_batch(1, requests(1, 3));
     auto tiles = collect(*client, 3);
     ASSERT_EQ(tiles.size(), 3u) << client->last_error();
-    EXPECT_EQ(tiles[0].status, v1::TILE_OK);
-    EXPECT_EQ(tiles[0].payload.size(), 64u);
-    EXPECT_EQ(tiles[1].status, v1::TILE_DATA_LOSS);
+    EXPECT_EQ(tiles[0].status, tessera::TileStatus::ok);
+    EXPECT_EQ(tiles[0].data.payload.size(), 64u);
+    EXPECT_EQ(tiles[1].status, tessera::TileStatus::data_loss);
     EXPECT_EQ(tiles[1].message, "checksum mismatch in transit");
-    EXPECT_TRUE(tiles[1].payload.empty());
-    EXPECT_EQ(tiles[1].x, 1u);
-    EXPECT_EQ(tiles[2].status, v1::TILE_OUT_OF_RANGE);
+    EXPECT_TRUE(tiles[1].data.payload.empty());
+    EXPECT_EQ(tiles[1].key.x, 1u);
+    EXPECT_EQ(tiles[2].status, tessera::TileStatus::out_of_range);
     EXPECT_EQ(tiles[2].message, "outside the store");
     EXPECT_EQ(client->stats().checksum_failures, 1u);
 }
@@ -619,8 +619,8 @@ TEST(TileStreamClient, BufferedBytesStayBounded) {
     }
     ASSERT_EQ(tiles.size(), std::size_t(kTiles));
     for (int i = 0; i < kTiles; ++i) {
-        EXPECT_EQ(tiles[i].x, std::uint32_t(i));
-        EXPECT_EQ(tiles[i].status, v1::TILE_OK);
+        EXPECT_EQ(tiles[i].key.x, std::uint32_t(i));
+        EXPECT_EQ(tiles[i].status, tessera::TileStatus::ok);
     }
     stats = client->stats();
     EXPECT_LE(stats.peak_buffered_bytes, kBound + kPayload + 1024);
@@ -661,13 +661,13 @@ TEST(TileStreamClient, UnaryCalls) {
     auto stores = client->list_stores(5s);
     ASSERT_TRUE(stores.ok()) << stores.error().message;
     ASSERT_EQ(stores->size(), 2u);
-    EXPECT_EQ((*stores)[0].name(), "alpha");
-    EXPECT_EQ((*stores)[1].name(), "beta");
+    EXPECT_EQ((*stores)[0].name, "alpha");
+    EXPECT_EQ((*stores)[1].name, "beta");
 
     auto alpha = client->get_store("alpha", 5s);
     ASSERT_TRUE(alpha.ok());
-    EXPECT_EQ(alpha->width(), 4096u);
-    EXPECT_EQ(alpha->version(), 99u);
+    EXPECT_EQ(alpha->info.width, 4096u);
+    EXPECT_EQ(alpha->info.store_id, 99u);
 
     auto missing = client->get_store("nope", 5s);
     ASSERT_FALSE(missing.ok());

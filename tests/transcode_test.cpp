@@ -18,7 +18,7 @@
 #include <thread>
 #include <vector>
 
-#include "tessera/client/transcode.hpp"
+#include "transcode.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/image_source.hpp"
@@ -29,11 +29,11 @@
 namespace tessera::client {
 namespace {
 
-using storage::Codec;
+using tessera::Codec;
 using storage::SampleType;
 using storage::StoreInfo;
 using storage::Tile;
-using storage::TileKind;
+using tessera::TileKind;
 
 static_assert(std::endian::native == std::endian::little, "the reference below reads floats in host order");
 
@@ -91,10 +91,7 @@ std::vector<std::uint8_t> reference_rgba8(const StoreInfo& info, const std::vect
     return out;
 }
 
-std::uint8_t wire_kind_of(const Tile& t) { return static_cast<std::uint8_t>(t.kind); }
-std::uint8_t wire_codec_of(const StoreInfo& info, const Tile& t) {
-    return t.kind == TileKind::uniform ? wire_codec::uniform : static_cast<std::uint8_t>(info.codec);
-}
+
 
 // storage::decode_tile on a thread of its own. Its thread-local libjpeg-turbo handle is unusable
 // after a JPEG whose header fails to parse (libjpeg-turbo 2.1: every later header read on that
@@ -111,7 +108,7 @@ bool expect_matches_reference(const StoreInfo& info, const Tile& tile, Scratch& 
     std::vector<std::uint8_t> decoded;
     const Status ref = reference_decode(info, tile, decoded);
     std::vector<std::uint8_t> out(rgba8_page_bytes(info), 0xCD);
-    const Status got = transcode_to_rgba8(info, wire_kind_of(tile), wire_codec_of(info, tile), tile.bytes, out, scratch);
+    const Status got = transcode_to_rgba8(info, tile.kind, info.codec, tile.bytes, out, scratch);
     EXPECT_EQ(ref.ok(), got.ok()) << what << ": reference " << (ref.ok() ? "ok" : ref.error().message)
                                   << ", transcode " << (got.ok() ? "ok" : got.error().message);
     if (!ref.ok() || !got.ok()) return false;
@@ -231,7 +228,7 @@ TEST(TranscodeTile, ZstdAndRawEveryFormatMatchReference) {
                     const Tile tile = encode_present(info, synthetic_texels(info, seed));
                     EXPECT_TRUE(expect_matches_reference(info, tile, scratch,
                                                          std::string(f.name) + " " +
-                                                             std::string(storage::to_string(codec)) + " side " +
+                                                             std::string(tessera::to_string(codec)) + " side " +
                                                              std::to_string(info.tile_size())));
                 }
             }
@@ -266,7 +263,7 @@ TEST(TranscodeTile, GreyJpegExpandsToOpaqueGrey) {
     ASSERT_TRUE(reference_decode(info, tile, grey).ok());
     std::vector<std::uint8_t> out(rgba8_page_bytes(info));
     Scratch scratch;
-    ASSERT_TRUE(transcode_to_rgba8(info, wire_kind::present, wire_codec::jpeg, tile.bytes, out, scratch).ok());
+    ASSERT_TRUE(transcode_to_rgba8(info, TileKind::present, Codec::jpeg, tile.bytes, out, scratch).ok());
     for (std::size_t i = 0; i < grey.size(); ++i) {
         ASSERT_EQ(out[4 * i], grey[i]) << i;
         ASSERT_EQ(out[4 * i + 1], grey[i]) << i;
@@ -288,11 +285,12 @@ TEST(TranscodeTile, UniformEveryFormatMatchesReference) {
             EXPECT_TRUE(expect_matches_reference(info, tile, scratch, std::string("uniform ") + f.name));
         }
     }
-    // The codec field alone may say uniform (CODEC_UNIFORM with KIND_PRESENT): same result.
+    // A uniform tile of a JPEG store: the value, never a JPEG decode. (A reply whose codec alone
+    // says uniform is read as a uniform tile: ReplyCodec.CodecUniformMakesAUniformTile.)
     const StoreInfo info = make_info(3, SampleType::u8, Codec::jpeg);
     const std::uint8_t value[3] = {10, 20, 30};
     std::vector<std::uint8_t> out(rgba8_page_bytes(info));
-    ASSERT_TRUE(transcode_to_rgba8(info, wire_kind::present, wire_codec::uniform, value, out, scratch).ok());
+    ASSERT_TRUE(transcode_to_rgba8(info, TileKind::uniform, Codec::jpeg, value, out, scratch).ok());
     for (std::size_t i = 0; i < out.size(); i += 4) {
         ASSERT_EQ(out[i], 10);
         ASSERT_EQ(out[i + 1], 20);
@@ -307,7 +305,7 @@ TEST(TranscodeTile, ConversionEdgeValues) {
     auto one_texel_store = [](std::uint32_t channels, SampleType t) { return make_info(channels, t, Codec::raw, false, 2, 0); };
     auto first_texel = [&](const StoreInfo& info, const std::vector<std::uint8_t>& value) {
         out.assign(rgba8_page_bytes(info), 0);
-        EXPECT_TRUE(transcode_to_rgba8(info, wire_kind::uniform, wire_codec::uniform, value, out, scratch).ok());
+        EXPECT_TRUE(transcode_to_rgba8(info, TileKind::uniform, Codec::raw, value, out, scratch).ok());
         return std::vector<std::uint8_t>(out.begin(), out.begin() + 4);
     };
     using V = std::vector<std::uint8_t>;
@@ -339,7 +337,7 @@ TEST(TranscodeTile, CorruptPayloadsAreErrors) {
     const StoreInfo rgb = make_info(3, SampleType::u8, Codec::jpeg);
     const Tile jpeg = encode_present(rgb, synthetic_texels(rgb, 1));
     std::vector<std::uint8_t> out(rgba8_page_bytes(rgb));
-    auto run = [&](const StoreInfo& info, std::uint8_t kind, std::uint8_t codec, std::span<const std::uint8_t> payload) {
+    auto run = [&](const StoreInfo& info, TileKind kind, Codec codec, std::span<const std::uint8_t> payload) {
         out.assign(rgba8_page_bytes(info), 0);
         return transcode_to_rgba8(info, kind, codec, payload, out, scratch);
     };
@@ -350,42 +348,42 @@ TEST(TranscodeTile, CorruptPayloadsAreErrors) {
     };
 
     const std::span<const std::uint8_t> j(jpeg.bytes);
-    expect_error(run(rgb, wire_kind::present, wire_codec::jpeg, {}), Errc::corrupt, "empty JPEG");
-    expect_error(run(rgb, wire_kind::present, wire_codec::jpeg, j.first(j.size() / 2)), Errc::corrupt, "truncated JPEG");
-    expect_error(run(rgb, wire_kind::present, wire_codec::jpeg, j.first(100)), Errc::corrupt, "JPEG header only");
+    expect_error(run(rgb, TileKind::present, Codec::jpeg, {}), Errc::corrupt, "empty JPEG");
+    expect_error(run(rgb, TileKind::present, Codec::jpeg, j.first(j.size() / 2)), Errc::corrupt, "truncated JPEG");
+    expect_error(run(rgb, TileKind::present, Codec::jpeg, j.first(100)), Errc::corrupt, "JPEG header only");
     std::vector<std::uint8_t> garbage(5000);
     std::mt19937 rng(5);
     for (auto& b : garbage) b = static_cast<std::uint8_t>(rng());
-    expect_error(run(rgb, wire_kind::present, wire_codec::jpeg, garbage), Errc::corrupt, "garbage JPEG");
+    expect_error(run(rgb, TileKind::present, Codec::jpeg, garbage), Errc::corrupt, "garbage JPEG");
     // A JPEG of another tile size, and a grey JPEG in an RGB store.
     const StoreInfo small = make_info(3, SampleType::u8, Codec::jpeg, false, 56, 4);
     const Tile small_tile = encode_present(small, synthetic_texels(small, 2));
-    expect_error(run(rgb, wire_kind::present, wire_codec::jpeg, small_tile.bytes), Errc::corrupt, "JPEG of wrong size");
+    expect_error(run(rgb, TileKind::present, Codec::jpeg, small_tile.bytes), Errc::corrupt, "JPEG of wrong size");
     const StoreInfo grey = make_info(1, SampleType::u8, Codec::jpeg);
     const Tile grey_tile = encode_present(grey, synthetic_texels(grey, 3));
-    expect_error(run(rgb, wire_kind::present, wire_codec::jpeg, grey_tile.bytes), Errc::corrupt, "grey JPEG in RGB store");
-    expect_error(run(grey, wire_kind::present, wire_codec::jpeg, jpeg.bytes), Errc::corrupt, "RGB JPEG in grey store");
-    expect_error(run(make_info(3, SampleType::u16, Codec::zstd), wire_kind::present, wire_codec::jpeg, jpeg.bytes),
+    expect_error(run(rgb, TileKind::present, Codec::jpeg, grey_tile.bytes), Errc::corrupt, "grey JPEG in RGB store");
+    expect_error(run(grey, TileKind::present, Codec::jpeg, jpeg.bytes), Errc::corrupt, "RGB JPEG in grey store");
+    expect_error(run(make_info(3, SampleType::u16, Codec::zstd), TileKind::present, Codec::jpeg, jpeg.bytes),
                  Errc::corrupt, "JPEG in a 16-bit store");
 
     const StoreInfo z = make_info(4, SampleType::u16, Codec::zstd, true);
     const Tile zt = encode_present(z, synthetic_texels(z, 4));
     const std::span<const std::uint8_t> zs(zt.bytes);
-    expect_error(run(z, wire_kind::present, wire_codec::zstd, {}), Errc::corrupt, "empty zstd");
-    expect_error(run(z, wire_kind::present, wire_codec::zstd, zs.first(zs.size() / 2)), Errc::corrupt, "truncated zstd");
-    expect_error(run(z, wire_kind::present, wire_codec::zstd, garbage), Errc::corrupt, "garbage zstd");
+    expect_error(run(z, TileKind::present, Codec::zstd, {}), Errc::corrupt, "empty zstd");
+    expect_error(run(z, TileKind::present, Codec::zstd, zs.first(zs.size() / 2)), Errc::corrupt, "truncated zstd");
+    expect_error(run(z, TileKind::present, Codec::zstd, garbage), Errc::corrupt, "garbage zstd");
     const StoreInfo z3 = make_info(3, SampleType::u16, Codec::zstd);
-    expect_error(run(z3, wire_kind::present, wire_codec::zstd, zt.bytes), Errc::corrupt, "zstd of another tile size");
+    expect_error(run(z3, TileKind::present, Codec::zstd, zt.bytes), Errc::corrupt, "zstd of another tile size");
 
-    expect_error(run(z, wire_kind::present, wire_codec::raw, garbage), Errc::corrupt, "raw of wrong size");
-    expect_error(run(z, wire_kind::uniform, wire_codec::uniform, garbage), Errc::corrupt, "uniform of wrong size");
-    expect_error(run(z, wire_kind::absent, wire_codec::none, {}), Errc::not_found, "absent");
-    expect_error(run(z, 9, wire_codec::zstd, zt.bytes), Errc::invalid_argument, "unknown kind");
-    expect_error(run(z, wire_kind::present, 7, zt.bytes), Errc::invalid_argument, "unknown codec");
-    expect_error(run(z, wire_kind::present, wire_codec::none, zt.bytes), Errc::invalid_argument, "codec none");
+    expect_error(run(z, TileKind::present, Codec::raw, garbage), Errc::corrupt, "raw of wrong size");
+    expect_error(run(z, TileKind::uniform, Codec::raw, garbage), Errc::corrupt, "uniform of wrong size");
+    expect_error(run(z, TileKind::absent, Codec::raw, {}), Errc::not_found, "absent");
+    expect_error(run(z, static_cast<TileKind>(9), Codec::zstd, zt.bytes), Errc::invalid_argument, "unknown kind");
+    expect_error(run(z, TileKind::present, static_cast<Codec>(7), zt.bytes), Errc::invalid_argument, "unknown codec");
+    expect_error(run(z, TileKind::present, static_cast<Codec>(4), zt.bytes), Errc::invalid_argument, "codec none");
 
     std::vector<std::uint8_t> short_out(rgba8_page_bytes(rgb) - 4);
-    const Status s = transcode_to_rgba8(rgb, wire_kind::present, wire_codec::jpeg, jpeg.bytes, short_out, scratch);
+    const Status s = transcode_to_rgba8(rgb, TileKind::present, Codec::jpeg, jpeg.bytes, short_out, scratch);
     expect_error(s, Errc::invalid_argument, "destination too small");
 }
 
@@ -430,16 +428,16 @@ TEST(TranscodeTile, DamagedJpegDoesNotSpoilTheScratch) {
     const Tile good = encode_present(info, synthetic_texels(info, 5));
     std::vector<std::uint8_t> want(rgba8_page_bytes(info)), got(rgba8_page_bytes(info));
     Scratch fresh, scratch;
-    ASSERT_TRUE(transcode_to_rgba8(info, wire_kind::present, wire_codec::jpeg, good.bytes, want, fresh).ok());
+    ASSERT_TRUE(transcode_to_rgba8(info, TileKind::present, Codec::jpeg, good.bytes, want, fresh).ok());
     std::mt19937 rng(11);
     int header_failures = 0;
     for (int rep = 0; rep < 400; ++rep) {
         std::vector<std::uint8_t> bad = good.bytes;
         bad[rng() % 700] ^= static_cast<std::uint8_t>(1 + rng() % 255);  // in or near the headers
-        const Status s = transcode_to_rgba8(info, wire_kind::present, wire_codec::jpeg, bad, got, scratch);
+        const Status s = transcode_to_rgba8(info, TileKind::present, Codec::jpeg, bad, got, scratch);
         if (!s.ok() && s.error().message.find("header") != std::string::npos) ++header_failures;
         std::fill(got.begin(), got.end(), 0);
-        const Status g = transcode_to_rgba8(info, wire_kind::present, wire_codec::jpeg, good.bytes, got, scratch);
+        const Status g = transcode_to_rgba8(info, TileKind::present, Codec::jpeg, good.bytes, got, scratch);
         ASSERT_TRUE(g.ok()) << "good tile after damaged one " << rep << ": " << g.error().message;
         ASSERT_TRUE(got == want) << rep;
     }
@@ -584,7 +582,8 @@ TEST(TranscodeTile, EveryTileOfBuiltStoresMatchesReference) {
 
 struct TestPage {
     std::shared_ptr<const StoreInfo> info;
-    std::uint8_t kind = 0, codec = 0;
+    TileKind kind = TileKind::absent;
+    Codec codec = Codec::raw;
     std::shared_ptr<const std::vector<std::uint8_t>> payload;
     std::vector<std::uint8_t> expected;  // reference RGBA8
 };
@@ -604,8 +603,8 @@ const std::vector<TestPage>& test_pages() {
                     EXPECT_TRUE(reference_decode(*info, *tile, decoded).ok());
                     TestPage p;
                     p.info = info;
-                    p.kind = wire_kind_of(*tile);
-                    p.codec = wire_codec_of(*info, *tile);
+                    p.kind = tile->kind;
+                    p.codec = info->codec;
                     p.payload = std::make_shared<const std::vector<std::uint8_t>>(tile->bytes);
                     p.expected = reference_rgba8(*info, decoded);
                     out.push_back(std::move(p));

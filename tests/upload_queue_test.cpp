@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "tessera/client/stats.hpp"
+#include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/upload.hpp"
 
 namespace tc = tessera::client;

@@ -7,9 +7,9 @@
 #include <iterator>
 #include <set>
 
-#include "tessera/scene/cpu_feedback.hpp"
-#include "tessera/scene/path.hpp"
-#include "tessera/scene/visibility.hpp"
+#include "tessera/client/scene/cpu_feedback.hpp"
+#include "tessera/client/scene/path.hpp"
+#include "tessera/client/scene/visibility.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"
 
@@ -98,7 +98,7 @@ TEST_F(Visibility, KeepsExactlyTheWantedLevel0PagesAndTheirNeighbours) {
                     EXPECT_EQ(a->bytes, b->bytes) << l << " " << x << " " << y;
                     kept += l == 0;
                 } else {
-                    EXPECT_EQ(b->kind, st::TileKind::absent) << x << " " << y;
+                    EXPECT_EQ(b->kind, tessera::TileKind::absent) << x << " " << y;
                     ++dropped;
                 }
             }

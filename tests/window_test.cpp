@@ -20,8 +20,8 @@
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/gl/hud.hpp"
 #include "tessera/client/gl/renderer.hpp"
-#include "tessera/client/page_table.hpp"
-#include "tessera/scene/scene.hpp"
+#include "page_table.hpp"
+#include "tessera/client/scene/scene.hpp"
 #include "render_util.hpp"
 
 namespace {

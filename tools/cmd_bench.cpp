@@ -25,7 +25,7 @@
 #include "commands.hpp"
 #include "progress.hpp"
 #include "svg_plot.hpp"
-#include "tessera/scene/path.hpp"
+#include "tessera/client/scene/path.hpp"
 #include "tessera/storage/builder.hpp"
 #include "viewer_session.hpp"
 
@@ -38,7 +38,7 @@ using Clock = std::chrono::steady_clock;
 // One point's settings.
 struct Settings {
     std::uint32_t tile = 256, border = 4;
-    storage::Codec codec = storage::Codec::jpeg;
+    Codec codec = Codec::jpeg;
     int quality = 90;
     std::uint32_t feedback_scale = 8;
     std::uint32_t pool = 2048;
@@ -48,11 +48,11 @@ struct Settings {
     float prefetch = 0.3f;
 
     std::string store_key() const {
-        return codec == storage::Codec::jpeg ? fmt::format("t{}_b{}_jpeg{}", tile, border, quality)
-                                             : fmt::format("t{}_b{}_{}", tile, border, storage::to_string(codec));
+        return codec == Codec::jpeg ? fmt::format("t{}_b{}_jpeg{}", tile, border, quality)
+                                             : fmt::format("t{}_b{}_{}", tile, border, tessera::to_string(codec));
     }
     std::string codec_label() const {
-        return codec == storage::Codec::jpeg ? fmt::format("jpeg q{}", quality) : std::string(storage::to_string(codec));
+        return codec == Codec::jpeg ? fmt::format("jpeg q{}", quality) : std::string(tessera::to_string(codec));
     }
 };
 
@@ -107,7 +107,7 @@ std::vector<Point> make_points(const std::set<std::string>& only, bool quick) {
         pts.push_back({sweep, label, s, false});
     };
     if (quick) {
-        add("codec", "zstd", [](Settings& s) { s.codec = storage::Codec::zstd; });
+        add("codec", "zstd", [](Settings& s) { s.codec = Codec::zstd; });
         add("latency", "latency 20 ms", [](Settings& s) { s.latency_ms = 20; });
         return pts;
     }
@@ -119,7 +119,7 @@ std::vector<Point> make_points(const std::set<std::string>& only, bool quick) {
         });
     for (std::uint32_t b : {2u, 8u}) add("border", fmt::format("border {}", b), [b](Settings& s) { s.border = b; });
     for (int q : {50, 75, 95}) add("codec", fmt::format("jpeg q{}", q), [q](Settings& s) { s.quality = q; });
-    add("codec", "zstd", [](Settings& s) { s.codec = storage::Codec::zstd; });
+    add("codec", "zstd", [](Settings& s) { s.codec = Codec::zstd; });
     for (std::uint32_t f : {4u, 16u})
         add("feedback", fmt::format("feedback 1/{}", f), [f](Settings& s) { s.feedback_scale = f; });
     // A 320x180 view of the flyover wants about 20-30 pages: the small pools are the tight ones.
@@ -300,7 +300,7 @@ Command add_bench(CLI::App& app) {
             p.build_s = st.seconds;
             p.store_bytes = st.bytes;
             Settings ref = p.s;
-            ref.codec = storage::Codec::zstd;
+            ref.codec = Codec::zstd;
             const Built& rs = build(ref);
 
             ViewerOptions vo;
@@ -356,8 +356,8 @@ Command add_bench(CLI::App& app) {
                    "psnr_mean_db,psnr_min_db,max_error,wall_s,recommended\n";
             for (const auto& p : pts)
                 out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-                                   p.sweep, p.label, p.s.tile, p.s.border, storage::to_string(p.s.codec),
-                                   p.s.codec == storage::Codec::jpeg ? std::to_string(p.s.quality) : std::string(),
+                                   p.sweep, p.label, p.s.tile, p.s.border, tessera::to_string(p.s.codec),
+                                   p.s.codec == Codec::jpeg ? std::to_string(p.s.quality) : std::string(),
                                    p.s.feedback_scale, p.s.pool, p.s.bias, p.s.upload, p.s.latency_ms, p.s.prefetch,
                                    num(p.build_s, 6), p.store_bytes, num(p.frame_ms_mean, 6), num(p.frame_ms_p99, 6),
                                    num(p.full_detail_ms, 6), p.full_detail_reached ? 1 : 0, p.bytes_received,
@@ -388,8 +388,8 @@ Command add_bench(CLI::App& app) {
                 e["label"] = p.label;
                 e["settings"] = {{"tile_size", p.s.tile},
                                  {"border", p.s.border},
-                                 {"codec", std::string(storage::to_string(p.s.codec))},
-                                 {"quality", p.s.codec == storage::Codec::jpeg ? json(p.s.quality) : json(nullptr)},
+                                 {"codec", std::string(tessera::to_string(p.s.codec))},
+                                 {"quality", p.s.codec == Codec::jpeg ? json(p.s.quality) : json(nullptr)},
                                  {"feedback_scale", p.s.feedback_scale},
                                  {"pool", p.s.pool},
                                  {"bias_policy", p.s.bias},

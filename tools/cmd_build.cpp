@@ -9,7 +9,7 @@
 #include "commands.hpp"
 #include "progress.hpp"
 #include "store_summary.hpp"
-#include "tessera/scene/visibility.hpp"
+#include "tessera/client/scene/visibility.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/store_writer.hpp"
 
@@ -61,7 +61,7 @@ Command add_build(CLI::App& app) {
 
     return [a, c]() -> int {
         storage::BuildOptions& opt = a->opt;
-        if (!a->codec.empty()) opt.codec = storage::parse_codec(a->codec);
+        if (!a->codec.empty()) opt.codec = parse_codec(a->codec);
         if (!a->chroma.empty()) opt.chroma = a->chroma == "420" ? storage::Chroma::s420 : storage::Chroma::s444;
         if (a->colour_space == "srgb") opt.colour_space = storage::ColourSpace::srgb;
         if (a->colour_space == "linear") opt.colour_space = storage::ColourSpace::linear;

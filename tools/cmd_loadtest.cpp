@@ -29,14 +29,15 @@
 #include "commands.hpp"
 #include "svg_plot.hpp"
 #include "tessera/client/emulated_source.hpp"
+#include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/feedback_trace.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/stats.hpp"
 #include "tessera/client/tile_source.hpp"
-#include "tessera/client/tile_stream_client.hpp"
-#include "tessera/scene/cpu_feedback.hpp"
-#include "tessera/scene/path.hpp"
-#include "tessera/scene/scene.hpp"
+#include "tessera/client/net/tile_stream_client.hpp"
+#include "tessera/client/scene/cpu_feedback.hpp"
+#include "tessera/client/scene/path.hpp"
+#include "tessera/client/scene/scene.hpp"
 
 namespace tessera::tools {
 
@@ -61,14 +62,6 @@ struct Options {
     double connect_timeout = 5;
     std::string json, plot;
     bool quiet = false;
-};
-
-// Discards pixels: a load-test viewer has no GPU.
-class NullUploader final : public client::PageUploader {
-public:
-    void upload_page(client::SlotId, const client::PageKey&, std::span<const std::uint8_t>, std::uint32_t) override {}
-    void upload_page_table(client::TextureId, std::uint8_t, std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t,
-                           std::span<const std::uint32_t>) override {}
 };
 
 // Per-second series, indexed by seconds since the measured window began.
@@ -123,18 +116,18 @@ public:
             auto it = pending_.find(t.page);
             const bool counted = measuring && received >= window_start && received < window_end;
             if (counted) {
-                if (t.status == v1::TILE_RESOURCE_EXHAUSTED) ++refused;
-                else if (t.status != v1::TILE_OK) ++failed;
+                if (t.status == TileStatus::resource_exhausted) ++refused;
+                else if (t.status != TileStatus::ok) ++failed;
                 else {
                     ++tiles;
-                    bytes += t.payload.size();
+                    bytes += t.data.payload.size();
                 }
             }
             if (it == pending_.end()) {
                 if (counted) ++stale;
                 continue;
             }
-            if (counted && t.status == v1::TILE_OK) {
+            if (counted && t.status == TileStatus::ok) {
                 latency.record(received - it->second);
                 if (buckets) {
                     const auto sec = static_cast<std::size_t>(
@@ -171,7 +164,7 @@ struct Viewer {
     unsigned id = 0;
     MeasuringSource* source = nullptr;  // owned by `owned_source`
     std::unique_ptr<client::TileSource> owned_source;
-    NullUploader uploader;
+    client::NullUploader uploader;
     std::unique_ptr<client::Runtime> runtime;
     Clock::duration phase{};
     std::size_t trace_offset = 0;

@@ -36,7 +36,7 @@ void print_store_summary(const std::string& name, const storage::StoreInfo& info
                human_bytes(info.file_size));
     fmt::print("image      {} x {}, {} x {} ({}{}), codec {}\n", info.width, info.height, info.channels,
                storage::to_string(info.sample_type), storage::to_string(info.colour_space), info.has_alpha ? ", alpha" : "",
-               storage::to_string(info.codec));
+               tessera::to_string(info.codec));
     fmt::print("tiles      {} texels ({} payload + 2 x {} border), {} levels\n", info.tile_size(), info.tile_payload, info.border,
                info.level_count());
     fmt::print("{:>5} {:>13} {:>11} {:>9} {:>8} {:>8} {:>7} {:>11} {:>10}\n", "level", "texels", "tiles", "present", "uniform",
@@ -66,7 +66,7 @@ nlohmann::json store_summary_json(const std::string& name, const storage::StoreI
     j["sample_type"] = storage::to_string(info.sample_type);
     j["colour_space"] = storage::to_string(info.colour_space);
     j["has_alpha"] = info.has_alpha;
-    j["codec"] = storage::to_string(info.codec);
+    j["codec"] = tessera::to_string(info.codec);
     j["tile_size"] = info.tile_size();
     j["tile_payload"] = info.tile_payload;
     j["border"] = info.border;

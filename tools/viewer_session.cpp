@@ -25,8 +25,8 @@
 #include "tessera/client/gl/hud.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
-#include "tessera/scene/path.hpp"
-#include "tessera/scene/scene.hpp"
+#include "tessera/client/scene/path.hpp"
+#include "tessera/client/scene/scene.hpp"
 
 namespace tessera::tools {
 namespace {

@@ -12,7 +12,7 @@
 // picture: an open descriptor whose file still has a link (st_nlink > 0) is the current entry.
 // That is what lets get() add an entry it found on disk to the index (during the scan at open)
 // without resurrecting one the writer has just evicted or replaced.
-#include "tessera/client/disk_cache.hpp"
+#include "disk_cache.hpp"
 
 #include <dirent.h>
 #include <fcntl.h>
@@ -44,7 +44,8 @@ namespace tessera::client {
 namespace {
 
 constexpr char kMagic[4] = {'T', 'S', 'R', 'C'};
-constexpr std::uint16_t kFormatVersion = 1;
+// 2: kind and codec are tessera/tile.hpp's TileKind and Codec (1 stored the wire's codec numbers).
+constexpr std::uint16_t kFormatVersion = 2;
 constexpr std::size_t kFixedHeader = 48;  // up to the store name
 constexpr std::size_t kMaxStoreName = 200;
 constexpr std::size_t kMaxPendingTouches = 1 << 16;
@@ -63,18 +64,18 @@ std::uint64_t get_le(const std::uint8_t* p, int bytes) {
     return v;
 }
 
-std::vector<std::uint8_t> encode_header(const TileId& id, const CachedTile& t, std::uint64_t payload_checksum) {
+std::vector<std::uint8_t> encode_header(const TileId& id, const TileData& t, std::uint64_t payload_checksum) {
     const std::size_t n = id.store.size();
     std::vector<std::uint8_t> h(header_size(n), 0);
     std::memcpy(h.data(), kMagic, 4);
     put_le(&h[4], kFormatVersion, 2);
     put_le(&h[6], h.size(), 2);
-    h[8] = t.kind;
-    h[9] = t.codec;
-    h[10] = id.level;
+    h[8] = static_cast<std::uint8_t>(t.kind);
+    h[9] = static_cast<std::uint8_t>(t.codec);
+    h[10] = static_cast<std::uint8_t>(id.tile.level);
     h[11] = static_cast<std::uint8_t>(n);
-    put_le(&h[12], id.x, 4);
-    put_le(&h[16], id.y, 4);
+    put_le(&h[12], id.tile.x, 4);
+    put_le(&h[16], id.tile.y, 4);
     put_le(&h[20], 0, 4);
     put_le(&h[24], id.version, 8);
     put_le(&h[32], t.payload.size(), 8);
@@ -240,7 +241,7 @@ struct DiskTileCache::Impl {
     struct Task {
         bool drop = false;  // drop_other_versions(id.store, id.version) rather than a write
         TileId id;
-        std::shared_ptr<const CachedTile> tile;
+        std::shared_ptr<const TileData> tile;
         std::uint64_t cost = 0;
     };
     mutable std::mutex qmu;
@@ -270,13 +271,13 @@ struct DiskTileCache::Impl {
         return p;
     }
     std::string level_dir(const TileId& id) const {
-        return store_dir(id.store) + '/' + hex16(id.version) + '/' + std::to_string(id.level);
+        return store_dir(id.store) + '/' + hex16(id.version) + '/' + std::to_string(id.tile.level);
     }
     std::string entry_path(const TileId& id) const {
-        return level_dir(id) + '/' + std::to_string(id.x) + '_' + std::to_string(id.y) + ".tile";
+        return level_dir(id) + '/' + std::to_string(id.tile.x) + '_' + std::to_string(id.tile.y) + ".tile";
     }
 
-    ReadOutcome read_entry(int fd, const struct stat& st, const TileId& id, CachedTile& out) const {
+    ReadOutcome read_entry(int fd, const struct stat& st, const TileId& id, TileData& out) const {
         const std::size_t hs = header_size(id.store.size());
         const auto size = static_cast<std::uint64_t>(st.st_size);
         // The payload buffer is only allocated once the header (checksum included) is sound.
@@ -291,14 +292,16 @@ struct DiskTileCache::Impl {
             return ReadOutcome::corrupt;
         }
         // A sound header for another key (a misplaced file) is just as unusable.
-        if (h[10] != id.level || get_le(&h[12], 4) != id.x || get_le(&h[16], 4) != id.y || get_le(&h[20], 4) != 0 ||
+        if (h[10] != id.tile.level || get_le(&h[12], 4) != id.tile.x || get_le(&h[16], 4) != id.tile.y || get_le(&h[20], 4) != 0 ||
             get_le(&h[24], 8) != id.version || std::memcmp(&h[kFixedHeader], id.store.data(), n) != 0) {
             return ReadOutcome::corrupt;
         }
         const std::uint64_t len = get_le(&h[32], 8);
         if (len != size - hs) return ReadOutcome::corrupt;
-        out.kind = h[8];
-        out.codec = h[9];
+        if (h[8] > static_cast<std::uint8_t>(TileKind::uniform) || h[9] > static_cast<std::uint8_t>(Codec::jpeg))
+            return ReadOutcome::corrupt;
+        out.kind = static_cast<TileKind>(h[8]);
+        out.codec = static_cast<Codec>(h[9]);
         out.checksum = get_le(&h[40], 8);
         out.payload.resize(len);
         const ssize_t pgot = pread_full(fd, out.payload.data(), len, static_cast<off_t>(hs));
@@ -456,7 +459,7 @@ struct DiskTileCache::Impl {
         p += hex16(id.version);
         ::mkdir(p.c_str(), 0755);
         p += '/';
-        p += std::to_string(id.level);
+        p += std::to_string(id.tile.level);
         ::mkdir(p.c_str(), 0755);
     }
 
@@ -465,7 +468,7 @@ struct DiskTileCache::Impl {
         if (d.fd >= 0) ::fsync(d.fd);
     }
 
-    void write_entry(const TileId& id, const CachedTile& tile) {
+    void write_entry(const TileId& id, const TileData& tile) {
         if (opt.before_write_for_testing) opt.before_write_for_testing(id);
         const std::uint64_t sum = XXH3_64bits(tile.payload.data(), tile.payload.size());
         if (sum != tile.checksum) {
@@ -551,7 +554,7 @@ struct DiskTileCache::Impl {
                                 !S_ISREG(st.st_mode)) {
                                 continue;
                             }
-                            found.push_back(Found{TileId{s.name, version, static_cast<std::uint8_t>(level), x, y},
+                            found.push_back(Found{TileId{s.name, version, {level, x, y}},
                                                   static_cast<std::uint64_t>(st.st_size), st.st_mtim});
                         }
                         if (aborted) break;
@@ -605,7 +608,7 @@ struct DiskTileCache::Impl {
                     if (parse_tile_name(f.name, x, y)) {
                         std::lock_guard lock(mu);
                         if (::unlinkat(lfd.fd, f.name.c_str(), 0) == 0) ++dropped_versions;
-                        erase_entry_locked(TileId{store, version, static_cast<std::uint8_t>(level), x, y});
+                        erase_entry_locked(TileId{store, version, {level, x, y}});
                     } else if (f.name.find(kTempMarker) != std::string::npos) {
                         ::unlinkat(lfd.fd, f.name.c_str(), 0);
                     }
@@ -675,7 +678,7 @@ DiskTileCache::~DiskTileCache() {
     if (impl_->lock_fd >= 0) ::close(impl_->lock_fd);
 }
 
-Result<std::optional<CachedTile>> DiskTileCache::get(const TileId& id) {
+Result<std::optional<TileData>> DiskTileCache::get(const TileId& id) {
     Impl& m = *impl_;
     if (!valid_store_name(id.store)) {
         return make_error(Errc::invalid_argument, "disk cache: invalid store name '" + id.store + "'");
@@ -685,7 +688,7 @@ Result<std::optional<CachedTile>> DiskTileCache::get(const TileId& id) {
     if (fd.fd < 0) {
         const int err = errno;
         ++m.misses;
-        if (err == ENOENT || err == ENOTDIR) return std::optional<CachedTile>{};
+        if (err == ENOENT || err == ENOTDIR) return std::optional<TileData>{};
         return make_error(Errc::io_error, "disk cache: cannot open " + path + ": " + std::strerror(err));
     }
     struct stat st {};
@@ -693,17 +696,17 @@ Result<std::optional<CachedTile>> DiskTileCache::get(const TileId& id) {
         ++m.misses;
         return make_error(Errc::io_error, "disk cache: cannot stat " + path + ": " + std::strerror(errno));
     }
-    CachedTile tile;
+    TileData tile;
     switch (m.read_entry(fd.fd, st, id, tile)) {
         case ReadOutcome::ok:
             m.note_hit(id, fd.fd);
             ++m.hits;
-            return std::optional<CachedTile>(std::move(tile));
+            return std::optional<TileData>(std::move(tile));
         case ReadOutcome::corrupt:
             m.remove_corrupt(id, path, st);
             ++m.corrupt;
             ++m.misses;
-            return std::optional<CachedTile>{};
+            return std::optional<TileData>{};
         case ReadOutcome::io_error:
             break;
     }
@@ -711,7 +714,7 @@ Result<std::optional<CachedTile>> DiskTileCache::get(const TileId& id) {
     return make_error(Errc::io_error, "disk cache: cannot read " + path + ": " + std::strerror(errno));
 }
 
-bool DiskTileCache::put(const TileId& id, const CachedTile& tile) {
+bool DiskTileCache::put(const TileId& id, const TileData& tile) {
     {
         // Skip the copy when the put would be dropped anyway (checked again under the lock below).
         std::lock_guard lock(impl_->qmu);
@@ -721,10 +724,10 @@ bool DiskTileCache::put(const TileId& id, const CachedTile& tile) {
             return false;
         }
     }
-    return put(id, std::make_shared<const CachedTile>(tile));
+    return put(id, std::make_shared<const TileData>(tile));
 }
 
-bool DiskTileCache::put(const TileId& id, std::shared_ptr<const CachedTile> tile) {
+bool DiskTileCache::put(const TileId& id, std::shared_ptr<const TileData> tile) {
     Impl& m = *impl_;
     if (!tile || !valid_store_name(id.store)) {
         ++m.rejected;
@@ -756,7 +759,7 @@ void DiskTileCache::drop_other_versions(std::string store, std::uint64_t version
     {
         std::lock_guard lock(m.qmu);
         if (m.stop) return;
-        m.queue.push_back(Impl::Task{true, TileId{std::move(store), version, 0, 0, 0}, nullptr, 0});
+        m.queue.push_back(Impl::Task{true, TileId{std::move(store), version, {}}, nullptr, 0});
         ++m.enqueued;
     }
     m.work_cv.notify_one();

@@ -48,7 +48,7 @@ public:
                 const Clock::time_point reached = t.received != Clock::time_point{} ? std::min(t.received, now) : now;
                 Clock::time_point sent = reached;
                 if (link_.bandwidth_bits_per_s > 0) {
-                    const double bits = double(t.payload.size() + kHeaderBytes) * 8.0;
+                    const double bits = double(t.data.payload.size() + kHeaderBytes) * 8.0;
                     const auto tx = std::chrono::duration_cast<Clock::duration>(
                         std::chrono::duration<double>(bits / link_.bandwidth_bits_per_s));
                     link_free_ = std::max(link_free_, reached) + tx;

@@ -1,4 +1,4 @@
-#include "tessera/client/feedback_analysis.hpp"
+#include "feedback_analysis.hpp"
 
 #include <algorithm>
 #include <bit>

@@ -4,7 +4,6 @@
 #include <mutex>
 
 #include "tessera/client/tile_source.hpp"
-#include "tessera/protocol/wire.hpp"
 
 namespace tessera::client {
 
@@ -20,7 +19,7 @@ public:
         std::lock_guard lock(mu_);
         names_[texture] = store;
         textures_[store] = texture;
-        return protocol::from_proto(*meta);
+        return std::move(meta->info);
     }
 
     void set_requests(std::uint64_t frame, std::span<const SourceRequest> requests) override {
@@ -31,7 +30,7 @@ public:
             for (const auto& r : requests) {
                 auto it = names_.find(r.page.texture);
                 if (it == names_.end()) continue;
-                batch.push_back(TileRequest{it->second, r.page.level, r.page.x, r.page.y, r.priority});
+                batch.push_back(TileRequest{it->second, r.page.tile(), r.priority});
             }
         }
         client_->send_batch(frame, std::move(batch));
@@ -44,17 +43,8 @@ public:
         for (auto& r : received_) {
             auto it = textures_.find(r.store);
             if (it == textures_.end()) continue;
-            SourceTile t;
-            t.page = PageKey{it->second, static_cast<std::uint8_t>(r.level), r.x, r.y};
-            t.store_version = r.store_version;
-            t.status = static_cast<int>(r.status);
-            t.message = std::move(r.message);
-            t.kind = static_cast<std::uint8_t>(r.kind);
-            t.codec = static_cast<std::uint8_t>(r.codec);
-            t.checksum = r.checksum;
-            t.payload = std::move(r.payload);
-            t.received = r.received;
-            out.push_back(std::move(t));
+            out.push_back(SourceTile{PageKey{it->second, static_cast<std::uint8_t>(r.key.level), r.key.x, r.key.y},
+                                     r.store_version, r.status, std::move(r.message), std::move(r.data), r.received});
         }
         return n;
     }

@@ -38,23 +38,21 @@ private:
             if (it != readers_.end()) reader = it->second;
         }
         if (!reader) {
-            t.status = 1;  // TILE_NOT_FOUND
+            t.status = TileStatus::not_found;
             t.message = "no store bound to texture " + std::to_string(t.page.texture);
             return;
         }
         t.store_version = reader->info().store_id;
-        auto tile = reader->read_tile({t.page.level, t.page.x, t.page.y});
+        auto tile = reader->read_tile(t.page.tile());
         if (!tile) {
-            t.status = tile.error().code == Errc::corrupt ? 6 : tile.error().code == Errc::out_of_range ? 2 : 8;
+            const Errc code = tile.error().code;
+            t.status = code == Errc::corrupt        ? TileStatus::data_loss
+                       : code == Errc::out_of_range ? TileStatus::out_of_range
+                                                    : TileStatus::internal;
             t.message = tile.error().message;
             return;
         }
-        t.kind = static_cast<std::uint8_t>(tile->kind);  // absent 0, present 1, uniform 2
-        t.codec = tile->kind == storage::TileKind::uniform ? 3
-                  : tile->kind == storage::TileKind::absent ? 4
-                                                            : static_cast<std::uint8_t>(reader->info().codec);
-        t.checksum = tile->checksum;
-        t.payload = std::move(tile->bytes);
+        t.data = TileData{tile->kind, reader->info().codec, tile->checksum, std::move(tile->bytes)};
     }
 
     std::mutex readers_mu_;

@@ -1,4 +1,4 @@
-#include "tessera/client/page_table.hpp"
+#include "page_table.hpp"
 
 #include <algorithm>
 #include <string>

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cassert>
 
-#include "tessera/client/page_table.hpp"
+#include "page_table.hpp"
 
 namespace tessera::client {
 namespace {

@@ -1,5 +1,5 @@
 // procedural:coords:... textures: tiles made on demand by worker threads (worker_source.hpp).
-#include "tessera/client/procedural_source.hpp"
+#include "procedural_source.hpp"
 
 #include <xxhash.h>
 
@@ -78,7 +78,7 @@ Result<storage::StoreInfo> procedural_store_info(const std::string& spec) {
     info.channels = 4;
     info.sample_type = storage::SampleType::u8;
     info.colour_space = storage::ColourSpace::linear;
-    info.codec = storage::Codec::raw;
+    info.codec = Codec::raw;
     info.has_alpha = true;
     info.levels = storage::level_geometry(info.width, info.height, info.tile_payload);
     for (auto& l : info.levels) l.present = std::uint64_t(l.tiles_x) * l.tiles_y;
@@ -116,13 +116,13 @@ private:
             if (it != textures_.end()) info = it->second;
         }
         if (!info) {
-            t.status = 1;  // TILE_NOT_FOUND
+            t.status = TileStatus::not_found;
             t.message = "no procedural texture bound to texture " + std::to_string(t.page.texture);
             return;
         }
         t.store_version = info->store_id;
-        if (!info->contains({t.page.level, t.page.x, t.page.y})) {
-            t.status = 2;  // TILE_OUT_OF_RANGE
+        if (!info->contains(t.page.tile())) {
+            t.status = TileStatus::out_of_range;
             t.message = "tile (" + std::to_string(t.page.level) + ", " + std::to_string(t.page.x) + ", " +
                         std::to_string(t.page.y) + ") is outside the texture";
             return;
@@ -131,8 +131,9 @@ private:
         const std::uint32_t size = info->tile_size(), P = info->tile_payload, B = info->border;
         // Tile texel i covers level texel x0 + i, clamped to the level (borders, edge tiles).
         const std::int64_t x0 = std::int64_t(t.page.x) * P - B, y0 = std::int64_t(t.page.y) * P - B;
-        t.payload.resize(std::size_t(size) * size * 4);
-        std::uint8_t* out = t.payload.data();
+        auto& payload = t.data.payload;
+        payload.resize(std::size_t(size) * size * 4);
+        std::uint8_t* out = payload.data();
         for (std::uint32_t j = 0; j < size; ++j) {
             const auto y = static_cast<std::uint32_t>(std::clamp<std::int64_t>(y0 + j, 0, level.height - 1));
             for (std::uint32_t i = 0; i < size; ++i, out += 4) {
@@ -141,9 +142,9 @@ private:
                 std::copy(texel.begin(), texel.end(), out);
             }
         }
-        t.kind = wire_kind::present;
-        t.codec = wire_codec::raw;
-        t.checksum = XXH3_64bits(t.payload.data(), t.payload.size());
+        t.data.kind = TileKind::present;
+        t.data.codec = Codec::raw;
+        t.data.checksum = XXH3_64bits(payload.data(), payload.size());
     }
 
     std::mutex mu_;

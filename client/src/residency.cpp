@@ -1,4 +1,4 @@
-#include "tessera/client/residency.hpp"
+#include "residency.hpp"
 
 #include <algorithm>
 #include <cassert>

@@ -9,8 +9,11 @@
 #include <unordered_map>
 #include <unordered_set>
 
-#include "tessera/client/tile_cache.hpp"
-#include "tessera/client/transcode.hpp"
+#include "disk_cache.hpp"
+#include "feedback_analysis.hpp"
+#include "ram_cache.hpp"
+#include "residency.hpp"
+#include "transcode.hpp"
 
 namespace tessera::client {
 
@@ -43,7 +46,7 @@ public:
     }
     struct Found {
         PageKey page;
-        std::shared_ptr<const CachedTile> tile;  // null: miss
+        std::shared_ptr<const TileData> tile;  // null: miss
     };
     void poll(std::vector<Found>& out) {
         std::lock_guard lock(mu_);
@@ -64,7 +67,7 @@ private:
             }
             auto got = cache_.get(job.second);
             Found f{job.first, nullptr};
-            if (got && *got) f.tile = std::make_shared<const CachedTile>(std::move(**got));
+            if (got && *got) f.tile = std::make_shared<const TileData>(std::move(**got));
             std::lock_guard lock(mu_);
             done_.push_back(std::move(f));
         }
@@ -232,18 +235,18 @@ private:
         float priority = 0;
         Clock::time_point requested{};
         std::uint64_t ticket = 0;
-        std::shared_ptr<const CachedTile> tile;  // arrived and later
+        std::shared_ptr<const TileData> tile;  // arrived and later
         int staging = -1;                        // decoding, ready
     };
 
     TileId tile_id(const PageKey& p) const {
         const auto& t = textures_[p.texture];
-        return TileId{t.store, t.info->store_id, p.level, p.x, p.y};
+        return TileId{t.store, t.info->store_id, p.tile()};
     }
 
-    void arrived(const PageKey& page, Work& w, std::shared_ptr<const CachedTile> tile) {
+    void arrived(const PageKey& page, Work& w, std::shared_ptr<const TileData> tile) {
         ++stats_.pages_arrived;
-        if (tile->kind == wire_kind::absent) {  // a sparse store: nothing to fetch, ever
+        if (tile->kind == TileKind::absent) {  // a sparse store: nothing to fetch, ever
             absent_.insert(page);
             work_.erase(page);
             return;
@@ -276,14 +279,14 @@ private:
                 if (it == work_.end() || it->second.stage != Stage::source) {  // stale
                     // Withdrawn (I/O the cancellation came too late to save), or a second
                     // delivery of a page already arrived, resident or known absent.
-                    if (r.status == 0) {
+                    if (r.status == TileStatus::ok) {
                         if (it == work_.end() && !residency_.is_resident(r.page) && !absent_.contains(r.page))
                             ++stats_.stale_arrivals;
                         else ++stats_.duplicate_arrivals;
                     }
                     continue;
                 }
-                if (r.status != 0) {
+                if (r.status != TileStatus::ok) {
                     work_.erase(it);  // asked again next frame if still wanted
                     continue;
                 }
@@ -292,13 +295,8 @@ private:
                     continue;
                 }
                 ++stats_.network[r.page.level];
-                stats_.bytes_received += r.payload.size();
-                auto tile = std::make_shared<CachedTile>();
-                tile->kind = r.kind;
-                tile->codec = r.codec;
-                tile->checksum = r.checksum;
-                tile->payload = std::move(r.payload);
-                std::shared_ptr<const CachedTile> shared = std::move(tile);
+                stats_.bytes_received += r.data.payload.size();
+                std::shared_ptr<const TileData> shared = std::make_shared<TileData>(std::move(r.data));
                 const TileId id = tile_id(r.page);
                 ram_.put(id, shared);
                 if (disk_) disk_->put(id, shared);

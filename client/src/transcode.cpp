@@ -1,4 +1,4 @@
-#include "tessera/client/transcode.hpp"
+#include "transcode.hpp"
 
 #include <turbojpeg.h>
 #include <zstd.h>
@@ -216,7 +216,7 @@ Status decode_jpeg(const StoreInfo& info, std::span<const std::uint8_t> payload,
 
 }  // namespace
 
-Status transcode_to_rgba8(const StoreInfo& info, std::uint8_t kind, std::uint8_t codec,
+Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
                           std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch) {
     if (info.channels < 1 || info.channels > 4) return make_error(Errc::invalid_argument, "store has 1..4 channels");
     if (!known_sample_type(info.sample_type)) return make_error(Errc::invalid_argument, "unknown sample type");
@@ -228,11 +228,11 @@ Status transcode_to_rgba8(const StoreInfo& info, std::uint8_t kind, std::uint8_t
     const std::size_t texel_bytes = info.texel_bytes();
     const std::size_t tile_bytes = info.tile_bytes();
 
-    if (kind == wire_kind::absent) return make_error(Errc::not_found, "tile is absent");
-    if (kind != wire_kind::present && kind != wire_kind::uniform)
-        return make_error(Errc::invalid_argument, "unknown tile kind " + std::to_string(kind));
+    if (kind == TileKind::absent) return make_error(Errc::not_found, "tile is absent");
+    if (kind != TileKind::present && kind != TileKind::uniform)
+        return make_error(Errc::invalid_argument, "unknown tile kind " + std::to_string(static_cast<int>(kind)));
 
-    if (kind == wire_kind::uniform || codec == wire_codec::uniform) {
+    if (kind == TileKind::uniform) {
         if (payload.size() != texel_bytes) return make_error(Errc::corrupt, "uniform value has the wrong size");
         std::uint8_t rgba[4];
         convert_samples(info, payload.data(), rgba, 1);
@@ -245,11 +245,11 @@ Status transcode_to_rgba8(const StoreInfo& info, std::uint8_t kind, std::uint8_t
 
     Scratch::Impl& s = *scratch.impl_;
     switch (codec) {
-        case wire_codec::raw:
+        case Codec::raw:
             if (payload.size() != tile_bytes) return make_error(Errc::corrupt, "raw tile has the wrong size");
             convert_samples(info, payload.data(), out.data(), texels);
             return {};
-        case wire_codec::zstd: {
+        case Codec::zstd: {
             const unsigned long long content = ZSTD_getFrameContentSize(payload.data(), payload.size());
             if (content != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
             ZSTD_DCtx* ctx = s.zstd_context();
@@ -262,7 +262,7 @@ Status transcode_to_rgba8(const StoreInfo& info, std::uint8_t kind, std::uint8_t
             convert_samples(info, buf, out.data(), texels);
             return {};
         }
-        case wire_codec::jpeg: {
+        case Codec::jpeg: {
             if (info.sample_type != SampleType::u8 || (info.channels != 1 && info.channels != 3))
                 return make_error(Errc::corrupt, "JPEG tiles need 8-bit samples with 1 or 3 channels");
             if (payload.empty()) return make_error(Errc::corrupt, "JPEG tile is empty");
@@ -273,7 +273,7 @@ Status transcode_to_rgba8(const StoreInfo& info, std::uint8_t kind, std::uint8_t
             return st;
         }
         default:
-            return make_error(Errc::invalid_argument, "unknown codec " + std::to_string(codec));
+            return make_error(Errc::invalid_argument, "unknown codec " + std::to_string(static_cast<int>(codec)));
     }
 }
 

@@ -5,40 +5,12 @@
 #include <limits>
 #include <utility>
 
-#include "tessera/client/page_table.hpp"
-
 namespace tessera::client {
 
 PageUploader::~PageUploader() = default;
 
 void PageUploader::upload_page_table_block(TextureId, std::uint8_t, std::uint32_t, std::uint32_t,
                                            std::span<const std::uint32_t>) {}
-
-void FakeUploader::upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) {
-    if (rgba8.size() != std::size_t(tile_size) * tile_size * 4) ++malformed_;
-    pages_.push_back(PageCall{seq_++, slot, page, tile_size, std::vector<std::uint8_t>(rgba8.begin(), rgba8.end())});
-}
-
-void FakeUploader::upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0,
-                                     std::uint32_t w, std::uint32_t h, std::span<const std::uint32_t> entries) {
-    if (entries.size() != std::size_t(w) * h) ++malformed_;
-    tables_.push_back(
-        TableCall{seq_++, texture, level, x0, y0, w, h, std::vector<std::uint32_t>(entries.begin(), entries.end())});
-}
-
-void FakeUploader::upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
-                                           std::span<const std::uint32_t> entries) {
-    if (!entries.empty() && entries.size() != PageTable::kBlockEntries) ++malformed_;
-    blocks_.push_back(BlockCall{seq_++, texture, level, bx, by, std::vector<std::uint32_t>(entries.begin(), entries.end())});
-}
-
-void FakeUploader::clear() {
-    seq_ = 0;
-    pages_.clear();
-    tables_.clear();
-    blocks_.clear();
-    malformed_ = 0;
-}
 
 namespace {
 

@@ -65,8 +65,8 @@ protected:
         for (auto& t : workers_) t.join();
         workers_.clear();
     }
-    // Fills `t` (page already set) on a worker thread, without the queue lock: status 0 and the
-    // payload, or an error status (tessera.proto's TileStatus) and message. May run concurrently.
+    // Fills `t` (page already set) on a worker thread, without the queue lock: status ok and the
+    // tile's data, or an error status and message. May run concurrently.
     virtual void produce(SourceTile& t) = 0;
 
 private:

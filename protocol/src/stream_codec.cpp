@@ -53,14 +53,14 @@ std::size_t varint_size(std::uint64_t v) {
 void append_tile_reply_head(std::string& out, const TileReplyFields& f) {
     // key (TileKey: store = 1, level = 2, x = 3, y = 4)
     const std::size_t key_size = (f.store.empty() ? 0 : 1 + varint_size(f.store.size()) + f.store.size()) +
-                                 (f.level ? 1 + varint_size(f.level) : 0) + (f.x ? 1 + varint_size(f.x) : 0) +
-                                 (f.y ? 1 + varint_size(f.y) : 0);
+                                 (f.key.level ? 1 + varint_size(f.key.level) : 0) + (f.key.x ? 1 + varint_size(f.key.x) : 0) +
+                                 (f.key.y ? 1 + varint_size(f.key.y) : 0);
     out.push_back(static_cast<char>(tag(1, kLen)));
     append_varint(out, key_size);
     if (!f.store.empty()) append_bytes_field(out, tag(1, kLen), f.store);
-    append_varint_field(out, tag(2, kVarint), f.level);
-    append_varint_field(out, tag(3, kVarint), f.x);
-    append_varint_field(out, tag(4, kVarint), f.y);
+    append_varint_field(out, tag(2, kVarint), f.key.level);
+    append_varint_field(out, tag(3, kVarint), f.key.x);
+    append_varint_field(out, tag(4, kVarint), f.key.y);
     if (f.store_version) {
         out.push_back(static_cast<char>(tag(2, kFixed64)));
         append_fixed64(out, f.store_version);
@@ -162,7 +162,7 @@ struct ServerMessageDecoder::Cursor {
 bool ServerMessageDecoder::parse_tile(Cursor& c, std::size_t end, DecodedTile& t) {
     t.store.clear();
     t.message.clear();
-    t.level = t.x = t.y = 0;
+    t.key = {};
     t.store_version = t.frame = t.checksum = 0;
     t.status = v1::TILE_OK;
     t.kind = v1::KIND_ABSENT;
@@ -190,9 +190,9 @@ bool ServerMessageDecoder::parse_tile(Cursor& c, std::size_t end, DecodedTile& t
                         }
                     } else if ((k2 & 7) == kVarint) {
                         if (!c.varint(v2)) return false;
-                        if ((k2 >> 3) == 2) t.level = static_cast<std::uint32_t>(v2);
-                        else if ((k2 >> 3) == 3) t.x = static_cast<std::uint32_t>(v2);
-                        else if ((k2 >> 3) == 4) t.y = static_cast<std::uint32_t>(v2);
+                        if ((k2 >> 3) == 2) t.key.level = static_cast<std::uint32_t>(v2);
+                        else if ((k2 >> 3) == 3) t.key.x = static_cast<std::uint32_t>(v2);
+                        else if ((k2 >> 3) == 4) t.key.y = static_cast<std::uint32_t>(v2);
                     } else if (!c.skip_field(static_cast<std::uint8_t>(k2 & 7))) {
                         return false;
                     }

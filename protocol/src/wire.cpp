@@ -36,19 +36,19 @@ v1::SampleType to_proto(storage::SampleType t) {
 v1::ColourSpace to_proto(storage::ColourSpace c) {
     return c == storage::ColourSpace::srgb ? v1::COLOUR_SRGB : v1::COLOUR_LINEAR;
 }
-v1::Codec to_proto(storage::Codec c) {
+v1::Codec to_proto(Codec c) {
     switch (c) {
-        case storage::Codec::raw: return v1::CODEC_RAW;
-        case storage::Codec::zstd: return v1::CODEC_ZSTD;
-        case storage::Codec::jpeg: return v1::CODEC_JPEG;
+        case Codec::raw: return v1::CODEC_RAW;
+        case Codec::zstd: return v1::CODEC_ZSTD;
+        case Codec::jpeg: return v1::CODEC_JPEG;
     }
     return v1::CODEC_RAW;
 }
-v1::TileKind to_proto(storage::TileKind k) {
+v1::TileKind to_proto(TileKind k) {
     switch (k) {
-        case storage::TileKind::absent: return v1::KIND_ABSENT;
-        case storage::TileKind::present: return v1::KIND_PRESENT;
-        case storage::TileKind::uniform: return v1::KIND_UNIFORM;
+        case TileKind::absent: return v1::KIND_ABSENT;
+        case TileKind::present: return v1::KIND_PRESENT;
+        case TileKind::uniform: return v1::KIND_UNIFORM;
     }
     return v1::KIND_ABSENT;
 }
@@ -63,11 +63,11 @@ storage::SampleType from_proto(v1::SampleType t) {
 storage::ColourSpace from_proto(v1::ColourSpace c) {
     return c == v1::COLOUR_SRGB ? storage::ColourSpace::srgb : storage::ColourSpace::linear;
 }
-storage::Codec from_proto(v1::Codec c) {
+Codec from_proto(v1::Codec c) {
     switch (c) {
-        case v1::CODEC_ZSTD: return storage::Codec::zstd;
-        case v1::CODEC_JPEG: return storage::Codec::jpeg;
-        default: return storage::Codec::raw;
+        case v1::CODEC_ZSTD: return Codec::zstd;
+        case v1::CODEC_JPEG: return Codec::jpeg;
+        default: return Codec::raw;
     }
 }
 
@@ -129,19 +129,56 @@ storage::StoreInfo from_proto(const v1::StoreMetadata& m) {
     return info;
 }
 
-std::string_view to_string(v1::TileStatus s) {
-    switch (s) {
-        case v1::TILE_OK: return "OK";
-        case v1::TILE_NOT_FOUND: return "NOT_FOUND";
-        case v1::TILE_OUT_OF_RANGE: return "OUT_OF_RANGE";
-        case v1::TILE_INVALID_ARGUMENT: return "INVALID_ARGUMENT";
-        case v1::TILE_RESOURCE_EXHAUSTED: return "RESOURCE_EXHAUSTED";
-        case v1::TILE_DEADLINE_EXCEEDED: return "DEADLINE_EXCEEDED";
-        case v1::TILE_DATA_LOSS: return "DATA_LOSS";
-        case v1::TILE_UNAVAILABLE: return "UNAVAILABLE";
-        case v1::TILE_INTERNAL: return "INTERNAL";
-        default: return "UNKNOWN";
+TileKind from_proto(v1::TileKind k) {
+    switch (k) {
+        case v1::KIND_PRESENT: return TileKind::present;
+        case v1::KIND_UNIFORM: return TileKind::uniform;
+        default: return TileKind::absent;
     }
+}
+
+TileKind reply_kind(v1::TileKind k, v1::Codec c) {
+    if (c == v1::CODEC_UNIFORM && k != v1::KIND_ABSENT) return TileKind::uniform;
+    return from_proto(k);
+}
+
+v1::TileStatus to_proto(TileStatus s) {
+    switch (s) {
+        case TileStatus::ok: return v1::TILE_OK;
+        case TileStatus::not_found: return v1::TILE_NOT_FOUND;
+        case TileStatus::out_of_range: return v1::TILE_OUT_OF_RANGE;
+        case TileStatus::invalid_argument: return v1::TILE_INVALID_ARGUMENT;
+        case TileStatus::resource_exhausted: return v1::TILE_RESOURCE_EXHAUSTED;
+        case TileStatus::deadline_exceeded: return v1::TILE_DEADLINE_EXCEEDED;
+        case TileStatus::data_loss: return v1::TILE_DATA_LOSS;
+        case TileStatus::unavailable: return v1::TILE_UNAVAILABLE;
+        case TileStatus::internal: return v1::TILE_INTERNAL;
+    }
+    return v1::TILE_INTERNAL;
+}
+
+TileStatus from_proto(v1::TileStatus s) {
+    switch (s) {
+        case v1::TILE_OK: return TileStatus::ok;
+        case v1::TILE_NOT_FOUND: return TileStatus::not_found;
+        case v1::TILE_OUT_OF_RANGE: return TileStatus::out_of_range;
+        case v1::TILE_INVALID_ARGUMENT: return TileStatus::invalid_argument;
+        case v1::TILE_RESOURCE_EXHAUSTED: return TileStatus::resource_exhausted;
+        case v1::TILE_DEADLINE_EXCEEDED: return TileStatus::deadline_exceeded;
+        case v1::TILE_DATA_LOSS: return TileStatus::data_loss;
+        case v1::TILE_UNAVAILABLE: return TileStatus::unavailable;
+        default: return TileStatus::internal;
+    }
+}
+
+v1::Codec reply_codec(TileStatus status, TileKind kind, Codec codec) {
+    if (status != TileStatus::ok) return v1::CODEC_NONE;
+    switch (kind) {
+        case TileKind::present: return to_proto(codec);
+        case TileKind::uniform: return v1::CODEC_UNIFORM;
+        case TileKind::absent: break;
+    }
+    return v1::CODEC_NONE;
 }
 
 }  // namespace tessera::protocol

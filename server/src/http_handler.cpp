@@ -174,11 +174,11 @@ bool if_none_match_matches(std::string_view header, std::string_view etag_quoted
     return false;
 }
 
-std::string_view content_type_of(storage::Codec c) {
+std::string_view content_type_of(Codec c) {
     switch (c) {
-        case storage::Codec::jpeg: return "image/jpeg";
-        case storage::Codec::zstd: return "application/zstd";
-        case storage::Codec::raw: return "application/octet-stream";
+        case Codec::jpeg: return "image/jpeg";
+        case Codec::zstd: return "application/zstd";
+        case Codec::raw: return "application/octet-stream";
     }
     return "application/octet-stream";
 }
@@ -198,7 +198,7 @@ nlohmann::json store_summary(const StoreHandle& h) {
         {"has_alpha", info.has_alpha},
         {"sample_type", storage::to_string(info.sample_type)},
         {"colour_space", storage::to_string(info.colour_space)},
-        {"codec", storage::to_string(info.codec)},
+        {"codec", tessera::to_string(info.codec)},
         {"levels", info.level_count()},
         {"url", url},
         {"tiles", url + "/tiles/{level}/{x}/{y}?v=" + hex16(h.version)},
@@ -496,17 +496,17 @@ HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name
     const std::string cache_control = has_version
         ? "public, max-age=" + std::to_string(kImmutableMaxAge) + ", immutable"
         : "public, max-age=" + std::to_string(ctx_.config.http_max_age);
-    const storage::TileKey key{*level, *x, *y};
+    const TileKey key{*level, *x, *y};
     auto etag_of = [&](std::uint64_t checksum) {
         return "\"" + version_hex + "-" + hex16(checksum) + (png ? "-png" : "") + "\"";
     };
-    auto common_headers = [&](HttpResponse& r, storage::TileKind kind, std::string_view codec) {
+    auto common_headers = [&](HttpResponse& r, TileKind kind, std::string_view codec) {
         r.headers.emplace_back("Cache-Control", cache_control);
         r.headers.emplace_back("X-Tessera-Store-Version", version_hex);
-        r.headers.emplace_back("X-Tessera-Kind", std::string(storage::to_string(kind)));
+        r.headers.emplace_back("X-Tessera-Kind", std::string(tessera::to_string(kind)));
         if (!codec.empty()) r.headers.emplace_back("X-Tessera-Codec", std::string(codec));
     };
-    auto not_modified = [&](storage::TileKind kind, const std::string& etag) {
+    auto not_modified = [&](TileKind kind, const std::string& etag) {
         HttpResponse r;
         r.status = 304;
         r.headers.emplace_back("ETag", etag);
@@ -519,7 +519,7 @@ HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name
     // the client holds bytes that passed the checksum when they were served.
     if (!req.if_none_match.empty()) {
         const auto loc = h->reader->locate(key);
-        if (loc.ok() && loc->kind != storage::TileKind::absent) {
+        if (loc.ok() && loc->kind != TileKind::absent) {
             const std::string etag = etag_of(loc->checksum);
             if (if_none_match_matches(req.if_none_match, etag)) return not_modified(loc->kind, etag);
         }
@@ -527,13 +527,13 @@ HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name
 
     const FetchedTile fetched = ctx_.fetcher.fetch_one(*h, key);
     switch (fetched.status) {
-        case v1::TILE_OK: break;
-        case v1::TILE_DATA_LOSS: return error(500, "tile failed its checksum", api);
-        case v1::TILE_NOT_FOUND: return error(404, "unknown store '" + std::string(name) + "'", api);
-        case v1::TILE_OUT_OF_RANGE: return error(404, "tile out of range: " + fetched.message, api);
-        case v1::TILE_RESOURCE_EXHAUSTED:
-        case v1::TILE_UNAVAILABLE:
-        case v1::TILE_DEADLINE_EXCEEDED: {
+        case TileStatus::ok: break;
+        case TileStatus::data_loss: return error(500, "tile failed its checksum", api);
+        case TileStatus::not_found: return error(404, "unknown store '" + std::string(name) + "'", api);
+        case TileStatus::out_of_range: return error(404, "tile out of range: " + fetched.message, api);
+        case TileStatus::resource_exhausted:
+        case TileStatus::unavailable:
+        case TileStatus::deadline_exceeded: {
             HttpResponse r = error(503, "tile unavailable: " + fetched.message, api);
             r.headers.emplace_back("Retry-After", "1");
             return r;
@@ -542,11 +542,11 @@ HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name
     }
     if (!fetched.tile) return error(500, "tile read failed: no tile returned", api);
     const storage::Tile& t = *fetched.tile;
-    if (t.kind == storage::TileKind::absent) {
+    if (t.kind == TileKind::absent) {
         // A definite answer for this store version, so it is cacheable like a tile.
         HttpResponse r = error(404, "tile absent in a sparse store", api);
         r.headers.clear();
-        common_headers(r, storage::TileKind::absent, {});
+        common_headers(r, TileKind::absent, {});
         return r;
     }
 
@@ -567,10 +567,10 @@ HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name
         r.body.assign(reinterpret_cast<const char*>(encoded->data()), encoded->size());
         common_headers(r, t.kind, "png");
     } else {
-        r.content_type = t.kind == storage::TileKind::uniform ? "application/octet-stream" : std::string(content_type_of(info.codec));
+        r.content_type = t.kind == TileKind::uniform ? "application/octet-stream" : std::string(content_type_of(info.codec));
         if (borrow_payload) r.payload = fetched.tile;
         else r.body.assign(reinterpret_cast<const char*>(t.bytes.data()), t.bytes.size());
-        common_headers(r, t.kind, t.kind == storage::TileKind::uniform ? "uniform" : storage::to_string(info.codec));
+        common_headers(r, t.kind, t.kind == TileKind::uniform ? "uniform" : tessera::to_string(info.codec));
         r.headers.emplace_back("X-Tessera-Checksum", hex16(t.checksum));
     }
     if (req.method != "HEAD") {

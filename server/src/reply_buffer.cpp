@@ -5,6 +5,7 @@
 #include <memory>
 
 #include "tessera/protocol/stream_codec.hpp"
+#include "tessera/protocol/wire.hpp"
 
 namespace tessera::server {
 
@@ -21,15 +22,13 @@ void append_head(std::string& out, const OutMessage& m) {
     }
     protocol::TileReplyFields f;
     f.store = m.store->name;
-    f.level = m.key.level;
-    f.x = m.key.x;
-    f.y = m.key.y;
+    f.key = m.key;
     f.store_version = m.store->version;
     f.frame = m.frame;
-    f.status = m.status;
+    f.status = protocol::to_proto(m.status);
     f.message = m.error;
-    f.kind = m.kind;
-    f.codec = m.codec;
+    f.kind = protocol::to_proto(m.kind);
+    f.codec = protocol::reply_codec(m.status, m.kind, m.codec);
     f.checksum = m.tile ? m.tile->checksum : 0;
     f.server_micros = m.server_micros;
     f.payload_size = m.payload_size();

@@ -34,7 +34,7 @@ std::size_t message_bytes(const OutMessage& m) {
 struct Scheduler::Pending {
     float priority = 0;
     std::uint64_t packed = 0;
-    storage::TileKey key;
+    TileKey key;
     std::shared_ptr<const StoreHandle> store;
     std::uint64_t frame = 0;
     std::uint64_t generation = 0;  // the viewer's batch counter when it was asked for
@@ -193,7 +193,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     ack.set_frame(batch.frame());
     std::vector<OutMessage> errors;
     std::uint32_t unanswered = 0;  // error replies beyond kMaxErrorReplies: counted in the ack only
-    auto error_reply = [&](const v1::TileRequest& r, v1::TileStatus status, std::string message) {
+    auto error_reply = [&](const v1::TileRequest& r, TileStatus status, std::string message) {
         if (errors.size() >= kMaxErrorReplies) {
             ++unanswered;
             return;
@@ -206,10 +206,10 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
         k->set_x(r.x());
         k->set_y(r.y());
         t->set_frame(batch.frame());
-        t->set_status(status);
+        t->set_status(protocol::to_proto(status));
         t->set_message(std::move(message));
         t->set_kind(v1::KIND_ABSENT);
-        t->set_codec(v1::CODEC_NONE);
+        t->set_codec(protocol::reply_codec(status, TileKind::absent, Codec::raw));
         errors.push_back(std::move(m));
     };
 
@@ -221,9 +221,9 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     v.track_sent = batch.protocol_revision() >= 1;
     if (!v.track_sent) v.sent.clear();
 
-    auto refuse_whole = [&](v1::TileStatus status, std::string message) {
+    auto refuse_whole = [&](TileStatus status, std::string message) {
         batches_refused_->inc();
-        ack.set_status(status);
+        ack.set_status(protocol::to_proto(status));
         ack.set_message(std::move(message));
         OutMessage m;
         *m.message.mutable_ack() = std::move(ack);
@@ -232,13 +232,13 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
         lock.unlock();
         notify(wake);
     };
-    if (draining_) return refuse_whole(v1::TILE_UNAVAILABLE, "the server is shutting down; reconnect elsewhere");
-    if (!bad_list.empty()) return refuse_whole(v1::TILE_INVALID_ARGUMENT, std::move(bad_list));
+    if (draining_) return refuse_whole(TileStatus::unavailable, "the server is shutting down; reconnect elsewhere");
+    if (!bad_list.empty()) return refuse_whole(TileStatus::invalid_argument, std::move(bad_list));
     if (static_cast<std::size_t>(batch.requests_size()) > ctx_.config.max_batch) {
         char buf[128];
         std::snprintf(buf, sizeof buf, "batch of %d requests exceeds the limit of %zu; it was refused whole",
                       batch.requests_size(), ctx_.config.max_batch);
-        return refuse_whole(v1::TILE_RESOURCE_EXHAUSTED, buf);
+        return refuse_whole(TileStatus::resource_exhausted, buf);
     }
 
     // Validate, and collect the new wanted set.
@@ -251,7 +251,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     std::uint32_t invalid = 0, already = 0, already_sent = 0;
     for (const auto& r : batch.requests()) {
         if (r.store() >= static_cast<std::uint32_t>(batch.stores_size())) {
-            error_reply(r, v1::TILE_INVALID_ARGUMENT, "store index " + std::to_string(r.store()) + " is not in the batch's store list");
+            error_reply(r, TileStatus::invalid_argument, "store index " + std::to_string(r.store()) + " is not in the batch's store list");
             ++invalid;
             continue;
         }
@@ -259,18 +259,18 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
         if (!store) {  // names are at most kMaxStoreNameLength bytes here (checked above)
             const auto& name = batch.stores(static_cast<int>(r.store()));
             const bool valid = protocol::valid_store_name(name);
-            error_reply(r, valid ? v1::TILE_NOT_FOUND : v1::TILE_INVALID_ARGUMENT,
+            error_reply(r, valid ? TileStatus::not_found : TileStatus::invalid_argument,
                         valid ? "no store named '" + name + "'" : "store names are identifiers ([A-Za-z0-9_.-], no '..')");
             ++invalid;
             continue;
         }
         if (!std::isfinite(r.priority())) {
-            error_reply(r, v1::TILE_INVALID_ARGUMENT, "priority must be a finite number");
+            error_reply(r, TileStatus::invalid_argument, "priority must be a finite number");
             ++invalid;
             continue;
         }
         store->metrics.requests->inc();
-        const storage::TileKey key{r.level(), r.x(), r.y()};
+        const TileKey key{r.level(), r.x(), r.y()};
         if (!store->info().contains(key)) {
             const auto& info = store->info();
             char buf[160];
@@ -280,11 +280,11 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
             else
                 std::snprintf(buf, sizeof buf, "tile (%u,%u) is out of range at level %u (%u x %u tiles)", key.x,
                               key.y, key.level, info.levels[key.level].tiles_x, info.levels[key.level].tiles_y);
-            error_reply(r, v1::TILE_OUT_OF_RANGE, buf);
+            error_reply(r, TileStatus::out_of_range, buf);
             ++invalid;
             continue;
         }
-        const FullKey fk{store.get(), protocol::pack_key(key.level, key.x, key.y)};
+        const FullKey fk{store.get(), pack_key(key)};
         if (!wanted.insert(fk).second || v.in_flight.contains(fk)) {
             ++already;  // a duplicate in this batch, or already being served: sent once
             continue;
@@ -346,9 +346,9 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
             t->mutable_key()->set_x(next[i].key.x);
             t->mutable_key()->set_y(next[i].key.y);
             t->set_frame(batch.frame());
-            t->set_status(v1::TILE_RESOURCE_EXHAUSTED);
+            t->set_status(protocol::to_proto(TileStatus::resource_exhausted));
             t->set_message("the server's request queue is full; retry later");
-            t->set_codec(v1::CODEC_NONE);
+            t->set_codec(protocol::reply_codec(TileStatus::resource_exhausted, TileKind::absent, Codec::raw));
             errors.push_back(std::move(m));
         }
         next.resize(room);
@@ -367,7 +367,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     v.wanted = std::move(wanted);
     if (was_idle && !v.pending.empty()) v.served = std::max(v.served, virtual_time_);
 
-    ack.set_status(v1::TILE_OK);
+    ack.set_status(protocol::to_proto(TileStatus::ok));
     ack.set_admitted(static_cast<std::uint32_t>(v.pending.size()));
     ack.set_refused(refused);
     ack.set_invalid(invalid);
@@ -424,7 +424,7 @@ void Scheduler::worker() {
     std::vector<Pending> chunk;
     std::vector<OutMessage> replies;
     std::vector<FetchedTile> fetched;
-    std::vector<storage::TileKey> keys;
+    std::vector<TileKey> keys;
     std::vector<std::size_t> index;
     std::vector<std::shared_ptr<ViewerSink>> wake;
     for (;;) {
@@ -463,9 +463,8 @@ void Scheduler::worker() {
             r.store = chunk[i].store;
             r.packed_key = chunk[i].packed;
             if (chunk[i].deadline < now) {
-                r.status = v1::TILE_DEADLINE_EXCEEDED;
+                r.status = TileStatus::deadline_exceeded;
                 r.error = "not started before its deadline";
-                r.codec = v1::CODEC_NONE;
                 deadline_exceeded_->inc();
             } else {
                 by_store[chunk[i].store.get()].push_back(i);
@@ -479,16 +478,13 @@ void Scheduler::worker() {
                 auto& f = fetched[j];
                 auto& r = replies[members[j]];
                 r.status = f.status;
-                if (f.status != v1::TILE_OK) {
+                if (f.status != TileStatus::ok) {
                     r.error = std::move(f.message);
-                    r.codec = v1::CODEC_NONE;
-                    if (f.status == v1::TILE_DATA_LOSS) data_loss_->inc();
+                    if (f.status == TileStatus::data_loss) data_loss_->inc();
                     continue;
                 }
-                r.kind = protocol::to_proto(f.tile->kind);
-                if (f.tile->kind == storage::TileKind::present) r.codec = protocol::to_proto(store->info().codec);
-                else if (f.tile->kind == storage::TileKind::uniform) r.codec = v1::CODEC_UNIFORM;
-                else r.codec = v1::CODEC_NONE;
+                r.kind = f.tile->kind;
+                r.codec = store->info().codec;
                 r.tile = std::move(f.tile);
             }
         }
@@ -539,7 +535,7 @@ bool Scheduler::next_messages(ViewerId id, std::vector<OutMessage>& out, std::si
         if (m.is_tile) {
             const auto us = std::chrono::duration_cast<std::chrono::microseconds>(now - m.received).count();
             m.server_micros = static_cast<std::uint32_t>(std::min<std::int64_t>(us, UINT32_MAX));
-            if (m.status == v1::TILE_OK && v.track_sent) {
+            if (m.status == TileStatus::ok && v.track_sent) {
                 // On its way: from now on the sent set, not in_flight, keeps a batch that still
                 // lists it from asking for it again (revision 0: in_flight until written).
                 const FullKey fk{m.store.get(), m.packed_key};
@@ -566,7 +562,7 @@ void Scheduler::written_locked(Viewer& v, const OutMessage& msg, bool& wake_work
 void Scheduler::account_written(const OutMessage& msg, bool ok) {
     if (!ok || !msg.is_tile) return;
     latency_->observe(std::chrono::duration<double>(Clock::now() - msg.received).count());
-    if (msg.status == v1::TILE_OK && msg.kind != v1::KIND_ABSENT) {
+    if (msg.status == TileStatus::ok && msg.kind != TileKind::absent) {
         const std::size_t n = msg.payload_size();
         tiles_sent_->inc();
         bytes_sent_->inc(n);
@@ -625,13 +621,13 @@ v1::ServerMessage OutMessage::to_proto() const {
     k->set_y(key.y);
     t->set_store_version(store->version);
     t->set_frame(frame);
-    t->set_status(status);
+    t->set_status(protocol::to_proto(status));
     t->set_message(error);
-    t->set_kind(kind);
-    t->set_codec(codec);
+    t->set_kind(protocol::to_proto(kind));
+    t->set_codec(protocol::reply_codec(status, kind, codec));
     if (tile) {
         t->set_checksum(tile->checksum);
-        if (kind != v1::KIND_ABSENT) t->set_payload(tile->bytes.data(), tile->bytes.size());
+        if (kind != TileKind::absent) t->set_payload(tile->bytes.data(), tile->bytes.size());
     }
     t->set_server_micros(server_micros);
     return m;

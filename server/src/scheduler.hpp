@@ -53,17 +53,17 @@ struct OutMessage {
     std::uint64_t packed_key = 0;
     bool is_tile = false;
     // is_tile:
-    storage::TileKey key;
+    TileKey key;
     std::uint64_t frame = 0;
-    v1::TileStatus status = v1::TILE_OK;
-    std::string error;               // when status is not TILE_OK
-    v1::TileKind kind = v1::KIND_ABSENT;
-    v1::Codec codec = v1::CODEC_NONE;
+    TileStatus status = TileStatus::ok;
+    std::string error;               // when status is not ok
+    TileKind kind = TileKind::absent;
+    Codec codec = Codec::raw;        // the store's codec (the wire's codec: protocol::reply_codec)
     std::shared_ptr<const storage::Tile> tile;  // status TILE_OK: payload and checksum
     std::uint32_t server_micros = 0;            // set when taken from the outbox
     bool left_in_flight = false;  // taken into the sent set (revision 1): in_flight already cleared
 
-    std::size_t payload_size() const { return is_tile && tile && kind != v1::KIND_ABSENT ? tile->bytes.size() : 0; }
+    std::size_t payload_size() const { return is_tile && tile && kind != TileKind::absent ? tile->bytes.size() : 0; }
     // The whole reply as a protobuf message, payload copied (tests and tools; the stream does not).
     v1::ServerMessage to_proto() const;
 };

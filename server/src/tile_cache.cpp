@@ -34,8 +34,8 @@ std::uint64_t mix64(std::uint64_t z) {
 std::uint64_t hash_key(const CacheKey& k) {
     constexpr std::uint64_t kGolden = 0x9e3779b97f4a7c15ULL;
     std::uint64_t h = mix64(k.store_version + kGolden);
-    h = mix64((h ^ ((std::uint64_t{k.level} << 32) | k.x)) + kGolden);
-    return mix64((h ^ k.y) + kGolden);
+    h = mix64((h ^ ((std::uint64_t{k.tile.level} << 32) | k.tile.x)) + kGolden);
+    return mix64((h ^ k.tile.y) + kGolden);
 }
 
 struct KeyHash {

@@ -14,9 +14,7 @@ namespace tessera::server {
 
 struct CacheKey {
     std::uint64_t store_version = 0;  // StoreInfo::store_id: a replaced store never hits old tiles
-    std::uint32_t level = 0;
-    std::uint32_t x = 0;
-    std::uint32_t y = 0;
+    TileKey tile;
     friend bool operator==(const CacheKey&, const CacheKey&) = default;
 };
 

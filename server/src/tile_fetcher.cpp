@@ -29,33 +29,33 @@ TileFetcher::~TileFetcher() {
 
 namespace {
 
-FetchedTile error_tile(v1::TileStatus status, std::string message) {
+FetchedTile error_tile(TileStatus status, std::string message) {
     FetchedTile f;
     f.status = status;
     f.message = std::move(message);
     return f;
 }
 
-std::string key_text(const StoreHandle& store, const storage::TileKey& k) {
+std::string key_text(const StoreHandle& store, const TileKey& k) {
     char buf[96];
     std::snprintf(buf, sizeof buf, "/%u/%u/%u", k.level, k.x, k.y);
     return store.name + buf;
 }
 
 FetchedTile stale_tile(const StoreHandle& store) {
-    return error_tile(v1::TILE_UNAVAILABLE, "store " + store.name + " changed on disk and is being reopened; retry");
+    return error_tile(TileStatus::unavailable, "store " + store.name + " changed on disk and is being reopened; retry");
 }
 
 }  // namespace
 
-void TileFetcher::fetch(const StoreHandle& store, std::span<const storage::TileKey> keys,
+void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
                         std::vector<FetchedTile>& out) {
     if (store.stale.load(std::memory_order_relaxed)) {
         out.assign(keys.size(), stale_tile(store));
         return;
     }
     out.assign(keys.size(), FetchedTile{});
-    std::vector<storage::TileKey> misses;
+    std::vector<TileKey> misses;
     std::vector<std::size_t> miss_index;
     const auto& info = store.info();
     for (std::size_t i = 0; i < keys.size(); ++i) {
@@ -68,10 +68,10 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const storage::TileK
             else
                 std::snprintf(buf, sizeof buf, "tile (%u,%u) is out of range at level %u (%u x %u tiles)", k.x, k.y,
                               k.level, info.levels[k.level].tiles_x, info.levels[k.level].tiles_y);
-            out[i] = error_tile(v1::TILE_OUT_OF_RANGE, buf);
+            out[i] = error_tile(TileStatus::out_of_range, buf);
             continue;
         }
-        if (auto hit = cache_.get(CacheKey{store.version, k.level, k.x, k.y})) {
+        if (auto hit = cache_.get(CacheKey{store.version, k})) {
             cache_hits_->inc();
             out[i].tile = std::move(hit);
             continue;
@@ -105,25 +105,25 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const storage::TileK
                 store.metrics.data_loss->inc();
                 log_.error("tile failed its checksum; not served",
                            {{"store", store.name}, {"tile", key_text(store, misses[j])}, {"error", e.message}});
-                out[i] = error_tile(v1::TILE_DATA_LOSS, "tile " + key_text(store, misses[j]) + " failed its checksum");
+                out[i] = error_tile(TileStatus::data_loss, "tile " + key_text(store, misses[j]) + " failed its checksum");
             } else if (e.code == Errc::out_of_range) {
-                out[i] = error_tile(v1::TILE_OUT_OF_RANGE, e.message);
+                out[i] = error_tile(TileStatus::out_of_range, e.message);
             } else {
                 log_.error("tile read failed", {{"store", store.name}, {"tile", key_text(store, misses[j])},
                                                 {"error", e.message}});
-                out[i] = error_tile(v1::TILE_INTERNAL, "reading tile " + key_text(store, misses[j]) + " failed");
+                out[i] = error_tile(TileStatus::internal, "reading tile " + key_text(store, misses[j]) + " failed");
             }
             continue;
         }
         auto tile = std::make_shared<const storage::Tile>(std::move(*r));
-        cache_.put(CacheKey{store.version, misses[j].level, misses[j].x, misses[j].y}, tile);
+        cache_.put(CacheKey{store.version, misses[j]}, tile);
         out[i].tile = std::move(tile);
     }
 }
 
-FetchedTile TileFetcher::fetch_one(const StoreHandle& store, const storage::TileKey& key) {
+FetchedTile TileFetcher::fetch_one(const StoreHandle& store, const TileKey& key) {
     std::vector<FetchedTile> out;
-    fetch(store, std::span<const storage::TileKey>(&key, 1), out);
+    fetch(store, std::span<const TileKey>(&key, 1), out);
     return std::move(out[0]);
 }
 

@@ -11,15 +11,14 @@
 #include "log.hpp"
 #include "metrics.hpp"
 #include "store_registry.hpp"
-#include "tessera.pb.h"
 #include "tile_cache.hpp"
 
 namespace tessera::server {
 
 struct FetchedTile {
-    v1::TileStatus status = v1::TILE_OK;
-    std::string message;                        // when status != TILE_OK
-    std::shared_ptr<const storage::Tile> tile;  // when status == TILE_OK (kind may be absent)
+    TileStatus status = TileStatus::ok;
+    std::string message;                        // when status != ok
+    std::shared_ptr<const storage::Tile> tile;  // when status == ok (kind may be absent)
 };
 
 class TileFetcher {
@@ -29,8 +28,8 @@ public:
     TileFetcher(const TileFetcher&) = delete;
     TileFetcher& operator=(const TileFetcher&) = delete;
     // Tiles of one store, results in the order of keys (out is resized to keys.size()).
-    void fetch(const StoreHandle& store, std::span<const storage::TileKey> keys, std::vector<FetchedTile>& out);
-    FetchedTile fetch_one(const StoreHandle& store, const storage::TileKey& key);
+    void fetch(const StoreHandle& store, std::span<const TileKey> keys, std::vector<FetchedTile>& out);
+    FetchedTile fetch_one(const StoreHandle& store, const TileKey& key);
 
     TileCache& cache() { return cache_; }
     std::uint64_t reads() const { return reads_->value(); }

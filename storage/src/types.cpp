@@ -1,6 +1,7 @@
 #include "tessera/storage/types.hpp"
 
 #include "tessera/result.hpp"
+#include "tessera/tile.hpp"
 
 namespace tessera {
 
@@ -16,6 +17,47 @@ const char* errc_name(Errc code) {
         case Errc::cancelled: return "cancelled";
     }
     return "unknown";
+}
+
+
+std::string_view to_string(Codec c) {
+    switch (c) {
+        case Codec::raw: return "raw";
+        case Codec::zstd: return "zstd";
+        case Codec::jpeg: return "jpeg";
+    }
+    return "?";
+}
+
+std::string_view to_string(TileKind k) {
+    switch (k) {
+        case TileKind::absent: return "absent";
+        case TileKind::present: return "present";
+        case TileKind::uniform: return "uniform";
+    }
+    return "?";
+}
+
+std::string_view to_string(TileStatus s) {
+    switch (s) {
+        case TileStatus::ok: return "OK";
+        case TileStatus::not_found: return "NOT_FOUND";
+        case TileStatus::out_of_range: return "OUT_OF_RANGE";
+        case TileStatus::invalid_argument: return "INVALID_ARGUMENT";
+        case TileStatus::resource_exhausted: return "RESOURCE_EXHAUSTED";
+        case TileStatus::deadline_exceeded: return "DEADLINE_EXCEEDED";
+        case TileStatus::data_loss: return "DATA_LOSS";
+        case TileStatus::unavailable: return "UNAVAILABLE";
+        case TileStatus::internal: return "INTERNAL";
+    }
+    return "UNKNOWN";
+}
+
+std::optional<Codec> parse_codec(std::string_view s) {
+    if (s == "raw") return Codec::raw;
+    if (s == "zstd") return Codec::zstd;
+    if (s == "jpeg" || s == "jpg") return Codec::jpeg;
+    return std::nullopt;
 }
 
 }  // namespace tessera
@@ -43,31 +85,6 @@ std::string_view to_string(SampleType t) {
 }
 
 std::string_view to_string(ColourSpace c) { return c == ColourSpace::srgb ? "srgb" : "linear"; }
-
-std::string_view to_string(Codec c) {
-    switch (c) {
-        case Codec::raw: return "raw";
-        case Codec::zstd: return "zstd";
-        case Codec::jpeg: return "jpeg";
-    }
-    return "?";
-}
-
-std::string_view to_string(TileKind k) {
-    switch (k) {
-        case TileKind::absent: return "absent";
-        case TileKind::present: return "present";
-        case TileKind::uniform: return "uniform";
-    }
-    return "?";
-}
-
-std::optional<Codec> parse_codec(std::string_view s) {
-    if (s == "raw") return Codec::raw;
-    if (s == "zstd") return Codec::zstd;
-    if (s == "jpeg" || s == "jpg") return Codec::jpeg;
-    return std::nullopt;
-}
 
 std::vector<LevelInfo> level_geometry(std::uint32_t width, std::uint32_t height, std::uint32_t tile_payload) {
     std::vector<LevelInfo> levels;

@@ -89,7 +89,7 @@ int main(int argc, char** argv) {
     }
     const ExpectedStore& a = stores[0];
     const ExpectedStore& b = stores[1];
-    auto etag = [](const ExpectedStore& s, const storage::TileKey& k, bool png = false) {
+    auto etag = [](const ExpectedStore& s, const tessera::TileKey& k, bool png = false) {
         const ExpectedTile* t = s.find(k);
         return "\"" + hex16(s.version) + "-" + hex16(XXH3_64bits(t->bytes.data(), t->bytes.size())) + (png ? "-png" : "") + "\"";
     };

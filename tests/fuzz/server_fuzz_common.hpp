@@ -87,7 +87,7 @@ inline std::string raw_record(std::uint8_t store, std::uint8_t level, std::uint1
 // ---- the stores --------------------------------------------------------------------------------
 
 struct ExpectedTile {
-    storage::TileKind kind = storage::TileKind::absent;
+    tessera::TileKind kind = tessera::TileKind::absent;
     std::vector<std::uint8_t> bytes;  // present: the payload as written; uniform: the value
     bool corrupt = false;             // a payload byte was flipped after writing: never served
 };
@@ -98,11 +98,11 @@ struct ExpectedStore {
     std::uint64_t version = 0;  // StoreInfo::store_id, read back after writing
     std::map<std::uint64_t, ExpectedTile> tiles;  // by pack(key); every tile of every level
 
-    static std::uint64_t pack(const storage::TileKey& k) {
+    static std::uint64_t pack(const tessera::TileKey& k) {
         return (std::uint64_t(k.level) << 48) | (std::uint64_t(k.y) << 24) | k.x;
     }
     // nullptr when the key is outside the store.
-    const ExpectedTile* find(const storage::TileKey& k) const {
+    const ExpectedTile* find(const tessera::TileKey& k) const {
         if (!info.contains(k)) return nullptr;
         const auto it = tiles.find(pack(k));
         return it == tiles.end() ? nullptr : &it->second;
@@ -112,7 +112,7 @@ struct ExpectedStore {
 namespace detail {
 
 inline storage::StoreSpec spec(std::uint32_t w, std::uint32_t h, std::uint32_t payload, std::uint32_t border,
-                               std::uint32_t channels, storage::Codec codec) {
+                               std::uint32_t channels, tessera::Codec codec) {
     storage::StoreSpec s;
     s.width = w;
     s.height = h;
@@ -130,7 +130,7 @@ enum class Make { present, uniform, absent, shared };
 // Writes one store; `make` picks each tile's kind. Shared tiles all have the same texels (the
 // writer stores their payload once).
 inline std::string write_one(const std::string& dir, ExpectedStore& out, const storage::StoreSpec& sp,
-                             Make (*make)(const storage::TileKey&)) {
+                             Make (*make)(const tessera::TileKey&)) {
     const std::string path = dir + "/" + out.name + ".tsr";
     auto created = storage::StoreWriter::create(path, sp);
     if (!created) return created.error().message;
@@ -141,12 +141,12 @@ inline std::string write_one(const std::string& dir, ExpectedStore& out, const s
     for (std::uint32_t l = 0; l < out.info.level_count(); ++l) {
         for (std::uint32_t y = 0; y < out.info.levels[l].tiles_y; ++y) {
             for (std::uint32_t x = 0; x < out.info.levels[l].tiles_x; ++x) {
-                const storage::TileKey key{l, x, y};
+                const tessera::TileKey key{l, x, y};
                 ExpectedTile& e = out.tiles[ExpectedStore::pack(key)];
                 const Make m = make(key);
                 if (m == Make::absent) continue;
                 if (m == Make::uniform) {
-                    e.kind = storage::TileKind::uniform;
+                    e.kind = tessera::TileKind::uniform;
                     e.bytes.assign(out.info.texel_bytes(), static_cast<std::uint8_t>(40 + 9 * l + x));
                     if (Status s = w.add_uniform(key, e.bytes); !s) return s.error().message;
                     continue;
@@ -156,7 +156,7 @@ inline std::string write_one(const std::string& dir, ExpectedStore& out, const s
                     texels[i] = static_cast<std::uint8_t>((i * 7 + salt * 131) ^ (i >> 5) ^ (salt * 17));
                 auto payload = storage::encode_tile(out.info, texels, {});
                 if (!payload) return payload.error().message;
-                e.kind = storage::TileKind::present;
+                e.kind = tessera::TileKind::present;
                 e.bytes = *payload;
                 if (Status s = w.add_present(key, e.bytes); !s) return s.error().message;
             }
@@ -167,11 +167,11 @@ inline std::string write_one(const std::string& dir, ExpectedStore& out, const s
 }
 
 // Flips a byte in the middle of a present tile's payload in the file.
-inline std::string corrupt_tile(const std::string& path, ExpectedStore& store, const storage::TileKey& key) {
+inline std::string corrupt_tile(const std::string& path, ExpectedStore& store, const tessera::TileKey& key) {
     auto reader = storage::StoreReader::open(path);
     if (!reader) return reader.error().message;
     auto loc = (*reader)->locate(key);
-    if (!loc || loc->kind != storage::TileKind::present) return "corrupt_tile: not a present tile";
+    if (!loc || loc->kind != tessera::TileKind::present) return "corrupt_tile: not a present tile";
     std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
     const auto at = static_cast<std::streamoff>(loc->offset + loc->length / 2);
     char c = 0;
@@ -189,7 +189,7 @@ inline std::string corrupt_tile(const std::string& path, ExpectedStore& store, c
 }  // namespace detail
 
 // The corrupted tile (store "b").
-inline constexpr storage::TileKey kCorruptKey{0, 0, 0};
+inline constexpr tessera::TileKey kCorruptKey{0, 0, 0};
 
 // Writes a.tsr and b.tsr into dir and describes them in `out`. Returns an error message, or ""
 //   a: 300 x 200 RGB8, tile payload 56 + border 4 (64 x 64 texels, 12 KiB raw), 4 levels (6x4, 3x2,
@@ -202,8 +202,8 @@ inline std::string write_server_fuzz_stores(const std::string& dir, std::vector<
     out.clear();
     out.resize(2);
     out[0].name = "a";
-    std::string err = detail::write_one(dir, out[0], detail::spec(300, 200, 56, 4, 3, storage::Codec::raw),
-                                        [](const storage::TileKey& k) {
+    std::string err = detail::write_one(dir, out[0], detail::spec(300, 200, 56, 4, 3, tessera::Codec::raw),
+                                        [](const tessera::TileKey& k) {
                                             if (k.level == 0 && k.x == 1 && k.y == 1) return Make::uniform;
                                             if (k.level == 0 && k.x == 2 && k.y == 1) return Make::absent;
                                             if (k.level == 0 && (k.x == 3 || k.x == 4) && k.y == 3) return Make::shared;
@@ -213,8 +213,8 @@ inline std::string write_server_fuzz_stores(const std::string& dir, std::vector<
                                         });
     if (!err.empty()) return "a: " + err;
     out[1].name = "b";
-    err = detail::write_one(dir, out[1], detail::spec(20, 12, 8, 2, 1, storage::Codec::zstd),
-                            [](const storage::TileKey& k) {
+    err = detail::write_one(dir, out[1], detail::spec(20, 12, 8, 2, 1, tessera::Codec::zstd),
+                            [](const tessera::TileKey& k) {
                                 if (k.level == 0 && k.x == 1 && k.y == 0) return Make::uniform;
                                 if (k.level == 0 && k.x == 2 && k.y == 1) return Make::absent;
                                 return Make::present;
@@ -230,7 +230,7 @@ inline std::string write_server_fuzz_stores(const std::string& dir, std::vector<
         s.version = (*reader)->info().store_id;
         s.info = (*reader)->info();
         for (const auto& [packed, e] : s.tiles) {
-            const storage::TileKey key{static_cast<std::uint32_t>(packed >> 48),
+            const tessera::TileKey key{static_cast<std::uint32_t>(packed >> 48),
                                        static_cast<std::uint32_t>(packed & 0xffffff),
                                        static_cast<std::uint32_t>((packed >> 24) & 0xffffff)};
             auto t = (*reader)->read_tile(key);

@@ -58,8 +58,8 @@ using namespace tessera;
 using namespace tessera::server;
 using tessera::fuzz::ExpectedStore;
 using tessera::fuzz::ExpectedTile;
-using storage::TileKey;
-using storage::TileKind;
+using tessera::TileKey;
+using tessera::TileKind;
 
 #define FUZZ_CHECK(cond)                                                                               \
     do {                                                                                               \
@@ -362,7 +362,7 @@ void fuzz_http(const Fixture& fx, std::uint8_t flags, std::string_view rest) {
             FUZZ_CHECK(got_etag && *got_etag == etag);
             FUZZ_CHECK(got_version && *got_version == version);
             const std::string* kind = res.header("X-Tessera-Kind");
-            FUZZ_CHECK(kind && *kind == storage::to_string(t.tile->kind));
+            FUZZ_CHECK(kind && *kind == tessera::to_string(t.tile->kind));
             if (png) {
                 FUZZ_CHECK(res.content_type == "image/png");
                 FUZZ_CHECK(res.body.size() > 8 && std::memcmp(res.body.data(), "\x89PNG\r\n\x1a\n", 8) == 0);

@@ -7,7 +7,7 @@
 #include <limits>
 
 #include "tessera/client/gl/renderer.hpp"
-#include "tessera/client/transcode.hpp"
+#include "transcode.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace tessera::client::gl {
@@ -31,17 +31,14 @@ Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::str
         level.height = li.height;
         level.rgba8.assign(std::size_t(li.width) * li.height * 4, 0);
         for (std::uint32_t ty = 0; ty < li.tiles_y; ++ty) {
-            std::vector<storage::TileKey> keys;
-            for (std::uint32_t tx = 0; tx < li.tiles_x; ++tx) keys.push_back(storage::TileKey{l, tx, ty});
+            std::vector<TileKey> keys;
+            for (std::uint32_t tx = 0; tx < li.tiles_x; ++tx) keys.push_back(TileKey{l, tx, ty});
             auto tiles = reader.read_tiles(keys);
             for (std::uint32_t tx = 0; tx < li.tiles_x; ++tx) {
                 auto& t = tiles[tx];
                 if (!t) return Error{t.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, t.error().message)};
-                if (t->kind == storage::TileKind::absent) continue;  // transparent black
-                const bool uniform = t->kind == storage::TileKind::uniform;
-                Status st = transcode_to_rgba8(info, uniform ? wire_kind::uniform : wire_kind::present,
-                                               uniform ? wire_codec::uniform : static_cast<std::uint8_t>(info.codec), t->bytes, page,
-                                               scratch);
+                if (t->kind == TileKind::absent) continue;  // transparent black
+                Status st = transcode_to_rgba8(info, t->kind, info.codec, t->bytes, page, scratch);
                 if (!st) return Error{st.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, st.error().message)};
                 // The interior [B, B + P) of the tile is level texels [tx * P, (tx + 1) * P).
                 const std::uint32_t x0 = tx * P, y0 = ty * P;

@@ -15,7 +15,7 @@
 #include "page_mips.hpp"
 #include "staging.hpp"
 #include "tessera/client/gl/renderer.hpp"
-#include "tessera/client/page_table.hpp"
+#include "page_table.hpp"
 
 namespace tessera::client::gl {
 

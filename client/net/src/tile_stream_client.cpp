@@ -13,7 +13,7 @@
 //   - the incoming queue holds replies and acks not yet polled. Bound: max_buffered_bytes (plus at
 //     most one message): the reader waits before each Read while the buffer is over the bound,
 //     which stops reading and lets gRPC flow control push back to the server.
-#include "tessera/client/tile_stream_client.hpp"
+#include "tessera/client/net/tile_stream_client.hpp"
 
 #include <xxhash.h>
 
@@ -34,6 +34,7 @@
 
 #include "tessera.grpc.pb.h"
 #include "tessera/protocol/stream_codec.hpp"
+#include "tessera/protocol/wire.hpp"
 
 namespace tessera::client {
 
@@ -125,7 +126,7 @@ struct Item {
 };
 
 std::size_t accounted_bytes(const ReceivedTile& t) {
-    return sizeof(Item) + t.payload.size() + t.store.size() + t.message.size();
+    return sizeof(Item) + t.data.payload.size() + t.store.size() + t.message.size();
 }
 std::size_t accounted_bytes(const BatchAckInfo& a) { return sizeof(Item) + a.message.size(); }
 
@@ -134,20 +135,18 @@ ReceivedTile decode(const protocol::ServerMessageDecoder& d, std::size_t i, Cloc
     const protocol::DecodedTile& r = d.tile(i);
     ReceivedTile t;
     t.store = r.store;
-    t.level = r.level;
-    t.x = r.x;
-    t.y = r.y;
+    t.key = r.key;
     t.store_version = r.store_version;
     t.frame = r.frame;
-    t.status = r.status;
+    t.status = protocol::from_proto(r.status);
     t.message = r.message;
-    t.kind = r.kind;
-    t.codec = r.codec;
+    t.data.kind = protocol::reply_kind(r.kind, r.codec);
+    t.data.codec = protocol::from_proto(r.codec);
     if (r.payload_size) {
-        t.payload.resize(r.payload_size);
-        d.copy_payload(i, t.payload.data());
+        t.data.payload.resize(r.payload_size);
+        d.copy_payload(i, t.data.payload.data());
     }
-    t.checksum = r.checksum;
+    t.data.checksum = r.checksum;
     t.server_micros = r.server_micros;
     t.received = received;
     return t;
@@ -156,7 +155,7 @@ ReceivedTile decode(const protocol::ServerMessageDecoder& d, std::size_t i, Cloc
 BatchAckInfo decode(v1::BatchAck& a) {
     BatchAckInfo info;
     info.frame = a.frame();
-    info.status = a.status();
+    info.status = protocol::from_proto(a.status());
     info.message = std::move(*a.mutable_message());
     info.admitted = a.admitted();
     info.refused = a.refused();
@@ -221,9 +220,9 @@ public:
             }
             v1::TileRequest* out = batch->add_requests();
             out->set_store(it->second);
-            out->set_level(r.level);
-            out->set_x(r.x);
-            out->set_y(r.y);
+            out->set_level(r.key.level);
+            out->set_x(r.key.x);
+            out->set_y(r.key.y);
             out->set_priority(r.priority);
         }
         {
@@ -473,14 +472,15 @@ private:
         if (decoder_.kind() == protocol::ServerMessageDecoder::Kind::tiles) {
             for (std::size_t i = 0; i < decoder_.tile_count(); ++i) {
                 ReceivedTile t = decode(decoder_, i, received);
-                payload_bytes += t.payload.size();
-                if (t.status == v1::TILE_OK && !t.payload.empty() &&
-                    XXH3_64bits(t.payload.data(), t.payload.size()) != t.checksum) {
+                auto& payload = t.data.payload;
+                payload_bytes += payload.size();
+                if (t.status == TileStatus::ok && !payload.empty() &&
+                    XXH3_64bits(payload.data(), payload.size()) != t.data.checksum) {
                     ++bad_checksums;
-                    t.status = v1::TILE_DATA_LOSS;
+                    t.status = TileStatus::data_loss;
                     t.message = "checksum mismatch in transit";
-                    t.payload.clear();
-                    t.payload.shrink_to_fit();
+                    payload.clear();
+                    payload.shrink_to_fit();
                 }
                 Item item;
                 item.bytes = accounted_bytes(t);
@@ -565,18 +565,22 @@ ConnectionState TileStreamClient::state() const { return impl_->state(); }
 std::string TileStreamClient::last_error() const { return impl_->last_error(); }
 TileStreamStats TileStreamClient::stats() const { return impl_->stats(); }
 
-Result<std::vector<v1::StoreMetadata>> TileStreamClient::list_stores(milliseconds timeout) {
+Result<std::vector<RemoteStore>> TileStreamClient::list_stores(milliseconds timeout) {
     auto reply = impl_->unary<v1::ListStoresRequest, v1::ListStoresReply>(
         v1::ListStoresRequest{}, timeout, &v1::TileService::Stub::ListStores);
     if (!reply.ok()) return reply.error();
-    auto& stores = *reply->mutable_stores();
-    return std::vector<v1::StoreMetadata>(std::make_move_iterator(stores.begin()), std::make_move_iterator(stores.end()));
+    std::vector<RemoteStore> stores;
+    stores.reserve(static_cast<std::size_t>(reply->stores_size()));
+    for (const auto& m : reply->stores()) stores.push_back(RemoteStore{m.name(), protocol::from_proto(m)});
+    return stores;
 }
 
-Result<v1::StoreMetadata> TileStreamClient::get_store(const std::string& name, milliseconds timeout) {
+Result<RemoteStore> TileStreamClient::get_store(const std::string& name, milliseconds timeout) {
     v1::GetStoreRequest request;
     request.set_name(name);
-    return impl_->unary<v1::GetStoreRequest, v1::StoreMetadata>(request, timeout, &v1::TileService::Stub::GetStore);
+    auto m = impl_->unary<v1::GetStoreRequest, v1::StoreMetadata>(request, timeout, &v1::TileService::Stub::GetStore);
+    if (!m.ok()) return m.error();
+    return RemoteStore{m->name(), protocol::from_proto(*m)};
 }
 
 Result<v1::ServerStats> TileStreamClient::server_stats(milliseconds timeout) {

@@ -1,7 +1,7 @@
 // The feedback buffer of a flat terrain view, on the CPU: one ray per feedback pixel, intersected
 // with the plane z = 0 in double precision, and the shared LoD rule. Allocation-free once `out`
 // has its size: the load tester calls it every frame for every simulated viewer.
-#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/client/scene/cpu_feedback.hpp"
 
 #include <algorithm>
 #include <array>

@@ -9,7 +9,7 @@
 #include <map>
 #include <unordered_map>
 
-#include "tessera/scene/atlas.hpp"
+#include "tessera/client/scene/atlas.hpp"
 
 namespace tessera::scene {
 namespace fs = std::filesystem;

@@ -9,7 +9,7 @@
 #include <fstream>
 #include <unordered_map>
 
-#include "tessera/scene/scene.hpp"
+#include "tessera/client/scene/scene.hpp"
 
 namespace tessera::scene {
 namespace {

@@ -2,7 +2,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "tessera/scene/scene.hpp"
+#include "tessera/client/scene/scene.hpp"
 
 namespace tessera::scene {
 

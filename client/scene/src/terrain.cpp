@@ -4,7 +4,7 @@
 #include <cmath>
 #include <numbers>
 
-#include "tessera/scene/scene.hpp"
+#include "tessera/client/scene/scene.hpp"
 
 namespace tessera::scene {
 namespace {

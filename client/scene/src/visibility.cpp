@@ -1,4 +1,4 @@
-#include "tessera/scene/visibility.hpp"
+#include "tessera/client/scene/visibility.hpp"
 
 #include <algorithm>
 #include <cmath>

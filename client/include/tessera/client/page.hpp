@@ -3,18 +3,23 @@
 //
 // A virtual texture (one store) is cut into pages, one per store tile: page (level, x, y) of
 // texture t is tile (level, x, y) of that texture's store. Several virtual textures share one
-// physical pool; `texture` tells them apart.
+// physical pool; `texture` tells them apart. Tiles themselves are named in tessera/tile.hpp.
+#include <cstddef>
 #include <cstdint>
 #include <functional>
+
+#include "tessera/tile.hpp"
 
 namespace tessera::client {
 
 using TextureId = std::uint16_t;
 
 // Limits of the feedback id (below): 2^20 pages per axis (2^28 texels at 256-texel pages), 32
-// levels, 2^16 textures. The floor is 2^16 pages per axis and 20 levels.
+// levels, 2^16 textures (at least 2^16 pages per axis and 20 levels are promised).
 constexpr std::uint32_t kMaxPagesPerAxis = 1u << 20;
 constexpr std::uint32_t kMaxLevels = 32;
+// Default bound on one texture's dense page table; larger textures get a two-level table.
+constexpr std::size_t kDefaultPageTableBytes = std::size_t(256) << 20;
 
 struct PageKey {
     TextureId texture = 0;
@@ -23,6 +28,7 @@ struct PageKey {
     std::uint32_t y = 0;
     friend bool operator==(const PageKey&, const PageKey&) = default;
     PageKey parent() const { return PageKey{texture, static_cast<std::uint8_t>(level + 1), x >> 1, y >> 1}; }
+    TileKey tile() const { return TileKey{level, x, y}; }  // the tile of the texture's store
 };
 
 // Feedback id: one 64-bit value per feedback pixel (written by the GL feedback pass as an RG32UI
@@ -48,21 +54,6 @@ struct PageKeyHash {
         return static_cast<std::size_t>(h ^ (h >> 29));
     }
 };
-
-// What a tile reply carries, as plain integers (tessera.proto's TileKind and Codec values), so
-// client headers need no protobuf.
-namespace wire_kind {
-constexpr std::uint8_t absent = 0;   // a sparse store has no data here (use the parent)
-constexpr std::uint8_t present = 1;  // payload in the store's codec
-constexpr std::uint8_t uniform = 2;  // payload is one texel value
-}  // namespace wire_kind
-namespace wire_codec {
-constexpr std::uint8_t raw = 0;
-constexpr std::uint8_t zstd = 1;
-constexpr std::uint8_t jpeg = 2;
-constexpr std::uint8_t uniform = 3;
-constexpr std::uint8_t none = 4;
-}  // namespace wire_codec
 
 // A slot of the physical page pool (the GPU page atlas), 0..pool_size-1.
 using SlotId = std::uint32_t;

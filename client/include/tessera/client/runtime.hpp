@@ -16,17 +16,32 @@
 #include <span>
 #include <string>
 
-#include "tessera/client/disk_cache.hpp"
-#include "tessera/client/feedback_analysis.hpp"
 #include "tessera/client/lod_bias.hpp"
 #include "tessera/client/page.hpp"
-#include "tessera/client/residency.hpp"
 #include "tessera/client/stats.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/client/upload.hpp"
 #include "tessera/result.hpp"
 
 namespace tessera::client {
+
+class Residency;  // the pool's residency and page tables (internal: client/src/residency.hpp)
+
+struct ResidencyConfig {
+    // Slots in the physical pool, 1 .. 2^24.
+    std::uint32_t pool_slots = 0;
+    // Coarsest levels of every texture that are pinned. kAutoPinnedLevels: as many of the coarsest
+    // levels as hold at most auto_pin_max_pages pages together (at least the 1x1 level): with the
+    // default 5, the top two levels (1 + 4 pages) of a square texture.
+    static constexpr std::uint32_t kAutoPinnedLevels = ~0u;
+    std::uint32_t pinned_levels = kAutoPinnedLevels;
+    std::uint32_t auto_pin_max_pages = 5;
+    // Bound on each texture's dense page table.
+    std::size_t max_table_bytes = kDefaultPageTableBytes;
+    // A texture whose dense table is over the bound (or over the renderer's dense packing) gets a
+    // sparse (two-level) table instead of an error.
+    bool sparse_tables = true;
+};
 
 struct RuntimeConfig {
     ResidencyConfig residency;                     // pool_slots is required

@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "tessera/client/page.hpp"
-#include "tessera/client/tile_stream_client.hpp"
+#include "tessera/client/net/tile_stream_client.hpp"
 #include "tessera/result.hpp"
 #include "tessera/storage/types.hpp"
 
@@ -25,16 +25,13 @@ struct SourceRequest {
     float priority = 0;
 };
 
-// Status values are tessera.proto's TileStatus; kind and codec its TileKind and Codec.
+// One arrived tile of a texture. `data` is moved along, never copied, from the source to the caches.
 struct SourceTile {
     PageKey page;
     std::uint64_t store_version = 0;
-    int status = 0;  // 0: OK
-    std::string message;
-    std::uint8_t kind = 0;
-    std::uint8_t codec = 0;
-    std::uint64_t checksum = 0;
-    std::vector<std::uint8_t> payload;
+    TileStatus status = TileStatus::ok;
+    std::string message;  // when status is not ok
+    TileData data;        // when status is ok
     // When the tile reached the client (read off the stream, read from the store, or delivered by
     // an emulated link); zero when the source does not say. Polling may happen a frame later.
     std::chrono::steady_clock::time_point received{};

@@ -15,6 +15,7 @@
 #include <grpcpp/support/slice.h>
 
 #include "tessera.pb.h"
+#include "tessera/tile.hpp"
 
 namespace tessera::protocol {
 
@@ -33,7 +34,7 @@ std::size_t varint_size(std::uint64_t v);
 // A TileReply's fields, the payload only by its size.
 struct TileReplyFields {
     std::string_view store;
-    std::uint32_t level = 0, x = 0, y = 0;
+    TileKey key;
     std::uint64_t store_version = 0;
     std::uint64_t frame = 0;
     v1::TileStatus status = v1::TILE_OK;
@@ -53,7 +54,7 @@ void append_tile_reply_head(std::string& out, const TileReplyFields& f);
 // One tile reply of a received message. The payload stays in the receive slices until copied.
 struct DecodedTile {
     std::string store;
-    std::uint32_t level = 0, x = 0, y = 0;
+    TileKey key;
     std::uint64_t store_version = 0;
     std::uint64_t frame = 0;
     v1::TileStatus status = v1::TILE_OK;

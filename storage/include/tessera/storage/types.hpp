@@ -1,5 +1,5 @@
 #pragma once
-// Geometry and vocabulary of a tile store. See docs/store-format.md.
+// Geometry of a tile store; its tiles are named in tessera/tile.hpp. See docs/store-format.md.
 #include <cstddef>
 #include <cstdint>
 #include <optional>
@@ -7,27 +7,16 @@
 #include <string_view>
 #include <vector>
 
+#include "tessera/tile.hpp"
+
 namespace tessera::storage {
 
 enum class SampleType : std::uint8_t { u8 = 0, u16 = 1, f16 = 2, f32 = 3 };
 enum class ColourSpace : std::uint8_t { linear = 0, srgb = 1 };
-enum class Codec : std::uint8_t { raw = 0, zstd = 1, jpeg = 2 };
-enum class TileKind : std::uint8_t { absent = 0, present = 1, uniform = 2 };
 
 std::size_t sample_bytes(SampleType t);
 std::string_view to_string(SampleType t);
 std::string_view to_string(ColourSpace c);
-std::string_view to_string(Codec c);
-std::string_view to_string(TileKind k);
-std::optional<Codec> parse_codec(std::string_view s);
-
-// Key of a tile inside one store. Level 0 is the finest level.
-struct TileKey {
-    std::uint32_t level = 0;
-    std::uint32_t x = 0;
-    std::uint32_t y = 0;
-    friend bool operator==(const TileKey&, const TileKey&) = default;
-};
 
 struct LevelInfo {
     std::uint32_t width = 0;   // texels: ceil(store width / 2^level)

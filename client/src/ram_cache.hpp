@@ -1,8 +1,8 @@
 #pragma once
 // Client tile caches, first level: the RAM cache (docs/client.md, "One frame, end to end", steps 4
 // and 6: a page that is not resident goes RAM cache -> disk cache -> network; replies land in the
-// disk and RAM caches). Also the vocabulary the caches share: TileId (a tile of one *version* of a
-// store) and CachedTile (what a TileReply carries, without protobuf).
+// disk and RAM caches). Also the key the caches share: TileId, a tile of one *version* of a store.
+// Entries are TileData (tessera/tile.hpp): what a reply carried.
 //
 // The key includes the store version, so a rebuilt store (new StoreMetadata.version) can never be
 // served from entries of its old content; erase_store_versions_except() drops the stale ones
@@ -27,9 +27,7 @@ namespace tessera::client {
 struct TileId {
     std::string store;           // store name (server side: the file name without .tsr)
     std::uint64_t version = 0;   // StoreMetadata.version / TileReply.store_version
-    std::uint8_t level = 0;      // 0 is the finest
-    std::uint32_t x = 0;
-    std::uint32_t y = 0;
+    TileKey tile;
     friend bool operator==(const TileId&, const TileId&) = default;
 };
 
@@ -37,17 +35,8 @@ struct TileIdHash {
     std::size_t operator()(const TileId& id) const noexcept;
 };
 
-// What a TileReply with status TILE_OK carries. `checksum` is XXH3-64 of `payload` (as the server
-// stored it); the caches keep it and the disk cache verifies it on every read.
-struct CachedTile {
-    std::uint8_t kind = wire_kind::absent;
-    std::uint8_t codec = wire_codec::none;
-    std::uint64_t checksum = 0;
-    std::vector<std::uint8_t> payload;
-    friend bool operator==(const CachedTile&, const CachedTile&) = default;
-};
-
-// XXH3-64 of `bytes`: the checksum TileReply.checksum and CachedTile.checksum carry.
+// XXH3-64 of `bytes`: the checksum TileReply.checksum and TileData.checksum carry. The caches keep
+// it and the disk cache verifies it on every read.
 std::uint64_t tile_checksum(std::span<const std::uint8_t> bytes);
 
 struct RamCacheStats {
@@ -70,15 +59,15 @@ public:
     RamTileCache& operator=(const RamTileCache&) = delete;
 
     // The tile, or null on a miss. A hit makes the entry the most recently used.
-    std::shared_ptr<const CachedTile> get(const TileId& id);
+    std::shared_ptr<const TileData> get(const TileId& id);
     // Like get() but changes neither the LRU order nor the stats.
     bool contains(const TileId& id) const;
 
     // Inserts or replaces, as most recently used, then evicts least recently used entries until
     // the charge fits the budget. False (nothing cached) when the tile is null or its charge
     // alone exceeds the budget.
-    bool put(const TileId& id, std::shared_ptr<const CachedTile> tile);
-    bool put(const TileId& id, CachedTile tile);
+    bool put(const TileId& id, std::shared_ptr<const TileData> tile);
+    bool put(const TileId& id, TileData tile);
 
     bool erase(const TileId& id);
     // Drops every entry of `store` whose version is not `version` (the store was rebuilt).
@@ -90,12 +79,12 @@ public:
     std::uint64_t byte_budget() const { return budget_; }
 
     // Bytes an entry counts against the budget: the payload plus a fixed bookkeeping overhead.
-    static std::uint64_t charge(const TileId& id, const CachedTile& tile);
+    static std::uint64_t charge(const TileId& id, const TileData& tile);
 
 private:
     struct Node {
         TileId id;
-        std::shared_ptr<const CachedTile> tile;
+        std::shared_ptr<const TileData> tile;
         std::uint64_t charge = 0;
     };
     using List = std::list<Node>;

@@ -102,7 +102,7 @@ public:
     static constexpr SlotId kMaxSlots = kSlotMask + 1;  // slots 0 .. 2^24-1 fit an entry
     static constexpr PageEntry kEmptyEntry = 0;         // nothing resident on the path
     static constexpr std::uint8_t kNotResident = 255;   // resident_level() when nothing is
-    static constexpr std::size_t kDefaultMaxBytes = std::size_t(256) << 20;
+    static constexpr std::size_t kDefaultMaxBytes = kDefaultPageTableBytes;
     static constexpr std::size_t kMaxDirtyRectsPerLevel = 8;
     // Sparse tables: blocks of kBlockSide × kBlockSide entries.
     static constexpr unsigned kBlockShift = 5;

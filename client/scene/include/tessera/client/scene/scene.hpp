@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "tessera/result.hpp"
-#include "tessera/scene/camera.hpp"
+#include "tessera/client/scene/camera.hpp"
 
 namespace tessera::scene {
 

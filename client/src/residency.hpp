@@ -43,26 +43,11 @@
 #include <vector>
 
 #include "tessera/client/page.hpp"
-#include "tessera/client/page_table.hpp"
+#include "tessera/client/runtime.hpp"  // ResidencyConfig
+#include "page_table.hpp"
 #include "tessera/result.hpp"
 
 namespace tessera::client {
-
-struct ResidencyConfig {
-    // Slots in the physical pool, 1 .. PageTable::kMaxSlots.
-    std::uint32_t pool_slots = 0;
-    // Coarsest levels of every texture that are pinned. kAutoPinnedLevels: as many of the coarsest
-    // levels as hold at most auto_pin_max_pages pages together (at least the 1x1 level): with the
-    // default 5, the top two levels (1 + 4 pages) of a square texture.
-    static constexpr std::uint32_t kAutoPinnedLevels = ~0u;
-    std::uint32_t pinned_levels = kAutoPinnedLevels;
-    std::uint32_t auto_pin_max_pages = 5;
-    // Bound on each texture's dense page table (PageTable::create).
-    std::size_t max_table_bytes = PageTable::kDefaultMaxBytes;
-    // A texture whose dense table is over the bound (or over the renderer's dense packing) gets a
-    // sparse table instead of an error (PageTable::create's allow_sparse).
-    bool sparse_tables = true;
-};
 
 struct ResidencyStats {
     std::uint32_t pool_slots = 0;

@@ -11,8 +11,13 @@
 #include <string>
 #include <vector>
 
-#include "tessera.pb.h"
 #include "tessera/result.hpp"
+#include "tessera/storage/types.hpp"
+#include "tessera/tile.hpp"
+
+namespace tessera::v1 {
+class ServerStats;  // tessera.proto's message: include "tessera.pb.h" to use server_stats()
+}
 
 namespace tessera::client {
 
@@ -36,42 +41,42 @@ struct TileStreamOptions {
 
 struct TileRequest {
     std::string store;
-    std::uint32_t level = 0;
-    std::uint32_t x = 0;
-    std::uint32_t y = 0;
+    TileKey key;
     float priority = 0.0f;  // higher is served first; must be finite
 };
 
-// A v1::TileReply decoded into plain C++.
+// A TileReply decoded into plain C++.
 struct ReceivedTile {
     std::string store;
-    std::uint32_t level = 0;
-    std::uint32_t x = 0;
-    std::uint32_t y = 0;
+    TileKey key;
     std::uint64_t store_version = 0;
     std::uint64_t frame = 0;
-    v1::TileStatus status = v1::TILE_OK;
-    std::string message;  // set when status is not TILE_OK
-    v1::TileKind kind = v1::KIND_ABSENT;
-    v1::Codec codec = v1::CODEC_NONE;
-    // Verified against checksum (XXH3-64) when status is TILE_OK and it is non-empty; a mismatch is
-    // delivered as TILE_DATA_LOSS "checksum mismatch in transit" with the payload cleared.
-    std::vector<std::uint8_t> payload;
-    std::uint64_t checksum = 0;
+    TileStatus status = TileStatus::ok;
+    std::string message;  // set when status is not ok
+    // data.payload is verified against data.checksum (XXH3-64) when status is ok and it is
+    // non-empty; a mismatch is delivered as data_loss "checksum mismatch in transit" with the
+    // payload cleared. data.codec means something for present tiles only.
+    TileData data;
     std::uint32_t server_micros = 0;
     std::chrono::steady_clock::time_point received;  // when the client read it off the stream
 };
 
-// A v1::BatchAck: the server's answer to one batch, sent before any of that batch's tiles.
+// A BatchAck: the server's answer to one batch, sent before any of that batch's tiles.
 struct BatchAckInfo {
     std::uint64_t frame = 0;
-    v1::TileStatus status = v1::TILE_OK;
+    TileStatus status = TileStatus::ok;
     std::string message;
     std::uint32_t admitted = 0;
     std::uint32_t refused = 0;
     std::uint32_t invalid = 0;
     std::uint32_t already_queued = 0;
     std::uint32_t cancelled = 0;
+};
+
+// A store as the server describes it (StoreMetadata): info.store_id is its version.
+struct RemoteStore {
+    std::string name;
+    storage::StoreInfo info;
 };
 
 enum class ConnectionState { connecting, connected, backing_off, closed };
@@ -125,9 +130,9 @@ public:
     // Unary calls with a timeout. Errors: not_found (no such store), io_error (unreachable,
     // deadline, server failure), resource_exhausted, invalid_argument (bad request or credentials),
     // unsupported (server lacks the call); messages carry the gRPC status name.
-    Result<std::vector<v1::StoreMetadata>> list_stores(std::chrono::milliseconds timeout);
-    Result<v1::StoreMetadata> get_store(const std::string& name, std::chrono::milliseconds timeout);
-    Result<v1::ServerStats> server_stats(std::chrono::milliseconds timeout);
+    Result<std::vector<RemoteStore>> list_stores(std::chrono::milliseconds timeout);
+    Result<RemoteStore> get_store(const std::string& name, std::chrono::milliseconds timeout);
+    Result<v1::ServerStats> server_stats(std::chrono::milliseconds timeout);  // needs tessera.pb.h
 
     class Impl;
 

@@ -14,8 +14,9 @@
 //   DIR/<store>/<version>/<level>/<x>_<y>.tile.tmp-<pid>-<n>   a write in progress (or a crash's
 //                                                               leftover, deleted at open)
 // Entry file: a header, then the payload. Header (little-endian):
-//   0  "TSRC"          4  format version (u16, 1)   6  header size H (u16, 56 + n)
+//   0  "TSRC"          4  format version (u16, 2)   6  header size H (u16, 56 + n)
 //   8  kind (u8)       9  codec (u8)                10 level (u8)     11 store name length n (u8)
+//      (kind and codec: TileKind and Codec of tessera/tile.hpp; codec is the store's)
 //   12 x (u32)         16 y (u32)                   20 reserved (u32, 0)
 //   24 store version (u64)      32 payload length (u64)      40 payload XXH3-64 (u64)
 //   48 store name (n bytes)     48+n XXH3-64 of header bytes [0, 48+n) (u64)
@@ -50,7 +51,7 @@
 #include <string>
 #include <string_view>
 
-#include "tessera/client/tile_cache.hpp"
+#include "ram_cache.hpp"
 #include "tessera/result.hpp"
 
 namespace tessera::client {
@@ -112,13 +113,13 @@ public:
     // The entry, or nullopt when there is none or it failed verification (then it is deleted and
     // counted in `corrupt`). Errors: invalid_argument (store name not valid), io_error (the OS
     // refused to read an existing entry, e.g. EACCES or EIO).
-    Result<std::optional<CachedTile>> get(const TileId& id);
+    Result<std::optional<TileData>> get(const TileId& id);
 
     // Queues the entry for the writer thread and returns at once: true when queued, false when
     // dropped (queue full: write_drops) or refused at once (bad store name: rejected). The
     // payload's checksum is verified on the writer thread; a mismatch is refused, not written.
-    bool put(const TileId& id, const CachedTile& tile);
-    bool put(const TileId& id, std::shared_ptr<const CachedTile> tile);  // no payload copy
+    bool put(const TileId& id, const TileData& tile);
+    bool put(const TileId& id, std::shared_ptr<const TileData> tile);  // no payload copy
 
     // Deletes, in the background (in queue order), every version of `store` other than `version`.
     void drop_other_versions(std::string store, std::uint64_t version);

@@ -1,4 +1,4 @@
-#include "tessera/client/tile_cache.hpp"
+#include "ram_cache.hpp"
 
 #include <xxhash.h>
 
@@ -14,8 +14,8 @@ std::size_t TileIdHash::operator()(const TileId& id) const noexcept {
         h ^= h >> 31;
     };
     mix(id.version);
-    mix((std::uint64_t{id.x} << 32) | id.y);
-    mix(id.level);
+    mix((std::uint64_t{id.tile.x} << 32) | id.tile.y);
+    mix(id.tile.level);
     return static_cast<std::size_t>(h);
 }
 
@@ -24,17 +24,17 @@ std::uint64_t tile_checksum(std::span<const std::uint8_t> bytes) { return XXH3_6
 // ---- RamTileCache ------------------------------------------------------------------------------
 
 namespace {
-// List node, map node, key copies and the CachedTile itself, rounded up.
+// List node, map node, key copies and the TileData itself, rounded up.
 constexpr std::uint64_t kEntryOverhead = 192;
 }  // namespace
 
-std::uint64_t RamTileCache::charge(const TileId& id, const CachedTile& tile) {
+std::uint64_t RamTileCache::charge(const TileId& id, const TileData& tile) {
     return kEntryOverhead + 2 * id.store.size() + tile.payload.size();
 }
 
 RamTileCache::RamTileCache(std::uint64_t byte_budget) : budget_(byte_budget) {}
 
-std::shared_ptr<const CachedTile> RamTileCache::get(const TileId& id) {
+std::shared_ptr<const TileData> RamTileCache::get(const TileId& id) {
     std::lock_guard lock(mu_);
     auto it = map_.find(id);
     if (it == map_.end()) {
@@ -51,11 +51,11 @@ bool RamTileCache::contains(const TileId& id) const {
     return map_.count(id) != 0;
 }
 
-bool RamTileCache::put(const TileId& id, CachedTile tile) {
-    return put(id, std::make_shared<const CachedTile>(std::move(tile)));
+bool RamTileCache::put(const TileId& id, TileData tile) {
+    return put(id, std::make_shared<const TileData>(std::move(tile)));
 }
 
-bool RamTileCache::put(const TileId& id, std::shared_ptr<const CachedTile> tile) {
+bool RamTileCache::put(const TileId& id, std::shared_ptr<const TileData> tile) {
     const std::uint64_t c = tile ? charge(id, *tile) : 0;
     std::lock_guard lock(mu_);
     if (!tile || c > budget_) {

@@ -13,9 +13,9 @@
 #include <vector>
 
 #include "tessera/client/page.hpp"
-#include "tessera/scene/camera.hpp"
-#include "tessera/scene/lod.hpp"
-#include "tessera/scene/scene.hpp"
+#include "tessera/client/scene/camera.hpp"
+#include "tessera/client/scene/lod.hpp"
+#include "tessera/client/scene/scene.hpp"
 
 namespace tessera::scene {
 

@@ -42,7 +42,7 @@ inline std::size_t rgba8_page_bytes(const storage::StoreInfo& info) {
 }
 
 class Scratch;
-Status transcode_to_rgba8(const storage::StoreInfo& info, std::uint8_t kind, std::uint8_t codec,
+Status transcode_to_rgba8(const storage::StoreInfo& info, TileKind kind, Codec codec,
                           std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch);
 
 // Per-thread decoder state: a libjpeg-turbo handle, a zstd context and a sample buffer, all
@@ -60,20 +60,20 @@ public:
 private:
     struct Impl;
     std::unique_ptr<Impl> impl_;
-    friend Status transcode_to_rgba8(const storage::StoreInfo&, std::uint8_t, std::uint8_t,
+    friend Status transcode_to_rgba8(const storage::StoreInfo&, TileKind, Codec,
                                      std::span<const std::uint8_t>, std::span<std::uint8_t>, Scratch&);
 };
 
 // Decodes one tile payload into `out` (exactly rgba8_page_bytes(info) bytes).
-//   kind: wire_kind; absent is an error (not_found).
-//   codec: wire_codec; the payload's format (normally info.codec). uniform kind or codec: the
-//     payload is one texel value (info.texel_bytes() bytes) and every texel gets it.
+//   kind: absent is an error (not_found); uniform: the payload is one texel value
+//     (info.texel_bytes() bytes) and every texel gets it.
+//   codec: the payload's format for a present tile (normally info.codec).
 // Errors: invalid_argument (bad `out` size, unknown kind/codec, impossible geometry), corrupt
 // (payload that does not decode to exactly one tile of this store), not_found (absent). On error
 // the contents of `out` are unspecified (it may be partly written): never use them.
 // `out` is only written, row by row in order (zstd decompresses into scratch first, since its
 // match copies read back what they wrote), so write-combined mapped GL memory is a fair target.
-Status transcode_to_rgba8(const storage::StoreInfo& info, std::uint8_t kind, std::uint8_t codec,
+Status transcode_to_rgba8(const storage::StoreInfo& info, TileKind kind, Codec codec,
                           std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch);
 
 // ---------------------------------------------------------------------------------------------
@@ -94,8 +94,8 @@ struct TranscodeJob {
     PageKey key;
     std::uint64_t ticket = 0;  // caller's id (e.g. staging slot or request generation), echoed back
     std::shared_ptr<const storage::StoreInfo> info;
-    std::uint8_t kind = wire_kind::present;
-    std::uint8_t codec = wire_codec::raw;
+    TileKind kind = TileKind::present;
+    Codec codec = Codec::raw;
     std::shared_ptr<const std::vector<std::uint8_t>> payload;
     std::span<std::uint8_t> destination;  // rgba8_page_bytes(*info) bytes of staging memory
     std::uint32_t priority = 0;           // higher first; equal priorities in submission order

@@ -1,0 +1,69 @@
+#pragma once
+// Uploaders for programs without a GPU: FakeUploader records every call (tests), NullUploader
+// discards pixels (the load tester's viewers, benchmarks). Not part of the runtime library: link
+// tessera::client_fakes.
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "tessera/client/upload.hpp"
+
+namespace tessera::client {
+
+// Records every call, copying the data, for tests.
+class FakeUploader final : public PageUploader {
+public:
+    struct PageCall {
+        std::uint64_t seq = 0;  // order among all calls, from 0
+        SlotId slot = kNoSlot;
+        PageKey page;
+        std::uint32_t tile_size = 0;
+        std::vector<std::uint8_t> rgba8;
+    };
+    struct BlockCall {
+        std::uint64_t seq = 0;
+        TextureId texture = 0;
+        std::uint8_t level = 0;
+        std::uint32_t bx = 0, by = 0;
+        std::vector<std::uint32_t> entries;  // empty: unallocated
+    };
+    struct TableCall {
+        std::uint64_t seq = 0;
+        TextureId texture = 0;
+        std::uint8_t level = 0;
+        std::uint32_t x0 = 0, y0 = 0, w = 0, h = 0;
+        std::vector<std::uint32_t> entries;
+    };
+
+    void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override;
+    void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
+                           std::uint32_t h, std::span<const std::uint32_t> entries) override;
+    void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
+                                 std::span<const std::uint32_t> entries) override;
+
+    const std::vector<PageCall>& pages() const { return pages_; }
+    const std::vector<TableCall>& tables() const { return tables_; }
+    const std::vector<BlockCall>& blocks() const { return blocks_; }
+    // Calls whose data had the wrong size (rgba8 != tile_size^2 * 4, entries != w * h, a block's
+    // entries neither kBlockEntries nor empty).
+    std::size_t malformed() const { return malformed_; }
+    void clear();
+
+private:
+    std::uint64_t seq_ = 0;
+    std::vector<PageCall> pages_;
+    std::vector<TableCall> tables_;
+    std::vector<BlockCall> blocks_;
+    std::size_t malformed_ = 0;
+};
+
+// Discards every call: a viewer with no GPU (load tests, benchmarks).
+class NullUploader final : public PageUploader {
+public:
+    void upload_page(SlotId, const PageKey&, std::span<const std::uint8_t>, std::uint32_t) override {}
+    void upload_page_table(TextureId, std::uint8_t, std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t,
+                           std::span<const std::uint32_t>) override {}
+};
+
+}  // namespace tessera::client
