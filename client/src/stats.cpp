@@ -4,6 +4,10 @@
 #include <bit>
 #include <charconv>
 #include <cmath>
+#include <type_traits>
+#include <vector>
+
+#include <nlohmann/json.hpp>
 
 namespace tessera::client {
 
@@ -107,7 +111,8 @@ void put_uint(std::string& s, std::uint64_t v) {
     s.append(buf, r.ptr);
 }
 
-// Shortest round-trip form (of the value's own type); JSON has no NaN or infinity: null.
+// CSV numbers: the shortest round-trip form (of the value's own type); NaN or infinity: null, as
+// in the JSON.
 template <class T>
 void put_num(std::string& s, T v) {
     if (!std::isfinite(v)) {
@@ -119,17 +124,6 @@ void put_num(std::string& s, T v) {
     s.append(buf, r.ptr);
 }
 
-
-template <class Array>
-void put_array(std::string& s, const Array& a, std::size_t n) {
-    s += '[';
-    for (std::size_t i = 0; i < n; ++i) {
-        if (i) s += ',';
-        put_uint(s, a[i]);
-    }
-    s += ']';
-}
-
 // Levels up to the highest one with any count in any of the three arrays.
 template <class Array>
 std::size_t used_levels(const Array& a, const Array& b, const Array& c) {
@@ -139,16 +133,29 @@ std::size_t used_levels(const Array& a, const Array& b, const Array& c) {
     return n;
 }
 
+// Keys in the order written (frame, pages, hits...), not sorted as nlohmann::json would.
+using Json = nlohmann::ordered_json;
+
+// A number as the CSV writes it: whole values without ".0", a float in its own shortest form
+// (0.1f is 0.1, not 0.10000000149011612); JSON has no NaN or infinity: null.
+template <class T>
+Json json_num(T v) {
+    if (!std::isfinite(v)) return nullptr;
+    double d = v;
+    if constexpr (std::is_same_v<T, float>) {
+        char buf[32];
+        const auto r = std::to_chars(buf, buf + sizeof buf, v);
+        std::from_chars(buf, r.ptr, d);
+    }
+    if (std::trunc(d) == d && std::abs(d) < 0x1p53) return static_cast<std::int64_t>(d);
+    return d;
+}
+
 template <class Array>
-void put_hits(std::string& s, const Array& ram, const Array& disk, const Array& net) {
-    const std::size_t n = used_levels(ram, disk, net);
-    s += "\"hits\":{\"ram\":";
-    put_array(s, ram, n);
-    s += ",\"disk\":";
-    put_array(s, disk, n);
-    s += ",\"network\":";
-    put_array(s, net, n);
-    s += '}';
+Json hits_json(const Array& ram, const Array& disk, const Array& net) {
+    const auto n = static_cast<std::ptrdiff_t>(used_levels(ram, disk, net));
+    const auto levels = [n](const Array& a) { return std::vector<std::uint64_t>(a.begin(), a.begin() + n); };
+    return Json{{"ram", levels(ram)}, {"disk", levels(disk)}, {"network", levels(net)}};
 }
 
 std::uint32_t sum(const LevelCounts& a) {
@@ -166,32 +173,15 @@ std::uint32_t FrameStats::total_disk_hits() const { return sum(disk_hits); }
 std::uint32_t FrameStats::total_network() const { return sum(network); }
 
 std::string FrameStats::to_json() const {
-    std::string s = "{\"frame\":";
-    put_uint(s, frame);
-    s += ",\"pages\":{\"wanted\":";
-    put_uint(s, pages_wanted);
-    s += ",\"resident\":";
-    put_uint(s, pages_resident);
-    s += ",\"requested\":";
-    put_uint(s, pages_requested);
-    s += ",\"arrived\":";
-    put_uint(s, pages_arrived);
-    s += ",\"uploaded\":";
-    put_uint(s, pages_uploaded);
-    s += ",\"evicted\":";
-    put_uint(s, pages_evicted);
-    s += "},";
-    put_hits(s, ram_hits, disk_hits, network);
-    s += ",\"bytes\":{\"received\":";
-    put_uint(s, bytes_received);
-    s += ",\"uploaded\":";
-    put_uint(s, bytes_uploaded);
-    s += "},\"lod_bias\":";
-    put_num(s, lod_bias);
-    s += ",\"fallback_estimate\":";
-    put_num(s, fallback_estimate);
-    s += '}';
-    return s;
+    Json j;
+    j["frame"] = frame;
+    j["pages"] = Json{{"wanted", pages_wanted},     {"resident", pages_resident}, {"requested", pages_requested},
+                      {"arrived", pages_arrived},   {"uploaded", pages_uploaded}, {"evicted", pages_evicted}};
+    j["hits"] = hits_json(ram_hits, disk_hits, network);
+    j["bytes"] = Json{{"received", bytes_received}, {"uploaded", bytes_uploaded}};
+    j["lod_bias"] = json_num(lod_bias);
+    j["fallback_estimate"] = json_num(fallback_estimate);
+    return j.dump();
 }
 
 std::string FrameStats::csv_header() {
@@ -255,60 +245,28 @@ double StatsSummary::mean_lod_bias() const { return mean_of(bias_sum_, frames_);
 double StatsSummary::mean_fallback_estimate() const { return mean_of(fallback_sum_, frames_); }
 
 std::string StatsSummary::to_json() const {
-    std::string s = "{\"frames\":";
-    put_uint(s, frames_);
-    s += ",\"pages\":{\"wanted_mean\":";
-    put_num(s, mean_pages_wanted());
-    s += ",\"resident_mean\":";
-    put_num(s, mean_pages_resident());
-    s += ",\"requested\":";
-    put_uint(s, requested_);
-    s += ",\"arrived\":";
-    put_uint(s, arrived_);
-    s += ",\"uploaded\":";
-    put_uint(s, uploaded_);
-    s += ",\"evicted\":";
-    put_uint(s, evicted_);
-    s += "},";
-    put_hits(s, ram_hits_, disk_hits_, network_);
-    s += ",\"bytes\":{\"received\":";
-    put_uint(s, bytes_received_);
-    s += ",\"uploaded\":";
-    put_uint(s, bytes_uploaded_);
-    s += "},\"latency_ms\":{\"count\":";
-    put_uint(s, latency_.count());
-    s += ",\"mean\":";
-    put_num(s, latency_.mean_ms());
-    s += ",\"p50\":";
-    put_num(s, latency_.quantile(0.5));
-    s += ",\"p90\":";
-    put_num(s, latency_.quantile(0.9));
-    s += ",\"p99\":";
-    put_num(s, latency_.quantile(0.99));
-    s += ",\"max\":";
-    put_num(s, latency_.max_ms());
-    s += "},\"lod_bias\":{\"last\":";
-    put_num(s, bias_last_);
-    s += ",\"mean\":";
-    put_num(s, mean_lod_bias());
-    s += ",\"max\":";
-    put_num(s, bias_max_);
-    s += "},\"fallback_estimate_mean\":";
-    put_num(s, mean_fallback_estimate());
-    s += ",\"skipped\":{\"cancelled_waiting\":";
-    put_uint(s, cancelled_waiting_);
-    s += ",\"cancelled_arrived\":";
-    put_uint(s, cancelled_arrived_);
-    s += ",\"cancelled_decoded\":";
-    put_uint(s, cancelled_decoded_);
-    s += ",\"decodes_dropped\":";
-    put_uint(s, decodes_dropped_);
-    s += ",\"stale_arrivals\":";
-    put_uint(s, stale_arrivals_);
-    s += ",\"duplicate_arrivals\":";
-    put_uint(s, duplicate_arrivals_);
-    s += "}}";
-    return s;
+    Json j;
+    j["frames"] = frames_;
+    j["pages"] = Json{{"wanted_mean", json_num(mean_pages_wanted())},
+                      {"resident_mean", json_num(mean_pages_resident())},
+                      {"requested", requested_},
+                      {"arrived", arrived_},
+                      {"uploaded", uploaded_},
+                      {"evicted", evicted_}};
+    j["hits"] = hits_json(ram_hits_, disk_hits_, network_);
+    j["bytes"] = Json{{"received", bytes_received_}, {"uploaded", bytes_uploaded_}};
+    j["latency_ms"] = Json{{"count", latency_.count()},
+                           {"mean", json_num(latency_.mean_ms())},
+                           {"p50", json_num(latency_.quantile(0.5))},
+                           {"p90", json_num(latency_.quantile(0.9))},
+                           {"p99", json_num(latency_.quantile(0.99))},
+                           {"max", json_num(latency_.max_ms())}};
+    j["lod_bias"] = Json{{"last", json_num(bias_last_)}, {"mean", json_num(mean_lod_bias())}, {"max", json_num(bias_max_)}};
+    j["fallback_estimate_mean"] = json_num(mean_fallback_estimate());
+    j["skipped"] = Json{{"cancelled_waiting", cancelled_waiting_}, {"cancelled_arrived", cancelled_arrived_},
+                        {"cancelled_decoded", cancelled_decoded_}, {"decodes_dropped", decodes_dropped_},
+                        {"stale_arrivals", stale_arrivals_},       {"duplicate_arrivals", duplicate_arrivals_}};
+    return j.dump();
 }
 
 }  // namespace tessera::client

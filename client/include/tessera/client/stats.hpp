@@ -1,8 +1,7 @@
 #pragma once
 // Client statistics: per-frame counters (FrameStats), a latency histogram (LatencyHistogram, also
-// meant for the load tester) and a summary across frames (StatsSummary). JSON and CSV are written
-// by hand: no dependency. Definitions follow docs/viewer.md, "Measures": tile latency is request
-// issued -> page mapped.
+// meant for the load tester) and a summary across frames (StatsSummary), as JSON lines or CSV.
+// Definitions follow docs/viewer.md, "Measures": tile latency is request issued -> page mapped.
 #include <array>
 #include <chrono>
 #include <cstddef>
