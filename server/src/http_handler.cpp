@@ -10,6 +10,7 @@
 
 #include "auth.hpp"
 #include "png_encode.hpp"
+#include "tessera/hex.hpp"
 #include "tessera/protocol/wire.hpp"
 #include "tessera/storage/codec.hpp"
 
@@ -22,14 +23,6 @@ constexpr std::string_view kTextPlain = "text/plain; charset=utf-8";
 constexpr std::string_view kJson = "application/json";
 constexpr std::string_view kMetricsType = "text/plain; version=0.0.4; charset=utf-8";
 constexpr unsigned kImmutableMaxAge = 31536000;  // a year: a versioned URL never changes
-
-// By hand: three of these per tile response (snprintf showed up in the HTTP profile).
-std::string hex16(std::uint64_t v) {
-    static constexpr char kDigits[] = "0123456789abcdef";
-    std::string s(16, '0');
-    for (int i = 15; i >= 0; --i, v >>= 4) s[static_cast<std::size_t>(i)] = kDigits[v & 0xF];
-    return s;
-}
 
 bool iequals(std::string_view a, std::string_view b) {
     if (a.size() != b.size()) return false;
