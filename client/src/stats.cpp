@@ -1,7 +1,6 @@
 #include "tessera/client/stats.hpp"
 
 #include <algorithm>
-#include <bit>
 #include <charconv>
 #include <cmath>
 #include <type_traits>
@@ -12,39 +11,6 @@
 namespace tessera::client {
 
 // --- LatencyHistogram ---
-
-std::size_t LatencyHistogram::bucket_of(std::uint64_t us) {
-    if (us < kSub) return static_cast<std::size_t>(us);
-    const std::uint64_t cap = (std::uint64_t{1} << kMaxExp) - 1;
-    us = std::min(us, cap);
-    const unsigned e = static_cast<unsigned>(std::bit_width(us)) - 1;  // kSubBits .. kMaxExp-1
-    const unsigned shift = e - kSubBits;
-    return static_cast<std::size_t>(kSub + shift * kSub + ((us >> shift) - kSub));
-}
-
-std::uint64_t LatencyHistogram::bucket_low(std::size_t bucket) {
-    if (bucket < kSub) return bucket;
-    const std::size_t shift = (bucket - kSub) / kSub;
-    const std::uint64_t m = (bucket - kSub) % kSub;
-    return (kSub + m) << shift;
-}
-
-std::uint64_t LatencyHistogram::bucket_width(std::size_t bucket) {
-    if (bucket < kSub) return 1;
-    return std::uint64_t{1} << ((bucket - kSub) / kSub);
-}
-
-void LatencyHistogram::record_us(std::uint64_t us) {
-    ++counts_[bucket_of(us)];
-    if (count_ == 0) {
-        min_us_ = max_us_ = us;
-    } else {
-        min_us_ = std::min(min_us_, us);
-        max_us_ = std::max(max_us_, us);
-    }
-    ++count_;
-    sum_us_ += us;
-}
 
 void LatencyHistogram::record(std::chrono::nanoseconds d) {
     const auto ns = d.count();
@@ -60,45 +26,21 @@ void LatencyHistogram::record_ms(double ms) {
     record_us(us >= 1.8e19 ? ~std::uint64_t{0} : static_cast<std::uint64_t>(us));
 }
 
-void LatencyHistogram::merge(const LatencyHistogram& other) {
-    if (other.count_ == 0) return;
-    for (std::size_t i = 0; i < kBuckets; ++i) counts_[i] += other.counts_[i];
-    if (count_ == 0) {
-        min_us_ = other.min_us_;
-        max_us_ = other.max_us_;
-    } else {
-        min_us_ = std::min(min_us_, other.min_us_);
-        max_us_ = std::max(max_us_, other.max_us_);
-    }
-    count_ += other.count_;
-    sum_us_ += other.sum_us_;
-}
-
 void LatencyHistogram::reset() { *this = LatencyHistogram{}; }
 
-double LatencyHistogram::mean_ms() const {
-    return count_ == 0 ? 0.0 : static_cast<double>(sum_us_) / static_cast<double>(count_) / 1000.0;
-}
-double LatencyHistogram::min_ms() const { return static_cast<double>(min_us_) / 1000.0; }
-double LatencyHistogram::max_ms() const { return static_cast<double>(max_us_) / 1000.0; }
+double LatencyHistogram::mean_ms() const { return mean() / 1000.0; }
+double LatencyHistogram::min_ms() const { return static_cast<double>(min()) / 1000.0; }
+double LatencyHistogram::max_ms() const { return static_cast<double>(max()) / 1000.0; }
 
 double LatencyHistogram::quantile(double q) const {
-    if (count_ == 0) return 0.0;
+    if (count() == 0) return 0.0;
     if (!(q > 0.0)) return min_ms();
     if (q >= 1.0) return max_ms();
-    // Nearest rank: the k-th smallest sample, k = ceil(q * count), at least 1.
-    const auto k = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::ceil(q * static_cast<double>(count_))));
-    std::uint64_t seen = 0;
-    for (std::size_t b = 0; b < kBuckets; ++b) {
-        seen += counts_[b];
-        if (seen >= k) {
-            double mid = static_cast<double>(bucket_low(b));
-            if (b >= kSub) mid += 0.5 * static_cast<double>(bucket_width(b));
-            mid = std::clamp(mid, static_cast<double>(min_us_), static_cast<double>(max_us_));
-            return mid / 1000.0;
-        }
-    }
-    return max_ms();
+    const std::size_t b = quantile_bucket(q);
+    double mid = static_cast<double>(bucket_low(b));
+    if (b >= kSub) mid += 0.5 * static_cast<double>(bucket_width(b));
+    mid = std::clamp(mid, static_cast<double>(min()), static_cast<double>(max()));
+    return mid / 1000.0;
 }
 
 // --- JSON / CSV helpers ---
