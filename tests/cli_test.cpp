@@ -388,10 +388,10 @@ TEST(CliInspect, JsonParsesAndAddsUp) {
     EXPECT_EQ(j.at("tile_size"), 64);
     EXPECT_EQ(j.at("tile_payload").get<int>() + 2 * j.at("border").get<int>(), 64);
     EXPECT_EQ(j.at("format_version"), "1.0");
-    EXPECT_EQ(j.at("file_bytes").get<std::uint64_t>(), fs::file_size(store));
-    const auto& levels = j.at("levels");
+    EXPECT_EQ(j.at("file_size").get<std::uint64_t>(), fs::file_size(store));
+    const auto& levels = j.at("level_info");
     ASSERT_TRUE(levels.is_array());
-    EXPECT_EQ(j.at("level_count").get<std::size_t>(), levels.size());
+    EXPECT_EQ(j.at("levels").get<std::size_t>(), levels.size());
     EXPECT_EQ(levels.size(), 5u);
     std::uint64_t tiles = 0, present = 0, uniform = 0, absent = 0, dedup = 0, payload = 0, raw = 0, texels = 0;
     for (std::size_t i = 0; i < levels.size(); ++i) {
@@ -421,11 +421,11 @@ TEST(CliInspect, JsonParsesAndAddsUp) {
     EXPECT_EQ(present + uniform + absent, tiles);
     EXPECT_EQ(tiles, 171u);
     EXPECT_EQ(t.at("payload_bytes").get<std::uint64_t>(), payload);
-    EXPECT_LT(payload, j.at("file_bytes").get<std::uint64_t>());
+    EXPECT_LT(payload, j.at("file_size").get<std::uint64_t>());
     EXPECT_EQ(t.at("raw_bytes").get<std::uint64_t>(), raw);
     EXPECT_NEAR(t.at("bits_per_texel").get<double>(), 8.0 * double(payload) / double(texels), 1e-6);
     const double ratio = t.at("compression_ratio").get<double>();
-    EXPECT_NEAR(ratio, double(raw) / double(j.at("file_bytes").get<std::uint64_t>()), 1e-9);
+    EXPECT_NEAR(ratio, double(raw) / double(j.at("file_size").get<std::uint64_t>()), 1e-9);
     EXPECT_GT(ratio, 0.0);
 }
 

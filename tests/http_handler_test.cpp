@@ -703,6 +703,8 @@ TEST_F(HandlerTest, StoreListAndMetadata) {
     }
     EXPECT_EQ(m["level_info"][0]["absent"], 1);
     EXPECT_EQ(m["level_info"][0]["uniform"], 1);
+    // One description of a store: the list holds the same object.
+    EXPECT_EQ(m, rgb);
     EXPECT_EQ(get("/v1/stores/nosuch").status, 404u);
 }
 

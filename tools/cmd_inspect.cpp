@@ -3,6 +3,7 @@
 
 #include "commands.hpp"
 #include "store_summary.hpp"
+#include "tessera/storage/store_json.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace tessera::tools {
@@ -19,7 +20,7 @@ Command add_inspect(CLI::App& app) {
     return [a]() -> int {
         auto reader = storage::StoreReader::open(a->store);
         if (!reader) throw Failure(reader.error().message);
-        if (a->json) fmt::print("{}\n", store_summary_json(a->store, (*reader)->info()).dump(2));
+        if (a->json) fmt::print("{}\n", storage::store_json(a->store, (*reader)->info()).dump(2));
         else print_store_summary(a->store, (*reader)->info());
         return 0;
     };

@@ -1,7 +1,6 @@
 #pragma once
-// The store summary printed by `inspect`, `build` and `demo`, as text or JSON.
-#include <nlohmann/json.hpp>
-
+// The store summary printed by `inspect`, `build` and `demo` (`inspect --json` prints
+// storage::store_json).
 #include <string>
 
 #include "tessera/storage/types.hpp"
@@ -9,6 +8,5 @@
 namespace tessera::tools {
 
 void print_store_summary(const std::string& name, const storage::StoreInfo& info);
-nlohmann::json store_summary_json(const std::string& name, const storage::StoreInfo& info);
 
 }  // namespace tessera::tools

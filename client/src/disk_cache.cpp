@@ -39,6 +39,8 @@
 #include <utility>
 #include <vector>
 
+#include "tessera/hex.hpp"
+
 namespace tessera::client {
 
 namespace {
@@ -83,13 +85,6 @@ std::vector<std::uint8_t> encode_header(const TileId& id, const TileData& t, std
     std::memcpy(&h[kFixedHeader], id.store.data(), n);
     put_le(&h[kFixedHeader + n], XXH3_64bits(h.data(), kFixedHeader + n), 8);
     return h;
-}
-
-std::string hex16(std::uint64_t v) {
-    static constexpr char kDigits[] = "0123456789abcdef";
-    std::string s(16, '0');
-    for (int i = 15; i >= 0; --i, v >>= 4) s[static_cast<std::size_t>(i)] = kDigits[v & 15];
-    return s;
 }
 
 bool parse_hex16(std::string_view s, std::uint64_t& out) {

@@ -1,46 +1,16 @@
 #include "tessera/client/stats.hpp"
 
 #include <algorithm>
-#include <bit>
 #include <charconv>
 #include <cmath>
+#include <type_traits>
+#include <vector>
+
+#include <nlohmann/json.hpp>
 
 namespace tessera::client {
 
 // --- LatencyHistogram ---
-
-std::size_t LatencyHistogram::bucket_of(std::uint64_t us) {
-    if (us < kSub) return static_cast<std::size_t>(us);
-    const std::uint64_t cap = (std::uint64_t{1} << kMaxExp) - 1;
-    us = std::min(us, cap);
-    const unsigned e = static_cast<unsigned>(std::bit_width(us)) - 1;  // kSubBits .. kMaxExp-1
-    const unsigned shift = e - kSubBits;
-    return static_cast<std::size_t>(kSub + shift * kSub + ((us >> shift) - kSub));
-}
-
-std::uint64_t LatencyHistogram::bucket_low(std::size_t bucket) {
-    if (bucket < kSub) return bucket;
-    const std::size_t shift = (bucket - kSub) / kSub;
-    const std::uint64_t m = (bucket - kSub) % kSub;
-    return (kSub + m) << shift;
-}
-
-std::uint64_t LatencyHistogram::bucket_width(std::size_t bucket) {
-    if (bucket < kSub) return 1;
-    return std::uint64_t{1} << ((bucket - kSub) / kSub);
-}
-
-void LatencyHistogram::record_us(std::uint64_t us) {
-    ++counts_[bucket_of(us)];
-    if (count_ == 0) {
-        min_us_ = max_us_ = us;
-    } else {
-        min_us_ = std::min(min_us_, us);
-        max_us_ = std::max(max_us_, us);
-    }
-    ++count_;
-    sum_us_ += us;
-}
 
 void LatencyHistogram::record(std::chrono::nanoseconds d) {
     const auto ns = d.count();
@@ -56,45 +26,21 @@ void LatencyHistogram::record_ms(double ms) {
     record_us(us >= 1.8e19 ? ~std::uint64_t{0} : static_cast<std::uint64_t>(us));
 }
 
-void LatencyHistogram::merge(const LatencyHistogram& other) {
-    if (other.count_ == 0) return;
-    for (std::size_t i = 0; i < kBuckets; ++i) counts_[i] += other.counts_[i];
-    if (count_ == 0) {
-        min_us_ = other.min_us_;
-        max_us_ = other.max_us_;
-    } else {
-        min_us_ = std::min(min_us_, other.min_us_);
-        max_us_ = std::max(max_us_, other.max_us_);
-    }
-    count_ += other.count_;
-    sum_us_ += other.sum_us_;
-}
-
 void LatencyHistogram::reset() { *this = LatencyHistogram{}; }
 
-double LatencyHistogram::mean_ms() const {
-    return count_ == 0 ? 0.0 : static_cast<double>(sum_us_) / static_cast<double>(count_) / 1000.0;
-}
-double LatencyHistogram::min_ms() const { return static_cast<double>(min_us_) / 1000.0; }
-double LatencyHistogram::max_ms() const { return static_cast<double>(max_us_) / 1000.0; }
+double LatencyHistogram::mean_ms() const { return mean() / 1000.0; }
+double LatencyHistogram::min_ms() const { return static_cast<double>(min()) / 1000.0; }
+double LatencyHistogram::max_ms() const { return static_cast<double>(max()) / 1000.0; }
 
 double LatencyHistogram::quantile(double q) const {
-    if (count_ == 0) return 0.0;
+    if (count() == 0) return 0.0;
     if (!(q > 0.0)) return min_ms();
     if (q >= 1.0) return max_ms();
-    // Nearest rank: the k-th smallest sample, k = ceil(q * count), at least 1.
-    const auto k = std::max<std::uint64_t>(1, static_cast<std::uint64_t>(std::ceil(q * static_cast<double>(count_))));
-    std::uint64_t seen = 0;
-    for (std::size_t b = 0; b < kBuckets; ++b) {
-        seen += counts_[b];
-        if (seen >= k) {
-            double mid = static_cast<double>(bucket_low(b));
-            if (b >= kSub) mid += 0.5 * static_cast<double>(bucket_width(b));
-            mid = std::clamp(mid, static_cast<double>(min_us_), static_cast<double>(max_us_));
-            return mid / 1000.0;
-        }
-    }
-    return max_ms();
+    const std::size_t b = quantile_bucket(q);
+    double mid = static_cast<double>(bucket_low(b));
+    if (b >= kSub) mid += 0.5 * static_cast<double>(bucket_width(b));
+    mid = std::clamp(mid, static_cast<double>(min()), static_cast<double>(max()));
+    return mid / 1000.0;
 }
 
 // --- JSON / CSV helpers ---
@@ -107,7 +53,8 @@ void put_uint(std::string& s, std::uint64_t v) {
     s.append(buf, r.ptr);
 }
 
-// Shortest round-trip form (of the value's own type); JSON has no NaN or infinity: null.
+// CSV numbers: the shortest round-trip form (of the value's own type); NaN or infinity: null, as
+// in the JSON.
 template <class T>
 void put_num(std::string& s, T v) {
     if (!std::isfinite(v)) {
@@ -119,17 +66,6 @@ void put_num(std::string& s, T v) {
     s.append(buf, r.ptr);
 }
 
-
-template <class Array>
-void put_array(std::string& s, const Array& a, std::size_t n) {
-    s += '[';
-    for (std::size_t i = 0; i < n; ++i) {
-        if (i) s += ',';
-        put_uint(s, a[i]);
-    }
-    s += ']';
-}
-
 // Levels up to the highest one with any count in any of the three arrays.
 template <class Array>
 std::size_t used_levels(const Array& a, const Array& b, const Array& c) {
@@ -139,16 +75,29 @@ std::size_t used_levels(const Array& a, const Array& b, const Array& c) {
     return n;
 }
 
+// Keys in the order written (frame, pages, hits...), not sorted as nlohmann::json would.
+using Json = nlohmann::ordered_json;
+
+// A number as the CSV writes it: whole values without ".0", a float in its own shortest form
+// (0.1f is 0.1, not 0.10000000149011612); JSON has no NaN or infinity: null.
+template <class T>
+Json json_num(T v) {
+    if (!std::isfinite(v)) return nullptr;
+    double d = v;
+    if constexpr (std::is_same_v<T, float>) {
+        char buf[32];
+        const auto r = std::to_chars(buf, buf + sizeof buf, v);
+        std::from_chars(buf, r.ptr, d);
+    }
+    if (std::trunc(d) == d && std::abs(d) < 0x1p53) return static_cast<std::int64_t>(d);
+    return d;
+}
+
 template <class Array>
-void put_hits(std::string& s, const Array& ram, const Array& disk, const Array& net) {
-    const std::size_t n = used_levels(ram, disk, net);
-    s += "\"hits\":{\"ram\":";
-    put_array(s, ram, n);
-    s += ",\"disk\":";
-    put_array(s, disk, n);
-    s += ",\"network\":";
-    put_array(s, net, n);
-    s += '}';
+Json hits_json(const Array& ram, const Array& disk, const Array& net) {
+    const auto n = static_cast<std::ptrdiff_t>(used_levels(ram, disk, net));
+    const auto levels = [n](const Array& a) { return std::vector<std::uint64_t>(a.begin(), a.begin() + n); };
+    return Json{{"ram", levels(ram)}, {"disk", levels(disk)}, {"network", levels(net)}};
 }
 
 std::uint32_t sum(const LevelCounts& a) {
@@ -166,32 +115,15 @@ std::uint32_t FrameStats::total_disk_hits() const { return sum(disk_hits); }
 std::uint32_t FrameStats::total_network() const { return sum(network); }
 
 std::string FrameStats::to_json() const {
-    std::string s = "{\"frame\":";
-    put_uint(s, frame);
-    s += ",\"pages\":{\"wanted\":";
-    put_uint(s, pages_wanted);
-    s += ",\"resident\":";
-    put_uint(s, pages_resident);
-    s += ",\"requested\":";
-    put_uint(s, pages_requested);
-    s += ",\"arrived\":";
-    put_uint(s, pages_arrived);
-    s += ",\"uploaded\":";
-    put_uint(s, pages_uploaded);
-    s += ",\"evicted\":";
-    put_uint(s, pages_evicted);
-    s += "},";
-    put_hits(s, ram_hits, disk_hits, network);
-    s += ",\"bytes\":{\"received\":";
-    put_uint(s, bytes_received);
-    s += ",\"uploaded\":";
-    put_uint(s, bytes_uploaded);
-    s += "},\"lod_bias\":";
-    put_num(s, lod_bias);
-    s += ",\"fallback_estimate\":";
-    put_num(s, fallback_estimate);
-    s += '}';
-    return s;
+    Json j;
+    j["frame"] = frame;
+    j["pages"] = Json{{"wanted", pages_wanted},     {"resident", pages_resident}, {"requested", pages_requested},
+                      {"arrived", pages_arrived},   {"uploaded", pages_uploaded}, {"evicted", pages_evicted}};
+    j["hits"] = hits_json(ram_hits, disk_hits, network);
+    j["bytes"] = Json{{"received", bytes_received}, {"uploaded", bytes_uploaded}};
+    j["lod_bias"] = json_num(lod_bias);
+    j["fallback_estimate"] = json_num(fallback_estimate);
+    return j.dump();
 }
 
 std::string FrameStats::csv_header() {
@@ -255,60 +187,28 @@ double StatsSummary::mean_lod_bias() const { return mean_of(bias_sum_, frames_);
 double StatsSummary::mean_fallback_estimate() const { return mean_of(fallback_sum_, frames_); }
 
 std::string StatsSummary::to_json() const {
-    std::string s = "{\"frames\":";
-    put_uint(s, frames_);
-    s += ",\"pages\":{\"wanted_mean\":";
-    put_num(s, mean_pages_wanted());
-    s += ",\"resident_mean\":";
-    put_num(s, mean_pages_resident());
-    s += ",\"requested\":";
-    put_uint(s, requested_);
-    s += ",\"arrived\":";
-    put_uint(s, arrived_);
-    s += ",\"uploaded\":";
-    put_uint(s, uploaded_);
-    s += ",\"evicted\":";
-    put_uint(s, evicted_);
-    s += "},";
-    put_hits(s, ram_hits_, disk_hits_, network_);
-    s += ",\"bytes\":{\"received\":";
-    put_uint(s, bytes_received_);
-    s += ",\"uploaded\":";
-    put_uint(s, bytes_uploaded_);
-    s += "},\"latency_ms\":{\"count\":";
-    put_uint(s, latency_.count());
-    s += ",\"mean\":";
-    put_num(s, latency_.mean_ms());
-    s += ",\"p50\":";
-    put_num(s, latency_.quantile(0.5));
-    s += ",\"p90\":";
-    put_num(s, latency_.quantile(0.9));
-    s += ",\"p99\":";
-    put_num(s, latency_.quantile(0.99));
-    s += ",\"max\":";
-    put_num(s, latency_.max_ms());
-    s += "},\"lod_bias\":{\"last\":";
-    put_num(s, bias_last_);
-    s += ",\"mean\":";
-    put_num(s, mean_lod_bias());
-    s += ",\"max\":";
-    put_num(s, bias_max_);
-    s += "},\"fallback_estimate_mean\":";
-    put_num(s, mean_fallback_estimate());
-    s += ",\"skipped\":{\"cancelled_waiting\":";
-    put_uint(s, cancelled_waiting_);
-    s += ",\"cancelled_arrived\":";
-    put_uint(s, cancelled_arrived_);
-    s += ",\"cancelled_decoded\":";
-    put_uint(s, cancelled_decoded_);
-    s += ",\"decodes_dropped\":";
-    put_uint(s, decodes_dropped_);
-    s += ",\"stale_arrivals\":";
-    put_uint(s, stale_arrivals_);
-    s += ",\"duplicate_arrivals\":";
-    put_uint(s, duplicate_arrivals_);
-    s += "}}";
-    return s;
+    Json j;
+    j["frames"] = frames_;
+    j["pages"] = Json{{"wanted_mean", json_num(mean_pages_wanted())},
+                      {"resident_mean", json_num(mean_pages_resident())},
+                      {"requested", requested_},
+                      {"arrived", arrived_},
+                      {"uploaded", uploaded_},
+                      {"evicted", evicted_}};
+    j["hits"] = hits_json(ram_hits_, disk_hits_, network_);
+    j["bytes"] = Json{{"received", bytes_received_}, {"uploaded", bytes_uploaded_}};
+    j["latency_ms"] = Json{{"count", latency_.count()},
+                           {"mean", json_num(latency_.mean_ms())},
+                           {"p50", json_num(latency_.quantile(0.5))},
+                           {"p90", json_num(latency_.quantile(0.9))},
+                           {"p99", json_num(latency_.quantile(0.99))},
+                           {"max", json_num(latency_.max_ms())}};
+    j["lod_bias"] = Json{{"last", json_num(bias_last_)}, {"mean", json_num(mean_lod_bias())}, {"max", json_num(bias_max_)}};
+    j["fallback_estimate_mean"] = json_num(mean_fallback_estimate());
+    j["skipped"] = Json{{"cancelled_waiting", cancelled_waiting_}, {"cancelled_arrived", cancelled_arrived_},
+                        {"cancelled_decoded", cancelled_decoded_}, {"decodes_dropped", decodes_dropped_},
+                        {"stale_arrivals", stale_arrivals_},       {"duplicate_arrivals", duplicate_arrivals_}};
+    return j.dump();
 }
 
 }  // namespace tessera::client

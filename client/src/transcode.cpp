@@ -14,6 +14,8 @@
 #include <system_error>
 #include <utility>
 
+#include "tessera/half_float.hpp"
+
 namespace tessera::client {
 
 using storage::SampleType;
@@ -78,18 +80,6 @@ inline std::uint8_t unit_float_to_u8(float f) {
     // float * 255 is exact in double, so this rounds half away from zero exactly like
     // std::lround(v * 255.0).
     return static_cast<std::uint8_t>(static_cast<double>(f) * 255.0 + 0.5);
-}
-
-inline float half_to_float(std::uint16_t h) {
-    const std::uint32_t sign = std::uint32_t(h & 0x8000u) << 16;
-    const std::uint32_t exp = (h >> 10) & 0x1Fu;
-    const std::uint32_t mant = h & 0x3FFu;
-    if (exp == 0) {
-        const float v = static_cast<float>(mant) * (1.0f / 16777216.0f);  // subnormal: mant * 2^-24
-        return sign ? -v : v;
-    }
-    if (exp == 31) return std::bit_cast<float>(sign | 0x7F800000u | (mant << 13));  // inf / NaN
-    return std::bit_cast<float>(sign | ((exp + 112) << 23) | (mant << 13));
 }
 
 struct LoadU8 {

@@ -10,8 +10,10 @@
 
 #include "auth.hpp"
 #include "png_encode.hpp"
+#include "tessera/hex.hpp"
 #include "tessera/protocol/wire.hpp"
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_json.hpp"
 
 namespace tessera::server {
 
@@ -22,14 +24,6 @@ constexpr std::string_view kTextPlain = "text/plain; charset=utf-8";
 constexpr std::string_view kJson = "application/json";
 constexpr std::string_view kMetricsType = "text/plain; version=0.0.4; charset=utf-8";
 constexpr unsigned kImmutableMaxAge = 31536000;  // a year: a versioned URL never changes
-
-// By hand: three of these per tile response (snprintf showed up in the HTTP profile).
-std::string hex16(std::uint64_t v) {
-    static constexpr char kDigits[] = "0123456789abcdef";
-    std::string s(16, '0');
-    for (int i = 15; i >= 0; --i, v >>= 4) s[static_cast<std::size_t>(i)] = kDigits[v & 0xF];
-    return s;
-}
 
 bool iequals(std::string_view a, std::string_view b) {
     if (a.size() != b.size()) return false;
@@ -183,47 +177,12 @@ std::string_view content_type_of(Codec c) {
     return "application/octet-stream";
 }
 
-nlohmann::json store_summary(const StoreHandle& h) {
-    const storage::StoreInfo& info = h.info();
+// The store's description (storage::store_json), and where the API serves it and its tiles.
+nlohmann::json store_entry(const StoreHandle& h) {
+    nlohmann::json j = storage::store_json(h.name, h.info());
     const std::string url = "/v1/stores/" + h.name;
-    return nlohmann::json{
-        {"name", h.name},
-        {"version", hex16(h.version)},
-        {"width", info.width},
-        {"height", info.height},
-        {"tile_payload", info.tile_payload},
-        {"border", info.border},
-        {"tile_size", info.tile_size()},
-        {"channels", info.channels},
-        {"has_alpha", info.has_alpha},
-        {"sample_type", storage::to_string(info.sample_type)},
-        {"colour_space", storage::to_string(info.colour_space)},
-        {"codec", tessera::to_string(info.codec)},
-        {"levels", info.level_count()},
-        {"url", url},
-        {"tiles", url + "/tiles/{level}/{x}/{y}?v=" + hex16(h.version)},
-    };
-}
-
-nlohmann::json store_metadata(const StoreHandle& h) {
-    nlohmann::json j = store_summary(h);
-    const storage::StoreInfo& info = h.info();
-    j["file_size"] = info.file_size;
-    j["format"] = std::to_string(info.version_major) + "." + std::to_string(info.version_minor);
-    j["levels"] = info.level_count();
-    nlohmann::json levels = nlohmann::json::array();
-    for (std::size_t l = 0; l < info.levels.size(); ++l) {
-        const storage::LevelInfo& li = info.levels[l];
-        levels.push_back(nlohmann::json{{"level", l},
-                                        {"width", li.width},
-                                        {"height", li.height},
-                                        {"tiles_x", li.tiles_x},
-                                        {"tiles_y", li.tiles_y},
-                                        {"present", li.present},
-                                        {"uniform", li.uniform},
-                                        {"absent", li.absent}});
-    }
-    j["level_info"] = std::move(levels);
+    j["url"] = url;
+    j["tiles"] = url + "/tiles/{level}/{x}/{y}?v=" + hex16(h.version);
     return j;
 }
 
@@ -428,7 +387,7 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
         route_label = HttpRoute::stores;
         if (format || version) return error(400, "query parameters 'format' and 'v' apply to tiles only", api);
         nlohmann::json list = nlohmann::json::array();
-        for (const auto& h : ctx_.stores.list()) list.push_back(store_summary(*h));
+        for (const auto& h : ctx_.stores.list()) list.push_back(store_entry(*h));
         return json_response(nlohmann::json{{"stores", std::move(list)}});
     }
     const std::string& name = seg[2];
@@ -438,7 +397,7 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
         if (format || version) return error(400, "query parameters 'format' and 'v' apply to tiles only", api);
         const auto h = ctx_.stores.find(name);
         if (!h) return error(404, "unknown store '" + name + "'", api);
-        return json_response(store_metadata(*h));
+        return json_response(store_entry(*h));
     }
     if (seg[3] != "tiles") {
         route_label = HttpRoute::other;

@@ -5,7 +5,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <ctime>
+
+#include <nlohmann/json.hpp>
 
 namespace tessera::server {
 
@@ -21,46 +24,30 @@ std::string_view level_name(LogLevel l) {
     return "info";
 }
 
-void append_json_string(std::string& out, std::string_view s) {
-    out += '"';
-    for (unsigned char c : s) {
-        switch (c) {
-            case '"': out += "\\\""; break;
-            case '\\': out += "\\\\"; break;
-            case '\n': out += "\\n"; break;
-            case '\r': out += "\\r"; break;
-            case '\t': out += "\\t"; break;
-            default:
-                if (c < 0x20) {
-                    char buf[8];
-                    std::snprintf(buf, sizeof buf, "\\u%04x", c);
-                    out += buf;
-                } else {
-                    out += static_cast<char>(c);
-                }
-        }
-    }
-    out += '"';
+// Keys in the order written (ts, level, msg, then the fields), not sorted as nlohmann::json would.
+using Json = nlohmann::ordered_json;
+
+// Six significant digits, as "%.6g" writes them: a log line has no use for more.
+double six_digits(double v) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.6g", v);
+    return std::strtod(buf, nullptr);
 }
 
-void append_value(std::string& out, const LogField& f, bool json) {
-    char buf[64];
+Json value_of(const LogField& f) {
     switch (f.kind) {
-        case LogField::Kind::string:
-            if (json) append_json_string(out, f.s);
-            else if (f.s.find_first_of(" \"=") != std::string_view::npos) append_json_string(out, f.s);
-            else out += f.s;
-            return;
-        case LogField::Kind::int64: std::snprintf(buf, sizeof buf, "%lld", static_cast<long long>(f.i)); break;
-        case LogField::Kind::uint64: std::snprintf(buf, sizeof buf, "%llu", static_cast<unsigned long long>(f.u)); break;
-        case LogField::Kind::float64:
-            if (std::isfinite(f.d)) std::snprintf(buf, sizeof buf, "%.6g", f.d);
-            else std::snprintf(buf, sizeof buf, json ? "null" : "%s", json ? "" : "nan");
-            break;
-        case LogField::Kind::boolean: std::snprintf(buf, sizeof buf, "%s", f.b ? "true" : "false"); break;
+        case LogField::Kind::string: return f.s;
+        case LogField::Kind::int64: return f.i;
+        case LogField::Kind::uint64: return f.u;
+        case LogField::Kind::float64: return std::isfinite(f.d) ? Json(six_digits(f.d)) : Json(nullptr);
+        case LogField::Kind::boolean: return f.b;
     }
-    out += buf;
+    return nullptr;
 }
+
+// Compact, and bytes that are not UTF-8 (a request target, a file name) become U+FFFD instead of
+// an exception: a log line is always written.
+std::string dump(const Json& j) { return j.dump(-1, ' ', false, Json::error_handler_t::replace); }
 
 }  // namespace
 
@@ -75,22 +62,16 @@ void Logger::log(LogLevel level, std::string_view msg, std::initializer_list<Log
     std::snprintf(ts, sizeof ts, "%04d-%02d-%02dT%02d:%02d:%02d.%06lldZ", tm.tm_year + 1900, tm.tm_mon + 1,
                   tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, static_cast<long long>(us % 1000000));
     std::string line;
-    line.reserve(160);
     if (format_ == LogFormat::json) {
-        line += "{\"ts\":\"";
-        line += ts;
-        line += "\",\"level\":\"";
-        line += level_name(level);
-        line += "\",\"msg\":";
-        append_json_string(line, msg);
-        for (const auto& f : fields) {
-            line += ',';
-            append_json_string(line, f.key);
-            line += ':';
-            append_value(line, f, true);
-        }
-        line += "}\n";
+        Json j;
+        j["ts"] = ts;
+        j["level"] = level_name(level);
+        j["msg"] = msg;
+        for (const auto& f : fields) j[std::string(f.key)] = value_of(f);
+        line = dump(j);
+        line += '\n';
     } else {
+        line.reserve(160);
         line += ts;
         line += ' ';
         line += level_name(level);
@@ -100,7 +81,9 @@ void Logger::log(LogLevel level, std::string_view msg, std::initializer_list<Log
             line += ' ';
             line += f.key;
             line += '=';
-            append_value(line, f, false);
+            // Strings bare unless a reader could not tell where they end; everything else as in JSON.
+            if (f.kind == LogField::Kind::string && f.s.find_first_of(" \"=") == std::string_view::npos) line += f.s;
+            else line += dump(value_of(f));
         }
         line += '\n';
     }

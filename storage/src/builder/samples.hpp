@@ -6,21 +6,14 @@
 #include <cmath>
 #include <cstdint>
 
+#include "tessera/half_float.hpp"
+
 namespace tessera::storage::build {
 
 inline double srgb_to_linear(double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4); }
 inline double linear_to_srgb(double v) { return v <= 0.0031308 ? v * 12.92 : 1.055 * std::pow(v, 1.0 / 2.4) - 0.055; }
 
-inline float half_to_float(std::uint16_t h) {
-    const std::uint32_t sign = std::uint32_t(h & 0x8000u) << 16;
-    const std::uint32_t exp = (h >> 10) & 0x1fu, mant = h & 0x3ffu;
-    if (exp == 0) {
-        const float f = std::ldexp(static_cast<float>(mant), -24);  // zero or subnormal, exact
-        return sign ? -f : f;
-    }
-    const std::uint32_t bits = exp == 31 ? (sign | 0x7f800000u | (mant << 13)) : (sign | ((exp + 112) << 23) | (mant << 13));
-    return std::bit_cast<float>(bits);
-}
+using tessera::half_to_float;  // shared with the client's transcoder
 
 // Round to nearest, ties to even; overflow gives infinity; NaN stays NaN.
 inline std::uint16_t float_to_half(float f) {

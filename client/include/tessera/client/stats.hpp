@@ -1,8 +1,7 @@
 #pragma once
 // Client statistics: per-frame counters (FrameStats), a latency histogram (LatencyHistogram, also
-// meant for the load tester) and a summary across frames (StatsSummary). JSON and CSV are written
-// by hand: no dependency. Definitions follow docs/viewer.md, "Measures": tile latency is request
-// issued -> page mapped.
+// meant for the load tester) and a summary across frames (StatsSummary), as JSON lines or CSV.
+// Definitions follow docs/viewer.md, "Measures": tile latency is request issued -> page mapped.
 #include <array>
 #include <chrono>
 #include <cstddef>
@@ -10,26 +9,29 @@
 #include <string>
 
 #include "tessera/client/page.hpp"
+#include "tessera/log_linear_histogram.hpp"
 
 namespace tessera::client {
 
 // Durations in a log-linear histogram at microsecond resolution: exact below 16 us, then 16
 // linear buckets per power of two, so a bucket is at most 1/16 (6.25%) of its values wide.
 // Values from 2^40 us (about 12 days) up land in the last bucket. 592 buckets, fixed size.
-class LatencyHistogram {
+class LatencyHistogram : private LogLinearHistogram<4, 40> {
+    using Counts = LogLinearHistogram<4, 40>;
+
 public:
     static constexpr unsigned kSubBits = 4;
-    static constexpr std::uint64_t kSub = 1u << kSubBits;
     static constexpr unsigned kMaxExp = 40;
-    static constexpr std::size_t kBuckets = kSub + (kMaxExp - kSubBits) * kSub;
+    using Counts::kBuckets;
+    using Counts::kSub;
 
-    void record_us(std::uint64_t us);
+    void record_us(std::uint64_t us) { Counts::record(us); }
     void record(std::chrono::nanoseconds d);  // rounded to the nearest microsecond; negative: 0
     void record_ms(double ms);                // negative or NaN: 0
-    void merge(const LatencyHistogram& other);
+    void merge(const LatencyHistogram& other) { Counts::merge(other); }
     void reset();
 
-    std::uint64_t count() const { return count_; }
+    using Counts::count;
     double mean_ms() const;  // exact (from the sum), 0 when empty
     double min_ms() const;   // exact, 0 when empty
     double max_ms() const;   // exact, 0 when empty
@@ -37,18 +39,11 @@ public:
     // holding that sample, clamped to [min, max]; so within 3.2% of the true sample. 0 when empty.
     double quantile(double q) const;
 
-    // Bucket arithmetic (public for tests and for exporting).
-    static std::size_t bucket_of(std::uint64_t us);
-    static std::uint64_t bucket_low(std::size_t bucket);    // smallest value in the bucket, us
-    static std::uint64_t bucket_width(std::size_t bucket);  // us
-    std::uint64_t bucket_count(std::size_t bucket) const { return counts_[bucket]; }
-
-private:
-    std::array<std::uint64_t, kBuckets> counts_{};
-    std::uint64_t count_ = 0;
-    std::uint64_t sum_us_ = 0;
-    std::uint64_t min_us_ = 0;
-    std::uint64_t max_us_ = 0;
+    // Bucket arithmetic (public for tests and for exporting), in microseconds.
+    using Counts::bucket_count;
+    using Counts::bucket_low;
+    using Counts::bucket_of;
+    using Counts::bucket_width;
 };
 
 using LevelCounts = std::array<std::uint32_t, kMaxLevels>;
