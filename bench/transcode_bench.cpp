@@ -152,6 +152,21 @@ Timing pass_transcode(const Corpus& c, Ring& ring) {
     return watch.stop(ok);
 }
 
+// Decode and encode into a compressed page format (the client-transcode route): the ring slots
+// are RGBA8-sized, larger than any block page.
+Timing pass_transcode_to(const Corpus& c, Ring& ring, client::PageFormat format) {
+    client::Scratch scratch;
+    const Codec codec = c.info->codec;
+    const std::size_t bytes = client::page_bytes(format, c.info->tile_size());
+    const Stopwatch watch(CLOCK_THREAD_CPUTIME_ID);
+    bool ok = true;
+    for (std::size_t i = 0; i < c.payloads.size(); ++i)
+        ok &= client::transcode_page(*c.info, TileKind::present, codec, *c.payloads[i], format, ring.slot(i).first(bytes),
+                                     scratch)
+                  .ok();
+    return watch.stop(ok);
+}
+
 // End to end through the pool: the caller keeps `capacity` jobs in flight (one staging slot
 // each), polls completions and reuses their slots, as the runtime's upload loop would.
 Timing pass_pool(const Corpus& c, Ring& ring, unsigned threads) {
@@ -283,6 +298,10 @@ int main(int argc, char** argv) {
         s.passes.push_back([&jpeg, &ring] { return pass_tj(jpeg, ring, TJPF_RGBA); });
         s.rows.push_back({"transcode", 1, {}});
         s.passes.push_back([&jpeg, &ring] { return pass_transcode(jpeg, ring); });
+        // The block format this store's pages take on the client-transcode route.
+        const client::PageFormat bc = jpeg.info->channels == 1 ? client::PageFormat::bc4 : client::PageFormat::bc1;
+        s.rows.push_back({"transcode " + std::string(client::to_string(bc)), 1, {}});
+        s.passes.push_back([&jpeg, &ring, bc] { return pass_transcode_to(jpeg, ring, bc); });
         add_pool_rows(s, ring);
         suites.push_back(std::move(s));
     }
@@ -324,7 +343,7 @@ int main(int argc, char** argv) {
             }
         }
 
-    std::printf("transcode_bench: %s, %u hardware threads, %d rounds (medians), RGBA8 output\n", cpu_model().c_str(),
+    std::printf("transcode_bench: %s, %u hardware threads, %d rounds (medians), RGBA8 output unless the pass names a block format\n", cpu_model().c_str(),
                 std::thread::hardware_concurrency(), rounds);
     std::string json = "{\"cpu\":\"" + cpu_model() + "\",\"hardware_threads\":" +
                        std::to_string(std::thread::hardware_concurrency()) + ",\"rounds\":" + std::to_string(rounds) +
@@ -338,7 +357,7 @@ int main(int argc, char** argv) {
                     c.path.c_str(), c.payloads.size(), c.info->tile_size(), c.info->tile_size(), c.info->channels,
                     std::string(storage::to_string(c.info->sample_type)).c_str(), double(c.payload_bytes) / 1048576.0,
                     s.ceiling.c_str());
-        std::printf("  %-13s %7s %8s %8s %7s %8s %9s %9s %9s\n", "pass", "threads", "wall ms", "tiles/s", "MP/s",
+        std::printf("  %-15s %7s %8s %8s %7s %8s %9s %9s %9s\n", "pass", "threads", "wall ms", "tiles/s", "MP/s",
                     "CPU ms", "MP/CPU-s", "wall/ceil", "CPU/ceil");
         const Row* ceiling = nullptr;
         for (const Row& r : s.rows)
@@ -358,7 +377,7 @@ int main(int argc, char** argv) {
                 cpu_ratio.push_back(ceiling->timings[k].cpu / r.timings[k].cpu);
             }
             const double w = median(wall), u = median(cpu), wr = median(wall_ratio), ur = median(cpu_ratio);
-            std::printf("  %-13s %7u %8.1f %8.0f %7.1f %8.1f %9.1f %8.3fx %8.3fx\n", r.name.c_str(), r.threads, w * 1e3,
+            std::printf("  %-15s %7u %8.1f %8.0f %7.1f %8.1f %9.1f %8.3fx %8.3fx\n", r.name.c_str(), r.threads, w * 1e3,
                         tiles / w, mpix / w, u * 1e3, mpix / u, wr, ur);
             json += std::string(ri ? "," : "") + "{\"name\":\"" + r.name + "\",\"threads\":" + std::to_string(r.threads) +
                     ",\"wall_s\":" + json_number(w) + ",\"wall_min_s\":" +

@@ -24,7 +24,16 @@ if(NOT TESSERA_FUZZ_ONLY)
   pkg_check_modules(EGL REQUIRED IMPORTED_TARGET egl)
   pkg_check_modules(GLFW REQUIRED IMPORTED_TARGET glfw3)
   pkg_check_modules(TINYOBJ REQUIRED IMPORTED_TARGET tinyobjloader)
+  # stb_dxt: the client's real-time BC1/BC4/BC5 page encoder.
+  pkg_check_modules(STB REQUIRED IMPORTED_TARGET stb)
   if(TESSERA_BUILD_TESTS)
     find_package(GTest REQUIRED)
+    # libsquish: an independent BC decoder, so the tests do not check our blocks with our own code.
+    # (Debian 12's libsquish.pc names a missing /include, so it is found by hand.)
+    find_path(SQUISH_INCLUDE_DIR squish.h REQUIRED)
+    find_library(SQUISH_LIBRARY squish REQUIRED)
+    add_library(Squish::squish UNKNOWN IMPORTED)
+    set_target_properties(Squish::squish PROPERTIES IMPORTED_LOCATION ${SQUISH_LIBRARY}
+      INTERFACE_INCLUDE_DIRECTORIES ${SQUISH_INCLUDE_DIR})
   endif()
 endif()

@@ -8,6 +8,7 @@ packages=(
   build-essential cmake ninja-build pkg-config git
   clang libclang-rt-14-dev           # libFuzzer targets
   libzstd-dev libturbojpeg0-dev libxxhash-dev
+  libstb-dev libsquish-dev            # BC page encoding (stb_dxt); an independent BC decoder for tests
   libopenimageio-dev libtiff-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc

@@ -1,5 +1,7 @@
 #include "transcode.hpp"
 
+#include "block_encode.hpp"
+
 #include <turbojpeg.h>
 #include <zstd.h>
 
@@ -27,6 +29,8 @@ struct Scratch::Impl {
     tjhandle jpeg = nullptr;
     ZSTD_DCtx* zstd = nullptr;
     std::unique_ptr<std::uint8_t[]> samples;  // decompressed zstd tile (never zero-filled)
+    std::unique_ptr<std::uint8_t[]> rgba;     // RGBA8 page before block encoding
+    std::size_t rgba_size = 0;
     std::size_t samples_size = 0;
 
     Impl() = default;
@@ -50,6 +54,13 @@ struct Scratch::Impl {
     ZSTD_DCtx* zstd_context() {
         if (!zstd) zstd = ZSTD_createDCtx();
         return zstd;
+    }
+    std::uint8_t* rgba_buffer(std::size_t n) {  // a decoded RGBA8 page waiting for block encoding
+        if (rgba_size < n) {
+            rgba = std::make_unique_for_overwrite<std::uint8_t[]>(n);
+            rgba_size = n;
+        }
+        return rgba.get();
     }
     std::uint8_t* sample_buffer(std::size_t n) {
         if (samples_size < n) {
@@ -267,6 +278,95 @@ Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
     }
 }
 
+// ------------------------------------------------------------------------------- transcode_page
+
+Status check_page_format(const StoreInfo& info, PageFormat format) {
+    const auto refuse = [&](std::string_view why) {
+        return make_error(Errc::invalid_argument,
+                          "page format " + std::string(to_string(format)) + " does not fit this store: " + std::string(why));
+    };
+    if (is_block_compressed(format) && info.tile_size() % 4 != 0)
+        return refuse("its tiles are " + std::to_string(info.tile_size()) + " texels, not a multiple of 4 (4x4 blocks)");
+    switch (format) {
+        case PageFormat::rgba8: return {};
+        case PageFormat::bc1:
+            if (info.has_alpha || info.channels == 2 || info.channels == 4)
+                return refuse("it has an alpha channel, which bc1 pages do not keep (use rgba8)");
+            return {};
+        case PageFormat::bc4:
+            if (info.channels != 1) return refuse("bc4 pages hold 1 channel, the store has " + std::to_string(info.channels));
+            return {};
+        case PageFormat::bc5:
+            if (info.channels < 2) return refuse("bc5 pages hold 2 channels, the store has 1");
+            return {};
+        case PageFormat::r16:
+        case PageFormat::r16f:
+        case PageFormat::r32f: {
+            const SampleType want = format == PageFormat::r16    ? SampleType::u16
+                                    : format == PageFormat::r16f ? SampleType::f16
+                                                                 : SampleType::f32;
+            if (info.channels != 1 || info.sample_type != want)
+                return refuse("it needs 1 channel of " + std::string(to_string(want)) + " samples, the store has " +
+                              std::to_string(info.channels) + " of " + std::string(to_string(info.sample_type)));
+            return {};
+        }
+    }
+    return make_error(Errc::invalid_argument, "unknown page format " + std::to_string(static_cast<int>(format)));
+}
+
+Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::span<const std::uint8_t> payload,
+                      PageFormat format, std::span<std::uint8_t> out, Scratch& scratch) {
+    if (format == PageFormat::rgba8) return transcode_to_rgba8(info, kind, codec, payload, out, scratch);
+    if (Status st = check_page_format(info, format); !st) return st;
+    const std::uint32_t size = info.tile_size();
+    if (out.size() != page_bytes(format, size))
+        return make_error(Errc::invalid_argument, "destination is not one " + std::string(to_string(format)) + " page of this store");
+    Scratch::Impl& s = *scratch.impl_;
+
+    if (is_block_compressed(format)) {
+        // Decoded to RGBA8 in scratch (never the destination: the encoder reads it back), then
+        // encoded block by block into the destination.
+        const std::span<std::uint8_t> rgba(s.rgba_buffer(rgba8_page_bytes(info)), rgba8_page_bytes(info));
+        if (Status st = transcode_to_rgba8(info, kind, codec, payload, rgba, scratch); !st) return st;
+        switch (format) {
+            case PageFormat::bc1: encode_bc1(rgba.data(), size, out.data()); break;
+            case PageFormat::bc4: encode_bc4(rgba.data(), size, 0, out.data()); break;
+            // A 2-channel store's RGBA8 texel is (v, v, v, a): its channels are R and A.
+            case PageFormat::bc5: encode_bc5(rgba.data(), size, 0, info.channels == 2 ? 3 : 1, out.data()); break;
+            default: break;
+        }
+        return {};
+    }
+
+    // r16, r16f, r32f: the store's samples exactly (check_page_format matched their size).
+    if (kind == TileKind::absent) return make_error(Errc::not_found, "tile is absent");
+    const std::size_t texel_bytes = info.texel_bytes(), tile_bytes = info.tile_bytes();
+    if (kind == TileKind::uniform) {
+        if (payload.size() != texel_bytes) return make_error(Errc::corrupt, "uniform value has the wrong size");
+        for (std::size_t i = 0; i < out.size(); i += texel_bytes) std::memcpy(out.data() + i, payload.data(), texel_bytes);
+        return {};
+    }
+    if (kind != TileKind::present)
+        return make_error(Errc::invalid_argument, "unknown tile kind " + std::to_string(static_cast<int>(kind)));
+    switch (codec) {
+        case Codec::raw:
+            if (payload.size() != tile_bytes) return make_error(Errc::corrupt, "raw tile has the wrong size");
+            std::memcpy(out.data(), payload.data(), tile_bytes);
+            return {};
+        case Codec::zstd: {
+            if (ZSTD_getFrameContentSize(payload.data(), payload.size()) != tile_bytes)
+                return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
+            ZSTD_DCtx* ctx = s.zstd_context();
+            if (!ctx) return make_error(Errc::resource_exhausted, "cannot create a zstd context");
+            const std::size_t r = ZSTD_decompressDCtx(ctx, out.data(), tile_bytes, payload.data(), payload.size());
+            if (ZSTD_isError(r) || r != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not decode");
+            return {};
+        }
+        case Codec::jpeg: return make_error(Errc::corrupt, "JPEG tiles hold 8-bit samples, not " + std::string(to_string(format)));
+    }
+    return make_error(Errc::invalid_argument, "unknown codec " + std::to_string(static_cast<int>(codec)));
+}
+
 // ------------------------------------------------------------------------------- TranscodePool
 
 namespace {
@@ -462,7 +562,7 @@ void TranscodePool::worker_loop() {
         } else {
             const std::span<const std::uint8_t> payload =
                 job.payload ? std::span<const std::uint8_t>(*job.payload) : std::span<const std::uint8_t>();
-            status = transcode_to_rgba8(*job.info, job.kind, job.codec, payload, job.destination, scratch);
+            status = transcode_page(*job.info, job.kind, job.codec, payload, job.format, job.destination, scratch);
         }
         TranscodeResult result{job.key, job.ticket, std::move(status), false};
         node = {};  // releases the payload and info outside the lock

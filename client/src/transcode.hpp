@@ -3,9 +3,12 @@
 // via libjpeg-turbo, zstd, raw, uniform) become GPU-ready pages, written straight into the caller's
 // upload staging memory.
 //
-// Output format: RGBA8, tile_size()^2 texels (border included), row-major, 4 bytes per texel, no
-// row padding. A BC1/BC3/BC7 encode path is a later issue.
+// Output: one page in a PageFormat (tessera/client/page.hpp), tile_size()^2 texels (border
+// included), row-major, no row padding. transcode_to_rgba8 makes RGBA8 pages; transcode_page makes
+// any format: BC1/BC4/BC5 by encoding the RGBA8 page on this thread (block_encode.hpp), R16,
+// R16F and R32F by copying a 1-channel store's samples exactly.
 //
+// RGBA8 conversion
 // Conversion rules (samples to 8 bits, then channels to RGBA):
 //   u8        as is
 //   u16       round(v / 257)                       (exact: 0 -> 0, 65535 -> 255)
@@ -14,8 +17,8 @@
 //   2 channels (v, a)    -> (v, v, v, a)           (read as grey + alpha, whatever has_alpha says)
 //   3 channels (r, g, b) -> (r, g, b, 255)
 //   4 channels           -> as is
-// Float and 16-bit data textures (heights, normals) lose precision here: they need a float /
-// 16-bit page format, which is a later issue. The result equals storage::decode_tile's output
+// Float and 16-bit data textures (heights) lose precision in RGBA8: the r16, r16f and r32f page
+// formats keep them exactly. The RGBA8 result equals storage::decode_tile's output
 // converted with these rules, byte for byte (tests/transcode_test.cpp holds that reference).
 #include <cstddef>
 #include <cstdint>
@@ -31,9 +34,6 @@
 #include "tessera/storage/types.hpp"
 
 namespace tessera::client {
-
-// Tile kinds and codecs as plain integers, with the values of tessera.proto's TileKind and Codec
-// (what a TileReply carries).
 
 constexpr std::size_t kRgba8TexelBytes = 4;
 // Bytes of one RGBA8 page of `info`'s tiles.
@@ -62,6 +62,8 @@ private:
     std::unique_ptr<Impl> impl_;
     friend Status transcode_to_rgba8(const storage::StoreInfo&, TileKind, Codec,
                                      std::span<const std::uint8_t>, std::span<std::uint8_t>, Scratch&);
+    friend Status transcode_page(const storage::StoreInfo&, TileKind, Codec, std::span<const std::uint8_t>, PageFormat,
+                                 std::span<std::uint8_t>, Scratch&);
 };
 
 // Decodes one tile payload into `out` (exactly rgba8_page_bytes(info) bytes).
@@ -75,6 +77,19 @@ private:
 // match copies read back what they wrote), so write-combined mapped GL memory is a fair target.
 Status transcode_to_rgba8(const storage::StoreInfo& info, TileKind kind, Codec codec,
                           std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch);
+
+// Whether `info`'s pages can take `format`, and if not, why (invalid_argument, naming the format):
+//   rgba8        every store
+//   bc1          no alpha channel (BC1 is opaque here); tile_size a multiple of 4
+//   bc4          1 channel; tile_size a multiple of 4
+//   bc5          2 channels (value, alpha) or the first two of 3-4; tile_size a multiple of 4
+//   r16/r16f/r32f  1 channel of u16 / f16 / f32 samples
+Status check_page_format(const storage::StoreInfo& info, PageFormat format);
+
+// Decodes one tile payload into `out` (exactly page_bytes(format, info.tile_size()) bytes) in
+// `format`. Errors: those of check_page_format and transcode_to_rgba8.
+Status transcode_page(const storage::StoreInfo& info, TileKind kind, Codec codec, std::span<const std::uint8_t> payload,
+                      PageFormat format, std::span<std::uint8_t> out, Scratch& scratch);
 
 // ---------------------------------------------------------------------------------------------
 // TranscodePool: N owned worker threads, one bounded priority queue of jobs, one bounded queue of
@@ -96,8 +111,9 @@ struct TranscodeJob {
     std::shared_ptr<const storage::StoreInfo> info;
     TileKind kind = TileKind::present;
     Codec codec = Codec::raw;
+    PageFormat format = PageFormat::rgba8;
     std::shared_ptr<const std::vector<std::uint8_t>> payload;
-    std::span<std::uint8_t> destination;  // rgba8_page_bytes(*info) bytes of staging memory
+    std::span<std::uint8_t> destination;  // page_bytes(format, info->tile_size()) bytes of staging memory
     std::uint32_t priority = 0;           // higher first; equal priorities in submission order
 };
 

@@ -7,6 +7,8 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <optional>
+#include <string_view>
 
 #include "tessera/tile.hpp"
 
@@ -54,6 +56,37 @@ struct PageKeyHash {
         return static_cast<std::size_t>(h ^ (h >> 29));
     }
 };
+
+// How a page's texels sit in the physical pool (docs/client.md, "Page formats"). Block formats
+// (bc*) pack 4x4 texels per block, so their pages are a multiple of 4 texels per side.
+enum class PageFormat : std::uint8_t {
+    rgba8 = 0,  // 4 bytes per texel; every store (samples converted to 8 bits)
+    bc1 = 1,    // 0.5 byte per texel: opaque colour
+    bc4 = 2,    // 0.5 byte per texel: one channel (grey, height preview)
+    bc5 = 3,    // 1 byte per texel: two channels (normals' x and y, grey + alpha)
+    r16 = 4,    // 2 bytes per texel: a 1-channel u16 store, exactly
+    r16f = 5,   // 2 bytes per texel: a 1-channel f16 store, exactly
+    r32f = 6,   // 4 bytes per texel: a 1-channel f32 store, exactly
+};
+std::string_view to_string(PageFormat f);
+std::optional<PageFormat> parse_page_format(std::string_view s);
+constexpr bool is_block_compressed(PageFormat f) {
+    return f == PageFormat::bc1 || f == PageFormat::bc4 || f == PageFormat::bc5;
+}
+// Bytes of one page `tile_size` texels on a side (block formats: tile_size a multiple of 4).
+constexpr std::size_t page_bytes(PageFormat f, std::uint32_t tile_size) {
+    const std::size_t texels = std::size_t(tile_size) * tile_size;
+    switch (f) {
+        case PageFormat::rgba8: return texels * 4;
+        case PageFormat::bc1: return texels / 2;
+        case PageFormat::bc4: return texels / 2;
+        case PageFormat::bc5: return texels;
+        case PageFormat::r16: return texels * 2;
+        case PageFormat::r16f: return texels * 2;
+        case PageFormat::r32f: return texels * 4;
+    }
+    return 0;
+}
 
 // A slot of the physical page pool (the GPU page atlas), 0..pool_size-1.
 using SlotId = std::uint32_t;
