@@ -2,6 +2,7 @@
 
 #include <stb_dxt.h>
 
+#include <algorithm>
 #include <cstring>
 
 namespace tessera::client {
@@ -22,11 +23,70 @@ void for_each_block(const std::uint8_t* rgba, std::uint32_t size, Encode&& encod
         }
 }
 
+// One BC1 block the real-time way (J.M.P. van Waveren, "Real-Time DXT Compression", id Software,
+// 2006, the encoder behind RAGE's transcoding): the endpoints are the corners of the block's RGB
+// bounding box, inset by 1/16 of its extent; each texel takes the palette entry nearest to its
+// projection on the endpoint axis.
+void bc1_block_fast(const std::uint8_t* block, std::uint8_t* out) {
+    int lo[3] = {255, 255, 255}, hi[3] = {0, 0, 0};
+    for (int i = 0; i < 16; ++i)
+        for (int c = 0; c < 3; ++c) {
+            lo[c] = std::min<int>(lo[c], block[i * 4 + c]);
+            hi[c] = std::max<int>(hi[c], block[i * 4 + c]);
+        }
+    // The box's diagonal that follows the colours (I. Castano's refinement): a channel that falls
+    // while red rises (or, with red flat, while green rises) runs the other way.
+    const int mid[3] = {(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
+    int cov_rg = 0, cov_rb = 0, cov_gb = 0;
+    for (int i = 0; i < 16; ++i) {
+        const int r = block[i * 4] - mid[0], g = block[i * 4 + 1] - mid[1], b = block[i * 4 + 2] - mid[2];
+        cov_rg += r * g;
+        cov_rb += r * b;
+        cov_gb += g * b;
+    }
+    const bool red_flat = hi[0] == lo[0];
+    if (!red_flat && cov_rg < 0) std::swap(lo[1], hi[1]);
+    if ((red_flat ? cov_gb : cov_rb) < 0) std::swap(lo[2], hi[2]);
+    for (int c = 0; c < 3; ++c) {
+        const int inset = (hi[c] - lo[c]) / 16;  // signed: toward the middle either way
+        lo[c] += inset;
+        hi[c] -= inset;
+    }
+    const auto to565 = [](const int* v) {
+        return static_cast<std::uint16_t>(((v[0] >> 3) << 11) | ((v[1] >> 2) << 5) | (v[2] >> 3));
+    };
+    std::uint16_t c0 = to565(hi), c1 = to565(lo);
+    if (c0 < c1) std::swap(c0, c1);  // c0 > c1 selects BC1's four-colour mode
+    out[0] = static_cast<std::uint8_t>(c0);
+    out[1] = static_cast<std::uint8_t>(c0 >> 8);
+    out[2] = static_cast<std::uint8_t>(c1);
+    out[3] = static_cast<std::uint8_t>(c1 >> 8);
+    std::uint32_t indices = 0;
+    if (c0 != c1) {  // c0 > c1: the four-colour mode; equal endpoints keep every index 0
+        // The endpoints as the GPU expands them, and the axis from c1 to c0.
+        const int e0[3] = {(c0 >> 11) * 255 / 31, ((c0 >> 5) & 63) * 255 / 63, (c0 & 31) * 255 / 31};
+        const int e1[3] = {(c1 >> 11) * 255 / 31, ((c1 >> 5) & 63) * 255 / 63, (c1 & 31) * 255 / 31};
+        const int axis[3] = {e0[0] - e1[0], e0[1] - e1[1], e0[2] - e1[2]};
+        const int len2 = axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2];
+        const float scale = len2 > 0 ? 3.0f / float(len2) : 0.0f;
+        // Position 0..3 along the axis from c1 to c0 -> BC1 index (c1 = 1, 1/3 = 3, 2/3 = 2, c0 = 0).
+        constexpr std::uint32_t kIndexOf[4] = {1, 3, 2, 0};
+        for (int i = 0; i < 16; ++i) {
+            const int d = (block[i * 4] - e1[0]) * axis[0] + (block[i * 4 + 1] - e1[1]) * axis[1] +
+                          (block[i * 4 + 2] - e1[2]) * axis[2];
+            const int q = std::clamp(static_cast<int>(float(d) * scale + 0.5f), 0, 3);
+            indices |= kIndexOf[q] << (2 * i);
+        }
+    }
+    for (int i = 0; i < 4; ++i) out[4 + i] = static_cast<std::uint8_t>(indices >> (8 * i));
+}
+
 }  // namespace
 
-void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) {
+void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, Bc1Encoder encoder, std::uint8_t* out) {
     for_each_block(rgba, size, [&](const std::uint8_t* block) {
-        stb_compress_dxt_block(out, block, 0, STB_DXT_HIGHQUAL);
+        if (encoder == Bc1Encoder::fast) bc1_block_fast(block, out);
+        else stb_compress_dxt_block(out, block, 0, STB_DXT_HIGHQUAL);
         out += 8;
     });
 }

@@ -1,14 +1,19 @@
 #pragma once
 // Block compression of decoded pages on the transcode threads (the client-transcode route of
-// docs/client.md, "Page formats"): an RGBA8 page becomes BC1, BC4 or BC5 blocks with stb_dxt, a
-// published real-time encoder. Blocks are written row of blocks by row of blocks, each block's
+// docs/client.md, "Page formats"): an RGBA8 page becomes BC1, BC4 or BC5 blocks (BC1 by a
+// published real-time encoder, BC4/BC5 with stb_dxt). Blocks are written row of blocks by row of blocks, each block's
 // bytes as the GPU reads them (the layout glCompressedTexSubImage2D takes).
 #include <cstdint>
 
 namespace tessera::client {
 
+// BC1 encoders: `fast` is the real-time one the transcode threads use (bounding box with inset,
+// van Waveren 2006); `high` is stb_dxt's high-quality mode (principal axis and refinement), about
+// 4x slower, kept for comparison and for work that is not real time.
+enum class Bc1Encoder { fast, high };
+
 // `rgba` holds size x size RGBA8 texels (size a multiple of 4); `out` size*size/2 bytes.
-void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out);
+void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, Bc1Encoder encoder, std::uint8_t* out);
 // One channel (`channel` of each RGBA8 texel): size*size/2 bytes.
 void encode_bc4(const std::uint8_t* rgba, std::uint32_t size, unsigned channel, std::uint8_t* out);
 // Two channels (`c0`, `c1` of each RGBA8 texel): size*size bytes.

@@ -329,7 +329,7 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
         const std::span<std::uint8_t> rgba(s.rgba_buffer(rgba8_page_bytes(info)), rgba8_page_bytes(info));
         if (Status st = transcode_to_rgba8(info, kind, codec, payload, rgba, scratch); !st) return st;
         switch (format) {
-            case PageFormat::bc1: encode_bc1(rgba.data(), size, out.data()); break;
+            case PageFormat::bc1: encode_bc1(rgba.data(), size, Bc1Encoder::fast, out.data()); break;
             case PageFormat::bc4: encode_bc4(rgba.data(), size, 0, out.data()); break;
             // A 2-channel store's RGBA8 texel is (v, v, v, a): its channels are R and A.
             case PageFormat::bc5: encode_bc5(rgba.data(), size, 0, info.channels == 2 ? 3 : 1, out.data()); break;
