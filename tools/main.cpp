@@ -7,6 +7,15 @@
 
 #include "commands.hpp"
 
+#if defined(__SANITIZE_ADDRESS__)
+// AddressSanitizer builds (docs/reliability.md): a small quarantine, and freed memory given back to
+// the system promptly, so that the server's memory bounds measure memory in use rather than ASan's
+// holding area for freed blocks (256 MiB by default). ASAN_OPTIONS still overrides these.
+extern "C" const char* __asan_default_options() {
+    return "quarantine_size_mb=4:thread_local_quarantine_size_kb=64:allocator_release_to_os_interval_ms=50";
+}
+#endif
+
 int main(int argc, char** argv) {
     using namespace tessera::tools;
     // Big row and tile buffers come and go all the time; a fixed mmap threshold makes glibc hand

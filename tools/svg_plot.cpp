@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "atomic_file.hpp"
 #include "commands.hpp"
 
 namespace tessera::tools {
@@ -130,24 +131,7 @@ std::string render_svg(const Plot& p) {
 }
 
 void write_svg(const Plot& plot, const std::string& path) {
-    namespace fs = std::filesystem;
-    const fs::path target(path);
-    const fs::path temp = target.parent_path() / ("." + target.filename().string() + ".tmp");
-    {
-        std::ofstream out(temp, std::ios::binary | std::ios::trunc);
-        out << render_svg(plot);
-        if (!out) {
-            std::error_code ec;
-            fs::remove(temp, ec);
-            throw Failure(fmt::format("cannot write '{}'", path));
-        }
-    }
-    std::error_code ec;
-    fs::rename(temp, target, ec);
-    if (ec) {
-        fs::remove(temp, ec);
-        throw Failure(fmt::format("cannot write '{}': {}", path, ec.message()));
-    }
+    write_file_atomically(path, [&](std::ostream& out) { out << render_svg(plot); });
 }
 
 }  // namespace tessera::tools

@@ -15,6 +15,7 @@
 #include <sstream>
 #include <thread>
 
+#include "atomic_file.hpp"
 #include "commands.hpp"
 #include "png_write.hpp"
 #include "progress.hpp"
@@ -601,13 +602,10 @@ double ViewerReport::cache_hit_ratio() const {
 }
 
 void write_frame_stats(const ViewerReport& rep, const std::string& path) {
-    const fs::path target(path);
-    const fs::path temp = target.parent_path() / ("." + target.filename().string() + ".tmp");
-    const bool json = target.extension() == ".json";
+    const bool json = fs::path(path).extension() == ".json";
     const auto num = [](double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : std::string(""); };
     const auto jnum = [](double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : std::string("null"); };
-    {
-        std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+    write_file_atomically(path, [&](std::ostream& out) {
         if (json) out << "{\"renderer\": \"" << rep.renderer << "\", \"frames\": [\n";
         else
             out << "frame,time_s,frame_ms,pages_wanted,pages_resident,pages_requested,pages_uploaded,pages_evicted,"
@@ -637,15 +635,7 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
                                    f.connected ? 1 : 0, num(f.unserved_s));
         }
         if (json) out << "], \"summary\": " << rep.summary.to_json() << "}\n";
-        if (!out) {
-            std::error_code ec;
-            fs::remove(temp, ec);
-            throw Failure(fmt::format("cannot write '{}'", path));
-        }
-    }
-    std::error_code ec;
-    fs::rename(temp, target, ec);
-    if (ec) throw Failure(fmt::format("cannot write '{}': {}", path, ec.message()));
+    });
 }
 
 void write_fallback_plot(const ViewerReport& rep, const std::string& path, const std::string& title) {

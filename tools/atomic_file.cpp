@@ -1,0 +1,35 @@
+#include "atomic_file.hpp"
+
+#include <fmt/format.h>
+
+#include <filesystem>
+#include <fstream>
+#include <system_error>
+
+#include "commands.hpp"
+
+namespace tessera::tools {
+
+void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write) {
+    namespace fs = std::filesystem;
+    const fs::path target(path);
+    const fs::path temp = target.parent_path() / ("." + target.filename().string() + ".tmp");
+    {
+        std::ofstream out(temp, std::ios::binary | std::ios::trunc);
+        if (out) write(out);
+        if (!out) {
+            std::error_code ec;
+            fs::remove(temp, ec);
+            throw Failure(fmt::format("cannot write '{}'", path));
+        }
+    }
+    std::error_code ec;
+    fs::rename(temp, target, ec);
+    if (ec) {
+        const std::string why = ec.message();
+        fs::remove(temp, ec);
+        throw Failure(fmt::format("cannot write '{}': {}", path, why));
+    }
+}
+
+}  // namespace tessera::tools
