@@ -282,6 +282,9 @@ struct MetricsRegistry::Family {
     std::vector<double> bounds;       // histogram families: one set of bounds for every series
     std::map<Labels, Entry> metrics;  // keyed by canonical (name-sorted) labels: render order
 
+    // The series of `key`, added empty when there is none (the caller fills it).
+    Entry& series(Labels key) { return metrics.try_emplace(std::move(key)).first->second; }
+
     static const char* type_name(Type t) {
         switch (t) {
             case Type::counter: return "counter";
@@ -328,29 +331,18 @@ MetricsRegistry::Family& MetricsRegistry::family(const std::string& name, const 
 Counter& MetricsRegistry::counter(const std::string& name, const std::string& help, const Labels& labels) {
     Labels key = canonical_labels(labels, false);
     std::lock_guard lock(mutex_);
-    Family& f = family(name, help, Type::counter);
-    auto it = f.metrics.find(key);
-    if (it == f.metrics.end()) {
-        Family::Entry e;
-        e.counter = std::make_unique<Counter>();
-        it = f.metrics.emplace(std::move(key), std::move(e)).first;
-    }
-    return *it->second.counter;
+    Family::Entry& e = family(name, help, Type::counter).series(std::move(key));
+    if (!e.counter) e.counter = std::make_unique<Counter>();
+    return *e.counter;
 }
 
 Gauge& MetricsRegistry::gauge(const std::string& name, const std::string& help, const Labels& labels) {
     Labels key = canonical_labels(labels, false);
     std::lock_guard lock(mutex_);
-    Family& f = family(name, help, Type::gauge);
-    auto it = f.metrics.find(key);
-    if (it == f.metrics.end()) {
-        Family::Entry e;
-        e.gauge = std::make_unique<Gauge>();
-        it = f.metrics.emplace(std::move(key), std::move(e)).first;
-    }
-    if (!it->second.gauge)
-        throw std::invalid_argument("gauge \"" + name + "\" with these labels is already a callback gauge");
-    return *it->second.gauge;
+    Family::Entry& e = family(name, help, Type::gauge).series(std::move(key));
+    if (e.callback) throw std::invalid_argument("gauge \"" + name + "\" with these labels is already a callback gauge");
+    if (!e.gauge) e.gauge = std::make_unique<Gauge>();
+    return *e.gauge;
 }
 
 Histogram& MetricsRegistry::histogram(const std::string& name, const std::string& help, const Labels& labels,
@@ -362,13 +354,9 @@ Histogram& MetricsRegistry::histogram(const std::string& name, const std::string
     if (f.metrics.empty()) f.bounds = bounds;  // histogram families are never emptied: just created
     else if (f.bounds != bounds)
         throw std::invalid_argument("histogram \"" + name + "\" was registered with other bucket bounds");
-    auto it = f.metrics.find(key);
-    if (it == f.metrics.end()) {
-        Family::Entry e;
-        e.histogram = std::make_unique<Histogram>(std::move(bounds));
-        it = f.metrics.emplace(std::move(key), std::move(e)).first;
-    }
-    return *it->second.histogram;
+    Family::Entry& e = f.series(std::move(key));
+    if (!e.histogram) e.histogram = std::make_unique<Histogram>(std::move(bounds));
+    return *e.histogram;
 }
 
 void MetricsRegistry::gauge_callback(const std::string& name, const std::string& help, const Labels& labels,
@@ -376,17 +364,9 @@ void MetricsRegistry::gauge_callback(const std::string& name, const std::string&
     if (!read) throw std::invalid_argument("gauge callback \"" + name + "\" is empty");
     Labels key = canonical_labels(labels, false);
     std::lock_guard lock(mutex_);
-    Family& f = family(name, help, Type::gauge);
-    auto it = f.metrics.find(key);
-    if (it == f.metrics.end()) {
-        Family::Entry e;
-        e.callback = std::move(read);
-        f.metrics.emplace(std::move(key), std::move(e));
-    } else {
-        if (it->second.gauge)
-            throw std::invalid_argument("gauge \"" + name + "\" with these labels is already a plain gauge");
-        it->second.callback = std::move(read);  // registering again replaces the callback
-    }
+    Family::Entry& e = family(name, help, Type::gauge).series(std::move(key));
+    if (e.gauge) throw std::invalid_argument("gauge \"" + name + "\" with these labels is already a plain gauge");
+    e.callback = std::move(read);  // registering again replaces the callback
 }
 
 void MetricsRegistry::remove_callbacks(const std::string& name) {
