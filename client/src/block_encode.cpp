@@ -3,6 +3,7 @@
 #include <stb_dxt.h>
 
 #include <algorithm>
+#include <cstddef>
 #include <cstring>
 
 namespace tessera::client {
@@ -27,23 +28,29 @@ void for_each_block(const std::uint8_t* rgba, std::uint32_t size, Encode&& encod
 // 2006, the encoder behind RAGE's transcoding): the endpoints are the corners of the block's RGB
 // bounding box, inset by 1/16 of its extent; each texel takes the palette entry nearest to its
 // projection on the endpoint axis.
-void bc1_block_fast(const std::uint8_t* block, std::uint8_t* out) {
+void bc1_block_fast(const std::uint8_t* src, std::size_t row_bytes, std::uint8_t* out) {
+    // One pass: the channels split out (so the loops below vectorize), the box, and the sums the
+    // channels' covariances need.
+    int r[16], g[16], b[16];
     int lo[3] = {255, 255, 255}, hi[3] = {0, 0, 0};
-    for (int i = 0; i < 16; ++i)
-        for (int c = 0; c < 3; ++c) {
-            lo[c] = std::min<int>(lo[c], block[i * 4 + c]);
-            hi[c] = std::max<int>(hi[c], block[i * 4 + c]);
+    int sr = 0, sg = 0, sb = 0, srg = 0, srb = 0, sgb = 0;
+    for (int y = 0; y < 4; ++y)  // straight from the page's rows: no gathered copy
+        for (int x = 0; x < 4; ++x) {
+            const std::uint8_t* t = src + y * row_bytes + x * 4;
+            r[y * 4 + x] = t[0];
+            g[y * 4 + x] = t[1];
+            b[y * 4 + x] = t[2];
         }
-    // The box's diagonal that follows the colours (I. Castano's refinement): a channel that falls
-    // while red rises (or, with red flat, while green rises) runs the other way.
-    const int mid[3] = {(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2};
-    int cov_rg = 0, cov_rb = 0, cov_gb = 0;
     for (int i = 0; i < 16; ++i) {
-        const int r = block[i * 4] - mid[0], g = block[i * 4 + 1] - mid[1], b = block[i * 4 + 2] - mid[2];
-        cov_rg += r * g;
-        cov_rb += r * b;
-        cov_gb += g * b;
+        lo[0] = std::min(lo[0], r[i]), hi[0] = std::max(hi[0], r[i]);
+        lo[1] = std::min(lo[1], g[i]), hi[1] = std::max(hi[1], g[i]);
+        lo[2] = std::min(lo[2], b[i]), hi[2] = std::max(hi[2], b[i]);
+        sr += r[i], sg += g[i], sb += b[i];
+        srg += r[i] * g[i], srb += r[i] * b[i], sgb += g[i] * b[i];
     }
+    // The box's diagonal that follows the colours (I. Castano's refinement): a channel that falls
+    // while red rises (or, with red flat, while green rises) runs the other way. 16 x covariance:
+    const int cov_rg = 16 * srg - sr * sg, cov_rb = 16 * srb - sr * sb, cov_gb = 16 * sgb - sg * sb;
     const bool red_flat = hi[0] == lo[0];
     if (!red_flat && cov_rg < 0) std::swap(lo[1], hi[1]);
     if ((red_flat ? cov_gb : cov_rb) < 0) std::swap(lo[2], hi[2]);
@@ -69,14 +76,16 @@ void bc1_block_fast(const std::uint8_t* block, std::uint8_t* out) {
         const int axis[3] = {e0[0] - e1[0], e0[1] - e1[1], e0[2] - e1[2]};
         const int len2 = axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2];
         const float scale = len2 > 0 ? 3.0f / float(len2) : 0.0f;
-        // Position 0..3 along the axis from c1 to c0 -> BC1 index (c1 = 1, 1/3 = 3, 2/3 = 2, c0 = 0).
-        constexpr std::uint32_t kIndexOf[4] = {1, 3, 2, 0};
+        const int base = e1[0] * axis[0] + e1[1] * axis[1] + e1[2] * axis[2];
+        // Position 0..3 along the axis from c1 to c0, then the BC1 index of that position
+        // (c1 = 1, 1/3 = 3, 2/3 = 2, c0 = 0).
+        int q[16];
         for (int i = 0; i < 16; ++i) {
-            const int d = (block[i * 4] - e1[0]) * axis[0] + (block[i * 4 + 1] - e1[1]) * axis[1] +
-                          (block[i * 4 + 2] - e1[2]) * axis[2];
-            const int q = std::clamp(static_cast<int>(float(d) * scale + 0.5f), 0, 3);
-            indices |= kIndexOf[q] << (2 * i);
+            const int d = r[i] * axis[0] + g[i] * axis[1] + b[i] * axis[2] - base;
+            q[i] = std::min(3, std::max(0, static_cast<int>(float(d) * scale + 0.5f)));
         }
+        constexpr std::uint32_t kIndexOf[4] = {1, 3, 2, 0};
+        for (int i = 0; i < 16; ++i) indices |= kIndexOf[q[i]] << (2 * i);
     }
     for (int i = 0; i < 4; ++i) out[4 + i] = static_cast<std::uint8_t>(indices >> (8 * i));
 }
@@ -84,9 +93,15 @@ void bc1_block_fast(const std::uint8_t* block, std::uint8_t* out) {
 }  // namespace
 
 void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, Bc1Encoder encoder, std::uint8_t* out) {
+    if (encoder == Bc1Encoder::fast) {
+        const std::size_t row_bytes = std::size_t(size) * 4;
+        for (std::uint32_t by = 0; by < size; by += 4)
+            for (std::uint32_t bx = 0; bx < size; bx += 4, out += 8)
+                bc1_block_fast(rgba + by * row_bytes + std::size_t(bx) * 4, row_bytes, out);
+        return;
+    }
     for_each_block(rgba, size, [&](const std::uint8_t* block) {
-        if (encoder == Bc1Encoder::fast) bc1_block_fast(block, out);
-        else stb_compress_dxt_block(out, block, 0, STB_DXT_HIGHQUAL);
+        stb_compress_dxt_block(out, block, 0, STB_DXT_HIGHQUAL);
         out += 8;
     });
 }
