@@ -7,13 +7,10 @@
 
 namespace tessera::client {
 
-// BC1 encoders: `fast` is the real-time one the transcode threads use (bounding box with inset,
-// van Waveren 2006); `high` is stb_dxt's high-quality mode (principal axis and refinement), about
-// 4x slower, kept for comparison and for work that is not real time.
-enum class Bc1Encoder { fast, high };
-
-// `rgba` holds size x size RGBA8 texels (size a multiple of 4); `out` size*size/2 bytes.
-void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, Bc1Encoder encoder, std::uint8_t* out);
+// `rgba` holds size x size RGBA8 texels (size a multiple of 4); `out` size*size/2 bytes. Real time:
+// bounding box with inset (van Waveren 2006); stb_dxt's high-quality mode is 2x slower per page
+// (docs/benchmarks.md, "JPEG -> BC1 pages").
+void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out);
 // One channel (`channel` of each RGBA8 texel): size*size/2 bytes.
 void encode_bc4(const std::uint8_t* rgba, std::uint32_t size, unsigned channel, std::uint8_t* out);
 // Two channels (`c0`, `c1` of each RGBA8 texel): size*size bytes.

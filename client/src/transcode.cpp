@@ -217,6 +217,22 @@ Status decode_jpeg(const StoreInfo& info, std::span<const std::uint8_t> payload,
 
 }  // namespace
 
+namespace {
+
+// A zstd tile decompressed into `dst` (scratch, never the destination: zstd reads back what it
+// wrote (matches), which would crawl on write-combined staging memory).
+Status decompress_zstd_tile(ZSTD_DCtx* ctx, std::span<const std::uint8_t> payload, std::uint8_t* dst,
+                            std::size_t tile_bytes) {
+    if (ZSTD_getFrameContentSize(payload.data(), payload.size()) != tile_bytes)
+        return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
+    if (!ctx) return make_error(Errc::resource_exhausted, "cannot create a zstd context");
+    const std::size_t r = ZSTD_decompressDCtx(ctx, dst, tile_bytes, payload.data(), payload.size());
+    if (ZSTD_isError(r) || r != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not decode");
+    return {};
+}
+
+}  // namespace
+
 Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
                           std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch) {
     if (info.channels < 1 || info.channels > 4) return make_error(Errc::invalid_argument, "store has 1..4 channels");
@@ -251,15 +267,8 @@ Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
             convert_samples(info, payload.data(), out.data(), texels);
             return {};
         case Codec::zstd: {
-            const unsigned long long content = ZSTD_getFrameContentSize(payload.data(), payload.size());
-            if (content != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
-            ZSTD_DCtx* ctx = s.zstd_context();
-            if (!ctx) return make_error(Errc::resource_exhausted, "cannot create a zstd context");
-            // Decompressed into scratch, never into the destination: zstd reads back what it wrote
-            // (matches), which would crawl on write-combined staging memory.
             std::uint8_t* buf = s.sample_buffer(tile_bytes);
-            const std::size_t r = ZSTD_decompressDCtx(ctx, buf, tile_bytes, payload.data(), payload.size());
-            if (ZSTD_isError(r) || r != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not decode");
+            if (Status st = decompress_zstd_tile(s.zstd_context(), payload, buf, tile_bytes); !st) return st;
             convert_samples(info, buf, out.data(), texels);
             return {};
         }
@@ -329,7 +338,7 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
         const std::span<std::uint8_t> rgba(s.rgba_buffer(rgba8_page_bytes(info)), rgba8_page_bytes(info));
         if (Status st = transcode_to_rgba8(info, kind, codec, payload, rgba, scratch); !st) return st;
         switch (format) {
-            case PageFormat::bc1: encode_bc1(rgba.data(), size, Bc1Encoder::fast, out.data()); break;
+            case PageFormat::bc1: encode_bc1(rgba.data(), size, out.data()); break;
             case PageFormat::bc4: encode_bc4(rgba.data(), size, 0, out.data()); break;
             // A 2-channel store's RGBA8 texel is (v, v, v, a): its channels are R and A.
             case PageFormat::bc5: encode_bc5(rgba.data(), size, 0, info.channels == 2 ? 3 : 1, out.data()); break;
@@ -354,12 +363,9 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
             std::memcpy(out.data(), payload.data(), tile_bytes);
             return {};
         case Codec::zstd: {
-            if (ZSTD_getFrameContentSize(payload.data(), payload.size()) != tile_bytes)
-                return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
-            ZSTD_DCtx* ctx = s.zstd_context();
-            if (!ctx) return make_error(Errc::resource_exhausted, "cannot create a zstd context");
-            const std::size_t r = ZSTD_decompressDCtx(ctx, out.data(), tile_bytes, payload.data(), payload.size());
-            if (ZSTD_isError(r) || r != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not decode");
+            std::uint8_t* buf = s.sample_buffer(tile_bytes);
+            if (Status st = decompress_zstd_tile(s.zstd_context(), payload, buf, tile_bytes); !st) return st;
+            std::memcpy(out.data(), buf, tile_bytes);
             return {};
         }
         case Codec::jpeg: return make_error(Errc::corrupt, "JPEG tiles hold 8-bit samples, not " + std::string(to_string(format)));

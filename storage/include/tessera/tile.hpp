@@ -45,18 +45,11 @@ struct TileKey {
     TileKey parent() const { return TileKey{level + 1, x >> 1, y >> 1}; }
 };
 
-// A key packed into 64 bits for hashing and maps: level (6 bits) | y (29 bits) | x (29 bits).
+// A key packed into 64 bits for maps: level (6 bits) | y (29 bits) | x (29 bits).
 // Levels < 64 and coordinates < 2^29 tiles per axis (2^37 texels at 256-texel tiles) fit.
 constexpr std::uint64_t pack_key(const TileKey& k) {
     return (std::uint64_t(k.level) << 58) | (std::uint64_t(k.y & 0x1FFFFFFFu) << 29) | (k.x & 0x1FFFFFFFu);
 }
-
-struct TileKeyHash {
-    std::size_t operator()(const TileKey& k) const noexcept {
-        const std::uint64_t h = pack_key(k) * 0x9E3779B97F4A7C15ull;
-        return static_cast<std::size_t>(h ^ (h >> 29));
-    }
-};
 
 // What a tile holds, as a store read, a reply or a cache entry carries it. `codec` means something
 // only for present tiles. `checksum` is XXH3-64 of `payload` as the store holds it (0: none given).
