@@ -1,6 +1,6 @@
 #pragma once
-// PNG output for the viewer's frames (OpenImageIO), kept apart: OpenImageIO's headers and
-// protobuf's (through the gRPC source) do not mix in one translation unit.
+// PNG output for the viewer's frames (stb_image_write, so the command line needs no OpenImageIO:
+// that lives in the builder's module, loaded on demand).
 #include <cstdint>
 #include <string>
 #include <vector>

@@ -1,4 +1,4 @@
-// GL 4.5 core contexts: headless through EGL (surfaceless platform) or a GLFW window. libepoxy
+// GL 4.5 core contexts: headless through EGL (surfaceless or device platform) or a GLFW window. libepoxy
 // resolves GL and EGL entry points at run time; libEGL is probed with dlopen first, since epoxy
 // aborts the process when it cannot load a library it needs.
 #include "tessera/client/gl/context.hpp"
@@ -9,6 +9,8 @@
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 #include <fmt/format.h>
+
+#include <vector>
 
 namespace tessera::client::gl {
 
@@ -75,6 +77,51 @@ std::string glfw_error() {
     return code == GLFW_NO_ERROR ? std::string("unknown GLFW error") : fmt::format("{} (GLFW 0x{:x})", desc ? desc : "", code);
 }
 
+// The EGL displays worth trying, best first: Mesa's surfaceless platform (llvmpipe or a Mesa GPU
+// driver, no window system), then each GPU the device platform lists (NVIDIA's driver offers
+// that, not always surfaceless), then the default display.
+std::vector<EGLDisplay> candidate_displays() {
+    std::vector<EGLDisplay> out;
+    if (!epoxy_has_egl_extension(EGL_NO_DISPLAY, "EGL_EXT_platform_base")) return {eglGetDisplay(EGL_DEFAULT_DISPLAY)};
+    if (epoxy_has_egl_extension(EGL_NO_DISPLAY, "EGL_MESA_platform_surfaceless"))
+        out.push_back(eglGetPlatformDisplayEXT(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr));
+    if (epoxy_has_egl_extension(EGL_NO_DISPLAY, "EGL_EXT_platform_device") &&
+        epoxy_has_egl_extension(EGL_NO_DISPLAY, "EGL_EXT_device_enumeration")) {
+        EGLDeviceEXT devices[16];
+        EGLint count = 0;
+        if (eglQueryDevicesEXT(16, devices, &count))
+            for (EGLint i = 0; i < count; ++i) out.push_back(eglGetPlatformDisplayEXT(EGL_PLATFORM_DEVICE_EXT, devices[i], nullptr));
+    }
+    out.push_back(eglGetDisplay(EGL_DEFAULT_DISPLAY));
+    return out;
+}
+
+// A GL 4.5 core context on `display`, current without a surface, or why not.
+Result<EGLContext> core_context_on(EGLDisplay display) {
+    if (display == EGL_NO_DISPLAY) return Error{Errc::unsupported, "no EGL display"};
+    EGLint major = 0, minor = 0;
+    if (!eglInitialize(display, &major, &minor)) return Error{Errc::unsupported, egl_error("eglInitialize")};
+    if (!eglBindAPI(EGL_OPENGL_API)) return Error{Errc::unsupported, egl_error("eglBindAPI(EGL_OPENGL_API)")};
+    const EGLint config_attribs[] = {EGL_SURFACE_TYPE, EGL_PBUFFER_BIT, EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT, EGL_NONE};
+    EGLConfig config = nullptr;
+    EGLint configs = 0;
+    if (!eglChooseConfig(display, config_attribs, &config, 1, &configs) || configs < 1) {
+        const EGLint any_surface[] = {EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT, EGL_NONE};
+        if (!eglChooseConfig(display, any_surface, &config, 1, &configs) || configs < 1)
+            return Error{Errc::unsupported, "no EGL config with desktop OpenGL"};
+    }
+    const EGLint context_attribs[] = {EGL_CONTEXT_MAJOR_VERSION, 4, EGL_CONTEXT_MINOR_VERSION, 5,
+                                      EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
+    EGLContext context = eglCreateContext(display, config, EGL_NO_CONTEXT, context_attribs);
+    if (context == EGL_NO_CONTEXT) return Error{Errc::unsupported, egl_error("eglCreateContext (OpenGL 4.5 core)")};
+    if (!eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, context)) {
+        std::string message = egl_error("eglMakeCurrent without a surface (EGL_KHR_surfaceless_context)");
+        eglDestroyContext(display, context);
+        return Error{Errc::unsupported, std::move(message)};
+    }
+    return context;
+}
+
 }  // namespace
 
 Result<std::unique_ptr<GlContext>> GlContext::create_headless() {
@@ -83,38 +130,20 @@ Result<std::unique_ptr<GlContext>> GlContext::create_headless() {
     if (!lib) return Error{Errc::unsupported, "headless GL: libEGL.so.1 not found (install libegl1 and Mesa's libegl-mesa0)"};
     ::dlclose(lib);
 
-    EGLDisplay display = EGL_NO_DISPLAY;
-    if (epoxy_has_egl_extension(EGL_NO_DISPLAY, "EGL_EXT_platform_base") &&
-        epoxy_has_egl_extension(EGL_NO_DISPLAY, "EGL_MESA_platform_surfaceless"))
-        display = eglGetPlatformDisplayEXT(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr);
-    if (display == EGL_NO_DISPLAY) display = eglGetDisplay(EGL_DEFAULT_DISPLAY);
-    if (display == EGL_NO_DISPLAY) return Error{Errc::unsupported, "headless GL: no EGL display"};
-    EGLint major = 0, minor = 0;
-    if (!eglInitialize(display, &major, &minor)) return Error{Errc::unsupported, "headless GL: " + egl_error("eglInitialize")};
-    const auto fail = [&](std::string message) -> Result<std::unique_ptr<GlContext>> {
-        return Error{Errc::unsupported, "headless GL: " + message};
-    };
-    if (!eglBindAPI(EGL_OPENGL_API)) return fail(egl_error("eglBindAPI(EGL_OPENGL_API)"));
-    const EGLint config_attribs[] = {EGL_SURFACE_TYPE, EGL_PBUFFER_BIT, EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT, EGL_NONE};
-    EGLConfig config = nullptr;
-    EGLint configs = 0;
-    if (!eglChooseConfig(display, config_attribs, &config, 1, &configs) || configs < 1) {
-        const EGLint any_surface[] = {EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT, EGL_NONE};
-        if (!eglChooseConfig(display, any_surface, &config, 1, &configs) || configs < 1)
-            return fail("no EGL config with desktop OpenGL");
+    std::string why_not;
+    for (EGLDisplay display : candidate_displays()) {
+        Result<EGLContext> context = core_context_on(display);
+        if (!context) {
+            // The first display's reason is the one worth reporting: later ones are fallbacks.
+            if (why_not.empty()) why_not = context.error().message;
+            continue;
+        }
+        auto ctx = std::make_unique<HeadlessContext>(display, *context);
+        if (Status st = check_version("headless GL"); !st) return st.error();
+        ctx->set_renderer(gl_description());
+        return std::unique_ptr<GlContext>(std::move(ctx));
     }
-    const EGLint context_attribs[] = {EGL_CONTEXT_MAJOR_VERSION, 4, EGL_CONTEXT_MINOR_VERSION, 5,
-                                      EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
-    EGLContext context = eglCreateContext(display, config, EGL_NO_CONTEXT, context_attribs);
-    if (context == EGL_NO_CONTEXT) return fail(egl_error("eglCreateContext (OpenGL 4.5 core)"));
-    if (!eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, context)) {
-        eglDestroyContext(display, context);
-        return fail(egl_error("eglMakeCurrent without a surface (EGL_KHR_surfaceless_context)"));
-    }
-    auto ctx = std::make_unique<HeadlessContext>(display, context);
-    if (Status st = check_version("headless GL"); !st) return st.error();
-    ctx->set_renderer(gl_description());
-    return std::unique_ptr<GlContext>(std::move(ctx));
+    return Error{Errc::unsupported, "headless GL: " + (why_not.empty() ? std::string("no EGL display") : why_not)};
 }
 
 Result<std::unique_ptr<GlContext>> GlContext::create_window(int width, int height, const std::string& title) {
