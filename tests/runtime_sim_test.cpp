@@ -8,6 +8,7 @@
 #include <deque>
 #include <map>
 #include <set>
+#include <vector>
 
 #include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/runtime.hpp"
@@ -147,12 +148,14 @@ protected:
         return out;
     }
 
-    static std::unique_ptr<Runtime> make(std::uint32_t pool, FakeUploader& up, DelayedSource& src) {
+    static std::unique_ptr<Runtime> make(std::uint32_t pool, FakeUploader& up, DelayedSource& src,
+                                         std::uint32_t keep_unwanted_frames = 8) {
         RuntimeConfig c;
         c.residency.pool_slots = pool;
         c.transcode_threads = 0;  // deterministic
         c.ram_cache_bytes = 0;    // every page comes from the source
         c.upload_pages_per_frame = 8;
+        c.keep_unwanted_frames = keep_unwanted_frames;
         auto rt = Runtime::create(c, up);
         EXPECT_TRUE(rt.ok());
         auto id = (*rt)->add_texture(src, "terrain");
@@ -304,13 +307,14 @@ TEST_F(RuntimeSim, DeterministicForTheSameScript) {
 namespace {
 
 // What the runtime skips when a request stops being wanted, counted by stage (docs/visibility.md).
+// No grace window here: a page is unwanted in the first frame that does not see it.
 TEST_F(RuntimeSim, CountsCancellationsByStage) {
     const auto empty = std::vector<FeedbackId>(160 * 90, kNoPage);
     auto view = [&](Runtime& rt) { return feedback(*rt.texture_info(0), 160, 90, 4000, 4000, 2, 0); };
     {  // Withdrawn while waiting on the source (latency 5 frames): all cancelled before arrival.
         FakeUploader up;
         DelayedSource src(path_, 5);
-        auto rt = make(1024, up, src);
+        auto rt = make(1024, up, src, /*keep_unwanted_frames=*/0);
         src.tick();
         const std::uint32_t requested = rt->frame(view(*rt), 160, 90, 0).pages_requested;
         ASSERT_GT(requested, 0u);
@@ -332,7 +336,7 @@ TEST_F(RuntimeSim, CountsCancellationsByStage) {
     {  // The same with a source that serves withdrawn requests anyway: the I/O was not saved.
         FakeUploader up;
         DelayedSource src(path_, 5, /*ignore_cancel=*/true);
-        auto rt = make(1024, up, src);
+        auto rt = make(1024, up, src, /*keep_unwanted_frames=*/0);
         src.tick();
         const std::uint32_t requested = rt->frame(view(*rt), 160, 90, 0).pages_requested;
         for (int f = 0; f < 10; ++f) {
@@ -346,7 +350,7 @@ TEST_F(RuntimeSim, CountsCancellationsByStage) {
     {  // Withdrawn in the frame the data arrived (latency 1): never decoded.
         FakeUploader up;
         DelayedSource src(path_, 1);
-        auto rt = make(1024, up, src);
+        auto rt = make(1024, up, src, /*keep_unwanted_frames=*/0);
         src.tick();
         const std::uint32_t requested = rt->frame(view(*rt), 160, 90, 0).pages_requested;
         src.tick();
@@ -357,6 +361,60 @@ TEST_F(RuntimeSim, CountsCancellationsByStage) {
         EXPECT_EQ(s.pages_uploaded, 0u);
         EXPECT_EQ(rt->summary().decodes_dropped(), 0u);  // synchronous decoding: no pool to drop in
     }
+}
+
+}  // namespace
+
+namespace {
+
+// Jittered feedback sees a small page only now and then, and a GPU renders many frames while one
+// request is in flight: a page seen every fourth frame must still arrive, not be cancelled in
+// each frame that misses it (which starved a fast GPU of small pages).
+TEST_F(RuntimeSim, PagesSeenNowAndThenAreNotCancelledWithinTheGraceWindow) {
+    const auto empty = std::vector<FeedbackId>(160 * 90, kNoPage);
+    auto intermittent = [&](std::uint32_t keep_frames) {
+        FakeUploader up;
+        DelayedSource src(path_, 6);  // served six frames after the request
+        auto rt = make(1024, up, src, keep_frames);
+        const auto ids = feedback(*rt->texture_info(0), 160, 90, 4000, 4000, 2, 0);
+        std::uint32_t requested = 0;
+        for (unsigned f = 0; f < 60; ++f) {
+            src.tick();
+            requested += rt->frame(f % 4 == 0 ? ids : empty, 160, 90, 0).pages_requested;
+        }
+        return std::make_tuple(requested, rt->summary().cancelled_waiting(), up.pages().size());
+    };
+    const auto [requested, cancelled, uploaded] = intermittent(8);
+    ASSERT_GT(requested, 8u);
+    EXPECT_EQ(cancelled, 0u);
+    EXPECT_EQ(uploaded, requested) << "every page requested was delivered";
+
+    // Without the window every request is withdrawn the frame after it was made, again and again.
+    const auto [requested0, cancelled0, uploaded0] = intermittent(0);
+    EXPECT_GT(requested0, 8u);
+    EXPECT_EQ(cancelled0, requested0);
+    EXPECT_EQ(uploaded0, 0u);
+}
+
+// The window ends: a page unseen for more than its frames is given up.
+TEST_F(RuntimeSim, PagesUnseenForLongerThanTheGraceWindowAreCancelled) {
+    const auto empty = std::vector<FeedbackId>(160 * 90, kNoPage);
+    FakeUploader up;
+    DelayedSource src(path_, 1000);  // never served within this test
+    auto rt = make(1024, up, src, /*keep_unwanted_frames=*/8);
+    src.tick();
+    const std::uint32_t requested = rt->frame(feedback(*rt->texture_info(0), 160, 90, 4000, 4000, 2, 0), 160, 90, 0).pages_requested;
+    ASSERT_GT(requested, 0u);
+    for (int f = 0; f < 8; ++f) {
+        src.tick();
+        rt->frame(empty, 160, 90, 0);
+    }
+    EXPECT_EQ(rt->summary().cancelled_waiting(), 0u) << "unseen for 8 frames: still wanted";
+    EXPECT_EQ(rt->in_flight(), requested);
+    src.tick();
+    rt->frame(empty, 160, 90, 0);
+    EXPECT_EQ(rt->summary().cancelled_waiting(), requested) << "unseen for 9 frames: given up";
+    EXPECT_EQ(rt->in_flight(), 0u);
 }
 
 }  // namespace

@@ -169,6 +169,7 @@ public:
             }
             rank -= 1;
         }
+        keep_recently_wanted();
         stats_.pages_wanted = static_cast<std::uint32_t>(wanted.size());
         stats_.fallback_estimate = pixels ? float(double(fallback_pixels) / double(pixels)) : 0.0f;
 
@@ -302,6 +303,30 @@ private:
                 if (disk_) disk_->put(id, shared);
                 arrived(r.page, it->second, std::move(shared));
             }
+        }
+    }
+
+    // Pages the feedback saw lately but not in this frame stay wanted for a grace window of
+    // frames: jittered feedback sees a small page only in some frames, and cancelling its request
+    // at the first frame without it would cancel it again and again before it arrives. Carried
+    // pages rank below every page of this frame's feedback, the longest unseen last.
+    void keep_recently_wanted() {
+        for (const auto& [key, rank] : desired_) last_seen_[key] = frame_no_;
+        // Bounded like the feedback itself: past that many pages, only this frame's are kept.
+        const bool over_bound = last_seen_.size() > config_.max_feedback_pages;
+        for (auto it = last_seen_.begin(); it != last_seen_.end();) {
+            const std::uint64_t unseen = frame_no_ - it->second;
+            if (unseen == 0) {
+                ++it;
+                continue;
+            }
+            if (over_bound || unseen > config_.keep_unwanted_frames || residency_.is_resident(it->first) ||
+                absent_.contains(it->first)) {
+                it = last_seen_.erase(it);
+                continue;
+            }
+            desired_.emplace(it->first, -static_cast<float>(unseen));
+            ++it;
         }
     }
 
@@ -566,6 +591,7 @@ private:
     std::uint64_t frame_no_ = 0;
     std::uint64_t next_ticket_ = 1;
     std::unordered_map<PageKey, float, PageKeyHash> desired_;
+    std::unordered_map<PageKey, std::uint64_t, PageKeyHash> last_seen_;  // wanted, not resident: frame last seen
     std::unordered_map<PageKey, Work, PageKeyHash> work_;
     std::unordered_map<std::uint64_t, PageKey> tickets_;
     std::unordered_set<PageKey, PageKeyHash> absent_;

@@ -56,6 +56,11 @@ struct RuntimeConfig {
     std::size_t upload_bytes_per_frame = 16u << 20;
     LodBiasConfig bias;
     std::size_t max_feedback_pages = 1 << 16;
+    // A page the feedback stops seeing stays wanted (its request alive) until it was unseen for
+    // more than this many frames: jittered feedback sees small pages only in some frames
+    // (docs/client.md, "Cancellation"). Counted in frames, not time: an unpaced run moves its
+    // camera per frame, however fast the frames come.
+    std::uint32_t keep_unwanted_frames = 8;
 };
 
 class Runtime {
