@@ -31,6 +31,7 @@ Command add_demo(CLI::App& app) {
         std::uint32_t pool = 2048;
         float prefetch_lod = 0.3f;
         float guard_band = 0.1f;
+        bool no_pace = false;
     };
     auto a = std::make_shared<Args>();
     CLI::App* c = app.add_subcommand("demo", "Build the procedural demo store (if missing), verify it and summarise it");
@@ -45,6 +46,8 @@ Command add_demo(CLI::App& app) {
     c->add_option("--pool", a->pool, "physical pages in the GPU pool")->capture_default_str();
     c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
     c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
+    c->add_flag("--no-pace", a->no_pace,
+                "render as fast as the GPU can (default: each frame held to 1/60 s of wall time, as a display would)");
     return [a]() -> int {
         namespace fs = std::filesystem;
         std::error_code ec;
@@ -108,10 +111,14 @@ Command add_demo(CLI::App& app) {
         vo.psnr_every = a->psnr_every;
         vo.prefetch_lod = a->prefetch_lod;
         vo.guard_band = a->guard_band;
+        // Paced like a 60 Hz display: unpaced, a GPU renders the 60-frames-per-second path many
+        // times faster than tiles can arrive, which no viewer on a screen would do.
+        vo.pace = !a->no_pace;
         vo.out_dir = (fs::path(a->dir) / "frames").string();
         vo.stats_file = (fs::path(a->dir) / "frames.csv").string();
         vo.trace_file = (fs::path(a->dir) / (a->path + ".trace")).string();
-        fmt::print("viewer     headless {}x{}, path {}, pool {} pages\n", w, h, a->path, a->pool);
+        fmt::print("viewer     headless {}x{}, path {}, pool {} pages, {}\n", w, h, a->path, a->pool,
+                   vo.pace ? "paced to 60 Hz" : "unpaced");
         std::fflush(stdout);
         const auto view = run_viewer(vo);
         (*srv)->shutdown();

@@ -387,19 +387,24 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         const scene::Camera first = path->at(0);
         const auto w0 = Clock::now();
         std::vector<client::gl::FrameCounters> wc;
-        std::uint64_t last_clean = 0;
+        // Done at clean counters for a frame rendered after the pipeline went idle. Counters come
+        // back frames late (more of them the faster the GPU), so the test is on the frame they
+        // belong to, not on how recent they are.
+        std::uint64_t idle_from = 0;  // first frame rendered with nothing in flight; 0: busy
         for (;;) {
             watch_link(Clock::now());
             const std::uint64_t rf = r.render(first, rt.lod_bias());
             if (r.poll_feedback(fb)) rt.frame(fb.ids, fb.width, fb.height, fb.bias);
             else rt.frame_without_feedback();
             ++rep.warmup_frames;
+            if (rt.in_flight() > 0) idle_from = 0;
+            else if (idle_from == 0) idle_from = rf + 1;  // this frame's uploads show from the next one
             wc.clear();
             r.poll_counters(wc);
-            for (const auto& c : wc)
-                if (c.textured_pixels > 0 && c.fallback_unbiased == 0) last_clean = std::max(last_clean, c.frame);
-            // Clean counters for a frame rendered after the pipeline went idle: done.
-            if (rt.in_flight() == 0 && last_clean > 0 && last_clean + 1 >= rf) {
+            const bool clean_since_idle = idle_from > 0 && std::any_of(wc.begin(), wc.end(), [&](const auto& c) {
+                return c.frame >= idle_from && c.textured_pixels > 0 && c.fallback_unbiased == 0;
+            });
+            if (clean_since_idle) {
                 rep.warmup_complete = true;
                 break;
             }
