@@ -7,7 +7,8 @@
 #
 # Run as a script (cmake -DFUZZER=... -P run_fuzzers.cmake): the test. Makes a fresh corpus
 # directory from make_fuzz_corpus's seeds (the fuzzer adds inputs to it, so it lives in the build
-# tree), runs every file of REGRESSIONS_DIR once, then fuzzes for FUZZ_SECONDS. Fails on any crash,
+# tree) plus the inputs in CORPUS_ARCHIVE (optional), runs every file of REGRESSIONS_DIR once,
+# then fuzzes for FUZZ_SECONDS. Fails on any crash,
 # leak, sanitizer report or timeout; the offending input is left in WORK_DIR/artifacts/.
 
 if(CMAKE_SCRIPT_MODE_FILE)
@@ -27,6 +28,10 @@ if(CMAKE_SCRIPT_MODE_FILE)
   execute_process(COMMAND "${CORPUS_GEN}" "${WORK_DIR}/corpus" RESULT_VARIABLE rc)
   if(NOT rc EQUAL 0)
     message(FATAL_ERROR "${CORPUS_GEN} failed (${rc})")
+  endif()
+  # What long runs found beyond the generated seeds (merged with -merge=1, docs/reliability.md).
+  if(DEFINED CORPUS_ARCHIVE AND EXISTS "${CORPUS_ARCHIVE}")
+    file(ARCHIVE_EXTRACT INPUT "${CORPUS_ARCHIVE}" DESTINATION "${WORK_DIR}/corpus")
   endif()
   set(options -rss_limit_mb=2048 -timeout=10 "-artifact_prefix=${WORK_DIR}/artifacts/")
   file(GLOB regressions LIST_DIRECTORIES false "${REGRESSIONS_DIR}/*")
@@ -101,6 +106,7 @@ add_test(NAME server_request_fuzz
     -DCORPUS_GEN=${TESSERA_FUZZ_BUILD_DIR}/fuzz/make_server_fuzz_corpus
     -DWORK_DIR=${CMAKE_BINARY_DIR}/fuzz-run/server_request_fuzz
     -DREGRESSIONS_DIR=${CMAKE_CURRENT_LIST_DIR}/regressions-server
+    -DCORPUS_ARCHIVE=${CMAKE_CURRENT_LIST_DIR}/corpus/server_request.tar.zst
     -DFUZZ_SECONDS=30
     -P ${CMAKE_CURRENT_LIST_FILE})
 set_tests_properties(server_request_fuzz PROPERTIES TIMEOUT 300 LABELS fuzz)
