@@ -96,6 +96,7 @@ add_test(NAME store_reader_fuzz
     -DCORPUS_GEN=${TESSERA_FUZZ_BUILD_DIR}/fuzz/make_fuzz_corpus
     -DWORK_DIR=${CMAKE_BINARY_DIR}/fuzz-run/store_reader_fuzz
     -DREGRESSIONS_DIR=${CMAKE_CURRENT_LIST_DIR}/regressions
+    -DCORPUS_ARCHIVE=${CMAKE_CURRENT_LIST_DIR}/corpus/store_reader.tar.zst
     -DFUZZ_SECONDS=30
     -P ${CMAKE_CURRENT_LIST_FILE})
 set_tests_properties(store_reader_fuzz PROPERTIES TIMEOUT 300 LABELS fuzz)
