@@ -15,6 +15,7 @@
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
 #include "test_util.hpp"
+#include "block_decode.hpp"
 #include "transcode.hpp"
 
 namespace {
@@ -224,6 +225,65 @@ TEST(PageFormat, SixteenBitAndFloatPagesAreTheStoredSamplesExactly) {
         const Status jpeg = transcode_page(info, TileKind::present, Codec::jpeg, samples, format, out, scratch);
         EXPECT_FALSE(jpeg.ok());
     }
+}
+
+}  // namespace
+
+namespace {
+
+// The block decoder the reference images use (block_decode.hpp) agrees with libsquish on BC1,
+// and a page's second level (transcode_page's second_level) is its 2x2 means, block-encoded:
+// linear-light means for an sRGB store, plain means for a linear one.
+TEST(PageFormat, SecondLevelIsTheBlockEncodedTwoByTwoMeans) {
+    Scratch scratch;
+    const std::uint32_t size = 256, half = size / 2;
+    std::mt19937 rng(11);
+    std::vector<std::uint8_t> rgb(std::size_t(size) * size * 3);
+    for (std::uint32_t y = 0; y < size; ++y)
+        for (std::uint32_t x = 0; x < size; ++x)
+            for (int c = 0; c < 3; ++c)
+                rgb[(std::size_t(y) * size + x) * 3 + std::size_t(c)] =
+                    static_cast<std::uint8_t>(128 + 90 * std::sin(x * 0.03 + c) * std::cos(y * 0.02) + int(rng() % 9) - 4);
+    for (const bool srgb : {true, false}) {
+        StoreInfo info = info_of(3, SampleType::u8, size);
+        info.colour_space = srgb ? storage::ColourSpace::srgb : storage::ColourSpace::linear;
+        std::vector<std::uint8_t> rgba(page_bytes(PageFormat::rgba8, size));
+        std::vector<std::uint8_t> both(page_upload_bytes(PageFormat::bc1, size, true));
+        ASSERT_TRUE(transcode_page(info, TileKind::present, Codec::raw, rgb, PageFormat::rgba8, rgba, scratch).ok());
+        const Status st = transcode_page(info, TileKind::present, Codec::raw, rgb, PageFormat::bc1, both, scratch, true);
+        ASSERT_TRUE(st.ok()) << st.error().message;
+
+        // Level 0: our decoder and libsquish's read the same blocks alike.
+        const std::vector<std::uint8_t> level0(both.begin(), both.begin() + std::ptrdiff_t(page_bytes(PageFormat::bc1, size)));
+        std::vector<std::uint8_t> ours(rgba.size());
+        ASSERT_TRUE(decode_block_page(PageFormat::bc1, level0.data(), size, ours.data()));
+        EXPECT_GE(psnr(ours, squish_decode(level0, size, squish::kDxt1), 4, {0, 1, 2}), 48.0);
+
+        // Level 1: close to the 2x2 means of the RGBA8 page, taken as the store's builder does.
+        std::vector<std::uint8_t> means(std::size_t(half) * half * 4);
+        const auto lin = [](int v) { const double s = v / 255.0; return s <= 0.04045 ? s / 12.92 : std::pow((s + 0.055) / 1.055, 2.4); };
+        const auto enc = [](double l) { return l <= 0.0031308 ? l * 12.92 : 1.055 * std::pow(l, 1 / 2.4) - 0.055; };
+        for (std::uint32_t y = 0; y < half; ++y)
+            for (std::uint32_t x = 0; x < half; ++x)
+                for (int c = 0; c < 4; ++c) {
+                    const auto at = [&](std::uint32_t xx, std::uint32_t yy) { return int(rgba[(std::size_t(yy) * size + xx) * 4 + std::size_t(c)]); };
+                    const int a = at(2 * x, 2 * y), b = at(2 * x + 1, 2 * y), d = at(2 * x, 2 * y + 1), e = at(2 * x + 1, 2 * y + 1);
+                    const double m = srgb && c < 3 ? 255 * enc((lin(a) + lin(b) + lin(d) + lin(e)) / 4) : (a + b + d + e) / 4.0;
+                    means[(std::size_t(y) * half + x) * 4 + std::size_t(c)] = static_cast<std::uint8_t>(std::lround(m));
+                }
+        std::vector<std::uint8_t> level1(std::size_t(half) * half * 4);
+        ASSERT_TRUE(decode_block_page(PageFormat::bc1, both.data() + page_bytes(PageFormat::bc1, size), half, level1.data()));
+        EXPECT_GE(psnr(level1, means, 4, {0, 1, 2}), 32.0) << (srgb ? "sRGB" : "linear");
+    }
+    // The second level is for block formats with tiles a multiple of 8 only.
+    const StoreInfo odd = info_of(3, SampleType::u8, 260);
+    std::vector<std::uint8_t> payload(odd.tile_bytes()), out(page_upload_bytes(PageFormat::bc1, 260, true));
+    EXPECT_FALSE(transcode_page(odd, TileKind::present, Codec::raw, payload, PageFormat::bc1, out, scratch, true).ok());
+    std::vector<std::uint8_t> rgba_out(page_bytes(PageFormat::rgba8, 256));
+    EXPECT_FALSE(transcode_page(info_of(3, SampleType::u8), TileKind::present, Codec::raw,
+                                std::vector<std::uint8_t>(info_of(3, SampleType::u8).tile_bytes()), PageFormat::rgba8, rgba_out,
+                                scratch, true)
+                     .ok());
 }
 
 }  // namespace

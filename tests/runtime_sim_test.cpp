@@ -418,3 +418,38 @@ TEST_F(RuntimeSim, PagesUnseenForLongerThanTheGraceWindowAreCancelled) {
 }
 
 }  // namespace
+
+namespace {
+
+// The runtime transcodes every page to the uploader's pool format, and refuses a store that
+// cannot take it when the texture is added, naming the format.
+TEST_F(RuntimeSim, PagesComeInThePoolsFormat) {
+    for (const bool second_level : {false, true}) {
+        FakeUploader up(PagePoolFormat{PageFormat::bc1, second_level});
+        DelayedSource src(path_, 1);
+        auto rt = make(1024, up, src);
+        const auto& info = *rt->texture_info(0);
+        const auto ids = feedback(info, 160, 90, 4000, 4000, 2, 0);
+        for (int f = 0; f < 40 && (f == 0 || rt->in_flight() > 0); ++f) {
+            src.tick();
+            rt->frame(ids, 160, 90, 0);
+        }
+        ASSERT_GT(up.pages().size(), 4u);
+        EXPECT_EQ(up.malformed(), 0u);
+        for (const auto& p : up.pages())
+            EXPECT_EQ(p.data.size(), page_upload_bytes(PageFormat::bc1, info.tile_size(), second_level));
+        EXPECT_EQ(rt->summary().bytes_uploaded(), up.pages().size() * page_upload_bytes(PageFormat::bc1, info.tile_size(), second_level));
+    }
+    FakeUploader grey_only(PagePoolFormat{PageFormat::bc4, false});
+    DelayedSource src(path_, 1);
+    RuntimeConfig c;
+    c.residency.pool_slots = 64;
+    c.transcode_threads = 0;
+    auto rt = Runtime::create(c, grey_only);
+    ASSERT_TRUE(rt.ok());
+    auto id = (*rt)->add_texture(src, "terrain");
+    ASSERT_FALSE(id.ok()) << "a 3-channel store accepted for bc4 pages";
+    EXPECT_NE(id.error().message.find("bc4"), std::string::npos) << id.error().message;
+}
+
+}  // namespace

@@ -101,10 +101,10 @@ TEST(UploadQueue, CapacityBoundLeavesTheRejectedPageIntact) {
     for (std::uint64_t i = 0; i < 3; ++i) EXPECT_TRUE(q.push(page(1, i)));
     const std::uint8_t pixels[4] = {1, 2, 3, 4};
     tc::ReadyPage extra = page(100, 99, 4);
-    extra.rgba8 = pixels;
+    extra.data = pixels;
     EXPECT_FALSE(q.push(std::move(extra)));
     EXPECT_EQ(extra.ticket, 99u);  // NOLINT(bugprone-use-after-move): push leaves it untouched
-    EXPECT_EQ(extra.rgba8.data(), pixels);
+    EXPECT_EQ(extra.data.data(), pixels);
     EXPECT_EQ(q.size(), 3u);
     EXPECT_EQ(q.capacity(), 3u);
     std::vector<tc::ReadyPage> out;
@@ -183,7 +183,7 @@ TEST(FakeUploader, RecordsCallsInOrderWithCopies) {
     EXPECT_EQ(up.pages()[0].seq, 0u);
     EXPECT_EQ(up.pages()[0].slot, 5u);
     EXPECT_EQ(up.pages()[0].tile_size, 2u);
-    EXPECT_EQ(up.pages()[0].rgba8, std::vector<std::uint8_t>(16, 7));
+    EXPECT_EQ(up.pages()[0].data, std::vector<std::uint8_t>(16, 7));
     const auto& t = up.tables()[0];
     EXPECT_EQ(t.seq, 1u);
     EXPECT_EQ(t.texture, 3u);
@@ -207,20 +207,20 @@ TEST(FakeUploader, AFrameFromTheQueue) {
     for (std::uint32_t i = 0; i < 3; ++i) {
         std::fill(staging.begin() + i * 64, staging.begin() + (i + 1) * 64, static_cast<std::uint8_t>(i + 1));
         tc::ReadyPage p = page(static_cast<float>(i), i, 64, i);
-        p.rgba8 = std::span<const std::uint8_t>(staging.data() + i * 64, 64);
+        p.data = std::span<const std::uint8_t>(staging.data() + i * 64, 64);
         q.push(std::move(p));
     }
     tc::FakeUploader up;
     std::vector<tc::ReadyPage> out;
     q.take_frame(out);
     for (const auto& p : out) {
-        up.upload_page(p.slot, p.key, p.rgba8, 4);
+        up.upload_page(p.slot, p.key, p.data, 4);
         const std::uint32_t entry = p.slot;
         up.upload_page_table(p.key.texture, p.key.level, p.key.x, p.key.y, 1, 1, std::span(&entry, 1));
     }
     ASSERT_EQ(up.pages().size(), 2u);
     EXPECT_EQ(up.pages()[0].slot, 2u);
-    EXPECT_EQ(up.pages()[0].rgba8[0], 3);
+    EXPECT_EQ(up.pages()[0].data[0], 3);
     EXPECT_EQ(up.pages()[1].slot, 1u);
     EXPECT_LT(up.pages()[0].seq, up.tables()[0].seq);  // data before the mapping
     EXPECT_EQ(up.malformed(), 0u);

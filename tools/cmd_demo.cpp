@@ -32,6 +32,7 @@ Command add_demo(CLI::App& app) {
         float prefetch_lod = 0.3f;
         float guard_band = 0.1f;
         bool no_pace = false;
+        std::string page_format = "auto";
     };
     auto a = std::make_shared<Args>();
     CLI::App* c = app.add_subcommand("demo", "Build the procedural demo store (if missing), verify it and summarise it");
@@ -44,6 +45,7 @@ Command add_demo(CLI::App& app) {
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference renderer every N frames (0: never)")
         ->capture_default_str();
     c->add_option("--pool", a->pool, "physical pages in the GPU pool")->capture_default_str();
+    c->add_option("--page-format", a->page_format, "auto, rgba8, bc1, bc4 or bc5 (tessera view --help)")->capture_default_str();
     c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
     c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
     c->add_flag("--no-pace", a->no_pace,
@@ -108,6 +110,7 @@ Command add_demo(CLI::App& app) {
         vo.height = h;
         vo.frames = a->frames;
         vo.pool = a->pool;
+        vo.page_format = a->page_format;
         vo.psnr_every = a->psnr_every;
         vo.prefetch_lod = a->prefetch_lod;
         vo.guard_band = a->guard_band;

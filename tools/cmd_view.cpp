@@ -36,6 +36,10 @@ Command add_view(CLI::App& app) {
     c->add_option("--stats", o->stats_file, "per-frame stats, .csv or .json");
     c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`");
     c->add_option("--pool", o->pool, "physical pages in the GPU pool")->capture_default_str();
+    c->add_option("--page-format", o->page_format,
+                  "how the GPU pool holds pages: auto (rgba8 for today's stores), rgba8, or block-compressed on the "
+                  "transcode threads: bc1 (colour), bc4 (one channel), bc5 (two channels)")
+        ->capture_default_str();
     c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
     c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();
     c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size")->capture_default_str();

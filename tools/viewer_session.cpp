@@ -267,6 +267,13 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rc.tile_size = info->tile_size();
     rc.border = info->border;
     rc.srgb = info->colour_space == storage::ColourSpace::srgb;
+    if (o.page_format == "auto") {
+        rc.page_format = client::PageFormat::rgba8;  // no store holds block pages yet: nothing else to pick
+    } else {
+        const auto f = client::parse_page_format(o.page_format);
+        if (!f) throw Failure(fmt::format("--page-format '{}': expected auto, rgba8, bc1, bc4 or bc5", o.page_format));
+        rc.page_format = *f;
+    }
     auto renderer = client::gl::VtRenderer::create(rc);
     if (!renderer) throw Failure(renderer.error().message);
     auto& r = **renderer;
@@ -279,7 +286,9 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     cfg.disk_cache_bytes = o.disk_cache_bytes;
     cfg.transcode_threads = o.transcode_threads;
     cfg.upload_pages_per_frame = o.upload_pages_per_frame;
-    cfg.upload_bytes_per_frame = std::size_t(o.upload_pages_per_frame) * info->tile_size() * info->tile_size() * 4;
+    const client::PagePoolFormat pool_format = r.pool_format();
+    cfg.upload_bytes_per_frame =
+        std::size_t(o.upload_pages_per_frame) * client::page_upload_bytes(pool_format.format, info->tile_size(), pool_format.second_level);
     auto runtime = client::Runtime::create(cfg, r);
     if (!runtime) throw Failure(runtime.error().message);
     auto& rt = **runtime;
@@ -344,6 +353,11 @@ ViewerReport run_viewer(const ViewerOptions& o) {
 
     ViewerReport rep;
     rep.renderer = (*ctx)->renderer();
+    rep.page_format = rc.page_format;
+    rep.pool_pages = rc.pool_slots;
+    rep.gpu_page_bytes = client::page_bytes(rc.page_format, rc.tile_size) +
+                         (rc.filter != client::gl::Filter::bilinear ? client::page_bytes(rc.page_format, rc.tile_size / 2) : 0);
+    rep.pool_texels = std::uint64_t(rc.pool_slots) * rc.tile_size * rc.tile_size;
     rep.source = source->describe();
     rep.frames.resize(frames);
     std::map<std::uint64_t, std::size_t> by_render_frame;  // renderer frame number -> record
@@ -611,7 +625,11 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
     const auto num = [](double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : std::string(""); };
     const auto jnum = [](double v) { return std::isfinite(v) ? fmt::format("{:.6g}", v) : std::string("null"); };
     write_file_atomically(path, [&](std::ostream& out) {
-        if (json) out << "{\"renderer\": \"" << rep.renderer << "\", \"frames\": [\n";
+        if (json)
+            out << "{\"renderer\": \"" << rep.renderer << "\", "
+                << fmt::format("\"gpu_pool\": {{\"page_format\": \"{}\", \"page_bytes\": {}, \"pages\": {}, \"texels\": {}}}, ",
+                               client::to_string(rep.page_format), rep.gpu_page_bytes, rep.pool_pages, rep.pool_texels)
+                << "\"frames\": [\n";
         else
             out << "frame,time_s,frame_ms,pages_wanted,pages_resident,pages_requested,pages_uploaded,pages_evicted,"
                    "lod_bias,textured_pixels,fallback_pixels,fallback_pixels_biased,fallback_rate,fallback_rate_biased,"
@@ -672,6 +690,9 @@ std::string summary_text(const ViewerReport& rep) {
     std::string s;
     s += fmt::format("renderer      {}\n", rep.renderer);
     s += fmt::format("source        {}\n", rep.source);
+    s += fmt::format("GPU pool      {} pages of {}, {} per page, {} in all; {:.1f} M texels\n", rep.pool_pages,
+                     client::to_string(rep.page_format), human_bytes(rep.gpu_page_bytes),
+                     human_bytes(rep.gpu_page_bytes * rep.pool_pages), double(rep.pool_texels) / 1e6);
     s += fmt::format("frames        {} in {:.1f} s; frame time mean {:.2f} ms, p99 {:.2f} ms\n", rep.frames.size(),
                      rep.wall_s, rep.mean_frame_ms(), rep.frame_ms_quantile(0.99));
     if (!std::isnan(rep.warmup_ms))

@@ -28,6 +28,9 @@ struct ViewerOptions {
     std::string stats_file;    // .csv or .json per-frame records (empty: none)
     std::string trace_file;    // feedback trace for `tessera loadtest` (empty: none)
     std::uint32_t pool = 2048;
+    // How the GPU pool holds pages: auto (the store's block format if it has one, else rgba8),
+    // rgba8, bc1, bc4 or bc5 (JPEG/zstd pages block-encoded on the transcode threads).
+    std::string page_format = "auto";
     client::gl::Filter filter = client::gl::Filter::trilinear;
     std::uint32_t anisotropy = 8;
     std::uint32_t feedback_scale = 8;
@@ -94,6 +97,12 @@ struct FrameRecord {
 struct ViewerReport {
     std::string renderer;  // GL_RENDERER
     std::string source;    // what served the tiles
+    // The GPU pool: its page format, bytes per page (the second level included where the atlas
+    // has one), pages, and texels of level 0.
+    client::PageFormat page_format = client::PageFormat::rgba8;
+    std::uint64_t gpu_page_bytes = 0;
+    std::uint32_t pool_pages = 0;
+    std::uint64_t pool_texels = 0;
     std::vector<FrameRecord> frames;
     client::StatsSummary summary;
     double wall_s = 0;

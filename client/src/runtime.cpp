@@ -128,6 +128,14 @@ public:
         auto info = source.bind(id, store);
         if (!info) return info.error();
         if (info->levels.empty()) return Error{Errc::invalid_argument, "store " + store + " has no levels"};
+        // Every page is transcoded to the pool's format: a store that cannot take it is refused
+        // here, with the reason, rather than failing page by page.
+        const PagePoolFormat pool = uploader_.pool_format();
+        if (Status st = check_page_format(*info, pool.format); !st)
+            return Error{st.error().code, "store " + store + ": " + st.error().message};
+        if (pool.second_level && info->tile_size() % 8 != 0)
+            return Error{Errc::invalid_argument, "store " + store + ": " + std::string(to_string(pool.format)) +
+                                                     " pages with a second level need tiles of a multiple of 8 texels"};
         const auto& l0 = info->levels[0];
         TESSERA_TRY(residency_.add_texture(id, l0.tiles_x, l0.tiles_y, info->level_count()));
         analyzer_.set_texture_levels(id, static_cast<std::uint8_t>(info->level_count()));
@@ -138,7 +146,7 @@ public:
         t.info = std::make_shared<const storage::StoreInfo>(*info);
         textures_.push_back(std::move(t));
         if (disk_) disk_->drop_other_versions(store, info->store_id);
-        page_bytes_ = std::max(page_bytes_, rgba8_page_bytes(*info));
+        page_bytes_ = std::max(page_bytes_, upload_bytes(*info));
         return id;
     }
 
@@ -415,6 +423,12 @@ private:
         }
     }
 
+    // Bytes of one upload of `info`'s pages in the pool's format.
+    std::size_t upload_bytes(const storage::StoreInfo& info) const {
+        const PagePoolFormat pool = uploader_.pool_format();
+        return page_upload_bytes(pool.format, info.tile_size(), pool.second_level);
+    }
+
     int take_staging() {
         if (staging_.empty()) {
             staging_.resize(kStagingBuffers);
@@ -437,10 +451,12 @@ private:
             const int s = take_staging();
             if (s < 0) break;
             const auto& info = textures_[key.texture].info;
-            std::span<std::uint8_t> dst(staging_[static_cast<std::size_t>(s)].data(), rgba8_page_bytes(*info));
+            std::span<std::uint8_t> dst(staging_[static_cast<std::size_t>(s)].data(), upload_bytes(*info));
             w.staging = s;
+            const PagePoolFormat pool = uploader_.pool_format();
             if (!pool_) {
-                const auto st = transcode_to_rgba8(*info, w.tile->kind, w.tile->codec, w.tile->payload, dst, scratch_);
+                const auto st = transcode_page(*info, w.tile->kind, w.tile->codec, w.tile->payload, pool.format, dst, scratch_,
+                                               pool.second_level);
                 finish_decode(key, st.ok());
                 continue;
             }
@@ -450,6 +466,8 @@ private:
             job.info = info;
             job.kind = w.tile->kind;
             job.codec = w.tile->codec;
+            job.format = pool.format;
+            job.second_level = pool.second_level;
             job.payload = std::shared_ptr<const std::vector<std::uint8_t>>(w.tile, &w.tile->payload);
             job.destination = dst;
             job.priority = static_cast<std::uint32_t>(std::max(0.0f, priority));
@@ -489,8 +507,8 @@ private:
         ReadyPage p;
         p.priority = w.priority;
         p.ticket = w.ticket;
-        p.rgba8 = std::span<const std::uint8_t>(staging_[static_cast<std::size_t>(w.staging)].data(), rgba8_page_bytes(*info));
-        p.bytes = static_cast<std::uint32_t>(p.rgba8.size());
+        p.data = std::span<const std::uint8_t>(staging_[static_cast<std::size_t>(w.staging)].data(), upload_bytes(*info));
+        p.bytes = static_cast<std::uint32_t>(p.data.size());
         p.requested = w.requested;
         w.stage = Stage::ready;
         w.tile.reset();
@@ -527,7 +545,7 @@ private:
                 if (desired_.contains(grant->victim)) ++evicted_wanted_;
             }
             // Unmapped before it is overwritten (acquire_slot did), mapped once complete.
-            uploader_.upload_page(grant->slot, key, p.rgba8, textures_[key.texture].info->tile_size());
+            uploader_.upload_page(grant->slot, key, p.data, textures_[key.texture].info->tile_size());
             (void)residency_.complete(key, grant->slot);
             desired_.erase(key);  // resident now: frames without feedback must not ask for it again
             ++stats_.pages_uploaded;

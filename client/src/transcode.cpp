@@ -6,6 +6,8 @@
 #include <zstd.h>
 
 #include <algorithm>
+#include <array>
+#include <cmath>
 #include <bit>
 #include <condition_variable>
 #include <cstring>
@@ -15,11 +17,13 @@
 #include <string>
 #include <system_error>
 #include <utility>
+#include <vector>
 
 #include "tessera/half_float.hpp"
 
 namespace tessera::client {
 
+using storage::ColourSpace;
 using storage::SampleType;
 using storage::StoreInfo;
 
@@ -289,6 +293,63 @@ Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
 
 // ------------------------------------------------------------------------------- transcode_page
 
+namespace {
+
+// sRGB-encoded 8-bit values to linear light in 16 bits, and back (every 16-bit linear value to
+// the nearest sRGB code): tables made once.
+const std::array<std::uint16_t, 256>& srgb8_to_linear16() {
+    static const auto table = [] {
+        std::array<std::uint16_t, 256> t{};
+        for (int i = 0; i < 256; ++i) {
+            const double v = i / 255.0;
+            const double l = v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4);
+            t[std::size_t(i)] = static_cast<std::uint16_t>(std::lround(l * 65535.0));
+        }
+        return t;
+    }();
+    return table;
+}
+const std::vector<std::uint8_t>& linear16_to_srgb8() {
+    static const auto table = [] {
+        std::vector<std::uint8_t> t(65536);
+        for (std::size_t i = 0; i < t.size(); ++i) {
+            const double l = double(i) / 65535.0;
+            const double v = l <= 0.0031308 ? l * 12.92 : 1.055 * std::pow(l, 1.0 / 2.4) - 0.055;
+            t[i] = static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 1.0) * 255.0));
+        }
+        return t;
+    }();
+    return table;
+}
+
+// The 2x2 means of a side x side RGBA8 page (rounded to nearest) into a (side/2)^2 page: the
+// atlas's second level for block formats. Colour of an sRGB store is averaged in linear light,
+// as the builder makes the store's next level (storage's MipReducer) and the GPU page-mip pass
+// averages RGBA8 pages; data and alpha in their stored values.
+void downsample_2x2_rgba8(const std::uint8_t* src, std::uint32_t side, bool srgb, std::uint8_t* dst) {
+    const std::uint32_t half = side / 2;
+    const std::size_t row = std::size_t(side) * 4;
+    const auto& to_linear = srgb8_to_linear16();
+    const auto& to_srgb = linear16_to_srgb8();
+    for (std::uint32_t y = 0; y < half; ++y) {
+        const std::uint8_t* a = src + std::size_t(2 * y) * row;
+        const std::uint8_t* b = a + row;
+        std::uint8_t* d = dst + std::size_t(y) * half * 4;
+        for (std::uint32_t x = 0; x < half; ++x)
+            for (std::size_t c = 0; c < 4; ++c) {
+                const std::size_t i = std::size_t(8) * x + c;
+                if (srgb && c < 3) {
+                    const unsigned sum = unsigned(to_linear[a[i]]) + to_linear[a[i + 4]] + to_linear[b[i]] + to_linear[b[i + 4]];
+                    d[4 * x + c] = to_srgb[(sum + 2) / 4];
+                } else {
+                    d[4 * x + c] = static_cast<std::uint8_t>((unsigned(a[i]) + a[i + 4] + b[i] + b[i + 4] + 2) / 4);
+                }
+            }
+    }
+}
+
+}  // namespace
+
 Status check_page_format(const StoreInfo& info, PageFormat format) {
     const auto refuse = [&](std::string_view why) {
         return make_error(Errc::invalid_argument,
@@ -324,25 +385,40 @@ Status check_page_format(const StoreInfo& info, PageFormat format) {
 }
 
 Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::span<const std::uint8_t> payload,
-                      PageFormat format, std::span<std::uint8_t> out, Scratch& scratch) {
+                      PageFormat format, std::span<std::uint8_t> out, Scratch& scratch, bool second_level) {
+    if (second_level && !is_block_compressed(format))
+        return make_error(Errc::invalid_argument, "a second level is made for block formats only, not " + std::string(to_string(format)));
     if (format == PageFormat::rgba8) return transcode_to_rgba8(info, kind, codec, payload, out, scratch);
     if (Status st = check_page_format(info, format); !st) return st;
     const std::uint32_t size = info.tile_size();
-    if (out.size() != page_bytes(format, size))
+    if (second_level && size % 8 != 0)
+        return make_error(Errc::invalid_argument, "a second level of 4x4 blocks needs tiles of a multiple of 8 texels, not " +
+                                                      std::to_string(size));
+    if (out.size() != page_upload_bytes(format, size, second_level))
         return make_error(Errc::invalid_argument, "destination is not one " + std::string(to_string(format)) + " page of this store");
     Scratch::Impl& s = *scratch.impl_;
 
     if (is_block_compressed(format)) {
         // Decoded to RGBA8 in scratch (never the destination: the encoder reads it back), then
-        // encoded block by block into the destination.
-        const std::span<std::uint8_t> rgba(s.rgba_buffer(rgba8_page_bytes(info)), rgba8_page_bytes(info));
+        // encoded block by block into the destination; the second level from the 2x2 means.
+        const std::size_t rgba_bytes = rgba8_page_bytes(info), half_bytes = rgba_bytes / 4;
+        std::uint8_t* buffer = s.rgba_buffer(rgba_bytes + (second_level ? half_bytes : 0));
+        const std::span<std::uint8_t> rgba(buffer, rgba_bytes);
         if (Status st = transcode_to_rgba8(info, kind, codec, payload, rgba, scratch); !st) return st;
-        switch (format) {
-            case PageFormat::bc1: encode_bc1(rgba.data(), size, out.data()); break;
-            case PageFormat::bc4: encode_bc4(rgba.data(), size, 0, out.data()); break;
-            // A 2-channel store's RGBA8 texel is (v, v, v, a): its channels are R and A.
-            case PageFormat::bc5: encode_bc5(rgba.data(), size, 0, info.channels == 2 ? 3 : 1, out.data()); break;
-            default: break;
+        const auto encode = [&](const std::uint8_t* texels, std::uint32_t side, std::uint8_t* dst) {
+            switch (format) {
+                case PageFormat::bc1: encode_bc1(texels, side, dst); break;
+                case PageFormat::bc4: encode_bc4(texels, side, 0, dst); break;
+                // A 2-channel store's RGBA8 texel is (v, v, v, a): its channels are R and A.
+                case PageFormat::bc5: encode_bc5(texels, side, 0, info.channels == 2 ? 3 : 1, dst); break;
+                default: break;
+            }
+        };
+        encode(rgba.data(), size, out.data());
+        if (second_level) {
+            std::uint8_t* half = buffer + rgba_bytes;
+            downsample_2x2_rgba8(rgba.data(), size, info.colour_space == ColourSpace::srgb, half);
+            encode(half, size / 2, out.data() + page_bytes(format, size));
         }
         return {};
     }
@@ -568,7 +644,8 @@ void TranscodePool::worker_loop() {
         } else {
             const std::span<const std::uint8_t> payload =
                 job.payload ? std::span<const std::uint8_t>(*job.payload) : std::span<const std::uint8_t>();
-            status = transcode_page(*job.info, job.kind, job.codec, payload, job.format, job.destination, scratch);
+            status = transcode_page(*job.info, job.kind, job.codec, payload, job.format, job.destination, scratch,
+                                    job.second_level);
         }
         TranscodeResult result{job.key, job.ticket, std::move(status), false};
         node = {};  // releases the payload and info outside the lock

@@ -63,7 +63,7 @@ private:
     friend Status transcode_to_rgba8(const storage::StoreInfo&, TileKind, Codec,
                                      std::span<const std::uint8_t>, std::span<std::uint8_t>, Scratch&);
     friend Status transcode_page(const storage::StoreInfo&, TileKind, Codec, std::span<const std::uint8_t>, PageFormat,
-                                 std::span<std::uint8_t>, Scratch&);
+                                 std::span<std::uint8_t>, Scratch&, bool);
 };
 
 // Decodes one tile payload into `out` (exactly rgba8_page_bytes(info) bytes).
@@ -86,10 +86,12 @@ Status transcode_to_rgba8(const storage::StoreInfo& info, TileKind kind, Codec c
 //   r16/r16f/r32f  1 channel of u16 / f16 / f32 samples
 Status check_page_format(const storage::StoreInfo& info, PageFormat format);
 
-// Decodes one tile payload into `out` (exactly page_bytes(format, info.tile_size()) bytes) in
-// `format`. Errors: those of check_page_format and transcode_to_rgba8.
+// Decodes one tile payload into `out` (exactly page_upload_bytes(format, info.tile_size(),
+// second_level) bytes) in `format`. `second_level` (block formats only, tile size a multiple of
+// 8): the page's 2x2 means follow it, encoded the same way, for an atlas's second level.
+// Errors: those of check_page_format and transcode_to_rgba8.
 Status transcode_page(const storage::StoreInfo& info, TileKind kind, Codec codec, std::span<const std::uint8_t> payload,
-                      PageFormat format, std::span<std::uint8_t> out, Scratch& scratch);
+                      PageFormat format, std::span<std::uint8_t> out, Scratch& scratch, bool second_level = false);
 
 // ---------------------------------------------------------------------------------------------
 // TranscodePool: N owned worker threads, one bounded priority queue of jobs, one bounded queue of
@@ -112,8 +114,9 @@ struct TranscodeJob {
     TileKind kind = TileKind::present;
     Codec codec = Codec::raw;
     PageFormat format = PageFormat::rgba8;
+    bool second_level = false;  // transcode_page's: the block page's 2x2 means after it
     std::shared_ptr<const std::vector<std::uint8_t>> payload;
-    std::span<std::uint8_t> destination;  // page_bytes(format, info->tile_size()) bytes of staging memory
+    std::span<std::uint8_t> destination;  // page_upload_bytes(format, info->tile_size(), second_level) bytes
     std::uint32_t priority = 0;           // higher first; equal priorities in submission order
 };
 

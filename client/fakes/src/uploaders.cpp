@@ -4,9 +4,9 @@
 
 namespace tessera::client {
 
-void FakeUploader::upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) {
-    if (rgba8.size() != std::size_t(tile_size) * tile_size * 4) ++malformed_;
-    pages_.push_back(PageCall{seq_++, slot, page, tile_size, std::vector<std::uint8_t>(rgba8.begin(), rgba8.end())});
+void FakeUploader::upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) {
+    if (page_data.size() != page_upload_bytes(format_.format, tile_size, format_.second_level)) ++malformed_;
+    pages_.push_back(PageCall{seq_++, slot, page, tile_size, std::vector<std::uint8_t>(page_data.begin(), page_data.end())});
 }
 
 void FakeUploader::upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0,

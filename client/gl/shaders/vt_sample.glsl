@@ -6,6 +6,7 @@
 //     #define VT_FILTER <VT_BILINEAR | VT_TRILINEAR | VT_ANISOTROPIC>
 //     #define VT_TILE_SIZE, VT_BORDER, VT_MAX_ANISOTROPY, VT_ATLAS_SIZE, VT_NO_DATA_COLOUR
 //     [#define VT_SPARSE_TABLE 1]   (vt.frag for two-level page tables: see vt_entry)
+//     [#define VT_ATLAS_RECT 1]     (RGBA8 pages, bilinear: a rectangle atlas in texel coordinates)
 //     <this file> <the shader>
 // (detail::vt_shader_defines). It is drawn with scene.vert, which forwards the per-draw,
 // per-texture and per-frame values as flat varyings (see "Inputs").
@@ -75,12 +76,13 @@ uniform uint vt_dir_width[32];      // level L's blocks per row
 #else
 uniform usampler2D vt_page_table;   // R32UI: every level of the texture's page table, packed
 #endif
-#if VT_FILTER == VT_BILINEAR
+#ifdef VT_ATLAS_RECT
 uniform sampler2DRect vt_atlas;     // the physical pages (RGBA8 or SRGB8_ALPHA8), GL_LINEAR; texel coordinates
 #else
-// Trilinear and anisotropic: two levels, the pages and below them each page's 2x2 means (its
-// parent level's texels over the page), GL_LINEAR_MIPMAP_LINEAR: one page-table fetch and one
-// textureLod give both levels of a trilinear lookup.
+// Block-compressed pages (a 2D texture, one level for bilinear), and trilinear and anisotropic:
+// two levels, the pages and below them each page's 2x2 means (RGBA8: its parent level's texels
+// over the page), GL_LINEAR_MIPMAP_LINEAR: one page-table fetch and one textureLod give both
+// levels of a trilinear lookup.
 uniform sampler2D vt_atlas;
 const vec2 vt_inv_atlas_size = 1.0 / VT_ATLAS_SIZE;  // 1 / the atlas's level-0 size, texels
 #endif
@@ -227,8 +229,10 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
     int r = int((e >> 24) & 31u);
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
     vec2 cell = vt_cell_origin(e);
-#if VT_FILTER == VT_BILINEAR
+#ifdef VT_ATLAS_RECT
     vec4 c = texture(vt_atlas, cell + in_page);
+#elif VT_FILTER == VT_BILINEAR
+    vec4 c = textureLod(vt_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
 #else
     vec4 c = textureLod(vt_atlas, (cell + in_page) * vt_inv_atlas_size, r > level ? 0.0 : fraction);
 #endif

@@ -7,12 +7,14 @@
 #include <limits>
 
 #include "tessera/client/gl/renderer.hpp"
+#include "block_decode.hpp"
 #include "transcode.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace tessera::client::gl {
 
-Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side) {
+Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side,
+                                                                  PageFormat format) {
     auto opened = storage::StoreReader::open(store_path);
     if (!opened) return opened.error();
     const auto& reader = **opened;
@@ -21,7 +23,10 @@ Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::str
         return Error{Errc::resource_exhausted, fmt::format("{}: {}x{} texels, over {} per side for a reference texture", store_path,
                                                            info.width, info.height, max_side)};
     const std::uint32_t P = info.tile_payload, B = info.border, ts = info.tile_size();
-    std::vector<std::uint8_t> page(rgba8_page_bytes(info));
+    if (Status st = check_page_format(info, format); !st) return Error{st.error().code, store_path + ": " + st.error().message};
+    if (format != PageFormat::rgba8 && !is_block_compressed(format))
+        return Error{Errc::invalid_argument, fmt::format("{}: reference levels of {} pages are not made", store_path, to_string(format))};
+    std::vector<std::uint8_t> page(rgba8_page_bytes(info)), blocks(page_bytes(format, ts));
     Scratch scratch;
     std::vector<ReferenceRenderer::Level> out;
     for (std::uint32_t l = 0; l < info.level_count(); ++l) {
@@ -38,8 +43,13 @@ Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::str
                 auto& t = tiles[tx];
                 if (!t) return Error{t.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, t.error().message)};
                 if (t->kind == TileKind::absent) continue;  // transparent black
-                Status st = transcode_to_rgba8(info, t->kind, info.codec, t->bytes, page, scratch);
+                Status st = format == PageFormat::rgba8
+                                ? transcode_to_rgba8(info, t->kind, info.codec, t->bytes, page, scratch)
+                                : transcode_page(info, t->kind, info.codec, t->bytes, format, blocks, scratch);
                 if (!st) return Error{st.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, st.error().message)};
+                // Block pages: decoded back as the GPU samples them, so the reference holds the
+                // atlas's texels.
+                if (format != PageFormat::rgba8) decode_block_page(format, blocks.data(), ts, page.data());
                 // The interior [B, B + P) of the tile is level texels [tx * P, (tx + 1) * P).
                 const std::uint32_t x0 = tx * P, y0 = ty * P;
                 const std::uint32_t w = std::min(P, li.width - x0), h = std::min(P, li.height - y0);

@@ -16,7 +16,9 @@ std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width
         "#define VT_FILTER {}\n#define VT_TILE_SIZE {}u\n#define VT_BORDER {}u\n#define VT_MAX_ANISOTROPY float({})\n"
         "#define VT_ATLAS_SIZE vec2({}.0, {}.0)\n#define VT_NO_DATA_COLOUR vec4({:.9g}, {:.9g}, {:.9g}, {:.9g})\n",
         filter, c.tile_size, c.border, c.max_anisotropy, atlas_width, atlas_height, kNoDataColour[0], kNoDataColour[1],
-        kNoDataColour[2], kNoDataColour[3]);
+        kNoDataColour[2], kNoDataColour[3]) +
+           // The rectangle atlas (one level of RGBA8 pages): see VtRenderer's atlas.
+           (c.filter == Filter::bilinear && !is_block_compressed(c.page_format) ? "#define VT_ATLAS_RECT 1\n" : "");
 }
 
 SceneGeometry::SceneGeometry() : vao_(make_vertex_array()) {}

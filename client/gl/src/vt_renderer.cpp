@@ -75,6 +75,47 @@ struct VirtualTexture {
     std::vector<std::uint32_t> free_blocks;
 };
 
+std::string gl_renderer_name() {
+    const auto* r = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+    return r ? r : "unknown renderer";
+}
+
+// The atlas's GL internal format for the configured page format.
+GLenum atlas_internal_format(const RendererConfig& c) {
+    switch (c.page_format) {
+        case PageFormat::bc1: return c.srgb ? GL_COMPRESSED_SRGB_S3TC_DXT1_EXT : GL_COMPRESSED_RGB_S3TC_DXT1_EXT;
+        case PageFormat::bc4: return GL_COMPRESSED_RED_RGTC1;  // data, not colour: never sRGB
+        case PageFormat::bc5: return GL_COMPRESSED_RG_RGTC2;
+        default: return c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8;
+    }
+}
+
+// Whether this GL can hold the configured page format, and if not, why, naming the format (a
+// missing format must be an error, never a black image). RGTC (bc4, bc5) is core since GL 3.0;
+// S3TC (bc1) is an extension, and its sRGB form another.
+Status check_page_format_support(const RendererConfig& c) {
+    const auto refuse = [&](std::string why) {
+        return Status(Error{Errc::unsupported, fmt::format("renderer: page format {}: {}", to_string(c.page_format), why)});
+    };
+    switch (c.page_format) {
+        case PageFormat::rgba8: return {};
+        case PageFormat::bc1:
+            if (!epoxy_has_gl_extension("GL_EXT_texture_compression_s3tc"))
+                return refuse("this GL lacks GL_EXT_texture_compression_s3tc (" + gl_renderer_name() + ")");
+            if (c.srgb && !epoxy_has_gl_extension("GL_EXT_texture_sRGB") &&
+                !epoxy_has_gl_extension("GL_EXT_texture_compression_s3tc_srgb"))
+                return refuse("this GL has no sRGB S3TC format (GL_EXT_texture_sRGB) (" + gl_renderer_name() + ")");
+            break;
+        case PageFormat::bc4:
+        case PageFormat::bc5: break;
+        default: return refuse("the renderer's atlas does not hold it yet (rgba8, bc1, bc4 or bc5)");
+    }
+    if (c.tile_size % 4 != 0) return refuse(fmt::format("tiles of {} texels are not whole 4x4 blocks", c.tile_size));
+    if (c.filter != Filter::bilinear && c.tile_size % 8 != 0)
+        return refuse(fmt::format("the second level of tiles of {} texels is not whole 4x4 blocks (a multiple of 8)", c.tile_size));
+    return {};
+}
+
 class VtRendererImpl final : public VtRenderer {
 public:
     explicit VtRendererImpl(const RendererConfig& c) : cfg_(c), staging_(c.staging_bytes) {}
@@ -105,6 +146,7 @@ public:
             return Error{Errc::invalid_argument, "renderer: feedback_prefetch_lod must be 0..2"};
         if (!(c.feedback_guard_band >= 0 && c.feedback_guard_band <= 1))
             return Error{Errc::invalid_argument, "renderer: feedback_guard_band must be 0..1"};
+        TESSERA_TRY(check_page_format_support(c));
         GLint max_size = 0;
         glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
         max_texture_ = static_cast<std::uint32_t>(std::max(max_size, 1));
@@ -127,22 +169,30 @@ public:
                          fmt::format("renderer: a pool of {} slots of {}^2 texels needs a {}x{} atlas; the GPU's largest "
                                      "texture is {}^2 (fewer slots or smaller tiles)",
                                      c.pool_slots, c.tile_size, atlas_width_, atlas_height_, max_texture_)};
-        // A rectangle texture: the shader samples it in texel coordinates (no normalisation, no mip
-        // level to select), which costs a software rasterizer fewer instructions per lookup.
+        // RGBA8 with one level: a rectangle texture, which the shader samples in texel coordinates
+        // (no normalisation, no mip level to select): fewer instructions per lookup on a software
+        // rasterizer. Block formats cannot live in a rectangle texture: always 2D.
         const bool two_levels = c.filter != Filter::bilinear;
-        atlas_ = make_texture(two_levels ? GL_TEXTURE_2D : GL_TEXTURE_RECTANGLE);
-        glTextureStorage2D(atlas_.get(), two_levels ? 2 : 1, c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(atlas_width_), GLsizei(atlas_height_));
+        const bool blocks = is_block_compressed(c.page_format);
+        atlas_internal_format_ = atlas_internal_format(c);
+        atlas_ = make_texture(two_levels || blocks ? GL_TEXTURE_2D : GL_TEXTURE_RECTANGLE);
+        glTextureStorage2D(atlas_.get(), two_levels ? 2 : 1, atlas_internal_format_, GLsizei(atlas_width_), GLsizei(atlas_height_));
         glTextureParameteri(atlas_.get(), GL_TEXTURE_MIN_FILTER, two_levels ? GL_LINEAR_MIPMAP_LINEAR : GL_LINEAR);
         glTextureParameteri(atlas_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
         glTextureParameteri(atlas_.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
         glTextureParameteri(atlas_.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-        const std::uint8_t zero[4] = {0, 0, 0, 0};
-        glClearTexImage(atlas_.get(), 0, GL_RGBA, GL_UNSIGNED_BYTE, zero);
-        if (two_levels) {
-            glClearTexImage(atlas_.get(), 1, GL_RGBA, GL_UNSIGNED_BYTE, zero);
-            TESSERA_TRY(page_mips_.init(atlas_.get(), c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, columns_, rows, c.tile_size, c.srgb));
+        if (!blocks) {  // compressed textures cannot be cleared; only mapped cells are ever sampled
+            const std::uint8_t zero[4] = {0, 0, 0, 0};
+            glClearTexImage(atlas_.get(), 0, GL_RGBA, GL_UNSIGNED_BYTE, zero);
+            if (two_levels) {
+                glClearTexImage(atlas_.get(), 1, GL_RGBA, GL_UNSIGNED_BYTE, zero);
+                TESSERA_TRY(page_mips_.init(atlas_.get(), atlas_internal_format_, columns_, rows, c.tile_size, c.srgb));
+            }
         }
-        atlas_mips_ = two_levels;
+        // The second level: rendered on the GPU for RGBA8 pages (page_mips.hpp); for block formats,
+        // which cannot be rendered into, made by the transcode threads and uploaded with the page.
+        atlas_mips_ = two_levels && !blocks;
+        second_level_uploads_ = two_levels && blocks;
         if (auto e = take_gl_errors("page atlas"); !e.empty())
             return Error{Errc::resource_exhausted, fmt::format("renderer: {}x{} atlas: {}", atlas_width_, atlas_height_, e)};
 
@@ -228,14 +278,24 @@ public:
 
     // ---- PageUploader -----------------------------------------------------------------------
 
-    void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override {
-        if (tile_size != cfg_.tile_size || slot >= cfg_.pool_slots || rgba8.size() != std::size_t(tile_size) * tile_size * 4) {
+    PagePoolFormat pool_format() const override { return {cfg_.page_format, second_level_uploads_}; }
+
+    void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) override {
+        if (tile_size != cfg_.tile_size || slot >= cfg_.pool_slots ||
+            page_data.size() != page_upload_bytes(cfg_.page_format, tile_size, second_level_uploads_)) {
             ++stats_.malformed_uploads;
             return;
         }
         const auto x = GLint((slot % columns_) * tile_size), y = GLint((slot / columns_) * tile_size);
-        upload(atlas_.get(), x, y, GLsizei(tile_size), GLsizei(tile_size), GL_RGBA, GL_UNSIGNED_BYTE, rgba8.data(), rgba8.size());
-        if (atlas_mips_) place_page_mip(slot, page);
+        if (!is_block_compressed(cfg_.page_format)) {
+            upload(atlas_.get(), x, y, GLsizei(tile_size), GLsizei(tile_size), GL_RGBA, GL_UNSIGNED_BYTE, page_data.data(),
+                   page_data.size());
+            if (atlas_mips_) place_page_mip(slot, page);
+        } else {
+            const std::size_t level0 = page_bytes(cfg_.page_format, tile_size);
+            upload_blocks(0, x, y, GLsizei(tile_size), page_data.first(level0));
+            if (second_level_uploads_) upload_blocks(1, x / 2, y / 2, GLsizei(tile_size / 2), page_data.subspan(level0));
+        }
         ++stats_.pages_uploaded;
     }
 
@@ -681,6 +741,23 @@ private:
         }
     }
 
+    // A side x side square of blocks into atlas level `level`, through the staging ring like
+    // upload() (or straight from `blocks` when the ring is full).
+    void upload_blocks(GLint level, GLint x, GLint y, GLsizei side, std::span<const std::uint8_t> blocks) {
+        const auto bytes = static_cast<GLsizei>(blocks.size());
+        if (auto off = staging_.allocate(blocks.size())) {
+            std::memcpy(staging_.data() + *off, blocks.data(), blocks.size());
+            glBindBuffer(GL_PIXEL_UNPACK_BUFFER, staging_.buffer());
+            glCompressedTextureSubImage2D(atlas_.get(), level, x, y, side, side, atlas_internal_format_, bytes,
+                                          reinterpret_cast<const void*>(*off));
+            glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+        } else {
+            ++stats_.direct_uploads;
+            glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+            glCompressedTextureSubImage2D(atlas_.get(), level, x, y, side, side, atlas_internal_format_, bytes, blocks.data());
+        }
+    }
+
     static std::uint64_t dir_level_blocks(const VirtualTexture& t, std::uint32_t level) {
         const std::uint32_t rows = (t.pages[2 * level + 1] + PageTable::kBlockSide - 1) >> PageTable::kBlockShift;
         return std::uint64_t(t.dir_width[level]) * rows;
@@ -835,7 +912,9 @@ private:
     std::uint32_t max_texture_ = 0;
     StagingRing staging_;
     Texture atlas_;
-    bool atlas_mips_ = false;  // trilinear and anisotropic: the atlas's second level (page_mips.hpp)
+    GLenum atlas_internal_format_ = GL_RGBA8;
+    bool atlas_mips_ = false;  // trilinear and anisotropic, RGBA8: the atlas's second level (page_mips.hpp)
+    bool second_level_uploads_ = false;  // trilinear and anisotropic, block formats: uploaded with each page
     PageMipPass page_mips_;
     std::vector<PageKey> slot_pages_;                               // the page each slot holds (atlas_mips_)
     std::unordered_map<PageKey, SlotId, PageKeyHash> resident_slots_;  // and back: at most pool_slots

@@ -87,6 +87,11 @@ constexpr std::size_t page_bytes(PageFormat f, std::uint32_t tile_size) {
     }
     return 0;
 }
+// Bytes of one page upload: the page, and with `second_level` its half-size level after it (block
+// formats, whose second level the GPU cannot render into: the transcode threads make it).
+constexpr std::size_t page_upload_bytes(PageFormat f, std::uint32_t tile_size, bool second_level) {
+    return page_bytes(f, tile_size) + (second_level ? page_bytes(f, tile_size / 2) : 0);
+}
 
 // A slot of the physical page pool (the GPU page atlas), 0..pool_size-1.
 using SlotId = std::uint32_t;

@@ -16,15 +16,25 @@
 
 namespace tessera::client {
 
+// How an uploader's pool holds pages: the runtime transcodes every page to this.
+struct PagePoolFormat {
+    PageFormat format = PageFormat::rgba8;
+    // Each upload carries the page's half-size second level after it (page_upload_bytes): block
+    // formats in an atlas with two levels, which the GPU cannot render into.
+    bool second_level = false;
+};
+
 // What the renderer does with pages. Called on the render thread only.
 class PageUploader {
 public:
     virtual ~PageUploader();
-    // Copy one page (tile_size x tile_size texels, RGBA8, rows top to bottom, border included)
-    // into physical slot `slot`. `page` says which page it is (the GL renderer derives each page's
-    // next coarser level from it, clamped at the texture's edges). The span is valid only during
-    // the call.
-    virtual void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8,
+    // The format pages must come in (default: RGBA8, one level).
+    virtual PagePoolFormat pool_format() const { return {}; }
+    // Copy one page (tile_size x tile_size texels in pool_format(), rows top to bottom, border
+    // included; page_upload_bytes of them) into physical slot `slot`. `page` says which page it
+    // is (the GL renderer derives each page's next coarser level from it, clamped at the
+    // texture's edges). The span is valid only during the call.
+    virtual void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data,
                              std::uint32_t tile_size) = 0;
     // Write a w x h rectangle at (x0, y0) of texture `texture`'s page table for `level`; entries
     // are row-major, w*h of them, in the renderer's page-table entry format.
@@ -44,8 +54,8 @@ struct ReadyPage {
     SlotId slot = kNoSlot;    // where it goes (already unmapped by the residency side)
     float priority = 0.0f;    // higher first (NaN counts as lowest)
     std::uint64_t ticket = 0;  // request ticket; among equal priorities the lower goes first
-    std::span<const std::uint8_t> rgba8;  // staging memory owned elsewhere
-    std::uint32_t bytes = 0;  // counted against the byte budget (normally rgba8.size())
+    std::span<const std::uint8_t> data;  // the page in the pool's format; staging memory owned elsewhere
+    std::uint32_t bytes = 0;  // counted against the byte budget (normally data.size())
     std::chrono::steady_clock::time_point requested{};  // for tile latency (request -> mapped)
 };
 

@@ -14,12 +14,15 @@ namespace tessera::client {
 // Records every call, copying the data, for tests.
 class FakeUploader final : public PageUploader {
 public:
+    explicit FakeUploader(PagePoolFormat format = {}) : format_(format) {}
+    PagePoolFormat pool_format() const override { return format_; }
+
     struct PageCall {
         std::uint64_t seq = 0;  // order among all calls, from 0
         SlotId slot = kNoSlot;
         PageKey page;
         std::uint32_t tile_size = 0;
-        std::vector<std::uint8_t> rgba8;
+        std::vector<std::uint8_t> data;  // the page as uploaded, in pool_format()
     };
     struct BlockCall {
         std::uint64_t seq = 0;
@@ -36,7 +39,7 @@ public:
         std::vector<std::uint32_t> entries;
     };
 
-    void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> rgba8, std::uint32_t tile_size) override;
+    void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) override;
     void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
                            std::uint32_t h, std::span<const std::uint32_t> entries) override;
     void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
@@ -45,12 +48,13 @@ public:
     const std::vector<PageCall>& pages() const { return pages_; }
     const std::vector<TableCall>& tables() const { return tables_; }
     const std::vector<BlockCall>& blocks() const { return blocks_; }
-    // Calls whose data had the wrong size (rgba8 != tile_size^2 * 4, entries != w * h, a block's
-    // entries neither kBlockEntries nor empty).
+    // Calls whose data had the wrong size (a page not page_upload_bytes of pool_format(), entries
+    // != w * h, a block's entries neither kBlockEntries nor empty).
     std::size_t malformed() const { return malformed_; }
     void clear();
 
 private:
+    PagePoolFormat format_;
     std::uint64_t seq_ = 0;
     std::vector<PageCall> pages_;
     std::vector<TableCall> tables_;
@@ -61,9 +65,14 @@ private:
 // Discards every call: a viewer with no GPU (load tests, benchmarks).
 class NullUploader final : public PageUploader {
 public:
+    explicit NullUploader(PagePoolFormat format = {}) : format_(format) {}
+    PagePoolFormat pool_format() const override { return format_; }
     void upload_page(SlotId, const PageKey&, std::span<const std::uint8_t>, std::uint32_t) override {}
     void upload_page_table(TextureId, std::uint8_t, std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t,
                            std::span<const std::uint32_t>) override {}
+
+private:
+    PagePoolFormat format_;
 };
 
 }  // namespace tessera::client

@@ -45,6 +45,11 @@ struct RendererConfig {
     std::uint32_t tile_size = 256;     // stored tile size (payload + 2 * border)
     std::uint32_t border = 4;
     bool srgb = true;                  // atlas and target are sRGB: filtering in linear light
+    // How the atlas holds pages (docs/renderer.md, "Page formats"): rgba8, or block-compressed
+    // bc1 (colour), bc4 (one channel), bc5 (two channels), which the runtime transcodes to
+    // (pool_format()). Block formats need a tile size that is a multiple of 4 (8 with two levels)
+    // and the GPU's support for them, checked at creation.
+    PageFormat page_format = PageFormat::rgba8;
     std::size_t staging_bytes = 32u << 20;  // page + page-table staging ring (bounded; when full, uploads go
                                             // straight from client memory: RendererStats::direct_uploads)
     std::uint32_t readback_ring = 3;   // feedback readbacks in flight (counters: 4x as many; 1..64)
@@ -157,8 +162,11 @@ public:
 
 // Decodes every tile interior of a store into RGBA8 levels (for ReferenceRenderer). Errors: a
 // store too large (level 0 over max_side texels per side), unreadable or undecodable tiles.
-// Absent tiles (sparse stores) decode as transparent black.
-Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side = 16384);
+// Absent tiles (sparse stores) decode as transparent black. `format` (rgba8 or a block format):
+// each tile as a page of that format holds it, block formats decoded back as a GPU samples them
+// (the same texels as a VtRenderer atlas of that format; bc4 red only, bc5 red and green).
+Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side = 16384,
+                                                                  PageFormat format = PageFormat::rgba8);
 
 // PSNR (dB, over RGB, 8-bit) and max absolute error of two RGBA8 images of equal size, over the
 // pixels where `mask` (optional: width*height bytes, one per pixel, non-zero = count) is set.

@@ -1,0 +1,65 @@
+// `tessera view --page-format`: the GPU pool's format, bytes per page and texels in the summary
+// and the JSON stats; a format the store cannot take, or an unknown one, is a clear error and a
+// non-zero exit (headless, llvmpipe, tiny images).
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include <string>
+
+#include "server_process.hpp"  // slurp
+#include "test_util.hpp"
+
+using tessera::test::run_tessera;
+using tessera::test::ScratchDir;
+using tessera::test::slurp;
+
+namespace {
+
+class PageFormatView : public ::testing::Test {
+protected:
+    static void SetUpTestSuite() {
+        dir_ = new ScratchDir();
+        store_ = dir_->file("terrain.tsr");
+        auto r = run_tessera("build procedural:terrain:2048 --quiet -o " + store_);
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+    }
+    static void TearDownTestSuite() { delete dir_; }
+    static std::string view(const std::string& extra) {
+        return "view --store " + store_ + " --headless --size 160x90 --frames 30 --pool 256 " + extra;
+    }
+    static ScratchDir* dir_;
+    static std::string store_;
+};
+ScratchDir* PageFormatView::dir_ = nullptr;
+std::string PageFormatView::store_;
+
+TEST_F(PageFormatView, Bc1PoolIsReportedInTheSummaryAndTheStats) {
+    const std::string stats = dir_->file("bc1.json");
+    auto r = run_tessera(view("--page-format bc1 --stats " + stats));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    // 256 pages of 256^2 texels: BC1 is 32 KiB per page, 8 KiB more for the trilinear second level.
+    EXPECT_NE(r.out.find("GPU pool      256 pages of bc1, 40.0 KiB per page, 10.0 MiB in all; 16.8 M texels"), std::string::npos)
+        << r.out;
+    EXPECT_NE(r.out.find("fallback      0.0000%"), std::string::npos) << r.out;
+    const auto j = nlohmann::json::parse(slurp(stats));
+    EXPECT_EQ(j["gpu_pool"]["page_format"], "bc1");
+    EXPECT_EQ(j["gpu_pool"]["page_bytes"], 40960);
+    EXPECT_EQ(j["gpu_pool"]["pages"], 256);
+    EXPECT_EQ(j["gpu_pool"]["texels"], 256ull * 256 * 256);
+
+    auto rgba = run_tessera(view("--page-format rgba8 --filter bilinear"));
+    ASSERT_EQ(rgba.exit_code, 0) << rgba.out;
+    EXPECT_NE(rgba.out.find("256 pages of rgba8, 256.0 KiB per page, 64.0 MiB in all"), std::string::npos) << rgba.out;
+}
+
+TEST_F(PageFormatView, AFormatTheStoreCannotTakeIsAClearError) {
+    auto grey = run_tessera(view("--page-format bc4"));
+    EXPECT_NE(grey.exit_code, 0);
+    EXPECT_NE(grey.out.find("page format bc4 does not fit this store"), std::string::npos) << grey.out;
+    auto unknown = run_tessera(view("--page-format bc9"));
+    EXPECT_NE(unknown.exit_code, 0);
+    EXPECT_NE(unknown.out.find("--page-format 'bc9': expected auto, rgba8, bc1, bc4 or bc5"), std::string::npos) << unknown.out;
+}
+
+}  // namespace
