@@ -18,6 +18,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
 #include <cmath>
 #include <map>
 #include <numbers>
@@ -40,6 +41,8 @@
 #include "tessera/client/scene/scene.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/image_source.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "transcode.hpp"
 #include "test_util.hpp"
 
 namespace tessera::client::gl {
@@ -409,6 +412,81 @@ INSTANTIATE_TEST_SUITE_P(
     [](const auto& p) {
         return std::string(tessera::client::to_string(p.param.format)) + "_" + filter_name(p.param.filter);
     });
+
+// A height layer: one channel of u16 (or f32) samples spread over their whole range, so that
+// any rounding to 8 bits or clamping shows.
+class HeightSource final : public st::ImageSource {
+public:
+    HeightSource(std::uint32_t side, st::SampleType type) {
+        info_.width = info_.height = side;
+        info_.channels = 1;
+        info_.sample_type = type;
+        info_.colour_space = st::ColourSpace::linear;
+        info_.description = "height layer";
+    }
+    const st::SourceInfo& info() const override { return info_; }
+    tessera::Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const st::ParallelFor&) override {
+        for (std::uint32_t y = y0; y < y0 + count; ++y)
+            for (std::uint32_t x = 0; x < info_.width; ++x) {
+                const std::size_t i = std::size_t(y - y0) * info_.width + x;
+                if (info_.sample_type == st::SampleType::u16) {
+                    const auto v = static_cast<std::uint16_t>(x * 131u + y * 977u + (x * y) % 4099u);
+                    std::memcpy(dst + i * 2, &v, 2);
+                } else {
+                    const float v = float(x) * 0.37f - float(y) * 1.31f + 1e-3f * float((x * y) % 1009u);
+                    std::memcpy(dst + i * 4, &v, 4);
+                }
+            }
+        return tessera::Status();
+    }
+
+private:
+    st::SourceInfo info_;
+};
+
+// 16-bit and float pages on the GPU are the store's samples exactly (no 8-bit clamp): every page
+// of every level read back from the atlas equals the stored tile, bilinear (one level) and
+// trilinear (two: the page-mip pass draws into R16 and R32F too).
+TEST(RenderDataPages, SixteenBitAndFloatLayersOnTheGpuEqualTheStoreExactly) {
+    REQUIRE_GL(ctx);
+    using tessera::client::PageFormat;
+    for (const auto& [type, format] : {std::pair{st::SampleType::u16, PageFormat::r16}, std::pair{st::SampleType::f32, PageFormat::r32f}})
+        for (const auto filter : {gl::Filter::bilinear, gl::Filter::trilinear}) {
+            SCOPED_TRACE(std::string(tessera::client::to_string(format)) + " " + filter_name(filter));
+            ScratchDir dir;
+            HeightSource src(512, type);
+            const std::string store = build_store(dir.file("height.tsr"), "", 128, &src);
+            auto cfg = config(filter, 128, 64, /*srgb=*/false);
+            cfg.page_format = format;
+            auto vt = make_vt(cfg, store, terrain(512, 512, 512));
+            ASSERT_TRUE(vt);
+            ASSERT_TRUE(load_everything(*vt));
+            render_vt(*vt->renderer, straight_down(256, 256, height_for(1.0, straight_down(0, 0, 1), cfg.height)));
+            auto reader = st::StoreReader::open(store);
+            ASSERT_TRUE(reader.ok());
+            const auto& info = (*reader)->info();
+            tessera::client::Scratch scratch;
+            std::vector<std::uint8_t> want(page_bytes(format, info.tile_size()));
+            std::size_t pages = 0;
+            const auto* table = vt->runtime->residency().table(vt->texture);
+            ASSERT_NE(table, nullptr);
+            for (std::uint32_t l = 0; l < info.level_count(); ++l)
+                for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+                    for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                        auto tile = (*reader)->read_tile({l, x, y});
+                        ASSERT_TRUE(tile.ok());
+                        ASSERT_TRUE(tessera::client::transcode_page(info, tile->kind, info.codec, tile->bytes, format, want, scratch).ok());
+                        const auto e = table->entry(l, x, y);
+                        ASSERT_TRUE(tessera::client::PageTable::entry_valid(e));
+                        ASSERT_EQ(tessera::client::PageTable::entry_level(e), l);
+                        EXPECT_EQ(vt->renderer->read_page(tessera::client::PageTable::entry_slot(e)), want)
+                            << "page " << l << "/" << x << "/" << y << " differs on the GPU";
+                        ++pages;
+                    }
+            EXPECT_EQ(pages, page_count(info));
+            EXPECT_EQ(vt->renderer->stats().gl_errors, 0u);
+        }
+}
 
 // Displaced terrain (hills hide other hills) drawn front to back instead of with a depth
 // pre-pass: every textured pixel is still counted once (textured = covered pixels) and shaded

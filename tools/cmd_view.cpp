@@ -38,7 +38,8 @@ Command add_view(CLI::App& app) {
     c->add_option("--pool", o->pool, "physical pages in the GPU pool")->capture_default_str();
     c->add_option("--page-format", o->page_format,
                   "how the GPU pool holds pages: auto (rgba8 for today's stores), rgba8, or block-compressed on the "
-                  "transcode threads: bc1 (colour), bc4 (one channel), bc5 (two channels)")
+                  "transcode threads: bc1 (colour), bc4 (one channel), bc5 (two channels); or a 1-channel store's samples exactly: "
+                  "r16, r16f, r32f")
         ->capture_default_str();
     c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
     c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();

@@ -271,7 +271,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         rc.page_format = client::PageFormat::rgba8;  // no store holds block pages yet: nothing else to pick
     } else {
         const auto f = client::parse_page_format(o.page_format);
-        if (!f) throw Failure(fmt::format("--page-format '{}': expected auto, rgba8, bc1, bc4 or bc5", o.page_format));
+        if (!f) throw Failure(fmt::format("--page-format '{}': expected auto, rgba8, bc1, bc4, bc5, r16, r16f or r32f", o.page_format));
         rc.page_format = *f;
     }
     auto renderer = client::gl::VtRenderer::create(rc);

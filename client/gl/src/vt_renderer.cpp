@@ -86,7 +86,20 @@ GLenum atlas_internal_format(const RendererConfig& c) {
         case PageFormat::bc1: return c.srgb ? GL_COMPRESSED_SRGB_S3TC_DXT1_EXT : GL_COMPRESSED_RGB_S3TC_DXT1_EXT;
         case PageFormat::bc4: return GL_COMPRESSED_RED_RGTC1;  // data, not colour: never sRGB
         case PageFormat::bc5: return GL_COMPRESSED_RG_RGTC2;
+        case PageFormat::r16: return GL_R16;  // heights and other data: exact, never sRGB
+        case PageFormat::r16f: return GL_R16F;
+        case PageFormat::r32f: return GL_R32F;
         default: return c.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8;
+    }
+}
+
+// The client-side format and type of an uncompressed page's texels.
+std::pair<GLenum, GLenum> upload_format(PageFormat f) {
+    switch (f) {
+        case PageFormat::r16: return {GL_RED, GL_UNSIGNED_SHORT};
+        case PageFormat::r16f: return {GL_RED, GL_HALF_FLOAT};
+        case PageFormat::r32f: return {GL_RED, GL_FLOAT};
+        default: return {GL_RGBA, GL_UNSIGNED_BYTE};
     }
 }
 
@@ -108,7 +121,10 @@ Status check_page_format_support(const RendererConfig& c) {
             break;
         case PageFormat::bc4:
         case PageFormat::bc5: break;
-        default: return refuse("the renderer's atlas does not hold it yet (rgba8, bc1, bc4 or bc5)");
+        case PageFormat::r16:
+        case PageFormat::r16f:
+        case PageFormat::r32f: return {};  // core formats, colour-renderable (the page-mip pass draws into them)
+        default: return refuse("the renderer's atlas does not hold it");
     }
     if (c.tile_size % 4 != 0) return refuse(fmt::format("tiles of {} texels are not whole 4x4 blocks", c.tile_size));
     if (c.filter != Filter::bilinear && c.tile_size % 8 != 0)
@@ -186,7 +202,8 @@ public:
             glClearTexImage(atlas_.get(), 0, GL_RGBA, GL_UNSIGNED_BYTE, zero);
             if (two_levels) {
                 glClearTexImage(atlas_.get(), 1, GL_RGBA, GL_UNSIGNED_BYTE, zero);
-                TESSERA_TRY(page_mips_.init(atlas_.get(), atlas_internal_format_, columns_, rows, c.tile_size, c.srgb));
+                TESSERA_TRY(page_mips_.init(atlas_.get(), atlas_internal_format_, columns_, rows, c.tile_size,
+                                            c.srgb && c.page_format == PageFormat::rgba8));
             }
         }
         // The second level: rendered on the GPU for RGBA8 pages (page_mips.hpp); for block formats,
@@ -288,8 +305,8 @@ public:
         }
         const auto x = GLint((slot % columns_) * tile_size), y = GLint((slot / columns_) * tile_size);
         if (!is_block_compressed(cfg_.page_format)) {
-            upload(atlas_.get(), x, y, GLsizei(tile_size), GLsizei(tile_size), GL_RGBA, GL_UNSIGNED_BYTE, page_data.data(),
-                   page_data.size());
+            const auto [format, type] = upload_format(cfg_.page_format);
+            upload(atlas_.get(), x, y, GLsizei(tile_size), GLsizei(tile_size), format, type, page_data.data(), page_data.size());
             if (atlas_mips_) place_page_mip(slot, page);
         } else {
             const std::size_t level0 = page_bytes(cfg_.page_format, tile_size);
@@ -692,6 +709,18 @@ public:
     }
 
     std::vector<std::uint8_t> read_color() override { return read_colour(main_); }
+
+    std::vector<std::uint8_t> read_page(SlotId slot) override {
+        if (slot >= cfg_.pool_slots || is_block_compressed(cfg_.page_format)) return {};
+        const auto [format, type] = upload_format(cfg_.page_format);
+        std::vector<std::uint8_t> out(page_bytes(cfg_.page_format, cfg_.tile_size));
+        glPixelStorei(GL_PACK_ALIGNMENT, 1);
+        glBindBuffer(GL_PIXEL_PACK_BUFFER, 0);
+        const auto ts = GLsizei(cfg_.tile_size);
+        glGetTextureSubImage(atlas_.get(), 0, GLint((slot % columns_) * cfg_.tile_size), GLint((slot / columns_) * cfg_.tile_size),
+                             0, ts, ts, 1, format, type, GLsizei(out.size()), out.data());
+        return out;
+    }
 
     void present(int window_width, int window_height) override {
         glDisable(GL_FRAMEBUFFER_SRGB);  // copy the stored (encoded) values as they are

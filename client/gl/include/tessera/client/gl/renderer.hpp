@@ -132,6 +132,9 @@ public:
     // The last frame's colour, RGBA8 (sRGB-encoded when config.srgb), rows top to bottom. Waits:
     // for tools and tests, not the render loop.
     virtual std::vector<std::uint8_t> read_color() = 0;
+    // The texels of physical slot `slot` as the atlas holds them, in the page format (level 0,
+    // tile_size^2 texels; uncompressed formats only, else empty). Waits: for tools and tests.
+    virtual std::vector<std::uint8_t> read_page(SlotId slot) = 0;
     // Blits the last frame to the default framebuffer (windowed mode).
     virtual void present(int window_width, int window_height) = 0;
 
