@@ -46,6 +46,7 @@ struct Settings {
     std::uint32_t upload = 32;
     double latency_ms = 0;
     float prefetch = 0.3f;
+    std::string page_format = "rgba8";  // the GPU pool's (ViewerOptions::page_format)
 
     std::string store_key() const {
         return codec == Codec::jpeg ? fmt::format("t{}_b{}_jpeg{}", tile, border, quality)
@@ -69,6 +70,7 @@ struct Point {
     double fallback = kNaN, fallback_biased = kNaN, psnr_mean = kNaN, psnr_min = kNaN, mean_bias = kNaN;
     int max_error = -1;
     double wall_s = 0;
+    std::uint64_t gpu_page_bytes = 0;  // the pool's bytes per page, second level included
 };
 
 // Named LoD-bias policies (client/lod_bias.hpp).
@@ -93,8 +95,8 @@ client::LodBiasConfig bias_policy(const std::string& name) {
     throw Failure(fmt::format("unknown bias policy '{}'", name));
 }
 
-const std::vector<std::string> kSweeps = {"tile", "border", "codec", "feedback", "pool", "bias", "upload", "latency",
-                                          "prefetch"};
+const std::vector<std::string> kSweeps = {"tile", "border", "codec", "format", "feedback", "pool", "bias", "upload",
+                                          "latency", "prefetch"};
 
 std::vector<Point> make_points(const std::set<std::string>& only, bool quick) {
     std::vector<Point> pts;
@@ -120,6 +122,13 @@ std::vector<Point> make_points(const std::set<std::string>& only, bool quick) {
     for (std::uint32_t b : {2u, 8u}) add("border", fmt::format("border {}", b), [b](Settings& s) { s.border = b; });
     for (int q : {50, 75, 95}) add("codec", fmt::format("jpeg q{}", q), [q](Settings& s) { s.quality = q; });
     add("codec", "zstd", [](Settings& s) { s.codec = Codec::zstd; });
+    // GPU page formats: BC1 at the baseline's pool, and at the GPU bytes of an RGBA8 pool of 16
+    // (8x the pages), which the pool sweep's "pool 16" point shows in RGBA8.
+    add("format", "bc1", [](Settings& s) { s.page_format = "bc1"; });
+    add("format", "bc1 pool 128", [](Settings& s) {
+        s.page_format = "bc1";
+        s.pool = 128;
+    });
     for (std::uint32_t f : {4u, 16u})
         add("feedback", fmt::format("feedback 1/{}", f), [f](Settings& s) { s.feedback_scale = f; });
     // A 320x180 view of the flyover wants about 20-30 pages: the small pools are the tight ones.
@@ -311,6 +320,7 @@ Command add_bench(CLI::App& app) {
             vo.height = h;
             vo.frames = frames;
             vo.pool = p.s.pool;
+            vo.page_format = p.s.page_format;
             vo.feedback_scale = p.s.feedback_scale;
             vo.prefetch_lod = p.s.prefetch;
             vo.upload_pages_per_frame = p.s.upload;
@@ -335,6 +345,7 @@ Command add_bench(CLI::App& app) {
             p.psnr_min = rep.min_psnr();
             p.max_error = rep.max_error();
             p.mean_bias = rep.summary.mean_lod_bias();
+            p.gpu_page_bytes = rep.gpu_page_bytes;
             p.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
             fmt::print("[{:2}/{}] {:<10} {:<24} {:5.2f} ms  full detail {:6.0f} ms{}  fallback {:8.4f}%  PSNR {:5.2f} dB "
                        "(min {:5.2f})  {:>9}  ({:.1f} s)\n",
@@ -350,18 +361,18 @@ Command add_bench(CLI::App& app) {
         const std::string csv_file = (fs::path(a->out) / "bench.csv").string();
         {
             std::ofstream out(csv_file, std::ios::trunc);
-            out << "sweep,label,tile_size,border,codec,quality,feedback_scale,pool,bias_policy,upload_pages_per_frame,"
-                   "latency_ms,prefetch_lod,build_s,store_bytes,frame_ms_mean,frame_ms_p99,full_detail_ms,"
-                   "full_detail_reached,bytes_received,pages_requested,fallback_rate,fallback_rate_biased,mean_lod_bias,"
-                   "psnr_mean_db,psnr_min_db,max_error,wall_s,recommended\n";
+            out << "sweep,label,tile_size,border,codec,quality,page_format,gpu_page_bytes,feedback_scale,pool,bias_policy,"
+                   "upload_pages_per_frame,latency_ms,prefetch_lod,build_s,store_bytes,frame_ms_mean,frame_ms_p99,"
+                   "full_detail_ms,full_detail_reached,bytes_received,pages_requested,fallback_rate,"
+                   "fallback_rate_biased,mean_lod_bias,psnr_mean_db,psnr_min_db,max_error,wall_s,recommended\n";
             for (const auto& p : pts)
-                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                                    p.sweep, p.label, p.s.tile, p.s.border, tessera::to_string(p.s.codec),
                                    p.s.codec == Codec::jpeg ? std::to_string(p.s.quality) : std::string(),
-                                   p.s.feedback_scale, p.s.pool, p.s.bias, p.s.upload, p.s.latency_ms, p.s.prefetch,
-                                   num(p.build_s, 6), p.store_bytes, num(p.frame_ms_mean, 6), num(p.frame_ms_p99, 6),
-                                   num(p.full_detail_ms, 6), p.full_detail_reached ? 1 : 0, p.bytes_received,
-                                   p.pages_requested, num(p.fallback, 6), num(p.fallback_biased, 6),
+                                   p.s.page_format, p.gpu_page_bytes, p.s.feedback_scale, p.s.pool, p.s.bias, p.s.upload,
+                                   p.s.latency_ms, p.s.prefetch, num(p.build_s, 6), p.store_bytes, num(p.frame_ms_mean, 6),
+                                   num(p.frame_ms_p99, 6), num(p.full_detail_ms, 6), p.full_detail_reached ? 1 : 0,
+                                   p.bytes_received, p.pages_requested, num(p.fallback, 6), num(p.fallback_biased, 6),
                                    num(p.mean_bias, 4), num(std::min(p.psnr_mean, 99.0), 6),
                                    num(std::min(p.psnr_min, 99.0), 6), p.max_error, num(p.wall_s, 4),
                                    &p == best ? 1 : 0);
@@ -390,6 +401,7 @@ Command add_bench(CLI::App& app) {
                                  {"border", p.s.border},
                                  {"codec", std::string(tessera::to_string(p.s.codec))},
                                  {"quality", p.s.codec == Codec::jpeg ? json(p.s.quality) : json(nullptr)},
+                                 {"page_format", p.s.page_format},
                                  {"feedback_scale", p.s.feedback_scale},
                                  {"pool", p.s.pool},
                                  {"bias_policy", p.s.bias},
@@ -404,6 +416,7 @@ Command add_bench(CLI::App& app) {
                 e["full_detail_reached"] = p.full_detail_reached;
                 e["bytes_received"] = p.bytes_received;
                 e["pages_requested"] = p.pages_requested;
+                e["gpu_page_bytes"] = p.gpu_page_bytes;
                 e["fallback_rate"] = jn(p.fallback);
                 e["fallback_rate_biased"] = jn(p.fallback_biased);
                 e["mean_lod_bias"] = jn(p.mean_bias);
