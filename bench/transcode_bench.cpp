@@ -19,6 +19,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -29,6 +30,7 @@
 #include <thread>
 #include <vector>
 
+#include "block_decode.hpp"
 #include "transcode.hpp"
 #include "tessera/storage/store_reader.hpp"
 
@@ -229,6 +231,44 @@ struct Suite {
     std::string subject;  // row name compared against it
 };
 
+// What the block format costs in quality: every tile's block page, decoded as a GPU does
+// (block_decode.hpp), against its RGBA8 page, over the colour channels (bc4: the first). PSNR of
+// all tiles' texels together and of the worst tile.
+struct BlockQuality {
+    client::PageFormat format = client::PageFormat::bc1;
+    double psnr_db = 0, worst_tile_db = 0;
+};
+BlockQuality block_quality(const Corpus& c, client::PageFormat format) {
+    BlockQuality q;
+    q.format = format;
+    const std::uint32_t size = c.info->tile_size();
+    client::Scratch scratch;
+    std::vector<std::uint8_t> rgba(client::rgba8_page_bytes(*c.info)), blocks(client::page_bytes(format, size)),
+        decoded(rgba.size());
+    const int channels = format == client::PageFormat::bc1 ? 3 : 1;
+    double sum_sq = 0, worst = 1e9;
+    std::uint64_t samples = 0;
+    for (const auto& p : c.payloads) {
+        if (!client::transcode_page(*c.info, TileKind::present, c.info->codec, *p, client::PageFormat::rgba8, rgba, scratch) ||
+            !client::transcode_page(*c.info, TileKind::present, c.info->codec, *p, format, blocks, scratch) ||
+            !client::decode_block_page(format, blocks.data(), size, decoded.data()))
+            return {};
+        double tile_sq = 0;
+        for (std::size_t i = 0; i < rgba.size(); i += 4)
+            for (int ch = 0; ch < channels; ++ch) {
+                const double d = double(rgba[i + std::size_t(ch)]) - double(decoded[i + std::size_t(ch)]);
+                tile_sq += d * d;
+            }
+        const std::uint64_t n = std::uint64_t(size) * size * std::uint64_t(channels);
+        worst = std::min(worst, tile_sq > 0 ? 10 * std::log10(255.0 * 255.0 * double(n) / tile_sq) : 99.0);
+        sum_sq += tile_sq;
+        samples += n;
+    }
+    q.psnr_db = sum_sq > 0 ? 10 * std::log10(255.0 * 255.0 * double(samples) / sum_sq) : 99.0;
+    q.worst_tile_db = worst;
+    return q;
+}
+
 std::string json_number(double v) {
     char buf[64];
     std::snprintf(buf, sizeof buf, "%.6g", v);
@@ -386,7 +426,17 @@ int main(int argc, char** argv) {
                     ",\"mpix_per_cpu_s\":" + json_number(mpix / u) + ",\"wall_throughput_vs_ceiling\":" +
                     json_number(wr) + ",\"per_thread_vs_ceiling\":" + json_number(ur) + "}";
         }
-        json += "]}";
+        json += "]";
+        // Block pages' quality on this store (not for 2-channel stores: no colour block format here).
+        if (c.info->channels != 2) {
+            const auto bc = c.info->channels == 1 ? client::PageFormat::bc4 : client::PageFormat::bc1;
+            const BlockQuality q = block_quality(c, bc);
+            std::printf("  quality: %s pages against the RGBA8 pages: PSNR %.2f dB over all tiles, worst tile %.2f dB\n",
+                        std::string(client::to_string(bc)).c_str(), q.psnr_db, q.worst_tile_db);
+            json += ",\"block_quality\":{\"format\":\"" + std::string(client::to_string(bc)) +
+                    "\",\"psnr_db\":" + json_number(q.psnr_db) + ",\"worst_tile_psnr_db\":" + json_number(q.worst_tile_db) + "}";
+        }
+        json += "}";
     }
     json += "]}\n";
     std::printf("\nwall/ceil: throughput (wall clock) over the ceiling pass's, on one thread.\n"
