@@ -20,6 +20,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <cmath>
+#include <functional>
 #include <map>
 #include <numbers>
 #include <ostream>
@@ -133,35 +134,47 @@ sc::Scene terrain(std::uint32_t w, std::uint32_t h, std::uint32_t chunk_texels, 
     return s.ok() ? std::move(*s) : sc::Scene{};
 }
 
-// A smooth RGB pattern: sines of periods 37, 290 and 2300 texels, so neighbouring texels are
-// close everywhere (page borders included) at every level, and a seam (a wrong texel, a border
-// off by one) shows as an error of several 8-bit steps.
-class PatternSource final : public st::ImageSource {
+// An image source whose texels a function writes (texel x, y into `out`, texel_bytes of them).
+class FunctionSource final : public st::ImageSource {
 public:
-    PatternSource(std::uint32_t w, std::uint32_t h) {
-        info_.width = w;
-        info_.height = h;
-        info_.channels = 3;
-        info_.sample_type = st::SampleType::u8;
-        info_.colour_space = st::ColourSpace::linear;
-        info_.description = "smooth pattern";
-    }
+    using Texel = std::function<void(std::uint32_t x, std::uint32_t y, std::uint8_t* out)>;
+    FunctionSource(st::SourceInfo info, Texel texel) : info_(std::move(info)), texel_(std::move(texel)) {}
     const st::SourceInfo& info() const override { return info_; }
     tessera::Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const st::ParallelFor&) override {
+        const std::size_t texel_bytes = std::size_t(info_.channels) * st::sample_bytes(info_.sample_type);
         for (std::uint32_t y = y0; y < y0 + count; ++y)
-            for (std::uint32_t x = 0; x < info_.width; ++x) {
-                std::uint8_t* p = dst + (std::size_t(y - y0) * info_.width + x) * 3;
-                p[0] = value(std::sin(2 * kPi * (x + 0.7 * y) / 37.0));
-                p[1] = value(std::sin(2 * kPi * (0.6 * x - y) / 290.0));
-                p[2] = value(std::cos(2 * kPi * (x + y) / 2300.0));
-            }
+            for (std::uint32_t x = 0; x < info_.width; ++x) texel_(x, y, dst + (std::size_t(y - y0) * info_.width + x) * texel_bytes);
         return tessera::Status();
     }
 
 private:
-    static std::uint8_t value(double s) { return static_cast<std::uint8_t>(std::lround(128 + 100 * s)); }
     st::SourceInfo info_;
+    Texel texel_;
 };
+
+st::SourceInfo source_info(std::uint32_t w, std::uint32_t h, std::uint32_t channels, st::SampleType type, const char* what) {
+    st::SourceInfo info;
+    info.width = w;
+    info.height = h;
+    info.channels = channels;
+    info.sample_type = type;
+    info.colour_space = st::ColourSpace::linear;
+    info.description = what;
+    return info;
+}
+
+// A smooth RGB pattern: sines of periods 37, 290 and 2300 texels, so neighbouring texels are
+// close everywhere (page borders included) at every level, and a seam (a wrong texel, a border
+// off by one) shows as an error of several 8-bit steps.
+FunctionSource pattern_source(std::uint32_t w, std::uint32_t h) {
+    const auto value = [](double v) { return static_cast<std::uint8_t>(std::lround(128 + 100 * v)); };
+    return FunctionSource(source_info(w, h, 3, st::SampleType::u8, "smooth pattern"),
+                          [value](std::uint32_t x, std::uint32_t y, std::uint8_t* p) {
+                              p[0] = value(std::sin(2 * kPi * (x + 0.7 * y) / 37.0));
+                              p[1] = value(std::sin(2 * kPi * (0.6 * x - y) / 290.0));
+                              p[2] = value(std::cos(2 * kPi * (x + y) / 2300.0));
+                          });
+}
 
 std::string build_store(const std::string& path, const std::string& input, std::uint32_t tile_size, st::ImageSource* source = nullptr) {
     st::BuildOptions o;
@@ -415,34 +428,17 @@ INSTANTIATE_TEST_SUITE_P(
 
 // A height layer: one channel of u16 (or f32) samples spread over their whole range, so that
 // any rounding to 8 bits or clamping shows.
-class HeightSource final : public st::ImageSource {
-public:
-    HeightSource(std::uint32_t side, st::SampleType type) {
-        info_.width = info_.height = side;
-        info_.channels = 1;
-        info_.sample_type = type;
-        info_.colour_space = st::ColourSpace::linear;
-        info_.description = "height layer";
-    }
-    const st::SourceInfo& info() const override { return info_; }
-    tessera::Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const st::ParallelFor&) override {
-        for (std::uint32_t y = y0; y < y0 + count; ++y)
-            for (std::uint32_t x = 0; x < info_.width; ++x) {
-                const std::size_t i = std::size_t(y - y0) * info_.width + x;
-                if (info_.sample_type == st::SampleType::u16) {
-                    const auto v = static_cast<std::uint16_t>(x * 131u + y * 977u + (x * y) % 4099u);
-                    std::memcpy(dst + i * 2, &v, 2);
-                } else {
-                    const float v = float(x) * 0.37f - float(y) * 1.31f + 1e-3f * float((x * y) % 1009u);
-                    std::memcpy(dst + i * 4, &v, 4);
-                }
-            }
-        return tessera::Status();
-    }
-
-private:
-    st::SourceInfo info_;
-};
+FunctionSource height_source(std::uint32_t side, st::SampleType type) {
+    return FunctionSource(source_info(side, side, 1, type, "height layer"), [type](std::uint32_t x, std::uint32_t y, std::uint8_t* p) {
+        if (type == st::SampleType::u16) {
+            const auto v = static_cast<std::uint16_t>(x * 131u + y * 977u + (x * y) % 4099u);
+            std::memcpy(p, &v, 2);
+        } else {
+            const float v = float(x) * 0.37f - float(y) * 1.31f + 1e-3f * float((x * y) % 1009u);
+            std::memcpy(p, &v, 4);
+        }
+    });
+}
 
 // 16-bit and float pages on the GPU are the store's samples exactly (no 8-bit clamp): every page
 // of every level read back from the atlas equals the stored tile, bilinear (one level) and
@@ -454,7 +450,7 @@ TEST(RenderDataPages, SixteenBitAndFloatLayersOnTheGpuEqualTheStoreExactly) {
         for (const auto filter : {gl::Filter::bilinear, gl::Filter::trilinear}) {
             SCOPED_TRACE(std::string(tessera::client::to_string(format)) + " " + filter_name(filter));
             ScratchDir dir;
-            HeightSource src(512, type);
+            auto src = height_source(512, type);
             const std::string store = build_store(dir.file("height.tsr"), "", 128, &src);
             auto cfg = config(filter, 128, 64, /*srgb=*/false);
             cfg.page_format = format;
@@ -541,7 +537,7 @@ class RenderSeams : public ::testing::TestWithParam<gl::Filter> {};
 TEST_P(RenderSeams, NoDiscontinuitiesAtPageBordersAtAnyLevel) {
     REQUIRE_GL(ctx);
     ScratchDir dir;
-    PatternSource pattern(1024, 1024);
+    auto pattern = pattern_source(1024, 1024);
     const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56: borders everywhere
     const auto cfg = config(GetParam(), 64, 512, /*srgb=*/false, 192, 144);
     const auto scene = terrain(1024, 1024, 256);
@@ -784,7 +780,7 @@ void upload_dirty(PageTable& table, gl::VtRenderer& r) {
 // uploaded pages alike. The VT must match the reference: PSNR >= 50 dB, max error <= 3.
 void expect_trilinear_matches(bool parents, bool inverted_parents) {
     ScratchDir dir;
-    PatternSource pattern(1024, 1024);
+    auto pattern = pattern_source(1024, 1024);
     const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56
     auto levels = gl::decode_store_levels(store);
     ASSERT_TRUE(levels.ok()) << levels.error().message;
