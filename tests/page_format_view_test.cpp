@@ -1,10 +1,11 @@
 // `tessera view --page-format`: the GPU pool's format, bytes per page and texels in the summary
-// and the JSON stats; a format the store cannot take, or an unknown one, is a clear error and a
+// and the JSON stats; a format the store cannot take, an unknown one, or one the GL lacks is a clear error and a
 // non-zero exit (headless, llvmpipe, tiny images).
 #include <gtest/gtest.h>
 
 #include <nlohmann/json.hpp>
 
+#include <cstdlib>
 #include <string>
 
 #include "server_process.hpp"  // slurp
@@ -60,6 +61,21 @@ TEST_F(PageFormatView, AFormatTheStoreCannotTakeIsAClearError) {
     auto unknown = run_tessera(view("--page-format bc9"));
     EXPECT_NE(unknown.exit_code, 0);
     EXPECT_NE(unknown.out.find("--page-format 'bc9': expected auto, rgba8, bc1, bc4, bc5, r16, r16f or r32f"), std::string::npos) << unknown.out;
+}
+
+// A GL without the format (Mesa told to hide S3TC) is an error naming the format and the
+// extension, never a black image.
+TEST_F(PageFormatView, AFormatTheGlLacksIsAClearError) {
+    ::setenv("MESA_EXTENSION_OVERRIDE", "-GL_EXT_texture_compression_s3tc", 1);
+    auto r = run_tessera(view("--page-format bc1"));
+    ::unsetenv("MESA_EXTENSION_OVERRIDE");
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.out.find("page format bc1: this GL lacks GL_EXT_texture_compression_s3tc"), std::string::npos) << r.out;
+    // The other formats do not need it.
+    ::setenv("MESA_EXTENSION_OVERRIDE", "-GL_EXT_texture_compression_s3tc", 1);
+    auto rgba = run_tessera(view("--page-format rgba8"));
+    ::unsetenv("MESA_EXTENSION_OVERRIDE");
+    EXPECT_EQ(rgba.exit_code, 0) << rgba.out;
 }
 
 }  // namespace
