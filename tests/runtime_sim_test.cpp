@@ -19,7 +19,6 @@
 namespace {
 
 using namespace tessera::client;
-using tessera::test::ScratchDir;
 
 // Serves a local store with a fixed latency in frames; replace semantics like the real sources.
 class DelayedSource final : public TileSource {
@@ -112,13 +111,8 @@ std::vector<FeedbackId> feedback(const tessera::storage::StoreInfo& info, std::u
 
 class RuntimeSim : public ::testing::Test {
 protected:
-    static void SetUpTestSuite() {
-        dir_ = new ScratchDir();
-        path_ = dir_->file("terrain.tsr");
-        auto r = tessera::test::run_tessera("build procedural:terrain:8192 --quiet -o " + path_);
-        ASSERT_EQ(r.exit_code, 0) << r.out;
-    }
-    static void TearDownTestSuite() { delete dir_; }
+    // Built once per build tree and shared by the test processes (read only).
+    static void SetUpTestSuite() { path_ = tessera::test::cached_store("procedural:terrain:8192", "terrain.tsr"); }
 
     struct Run {
         std::vector<float> bias;
@@ -163,10 +157,8 @@ protected:
         return std::move(*rt);
     }
 
-    static ScratchDir* dir_;
     static std::string path_;
 };
-ScratchDir* RuntimeSim::dir_ = nullptr;
 std::string RuntimeSim::path_;
 
 TEST_F(RuntimeSim, StaticViewConvergesWithALargePool) {

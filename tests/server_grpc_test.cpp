@@ -30,9 +30,9 @@ using tessera::test::ServerProcess;
 namespace v1 = tessera::v1;
 namespace fs = std::filesystem;
 
-// Stores shared by the tests of one process, each built on first use (ctest runs every test in
-// a process of its own, so a test pays only for the stores it uses): a 16384² JPEG store (6054
-// tiles: many keys), a 4096² raw store (big tiles: a few fill any buffer) and a small zstd one.
+// Stores built on first use and shared by every test process of this build tree (cached_store;
+// the tests only read them): a 16384² JPEG store (6054 tiles: many keys), a 4096² raw store (big
+// tiles: a few fill any buffer) and a small zstd one.
 class Stores {
 public:
     static const std::string& jpeg() { return get().built(get().jpeg_, "procedural:terrain:16384", "terrain.tsr"); }
@@ -50,16 +50,10 @@ private:
     }
     const std::string& built(std::string& path, const std::string& source, const std::string& file) {
         std::lock_guard lock(mu_);
-        if (path.empty()) {
-            const std::string out = dir_.file(file);
-            auto r = tessera::test::run_tessera("build " + source + " -o " + out + " --quiet");
-            if (r.exit_code != 0) throw std::runtime_error("build failed: " + r.out);
-            path = out;
-        }
+        if (path.empty()) path = tessera::test::cached_store(source, file);  // shared across the test processes
         return path;
     }
     std::mutex mu_;
-    ScratchDir dir_;
     std::string jpeg_, raw_, small_;
 };
 

@@ -8,7 +8,9 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -58,6 +60,32 @@ inline RunResult run_tessera(const std::string& args) {
     const int status = ::pclose(p);
     r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
     return r;
+}
+
+// A store built once per build tree and shared by every test process that asks for the same
+// build arguments: ctest runs each test in a process of its own, and a large store costs seconds
+// to build (minutes under ThreadSanitizer). The builder is deterministic (the same arguments give
+// the same bytes) and renames whole files into place, so concurrent first builds are harmless.
+// Tests must not modify the file: they copy it first. Entries live under a directory named after
+// the tessera binary (size, mtime): a rebuilt binary builds afresh and removes the old entries.
+// Throws std::runtime_error when the build fails.
+inline std::string cached_store(const std::string& build_args, const std::string& file) {
+    namespace fs = std::filesystem;
+    std::error_code ec;
+    const auto binary_size = fs::file_size(TESSERA_BINARY, ec);
+    const auto binary_time = fs::last_write_time(TESSERA_BINARY, ec).time_since_epoch().count();
+    const fs::path root = TESSERA_TEST_STORE_CACHE;
+    const std::string binary_key = std::to_string(binary_size) + "-" + std::to_string(binary_time);
+    // The file keeps its name (a server names a store after its file): the arguments pick the directory.
+    const fs::path dir = root / binary_key / std::to_string(std::hash<std::string>{}(build_args));
+    const fs::path out = dir / file;
+    if (fs::exists(out, ec)) return out.string();
+    for (const auto& e : fs::directory_iterator(root, ec))
+        if (e.path().filename() != binary_key) fs::remove_all(e.path(), ec);  // entries of older binaries
+    fs::create_directories(dir, ec);
+    const RunResult r = run_tessera("build " + build_args + " -o " + out.string() + " --quiet");
+    if (r.exit_code != 0 || !fs::exists(out, ec)) throw std::runtime_error("build " + build_args + " failed: " + r.out);
+    return out.string();
 }
 
 inline std::vector<std::uint8_t> read_file(const std::string& path) {
