@@ -94,6 +94,7 @@ class RuntimeImpl final : public Runtime {
 public:
     RuntimeImpl(const RuntimeConfig& config, PageUploader& uploader, Residency residency)
         : config_(config),
+          pool_format_(uploader.pool_format()),
           uploader_(uploader),
           residency_(std::move(residency)),
           view_(residency_),
@@ -130,11 +131,10 @@ public:
         if (info->levels.empty()) return Error{Errc::invalid_argument, "store " + store + " has no levels"};
         // Every page is transcoded to the pool's format: a store that cannot take it is refused
         // here, with the reason, rather than failing page by page.
-        const PagePoolFormat pool = uploader_.pool_format();
-        if (Status st = check_page_format(*info, pool.format); !st)
+        if (Status st = check_page_format(*info, pool_format_.format); !st)
             return Error{st.error().code, "store " + store + ": " + st.error().message};
-        if (pool.second_level && info->tile_size() % 8 != 0)
-            return Error{Errc::invalid_argument, "store " + store + ": " + std::string(to_string(pool.format)) +
+        if (pool_format_.second_level && info->tile_size() % 8 != 0)
+            return Error{Errc::invalid_argument, "store " + store + ": " + std::string(to_string(pool_format_.format)) +
                                                      " pages with a second level need tiles of a multiple of 8 texels"};
         const auto& l0 = info->levels[0];
         TESSERA_TRY(residency_.add_texture(id, l0.tiles_x, l0.tiles_y, info->level_count()));
@@ -425,8 +425,7 @@ private:
 
     // Bytes of one upload of `info`'s pages in the pool's format.
     std::size_t upload_bytes(const storage::StoreInfo& info) const {
-        const PagePoolFormat pool = uploader_.pool_format();
-        return page_upload_bytes(pool.format, info.tile_size(), pool.second_level);
+        return page_upload_bytes(pool_format_.format, info.tile_size(), pool_format_.second_level);
     }
 
     int take_staging() {
@@ -453,10 +452,9 @@ private:
             const auto& info = textures_[key.texture].info;
             std::span<std::uint8_t> dst(staging_[static_cast<std::size_t>(s)].data(), upload_bytes(*info));
             w.staging = s;
-            const PagePoolFormat pool = uploader_.pool_format();
             if (!pool_) {
-                const auto st = transcode_page(*info, w.tile->kind, w.tile->codec, w.tile->payload, pool.format, dst, scratch_,
-                                               pool.second_level);
+                const auto st = transcode_page(*info, w.tile->kind, w.tile->codec, w.tile->payload, pool_format_.format, dst,
+                                               scratch_, pool_format_.second_level);
                 finish_decode(key, st.ok());
                 continue;
             }
@@ -466,8 +464,8 @@ private:
             job.info = info;
             job.kind = w.tile->kind;
             job.codec = w.tile->codec;
-            job.format = pool.format;
-            job.second_level = pool.second_level;
+            job.format = pool_format_.format;
+            job.second_level = pool_format_.second_level;
             job.payload = std::shared_ptr<const std::vector<std::uint8_t>>(w.tile, &w.tile->payload);
             job.destination = dst;
             job.priority = static_cast<std::uint32_t>(std::max(0.0f, priority));
@@ -592,6 +590,8 @@ private:
     }
 
     RuntimeConfig config_;
+    // The uploader's format, read once: staging buffers and textures are sized by it.
+    PagePoolFormat pool_format_;
     PageUploader& uploader_;
     Residency residency_;
     ResidencyAdapter view_;
