@@ -6,12 +6,15 @@
 //   transcode      client::transcode_to_rgba8, one thread
 //   pool xN        client::TranscodePool with N workers, end to end (submit, decode, poll)
 // and for zstd: ZSTD_decompressDCtx alone (the ceiling), transcode (decompress + RGBA8 expand),
-// and the pool. Every decode writes into a ring of page-sized staging slots (as an upload ring),
+// and the pool; for a block-codec store (--blocks: `tessera build --codec bc1|bc4|bc5|bc7`): zstd
+// alone (the ceiling), the client's unpack of a page and its second level into its own pool format
+// (transcode_page: no decode, no encode) and the decode to RGBA8. Every decode writes into a ring of page-sized staging slots (as an upload ring),
 // not one hot buffer. Prints a table; JSON with --json FILE. Target: transcode >= 0.9x libjpeg RGB.
 //
 //   tessera build procedural:terrain:4096 --codec jpeg -o terrain-jpeg.tsr
 //   tessera build procedural:terrain:4096 --codec zstd -o terrain-zstd.tsr
-//   transcode_bench --jpeg terrain-jpeg.tsr --zstd terrain-zstd.tsr [--rounds 7] [--json out.json]
+//   tessera build procedural:terrain:4096 --codec bc7 -o terrain-bc7.tsr
+//   transcode_bench --jpeg terrain-jpeg.tsr --zstd terrain-zstd.tsr [--blocks terrain-bc7.tsr] [--rounds 7] [--json out.json]
 #include <turbojpeg.h>
 #include <zstd.h>
 
@@ -129,9 +132,16 @@ Timing pass_tj(const Corpus& c, Ring& ring, int pf) {
     return t;
 }
 
+// Bytes a zstd payload of the store decompresses to: the tile's samples, or a block tile's blocks
+// and its second level's.
+std::size_t unpacked_bytes(const storage::StoreInfo& info) {
+    const auto f = client::page_format_of(info.codec);
+    return f ? client::page_upload_bytes(*f, info.tile_size(), true) : info.tile_bytes();
+}
+
 Timing pass_zstd_only(const Corpus& c, Ring& ring) {
     ZSTD_DCtx* d = ZSTD_createDCtx();
-    const std::size_t n = c.info->tile_bytes();
+    const std::size_t n = unpacked_bytes(*c.info);
     const Stopwatch watch(CLOCK_THREAD_CPUTIME_ID);
     bool ok = true;
     for (std::size_t i = 0; i < c.payloads.size(); ++i) {
@@ -156,15 +166,15 @@ Timing pass_transcode(const Corpus& c, Ring& ring) {
 
 // Decode and encode into a compressed page format (the client-transcode route): the ring slots
 // are RGBA8-sized, larger than any block page.
-Timing pass_transcode_to(const Corpus& c, Ring& ring, client::PageFormat format) {
+Timing pass_transcode_to(const Corpus& c, Ring& ring, client::PageFormat format, bool second_level = false) {
     client::Scratch scratch;
     const Codec codec = c.info->codec;
-    const std::size_t bytes = client::page_bytes(format, c.info->tile_size());
+    const std::size_t bytes = client::page_upload_bytes(format, c.info->tile_size(), second_level);
     const Stopwatch watch(CLOCK_THREAD_CPUTIME_ID);
     bool ok = true;
     for (std::size_t i = 0; i < c.payloads.size(); ++i)
         ok &= client::transcode_page(*c.info, TileKind::present, codec, *c.payloads[i], format, ring.slot(i).first(bytes),
-                                     scratch)
+                                     scratch, second_level)
                   .ok();
     return watch.stop(ok);
 }
@@ -289,30 +299,32 @@ std::string cpu_model() {
 }  // namespace
 
 int main(int argc, char** argv) {
-    std::string jpeg_path, zstd_path, json_path;
+    std::string jpeg_path, zstd_path, blocks_path, json_path;
     int rounds = 7;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
         auto value = [&]() -> std::string { return i + 1 < argc ? argv[++i] : ""; };
         if (a == "--jpeg") jpeg_path = value();
         else if (a == "--zstd") zstd_path = value();
+        else if (a == "--blocks") blocks_path = value();
         else if (a == "--json") json_path = value();
         else if (a == "--rounds") rounds = std::max(1, std::atoi(value().c_str()));
         else {
             std::fprintf(stderr,
-                         "usage: transcode_bench --jpeg STORE.tsr [--zstd STORE.tsr] [--rounds N] [--json FILE]\n"
-                         "  make the stores with: tessera build procedural:terrain:4096 --codec jpeg|zstd -o X.tsr\n");
+                         "usage: transcode_bench --jpeg STORE.tsr [--zstd STORE.tsr] [--blocks STORE.tsr] [--rounds N] [--json FILE]\n"
+                         "  make the stores with: tessera build procedural:terrain:4096 --codec jpeg|zstd|bc7 -o X.tsr\n");
             return 2;
         }
     }
-    if (jpeg_path.empty() && zstd_path.empty()) {
-        std::fprintf(stderr, "transcode_bench: give --jpeg and/or --zstd (see --help)\n");
+    if (jpeg_path.empty() && zstd_path.empty() && blocks_path.empty()) {
+        std::fprintf(stderr, "transcode_bench: give --jpeg, --zstd and/or --blocks (see --help)\n");
         return 2;
     }
 
-    Corpus jpeg, zstd;
+    Corpus jpeg, zstd, blocks;
     if (!jpeg_path.empty() && !load(jpeg_path, jpeg)) return 1;
     if (!zstd_path.empty() && !load(zstd_path, zstd)) return 1;
+    if (!blocks_path.empty() && !load(blocks_path, blocks)) return 1;
 
     std::vector<Suite> suites;
     std::vector<std::unique_ptr<Ring>> rings;
@@ -358,6 +370,23 @@ int main(int argc, char** argv) {
         s.rows.push_back({"transcode", 1, {}});
         s.passes.push_back([&zstd, &ring] { return pass_transcode(zstd, ring); });
         add_pool_rows(s, ring);
+        suites.push_back(std::move(s));
+    }
+    if (!blocks.payloads.empty()) {
+        const auto format = client::page_format_of(blocks.info->codec);
+        if (!format) {
+            std::fprintf(stderr, "%s is not a block-codec store (tessera build --codec bc1|bc4|bc5|bc7)\n", blocks_path.c_str());
+            return 1;
+        }
+        rings.push_back(std::make_unique<Ring>(std::max(client::rgba8_page_bytes(*blocks.info), unpacked_bytes(*blocks.info))));
+        Ring& ring = *rings.back();
+        Suite s{std::string(tessera::to_string(blocks.info->codec)), &blocks, {}, {}, "zstd only", "unpack"};
+        s.rows.push_back({"zstd only", 1, {}});
+        s.passes.push_back([&blocks, &ring] { return pass_zstd_only(blocks, ring); });
+        s.rows.push_back({"unpack", 1, {}});  // into the pool's format: the page and its second level
+        s.passes.push_back([&blocks, &ring, f = *format] { return pass_transcode_to(blocks, ring, f, true); });
+        s.rows.push_back({"decode rgba8", 1, {}});
+        s.passes.push_back([&blocks, &ring] { return pass_transcode(blocks, ring); });
         suites.push_back(std::move(s));
     }
 
@@ -427,6 +456,17 @@ int main(int argc, char** argv) {
                     json_number(wr) + ",\"per_thread_vs_ceiling\":" + json_number(ur) + "}";
         }
         json += "]";
+        if (const auto bf = client::page_format_of(c.info->codec)) {
+            // Bytes of blocks a thread unpacks per CPU second (the page and its second level).
+            const Row& unpack = s.rows[1];
+            std::vector<double> cpu;
+            for (const Timing& t : unpack.timings) cpu.push_back(t.cpu);
+            const double gbps = tiles * double(unpacked_bytes(*c.info)) / median(cpu) / 1e9;
+            std::printf("  unpack: %.2f GB/s of %s blocks per thread (page and second level)\n", gbps,
+                        std::string(client::to_string(*bf)).c_str());
+            json += ",\"unpack_gb_per_cpu_s\":" + json_number(gbps) + "}";
+            continue;
+        }
         // Block pages' quality on this store (not for 2-channel stores: no colour block format here).
         if (c.info->channels != 2) {
             const auto bc = c.info->channels == 1 ? client::PageFormat::bc4 : client::PageFormat::bc1;

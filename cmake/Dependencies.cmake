@@ -10,6 +10,8 @@ pkg_check_modules(PROTOBUF REQUIRED IMPORTED_TARGET protobuf)
 find_package(absl REQUIRED CONFIG)  # comes with gRPC; the server's flat hash maps
 find_package(nlohmann_json REQUIRED CONFIG)
 find_package(ZLIB REQUIRED)  # PNG encoding of decoded tiles
+# stb_dxt: BC1/BC4/BC5 blocks (tessera::blocks), for block-codec stores and the client's pages.
+pkg_check_modules(STB REQUIRED IMPORTED_TARGET stb)
 if(NOT TESSERA_FUZZ_ONLY)
   # Debian 12's OpenImageIO CMake config names /usr/include/opencv4 even when OpenCV is not
   # installed; its pkg-config file is sound, so use that.
@@ -24,8 +26,6 @@ if(NOT TESSERA_FUZZ_ONLY)
   pkg_check_modules(EGL REQUIRED IMPORTED_TARGET egl)
   pkg_check_modules(GLFW REQUIRED IMPORTED_TARGET glfw3)
   pkg_check_modules(TINYOBJ REQUIRED IMPORTED_TARGET tinyobjloader)
-  # stb_dxt: the client's real-time BC1/BC4/BC5 page encoder.
-  pkg_check_modules(STB REQUIRED IMPORTED_TARGET stb)
   if(TESSERA_BUILD_TESTS)
     find_package(GTest REQUIRED)
     # libsquish: an independent BC decoder, so the tests do not check our blocks with our own code.

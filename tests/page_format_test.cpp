@@ -87,14 +87,15 @@ StoreInfo info_of(std::uint32_t channels, SampleType t, std::uint32_t tile_size 
 }
 
 TEST(PageFormat, NamesAndSizes) {
-    for (auto f : {PageFormat::rgba8, PageFormat::bc1, PageFormat::bc4, PageFormat::bc5, PageFormat::r16, PageFormat::r16f,
-                   PageFormat::r32f})
+    for (auto f : {PageFormat::rgba8, PageFormat::bc1, PageFormat::bc4, PageFormat::bc5, PageFormat::bc7, PageFormat::r16,
+                   PageFormat::r16f, PageFormat::r32f})
         EXPECT_EQ(parse_page_format(to_string(f)), f);
     EXPECT_EQ(parse_page_format("bc7x"), std::nullopt);
     EXPECT_EQ(page_bytes(PageFormat::rgba8, 256), 262144u);
     EXPECT_EQ(page_bytes(PageFormat::bc1, 256), 32768u);  // 8x the pages of RGBA8 in the same bytes
     EXPECT_EQ(page_bytes(PageFormat::bc4, 256), 32768u);
     EXPECT_EQ(page_bytes(PageFormat::bc5, 256), 65536u);
+    EXPECT_EQ(page_bytes(PageFormat::bc7, 256), 65536u);
     EXPECT_EQ(page_bytes(PageFormat::r16, 256), 131072u);
     EXPECT_EQ(page_bytes(PageFormat::r32f, 256), 262144u);
 }
@@ -284,6 +285,67 @@ TEST(PageFormat, SecondLevelIsTheBlockEncodedTwoByTwoMeans) {
                                 std::vector<std::uint8_t>(info_of(3, SampleType::u8).tile_bytes()), PageFormat::rgba8, rgba_out,
                                 scratch, true)
                      .ok());
+}
+
+// A store built with a block codec (blocks made by the builder, quality first): a pool of that
+// format gets the stored blocks and second level as they are, an RGBA8 pool their decode, and the
+// blocks are close to a lossless build of the same source.
+TEST(PageFormat, BlockCodecStoresReachThePoolAsStored) {
+    ScratchDir dir;
+    storage::BuildOptions o;
+    o.threads = 2;
+    o.codec = Codec::zstd;
+    ASSERT_TRUE(storage::build_store("procedural:terrain:480", dir.file("lossless.tsr"), o).ok());
+    auto lossless = storage::StoreReader::open(dir.file("lossless.tsr"));
+    ASSERT_TRUE(lossless.ok());
+    struct Case {
+        Codec codec;
+        PageFormat format;
+        double min_psnr;  // decoded blocks against the lossless page, worst tile
+    };
+    for (const Case c : {Case{Codec::bc1, PageFormat::bc1, 29.0}, Case{Codec::bc7, PageFormat::bc7, 40.0}}) {
+        SCOPED_TRACE(std::string(to_string(c.codec)));
+        o.codec = c.codec;
+        const std::string path = dir.file(std::string(to_string(c.codec)) + ".tsr");
+        auto built = storage::build_store("procedural:terrain:480", path, o);
+        ASSERT_TRUE(built.ok()) << built.error().message;
+        auto reader = storage::StoreReader::open(path);
+        ASSERT_TRUE(reader.ok());
+        const StoreInfo& info = (*reader)->info();
+        ASSERT_EQ(info.codec, c.codec);
+        const std::uint32_t size = info.tile_size();
+        Scratch scratch;
+        std::vector<std::uint8_t> blocks, pool(page_upload_bytes(c.format, size, true)), rgba(page_bytes(PageFormat::rgba8, size)),
+            decoded(rgba.size()), want(rgba.size());
+        double worst = 99;
+        for (std::uint32_t level = 0; level < info.level_count(); ++level)
+            for (std::uint32_t y = 0; y < info.levels[level].tiles_y; ++y)
+                for (std::uint32_t x = 0; x < info.levels[level].tiles_x; ++x) {
+                    auto tile = (*reader)->read_tile({level, x, y});
+                    ASSERT_TRUE(tile.ok());
+                    ASSERT_EQ(tile->kind, TileKind::present);
+                    ASSERT_TRUE(storage::unpack_block_tile(info, tile->bytes, blocks).ok());
+                    ASSERT_TRUE(transcode_page(info, tile->kind, info.codec, tile->bytes, c.format, pool, scratch, true).ok());
+                    EXPECT_EQ(pool, blocks) << "tile " << level << "/" << x << "/" << y;
+                    ASSERT_TRUE(transcode_to_rgba8(info, tile->kind, info.codec, tile->bytes, rgba, scratch).ok());
+                    ASSERT_TRUE(decode_block_page(c.format, blocks.data(), size, decoded.data()));
+                    EXPECT_EQ(rgba, decoded) << "tile " << level << "/" << x << "/" << y;
+                    auto source = (*lossless)->read_tile({level, x, y});
+                    ASSERT_TRUE(source.ok());
+                    const StoreInfo& li = (*lossless)->info();
+                    ASSERT_TRUE(transcode_to_rgba8(li, source->kind, li.codec, source->bytes, want, scratch).ok());
+                    worst = std::min(worst, psnr(want, decoded, 4, {0, 1, 2}));
+                }
+        EXPECT_GE(worst, c.min_psnr);
+        RecordProperty(std::string(to_string(c.codec)) + "_worst_tile_psnr_db", std::to_string(worst));
+        if (c.codec == Codec::bc1) {  // an independent decoder reads the builder's blocks alike
+            auto tile = (*reader)->read_tile({0, 0, 0});
+            ASSERT_TRUE(tile.ok() && storage::unpack_block_tile(info, tile->bytes, blocks).ok());
+            blocks.resize(page_bytes(PageFormat::bc1, size));
+            ASSERT_TRUE(decode_block_page(PageFormat::bc1, blocks.data(), size, decoded.data()));
+            EXPECT_GE(psnr(decoded, squish_decode(blocks, size, squish::kDxt1), 4, {0, 1, 2}), 48.0);
+        }
+    }
 }
 
 }  // namespace

@@ -176,11 +176,12 @@ FunctionSource pattern_source(std::uint32_t w, std::uint32_t h) {
                           });
 }
 
-std::string build_store(const std::string& path, const std::string& input, std::uint32_t tile_size, st::ImageSource* source = nullptr) {
+std::string build_store(const std::string& path, const std::string& input, std::uint32_t tile_size, st::ImageSource* source = nullptr,
+                        tessera::Codec codec = tessera::Codec::zstd) {
     st::BuildOptions o;
     o.tile_size = tile_size;
     o.border = 4;
-    o.codec = tessera::Codec::zstd;  // lossless
+    o.codec = codec;  // zstd: lossless
     o.threads = 2;
     auto r = source ? st::build_store(*source, path, o) : st::build_store(input, path, o);
     EXPECT_TRUE(r.ok()) << r.error().message;
@@ -302,9 +303,9 @@ std::set<std::uint32_t> levels_in_view(const sc::Camera& cam, const st::StoreInf
 std::unique_ptr<Vt> expect_matches_reference(const gl::RendererConfig& cfg, const sc::Scene& scene,
                                              std::span<const sc::Camera> cameras, double min_psnr = 50.0,
                                              int max_error = 3, bool lossless_reference = false,
-                                             double max_off_fraction = 0.001) {
+                                             double max_off_fraction = 0.001, tessera::Codec codec = tessera::Codec::zstd) {
     ScratchDir dir;
-    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128);
+    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128, nullptr, codec);
     auto vt = make_vt(cfg, store, scene);
     if (!vt) {
         ADD_FAILURE() << "no VT";
@@ -396,6 +397,7 @@ struct BlockCase {
     double min_psnr;
     int max_error;
     double max_off_fraction;  // of pixels off by more than 3
+    tessera::Codec store_codec = tessera::Codec::zstd;  // a block codec: the builder's blocks, uploaded as stored
 };
 class RenderBlockPages : public ::testing::TestWithParam<BlockCase> {};
 
@@ -409,7 +411,7 @@ TEST_P(RenderBlockPages, MatchTheReference) {
         straight_down(700.5, 900.25, height_for(1.7, straight_down(0, 0, 1), cfg.height)),
     };
     const auto vt = expect_matches_reference(cfg, terrain(2048, 2048, 512), cameras, b.min_psnr, b.max_error,
-                                             b.lossless_reference, b.max_off_fraction);
+                                             b.lossless_reference, b.max_off_fraction, b.store_codec);
     ASSERT_TRUE(vt);
     EXPECT_EQ(vt->renderer->pool_format().format, b.format);
     EXPECT_EQ(vt->renderer->pool_format().second_level, b.filter != gl::Filter::bilinear);
@@ -421,9 +423,11 @@ INSTANTIATE_TEST_SUITE_P(
     ::testing::Values(BlockCase{PageFormat::bc1, gl::Filter::bilinear, true, false, 50.0, 32, 0.001},
                       BlockCase{PageFormat::bc5, gl::Filter::bilinear, false, false, 50.0, 3, 0.0},
                       BlockCase{PageFormat::bc1, gl::Filter::trilinear, true, true, 32.0, 255, 1.0},
-                      BlockCase{PageFormat::bc1, gl::Filter::anisotropic, true, true, 32.0, 255, 1.0}),
+                      BlockCase{PageFormat::bc1, gl::Filter::anisotropic, true, true, 32.0, 255, 1.0},
+                      BlockCase{PageFormat::bc1, gl::Filter::bilinear, true, false, 50.0, 32, 0.001, tessera::Codec::bc1}),
     [](const auto& p) {
-        return std::string(tessera::client::to_string(p.param.format)) + "_" + filter_name(p.param.filter);
+        return std::string(tessera::client::to_string(p.param.format)) + "_" + filter_name(p.param.filter) +
+               (p.param.store_codec == tessera::Codec::zstd ? "" : "_" + std::string(tessera::to_string(p.param.store_codec)) + "_store");
     });
 
 // A height layer: one channel of u16 (or f32) samples spread over their whole range, so that

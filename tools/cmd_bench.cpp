@@ -129,6 +129,16 @@ std::vector<Point> make_points(const std::set<std::string>& only, bool quick) {
         s.page_format = "bc1";
         s.pool = 128;
     });
+    // Build-time blocks: the store holds the pool's blocks (slow encoders, once); the client unpacks.
+    add("format", "bc1 store", [](Settings& s) {
+        s.codec = Codec::bc1;
+        s.page_format = "bc1";
+    });
+    add("format", "bc7 store pool 64", [](Settings& s) {  // the GPU bytes of an RGBA8 pool of 16
+        s.codec = Codec::bc7;
+        s.page_format = "bc7";
+        s.pool = 64;
+    });
     for (std::uint32_t f : {4u, 16u})
         add("feedback", fmt::format("feedback 1/{}", f), [f](Settings& s) { s.feedback_scale = f; });
     // A 320x180 view of the flyover wants about 20-30 pages: the small pools are the tight ones.

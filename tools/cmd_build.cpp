@@ -31,8 +31,10 @@ Command add_build(CLI::App& app) {
     c->add_option("--tile-size", a->opt.tile_size, "Stored tile size in texels: payload + 2 x border (power of two, 64-1024)")
         ->capture_default_str();
     c->add_option("--border", a->opt.border, "Texels of the neighbouring tiles stored on each side (even)")->capture_default_str();
-    c->add_option("--codec", a->codec, "Tile codec: jpeg, zstd or raw (default: jpeg for 8-bit grey/RGB, zstd otherwise)")
-        ->check(CLI::IsMember({"jpeg", "zstd", "raw"}));
+    c->add_option("--codec", a->codec,
+                  "Tile codec: jpeg, zstd or raw, or GPU blocks made here, quality first, and kept with zstd: bc1 (RGB), "
+                  "bc4 (grey), bc5 (two channels), bc7 (RGB or RGBA) (default: jpeg for 8-bit grey/RGB, zstd otherwise)")
+        ->check(CLI::IsMember({"jpeg", "zstd", "raw", "bc1", "bc4", "bc5", "bc7"}));
     c->add_option("--quality", a->opt.quality, "JPEG quality (1-100)")->capture_default_str();
     c->add_option("--chroma", a->chroma, "JPEG chroma subsampling: 420 or 444 (default: 444 at quality >= 90, else 420)")
         ->check(CLI::IsMember({"420", "444"}));

@@ -45,7 +45,7 @@ Command add_demo(CLI::App& app) {
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference renderer every N frames (0: never)")
         ->capture_default_str();
     c->add_option("--pool", a->pool, "physical pages in the GPU pool")->capture_default_str();
-    c->add_option("--page-format", a->page_format, "auto, rgba8, bc1, bc4, bc5, r16, r16f or r32f (tessera view --help)")->capture_default_str();
+    c->add_option("--page-format", a->page_format, "auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f (tessera view --help)")->capture_default_str();
     c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
     c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
     c->add_flag("--no-pace", a->no_pace,

@@ -37,9 +37,10 @@ Command add_view(CLI::App& app) {
     c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`");
     c->add_option("--pool", o->pool, "physical pages in the GPU pool")->capture_default_str();
     c->add_option("--page-format", o->page_format,
-                  "how the GPU pool holds pages: auto (rgba8 for today's stores), rgba8, or block-compressed on the "
-                  "transcode threads: bc1 (colour), bc4 (one channel), bc5 (two channels); or a 1-channel store's samples exactly: "
-                  "r16, r16f, r32f")
+                  "how the GPU pool holds pages: auto (a block-codec store's own blocks, else rgba8), rgba8, or "
+                  "block-compressed (a store of that codec: its blocks as they are; any other store: encoded on the transcode "
+                  "threads): bc1 (colour), bc4 (one channel), bc5 (two channels), bc7 (colour with alpha); or a 1-channel "
+                  "store's samples exactly: r16, r16f, r32f")
         ->capture_default_str();
     c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
     c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();

@@ -268,10 +268,11 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rc.border = info->border;
     rc.srgb = info->colour_space == storage::ColourSpace::srgb;
     if (o.page_format == "auto") {
-        rc.page_format = client::PageFormat::rgba8;  // no store holds block pages yet: nothing else to pick
+        // A block-codec store's own blocks go to the GPU as they are; anything else as RGBA8.
+        rc.page_format = client::page_format_of(info->codec).value_or(client::PageFormat::rgba8);
     } else {
         const auto f = client::parse_page_format(o.page_format);
-        if (!f) throw Failure(fmt::format("--page-format '{}': expected auto, rgba8, bc1, bc4, bc5, r16, r16f or r32f", o.page_format));
+        if (!f) throw Failure(fmt::format("--page-format '{}': expected auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f", o.page_format));
         rc.page_format = *f;
     }
     auto renderer = client::gl::VtRenderer::create(rc);

@@ -3,8 +3,8 @@
 namespace tessera::client {
 
 namespace {
-constexpr PageFormat kAll[] = {PageFormat::rgba8, PageFormat::bc1,  PageFormat::bc4, PageFormat::bc5,
-                               PageFormat::r16,   PageFormat::r16f, PageFormat::r32f};
+constexpr PageFormat kAll[] = {PageFormat::rgba8, PageFormat::bc1,  PageFormat::bc4,  PageFormat::bc5,
+                               PageFormat::bc7,   PageFormat::r16,  PageFormat::r16f, PageFormat::r32f};
 }  // namespace
 
 std::string_view to_string(PageFormat f) {
@@ -13,6 +13,7 @@ std::string_view to_string(PageFormat f) {
         case PageFormat::bc1: return "bc1";
         case PageFormat::bc4: return "bc4";
         case PageFormat::bc5: return "bc5";
+        case PageFormat::bc7: return "bc7";
         case PageFormat::r16: return "r16";
         case PageFormat::r16f: return "r16f";
         case PageFormat::r32f: return "r32f";

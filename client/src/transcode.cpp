@@ -1,7 +1,5 @@
 #include "transcode.hpp"
 
-#include "block_encode.hpp"
-
 #include <turbojpeg.h>
 #include <zstd.h>
 
@@ -20,6 +18,7 @@
 #include <vector>
 
 #include "tessera/half_float.hpp"
+#include "tessera/storage/codec.hpp"
 
 namespace tessera::client {
 
@@ -33,7 +32,8 @@ struct Scratch::Impl {
     tjhandle jpeg = nullptr;
     ZSTD_DCtx* zstd = nullptr;
     std::unique_ptr<std::uint8_t[]> samples;  // decompressed zstd tile (never zero-filled)
-    std::unique_ptr<std::uint8_t[]> rgba;     // RGBA8 page before block encoding
+    std::unique_ptr<std::uint8_t[]> rgba;     // RGBA8 page before block encoding, or decoded blocks
+    std::vector<std::uint8_t> blocks;          // a block tile unpacked
     std::size_t rgba_size = 0;
     std::size_t samples_size = 0;
 
@@ -286,69 +286,32 @@ Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
             if (!st.ok()) s.discard_jpeg_handle();
             return st;
         }
+        case Codec::bc1:
+        case Codec::bc4:
+        case Codec::bc5:
+        case Codec::bc7: {
+            // Blocks decoded as the GPU samples them, then the store's channels by the rules above
+            // (bc4 (v, 0, 0, 255) is grey v; bc5 (v, a, 0, 255) is grey and alpha).
+            if (codec != info.codec) return make_error(Errc::corrupt, "block tile in a store of another codec");
+            if (Status st = storage::unpack_block_tile(info, payload, s.blocks); !st) return st;
+            std::uint8_t* rgba = s.rgba_buffer(texels * kRgba8TexelBytes);
+            blocks::decode_page(*block_format_of(*page_format_of(codec)), s.blocks.data(), info.tile_size(), rgba);
+            for (std::size_t i = 0; i < texels; ++i) {
+                const std::uint8_t* t = rgba + 4 * i;
+                std::uint8_t* d = out.data() + 4 * i;
+                if (info.channels == 1) d[0] = d[1] = d[2] = t[0], d[3] = 255;
+                else if (info.channels == 2) d[0] = d[1] = d[2] = t[0], d[3] = t[1];
+                else if (info.channels == 3) d[0] = t[0], d[1] = t[1], d[2] = t[2], d[3] = 255;
+                else std::memcpy(d, t, 4);
+            }
+            return {};
+        }
         default:
             return make_error(Errc::invalid_argument, "unknown codec " + std::to_string(static_cast<int>(codec)));
     }
 }
 
 // ------------------------------------------------------------------------------- transcode_page
-
-namespace {
-
-// sRGB-encoded 8-bit values to linear light in 16 bits, and back (every 16-bit linear value to
-// the nearest sRGB code): tables made once.
-const std::array<std::uint16_t, 256>& srgb8_to_linear16() {
-    static const auto table = [] {
-        std::array<std::uint16_t, 256> t{};
-        for (int i = 0; i < 256; ++i) {
-            const double v = i / 255.0;
-            const double l = v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4);
-            t[std::size_t(i)] = static_cast<std::uint16_t>(std::lround(l * 65535.0));
-        }
-        return t;
-    }();
-    return table;
-}
-const std::vector<std::uint8_t>& linear16_to_srgb8() {
-    static const auto table = [] {
-        std::vector<std::uint8_t> t(65536);
-        for (std::size_t i = 0; i < t.size(); ++i) {
-            const double l = double(i) / 65535.0;
-            const double v = l <= 0.0031308 ? l * 12.92 : 1.055 * std::pow(l, 1.0 / 2.4) - 0.055;
-            t[i] = static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 1.0) * 255.0));
-        }
-        return t;
-    }();
-    return table;
-}
-
-// The 2x2 means of a side x side RGBA8 page (rounded to nearest) into a (side/2)^2 page: the
-// atlas's second level for block formats. Colour of an sRGB store is averaged in linear light,
-// as the builder makes the store's next level (storage's MipReducer) and the GPU page-mip pass
-// averages RGBA8 pages; data and alpha in their stored values.
-void downsample_2x2_rgba8(const std::uint8_t* src, std::uint32_t side, bool srgb, std::uint8_t* dst) {
-    const std::uint32_t half = side / 2;
-    const std::size_t row = std::size_t(side) * 4;
-    const auto& to_linear = srgb8_to_linear16();
-    const auto& to_srgb = linear16_to_srgb8();
-    for (std::uint32_t y = 0; y < half; ++y) {
-        const std::uint8_t* a = src + std::size_t(2 * y) * row;
-        const std::uint8_t* b = a + row;
-        std::uint8_t* d = dst + std::size_t(y) * half * 4;
-        for (std::uint32_t x = 0; x < half; ++x)
-            for (std::size_t c = 0; c < 4; ++c) {
-                const std::size_t i = std::size_t(8) * x + c;
-                if (srgb && c < 3) {
-                    const unsigned sum = unsigned(to_linear[a[i]]) + to_linear[a[i + 4]] + to_linear[b[i]] + to_linear[b[i + 4]];
-                    d[4 * x + c] = to_srgb[(sum + 2) / 4];
-                } else {
-                    d[4 * x + c] = static_cast<std::uint8_t>((unsigned(a[i]) + a[i + 4] + b[i] + b[i + 4] + 2) / 4);
-                }
-            }
-    }
-}
-
-}  // namespace
 
 Status check_page_format(const StoreInfo& info, PageFormat format) {
     const auto refuse = [&](std::string_view why) {
@@ -369,6 +332,7 @@ Status check_page_format(const StoreInfo& info, PageFormat format) {
         case PageFormat::bc5:
             if (info.channels < 2) return refuse("bc5 pages hold 2 channels, the store has 1");
             return {};
+        case PageFormat::bc7: return {};
         case PageFormat::r16:
         case PageFormat::r16f:
         case PageFormat::r32f: {
@@ -398,6 +362,14 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
         return make_error(Errc::invalid_argument, "destination is not one " + std::string(to_string(format)) + " page of this store");
     Scratch::Impl& s = *scratch.impl_;
 
+    if (kind == TileKind::present && page_format_of(codec) == format && codec == info.codec) {
+        // The store holds this format's blocks, and the page's second level after them: unpacked
+        // into scratch (zstd reads back what it wrote), then copied.
+        if (Status st = storage::unpack_block_tile(info, payload, s.blocks); !st) return st;
+        std::memcpy(out.data(), s.blocks.data(), out.size());
+        return {};
+    }
+
     if (is_block_compressed(format)) {
         // Decoded to RGBA8 in scratch (never the destination: the encoder reads it back), then
         // encoded block by block into the destination; the second level from the 2x2 means.
@@ -405,19 +377,15 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
         std::uint8_t* buffer = s.rgba_buffer(rgba_bytes + (second_level ? half_bytes : 0));
         const std::span<std::uint8_t> rgba(buffer, rgba_bytes);
         if (Status st = transcode_to_rgba8(info, kind, codec, payload, rgba, scratch); !st) return st;
+        // A 2-channel store's RGBA8 texel is (v, v, v, a): bc5 takes R and A.
+        const blocks::Channels channels{0, info.channels == 2 ? 3u : 1u};
         const auto encode = [&](const std::uint8_t* texels, std::uint32_t side, std::uint8_t* dst) {
-            switch (format) {
-                case PageFormat::bc1: encode_bc1(texels, side, dst); break;
-                case PageFormat::bc4: encode_bc4(texels, side, 0, dst); break;
-                // A 2-channel store's RGBA8 texel is (v, v, v, a): its channels are R and A.
-                case PageFormat::bc5: encode_bc5(texels, side, 0, info.channels == 2 ? 3 : 1, dst); break;
-                default: break;
-            }
+            blocks::encode_page(*block_format_of(format), texels, side, dst, blocks::Effort::realtime, channels);
         };
         encode(rgba.data(), size, out.data());
         if (second_level) {
             std::uint8_t* half = buffer + rgba_bytes;
-            downsample_2x2_rgba8(rgba.data(), size, info.colour_space == ColourSpace::srgb, half);
+            blocks::half_size_rgba8(rgba.data(), size, info.colour_space == ColourSpace::srgb, half);
             encode(half, size / 2, out.data() + page_bytes(format, size));
         }
         return {};
@@ -444,7 +412,13 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
             std::memcpy(out.data(), buf, tile_bytes);
             return {};
         }
-        case Codec::jpeg: return make_error(Errc::corrupt, "JPEG tiles hold 8-bit samples, not " + std::string(to_string(format)));
+        case Codec::jpeg:
+        case Codec::bc1:
+        case Codec::bc4:
+        case Codec::bc5:
+        case Codec::bc7:
+            return make_error(Errc::corrupt, std::string(to_string(codec)) + " tiles hold 8-bit samples, not " +
+                                                 std::string(to_string(format)));
     }
     return make_error(Errc::invalid_argument, "unknown codec " + std::to_string(static_cast<int>(codec)));
 }

@@ -29,6 +29,7 @@
 #include <thread>
 #include <vector>
 
+#include "tessera/blocks/blocks.hpp"
 #include "tessera/client/page.hpp"
 #include "tessera/result.hpp"
 #include "tessera/storage/types.hpp"
@@ -39,6 +40,17 @@ constexpr std::size_t kRgba8TexelBytes = 4;
 // Bytes of one RGBA8 page of `info`'s tiles.
 inline std::size_t rgba8_page_bytes(const storage::StoreInfo& info) {
     return std::size_t(info.tile_size()) * info.tile_size() * kRgba8TexelBytes;
+}
+
+// The block format of a block-compressed page format.
+constexpr std::optional<blocks::BlockFormat> block_format_of(PageFormat f) {
+    switch (f) {
+        case PageFormat::bc1: return blocks::BlockFormat::bc1;
+        case PageFormat::bc4: return blocks::BlockFormat::bc4;
+        case PageFormat::bc5: return blocks::BlockFormat::bc5;
+        case PageFormat::bc7: return blocks::BlockFormat::bc7;
+        default: return std::nullopt;
+    }
 }
 
 class Scratch;

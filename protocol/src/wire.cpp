@@ -41,6 +41,10 @@ v1::Codec to_proto(Codec c) {
         case Codec::raw: return v1::CODEC_RAW;
         case Codec::zstd: return v1::CODEC_ZSTD;
         case Codec::jpeg: return v1::CODEC_JPEG;
+        case Codec::bc1: return v1::CODEC_BC1;
+        case Codec::bc4: return v1::CODEC_BC4;
+        case Codec::bc5: return v1::CODEC_BC5;
+        case Codec::bc7: return v1::CODEC_BC7;
     }
     return v1::CODEC_RAW;
 }
@@ -67,6 +71,10 @@ Codec from_proto(v1::Codec c) {
     switch (c) {
         case v1::CODEC_ZSTD: return Codec::zstd;
         case v1::CODEC_JPEG: return Codec::jpeg;
+        case v1::CODEC_BC1: return Codec::bc1;
+        case v1::CODEC_BC4: return Codec::bc4;
+        case v1::CODEC_BC5: return Codec::bc5;
+        case v1::CODEC_BC7: return Codec::bc7;
         default: return Codec::raw;
     }
 }

@@ -171,7 +171,11 @@ bool if_none_match_matches(std::string_view header, std::string_view etag_quoted
 std::string_view content_type_of(Codec c) {
     switch (c) {
         case Codec::jpeg: return "image/jpeg";
-        case Codec::zstd: return "application/zstd";
+        case Codec::zstd:
+        case Codec::bc1:
+        case Codec::bc4:
+        case Codec::bc5:
+        case Codec::bc7: return "application/zstd";
         case Codec::raw: return "application/octet-stream";
     }
     return "application/octet-stream";

@@ -1,11 +1,14 @@
 #include "tessera/storage/codec.hpp"
 
 #include <turbojpeg.h>
+#define ZSTD_STATIC_LINKING_ONLY  // ZSTD_c_literalCompressionMode (block tiles)
 #include <zstd.h>
 
 #include <cstring>
 #include <memory>
 #include <string>
+
+#include "tessera/blocks/blocks.hpp"
 
 namespace tessera::storage {
 namespace {
@@ -53,7 +56,90 @@ struct ZstdDCtx {
     ZstdDCtx& operator=(const ZstdDCtx&) = delete;
 };
 
+// ------------------------------------------------------------------------------ block codecs
+// A block tile is one zstd frame: the tile's 4x4 blocks, then the blocks of its 2x2 means (the
+// page's second level for trilinear filtering). Texels go to blocks through RGBA8 as the client's
+// transcode threads lay them out, so both routes make the same second level: 1 channel (v, v, v,
+// 255), 2 channels (v, v, v, a) with bc5's channels R and A, 3 (r, g, b, 255), 4 as they are.
+
+blocks::BlockFormat block_format(Codec c) {
+    switch (c) {
+        case Codec::bc4: return blocks::BlockFormat::bc4;
+        case Codec::bc5: return blocks::BlockFormat::bc5;
+        case Codec::bc7: return blocks::BlockFormat::bc7;
+        default: return blocks::BlockFormat::bc1;
+    }
+}
+
+constexpr blocks::Channels kBlockChannels2{0, 3};  // (v, v, v, a): grey and alpha
+
+std::size_t block_tile_bytes(const StoreInfo& info) {
+    const auto f = block_format(info.codec);
+    return blocks::page_block_bytes(f, info.tile_size()) + blocks::page_block_bytes(f, info.tile_size() / 2);
+}
+
+void texels_to_rgba8(const std::uint8_t* src, unsigned channels, std::size_t n, std::uint8_t* dst) {
+    for (std::size_t i = 0; i < n; ++i, src += channels, dst += 4) {
+        switch (channels) {
+            case 1: dst[0] = dst[1] = dst[2] = src[0], dst[3] = 255; break;
+            case 2: dst[0] = dst[1] = dst[2] = src[0], dst[3] = src[1]; break;
+            case 3: dst[0] = src[0], dst[1] = src[1], dst[2] = src[2], dst[3] = 255; break;
+            default: std::memcpy(dst, src, 4); break;
+        }
+    }
+}
+
+// Decoded blocks (as the GPU returns them: bc4 (v, 0, 0, 255), bc5 (v, a, 0, 255)) to texels.
+void decoded_blocks_to_texels(const std::uint8_t* rgba, unsigned channels, std::size_t n, std::uint8_t* dst) {
+    for (std::size_t i = 0; i < n; ++i, rgba += 4, dst += channels) {
+        switch (channels) {
+            case 1: dst[0] = rgba[0]; break;
+            case 2: dst[0] = rgba[0], dst[1] = rgba[1]; break;
+            case 3: dst[0] = rgba[0], dst[1] = rgba[1], dst[2] = rgba[2]; break;
+            default: std::memcpy(dst, rgba, 4); break;
+        }
+    }
+}
+
+Result<std::vector<std::uint8_t>> encode_block_tile(const StoreInfo& info, std::span<const std::uint8_t> texels,
+                                                    const EncodeOptions& options) {
+    const std::uint32_t side = info.tile_size(), half = side / 2;
+    const auto f = block_format(info.codec);
+    const blocks::Channels channels = info.channels == 2 ? kBlockChannels2 : blocks::Channels{};
+    std::vector<std::uint8_t> rgba(std::size_t(side) * side * 4), half_rgba(std::size_t(half) * half * 4);
+    texels_to_rgba8(texels.data(), info.channels, std::size_t(side) * side, rgba.data());
+    blocks::half_size_rgba8(rgba.data(), side, info.colour_space == ColourSpace::srgb, half_rgba.data());
+    std::vector<std::uint8_t> raw(block_tile_bytes(info));
+    blocks::encode_page(f, rgba.data(), side, raw.data(), blocks::Effort::best, channels);
+    blocks::encode_page(f, half_rgba.data(), half, raw.data() + blocks::page_block_bytes(f, side), blocks::Effort::best,
+                        channels);
+    // Literals stay uncompressed: blocks are near-random bytes that Huffman coding shrinks by a few
+    // percent at the cost of halving the client's unpack speed (docs/benchmarks.md); repeated
+    // blocks are still found as matches.
+    thread_local ZstdCCtx ctx;
+    ZSTD_CCtx_reset(ctx.c, ZSTD_reset_parameters);
+    ZSTD_CCtx_setParameter(ctx.c, ZSTD_c_compressionLevel, options.zstd_level);
+    ZSTD_CCtx_setParameter(ctx.c, ZSTD_c_literalCompressionMode, ZSTD_ps_disable);
+    std::vector<std::uint8_t> out(ZSTD_compressBound(raw.size()));
+    const std::size_t r = ZSTD_compress2(ctx.c, out.data(), out.size(), raw.data(), raw.size());
+    if (ZSTD_isError(r)) return make_error(Errc::io_error, std::string("zstd: ") + ZSTD_getErrorName(r));
+    out.resize(r);
+    return out;
+}
+
 }  // namespace
+
+Status unpack_block_tile(const StoreInfo& info, std::span<const std::uint8_t> payload, std::vector<std::uint8_t>& out) {
+    if (!is_block_codec(info.codec)) return make_error(Errc::invalid_argument, "not a block-codec store");
+    const std::size_t n = block_tile_bytes(info);
+    if (ZSTD_getFrameContentSize(payload.data(), payload.size()) != n)
+        return make_error(Errc::corrupt, std::string(to_string(info.codec)) + " tile does not hold exactly one tile's blocks");
+    thread_local ZstdDCtx ctx;
+    out.resize(n);
+    const std::size_t r = ZSTD_decompressDCtx(ctx.d, out.data(), n, payload.data(), payload.size());
+    if (ZSTD_isError(r) || r != n) return make_error(Errc::corrupt, std::string(to_string(info.codec)) + " tile does not decode");
+    return {};
+}
 
 Result<std::vector<std::uint8_t>> encode_tile(const StoreInfo& info, std::span<const std::uint8_t> texels,
                                               const EncodeOptions& options) {
@@ -87,6 +173,15 @@ Result<std::vector<std::uint8_t>> encode_tile(const StoreInfo& info, std::span<c
             std::vector<std::uint8_t> out(buf, buf + size);
             tjFree(buf);
             return out;
+        }
+        case Codec::bc1:
+        case Codec::bc4:
+        case Codec::bc5:
+        case Codec::bc7: {
+            if (const std::string misfit = codec_misfit(info.codec, info.sample_type, info.channels, info.tile_size(), info.border);
+                !misfit.empty())
+                return make_error(Errc::unsupported, misfit);
+            return encode_block_tile(info, texels, options);
         }
     }
     return make_error(Errc::unsupported, "unknown codec");
@@ -136,6 +231,21 @@ Status decode_tile(const StoreInfo& info, const Tile& tile, std::vector<std::uin
                 reset_decompressor();
                 return e;
             }
+            return {};
+        }
+        case Codec::bc1:
+        case Codec::bc4:
+        case Codec::bc5:
+        case Codec::bc7: {
+            if (!codec_misfit(info.codec, info.sample_type, info.channels, info.tile_size(), info.border).empty())
+                return make_error(Errc::corrupt, "block codec does not fit the store's samples");
+            thread_local std::vector<std::uint8_t> blocks, rgba;
+            if (Status st = unpack_block_tile(info, tile.bytes, blocks); !st) return st;
+            const std::size_t texels = std::size_t(info.tile_size()) * info.tile_size();
+            rgba.resize(texels * 4);
+            blocks::decode_page(block_format(info.codec), blocks.data(), info.tile_size(), rgba.data());
+            out.resize(n);
+            decoded_blocks_to_texels(rgba.data(), info.channels, texels, out.data());
             return {};
         }
     }

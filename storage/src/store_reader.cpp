@@ -77,13 +77,14 @@ public:
         if (info_.width == 0 || info_.height == 0 || info_.tile_payload == 0) return corrupt("zero image or tile size");
         if (std::uint64_t(info_.tile_payload) + 2ull * info_.border > kMaxTileSize) return corrupt("tile size too large");
         if (info_.channels < 1 || info_.channels > 4) return corrupt("bad channel count");
-        if (st > 3 || cs > 1 || codec > 2) return corrupt("bad sample type, colour space or codec");
+        if (st > 3 || cs > 1 || codec > static_cast<std::uint8_t>(Codec::bc7)) return corrupt("bad sample type, colour space or codec");
         if (h[header::block_shift] != kBlockShift) return corrupt("bad index block size");
         info_.sample_type = static_cast<SampleType>(st);
         info_.colour_space = static_cast<ColourSpace>(cs);
         info_.codec = static_cast<Codec>(codec);
-        if (info_.codec == Codec::jpeg && (info_.sample_type != SampleType::u8 || (info_.channels != 1 && info_.channels != 3)))
-            return corrupt("JPEG store without 8-bit grey or RGB samples");
+        if (const std::string misfit = codec_misfit(info_.codec, info_.sample_type, info_.channels, info_.tile_size(), info_.border);
+            !misfit.empty())
+            return corrupt("codec does not fit the samples: " + misfit);
         info_.has_alpha = (h[header::flags] & kHeaderFlagAlpha) != 0;
         if (info_.has_alpha && info_.channels != 2 && info_.channels != 4) return corrupt("alpha flag on a 1- or 3-channel store");
         info_.store_id = load<std::uint64_t>(h, header::store_id);

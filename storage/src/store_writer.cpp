@@ -336,8 +336,9 @@ Status validate(const StoreSpec& s) {
         return make_error(Errc::invalid_argument, "alpha needs 2 or 4 channels");
     if (level_geometry(s.width, s.height, s.tile_payload).size() > kMaxLevels)
         return make_error(Errc::invalid_argument, "image too large for the tile size (more than 32 levels)");
-    if (s.codec == Codec::jpeg && (s.sample_type != SampleType::u8 || (s.channels != 1 && s.channels != 3)))
-        return make_error(Errc::invalid_argument, "JPEG stores need 8-bit samples with 1 or 3 channels (use --codec zstd)");
+    if (const std::string misfit = codec_misfit(s.codec, s.sample_type, s.channels, static_cast<std::uint32_t>(tile), s.border);
+        !misfit.empty())
+        return make_error(Errc::invalid_argument, misfit + " (use --codec zstd)");
     return {};
 }
 

@@ -25,6 +25,10 @@ std::string_view to_string(Codec c) {
         case Codec::raw: return "raw";
         case Codec::zstd: return "zstd";
         case Codec::jpeg: return "jpeg";
+        case Codec::bc1: return "bc1";
+        case Codec::bc4: return "bc4";
+        case Codec::bc5: return "bc5";
+        case Codec::bc7: return "bc7";
     }
     return "?";
 }
@@ -57,12 +61,51 @@ std::optional<Codec> parse_codec(std::string_view s) {
     if (s == "raw") return Codec::raw;
     if (s == "zstd") return Codec::zstd;
     if (s == "jpeg" || s == "jpg") return Codec::jpeg;
+    if (s == "bc1") return Codec::bc1;
+    if (s == "bc4") return Codec::bc4;
+    if (s == "bc5") return Codec::bc5;
+    if (s == "bc7") return Codec::bc7;
     return std::nullopt;
 }
 
 }  // namespace tessera
 
 namespace tessera::storage {
+
+std::string codec_misfit(Codec codec, SampleType sample_type, std::uint32_t channels, std::uint32_t tile_size,
+                         std::uint32_t border) {
+    const std::string name(to_string(codec));
+    switch (codec) {
+        case Codec::raw:
+        case Codec::zstd: return {};
+        case Codec::jpeg:
+            if (sample_type != SampleType::u8 || (channels != 1 && channels != 3))
+                return "JPEG needs 8-bit samples with 1 or 3 channels";
+            return {};
+        case Codec::bc1:
+        case Codec::bc4:
+        case Codec::bc5:
+        case Codec::bc7: {
+            if (sample_type != SampleType::u8) return name + " needs 8-bit samples";
+            const bool fits = codec == Codec::bc1   ? channels == 3
+                              : codec == Codec::bc4 ? channels == 1
+                              : codec == Codec::bc5 ? channels == 2
+                                                    : channels == 3 || channels == 4;
+            if (!fits)
+                return name + " holds " +
+                       (codec == Codec::bc1   ? "3 channels (RGB, no alpha)"
+                        : codec == Codec::bc4 ? "1 channel"
+                        : codec == Codec::bc5 ? "2 channels"
+                                              : "3 or 4 channels") +
+                       ", not " + std::to_string(channels);
+            if (tile_size % 8 != 0 || border % 4 != 0)
+                return name + " needs tiles of a multiple of 8 texels and borders of a multiple of 4, not " +
+                       std::to_string(tile_size) + " and " + std::to_string(border);
+            return {};
+        }
+    }
+    return "unknown codec " + std::to_string(static_cast<int>(codec));
+}
 
 std::size_t sample_bytes(SampleType t) {
     switch (t) {

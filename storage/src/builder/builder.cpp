@@ -249,9 +249,10 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
     spec.has_alpha = si.has_alpha;
     spec.codec = opt.codec.value_or(si.sample_type == SampleType::u8 && (si.channels == 1 || si.channels == 3) ? Codec::jpeg
                                                                                                                 : Codec::zstd);
-    if (spec.codec == Codec::jpeg && (si.sample_type != SampleType::u8 || (si.channels != 1 && si.channels != 3)))
-        return make_error(Errc::invalid_argument, "--codec jpeg needs an 8-bit grey or RGB source; " + si.description + " has " +
-                                                      std::to_string(si.channels) + " channels of " +
+    if (const std::string misfit = codec_misfit(spec.codec, si.sample_type, si.channels, opt.tile_size, opt.border);
+        !misfit.empty())
+        return make_error(Errc::invalid_argument, "--codec " + std::string(to_string(spec.codec)) + ": " + misfit + "; " +
+                                                      si.description + " has " + std::to_string(si.channels) + " channels of " +
                                                       std::string(to_string(si.sample_type)) + " (use --codec zstd)");
     TESSERA_TRY(validate(spec));
 

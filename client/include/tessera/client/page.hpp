@@ -67,11 +67,22 @@ enum class PageFormat : std::uint8_t {
     r16 = 4,    // 2 bytes per texel: a 1-channel u16 store, exactly
     r16f = 5,   // 2 bytes per texel: a 1-channel f16 store, exactly
     r32f = 6,   // 4 bytes per texel: a 1-channel f32 store, exactly
+    bc7 = 7,    // 1 byte per texel: colour with or without alpha, at higher quality than bc1
 };
 std::string_view to_string(PageFormat f);
 std::optional<PageFormat> parse_page_format(std::string_view s);
 constexpr bool is_block_compressed(PageFormat f) {
-    return f == PageFormat::bc1 || f == PageFormat::bc4 || f == PageFormat::bc5;
+    return f == PageFormat::bc1 || f == PageFormat::bc4 || f == PageFormat::bc5 || f == PageFormat::bc7;
+}
+// The page format whose blocks a block-codec store holds (tiles it uploads as they are).
+constexpr std::optional<PageFormat> page_format_of(Codec c) {
+    switch (c) {
+        case Codec::bc1: return PageFormat::bc1;
+        case Codec::bc4: return PageFormat::bc4;
+        case Codec::bc5: return PageFormat::bc5;
+        case Codec::bc7: return PageFormat::bc7;
+        default: return std::nullopt;
+    }
 }
 // Bytes of one page `tile_size` texels on a side (block formats: tile_size a multiple of 4).
 constexpr std::size_t page_bytes(PageFormat f, std::uint32_t tile_size) {
@@ -81,6 +92,7 @@ constexpr std::size_t page_bytes(PageFormat f, std::uint32_t tile_size) {
         case PageFormat::bc1: return texels / 2;
         case PageFormat::bc4: return texels / 2;
         case PageFormat::bc5: return texels;
+        case PageFormat::bc7: return texels;
         case PageFormat::r16: return texels * 2;
         case PageFormat::r16f: return texels * 2;
         case PageFormat::r32f: return texels * 4;

@@ -1,5 +1,5 @@
 #pragma once
-// Tile payload codecs: JPEG (libjpeg-turbo), zstd and raw. A decoded tile is always the full
+// Tile payload codecs: JPEG (libjpeg-turbo), zstd, raw and GPU blocks (bc1, bc4, bc5, bc7). A decoded tile is always the full
 // stored tile, (P + 2B)^2 texels, row-major, channels interleaved, samples little-endian.
 #include <cstdint>
 #include <span>
@@ -22,6 +22,10 @@ struct EncodeOptions {
 // Encodes one tile's texels (tile_bytes() bytes) in the store's codec. Thread-safe.
 Result<std::vector<std::uint8_t>> encode_tile(const StoreInfo& info, std::span<const std::uint8_t> texels,
                                               const EncodeOptions& options);
+
+// A block-codec tile's payload unpacked (zstd) into `out`: the tile's 4x4 blocks, then its
+// half-size level's blocks, as a GPU takes them (tessera/blocks/blocks.hpp). Thread-safe.
+Status unpack_block_tile(const StoreInfo& info, std::span<const std::uint8_t> payload, std::vector<std::uint8_t>& out);
 
 // Decodes a present or uniform tile into `out` (resized to tile_bytes()). An absent tile is an
 // error (not_found); a payload that does not decode to exactly one tile is corrupt. Thread-safe.

@@ -57,6 +57,13 @@ struct StoreInfo {
     }
 };
 
+// Why `codec` cannot hold tiles with these samples and geometry; empty when it can. JPEG: 8-bit
+// grey or RGB. Block codecs: 8-bit samples, bc1 RGB, bc4 one channel, bc5 two, bc7 RGB or RGBA;
+// tiles a multiple of 8 texels (4x4 blocks, and the half-size level's) and borders a multiple of
+// 4, so that no block straddles a tile's payload and its border.
+std::string codec_misfit(Codec codec, SampleType sample_type, std::uint32_t channels, std::uint32_t tile_size,
+                         std::uint32_t border);
+
 // Level geometry shared by the writer and the reader: level L has ceil(size / 2^L) texels per side,
 // and the last level is the first one that fits in a single tile.
 std::vector<LevelInfo> level_geometry(std::uint32_t width, std::uint32_t height, std::uint32_t tile_payload);

@@ -1,4 +1,4 @@
-#include "block_encode.hpp"
+#include "block_codecs.hpp"
 
 #include <stb_dxt.h>
 
@@ -6,7 +6,7 @@
 #include <cstddef>
 #include <cstring>
 
-namespace tessera::client {
+namespace tessera::blocks {
 
 namespace {
 
@@ -92,7 +92,14 @@ void bc1_block(const std::uint8_t* src, std::size_t row_bytes, std::uint8_t* out
 
 }  // namespace
 
-void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) {
+void encode_bc1(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out, Effort effort) {
+    if (effort == Effort::best) {  // stb_dxt's refined endpoints: about 2x the time per page
+        for_each_block(rgba, size, [&](const std::uint8_t* block) {
+            stb_compress_dxt_block(out, block, 0, STB_DXT_HIGHQUAL);
+            out += 8;
+        });
+        return;
+    }
     const std::size_t row_bytes = std::size_t(size) * 4;
     for (std::uint32_t by = 0; by < size; by += 4)
         for (std::uint32_t bx = 0; bx < size; bx += 4, out += 8)
@@ -120,4 +127,4 @@ void encode_bc5(const std::uint8_t* rgba, std::uint32_t size, unsigned c0, unsig
     });
 }
 
-}  // namespace tessera::client
+}  // namespace tessera::blocks
