@@ -29,6 +29,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -279,6 +280,50 @@ BlockQuality block_quality(const Corpus& c, client::PageFormat format) {
     return q;
 }
 
+// A block-codec store's tiles, decoded as a GPU samples them, against the same tiles of a lossless
+// build of the same source (--reference): the build-time route's quality. Colour channels.
+std::optional<BlockQuality> stored_block_quality(const std::string& path, const std::string& reference) {
+    auto a = storage::StoreReader::open(path);
+    auto b = storage::StoreReader::open(reference);
+    if (!a || !b) return std::nullopt;
+    const storage::StoreInfo &ia = (*a)->info(), &ib = (*b)->info();
+    if (ia.width != ib.width || ia.height != ib.height || ia.tile_size() != ib.tile_size() || ia.border != ib.border) {
+        std::fprintf(stderr, "%s and %s differ in geometry\n", path.c_str(), reference.c_str());
+        return std::nullopt;
+    }
+    client::Scratch scratch;
+    std::vector<std::uint8_t> pa(client::rgba8_page_bytes(ia)), pb(pa.size());
+    const int channels = ia.channels == 1 ? 1 : 3;
+    double sum_sq = 0, worst = 99;
+    std::uint64_t samples = 0;
+    for (std::uint32_t l = 0; l < ia.level_count(); ++l)
+        for (std::uint32_t y = 0; y < ia.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < ia.levels[l].tiles_x; ++x) {
+                auto ta = (*a)->read_tile({l, x, y});
+                auto tb = (*b)->read_tile({l, x, y});
+                if (!ta || !tb) return std::nullopt;
+                if (ta->kind == TileKind::absent || tb->kind == TileKind::absent) continue;
+                if (!client::transcode_to_rgba8(ia, ta->kind, ia.codec, ta->bytes, pa, scratch) ||
+                    !client::transcode_to_rgba8(ib, tb->kind, ib.codec, tb->bytes, pb, scratch))
+                    return std::nullopt;
+                double tile_sq = 0;
+                for (std::size_t i = 0; i < pa.size(); i += 4)
+                    for (int ch = 0; ch < channels; ++ch) {
+                        const double d = double(pa[i + std::size_t(ch)]) - double(pb[i + std::size_t(ch)]);
+                        tile_sq += d * d;
+                    }
+                const std::uint64_t n = std::uint64_t(pa.size() / 4) * std::uint64_t(channels);
+                worst = std::min(worst, tile_sq > 0 ? 10 * std::log10(255.0 * 255.0 * double(n) / tile_sq) : 99.0);
+                sum_sq += tile_sq;
+                samples += n;
+            }
+    BlockQuality q;
+    q.format = *client::page_format_of(ia.codec);
+    q.psnr_db = sum_sq > 0 ? 10 * std::log10(255.0 * 255.0 * double(samples) / sum_sq) : 99.0;
+    q.worst_tile_db = worst;
+    return q;
+}
+
 std::string json_number(double v) {
     char buf[64];
     std::snprintf(buf, sizeof buf, "%.6g", v);
@@ -299,7 +344,7 @@ std::string cpu_model() {
 }  // namespace
 
 int main(int argc, char** argv) {
-    std::string jpeg_path, zstd_path, blocks_path, json_path;
+    std::string jpeg_path, zstd_path, blocks_path, reference_path, json_path;
     int rounds = 7;
     for (int i = 1; i < argc; ++i) {
         const std::string a = argv[i];
@@ -307,11 +352,12 @@ int main(int argc, char** argv) {
         if (a == "--jpeg") jpeg_path = value();
         else if (a == "--zstd") zstd_path = value();
         else if (a == "--blocks") blocks_path = value();
+        else if (a == "--reference") reference_path = value();
         else if (a == "--json") json_path = value();
         else if (a == "--rounds") rounds = std::max(1, std::atoi(value().c_str()));
         else {
             std::fprintf(stderr,
-                         "usage: transcode_bench --jpeg STORE.tsr [--zstd STORE.tsr] [--blocks STORE.tsr] [--rounds N] [--json FILE]\n"
+                         "usage: transcode_bench --jpeg STORE.tsr [--zstd STORE.tsr] [--blocks STORE.tsr [--reference LOSSLESS.tsr]] [--rounds N] [--json FILE]\n"
                          "  make the stores with: tessera build procedural:terrain:4096 --codec jpeg|zstd|bc7 -o X.tsr\n");
             return 2;
         }
@@ -464,7 +510,20 @@ int main(int argc, char** argv) {
             const double gbps = tiles * double(unpacked_bytes(*c.info)) / median(cpu) / 1e9;
             std::printf("  unpack: %.2f GB/s of %s blocks per thread (page and second level)\n", gbps,
                         std::string(client::to_string(*bf)).c_str());
-            json += ",\"unpack_gb_per_cpu_s\":" + json_number(gbps) + "}";
+            json += ",\"unpack_gb_per_cpu_s\":" + json_number(gbps);
+            if (!reference_path.empty()) {
+                const auto q = stored_block_quality(c.path, reference_path);
+                if (!q) {
+                    std::fprintf(stderr, "--reference %s: cannot compare\n", reference_path.c_str());
+                    return 1;
+                }
+                std::printf("  quality: the stored %s blocks against %s: PSNR %.2f dB over all tiles, worst tile %.2f dB\n",
+                            std::string(client::to_string(q->format)).c_str(), reference_path.c_str(), q->psnr_db,
+                            q->worst_tile_db);
+                json += ",\"block_quality\":{\"format\":\"" + std::string(client::to_string(q->format)) +
+                        "\",\"psnr_db\":" + json_number(q->psnr_db) + ",\"worst_tile_psnr_db\":" + json_number(q->worst_tile_db) + "}";
+            }
+            json += "}";
             continue;
         }
         // Block pages' quality on this store (not for 2-channel stores: no colour block format here).
