@@ -1,5 +1,7 @@
 #include "staging.hpp"
 
+#include <cstring>
+
 namespace tessera::client::gl::detail {
 
 StagingRing::StagingRing(std::size_t bytes) : bytes_(bytes) {
@@ -74,6 +76,43 @@ void StagingRing::wait_all() {
     for (auto& b : batches_) b.fence.wait();
     batches_.clear();
     head_ = 0;
+}
+
+const void* StagingRing::stage_pixels(const void* data, std::size_t bytes) {
+    if (auto off = allocate(bytes)) {
+        std::memcpy(map_ + *off, data, bytes);
+        glBindBuffer(GL_PIXEL_UNPACK_BUFFER, buffer_.get());
+        return reinterpret_cast<const void*>(*off);
+    }
+    ++direct_uploads_;
+    glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+    return data;
+}
+
+void StagingRing::upload_image(GLuint texture, GLint x, GLint y, GLsizei w, GLsizei h, GLenum format, GLenum type,
+                               const void* data, std::size_t bytes) {
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+    glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
+    glTextureSubImage2D(texture, 0, x, y, w, h, format, type, stage_pixels(data, bytes));
+    glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+}
+
+void StagingRing::upload_blocks(GLuint texture, GLint level, GLint x, GLint y, GLsizei side, GLenum internal_format,
+                                std::span<const std::uint8_t> blocks) {
+    const auto bytes = static_cast<GLsizei>(blocks.size());
+    glCompressedTextureSubImage2D(texture, level, x, y, side, side, internal_format, bytes,
+                                  stage_pixels(blocks.data(), blocks.size()));
+    glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+}
+
+void StagingRing::upload_buffer(GLuint buffer, std::size_t offset, const void* data, std::size_t bytes) {
+    if (auto off = allocate(bytes, 4)) {
+        std::memcpy(map_ + *off, data, bytes);
+        glCopyNamedBufferSubData(buffer_.get(), buffer, GLintptr(*off), GLintptr(offset), GLsizeiptr(bytes));
+    } else {
+        ++direct_uploads_;
+        glNamedBufferSubData(buffer, GLintptr(offset), GLsizeiptr(bytes), data);
+    }
 }
 
 }  // namespace tessera::client::gl::detail

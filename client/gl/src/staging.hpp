@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <deque>
 #include <optional>
+#include <span>
 
 #include "gl_util.hpp"
 
@@ -40,6 +41,17 @@ public:
     void retire();
     void wait_all();  // blocks; end of a run and tests
 
+    // Uploads through the ring, or straight from the caller's memory when it has no room
+    // (direct_uploads() counts those). A w x h rectangle of level 0 of `texture`:
+    void upload_image(GLuint texture, GLint x, GLint y, GLsizei w, GLsizei h, GLenum format, GLenum type,
+                      const void* data, std::size_t bytes);
+    // A side x side square of compressed blocks into level `level` of `texture`:
+    void upload_blocks(GLuint texture, GLint level, GLint x, GLint y, GLsizei side, GLenum internal_format,
+                       std::span<const std::uint8_t> blocks);
+    // `bytes` at `offset` of `buffer`, copied on the GPU in stream order with the draws:
+    void upload_buffer(GLuint buffer, std::size_t offset, const void* data, std::size_t bytes);
+    std::uint64_t direct_uploads() const { return direct_uploads_; }
+
     std::size_t capacity() const { return bytes_; }
     std::size_t in_use() const;  // bytes between the oldest live region and the head
     std::uint64_t batches_in_flight() const { return batches_.size(); }
@@ -55,6 +67,11 @@ private:
     std::uint8_t* map_ = nullptr;
     std::deque<Batch> batches_;  // oldest first; the last one may be open
     std::size_t head_ = 0;       // next free byte
+    std::uint64_t direct_uploads_ = 0;
+
+    // Where a pixel upload of `data` reads from: its copy in the ring, with the ring bound as the
+    // unpack buffer, or `data` itself with none bound.
+    const void* stage_pixels(const void* data, std::size_t bytes);
 };
 
 }  // namespace tessera::client::gl::detail
