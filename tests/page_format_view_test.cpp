@@ -60,7 +60,24 @@ TEST_F(PageFormatView, AFormatTheStoreCannotTakeIsAClearError) {
     EXPECT_NE(grey.out.find("page format bc4 does not fit this store"), std::string::npos) << grey.out;
     auto unknown = run_tessera(view("--page-format bc9"));
     EXPECT_NE(unknown.exit_code, 0);
-    EXPECT_NE(unknown.out.find("--page-format 'bc9': expected auto, rgba8, bc1, bc4, bc5, r16, r16f or r32f"), std::string::npos) << unknown.out;
+    EXPECT_NE(unknown.out.find("--page-format 'bc9': expected auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f"), std::string::npos) << unknown.out;
+}
+
+// A store built as BC7 blocks: `auto` gives a BC7 pool (the builder's blocks, uploaded as stored),
+// which the summary reports; asking for rgba8 decodes the blocks instead.
+TEST_F(PageFormatView, ABlockStoreGivesItsOwnFormatByDefault) {
+    const std::string bc7 = dir_->file("terrain_bc7.tsr");
+    auto built = run_tessera("build procedural:terrain:512 --codec bc7 --quiet -o " + bc7);
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    const std::string args = "view --store " + bc7 + " --headless --size 160x90 --frames 30 --pool 64 ";
+    auto r = run_tessera(args + "--psnr-every 10");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    // BC7 is 64 KiB per 256^2 page, 16 KiB more for the trilinear second level.
+    EXPECT_NE(r.out.find("GPU pool      64 pages of bc7, 80.0 KiB per page, 5.0 MiB in all"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("fallback      0.0000%"), std::string::npos) << r.out;
+    auto rgba = run_tessera(args + "--page-format rgba8");
+    ASSERT_EQ(rgba.exit_code, 0) << rgba.out;
+    EXPECT_NE(rgba.out.find("64 pages of rgba8"), std::string::npos) << rgba.out;
 }
 
 // A GL without the format (Mesa told to hide S3TC) is an error naming the format and the

@@ -382,7 +382,8 @@ INSTANTIATE_TEST_SUITE_P(Filters, RenderVsReference,
                          ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
                          [](const auto& p) { return std::string(filter_name(p.param)); });
 
-// Block-compressed pages (transcoded from the store's tiles on the client). Bilinear, against a
+// Block-compressed pages, transcoded from the store's tiles on the client or, with a block-codec
+// store, the builder's blocks as stored (second level included). Bilinear, against a
 // reference holding the same decoded blocks: the VT's addressing and filtering do not depend on
 // the format (>= 50 dB; BC1: a few pixels on level boundaries, where the VT's LoD rule and the
 // reference's sampler pick different levels, show the two levels' different block errors).
@@ -424,7 +425,9 @@ INSTANTIATE_TEST_SUITE_P(
                       BlockCase{PageFormat::bc5, gl::Filter::bilinear, false, false, 50.0, 3, 0.0},
                       BlockCase{PageFormat::bc1, gl::Filter::trilinear, true, true, 32.0, 255, 1.0},
                       BlockCase{PageFormat::bc1, gl::Filter::anisotropic, true, true, 32.0, 255, 1.0},
-                      BlockCase{PageFormat::bc1, gl::Filter::bilinear, true, false, 50.0, 32, 0.001, tessera::Codec::bc1}),
+                      BlockCase{PageFormat::bc1, gl::Filter::bilinear, true, false, 50.0, 32, 0.001, tessera::Codec::bc1},
+                      BlockCase{PageFormat::bc7, gl::Filter::bilinear, true, false, 50.0, 32, 0.001, tessera::Codec::bc7},
+                      BlockCase{PageFormat::bc1, gl::Filter::trilinear, true, true, 32.0, 255, 1.0, tessera::Codec::bc1}),
     [](const auto& p) {
         return std::string(tessera::client::to_string(p.param.format)) + "_" + filter_name(p.param.filter) +
                (p.param.store_codec == tessera::Codec::zstd ? "" : "_" + std::string(tessera::to_string(p.param.store_codec)) + "_store");
