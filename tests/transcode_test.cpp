@@ -380,7 +380,8 @@ TEST(TranscodeTile, CorruptPayloadsAreErrors) {
     expect_error(run(z, TileKind::absent, Codec::raw, {}), Errc::not_found, "absent");
     expect_error(run(z, static_cast<TileKind>(9), Codec::zstd, zt.bytes), Errc::invalid_argument, "unknown kind");
     expect_error(run(z, TileKind::present, static_cast<Codec>(7), zt.bytes), Errc::invalid_argument, "unknown codec");
-    expect_error(run(z, TileKind::present, static_cast<Codec>(4), zt.bytes), Errc::invalid_argument, "codec none");
+    expect_error(run(z, TileKind::present, static_cast<Codec>(99), zt.bytes), Errc::invalid_argument, "codec 99");
+    expect_error(run(z, TileKind::present, Codec::bc4, zt.bytes), Errc::corrupt, "blocks in a zstd store");
 
     std::vector<std::uint8_t> short_out(rgba8_page_bytes(rgb) - 4);
     const Status s = transcode_to_rgba8(rgb, TileKind::present, Codec::jpeg, jpeg.bytes, short_out, scratch);
