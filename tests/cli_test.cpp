@@ -204,6 +204,24 @@ TEST(CliBuildInput, ImageHeaderWithZeroOrAbsurdSize) {
     expect_build_fails(d, q(d.file("huge.png")) + " -o " + q(d.file("out.tsr")), inputs);
 }
 
+// Block codecs that do not fit the source, or a BC7 effort out of range: one clear line, no file.
+TEST(CliBuildInput, BlockCodecsThatDoNotFit) {
+    ScratchDir d;
+    write_image(d.file("rgba.png"), 32, 32, 4, OIIO::TypeDesc::UINT8);
+    write_image(d.file("grey16.png"), 32, 32, 1, OIIO::TypeDesc::UINT16);
+    const std::set<std::string> inputs = {"rgba.png", "grey16.png"};
+    auto r = expect_build_fails(d, q(d.file("rgba.png")) + " --codec bc1 -o " + q(d.file("out.tsr")), inputs);
+    EXPECT_NE(r.out.find("bc1 holds 3 channels (RGB, no alpha), not 4"), std::string::npos) << r.out;
+    r = expect_build_fails(d, q(d.file("grey16.png")) + " --codec bc4 -o " + q(d.file("out.tsr")), inputs);
+    EXPECT_NE(r.out.find("bc4 needs 8-bit samples"), std::string::npos) << r.out;
+    r = expect_build_fails(d, "procedural:terrain:256 --codec bc7 --tile-size 260 --border 2 -o " + q(d.file("out.tsr")), inputs);
+    r = expect_build_fails(d, "procedural:terrain:256 --codec bc7 --bc7-effort 4 -o " + q(d.file("out.tsr")), inputs);
+    EXPECT_NE(r.out.find("--bc7-effort must be 0 to 3"), std::string::npos) << r.out;
+    // And one that fits: an RGBA image as BC7 keeps its alpha channel.
+    const auto ok = run_tessera("build " + q(d.file("rgba.png")) + " --codec bc7 --bc7-effort 0 --quiet -o " + q(d.file("ok.tsr")));
+    EXPECT_EQ(ok.exit_code, 0) << ok.out;
+}
+
 TEST(CliBuildInput, BadProceduralSpecs) {
     ScratchDir d;
     for (const char* spec : {"procedural:terrain:0", "procedural:terrain:99999999999", "procedural:terrain:abc",

@@ -39,6 +39,9 @@ Command add_build(CLI::App& app) {
     c->add_option("--chroma", a->chroma, "JPEG chroma subsampling: 420 or 444 (default: 444 at quality >= 90, else 420)")
         ->check(CLI::IsMember({"420", "444"}));
     c->add_option("--zstd-level", a->opt.zstd_level, "zstd compression level (1-19)")->capture_default_str();
+    c->add_option("--bc7-effort", a->opt.bc7_effort,
+                  "--codec bc7: encoder search, 0 (fastest, ~3x effort 2's speed, ~1 dB less) to 3 (slowest)")
+        ->capture_default_str();
     c->add_option("--threads", a->opt.threads, "Worker threads (0: all cores)")->capture_default_str();
     c->add_option("--colour-space,--color-space", a->colour_space, "Colour space of the samples: auto, srgb or linear")
         ->check(CLI::IsMember({"auto", "srgb", "linear"}))

@@ -8,6 +8,7 @@
 #include <memory>
 #include <string>
 
+#include "tessera/blocks/bc7.hpp"
 #include "tessera/blocks/blocks.hpp"
 
 namespace tessera::storage {
@@ -110,9 +111,17 @@ Result<std::vector<std::uint8_t>> encode_block_tile(const StoreInfo& info, std::
     texels_to_rgba8(texels.data(), info.channels, std::size_t(side) * side, rgba.data());
     blocks::half_size_rgba8(rgba.data(), side, info.colour_space == ColourSpace::srgb, half_rgba.data());
     std::vector<std::uint8_t> raw(block_tile_bytes(info));
-    blocks::encode_page(f, rgba.data(), side, raw.data(), blocks::Effort::best, channels);
-    blocks::encode_page(f, half_rgba.data(), half, raw.data() + blocks::page_block_bytes(f, side), blocks::Effort::best,
-                        channels);
+    const auto encode = [&](const std::uint8_t* page, std::uint32_t size, std::uint8_t* out) {
+        if (f == blocks::BlockFormat::bc7) {
+            blocks::Bc7Options bc7;
+            bc7.effort = options.bc7_effort;
+            blocks::encode_bc7(page, size, out, bc7);
+        } else {
+            blocks::encode_page(f, page, size, out, blocks::Effort::best, channels);
+        }
+    };
+    encode(rgba.data(), side, raw.data());
+    encode(half_rgba.data(), half, raw.data() + blocks::page_block_bytes(f, side));
     // Literals stay uncompressed: blocks are near-random bytes that Huffman coding shrinks by a few
     // percent at the cost of halving the client's unpack speed (docs/benchmarks.md); repeated
     // blocks are still found as matches.

@@ -224,6 +224,8 @@ Status validate(const BuildOptions& o) {
                                                       std::to_string(o.tile_size / 4) + "), got " + std::to_string(o.border));
     if (o.quality < 1 || o.quality > 100)
         return make_error(Errc::invalid_argument, "--quality must be 1 to 100, got " + std::to_string(o.quality));
+    if (o.bc7_effort < 0 || o.bc7_effort > 3)
+        return make_error(Errc::invalid_argument, "--bc7-effort must be 0 to 3, got " + std::to_string(o.bc7_effort));
     if (o.zstd_level < 1 || o.zstd_level > 19)
         return make_error(Errc::invalid_argument, "--zstd-level must be 1 to 19, got " + std::to_string(o.zstd_level));
     if (o.threads > 1024) return make_error(Errc::invalid_argument, "--threads must be at most 1024");
@@ -262,6 +264,7 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
     enc.jpeg_quality = opt.quality;
     enc.chroma = opt.chroma.value_or(opt.quality >= 90 ? Chroma::s444 : Chroma::s420);
     enc.zstd_level = opt.zstd_level;
+    enc.bc7_effort = opt.bc7_effort;
 
     auto writer = StoreWriter::create(output, spec);
     if (!writer) return writer.error();

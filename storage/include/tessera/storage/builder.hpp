@@ -22,6 +22,7 @@ struct BuildOptions {
     int quality = 90;                    // JPEG quality 1..100
     std::optional<Chroma> chroma;        // default: 4:4:4 at quality >= 90, else 4:2:0 (as libvips)
     int zstd_level = 3;                  // 1..19
+    int bc7_effort = 2;                  // 0..3: BC7 encoder search (time against quality; bc7.hpp)
     unsigned threads = 0;                // 0: all cores
     bool sparse = false;                 // tiles whose alpha is 0 everywhere are absent
     std::optional<ColourSpace> colour_space;  // default: from the source

@@ -17,6 +17,7 @@ struct EncodeOptions {
     int jpeg_quality = 90;        // 1..100
     Chroma chroma = Chroma::s444;
     int zstd_level = 3;
+    int bc7_effort = 2;  // 0..3, the BC7 encoder's search effort (tessera/blocks/bc7.hpp)
 };
 
 // Encodes one tile's texels (tile_bytes() bytes) in the store's codec. Thread-safe.
