@@ -382,6 +382,11 @@ TEST(TranscodeTile, CorruptPayloadsAreErrors) {
     expect_error(run(z, TileKind::present, static_cast<Codec>(7), zt.bytes), Errc::invalid_argument, "unknown codec");
     expect_error(run(z, TileKind::present, static_cast<Codec>(99), zt.bytes), Errc::invalid_argument, "codec 99");
     expect_error(run(z, TileKind::present, Codec::bc4, zt.bytes), Errc::corrupt, "blocks in a zstd store");
+    // A block store's description that no reader would accept (a server's, say): tiles not whole
+    // 4x4 blocks of a page and its second level.
+    StoreInfo odd_blocks = make_info(3, SampleType::u8, Codec::bc1);
+    odd_blocks.tile_payload = 50;
+    expect_error(run(odd_blocks, TileKind::present, Codec::bc1, zt.bytes), Errc::corrupt, "bc1 tiles of 58 texels");
 
     std::vector<std::uint8_t> short_out(rgba8_page_bytes(rgb) - 4);
     const Status s = transcode_to_rgba8(rgb, TileKind::present, Codec::jpeg, jpeg.bytes, short_out, scratch);

@@ -293,6 +293,10 @@ Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
             // Blocks decoded as the GPU samples them, then the store's channels by the rules above
             // (bc4 (v, 0, 0, 255) is grey v; bc5 (v, a, 0, 255) is grey and alpha).
             if (codec != info.codec) return make_error(Errc::corrupt, "block tile in a store of another codec");
+            // A store description from elsewhere (a server) is checked as the reader checks a file's.
+            if (const std::string misfit = storage::codec_misfit(codec, info.sample_type, info.channels, info.tile_size(), info.border);
+                !misfit.empty())
+                return make_error(Errc::corrupt, misfit);
             if (Status st = storage::unpack_block_tile(info, payload, s.blocks); !st) return st;
             std::uint8_t* rgba = s.rgba_buffer(texels * kRgba8TexelBytes);
             blocks::decode_page(*block_format_of(*page_format_of(codec)), s.blocks.data(), info.tile_size(), rgba);
@@ -365,6 +369,9 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
     if (kind == TileKind::present && page_format_of(codec) == format && codec == info.codec) {
         // The store holds this format's blocks, and the page's second level after them: unpacked
         // into scratch (zstd reads back what it wrote), then copied.
+        if (const std::string misfit = storage::codec_misfit(codec, info.sample_type, info.channels, size, info.border);
+            !misfit.empty())
+            return make_error(Errc::corrupt, misfit);
         if (Status st = storage::unpack_block_tile(info, payload, s.blocks); !st) return st;
         std::memcpy(out.data(), s.blocks.data(), out.size());
         return {};
