@@ -426,6 +426,7 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
         case Codec::bc7:
             return make_error(Errc::corrupt, std::string(to_string(codec)) + " tiles hold 8-bit samples, not " +
                                                  std::string(to_string(format)));
+        case Codec::layers: break;
     }
     return make_error(Errc::invalid_argument, "unknown codec " + std::to_string(static_cast<int>(codec)));
 }

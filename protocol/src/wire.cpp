@@ -45,6 +45,7 @@ v1::Codec to_proto(Codec c) {
         case Codec::bc4: return v1::CODEC_BC4;
         case Codec::bc5: return v1::CODEC_BC5;
         case Codec::bc7: return v1::CODEC_BC7;
+        case Codec::layers: return v1::CODEC_LAYERS;
     }
     return v1::CODEC_RAW;
 }
@@ -75,6 +76,7 @@ Codec from_proto(v1::Codec c) {
         case v1::CODEC_BC4: return Codec::bc4;
         case v1::CODEC_BC5: return Codec::bc5;
         case v1::CODEC_BC7: return Codec::bc7;
+        case v1::CODEC_LAYERS: return Codec::layers;
         default: return Codec::raw;
     }
 }
@@ -105,6 +107,15 @@ v1::StoreMetadata to_proto(std::string_view name, const storage::StoreInfo& info
     m.set_file_size(info.file_size);
     m.set_format_major(info.version_major);
     m.set_format_minor(info.version_minor);
+    for (const auto& l : info.layers) {
+        auto* lm = m.add_layers();
+        lm->set_name(l.name);
+        lm->set_channels(l.channels);
+        lm->set_sample_type(to_proto(l.sample_type));
+        lm->set_colour_space(to_proto(l.colour_space));
+        lm->set_codec(to_proto(l.codec));
+        lm->set_has_alpha(l.has_alpha);
+    }
     return m;
 }
 
@@ -133,6 +144,16 @@ storage::StoreInfo from_proto(const v1::StoreMetadata& m) {
         l.uniform = lm.uniform();
         l.absent = lm.absent();
         info.levels.push_back(l);
+    }
+    for (const auto& lm : m.layers()) {
+        storage::LayerInfo l;
+        l.name = lm.name();
+        l.channels = lm.channels();
+        l.sample_type = from_proto(lm.sample_type());
+        l.colour_space = from_proto(lm.colour_space());
+        l.codec = from_proto(lm.codec());
+        l.has_alpha = lm.has_alpha();
+        info.layers.push_back(std::move(l));
     }
     return info;
 }

@@ -177,6 +177,7 @@ std::string_view content_type_of(Codec c) {
         case Codec::bc5:
         case Codec::bc7: return "application/zstd";
         case Codec::raw: return "application/octet-stream";
+        case Codec::layers: return "application/x-tessera-layers";
     }
     return "application/octet-stream";
 }

@@ -192,6 +192,9 @@ Result<std::vector<std::uint8_t>> encode_tile(const StoreInfo& info, std::span<c
                 return make_error(Errc::unsupported, misfit);
             return encode_block_tile(info, texels, options);
         }
+        case Codec::layers:
+            return make_error(Errc::invalid_argument,
+                              "a multi-layer store's tile is a bundle: encode each layer's part (storage/layers.hpp)");
     }
     return make_error(Errc::unsupported, "unknown codec");
 }
@@ -257,6 +260,9 @@ Status decode_tile(const StoreInfo& info, const Tile& tile, std::vector<std::uin
             decoded_blocks_to_texels(rgba.data(), info.channels, texels, out.data());
             return {};
         }
+        case Codec::layers:
+            return make_error(Errc::invalid_argument,
+                              "a multi-layer store's tile is a bundle: decode each layer's part (storage/layers.hpp)");
     }
     return make_error(Errc::unsupported, "unknown codec");
 }

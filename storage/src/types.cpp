@@ -29,6 +29,7 @@ std::string_view to_string(Codec c) {
         case Codec::bc4: return "bc4";
         case Codec::bc5: return "bc5";
         case Codec::bc7: return "bc7";
+        case Codec::layers: return "layers";
     }
     return "?";
 }
@@ -103,6 +104,7 @@ std::string codec_misfit(Codec codec, SampleType sample_type, std::uint32_t chan
                        std::to_string(tile_size) + " and " + std::to_string(border);
             return {};
         }
+        case Codec::layers: return "layers is a multi-layer store's bundle of tiles, not a codec for texels";
     }
     return "unknown codec " + std::to_string(static_cast<int>(codec));
 }

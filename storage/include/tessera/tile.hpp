@@ -14,7 +14,10 @@ namespace tessera {
 // How a present tile's payload is encoded in a store and on the wire. The block codecs hold GPU
 // blocks (a zstd frame of the tile's 4x4 blocks, then its half-size level's; docs/store-format.md):
 // a client whose page pool has that format uploads them as they are.
-enum class Codec : std::uint8_t { raw = 0, zstd = 1, jpeg = 2, bc1 = 3, bc4 = 4, bc5 = 5, bc7 = 6 };
+//
+// `layers` is a multi-layer store's tile: one bundle holding every layer's part, each in its
+// layer's own codec (tessera/storage/layers.hpp), so that one request fetches a page's layers.
+enum class Codec : std::uint8_t { raw = 0, zstd = 1, jpeg = 2, bc1 = 3, bc4 = 4, bc5 = 5, bc7 = 6, layers = 7 };
 constexpr bool is_block_codec(Codec c) { return c == Codec::bc1 || c == Codec::bc4 || c == Codec::bc5 || c == Codec::bc7; }
 
 // What a tile holds. An absent tile (sparse store) has no data: a viewer uses its parent. A
@@ -34,7 +37,7 @@ enum class TileStatus : std::uint8_t {
     internal = 8,
 };
 
-std::string_view to_string(Codec c);      // "raw", "zstd", "jpeg", "bc1", "bc4", "bc5", "bc7"
+std::string_view to_string(Codec c);      // "raw", "zstd", "jpeg", "bc1", "bc4", "bc5", "bc7", "layers"
 std::string_view to_string(TileKind k);   // "absent", "present", "uniform"
 std::string_view to_string(TileStatus s); // "OK", "NOT_FOUND", ... (the gRPC-style names)
 std::optional<Codec> parse_codec(std::string_view s);  // also accepts "jpg"

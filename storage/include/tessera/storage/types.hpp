@@ -31,6 +31,17 @@ struct LevelInfo {
     std::uint64_t payload_bytes = 0; // bytes of distinct payloads first stored in this level
 };
 
+// One layer of a multi-layer store (docs/store-format.md, "Layers"): every layer has the store's
+// tile geometry and its own samples and codec.
+struct LayerInfo {
+    std::string name;                 // 1..31 bytes of [a-z0-9_-], unique in the store
+    std::uint32_t channels = 0;       // 1..4
+    SampleType sample_type = SampleType::u8;
+    ColourSpace colour_space = ColourSpace::srgb;
+    Codec codec = Codec::raw;         // never Codec::layers
+    bool has_alpha = false;
+};
+
 // Everything a reader needs to know about a store besides its tiles.
 struct StoreInfo {
     std::uint32_t width = 0;
@@ -47,6 +58,10 @@ struct StoreInfo {
     std::uint64_t store_id = 0;      // content hash of the index: changes whenever any tile changes
     std::uint64_t file_size = 0;
     std::vector<LevelInfo> levels;
+    // A multi-layer store's layers, in stored order; empty for a single-layer store. When present,
+    // codec is Codec::layers and channels, sample_type, colour_space and has_alpha repeat layer 0's.
+    std::vector<LayerInfo> layers;
+    bool layered() const { return !layers.empty(); }
 
     std::uint32_t tile_size() const { return tile_payload + 2 * border; }  // stored texels per side
     std::size_t texel_bytes() const { return channels * sample_bytes(sample_type); }
