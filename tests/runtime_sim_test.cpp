@@ -417,7 +417,7 @@ namespace {
 // cannot take it when the texture is added, naming the format.
 TEST_F(RuntimeSim, PagesComeInThePoolsFormat) {
     for (const bool second_level : {false, true}) {
-        FakeUploader up(PagePoolFormat{PageFormat::bc1, second_level});
+        FakeUploader up(PagePoolFormat{PageFormat::bc1, second_level, {}});
         DelayedSource src(path_, 1);
         auto rt = make(1024, up, src);
         const auto& info = *rt->texture_info(0);
@@ -432,7 +432,7 @@ TEST_F(RuntimeSim, PagesComeInThePoolsFormat) {
             EXPECT_EQ(p.data.size(), page_upload_bytes(PageFormat::bc1, info.tile_size(), second_level));
         EXPECT_EQ(rt->summary().bytes_uploaded(), up.pages().size() * page_upload_bytes(PageFormat::bc1, info.tile_size(), second_level));
     }
-    FakeUploader grey_only(PagePoolFormat{PageFormat::bc4, false});
+    FakeUploader grey_only(PagePoolFormat{PageFormat::bc4, false, {}});
     DelayedSource src(path_, 1);
     RuntimeConfig c;
     c.residency.pool_slots = 64;

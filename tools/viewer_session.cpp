@@ -289,7 +289,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     cfg.upload_pages_per_frame = o.upload_pages_per_frame;
     const client::PagePoolFormat pool_format = r.pool_format();
     cfg.upload_bytes_per_frame =
-        std::size_t(o.upload_pages_per_frame) * client::page_upload_bytes(pool_format.format, info->tile_size(), pool_format.second_level);
+        std::size_t(o.upload_pages_per_frame) * pool_format.upload_bytes(info->tile_size());
     auto runtime = client::Runtime::create(cfg, r);
     if (!runtime) throw Failure(runtime.error().message);
     auto& rt = **runtime;

@@ -131,11 +131,8 @@ public:
         if (info->levels.empty()) return Error{Errc::invalid_argument, "store " + store + " has no levels"};
         // Every page is transcoded to the pool's format: a store that cannot take it is refused
         // here, with the reason, rather than failing page by page.
-        if (Status st = check_page_format(*info, pool_format_.format); !st)
+        if (Status st = check_pool_format(*info, pool_format_); !st)
             return Error{st.error().code, "store " + store + ": " + st.error().message};
-        if (pool_format_.second_level && info->tile_size() % 8 != 0)
-            return Error{Errc::invalid_argument, "store " + store + ": " + std::string(to_string(pool_format_.format)) +
-                                                     " pages with a second level need tiles of a multiple of 8 texels"};
         const auto& l0 = info->levels[0];
         TESSERA_TRY(residency_.add_texture(id, l0.tiles_x, l0.tiles_y, info->level_count()));
         analyzer_.set_texture_levels(id, static_cast<std::uint8_t>(info->level_count()));
@@ -425,7 +422,7 @@ private:
 
     // Bytes of one upload of `info`'s pages in the pool's format.
     std::size_t upload_bytes(const storage::StoreInfo& info) const {
-        return page_upload_bytes(pool_format_.format, info.tile_size(), pool_format_.second_level);
+        return pool_format_.upload_bytes(info.tile_size());
     }
 
     int take_staging() {
@@ -453,8 +450,8 @@ private:
             std::span<std::uint8_t> dst(staging_[static_cast<std::size_t>(s)].data(), upload_bytes(*info));
             w.staging = s;
             if (!pool_) {
-                const auto st = transcode_page(*info, w.tile->kind, w.tile->codec, w.tile->payload, pool_format_.format, dst,
-                                               scratch_, pool_format_.second_level);
+                const auto st = transcode_pool_page(*info, w.tile->kind, w.tile->codec, w.tile->payload, pool_format_, dst,
+                                                    scratch_);
                 finish_decode(key, st.ok());
                 continue;
             }
@@ -464,8 +461,7 @@ private:
             job.info = info;
             job.kind = w.tile->kind;
             job.codec = w.tile->codec;
-            job.format = pool_format_.format;
-            job.second_level = pool_format_.second_level;
+            job.pool = pool_format_;
             job.payload = std::shared_ptr<const std::vector<std::uint8_t>>(w.tile, &w.tile->payload);
             job.destination = dst;
             job.priority = static_cast<std::uint32_t>(std::max(0.0f, priority));

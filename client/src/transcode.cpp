@@ -19,6 +19,7 @@
 
 #include "tessera/half_float.hpp"
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/layers.hpp"
 
 namespace tessera::client {
 
@@ -352,6 +353,68 @@ Status check_page_format(const StoreInfo& info, PageFormat format) {
     return make_error(Errc::invalid_argument, "unknown page format " + std::to_string(static_cast<int>(format)));
 }
 
+Status check_pool_format(const StoreInfo& info, const PagePoolFormat& pool) {
+    const std::size_t layers = storage::layer_count(info);
+    if (layers != pool.layer_count())
+        return make_error(Errc::invalid_argument, "the store has " + std::to_string(layers) + " layer" +
+                                                      (layers == 1 ? "" : "s") + ", the page pool " +
+                                                      std::to_string(pool.layer_count()));
+    for (std::size_t i = 0; i < layers; ++i) {
+        const StoreInfo layer = storage::layer_store_info(info, i);
+        const std::string name = info.layered() ? "layer " + info.layers[i].name + ": " : std::string();
+        if (Status st = check_page_format(layer, pool.layer_format(i)); !st)
+            return make_error(st.error().code, name + st.error().message);
+        if (pool.layer_second_level(i) && info.tile_size() % 8 != 0)
+            return make_error(Errc::invalid_argument, name + std::string(to_string(pool.layer_format(i))) +
+                                                          " pages with a second level need tiles of a multiple of 8 texels");
+    }
+    return {};
+}
+
+Status transcode_pool_page(const StoreInfo& info, TileKind kind, Codec codec, std::span<const std::uint8_t> payload,
+                           const PagePoolFormat& pool, std::span<std::uint8_t> out, Scratch& scratch) {
+    const std::uint32_t ts = info.tile_size();
+    if (out.size() != pool.upload_bytes(ts))
+        return make_error(Errc::invalid_argument, "page buffer of " + std::to_string(out.size()) + " bytes, the pool takes " +
+                                                      std::to_string(pool.upload_bytes(ts)));
+    if (!info.layered()) {
+        if (pool.layer_count() != 1) return check_pool_format(info, pool);
+        return transcode_page(info, kind, codec, payload, pool.format, out, scratch, pool.layer_second_level(0));
+    }
+    if (kind == TileKind::absent) return make_error(Errc::not_found, "tile is absent");
+    if (kind != TileKind::present || codec != Codec::layers)
+        return make_error(Errc::corrupt, "a multi-layer store's tile must be a layer bundle, not a " +
+                                             std::string(to_string(kind)) + " " + std::string(to_string(codec)) + " tile");
+    if (pool.layer_count() != info.layers.size()) return check_pool_format(info, pool);
+    auto parts = storage::split_layers(info, payload);
+    if (!parts) return parts.error();
+    // One layer's description per call, reusing this thread's copy (no allocation once warm).
+    thread_local StoreInfo layer;
+    std::size_t at = 0;
+    for (std::size_t i = 0; i < parts->size(); ++i) {
+        const storage::LayerPart& part = (*parts)[i];
+        const storage::LayerInfo& l = info.layers[i];
+        if (part.kind == TileKind::absent)
+            return make_error(Errc::not_found, "layer " + l.name + " of the tile is absent");
+        layer.width = info.width;
+        layer.height = info.height;
+        layer.tile_payload = info.tile_payload;
+        layer.border = info.border;
+        layer.channels = l.channels;
+        layer.sample_type = l.sample_type;
+        layer.colour_space = l.colour_space;
+        layer.codec = l.codec;
+        layer.has_alpha = l.has_alpha;
+        const std::size_t bytes = pool.layer_bytes(i, ts);
+        if (Status st = transcode_page(layer, part.kind, l.codec, part.bytes, pool.layer_format(i), out.subspan(at, bytes),
+                                       scratch, pool.layer_second_level(i));
+            !st)
+            return make_error(st.error().code, "layer " + l.name + ": " + st.error().message);
+        at += bytes;
+    }
+    return {};
+}
+
 Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::span<const std::uint8_t> payload,
                       PageFormat format, std::span<std::uint8_t> out, Scratch& scratch, bool second_level) {
     if (second_level && !is_block_compressed(format))
@@ -626,8 +689,7 @@ void TranscodePool::worker_loop() {
         } else {
             const std::span<const std::uint8_t> payload =
                 job.payload ? std::span<const std::uint8_t>(*job.payload) : std::span<const std::uint8_t>();
-            status = transcode_page(*job.info, job.kind, job.codec, payload, job.format, job.destination, scratch,
-                                    job.second_level);
+            status = transcode_pool_page(*job.info, job.kind, job.codec, payload, job.pool, job.destination, scratch);
         }
         TranscodeResult result{job.key, job.ticket, std::move(status), false};
         node = {};  // releases the payload and info outside the lock

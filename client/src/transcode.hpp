@@ -31,6 +31,7 @@
 
 #include "tessera/blocks/blocks.hpp"
 #include "tessera/client/page.hpp"
+#include "tessera/client/upload.hpp"
 #include "tessera/result.hpp"
 #include "tessera/storage/types.hpp"
 
@@ -105,6 +106,20 @@ Status check_page_format(const storage::StoreInfo& info, PageFormat format);
 Status transcode_page(const storage::StoreInfo& info, TileKind kind, Codec codec, std::span<const std::uint8_t> payload,
                       PageFormat format, std::span<std::uint8_t> out, Scratch& scratch, bool second_level = false);
 
+// Whether `info`'s pages fit a pool: as many layers as the store has (one for a single-layer
+// store), each layer's samples taking that layer's format (check_page_format), and tiles a
+// multiple of 8 texels where a second level is uploaded. Errors name the layer and the format.
+Status check_pool_format(const storage::StoreInfo& info, const PagePoolFormat& pool);
+
+// One tile into one upload of `pool` (exactly pool.upload_bytes(info.tile_size()) bytes): a
+// single-layer store's page as transcode_page makes it; a multi-layer store's bundle
+// (Codec::layers) split, each layer's part transcoded into its layer's format, in layer order.
+// An absent part is an error (not_found): the page is made resident with all its layers or not at
+// all, so residency and fallback hold for every layer at once.
+Status transcode_pool_page(const storage::StoreInfo& info, TileKind kind, Codec codec,
+                           std::span<const std::uint8_t> payload, const PagePoolFormat& pool,
+                           std::span<std::uint8_t> out, Scratch& scratch);
+
 // ---------------------------------------------------------------------------------------------
 // TranscodePool: N owned worker threads, one bounded priority queue of jobs, one bounded queue of
 // completions polled by the render-facing thread.
@@ -125,10 +140,9 @@ struct TranscodeJob {
     std::shared_ptr<const storage::StoreInfo> info;
     TileKind kind = TileKind::present;
     Codec codec = Codec::raw;
-    PageFormat format = PageFormat::rgba8;
-    bool second_level = false;  // transcode_page's: the block page's 2x2 means after it
+    PagePoolFormat pool;  // what to make (transcode_pool_page)
     std::shared_ptr<const std::vector<std::uint8_t>> payload;
-    std::span<std::uint8_t> destination;  // page_upload_bytes(format, info->tile_size(), second_level) bytes
+    std::span<std::uint8_t> destination;  // pool.upload_bytes(info->tile_size()) bytes
     std::uint32_t priority = 0;           // higher first; equal priorities in submission order
 };
 

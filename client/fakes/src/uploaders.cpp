@@ -5,7 +5,7 @@
 namespace tessera::client {
 
 void FakeUploader::upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) {
-    if (page_data.size() != page_upload_bytes(format_.format, tile_size, format_.second_level)) ++malformed_;
+    if (page_data.size() != format_.upload_bytes(tile_size)) ++malformed_;
     pages_.push_back(PageCall{seq_++, slot, page, tile_size, std::vector<std::uint8_t>(page_data.begin(), page_data.end())});
 }
 

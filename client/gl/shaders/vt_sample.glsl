@@ -86,6 +86,12 @@ uniform sampler2DRect vt_atlas;     // the physical pages (RGBA8 or SRGB8_ALPHA8
 uniform sampler2D vt_atlas;
 const vec2 vt_inv_atlas_size = 1.0 / VT_ATLAS_SIZE;  // 1 / the atlas's level-0 size, texels
 #endif
+#ifdef VT_LIT
+// A multi-layer pool lit by its normal layer: that layer's atlas (layer 0's grid, so the same
+// coordinates) is read wherever vt_atlas is, with the same weights (vt_sample's VtSample.second).
+uniform sampler2D vt_second_atlas;
+vec4 vt_second_texel;  // what the last vt_sample_entry read from it
+#endif
 uniform uint vt_texture_id;         // for the feedback id (feedback.frag: 1/N of the pixels)
 
 // ---------------------------------------------------------------------------------------------
@@ -237,6 +243,14 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
     vec4 c = textureLod(vt_atlas, (cell + in_page) * vt_inv_atlas_size, r > level ? 0.0 : fraction);
 #endif
     bool valid = (e >> 31) != 0u;
+#ifdef VT_LIT
+#if VT_FILTER == VT_BILINEAR
+    vec4 second = textureLod(vt_second_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
+#else
+    vec4 second = textureLod(vt_second_atlas, (cell + in_page) * vt_inv_atlas_size, r > level ? 0.0 : fraction);
+#endif
+    vt_second_texel = valid ? second : vt_no_data_colour;
+#endif
     resident = valid ? uint(r) : 32u;
     return valid ? c : vt_no_data_colour;
 }
@@ -310,6 +324,9 @@ struct VtSample {
     uint wanted;           // wanted level with the bias (what the feedback requests)
     uint wanted_unbiased;  // wanted level without the bias
     uint resident;         // resident level sampled for the wanted page (32: none)
+#ifdef VT_LIT
+    vec4 second;           // the normal layer at the same place, filtered the same way
+#endif
 };
 
 // Samples the virtual texture at origin + local with the configured filter. Call it in uniform
@@ -325,8 +342,14 @@ VtSample vt_sample(vec2 local) {
     s.wanted_unbiased = uint(vt_wanted_level(lod0));
 #if VT_FILTER == VT_BILINEAR
     s.colour = vt_lookup(local, wanted, s.resident);
+#ifdef VT_LIT
+    s.second = vt_second_texel;
+#endif
 #elif VT_FILTER == VT_TRILINEAR
     s.colour = vt_trilinear(local, lod, s.resident);
+#ifdef VT_LIT
+    s.second = vt_second_texel;
+#endif
 #else
     // Anisotropic: count trilinear taps along the major axis, at level l0 = floor(lod) with the
     // atlas's second level for the fraction. The taps lie within 8 level-l0 texels of the centre
@@ -365,6 +388,9 @@ VtSample vt_sample(vec2 local) {
     VtTapMap m01 = vt_tap_map(block.x, corner, ivec2(0, 1), l0, fraction);
     VtTapMap m11 = vt_tap_map(block.y, corner, ivec2(1, 1), l0, fraction);
     vec4 sum = vec4(0.0);
+#ifdef VT_LIT
+    vec4 second_sum = vec4(0.0);
+#endif
     float valid = 0.0;
     for (int i = 0; i < int(count); ++i) {
         vec2 t = clamp(first + step * float(i), lo, hi);
@@ -372,10 +398,16 @@ VtSample vt_sample(vec2 local) {
         vec4 a = up.y ? (up.x ? m11.map : m01.map) : (up.x ? m10.map : m00.map);
         float w = up.y ? (up.x ? m11.weight : m01.weight) : (up.x ? m10.weight : m00.weight);
         sum += w * textureLod(vt_atlas, (t * a.x + a.yz) * vt_inv_atlas_size, a.w);
+#ifdef VT_LIT
+        second_sum += w * textureLod(vt_second_atlas, (t * a.x + a.yz) * vt_inv_atlas_size, a.w);
+#endif
         valid += w;
     }
     sum += (count - valid) * vt_no_data_colour;
     s.colour = sum / count;
+#ifdef VT_LIT
+    s.second = (second_sum + (count - valid) * vt_no_data_colour) / count;
+#endif
 #endif
     return s;
 }

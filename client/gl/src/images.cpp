@@ -49,7 +49,15 @@ Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::str
                 if (!st) return Error{st.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, st.error().message)};
                 // Block pages: decoded back as the GPU samples them, so the reference holds the
                 // atlas's texels.
-                if (format != PageFormat::rgba8) decode_block_page(format, blocks.data(), ts, page.data());
+                if (format != PageFormat::rgba8) {
+                    decode_block_page(format, blocks.data(), ts, page.data());
+                    // The atlas reads bc4 as (r, r, r, 1) and bc5 as (r, r, r, g) (page_atlas.cpp).
+                    if (format == PageFormat::bc4 || format == PageFormat::bc5)
+                        for (std::size_t i = 0; i < page.size(); i += 4) {
+                            page[i + 3] = format == PageFormat::bc5 ? page[i + 1] : 255;
+                            page[i + 1] = page[i + 2] = page[i];
+                        }
+                }
                 // The interior [B, B + P) of the tile is level texels [tx * P, (tx + 1) * P).
                 const std::uint32_t x0 = tx * P, y0 = ty * P;
                 const std::uint32_t w = std::min(P, li.width - x0), h = std::min(P, li.height - y0);

@@ -97,10 +97,22 @@ Status PageAtlas::init(const RendererConfig& c, std::uint32_t max_texture) {
     // RGBA8 with one level: a rectangle texture, which the shader samples in texel coordinates
     // (no normalisation, no mip level to select): fewer instructions per lookup on a software
     // rasterizer. Block formats cannot live in a rectangle texture: always 2D.
+    // A multi-layer pool's atlases are all 2D: the shader samples two of them with one coordinate.
     const bool two_levels = c.filter != Filter::bilinear;
     const bool blocks = is_block_compressed(c.page_format);
     internal_format_ = internal_format(c);
-    texture_ = make_texture(two_levels || blocks ? GL_TEXTURE_2D : GL_TEXTURE_RECTANGLE);
+    texture_ = make_texture(two_levels || blocks || !c.more_layers.empty() ? GL_TEXTURE_2D : GL_TEXTURE_RECTANGLE);
+    // One- and two-channel formats read as RGBA8 pages of such stores do (transcode.hpp): (v, v, v, 1)
+    // and (v, v, v, a), so every format of a layer shows the same picture and a normal layer's
+    // two samples are red and alpha whatever its format.
+    if (c.page_format == PageFormat::bc4 || c.page_format == PageFormat::r16 || c.page_format == PageFormat::r16f ||
+        c.page_format == PageFormat::r32f) {
+        const GLint grey[4] = {GL_RED, GL_RED, GL_RED, GL_ONE};
+        glTextureParameteriv(texture_.get(), GL_TEXTURE_SWIZZLE_RGBA, grey);
+    } else if (c.page_format == PageFormat::bc5) {
+        const GLint grey_alpha[4] = {GL_RED, GL_RED, GL_RED, GL_GREEN};
+        glTextureParameteriv(texture_.get(), GL_TEXTURE_SWIZZLE_RGBA, grey_alpha);
+    }
     glTextureStorage2D(texture_.get(), two_levels ? 2 : 1, internal_format_, GLsizei(width_), GLsizei(height_));
     glTextureParameteri(texture_.get(), GL_TEXTURE_MIN_FILTER, two_levels ? GL_LINEAR_MIPMAP_LINEAR : GL_LINEAR);
     glTextureParameteri(texture_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);

@@ -47,7 +47,7 @@ public:
     // Level 0 of `slot`'s cell in the page format; empty for block formats. Waits.
     std::vector<std::uint8_t> read_page(SlotId slot) const;
 
-    PagePoolFormat pool_format() const { return {format_, second_level_uploads_}; }
+    PagePoolFormat pool_format() const { return {format_, second_level_uploads_, {}}; }
     GLuint texture() const { return texture_.get(); }
     std::uint32_t width() const { return width_; }
     std::uint32_t height() const { return height_; }

@@ -18,7 +18,11 @@ std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width
         filter, c.tile_size, c.border, c.max_anisotropy, atlas_width, atlas_height, kNoDataColour[0], kNoDataColour[1],
         kNoDataColour[2], kNoDataColour[3]) +
            // The rectangle atlas (one level of RGBA8 pages): see VtRenderer's atlas.
-           (c.filter == Filter::bilinear && !is_block_compressed(c.page_format) ? "#define VT_ATLAS_RECT 1\n" : "");
+           (c.filter == Filter::bilinear && !is_block_compressed(c.page_format) && c.more_layers.empty()
+                ? "#define VT_ATLAS_RECT 1\n"
+                : "") +
+           // Lighting by a normal layer: vt_sample also samples that layer's atlas (docs/renderer.md, "Layers").
+           (c.normal_layer && c.show_layer == 0 ? "#define VT_LIT 1\n" : "");
 }
 
 SceneGeometry::SceneGeometry() : vao_(make_vertex_array()) {}

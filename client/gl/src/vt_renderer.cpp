@@ -28,7 +28,7 @@ using namespace detail;
 struct VtUniforms {
     GLint view_projection = -1, bias = -1, main_pixel = -1;
     GLint table_column = -1, table_last_row = -1, levels = -1, texture_id = -1;
-    GLint page_table = -1, atlas = -1, dir_offset = -1, dir_width = -1;
+    GLint page_table = -1, atlas = -1, second_atlas = -1, dir_offset = -1, dir_width = -1;
     ChunkUniforms chunk;
 
     explicit VtUniforms(const Program& p = Program()) {
@@ -44,6 +44,7 @@ struct VtUniforms {
         dir_offset = uniform(p, "vt_dir_offset");
         dir_width = uniform(p, "vt_dir_width");
         atlas = uniform(p, "vt_atlas");
+        second_atlas = uniform(p, "vt_second_atlas");
         chunk.chunk_offset = uniform(p, "u_chunk_offset");
         chunk.chunk_page = uniform(p, "u_chunk_page");
         chunk.chunk_base = uniform(p, "u_chunk_base");
@@ -82,7 +83,13 @@ public:
             return Error{Errc::invalid_argument, "renderer: feedback_prefetch_lod must be 0..2"};
         if (!(c.feedback_guard_band >= 0 && c.feedback_guard_band <= 1))
             return Error{Errc::invalid_argument, "renderer: feedback_guard_band must be 0..1"};
-        TESSERA_TRY(check_page_format_support(c));
+        const std::size_t layers = 1 + c.more_layers.size();
+        if (c.show_layer >= layers)
+            return Error{Errc::invalid_argument, fmt::format("renderer: show_layer {} of a pool of {} layers", c.show_layer, layers)};
+        if (c.normal_layer && (*c.normal_layer == 0 || *c.normal_layer >= layers))
+            return Error{Errc::invalid_argument,
+                         fmt::format("renderer: normal_layer {} must be one of layers 1..{}", *c.normal_layer, layers - 1)};
+        for (std::size_t i = 0; i < layers; ++i) TESSERA_TRY(check_page_format_support(layer_config(i)));
         GLint max_size = 0;
         glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
         const auto max_texture = static_cast<std::uint32_t>(std::max(max_size, 1));
@@ -90,6 +97,10 @@ public:
         glGetInteger64v(GL_MAX_SHADER_STORAGE_BLOCK_SIZE, &max_ssbo);
         if (!staging_.ok()) return Error{Errc::resource_exhausted, "renderer: cannot map the staging ring"};
         TESSERA_TRY(atlas_.init(c, max_texture));
+        for (std::size_t i = 1; i < layers; ++i) {
+            more_atlases_.push_back(std::make_unique<PageAtlas>(staging_));
+            TESSERA_TRY(more_atlases_.back()->init(layer_config(i), max_texture));
+        }
         tables_.init(c.pool_slots, c.tile_size, c.border, max_texture, max_ssbo);
 
         // Programs.
@@ -117,6 +128,7 @@ public:
             const auto& u = *pu;
             glProgramUniform1i(p, u.page_table, 0);
             glProgramUniform1i(p, u.atlas, 1);
+            if (u.second_atlas >= 0) glProgramUniform1i(p, u.second_atlas, 2);
         }
         fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
         fb_height_ = (c.height + c.feedback_scale - 1) / c.feedback_scale;
@@ -151,12 +163,30 @@ public:
 
     // ---- PageUploader -----------------------------------------------------------------------
 
-    PagePoolFormat pool_format() const override { return atlas_.pool_format(); }
+    PagePoolFormat pool_format() const override {
+        PagePoolFormat f = atlas_.pool_format();
+        for (const auto& a : more_atlases_) {
+            f.more_layers.push_back(a->pool_format().format);
+            f.second_level = f.second_level || a->pool_format().second_level;
+        }
+        return f;
+    }
 
     void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) override {
-        if (!atlas_.upload_page(slot, page, page_data, tile_size, tables_.place(page))) {
+        // One upload holds every layer's page, in layer order (PagePoolFormat::layer_offset).
+        const PagePoolFormat pool = pool_format();
+        if (page_data.size() != pool.upload_bytes(tile_size)) {
             ++stats_.malformed_uploads;
             return;
+        }
+        const auto place = tables_.place(page);
+        for (std::size_t i = 0; i < pool.layer_count(); ++i) {
+            PageAtlas& a = atlas(i);
+            if (!a.upload_page(slot, page, page_data.subspan(pool.layer_offset(i, tile_size), pool.layer_bytes(i, tile_size)),
+                               tile_size, place)) {
+                ++stats_.malformed_uploads;
+                return;
+            }
         }
         ++stats_.pages_uploaded;
     }
@@ -198,7 +228,7 @@ public:
         ++stats_.frames;
         staging_.close_batch();  // the uploads since the last frame, fenced together
         staging_.retire();
-        atlas_.make_page_mips();  // after the frame's page uploads, in stream order
+        for (std::size_t i = 0; i <= more_atlases_.size(); ++i) atlas(i).make_page_mips();  // after the frame's page uploads, in stream order
 
         const double aspect = double(cfg_.width) / double(cfg_.height);
         const auto vp = view_projection(camera, aspect);
@@ -211,7 +241,8 @@ public:
             use_page_table(*tex);
             set_texture_uniforms(vt_program_, vt_u_, *tex);
             set_texture_uniforms(feedback_program_, feedback_u_, *tex);
-            glBindTextureUnit(1, atlas_.texture());
+            glBindTextureUnit(1, atlas(cfg_.show_layer).texture());
+            if (cfg_.normal_layer) glBindTextureUnit(2, atlas(*cfg_.normal_layer).texture());
         }
         stats_.visible_chunks = tex ? geometry_.visible_chunks() : 0;
         for (auto* p : {&depth_program_, &vt_program_, &feedback_program_}) {
@@ -343,7 +374,9 @@ public:
 
     std::vector<std::uint8_t> read_color() override { return read_colour(main_); }
 
-    std::vector<std::uint8_t> read_page(SlotId slot) override { return atlas_.read_page(slot); }
+    std::vector<std::uint8_t> read_page(SlotId slot, std::uint32_t layer) override {
+        return layer <= more_atlases_.size() ? atlas(layer).read_page(slot) : std::vector<std::uint8_t>();
+    }
 
     void present(int window_width, int window_height) override {
         glDisable(GL_FRAMEBUFFER_SRGB);  // copy the stored (encoded) values as they are
@@ -367,6 +400,17 @@ private:
         if (r == TableUpload::uploaded) ++stats_.table_uploads;
         if (r == TableUpload::malformed) ++stats_.malformed_uploads;
     }
+
+    // Layer i's atlas configuration: layer 0's grid and filter, the layer's format.
+    RendererConfig layer_config(std::size_t i) const {
+        RendererConfig c = cfg_;
+        if (i > 0) {
+            c.page_format = cfg_.more_layers[i - 1].page_format;
+            c.srgb = cfg_.more_layers[i - 1].srgb;
+        }
+        return c;
+    }
+    PageAtlas& atlas(std::size_t i) { return i == 0 ? atlas_ : *more_atlases_[i - 1]; }
 
     void set_page_layout(const VirtualTexture& t) { geometry_.set_page_layout(t.payload, t.texels[0], t.texels[1]); }
 
@@ -394,7 +438,8 @@ private:
 
     RendererConfig cfg_;
     StagingRing staging_;
-    PageAtlas atlas_;
+    PageAtlas atlas_;                                     // layer 0
+    std::vector<std::unique_ptr<PageAtlas>> more_atlases_;  // layers 1, 2, ...: the same grid
     PageTableTextures tables_;
     SceneGeometry geometry_;
     TextureId scene_texture_ = 0;

@@ -18,10 +18,31 @@ namespace tessera::client {
 
 // How an uploader's pool holds pages: the runtime transcodes every page to this.
 struct PagePoolFormat {
-    PageFormat format = PageFormat::rgba8;
-    // Each upload carries the page's half-size second level after it (page_upload_bytes): block
-    // formats in an atlas with two levels, which the GPU cannot render into.
+    PageFormat format = PageFormat::rgba8;  // layer 0's (the only layer of a one-layer pool)
+    // Each upload of a page in a block format carries its half-size second level after it
+    // (page_upload_bytes): an atlas with two levels, which the GPU cannot render into for block
+    // formats (other formats' second levels are rendered on the GPU).
     bool second_level = false;
+    // A multi-layer pool (docs/client.md, "Layers"): the formats of layers 1, 2, ...; empty for one
+    // layer. A slot holds one page of every layer; an upload carries them in layer order.
+    std::vector<PageFormat> more_layers;
+
+    std::size_t layer_count() const { return 1 + more_layers.size(); }
+    PageFormat layer_format(std::size_t layer) const { return layer == 0 ? format : more_layers.at(layer - 1); }
+    bool layer_second_level(std::size_t layer) const {
+        return second_level && is_block_compressed(layer_format(layer));
+    }
+    // Bytes of layer `layer` in an upload, and where they start in it.
+    std::size_t layer_bytes(std::size_t layer, std::uint32_t tile_size) const {
+        return page_upload_bytes(layer_format(layer), tile_size, layer_second_level(layer));
+    }
+    std::size_t layer_offset(std::size_t layer, std::uint32_t tile_size) const {
+        std::size_t at = 0;
+        for (std::size_t i = 0; i < layer; ++i) at += layer_bytes(i, tile_size);
+        return at;
+    }
+    // Bytes of one upload: every layer's page.
+    std::size_t upload_bytes(std::uint32_t tile_size) const { return layer_offset(layer_count(), tile_size); }
 };
 
 // What the renderer does with pages. Called on the render thread only.
@@ -31,7 +52,7 @@ public:
     // The format pages must come in (default: RGBA8, one level).
     virtual PagePoolFormat pool_format() const { return {}; }
     // Copy one page (tile_size x tile_size texels in pool_format(), rows top to bottom, border
-    // included; page_upload_bytes of them) into physical slot `slot`. `page` says which page it
+    // included; pool_format().upload_bytes of them: every layer's page, in layer order) into physical slot `slot`. `page` says which page it
     // is (the GL renderer derives each page's next coarser level from it, clamped at the
     // texture's edges). The span is valid only during the call.
     virtual void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data,

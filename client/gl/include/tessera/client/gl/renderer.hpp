@@ -22,6 +22,7 @@
 // An empty page-table entry (nothing resident) samples kNoDataColour. See docs/renderer.md.
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -50,6 +51,19 @@ struct RendererConfig {
     // (pool_format()). Block formats need a tile size that is a multiple of 4 (8 with two levels)
     // and the GPU's support for them, checked at creation.
     PageFormat page_format = PageFormat::rgba8;
+    // A multi-layer pool (docs/renderer.md, "Layers"): layers 1, 2, ... of every page, each in an
+    // atlas of its own format with layer 0's grid, so one page-table entry places a page in all of
+    // them. Empty: one layer.
+    struct Layer {
+        PageFormat page_format = PageFormat::rgba8;
+        bool srgb = false;  // colour with the sRGB curve (data layers: false)
+    };
+    std::vector<Layer> more_layers;
+    // What the VT pass draws: layer `show_layer`'s texels as they are (0: the colour layer); with
+    // `normal_layer` set and show_layer 0, layer 0 lit by the unit normals in that layer (x in red,
+    // y in alpha, each mapped from [0, 1] to [-1, 1]: a 2-channel store's two samples; z implied).
+    std::uint32_t show_layer = 0;
+    std::optional<std::uint32_t> normal_layer;
     std::size_t staging_bytes = 32u << 20;  // page + page-table staging ring (bounded; when full, uploads go
                                             // straight from client memory: RendererStats::direct_uploads)
     std::uint32_t readback_ring = 3;   // feedback readbacks in flight (counters: 4x as many; 1..64)
@@ -132,9 +146,10 @@ public:
     // The last frame's colour, RGBA8 (sRGB-encoded when config.srgb), rows top to bottom. Waits:
     // for tools and tests, not the render loop.
     virtual std::vector<std::uint8_t> read_color() = 0;
-    // The texels of physical slot `slot` as the atlas holds them, in the page format (level 0,
-    // tile_size^2 texels; uncompressed formats only, else empty). Waits: for tools and tests.
-    virtual std::vector<std::uint8_t> read_page(SlotId slot) = 0;
+    // The texels of physical slot `slot` as layer `layer`'s atlas holds them, in its page format
+    // (level 0, tile_size^2 texels; uncompressed formats only, else empty). Waits: for tools and
+    // tests.
+    virtual std::vector<std::uint8_t> read_page(SlotId slot, std::uint32_t layer = 0) = 0;
     // Blits the last frame to the default framebuffer (windowed mode).
     virtual void present(int window_width, int window_height) = 0;
 
