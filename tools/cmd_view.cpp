@@ -42,6 +42,9 @@ Command add_view(CLI::App& app) {
                   "threads): bc1 (colour), bc4 (one channel), bc5 (two channels), bc7 (colour with alpha); or a 1-channel "
                   "store's samples exactly: r16, r16f, r32f")
         ->capture_default_str();
+    c->add_option("--show-layer", o->show_layer,
+                  "a multi-layer store: the layer to draw (default: the first; a layer named \"normal\" lights it)");
+    c->add_flag("--unlit", o->unlit, "a multi-layer store: do not light the first layer by its \"normal\" layer");
     c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
     c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();
     c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size")->capture_default_str();

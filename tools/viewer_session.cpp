@@ -198,6 +198,37 @@ private:
     std::uint32_t outages_ = 0;
 };
 
+// A data layer's page format: a block store's own blocks; 1-channel 16-bit and float samples
+// exactly; anything else RGBA8.
+client::PageFormat layer_page_format(const storage::LayerInfo& l) {
+    if (auto f = client::page_format_of(l.codec)) return *f;
+    if (l.channels == 1 && l.sample_type == storage::SampleType::u16) return client::PageFormat::r16;
+    if (l.channels == 1 && l.sample_type == storage::SampleType::f16) return client::PageFormat::r16f;
+    if (l.channels == 1 && l.sample_type == storage::SampleType::f32) return client::PageFormat::r32f;
+    return client::PageFormat::rgba8;
+}
+
+// A multi-layer store's pool: the layers after the first, the layer drawn, and lighting by a
+// layer named "normal" (two channels).
+void configure_layers(const storage::StoreInfo& info, const ViewerOptions& o, client::gl::RendererConfig& rc) {
+    if (!info.layered()) {
+        if (!o.show_layer.empty()) throw Failure(fmt::format("--show-layer '{}': the store has one layer", o.show_layer));
+        return;
+    }
+    for (std::size_t i = 1; i < info.layers.size(); ++i)
+        rc.more_layers.push_back({layer_page_format(info.layers[i]), info.layers[i].colour_space == storage::ColourSpace::srgb});
+    std::string names;
+    for (std::size_t i = 0; i < info.layers.size(); ++i) {
+        names += (i ? ", " : "") + info.layers[i].name;
+        if (info.layers[i].name == o.show_layer) rc.show_layer = std::uint32_t(i);
+        if (info.layers[i].name == "normal" && info.layers[i].channels == 2 && i > 0 && !o.unlit) rc.normal_layer = std::uint32_t(i);
+    }
+    if (!o.show_layer.empty() && info.layers[rc.show_layer].name != o.show_layer)
+        throw Failure(fmt::format("--show-layer '{}': the store's layers are {}", o.show_layer, names));
+    // The drawn layer's colour space decides the target's: data layers are shown as they are.
+    rc.srgb = info.layers[rc.show_layer].colour_space == storage::ColourSpace::srgb;
+}
+
 double quantile(std::vector<double> v, double q) {
     if (v.empty()) return kNaN;
     std::sort(v.begin(), v.end());
@@ -275,6 +306,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         if (!f) throw Failure(fmt::format("--page-format '{}': expected auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f", o.page_format));
         rc.page_format = *f;
     }
+    configure_layers(*info, o, rc);
     auto renderer = client::gl::VtRenderer::create(rc);
     if (!renderer) throw Failure(renderer.error().message);
     auto& r = **renderer;
@@ -325,9 +357,15 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             throw Failure("PSNR needs a local copy of the store: --reference-store FILE (the store is remote)");
         if (o.progress) fmt::print("reference: decoding {} ...\n", ref_store);
         std::fflush(stdout);
-        auto levels = client::gl::decode_store_levels(ref_store);
+        auto levels = client::gl::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, rc.show_layer);
         if (!levels) throw Failure(fmt::format("reference: {}", levels.error().message));
-        auto ref = client::gl::ReferenceRenderer::create(rc, *levels);
+        std::vector<client::gl::ReferenceRenderer::Level> normals;
+        if (rc.normal_layer && rc.show_layer == 0) {
+            auto n = client::gl::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, *rc.normal_layer);
+            if (!n) throw Failure(fmt::format("reference: {}", n.error().message));
+            normals = std::move(*n);
+        }
+        auto ref = client::gl::ReferenceRenderer::create(rc, *levels, normals);
         if (!ref) throw Failure(fmt::format("reference: {}", ref.error().message));
         reference = std::move(*ref);
         if (auto st = reference->set_scene(*sc); !st.ok()) throw Failure(st.error().message);
@@ -356,8 +394,14 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rep.renderer = (*ctx)->renderer();
     rep.page_format = rc.page_format;
     rep.pool_pages = rc.pool_slots;
-    rep.gpu_page_bytes = client::page_bytes(rc.page_format, rc.tile_size) +
-                         (rc.filter != client::gl::Filter::bilinear ? client::page_bytes(rc.page_format, rc.tile_size / 2) : 0);
+    // Every layer's page, with its second level where the atlas has one.
+    rep.gpu_page_bytes = 0;
+    for (std::size_t i = 0; i <= rc.more_layers.size(); ++i) {
+        const client::PageFormat f = i == 0 ? rc.page_format : rc.more_layers[i - 1].page_format;
+        rep.gpu_page_bytes += client::page_bytes(f, rc.tile_size) +
+                              (rc.filter != client::gl::Filter::bilinear ? client::page_bytes(f, rc.tile_size / 2) : 0);
+        if (info->layered()) rep.layers.push_back(info->layers[i].name + " " + std::string(client::to_string(f)));
+    }
     rep.pool_texels = std::uint64_t(rc.pool_slots) * rc.tile_size * rc.tile_size;
     rep.source = source->describe();
     rep.frames.resize(frames);
@@ -628,8 +672,14 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
     write_file_atomically(path, [&](std::ostream& out) {
         if (json)
             out << "{\"renderer\": \"" << rep.renderer << "\", "
-                << fmt::format("\"gpu_pool\": {{\"page_format\": \"{}\", \"page_bytes\": {}, \"pages\": {}, \"texels\": {}}}, ",
-                               client::to_string(rep.page_format), rep.gpu_page_bytes, rep.pool_pages, rep.pool_texels)
+                << fmt::format("\"gpu_pool\": {{\"page_format\": \"{}\", \"page_bytes\": {}, \"pages\": {}, \"texels\": {}, "
+                               "\"layers\": [{}]}}, ",
+                               client::to_string(rep.page_format), rep.gpu_page_bytes, rep.pool_pages, rep.pool_texels,
+                               [&] {
+                                   std::string l;
+                                   for (const auto& x : rep.layers) l += (l.empty() ? "\"" : ", \"") + x + "\"";
+                                   return l;
+                               }())
                 << "\"frames\": [\n";
         else
             out << "frame,time_s,frame_ms,pages_wanted,pages_resident,pages_requested,pages_uploaded,pages_evicted,"
@@ -694,6 +744,11 @@ std::string summary_text(const ViewerReport& rep) {
     s += fmt::format("GPU pool      {} pages of {}, {} per page, {} in all; {:.1f} M texels\n", rep.pool_pages,
                      client::to_string(rep.page_format), human_bytes(rep.gpu_page_bytes),
                      human_bytes(rep.gpu_page_bytes * rep.pool_pages), double(rep.pool_texels) / 1e6);
+    if (!rep.layers.empty()) {
+        std::string layers;
+        for (const auto& l : rep.layers) layers += (layers.empty() ? "" : ", ") + l;
+        s += fmt::format("layers        {} per page: {}\n", rep.layers.size(), layers);
+    }
     s += fmt::format("frames        {} in {:.1f} s; frame time mean {:.2f} ms, p99 {:.2f} ms\n", rep.frames.size(),
                      rep.wall_s, rep.mean_frame_ms(), rep.frame_ms_quantile(0.99));
     if (!std::isnan(rep.warmup_ms))

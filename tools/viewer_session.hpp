@@ -31,6 +31,12 @@ struct ViewerOptions {
     // How the GPU pool holds pages: auto (the store's block format if it has one, else rgba8),
     // rgba8, bc1, bc4 or bc5 (JPEG/zstd pages block-encoded on the transcode threads).
     std::string page_format = "auto";
+    // A multi-layer store (docs/renderer.md, "Layers"): which layer to draw (empty: the first), and
+    // whether a layer named "normal" lights the first one (on unless `unlit`). Layers after the
+    // first keep their store's block format, or their 16-bit/float samples exactly (r16, r16f,
+    // r32f), else rgba8; --page-format is the first layer's.
+    std::string show_layer;
+    bool unlit = false;
     client::gl::Filter filter = client::gl::Filter::trilinear;
     std::uint32_t anisotropy = 8;
     std::uint32_t feedback_scale = 8;
@@ -100,6 +106,7 @@ struct ViewerReport {
     // The GPU pool: its page format, bytes per page (the second level included where the atlas
     // has one), pages, and texels of level 0.
     client::PageFormat page_format = client::PageFormat::rgba8;
+    std::vector<std::string> layers;  // a multi-layer pool's layers: "name format", in order
     std::uint64_t gpu_page_bytes = 0;
     std::uint32_t pool_pages = 0;
     std::uint64_t pool_texels = 0;

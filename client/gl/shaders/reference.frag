@@ -6,11 +6,17 @@
 in vec2 v_local;
 flat in uvec2 vt_texel_origin;          // the chunk's (scene.vert)
 uniform sampler2D ref_texture;          // GL_LINEAR_MIPMAP_LINEAR, clamp to edge
+#ifdef VT_LIT
+uniform sampler2D ref_normals;          // the normal layer, the same way: lit as the VT pass lights
+#endif
 const vec2 ref_size = REF_TEXTURE_SIZE;  // level-0 texels (compiled in, as the VT's constants)
 
 layout(location = 0) out vec4 o_colour;
 
 vec4 ref_trilinear(vec2 texel, float lod) { return textureLod(ref_texture, texel / ref_size, vt_clamped_lod(lod)); }
+#ifdef VT_LIT
+vec4 ref_normal_trilinear(vec2 texel, float lod) { return textureLod(ref_normals, texel / ref_size, vt_clamped_lod(lod)); }
+#endif
 
 void main() {
     vec2 dx = dFdx(v_local), dy = dFdy(v_local);
@@ -18,8 +24,14 @@ void main() {
     vec2 texel = vec2(vt_texel_origin) + v_local;
 #if VT_FILTER == VT_BILINEAR
     o_colour = textureLod(ref_texture, texel / ref_size, float(vt_wanted_level(lod)));
+#ifdef VT_LIT
+    o_colour.rgb = vt_lit(o_colour.rgb, textureLod(ref_normals, texel / ref_size, float(vt_wanted_level(lod))));
+#endif
 #elif VT_FILTER == VT_TRILINEAR
     o_colour = ref_trilinear(texel, lod);
+#ifdef VT_LIT
+    o_colour.rgb = vt_lit(o_colour.rgb, ref_normal_trilinear(texel, lod));
+#endif
 #else
     vec2 axis;
     float count;
@@ -27,5 +39,10 @@ void main() {
     vec4 sum = vec4(0.0);
     for (int i = 0; i < int(count); ++i) sum += ref_trilinear(texel + vt_tap_offset(axis, count, i), lod);
     o_colour = sum / count;
+#ifdef VT_LIT
+    vec4 nsum = vec4(0.0);
+    for (int i = 0; i < int(count); ++i) nsum += ref_normal_trilinear(texel + vt_tap_offset(axis, count, i), lod);
+    o_colour.rgb = vt_lit(o_colour.rgb, nsum / count);
+#endif
 #endif
 }

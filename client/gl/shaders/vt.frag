@@ -26,12 +26,7 @@ void main() {
     VtSample s = vt_sample(v_local);
     o_colour = s.colour;
 #ifdef VT_LIT
-    // Lambert under a fixed sun, in the texture's frame (x along u, y along v, z out of the
-    // surface): the normal layer's two samples are the normal's x and y mapped to [0, 1].
-    vec2 nxy = vec2(s.second.r, s.second.a) * 2.0 - 1.0;
-    vec3 n = vec3(nxy, sqrt(max(1.0 - dot(nxy, nxy), 0.0)));
-    const vec3 sun = normalize(vec3(-0.5, -0.4, 0.75));
-    o_colour.rgb *= 0.35 + 0.65 * max(dot(n, sun), 0.0);
+    o_colour.rgb = vt_lit(s.colour.rgb, s.second);
 #endif
     int kind = int(s.resident > s.wanted_unbiased) + 2 * int(s.resident > s.wanted);
     if (kind != 0) atomicAdd(vt_counters.fallback[kind], 1u);

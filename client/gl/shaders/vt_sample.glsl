@@ -91,6 +91,17 @@ const vec2 vt_inv_atlas_size = 1.0 / VT_ATLAS_SIZE;  // 1 / the atlas's level-0 
 // coordinates) is read wherever vt_atlas is, with the same weights (vt_sample's VtSample.second).
 uniform sampler2D vt_second_atlas;
 vec4 vt_second_texel;  // what the last vt_sample_entry read from it
+
+// Layer 0's colour lit by a normal layer's filtered texel: Lambert under a fixed sun, in the
+// texture's frame (x along u, y along v, z out of the surface); the normal's x and y are the
+// texel's red and alpha mapped from [0, 1] to [-1, 1] (a 2-channel store's two samples in every
+// page format), z implied. The VT pass and the reference renderer light alike.
+vec3 vt_lit(vec3 colour, vec4 normal_texel) {
+    vec2 nxy = vec2(normal_texel.r, normal_texel.a) * 2.0 - 1.0;
+    vec3 n = vec3(nxy, sqrt(max(1.0 - dot(nxy, nxy), 0.0)));
+    const vec3 sun = normalize(vec3(-0.5, -0.4, 0.75));
+    return colour * (0.35 + 0.65 * max(dot(n, sun), 0.0));
+}
 #endif
 uniform uint vt_texture_id;         // for the feedback id (feedback.frag: 1/N of the pixels)
 

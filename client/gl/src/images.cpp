@@ -9,16 +9,21 @@
 #include "tessera/client/gl/renderer.hpp"
 #include "block_decode.hpp"
 #include "transcode.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace tessera::client::gl {
 
 Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side,
-                                                                  PageFormat format) {
+                                                                  PageFormat format, std::uint32_t layer) {
     auto opened = storage::StoreReader::open(store_path);
     if (!opened) return opened.error();
     const auto& reader = **opened;
-    const auto& info = reader.info();
+    const auto& store_info = reader.info();
+    if (layer >= storage::layer_count(store_info))
+        return Error{Errc::invalid_argument, fmt::format("{}: no layer {} (it has {})", store_path, layer, storage::layer_count(store_info))};
+    // One layer's description: a layered store's tiles are bundles, each layer's part decoded alone.
+    const storage::StoreInfo info = storage::layer_store_info(store_info, layer);
     if (info.width > max_side || info.height > max_side)
         return Error{Errc::resource_exhausted, fmt::format("{}: {}x{} texels, over {} per side for a reference texture", store_path,
                                                            info.width, info.height, max_side)};
@@ -43,9 +48,17 @@ Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::str
                 auto& t = tiles[tx];
                 if (!t) return Error{t.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, t.error().message)};
                 if (t->kind == TileKind::absent) continue;  // transparent black
-                Status st = format == PageFormat::rgba8
-                                ? transcode_to_rgba8(info, t->kind, info.codec, t->bytes, page, scratch)
-                                : transcode_page(info, t->kind, info.codec, t->bytes, format, blocks, scratch);
+                TileKind kind = t->kind;
+                std::span<const std::uint8_t> bytes = t->bytes;
+                if (store_info.layered()) {
+                    auto parts = storage::split_layers(store_info, t->bytes);
+                    if (!parts) return Error{parts.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, parts.error().message)};
+                    kind = (*parts)[layer].kind;
+                    bytes = (*parts)[layer].bytes;
+                    if (kind == TileKind::absent) continue;
+                }
+                Status st = format == PageFormat::rgba8 ? transcode_to_rgba8(info, kind, info.codec, bytes, page, scratch)
+                                                        : transcode_page(info, kind, info.codec, bytes, format, blocks, scratch);
                 if (!st) return Error{st.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, st.error().message)};
                 // Block pages: decoded back as the GPU samples them, so the reference holds the
                 // atlas's texels.

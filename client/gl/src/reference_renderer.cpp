@@ -16,12 +16,18 @@ class ReferenceRendererImpl final : public ReferenceRenderer {
 public:
     explicit ReferenceRendererImpl(const RendererConfig& c) : cfg_(c) {}
 
-    Status init(std::span<const Level> levels) {
+    Status init(std::span<const Level> levels, std::span<const Level> normals) {
         if (cfg_.width == 0 || cfg_.height == 0) return Error{Errc::invalid_argument, "reference: zero width or height"};
         if (cfg_.max_anisotropy < 1 || cfg_.max_anisotropy > 8) return Error{Errc::invalid_argument, "reference: max_anisotropy must be 1..8"};
         if (levels.empty() || levels.size() > 32) return Error{Errc::invalid_argument, "reference: 1..32 levels"};
+        const bool lit = cfg_.normal_layer && cfg_.show_layer == 0;
+        if (lit && normals.size() != levels.size())
+            return Error{Errc::invalid_argument, fmt::format("reference: lighting needs the normal layer's {} levels, got {}", levels.size(),
+                                                             normals.size())};
         for (std::size_t l = 0; l < levels.size(); ++l) {
             const auto& lv = levels[l];
+            if (lit && (normals[l].width != lv.width || normals[l].height != lv.height || normals[l].rgba8.size() != lv.rgba8.size()))
+                return Error{Errc::invalid_argument, fmt::format("reference: normal level {} differs from the colour level", l)};
             if (lv.width == 0 || lv.height == 0 || lv.rgba8.size() != std::size_t(lv.width) * lv.height * 4)
                 return Error{Errc::invalid_argument, fmt::format("reference: level {} is {}x{} with {} bytes", l, lv.width, lv.height, lv.rgba8.size())};
             if (l > 0 && (lv.width != std::max(1u, levels[l - 1].width / 2) || lv.height != std::max(1u, levels[l - 1].height / 2)))
@@ -37,21 +43,8 @@ public:
                          fmt::format("reference: level 0 ({}x{}) does not fit the GPU's largest texture ({}^2): use the VT with every "
                                      "page resident instead",
                                      levels[0].width, levels[0].height, max_size)};
-        texture_ = make_texture(GL_TEXTURE_2D);
-        glTextureStorage2D(texture_.get(), GLsizei(levels.size()), cfg_.srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(levels[0].width),
-                           GLsizei(levels[0].height));
-        glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
-        glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
-        glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
-        for (std::size_t l = 0; l < levels.size(); ++l)
-            glTextureSubImage2D(texture_.get(), GLint(l), 0, 0, GLsizei(levels[l].width), GLsizei(levels[l].height), GL_RGBA,
-                                GL_UNSIGNED_BYTE, levels[l].rgba8.data());
-        glTextureParameteri(texture_.get(), GL_TEXTURE_BASE_LEVEL, 0);
-        glTextureParameteri(texture_.get(), GL_TEXTURE_MAX_LEVEL, GLint(levels.size() - 1));
-        glTextureParameteri(texture_.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
-        glTextureParameteri(texture_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-        glTextureParameteri(texture_.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-        glTextureParameteri(texture_.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        texture_ = level_texture(levels, cfg_.srgb);
+        if (lit) normals_ = level_texture(normals, false);
         if (auto e = take_gl_errors("reference texture"); !e.empty()) return Error{Errc::resource_exhausted, e};
 
         auto p = build_program("scene.vert", "reference.frag",
@@ -64,6 +57,7 @@ public:
         chunk_.chunk_offset = uniform(program_, "u_chunk_offset");
         chunk_.texel_origin = uniform(program_, "u_texel_origin");
         glProgramUniform1i(id, uniform(program_, "ref_texture"), 0);
+        if (lit) glProgramUniform1i(id, uniform(program_, "ref_normals"), 3);
         glProgramUniform1ui(id, uniform(program_, "u_levels"), std::uint32_t(levels.size()));
 
         auto t = make_colour_target(cfg_.width, cfg_.height, cfg_.srgb);
@@ -88,6 +82,7 @@ public:
         glDisable(GL_BLEND);
         glDisable(GL_SCISSOR_TEST);
         glBindTextureUnit(0, texture_.get());
+        if (normals_) glBindTextureUnit(3, normals_.get());
         glUseProgram(program_.get());
         geometry_.draw(program_, chunk_, camera);
         glUseProgram(0);
@@ -98,8 +93,29 @@ public:
     std::vector<std::uint8_t> read_color() override { return read_colour(target_); }
 
 private:
+    // A mipmapped RGBA8 texture of `levels` (GL_LINEAR_MIPMAP_LINEAR, clamped at the edges).
+    static Texture level_texture(std::span<const Level> levels, bool srgb) {
+        Texture t = make_texture(GL_TEXTURE_2D);
+        glTextureStorage2D(t.get(), GLsizei(levels.size()), srgb ? GL_SRGB8_ALPHA8 : GL_RGBA8, GLsizei(levels[0].width),
+                           GLsizei(levels[0].height));
+        glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+        glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
+        glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0);
+        for (std::size_t l = 0; l < levels.size(); ++l)
+            glTextureSubImage2D(t.get(), GLint(l), 0, 0, GLsizei(levels[l].width), GLsizei(levels[l].height), GL_RGBA,
+                                GL_UNSIGNED_BYTE, levels[l].rgba8.data());
+        glTextureParameteri(t.get(), GL_TEXTURE_BASE_LEVEL, 0);
+        glTextureParameteri(t.get(), GL_TEXTURE_MAX_LEVEL, GLint(levels.size() - 1));
+        glTextureParameteri(t.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
+        glTextureParameteri(t.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+        glTextureParameteri(t.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+        glTextureParameteri(t.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        return t;
+    }
+
     RendererConfig cfg_;
     Texture texture_;
+    Texture normals_;  // the normal layer's levels, when the scene is lit by them
     Program program_;
     GLint u_view_projection_ = -1;
     ChunkUniforms chunk_;
@@ -109,9 +125,10 @@ private:
 
 }  // namespace
 
-Result<std::unique_ptr<ReferenceRenderer>> ReferenceRenderer::create(const RendererConfig& config, std::span<const Level> levels) {
+Result<std::unique_ptr<ReferenceRenderer>> ReferenceRenderer::create(const RendererConfig& config, std::span<const Level> levels,
+                                                                    std::span<const Level> normals) {
     auto r = std::make_unique<ReferenceRendererImpl>(config);
-    if (Status st = r->init(levels); !st) return st.error();
+    if (Status st = r->init(levels, normals); !st) return st.error();
     return std::unique_ptr<ReferenceRenderer>(std::move(r));
 }
 

@@ -171,7 +171,10 @@ public:
     // Errors: a level 0 larger than GL_MAX_TEXTURE_SIZE ("does not fit": use the VT with every page
     // resident instead), levels not halving: each level must be max(1, previous / 2) per side (GL's
     // mip chain rounds down, the store's rounds up: they agree for power-of-two sides).
-    static Result<std::unique_ptr<ReferenceRenderer>> create(const RendererConfig& config, std::span<const Level> levels);
+    // `normals`: the normal layer's levels, needed when config lights the scene (normal_layer set
+    // and show_layer 0): the reference lights its colour as the VT pass does.
+    static Result<std::unique_ptr<ReferenceRenderer>> create(const RendererConfig& config, std::span<const Level> levels,
+                                                             std::span<const Level> normals = {});
     virtual ~ReferenceRenderer() = default;
     virtual Status set_scene(const scene::Scene& scene) = 0;
     virtual void render(const scene::Camera& camera) = 0;
@@ -182,9 +185,10 @@ public:
 // store too large (level 0 over max_side texels per side), unreadable or undecodable tiles.
 // Absent tiles (sparse stores) decode as transparent black. `format` (rgba8 or a block format):
 // each tile as a page of that format holds it, block formats decoded back as a GPU samples them
-// (the same texels as a VtRenderer atlas of that format; bc4 red only, bc5 red and green).
+// (the same texels as a VtRenderer atlas of that format, which reads bc4 as (r, r, r, 1) and bc5
+// as (r, r, r, g)). `layer`: which layer of a multi-layer store (0 for any other store).
 Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side = 16384,
-                                                                  PageFormat format = PageFormat::rgba8);
+                                                                  PageFormat format = PageFormat::rgba8, std::uint32_t layer = 0);
 
 // PSNR (dB, over RGB, 8-bit) and max absolute error of two RGBA8 images of equal size, over the
 // pixels where `mask` (optional: width*height bytes, one per pixel, non-zero = count) is set.
