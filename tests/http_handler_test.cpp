@@ -29,6 +29,7 @@
 #include "server_context.hpp"
 #include "store_registry.hpp"
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
 #include "test_util.hpp"
@@ -510,6 +511,125 @@ TEST_F(HandlerTest, FloatStoresHaveNoPng) {
     EXPECT_EQ(r.status, 406u);
     EXPECT_NE(r.body.find("f32"), std::string::npos) << r.body;
     EXPECT_EQ(get("/v1/stores/floats/tiles/0/0/0").status, 200u);  // the stored payload is fine
+}
+
+// A multi-layer store: the tile route serves the bundle as stored; ?format=png shows one layer,
+// ?layer=NAME (default: the first), each with its own ETag.
+TEST_F(HandlerTest, LayeredStoreBundlesAndOnePngPerLayer) {
+    StoreSpec spec = spec_of(40, 30, 12, 2, 3, SampleType::u8, ColourSpace::srgb, Codec::layers);
+    spec.layers = {storage::LayerInfo{"colour", 3, SampleType::u8, ColourSpace::srgb, Codec::raw},
+                   storage::LayerInfo{"normal", 2, SampleType::u8, ColourSpace::linear, Codec::zstd},
+                   storage::LayerInfo{"height", 1, SampleType::u16, ColourSpace::linear, Codec::zstd},
+                   storage::LayerInfo{"depth", 1, SampleType::f32, ColourSpace::linear, Codec::raw}};
+    const storage::StoreInfo info = storage::store_info(spec);
+    {
+        // Level 0 tile (1,0): normal absent, height uniform; (2,0): absent; the rest all present.
+        auto w = storage::StoreWriter::create(dir_.file("layers.tsr"), spec);
+        ASSERT_TRUE(w.ok()) << w.error().message;
+        std::uint32_t seed = 1;
+        for (std::uint32_t l = 0; l < info.level_count(); ++l)
+            for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+                for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                    if (l == 0 && x == 2 && y == 0) continue;
+                    std::vector<std::vector<std::uint8_t>> bytes(4);
+                    std::vector<storage::LayerPart> parts(4);
+                    for (std::size_t i = 0; i < 4; ++i) {
+                        const storage::StoreInfo li = storage::layer_store_info(info, i);
+                        if (l == 0 && x == 1 && y == 0 && i == 1) continue;  // absent
+                        if (l == 0 && x == 1 && y == 0 && i == 2) {
+                            bytes[i] = {0x34, 0x12};
+                            parts[i] = {TileKind::uniform, bytes[i]};
+                            continue;
+                        }
+                        auto payload = storage::encode_tile(li, random_bytes(li.tile_bytes(), seed++), {});
+                        ASSERT_TRUE(payload.ok()) << payload.error().message;
+                        bytes[i] = std::move(*payload);
+                        parts[i] = {TileKind::present, bytes[i]};
+                    }
+                    ASSERT_TRUE((*w)->add_present({l, x, y}, storage::join_layers(parts)).ok());
+                }
+        ASSERT_TRUE((*w)->finish().ok());
+    }
+    auto r = reader("layers");
+    ASSERT_TRUE(r);
+    const std::string base = "/v1/stores/layers/tiles/0/";
+
+    // The stored bundle, as it is.
+    const auto stored = r->read_tile({0, 0, 0});
+    ASSERT_TRUE(stored.ok());
+    HttpResponse res = get(base + "0/0");
+    ASSERT_EQ(res.status, 200u) << res.body;
+    EXPECT_EQ(res.content_type, "application/x-tessera-layers");
+    EXPECT_EQ(*res.header("X-Tessera-Codec"), "layers");
+    EXPECT_EQ(res.body, body_of(stored->bytes));
+
+    // One PNG per layer: the part decoded with its layer's description.
+    auto parts = storage::split_layers(r->info(), stored->bytes);
+    ASSERT_TRUE(parts.ok());
+    std::set<std::string> etags;
+    for (std::size_t i = 0; i < 3; ++i) {
+        const std::string& name = info.layers[i].name;
+        SCOPED_TRACE(name);
+        std::vector<std::uint8_t> decoded;
+        ASSERT_TRUE(storage::decode_tile(storage::layer_store_info(r->info(), i), storage::layer_tile({0, 0, 0}, (*parts)[i]), decoded).ok());
+        res = get(base + "0/0?format=png&layer=" + name);
+        ASSERT_EQ(res.status, 200u) << res.body;
+        EXPECT_EQ(res.content_type, "image/png");
+        EXPECT_EQ(*res.header("X-Tessera-Layer"), name);
+        EXPECT_EQ(decode_png(res.body).pixels, decoded);
+        const std::string etag = *res.header("ETag");
+        EXPECT_NE(etag.find("-png-" + name + "\""), std::string::npos) << etag;
+        EXPECT_TRUE(etags.insert(etag).second);
+        EXPECT_EQ(get(base + "0/0?layer=" + name + "&format=png", etag).status, 304u);
+        if (i == 0) {
+            const HttpResponse plain = get(base + "0/0?format=png");  // the first layer by default
+            ASSERT_EQ(plain.status, 200u);
+            EXPECT_EQ(*plain.header("ETag"), etag);
+            EXPECT_EQ(plain.body, res.body);
+        } else {
+            EXPECT_EQ(get(base + "0/0?format=png&layer=colour", etag).status, 200u) << "another layer's ETag";
+        }
+    }
+    // A uniform part is a PNG of one value; an absent part is a definite 404.
+    res = get(base + "1/0?format=png&layer=height");
+    ASSERT_EQ(res.status, 200u) << res.body;
+    EXPECT_EQ(*res.header("X-Tessera-Kind"), "uniform");
+    const Png uniform = decode_png(res.body);
+    ASSERT_EQ(uniform.pixels.size(), std::size_t(info.tile_size()) * info.tile_size() * 2);
+    EXPECT_EQ(uniform.pixels[0], 0x34);
+    EXPECT_EQ(uniform.pixels[1], 0x12);
+    res = get(base + "1/0?format=png&layer=normal");
+    EXPECT_EQ(res.status, 404u);
+    EXPECT_NE(res.body.find("layer 'normal' of this tile is absent"), std::string::npos) << res.body;
+    EXPECT_NE(res.header("Cache-Control")->find("max-age"), std::string::npos);
+    EXPECT_EQ(get(base + "2/0").status, 404u);
+
+    // What a layer cannot be.
+    res = get(base + "0/0?format=png&layer=nosuch");
+    EXPECT_EQ(res.status, 400u);
+    EXPECT_NE(res.body.find("unknown layer 'nosuch'"), std::string::npos) << res.body;
+    EXPECT_NE(res.body.find("colour, normal, height, depth"), std::string::npos) << res.body;
+    res = get(base + "0/0?format=png&layer=depth");
+    EXPECT_EQ(res.status, 406u);
+    EXPECT_NE(res.body.find("f32"), std::string::npos) << res.body;
+    res = get(base + "0/0?layer=normal");
+    EXPECT_EQ(res.status, 400u);
+    EXPECT_NE(res.body.find("format=png"), std::string::npos) << res.body;
+    EXPECT_EQ(get(base + "0/0?format=png&layer=normal&layer=height").status, 400u);
+    res = get("/v1/stores/rgb/tiles/0/0/0?format=png&layer=colour");
+    EXPECT_EQ(res.status, 400u);
+    EXPECT_NE(res.body.find("has no layers"), std::string::npos) << res.body;
+    EXPECT_EQ(get("/v1/stores/layers?layer=colour").status, 400u);
+
+    // The description lists the layers.
+    res = get("/v1/stores/layers");
+    ASSERT_EQ(res.status, 200u);
+    const auto j = nlohmann::json::parse(res.body);
+    EXPECT_EQ(j.at("codec"), "layers");
+    ASSERT_EQ(j.at("layers").size(), 4u);
+    EXPECT_EQ(j.at("layers")[2].at("name"), "height");
+    EXPECT_EQ(j.at("layers")[2].at("sample_type"), "u16");
+    EXPECT_GT(j.at("layers")[2].at("payload_bytes").get<std::uint64_t>(), 0u);
 }
 
 // ---- Bad input, table-driven --------------------------------------------------------------------

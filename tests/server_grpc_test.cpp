@@ -16,10 +16,12 @@
 #include <thread>
 #include <tuple>
 
+#include "prometheus_text.hpp"
 #include "server_process.hpp"
 #include "tessera.grpc.pb.h"
 #include "tessera/client/net/tile_stream_client.hpp"
 #include "tessera/protocol/wire.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace {
@@ -225,6 +227,99 @@ TEST_F(ServerGrpc, ListAndDescribeStores) {
     EXPECT_EQ(m.width(), 16384u);
     EXPECT_EQ(m.codec(), v1::CODEC_JPEG);
     EXPECT_EQ(static_cast<std::size_t>(m.levels_size()), (*reader)->info().levels.size());
+}
+
+// A multi-layer store over gRPC: its description carries the layers, and a batch of N keys gets N
+// replies (not one per layer), each a bundle whose parts are, byte for byte, the tiles of the
+// single-layer stores built from the same inputs; the per-store counters count N.
+TEST_F(ServerGrpc, LayeredStoreServesOneBundlePerKey) {
+    namespace storage = tessera::storage;
+    const std::string common = " --tile-size 128";
+    const std::string layered = tessera::test::cached_store(
+        "--layer colour=procedural:terrain:512 --layer normal:bc5=procedural:terrain-normal:512 "
+        "--layer height=procedural:terrain-height:512" + common, "layers.tsr");
+    const std::vector<std::string> singles = {
+        tessera::test::cached_store("procedural:terrain:512" + common, "colour.tsr"),
+        tessera::test::cached_store("procedural:terrain-normal:512 --codec bc5" + common, "normal.tsr"),
+        tessera::test::cached_store("procedural:terrain-height:512" + common, "height.tsr")};
+    ServerProcess srv({"--store", layered}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto reader = storage::StoreReader::open(layered);
+    ASSERT_TRUE(reader.ok());
+    const storage::StoreInfo& info = (*reader)->info();
+    ASSERT_EQ(info.layers.size(), 3u);
+
+    auto stub = v1::TileService::NewStub(channel(srv.grpc_address()));
+    grpc::ClientContext c1;
+    v1::GetStoreRequest req;
+    req.set_name("layers");
+    v1::StoreMetadata m;
+    ASSERT_TRUE(stub->GetStore(&c1, req, &m).ok());
+    EXPECT_EQ(m.codec(), v1::CODEC_LAYERS);
+    EXPECT_EQ(m.format_minor(), 1u);
+    ASSERT_EQ(m.layers_size(), 3);
+    EXPECT_EQ(m.layers(1).name(), "normal");
+    EXPECT_EQ(m.layers(1).codec(), v1::CODEC_BC5);
+    EXPECT_EQ(m.layers(1).channels(), 2u);
+    EXPECT_EQ(m.layers(2).sample_type(), v1::SAMPLE_U16);
+    EXPECT_EQ(m.layers(2).colour_space(), v1::COLOUR_LINEAR);
+    const storage::StoreInfo described = tessera::protocol::from_proto(m);
+    ASSERT_EQ(described.layers.size(), 3u);
+    for (std::size_t i = 0; i < 3; ++i) {
+        EXPECT_EQ(described.layers[i].name, info.layers[i].name);
+        EXPECT_EQ(described.layers[i].codec, info.layers[i].codec);
+        EXPECT_EQ(described.layers[i].sample_type, info.layers[i].sample_type);
+    }
+    grpc::ClientContext c2;
+    v1::ListStoresReply list;
+    ASSERT_TRUE(stub->ListStores(&c2, {}, &list).ok());
+    ASSERT_EQ(list.stores_size(), 1);
+    EXPECT_EQ(list.stores(0).layers_size(), 3);
+
+    std::vector<Req> keys = level_keys(layered, 0);
+    for (const Req& r : level_keys(layered, 1)) keys.push_back(r);
+    const std::size_t N = keys.size();  // 25 + 9
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "layers", keys, 0, 1)));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == N; }));
+    EXPECT_TRUE(v.finish().ok());
+    ASSERT_EQ(v.tiles.size(), N) << "one reply per key, not one per layer";
+    std::vector<std::shared_ptr<storage::StoreReader>> single_readers;
+    for (const auto& path : singles) {
+        auto r = storage::StoreReader::open(path);
+        ASSERT_TRUE(r.ok());
+        single_readers.push_back(*r);
+    }
+    std::set<std::tuple<unsigned, unsigned, unsigned>> seen;
+    for (const auto& t : v.tiles) {
+        ASSERT_EQ(t.status(), v1::TILE_OK) << t.message();
+        EXPECT_EQ(t.codec(), v1::CODEC_LAYERS);
+        EXPECT_EQ(t.kind(), v1::KIND_PRESENT);
+        EXPECT_TRUE(seen.insert({t.key().level(), t.key().x(), t.key().y()}).second) << "sent twice";
+        const std::span<const std::uint8_t> bundle(reinterpret_cast<const std::uint8_t*>(t.payload().data()), t.payload().size());
+        auto parts = storage::split_layers(info, bundle);
+        ASSERT_TRUE(parts.ok()) << parts.error().message;
+        ASSERT_EQ(parts->size(), 3u);
+        for (std::size_t i = 0; i < 3; ++i) {
+            auto tile = single_readers[i]->read_tile({t.key().level(), t.key().x(), t.key().y()});
+            ASSERT_TRUE(tile.ok());
+            EXPECT_EQ((*parts)[i].kind, tile->kind) << info.layers[i].name;
+            EXPECT_TRUE(std::equal((*parts)[i].bytes.begin(), (*parts)[i].bytes.end(), tile->bytes.begin(), tile->bytes.end()))
+                << "layer " << info.layers[i].name << " of tile " << t.key().level() << "/" << t.key().x() << "/" << t.key().y()
+                << " is not the single-layer store's tile";
+        }
+    }
+    // Per-store counters: N requests, N tiles sent (GetStats and /metrics).
+    const auto s = stats(srv.grpc_address());
+    ASSERT_EQ(s.stores_size(), 1);
+    EXPECT_EQ(s.stores(0).tiles_sent(), N);
+    EXPECT_EQ(s.requests(), N);
+    const auto metrics = tessera::test::http_get(srv.http_port(), "/metrics");
+    ASSERT_EQ(metrics.status, 200);
+    const auto p = tessera::test::parse_prometheus_text(metrics.body);
+    ASSERT_TRUE(p.ok()) << p.error;
+    EXPECT_EQ(p.value("tessera_store_requests_total", {{"store", "layers"}}), double(N));
+    EXPECT_EQ(p.value("tessera_store_tiles_sent_total", {{"store", "layers"}}), double(N));
 }
 
 TEST_F(ServerGrpc, HigherPriorityTilesAreSentFirst) {

@@ -1,4 +1,5 @@
 // tessera build INPUT -o STORE.tsr
+// tessera build --layer NAME[:CODEC]=INPUT --layer ... -o STORE.tsr   (a multi-layer store)
 // tessera build --atlas SCENE.obj -o ATLAS.tsr [--obj-out ATLAS.obj]
 #include <fmt/format.h>
 
@@ -11,13 +12,41 @@
 #include "store_summary.hpp"
 #include "tessera/client/scene/visibility.hpp"
 #include "tessera/storage/builder.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_writer.hpp"
 
 namespace tessera::tools {
 
+namespace {
+
+// --layer NAME[:CODEC]=INPUT. The name ends at the first ':' or '=', so INPUT may hold both.
+storage::LayerInput parse_layer(const std::string& spec) {
+    const std::size_t eq = spec.find('=');
+    if (eq == std::string::npos || eq + 1 == spec.size())
+        throw Failure(fmt::format("--layer takes NAME[:CODEC]=INPUT, got '{}'", spec), 2);
+    const std::string head = spec.substr(0, eq);
+    storage::LayerInput layer;
+    layer.input = spec.substr(eq + 1);
+    const std::size_t colon = head.find(':');
+    layer.name = head.substr(0, colon);
+    if (const std::string why = storage::layer_name_misfit(layer.name); !why.empty())
+        throw Failure(fmt::format("--layer '{}': {}", spec, why), 2);
+    if (colon != std::string::npos) {
+        const std::string codec = head.substr(colon + 1);
+        const auto c = parse_codec(codec);
+        if (!c || *c == Codec::layers)
+            throw Failure(fmt::format("--layer '{}': unknown codec '{}' (jpeg, zstd, raw, bc1, bc4, bc5 or bc7)", spec, codec), 2);
+        layer.codec = c;
+    }
+    return layer;
+}
+
+}  // namespace
+
 Command add_build(CLI::App& app) {
     struct Args {
         std::string input, output, codec, chroma, colour_space = "auto", atlas, obj_out;
+        std::vector<std::string> layers;
         std::string visibility, visibility_view = "1280x720";
         double visibility_fps = 30;
         storage::BuildOptions opt;
@@ -26,8 +55,14 @@ Command add_build(CLI::App& app) {
     };
     auto a = std::make_shared<Args>();
     CLI::App* c = app.add_subcommand("build", "Build a tile store from an image or a procedural source");
-    c->add_option("input", a->input, "Image file (anything OpenImageIO reads) or procedural:terrain:SIZE (not with --atlas)");
+    c->add_option("input", a->input,
+                  "Image file (anything OpenImageIO reads) or procedural:terrain[-height|-normal]:SIZE (not with --atlas or --layer)");
     c->add_option("-o,--output", a->output, "Store file to write (.tsr)")->required();
+    c->add_option("--layer", a->layers,
+                  "A layer of a multi-layer store, NAME[:CODEC]=INPUT (instead of INPUT; 2 to 16 of them, all of one size): "
+                  "NAME is 1-31 of a-z 0-9 _ -, CODEC as --codec (default: jpeg for 8-bit grey/RGB, zstd otherwise), "
+                  "INPUT an image or procedural:terrain[-height|-normal]:SIZE; the other flags apply to every layer")
+        ->allow_extra_args(false);
     c->add_option("--tile-size", a->opt.tile_size, "Stored tile size in texels: payload + 2 x border (power of two, 64-1024)")
         ->capture_default_str();
     c->add_option("--border", a->opt.border, "Texels of the neighbouring tiles stored on each side (even)")->capture_default_str();
@@ -71,7 +106,22 @@ Command add_build(CLI::App& app) {
         if (a->colour_space == "srgb") opt.colour_space = storage::ColourSpace::srgb;
         if (a->colour_space == "linear") opt.colour_space = storage::ColourSpace::linear;
         if (Status st = storage::validate(opt); !st) throw Failure(st.error().message, 2);
-        if (a->atlas.empty() && a->input.empty()) throw Failure("an input image (or --atlas SCENE.obj) is required", 2);
+        std::vector<storage::LayerInput> layers;
+        for (const std::string& spec : a->layers) layers.push_back(parse_layer(spec));
+        if (!layers.empty()) {
+            if (!a->input.empty()) throw Failure("give either an input image or --layer NAME=INPUT layers, not both", 2);
+            if (!a->atlas.empty()) throw Failure("--atlas builds a single-layer store; it does not take --layer", 2);
+            if (!a->codec.empty())
+                throw Failure("--codec applies to single-layer builds; give each layer's codec as --layer NAME:CODEC=INPUT", 2);
+            if (layers.size() < storage::kMinLayers || layers.size() > storage::kMaxLayers)
+                throw Failure(fmt::format("a multi-layer store has {} to {} layers; --layer was given {} time(s)",
+                                          storage::kMinLayers, storage::kMaxLayers, layers.size()), 2);
+            for (std::size_t i = 0; i < layers.size(); ++i)
+                for (std::size_t j = 0; j < i; ++j)
+                    if (layers[i].name == layers[j].name) throw Failure(fmt::format("two layers are named '{}'", layers[i].name), 2);
+        }
+        if (a->atlas.empty() && a->input.empty() && layers.empty())
+            throw Failure("an input image, --layer NAME=INPUT layers or --atlas SCENE.obj is required", 2);
         if (!a->atlas.empty() && !a->input.empty())
             throw Failure("give either an input image or --atlas SCENE.obj, not both", 2);
         if (a->atlas.empty() && !a->obj_out.empty()) throw Failure("--obj-out needs --atlas", 2);
@@ -130,8 +180,11 @@ Command add_build(CLI::App& app) {
             }
             return 0;
         }
-        auto source = storage::open_image_source(a->input);
-        if (!source) throw Failure(source.error().message);
+        // A layered build opens its inputs itself; the first one is opened here too when its size
+        // is needed first (--visibility).
+        auto source = layers.empty() || !a->visibility.empty() ? storage::open_image_source(layers.empty() ? a->input : layers[0].input)
+                                                                : Result<std::unique_ptr<storage::ImageSource>>(nullptr);
+        if (!source) throw Failure((layers.empty() ? "" : "layer '" + layers[0].name + "': ") + source.error().message);
         scene::PageSet mask;
         if (!a->visibility.empty()) {
             // The level-0 pages the paths want over the flat terrain of the source's size (plus
@@ -152,7 +205,9 @@ Command add_build(CLI::App& app) {
                 return level != 0 || mask.contains(0, x, y);
             };
         }
-        auto result = storage::build_store(**source, a->output, opt, on_progress);
+        if (!layers.empty()) source = Result<std::unique_ptr<storage::ImageSource>>(nullptr);
+        auto result = layers.empty() ? storage::build_store(**source, a->output, opt, on_progress)
+                                     : storage::build_layered_store(layers, a->output, opt, on_progress);
         opt.keep = {};  // it refers to `mask`
         bar.finish();
         const std::string messages = library_messages.release();

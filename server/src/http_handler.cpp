@@ -13,6 +13,7 @@
 #include "tessera/hex.hpp"
 #include "tessera/protocol/wire.hpp"
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_json.hpp"
 
 namespace tessera::server {
@@ -353,9 +354,11 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
         }
     }
 
-    // Query: only `format` (png) and `v` (store version, hex) are known, each at most once.
+    // Query: only `format` (png), `v` (store version, hex) and `layer` (which layer of a
+    // multi-layer store a PNG shows) are known, each at most once.
     std::optional<std::string> format;
     std::optional<std::uint64_t> version;
+    std::optional<std::string> layer;
     {
         std::size_t start = 0;
         while (start <= raw_query.size() && !raw_query.empty()) {
@@ -375,8 +378,11 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
                     if (version) return error(400, "query parameter 'v' given twice", api);
                     version = parse_version(value);
                     if (!version) return error(400, "query parameter 'v' must be the store version in hex", api);
+                } else if (key == "layer") {
+                    if (layer) return error(400, "query parameter 'layer' given twice", api);
+                    layer = value;
                 } else {
-                    return error(400, "unknown query parameter '" + key + "' (known: format, v)", api);
+                    return error(400, "unknown query parameter '" + key + "' (known: format, v, layer)", api);
                 }
             }
             if (amp == std::string_view::npos) break;
@@ -390,7 +396,7 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
     }
     if (seg.size() == 2) {
         route_label = HttpRoute::stores;
-        if (format || version) return error(400, "query parameters 'format' and 'v' apply to tiles only", api);
+        if (format || version || layer) return error(400, "query parameters 'format', 'v' and 'layer' apply to tiles only", api);
         nlohmann::json list = nlohmann::json::array();
         for (const auto& h : ctx_.stores.list()) list.push_back(store_entry(*h));
         return json_response(nlohmann::json{{"stores", std::move(list)}});
@@ -399,7 +405,7 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
     if (seg.size() == 3) {
         route_label = HttpRoute::store;
         if (!protocol::valid_store_name(name)) return error(400, "invalid store name", api);
-        if (format || version) return error(400, "query parameters 'format' and 'v' apply to tiles only", api);
+        if (format || version || layer) return error(400, "query parameters 'format', 'v' and 'layer' apply to tiles only", api);
         const auto h = ctx_.stores.find(name);
         if (!h) return error(404, "unknown store '" + name + "'", api);
         return json_response(store_entry(*h));
@@ -410,15 +416,18 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
     }
     route_label = format ? HttpRoute::tile_png : HttpRoute::tile;
     if (seg.size() != 7) return error(400, "a tile URL is /v1/stores/{name}/tiles/{level}/{x}/{y}", api);
-    return tile(req, name, seg[4], seg[5], seg[6], format.has_value(), version.has_value(), version.value_or(0),
+    return tile(req, name, seg[4], seg[5], seg[6], format.has_value(), layer, version.has_value(), version.value_or(0),
                 borrow_payload);
 }
 
 HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name, std::string_view level_s,
-                               std::string_view x_s, std::string_view y_s, bool png, bool has_version,
+                               std::string_view x_s, std::string_view y_s, bool png,
+                               const std::optional<std::string>& layer_name, bool has_version,
                                std::uint64_t want_version, bool borrow_payload) {
     constexpr bool api = true;
     if (!protocol::valid_store_name(name)) return error(400, "invalid store name", api);
+    if (layer_name && !png)
+        return error(400, "query parameter 'layer' picks the layer format=png shows; the stored payload holds every layer", api);
     const auto level = parse_u32(level_s), x = parse_u32(x_s), y = parse_u32(y_s);
     if (!level || !x || !y)
         return error(400, "level, x and y must be decimal integers below 2^32 (digits only, no leading zeros)", api);
@@ -453,16 +462,31 @@ HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name
         return error(404, "tile (" + std::to_string(*x) + ", " + std::to_string(*y) + ") out of range at level " +
                               std::to_string(*level) + ": x in 0.." + std::to_string(li.tiles_x - 1) +
                               ", y in 0.." + std::to_string(li.tiles_y - 1), api);
-    if (png && (info.sample_type == storage::SampleType::f16 || info.sample_type == storage::SampleType::f32))
-        return error(406, "format=png is not available for " + std::string(storage::to_string(info.sample_type)) +
-                              " stores (PNG has no float samples); fetch the stored payload", api);
+    // A multi-layer store's PNG shows one layer: ?layer=NAME, else layer 0.
+    std::size_t layer = 0;
+    if (layer_name) {
+        if (!info.layered()) return error(400, "store '" + std::string(name) + "' has no layers", api);
+        while (layer < info.layers.size() && info.layers[layer].name != *layer_name) ++layer;
+        if (layer == info.layers.size()) {
+            std::string names;
+            for (const auto& l : info.layers) names += (names.empty() ? "" : ", ") + l.name;
+            return error(400, "unknown layer '" + *layer_name + "': store '" + std::string(name) + "' has layers " + names, api);
+        }
+    }
+    const storage::StoreInfo shown = png && info.layered() ? storage::layer_store_info(info, layer) : storage::StoreInfo{};
+    const storage::StoreInfo& png_info = info.layered() ? shown : info;
+    if (png && (png_info.sample_type == storage::SampleType::f16 || png_info.sample_type == storage::SampleType::f32))
+        return error(406, "format=png is not available for " + std::string(storage::to_string(png_info.sample_type)) +
+                              (info.layered() ? " layers" : " stores") + " (PNG has no float samples); fetch the stored payload",
+                     api);
+    const std::string png_tag = !png ? "" : info.layered() ? "-png-" + info.layers[layer].name : "-png";
 
     const std::string cache_control = has_version
         ? "public, max-age=" + std::to_string(kImmutableMaxAge) + ", immutable"
         : "public, max-age=" + std::to_string(ctx_.config.http_max_age);
     const TileKey key{*level, *x, *y};
     auto etag_of = [&](std::uint64_t checksum) {
-        return "\"" + version_hex + "-" + hex16(checksum) + (png ? "-png" : "") + "\"";
+        return "\"" + version_hex + "-" + hex16(checksum) + png_tag + "\"";
     };
     auto common_headers = [&](HttpResponse& r, TileKind kind, std::string_view codec) {
         r.headers.emplace_back("Cache-Control", cache_control);
@@ -521,15 +545,36 @@ HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name
     r.status = 200;
     r.headers.emplace_back("ETag", etag);
     if (png) {
+        // A bundle's part of the shown layer, as a tile of that layer.
+        storage::Tile part;
+        const storage::Tile* decoded = &t;
+        TileKind kind = t.kind;
+        if (info.layered()) {
+            auto parts = storage::split_layers(info, t.bytes);
+            if (!parts) return error(500, "tile bundle does not split into the store's layers: " + parts.error().message, api);
+            const storage::LayerPart& p = (*parts)[layer];
+            if (p.kind == TileKind::absent) {
+                // As definite (and as cacheable) as an absent tile.
+                HttpResponse a = error(404, "layer '" + info.layers[layer].name + "' of this tile is absent", api);
+                a.headers.clear();
+                common_headers(a, TileKind::absent, {});
+                a.headers.emplace_back("X-Tessera-Layer", info.layers[layer].name);
+                return a;
+            }
+            part = storage::layer_tile(t.key, p);
+            decoded = &part;
+            kind = p.kind;
+            r.headers.emplace_back("X-Tessera-Layer", info.layers[layer].name);
+        }
         std::vector<std::uint8_t> texels;
-        if (const Status s = storage::decode_tile(info, t, texels); !s.ok())
+        if (const Status s = storage::decode_tile(png_info, *decoded, texels); !s.ok())
             return error(500, "tile does not decode: " + s.error().message, api);
-        auto encoded = encode_png(info, texels);
+        auto encoded = encode_png(png_info, texels);
         if (!encoded.ok())
             return error(encoded.error().code == Errc::unsupported ? 406 : 500, encoded.error().message, api);
         r.content_type = "image/png";
         r.body.assign(reinterpret_cast<const char*>(encoded->data()), encoded->size());
-        common_headers(r, t.kind, "png");
+        common_headers(r, kind, "png");
     } else {
         r.content_type = t.kind == TileKind::uniform ? "application/octet-stream" : std::string(content_type_of(info.codec));
         if (borrow_payload) r.payload = fetched.tile;

@@ -18,6 +18,7 @@
 #include <cstdint>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <unordered_map>
@@ -85,9 +86,10 @@ public:
 
 private:
     HttpResponse route(const HttpRequestView& req, HttpRoute& route, bool borrow_payload);
+    // layer: ?layer=NAME, the layer of a multi-layer store that format=png shows.
     HttpResponse tile(const HttpRequestView& req, std::string_view name, std::string_view level,
-                      std::string_view x, std::string_view y, bool png, bool has_version,
-                      std::uint64_t version, bool borrow_payload);
+                      std::string_view x, std::string_view y, bool png, const std::optional<std::string>& layer,
+                      bool has_version, std::uint64_t version, bool borrow_payload);
     void record(HttpRoute route, unsigned status, std::size_t body_bytes, double seconds);
     Counter& requests_counter(HttpRoute route, unsigned status);
     Counter& tiles_served_counter(const std::string& store);

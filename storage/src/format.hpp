@@ -1,6 +1,7 @@
 #pragma once
-// The on-disk layout of a .tsr store, version 1.0. docs/store-format.md is the normative text;
-// this file is its C++ transcription. Everything is little-endian.
+// The on-disk layout of a .tsr store, version 1.0, and 1.1 for multi-layer stores.
+// docs/store-format.md is the normative text; this file is its C++ transcription. Everything is
+// little-endian.
 #include <array>
 #include <bit>
 #include <cstddef>
@@ -15,12 +16,14 @@ static_assert(std::endian::native == std::endian::little, "the store format is l
 
 inline constexpr std::array<std::uint8_t, 8> kMagic = {'T', 'E', 'S', 'S', 'T', 'S', 'R', 0x1a};
 inline constexpr std::uint16_t kVersionMajor = 1;
-inline constexpr std::uint16_t kVersionMinor = 0;
+inline constexpr std::uint16_t kVersionMinor = 0;         // a single-layer store
+inline constexpr std::uint16_t kVersionMinorLayers = 1;   // a multi-layer store (codec 7, a layer table)
 inline constexpr std::size_t kHeaderBytes = 128;
 inline constexpr std::size_t kLevelRecordBytes = 96;
 inline constexpr std::size_t kBlockRecordBytes = 16;
 inline constexpr std::size_t kEntryBytes = 24;
 inline constexpr std::size_t kPaletteValueBytes = 16;
+inline constexpr std::size_t kLayerRecordBytes = 64;
 inline constexpr std::uint32_t kBlockShift = 6;  // index blocks cover 64 x 64 tiles
 inline constexpr std::uint32_t kBlockSide = 1u << kBlockShift;
 inline constexpr std::size_t kEntriesPerBlock = std::size_t(kBlockSide) * kBlockSide;
@@ -60,6 +63,7 @@ inline constexpr std::size_t colour_space = 33;     // u8
 inline constexpr std::size_t codec = 34;            // u8
 inline constexpr std::size_t flags = 35;            // u8
 inline constexpr std::size_t block_shift = 36;      // u8
+inline constexpr std::size_t layer_count = 37;      // u8: 2..16 in a layered store, else 0
 inline constexpr std::size_t level_table_offset = 40;   // u64
 inline constexpr std::size_t level_table_bytes = 48;    // u32
 inline constexpr std::size_t palette_count = 52;        // u32
@@ -70,6 +74,7 @@ inline constexpr std::size_t file_size = 80;            // u64
 inline constexpr std::size_t store_id = 88;             // u64
 inline constexpr std::size_t level_table_checksum = 96; // u64
 inline constexpr std::size_t palette_checksum = 104;    // u64
+inline constexpr std::size_t layer_table_checksum = 112; // u64: layered stores; 0 otherwise
 inline constexpr std::size_t header_checksum = 120;     // u64, XXH3-64 of bytes [0, 120)
 }  // namespace header
 
@@ -90,6 +95,19 @@ inline constexpr std::size_t uniform = 64;              // u64
 inline constexpr std::size_t absent = 72;               // u64
 inline constexpr std::size_t deduplicated = 80;         // u64
 }  // namespace level
+
+// Layer record field offsets (a layered store: one record per layer, directly after the level
+// table).
+namespace layer {
+inline constexpr std::size_t name = 0;           // u8[32]: 1..31 bytes of [a-z0-9_-], NUL padded
+inline constexpr std::size_t name_bytes = 32;
+inline constexpr std::size_t channels = 32;      // u8
+inline constexpr std::size_t sample_type = 33;   // u8
+inline constexpr std::size_t colour_space = 34;  // u8
+inline constexpr std::size_t codec = 35;         // u8: never 7
+inline constexpr std::size_t flags = 36;         // u8: bit 0 alpha
+inline constexpr std::size_t payload_bytes = 40; // u64: this layer's bytes in the stored bundles
+}  // namespace layer
 
 // Index entry field offsets.
 namespace entry {

@@ -15,6 +15,38 @@ std::uint32_t load_u32(const std::uint8_t* p) {
 }
 }  // namespace
 
+std::string layer_name_misfit(std::string_view name) {
+    if (name.empty()) return "a layer name cannot be empty";
+    if (name.size() > kMaxLayerNameBytes)
+        return "layer name '" + std::string(name) + "' is longer than " + std::to_string(kMaxLayerNameBytes) + " bytes";
+    for (char c : name)
+        if (!((c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-'))
+            return "layer name '" + std::string(name) + "' may only hold a-z, 0-9, '_' and '-'";
+    return {};
+}
+
+std::string layers_misfit(std::span<const LayerInfo> layers, std::uint32_t tile_size, std::uint32_t border) {
+    if (layers.size() < kMinLayers || layers.size() > kMaxLayers)
+        return "a layered store has " + std::to_string(kMinLayers) + " to " + std::to_string(kMaxLayers) + " layers, not " +
+               std::to_string(layers.size());
+    for (std::size_t i = 0; i < layers.size(); ++i) {
+        const LayerInfo& l = layers[i];
+        if (std::string why = layer_name_misfit(l.name); !why.empty()) return why;
+        for (std::size_t j = 0; j < i; ++j)
+            if (layers[j].name == l.name) return "two layers are named '" + l.name + "'";
+        const std::string what = "layer '" + l.name + "'";
+        if (l.channels < 1 || l.channels > 4) return what + " has " + std::to_string(l.channels) + " channels (1 to 4)";
+        if (static_cast<unsigned>(l.sample_type) > static_cast<unsigned>(SampleType::f32) ||
+            static_cast<unsigned>(l.colour_space) > static_cast<unsigned>(ColourSpace::srgb))
+            return what + " has an unknown sample type or colour space";
+        if (l.has_alpha && l.channels != 2 && l.channels != 4) return what + ": alpha needs 2 or 4 channels";
+        if (l.codec == Codec::layers) return what + " has codec layers: a layer's parts are in a texel codec";
+        if (std::string misfit = codec_misfit(l.codec, l.sample_type, l.channels, tile_size, border); !misfit.empty())
+            return what + ": " + misfit;
+    }
+    return {};
+}
+
 StoreInfo layer_store_info(const StoreInfo& info, std::size_t layer) {
     StoreInfo out = info;
     out.layers.clear();

@@ -8,6 +8,12 @@ namespace tessera::storage {
 
 StoreTotals store_totals(const StoreInfo& info) {
     StoreTotals t;
+    // A layered store's texels hold every layer's samples.
+    std::uint64_t texel_bytes = info.texel_bytes();
+    if (info.layered()) {
+        texel_bytes = 0;
+        for (const LayerInfo& l : info.layers) texel_bytes += l.channels * sample_bytes(l.sample_type);
+    }
     for (const auto& l : info.levels) {
         const std::uint64_t texels = std::uint64_t(l.width) * l.height;
         t.tiles += std::uint64_t(l.tiles_x) * l.tiles_y;
@@ -17,7 +23,7 @@ StoreTotals store_totals(const StoreInfo& info) {
         t.deduplicated += l.deduplicated;
         t.payload_bytes += l.payload_bytes;
         t.texels += texels;
-        t.raw_bytes += texels * info.texel_bytes();
+        t.raw_bytes += texels * texel_bytes;
     }
     t.compression_ratio = info.file_size ? double(t.raw_bytes) / double(info.file_size) : 0.0;
     return t;
@@ -26,6 +32,8 @@ StoreTotals store_totals(const StoreInfo& info) {
 double bits_per_texel(std::uint64_t bytes, std::uint64_t texels) {
     return texels ? 8.0 * double(bytes) / double(texels) : 0.0;
 }
+
+double payload_share(std::uint64_t bytes, std::uint64_t total) { return total ? double(bytes) / double(total) : 0.0; }
 
 nlohmann::json store_json(std::string_view name, const StoreInfo& info) {
     nlohmann::json levels = nlohmann::json::array();
@@ -44,6 +52,16 @@ nlohmann::json store_json(std::string_view name, const StoreInfo& info) {
                           {"bits_per_texel", bits_per_texel(l.payload_bytes, std::uint64_t(l.width) * l.height)}});
     }
     const StoreTotals t = store_totals(info);
+    nlohmann::json layers = nlohmann::json::array();
+    for (const LayerInfo& l : info.layers)
+        layers.push_back({{"name", l.name},
+                          {"channels", l.channels},
+                          {"sample_type", to_string(l.sample_type)},
+                          {"colour_space", to_string(l.colour_space)},
+                          {"has_alpha", l.has_alpha},
+                          {"codec", to_string(l.codec)},
+                          {"payload_bytes", l.payload_bytes},
+                          {"payload_share", payload_share(l.payload_bytes, t.payload_bytes)}});
     return {
         {"name", name},
         {"version", hex16(info.store_id)},
@@ -61,6 +79,7 @@ nlohmann::json store_json(std::string_view name, const StoreInfo& info) {
         {"border", info.border},
         {"levels", info.level_count()},
         {"level_info", std::move(levels)},
+        {"layers", std::move(layers)},
         {"totals",
          {{"tiles", t.tiles},
           {"present", t.present},

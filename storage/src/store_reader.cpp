@@ -8,6 +8,7 @@
 
 #include "byte_source.hpp"
 #include "format.hpp"
+#include "tessera/storage/layers.hpp"
 
 namespace tessera::storage {
 namespace {
@@ -77,14 +78,28 @@ public:
         if (info_.width == 0 || info_.height == 0 || info_.tile_payload == 0) return corrupt("zero image or tile size");
         if (std::uint64_t(info_.tile_payload) + 2ull * info_.border > kMaxTileSize) return corrupt("tile size too large");
         if (info_.channels < 1 || info_.channels > 4) return corrupt("bad channel count");
-        if (st > 3 || cs > 1 || codec > static_cast<std::uint8_t>(Codec::bc7)) return corrupt("bad sample type, colour space or codec");
+        if (st > 3 || cs > 1 || codec > static_cast<std::uint8_t>(Codec::layers)) return corrupt("bad sample type, colour space or codec");
         if (h[header::block_shift] != kBlockShift) return corrupt("bad index block size");
         info_.sample_type = static_cast<SampleType>(st);
         info_.colour_space = static_cast<ColourSpace>(cs);
         info_.codec = static_cast<Codec>(codec);
-        if (const std::string misfit = codec_misfit(info_.codec, info_.sample_type, info_.channels, info_.tile_size(), info_.border);
-            !misfit.empty())
+        // A layered store (format 1.1) says so twice: codec 7 and a layer count; the layers' codecs
+        // are checked with the layer table below.
+        const std::uint32_t layer_count = h[header::layer_count];
+        if ((info_.codec == Codec::layers) != (layer_count != 0))
+            return corrupt("codec " + std::to_string(codec) + " with a layer count of " + std::to_string(layer_count));
+        if (info_.codec == Codec::layers) {
+            if (layer_count < kMinLayers || layer_count > kMaxLayers)
+                return corrupt("layer count " + std::to_string(layer_count) + " (a layered store has " +
+                               std::to_string(kMinLayers) + " to " + std::to_string(kMaxLayers) + ")");
+            if (info_.version_minor < kVersionMinorLayers)
+                return corrupt("a layered store in format " + std::to_string(info_.version_major) + "." +
+                               std::to_string(info_.version_minor) + " (layers need 1." +
+                               std::to_string(kVersionMinorLayers) + ")");
+        } else if (const std::string misfit = codec_misfit(info_.codec, info_.sample_type, info_.channels, info_.tile_size(), info_.border);
+                   !misfit.empty()) {
             return corrupt("codec does not fit the samples: " + misfit);
+        }
         info_.has_alpha = (h[header::flags] & kHeaderFlagAlpha) != 0;
         if (info_.has_alpha && info_.channels != 2 && info_.channels != 4) return corrupt("alpha flag on a 1- or 3-channel store");
         info_.store_id = load<std::uint64_t>(h, header::store_id);
@@ -111,6 +126,7 @@ public:
         TESSERA_TRY(src_->read(lt_off, lt_bytes, level_table.data()));
         if (XXH3_64bits(level_table.data(), lt_bytes) != load<std::uint64_t>(h, header::level_table_checksum))
             return corrupt("level table checksum mismatch");
+        if (layer_count != 0) TESSERA_TRY(parse_layers(h, lt_off + lt_bytes, layer_count, inside_index));
         palette_.resize(std::size_t(palette_count_) * kPaletteValueBytes);
         TESSERA_TRY(src_->read(pal_off, palette_.size(), palette_.data()));
         if (XXH3_64bits(palette_.data(), palette_.size()) != load<std::uint64_t>(h, header::palette_checksum))
@@ -148,6 +164,7 @@ public:
             if (li.present > ntiles || li.uniform > ntiles || li.absent > ntiles || li.deduplicated > li.present ||
                 li.present + li.uniform + li.absent != ntiles)
                 return corrupt("level " + std::to_string(l) + " tile counts do not add up");
+            if (info_.layered() && li.uniform != 0) return corrupt("level " + std::to_string(l) + " of a layered store has uniform tiles");
             const std::size_t nblocks = ix.count();
             ix.blocks = std::make_unique<std::atomic<const EntryBlock*>[]>(nblocks);
             ix.corrupt = std::make_unique<std::atomic<bool>[]>(nblocks);
@@ -161,6 +178,54 @@ public:
         }
         info_.levels = std::move(levels);
         max_payload_ = info_.tile_bytes() * 2 + 65536;  // no codec expands a tile beyond this
+        if (info_.layered()) {  // a bundle: its table, then each layer's part, bounded likewise
+            max_payload_ = 0;
+            for (std::size_t i = 0; i < info_.layers.size(); ++i)
+                max_payload_ += 8 + layer_store_info(info_, i).tile_bytes() * 2 + 65536;
+        }
+        return {};
+    }
+
+    // The layer table of a layered store (directly after the level table), verified and read into
+    // info_.layers: everything in it must be something the writer could have written.
+    template <class InsideIndex>
+    Status parse_layers(const std::uint8_t* h, std::uint64_t off, std::uint32_t count, const InsideIndex& inside_index) {
+        const std::uint64_t bytes = std::uint64_t(count) * kLayerRecordBytes;
+        if (!inside_index(off, bytes)) return corrupt("layer table outside the index region");
+        std::vector<std::uint8_t> table(bytes);
+        TESSERA_TRY(src_->read(off, bytes, table.data()));
+        if (XXH3_64bits(table.data(), bytes) != load<std::uint64_t>(h, header::layer_table_checksum))
+            return corrupt("layer table checksum mismatch");
+        std::uint64_t layer_bytes = 0;
+        for (std::uint32_t i = 0; i < count; ++i) {
+            const std::uint8_t* r = table.data() + std::size_t(i) * kLayerRecordBytes;
+            const auto* name = reinterpret_cast<const char*>(r + layer::name);
+            const std::size_t len = strnlen(name, layer::name_bytes);
+            if (len == layer::name_bytes || std::any_of(r + layer::name + len, r + layer::name + layer::name_bytes,
+                                                        [](std::uint8_t c) { return c != 0; }))
+                return corrupt("layer " + std::to_string(i) + " name is not 1 to 31 bytes, NUL padded");
+            LayerInfo l;
+            l.name.assign(name, len);
+            l.channels = r[layer::channels];
+            if (r[layer::sample_type] > 3 || r[layer::colour_space] > 1 || r[layer::codec] > static_cast<std::uint8_t>(Codec::layers))
+                return corrupt("layer " + std::to_string(i) + " has a bad sample type, colour space or codec");
+            l.sample_type = static_cast<SampleType>(r[layer::sample_type]);
+            l.colour_space = static_cast<ColourSpace>(r[layer::colour_space]);
+            l.codec = static_cast<Codec>(r[layer::codec]);
+            l.has_alpha = (r[layer::flags] & kHeaderFlagAlpha) != 0;
+            l.payload_bytes = load<std::uint64_t>(r, layer::payload_bytes);
+            if (l.payload_bytes > info_.file_size - data_offset_ || layer_bytes > info_.file_size - data_offset_ - l.payload_bytes)
+                return corrupt("layer payload bytes exceed the data section");
+            layer_bytes += l.payload_bytes;
+            info_.layers.push_back(std::move(l));
+        }
+        if (const std::string why = layers_misfit(info_.layers, info_.tile_size(), info_.border); !why.empty())
+            return corrupt("layer table: " + why);
+        const LayerInfo& l0 = info_.layers.front();
+        if (info_.channels != l0.channels || info_.sample_type != l0.sample_type || info_.colour_space != l0.colour_space ||
+            info_.has_alpha != l0.has_alpha)
+            return corrupt("header samples are not the first layer's");
+        if (palette_count_ != 0) return corrupt("a layered store has a palette");
         return {};
     }
 
@@ -202,6 +267,7 @@ public:
                 break;
             case 2:
                 loc.kind = TileKind::uniform;
+                if (info_.layered()) return corrupt("index entry of " + key_name(key) + " is uniform in a layered store");
                 if (loc.offset >= palette_count_ || loc.length != 0)
                     return corrupt("index entry of uniform " + key_name(key) + " has a bad palette index");
                 break;

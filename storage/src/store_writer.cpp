@@ -11,6 +11,7 @@
 
 #include "format.hpp"
 #include "temp_file.hpp"
+#include "tessera/storage/layers.hpp"
 
 namespace tessera::storage {
 namespace {
@@ -22,6 +23,7 @@ struct Record {
     TileKind kind = TileKind::absent;
     std::uint64_t spool_offset = 0;  // present
     std::uint32_t length = 0;        // present
+    std::uint32_t parts = 0;         // present, layered store: index of its part sizes in part_bytes_
     std::uint64_t checksum = 0;      // XXH3-64 of payload or value
     XXH128_hash_t hash{};            // present: identity for deduplication
     std::array<std::uint8_t, kPaletteValueBytes> value{};  // uniform
@@ -67,8 +69,8 @@ private:
 class Writer final : public StoreWriter {
 public:
     Writer(std::string path, const StoreSpec& spec, TempFile out, TempFile spool)
-        : path_(std::move(path)), spec_(spec), out_(std::move(out)), spool_(std::move(spool)) {
-        levels_ = level_geometry(spec.width, spec.height, spec.tile_payload);
+        : path_(std::move(path)), spec_(spec), info_(store_info(spec)), out_(std::move(out)), spool_(std::move(spool)) {
+        levels_ = info_.levels;
         records_.resize(levels_.size());
         texel_bytes_ = spec.channels * sample_bytes(spec.sample_type);
     }
@@ -84,6 +86,21 @@ public:
         TESSERA_TRY(check_key(key));
         if (payload.empty() || payload.size() > 0xffffffffu)
             return make_error(Errc::invalid_argument, "tile payload must be 1 byte to 4 GiB");
+        // A layered store's payload must be a bundle of its layers: checked here, where the caller
+        // can still be told, rather than by every reader.
+        std::vector<std::uint32_t> sizes;
+        if (info_.layered()) {
+            auto parts = split_layers(info_, payload);
+            if (!parts) return make_error(Errc::invalid_argument, "tile payload is not a bundle of the store's layers: " + parts.error().message);
+            bool any = false;
+            for (const LayerPart& p : *parts) {
+                sizes.push_back(static_cast<std::uint32_t>(p.bytes.size()));
+                any = any || p.kind != TileKind::absent;
+            }
+            if (!any)
+                return make_error(Errc::invalid_argument,
+                                  "a bundle whose layers are all absent is an absent tile: leave it out");
+        }
         Record r;
         r.x = key.x;
         r.y = key.y;
@@ -94,12 +111,19 @@ public:
         r.spool_offset = spool_end_.fetch_add(payload.size());
         TESSERA_TRY(spool_.pwrite_all(r.spool_offset, payload));
         std::lock_guard lock(mu_);
+        if (info_.layered()) {
+            r.parts = static_cast<std::uint32_t>(part_bytes_.size() / info_.layers.size());
+            part_bytes_.insert(part_bytes_.end(), sizes.begin(), sizes.end());
+        }
         records_[key.level].push_back(r);
         return {};
     }
 
     Status add_uniform(const TileKey& key, std::span<const std::uint8_t> value) override {
         TESSERA_TRY(check_key(key));
+        if (info_.layered())
+            return make_error(Errc::invalid_argument,
+                              "a layered store has no uniform tiles: add a bundle whose uniform layers are uniform parts");
         if (value.size() != texel_bytes_) return make_error(Errc::invalid_argument, "uniform value must be one texel");
         Record r;
         r.x = key.x;
@@ -117,12 +141,14 @@ public:
 private:
     std::string path_;
     StoreSpec spec_;
+    StoreInfo info_;
     TempFile out_;
     TempFile spool_;
     std::vector<LevelInfo> levels_;
     std::size_t texel_bytes_ = 0;
     std::mutex mu_;
     std::vector<std::vector<Record>> records_;  // per level
+    std::vector<std::uint32_t> part_bytes_;     // layered store: each present record's part sizes, layer by layer
     std::atomic<std::uint64_t> spool_end_{0};
     std::atomic<bool> finished_{false};
 };
@@ -197,6 +223,9 @@ Status Writer::finish(const Progress& progress) {
     std::uint64_t pos = kHeaderBytes;
     const std::uint64_t level_table_offset = pos;
     pos += std::uint64_t(nlevels) * kLevelRecordBytes;
+    const std::uint64_t layer_table_offset = pos;  // layered stores only: directly after the level table
+    const std::size_t nlayers = spec_.layers.size();
+    pos += nlayers * kLayerRecordBytes;
     const std::uint64_t palette_offset = pos;
     pos += palette.size() * kPaletteValueBytes;
     const std::uint64_t index_offset = pos;
@@ -276,9 +305,31 @@ Status Writer::finish(const Progress& progress) {
         store<std::uint64_t>(r, level::deduplicated, info.deduplicated);
     }
 
+    // Layer table: each layer's bytes summed over the payloads stored (a deduplicated bundle once).
+    if (nlayers > 0) {
+        std::vector<std::uint64_t> layer_bytes(nlayers, 0);
+        for (auto [l, i] : copy_order) {
+            const Record& r = records_[l][i];
+            for (std::size_t k = 0; k < nlayers; ++k) layer_bytes[k] += part_bytes_[std::size_t(r.parts) * nlayers + k];
+        }
+        for (std::size_t k = 0; k < nlayers; ++k) {
+            const LayerInfo& li = spec_.layers[k];
+            std::uint8_t* rec = base + layer_table_offset + k * kLayerRecordBytes;
+            std::copy(li.name.begin(), li.name.end(), rec + layer::name);
+            rec[layer::channels] = static_cast<std::uint8_t>(li.channels);
+            rec[layer::sample_type] = static_cast<std::uint8_t>(li.sample_type);
+            rec[layer::colour_space] = static_cast<std::uint8_t>(li.colour_space);
+            rec[layer::codec] = static_cast<std::uint8_t>(li.codec);
+            rec[layer::flags] = li.has_alpha ? kHeaderFlagAlpha : 0;
+            store<std::uint64_t>(rec, layer::payload_bytes, layer_bytes[k]);
+        }
+        base[header::layer_count] = static_cast<std::uint8_t>(nlayers);
+        store<std::uint64_t>(base, header::layer_table_checksum, XXH3_64bits(base + layer_table_offset, nlayers * kLayerRecordBytes));
+    }
+
     std::copy(kMagic.begin(), kMagic.end(), base + header::magic);
     store<std::uint16_t>(base, header::version_major, kVersionMajor);
-    store<std::uint16_t>(base, header::version_minor, kVersionMinor);
+    store<std::uint16_t>(base, header::version_minor, nlayers > 0 ? kVersionMinorLayers : kVersionMinor);
     store<std::uint32_t>(base, header::header_bytes, kHeaderBytes);
     store<std::uint32_t>(base, header::width, spec_.width);
     store<std::uint32_t>(base, header::height, spec_.height);
@@ -336,6 +387,17 @@ Status validate(const StoreSpec& s) {
         return make_error(Errc::invalid_argument, "alpha needs 2 or 4 channels");
     if (level_geometry(s.width, s.height, s.tile_payload).size() > kMaxLevels)
         return make_error(Errc::invalid_argument, "image too large for the tile size (more than 32 levels)");
+    if (!s.layers.empty()) {
+        if (const std::string why = layers_misfit(s.layers, static_cast<std::uint32_t>(tile), s.border); !why.empty())
+            return make_error(Errc::invalid_argument, why);
+        const LayerInfo& l0 = s.layers.front();
+        if (s.codec != Codec::layers || s.channels != l0.channels || s.sample_type != l0.sample_type ||
+            s.colour_space != l0.colour_space || s.has_alpha != l0.has_alpha)
+            return make_error(Errc::invalid_argument, "a layered store's codec is 'layers' and its channels, samples, "
+                                                      "colour space and alpha are its first layer's");
+        return {};
+    }
+    if (s.codec == Codec::layers) return make_error(Errc::invalid_argument, "codec 'layers' needs the store's layers");
     if (const std::string misfit = codec_misfit(s.codec, s.sample_type, s.channels, static_cast<std::uint32_t>(tile), s.border);
         !misfit.empty())
         return make_error(Errc::invalid_argument, misfit + " (use --codec zstd)");
@@ -354,6 +416,7 @@ StoreInfo store_info(const StoreSpec& spec) {
     info.codec = spec.codec;
     info.has_alpha = spec.has_alpha;
     info.levels = level_geometry(spec.width, spec.height, spec.tile_payload);
+    info.layers = spec.layers;
     return info;
 }
 

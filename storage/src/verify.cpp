@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/layers.hpp"
 #include "format.hpp"
 
 namespace tessera::storage {
@@ -14,6 +15,28 @@ VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& option
         if (rep.problems.size() < options.max_problems) rep.problems.push_back(std::move(s));
     };
     const StoreInfo& info = reader.info();
+    std::vector<StoreInfo> layer_info;
+    std::vector<std::uint64_t> layer_bytes;
+    std::vector<std::uint8_t> part_texels;
+    // A bundle's parts: the store's layers, not all absent; each decoded when asked.
+    auto check_bundle = [&](const Tile& t, const std::string& name) {
+        auto parts = split_layers(info, t.bytes);
+        if (!parts) {
+            problem(name + ": " + parts.error().message);
+            return;
+        }
+        bool any = false;
+        for (std::size_t i = 0; i < parts->size(); ++i) {
+            const LayerPart& p = (*parts)[i];
+            if (!t.deduplicated) layer_bytes[i] += p.bytes.size();
+            if (p.kind == TileKind::absent) continue;
+            any = true;
+            if (!options.decode) continue;
+            if (Status st = decode_tile(layer_info[i], layer_tile(t.key, p), part_texels); !st)
+                problem(name + ", layer " + info.layers[i].name + ": " + st.error().message);
+        }
+        if (!any) problem(name + ": a bundle with no layer's data (such a tile is absent)");
+    };
     std::uint64_t total = 0;
     for (const auto& l : info.levels) total += std::uint64_t(l.tiles_x) * l.tiles_y;
 
@@ -21,6 +44,10 @@ VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& option
     std::vector<std::pair<std::uint64_t, std::uint64_t>> ranges;
     std::vector<std::uint8_t> decoded;
     std::uint64_t done = 0;
+    // A layered store: every bundle must split into the store's layers, and each layer's bytes
+    // (over the payloads stored, a deduplicated one once) must be what the layer table says.
+    for (std::size_t i = 0; i < info.layers.size(); ++i) layer_info.push_back(layer_store_info(info, i));
+    layer_bytes.assign(info.layers.size(), 0);
     for (std::uint32_t lv = 0; lv < info.level_count(); ++lv) {
         const LevelInfo& L = info.levels[lv];
         std::uint64_t present = 0, uniform = 0, absent = 0, dedup = 0;
@@ -37,7 +64,9 @@ VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& option
                 }
                 ++rep.payloads_checked;
                 rep.bytes_checked += results[i]->bytes.size();
-                if (options.decode) {
+                if (info.layered()) {
+                    check_bundle(*results[i], name);
+                } else if (options.decode) {
                     Status st = decode_tile(info, *results[i], decoded);
                     if (!st) problem(name + ": " + st.error().message);
                 }
@@ -92,6 +121,12 @@ VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& option
             problem("level " + std::to_string(lv) + ": tile counts in the level table do not match the index");
     }
     if (options.progress) options.progress(total, total);
+    // (Only when every bundle was read: a missing one would make every layer's sum short.)
+    const bool all_read = rep.problem_count == 0;
+    for (std::size_t i = 0; i < info.layers.size() && all_read; ++i)
+        if (layer_bytes[i] != info.layers[i].payload_bytes)
+            problem("layer " + info.layers[i].name + ": the layer table says " + std::to_string(info.layers[i].payload_bytes) +
+                    " payload bytes, the bundles hold " + std::to_string(layer_bytes[i]));
 
     // Every data byte belongs to exactly one stored payload.
     std::sort(ranges.begin(), ranges.end());

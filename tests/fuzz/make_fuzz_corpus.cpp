@@ -1,12 +1,13 @@
 // make_fuzz_corpus DIR: writes a few small, valid stores into DIR as the fuzzers' seeds: every
 // codec, sample type and channel count family, with present, uniform, absent and deduplicated
-// tiles, one level and several.
+// tiles, one level and several, and a multi-layer store.
 #include <cstdint>
 #include <cstdio>
 #include <string>
 #include <vector>
 
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_writer.hpp"
 
 namespace {
@@ -44,6 +45,52 @@ Status write_store(const std::string& path, const StoreSpec& spec, unsigned seed
         }
     }
     return w.finish();
+}
+
+// A multi-layer store: grey u8 JPEG, RGBA u8 zstd, grey u16 raw; its bundles mix present, uniform
+// and absent parts, some tiles are absent, two bundles are identical.
+Status write_layered_store(const std::string& path) {
+    StoreSpec spec;
+    spec.width = 40;
+    spec.height = 30;
+    spec.tile_payload = 16;
+    spec.border = 2;
+    spec.codec = Codec::layers;
+    spec.layers = {LayerInfo{"grey", 1, SampleType::u8, ColourSpace::srgb, Codec::jpeg},
+                   LayerInfo{"rgba", 4, SampleType::u8, ColourSpace::srgb, Codec::zstd, true},
+                   LayerInfo{"height", 1, SampleType::u16, ColourSpace::linear, Codec::raw}};
+    spec.channels = 1;
+    spec.sample_type = SampleType::u8;
+    spec.colour_space = ColourSpace::srgb;
+    auto created = StoreWriter::create(path, spec);
+    if (!created) return created.error();
+    const StoreInfo info = store_info(spec);
+    EncodeOptions enc;
+    enc.jpeg_quality = 75;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                const unsigned v = (x + 2 * y + l) % 4;
+                if (v == 0 && l + 1 < info.level_count()) continue;  // absent in every layer
+                std::vector<std::vector<std::uint8_t>> bytes(3);
+                std::vector<LayerPart> parts(3);
+                for (std::size_t i = 0; i < 3; ++i) {
+                    const StoreInfo li = layer_store_info(info, i);
+                    const unsigned kind = (v + i) % 3;  // 0 absent, 1 uniform, 2 present
+                    if (kind == 1) {
+                        bytes[i].assign(li.texel_bytes(), static_cast<std::uint8_t>(v == 3 ? 40 + i : 9 * x + i));
+                    } else if (kind == 2) {
+                        std::vector<std::uint8_t> texels(li.tile_bytes());
+                        for (std::size_t k = 0; k < texels.size(); ++k) texels[k] = static_cast<std::uint8_t>(k * 5 + i * 3 + (v == 3 ? 0 : x));
+                        auto payload = encode_tile(li, texels, enc);
+                        if (!payload) return payload.error();
+                        bytes[i] = std::move(*payload);
+                    }
+                    parts[i] = LayerPart{kind == 0 ? TileKind::absent : kind == 1 ? TileKind::uniform : TileKind::present, bytes[i]};
+                }
+                TESSERA_TRY((*created)->add_present({l, x, y}, join_layers(parts)));
+            }
+    return (*created)->finish();
 }
 
 StoreSpec make_spec(std::uint32_t w, std::uint32_t h, std::uint32_t payload, std::uint32_t border, std::uint32_t channels,
@@ -93,6 +140,11 @@ int main(int argc, char** argv) {
             return 1;
         }
     }
+    if (Status st = write_layered_store(dir + "/layers-grey-rgba-u16-2levels.tsr"); !st) {
+        std::fprintf(stderr, "make_fuzz_corpus: layered store: %s\n", st.error().message.c_str());
+        return 1;
+    }
+    ++n;
     std::printf("make_fuzz_corpus: wrote %u stores to %s\n", n, dir.c_str());
     return 0;
 }

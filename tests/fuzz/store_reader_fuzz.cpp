@@ -17,6 +17,7 @@
 
 #include "format.hpp"
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
 #include "tessera/storage/verify.hpp"
@@ -87,6 +88,11 @@ void fix_checksums(std::vector<std::uint8_t>& b) {
             store<std::uint64_t>(r, level::block_table_checksum, XXH3_64bits(h + bt, nb * kBlockRecordBytes));
         }
         store<std::uint64_t>(h, header::level_table_checksum, XXH3_64bits(h + lt_off, levels * kLevelRecordBytes));
+        // A layered store's layer table follows the level table.
+        const std::uint64_t layers = h[header::layer_count];
+        const std::uint64_t layer_off = lt_off + levels * kLevelRecordBytes;
+        if (layers > 0 && in_bounds(size, layer_off, layers * kLayerRecordBytes))
+            store<std::uint64_t>(h, header::layer_table_checksum, XXH3_64bits(h + layer_off, layers * kLayerRecordBytes));
     }
     if (palette_ok) store<std::uint64_t>(h, header::palette_checksum, XXH3_64bits(h + pal_off, pal_count * kPaletteValueBytes));
     store<std::uint64_t>(h, header::header_checksum, XXH3_64bits(h, header::header_checksum));
@@ -105,7 +111,11 @@ void check_info(const StoreInfo& info) {
     spec.colour_space = info.colour_space;
     spec.codec = info.codec;
     spec.has_alpha = info.has_alpha;
+    spec.layers = info.layers;
     FUZZ_CHECK(validate(spec).ok());  // a store that opens is one the writer could have written
+    std::uint64_t layer_bytes = 0;
+    for (const LayerInfo& l : info.layers) layer_bytes += l.payload_bytes;
+    FUZZ_CHECK(layer_bytes <= info.file_size);
     FUZZ_CHECK(info.tile_size() >= 1 && info.tile_size() <= format::kMaxTileSize);
     const auto geometry = level_geometry(info.width, info.height, info.tile_payload);
     FUZZ_CHECK(geometry.size() == info.levels.size());
@@ -121,6 +131,16 @@ void check_info(const StoreInfo& info) {
     }
 }
 
+void decode_checked(const StoreInfo& info, const Tile& t);
+
+// Bytes one tile decodes to: every layer's tile in a layered store.
+std::uint64_t decoded_bytes(const StoreInfo& info) {
+    if (!info.layered()) return info.tile_bytes();
+    std::uint64_t n = 0;
+    for (std::size_t i = 0; i < info.layers.size(); ++i) n += layer_store_info(info, i).tile_bytes();
+    return n;
+}
+
 void check_tile(const StoreInfo& info, const TileKey& key, const Result<Tile>& t, std::uint64_t& decode_budget) {
     if (!t) {
         FUZZ_CHECK(!t.error().message.empty());
@@ -134,16 +154,33 @@ void check_tile(const StoreInfo& info, const TileKey& key, const Result<Tile>& t
     FUZZ_CHECK(XXH3_64bits(t->bytes.data(), t->bytes.size()) == t->checksum);
     if (t->kind == TileKind::uniform) FUZZ_CHECK(t->bytes.size() == info.texel_bytes());
     if (t->kind == TileKind::present) FUZZ_CHECK(!t->bytes.empty());
-    if (info.tile_bytes() > decode_budget) return;
-    decode_budget -= info.tile_bytes();
-    // The codec libraries are not instrumented, so ASan cannot see them write past the buffer:
-    // reserve a guard zone behind the tile (resize within capacity keeps it) and check it after.
+    if (decoded_bytes(info) > decode_budget) return;
+    decode_budget -= decoded_bytes(info);
+        decode_checked(info, *t);
+}
+
+// Decodes a tile; a layered store's bundle is split and each part decoded with its layer's
+// description. The codec libraries are not instrumented, so ASan cannot see them write past the
+// buffer: a guard zone behind the tile (resize within capacity keeps it) is checked after.
+void decode_checked(const StoreInfo& info, const Tile& t) {
+    if (info.layered()) {
+        FUZZ_CHECK(t.kind == TileKind::present);  // a layered store has no uniform tiles
+        const auto parts = split_layers(info, t.bytes);
+        if (!parts) {
+            FUZZ_CHECK(parts.error().code == Errc::corrupt && !parts.error().message.empty());
+            return;
+        }
+        FUZZ_CHECK(parts->size() == info.layers.size());
+        for (std::size_t i = 0; i < parts->size(); ++i)
+            if ((*parts)[i].kind != TileKind::absent) decode_checked(layer_store_info(info, i), layer_tile(t.key, (*parts)[i]));
+        return;
+    }
     constexpr std::size_t kGuard = 256;
     std::vector<std::uint8_t> out;
     out.reserve(info.tile_bytes() + kGuard);
     std::uint8_t* const guard = out.data() + info.tile_bytes();
     std::fill_n(guard, kGuard, std::uint8_t{0xa5});
-    const Status st = decode_tile(info, *t, out);
+    const Status st = decode_tile(info, t, out);
     if (out.data() + info.tile_bytes() == guard)
         FUZZ_CHECK(std::all_of(guard, guard + kGuard, [](std::uint8_t v) { return v == 0xa5; }));
     if (st) FUZZ_CHECK(out.size() == info.tile_bytes());
@@ -222,7 +259,7 @@ void exercise(std::vector<std::uint8_t> bytes) {
     if (tiles > kMaxVerifyTiles) return;
     VerifyOptions opt;
     opt.max_problems = 3;
-    opt.decode = tiles * info.tile_bytes() <= kMaxDecodeBytes;
+    opt.decode = tiles * decoded_bytes(info) <= kMaxDecodeBytes;
     const VerifyReport rep = verify_store(reader, opt);
     FUZZ_CHECK(rep.tiles_checked == tiles);
     FUZZ_CHECK(rep.problems.size() <= opt.max_problems);

@@ -1,15 +1,11 @@
 #include "tessera/storage/builder.hpp"
 
 #include <algorithm>
-#include <atomic>
 #include <chrono>
-#include <cstring>
-#include <deque>
 #include <memory>
-#include <mutex>
 #include <thread>
 
-#include "mip_reducer.hpp"
+#include "pyramid_builder.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
 #include "thread_pool.hpp"
@@ -17,197 +13,20 @@
 namespace tessera::storage {
 namespace {
 
-using build::MipReducer;
+using build::FirstError;
+using build::PyramidBuilder;
 using build::ThreadPool;
 
-// The first error any thread hit; later ones are dropped.
-class FirstError {
+// A single-layer build's tiles go straight to the store writer; absent tiles are not written.
+class WriterSink final : public build::TileSink {
 public:
-    void set(Error e) {
-        std::lock_guard lock(mu_);
-        if (!error_) error_ = std::move(e);
-        failed_.store(true, std::memory_order_relaxed);
-    }
-    bool failed() const { return failed_.load(std::memory_order_relaxed); }
-    Error get() const {
-        std::lock_guard lock(mu_);
-        return *error_;
-    }
+    explicit WriterSink(StoreWriter& w) : w_(w) {}
+    Status present(const TileKey& key, std::vector<std::uint8_t> payload) override { return w_.add_present(key, payload); }
+    Status uniform(const TileKey& key, std::span<const std::uint8_t> value) override { return w_.add_uniform(key, value); }
+    Status absent(const TileKey&) override { return {}; }
 
 private:
-    mutable std::mutex mu_;
-    std::optional<Error> error_;
-    std::atomic<bool> failed_{false};
-};
-
-// A run of consecutive rows of one level, in one buffer.
-struct Chunk {
-    std::uint32_t first = 0;
-    std::uint32_t count = 0;
-    std::vector<std::uint8_t> data;
-};
-
-struct Level {
-    std::uint32_t index = 0;
-    LevelInfo geo;
-    std::size_t row_bytes = 0;
-    std::deque<Chunk> chunks;  // rows still needed, oldest first
-    std::uint32_t received = 0;
-    std::uint32_t next_tile_row = 0;
-    std::uint32_t next_down_row = 0;  // next row of the level below to compute
-
-    const std::uint8_t* row(std::uint32_t y) const {
-        for (const Chunk& c : chunks)
-            if (y >= c.first && y < c.first + c.count) return c.data.data() + std::size_t(y - c.first) * row_bytes;
-        return nullptr;  // unreachable by construction: rows are dropped only when no longer needed
-    }
-};
-
-class PyramidBuilder {
-public:
-    PyramidBuilder(const StoreInfo& store, const BuildOptions& opt, const EncodeOptions& enc, StoreWriter& writer,
-                   ThreadPool& pool, FirstError& error)
-        : store_(store), opt_(opt), enc_(enc), writer_(writer), pool_(pool), error_(error),
-          reducer_(store.channels, store.sample_type, store.colour_space, store.has_alpha), dropped_(store.levels.size()) {
-        levels_.resize(store.levels.size());
-        for (std::size_t l = 0; l < levels_.size(); ++l) {
-            levels_[l].index = static_cast<std::uint32_t>(l);
-            levels_[l].geo = store.levels[l];
-            levels_[l].row_bytes = std::size_t(store.levels[l].width) * store.texel_bytes();
-        }
-    }
-
-    std::size_t row_bytes0() const { return levels_[0].row_bytes; }
-    std::atomic<std::uint64_t>& tiles_done() { return tiles_done_; }
-    std::uint64_t tiles_dropped(std::size_t level) const { return dropped_[level].load(); }
-    std::uint64_t bytes_dropped() const { return bytes_dropped_.load(); }
-
-    // Rows arrive top to bottom in chunks; everything a chunk makes possible is done at once.
-    void push(std::uint32_t l, Chunk chunk) {
-        Level& L = levels_[l];
-        L.received += chunk.count;
-        L.chunks.push_back(std::move(chunk));
-        if (l + 1 < levels_.size()) downsample(L);
-        const std::uint32_t P = store_.tile_payload, B = store_.border;
-        while (L.next_tile_row < L.geo.tiles_y &&
-               L.received >= std::min<std::uint64_t>(std::uint64_t(L.next_tile_row + 1) * P + B, L.geo.height)) {
-            emit_tile_row(L, L.next_tile_row);
-            ++L.next_tile_row;
-        }
-        // Drop the rows neither a future tile row nor a future mip row will read.
-        std::int64_t keep = L.received;
-        if (L.next_tile_row < L.geo.tiles_y) keep = std::min<std::int64_t>(keep, std::int64_t(L.next_tile_row) * P - B);
-        if (l + 1 < levels_.size()) keep = std::min<std::int64_t>(keep, std::int64_t(L.next_down_row) * 2);
-        while (!L.chunks.empty() && std::int64_t(L.chunks.front().first + L.chunks.front().count) <= keep) L.chunks.pop_front();
-    }
-
-    bool complete() const {
-        for (const Level& L : levels_)
-            if (L.received != L.geo.height || L.next_tile_row != L.geo.tiles_y) return false;
-        return true;
-    }
-
-private:
-    void downsample(Level& L) {
-        Level& N = levels_[L.index + 1];
-        std::uint32_t end = L.next_down_row;
-        while (end < N.geo.height && (2 * end + 1 < L.received || (L.received == L.geo.height && 2 * end < L.received))) ++end;
-        if (end == L.next_down_row) return;
-        Chunk out;
-        out.first = L.next_down_row;
-        out.count = end - L.next_down_row;
-        out.data.resize(std::size_t(out.count) * N.row_bytes);
-        pool_.parallel_for(out.count, 4, [&](std::size_t b, std::size_t e) {
-            for (std::size_t i = b; i < e; ++i) {
-                const std::uint32_t y = out.first + static_cast<std::uint32_t>(i);
-                const std::uint8_t* r0 = L.row(2 * y);
-                const std::uint8_t* r1 = L.row(std::min(2 * y + 1, L.geo.height - 1));
-                reducer_.reduce(r0, r1, L.geo.width, out.data.data() + i * N.row_bytes);
-            }
-        });
-        L.next_down_row = end;
-        push(N.index, std::move(out));
-    }
-
-    void emit_tile_row(const Level& L, std::uint32_t ty) {
-        const std::uint32_t P = store_.tile_payload, B = store_.border, T = store_.tile_size();
-        const std::size_t tb = store_.texel_bytes();
-        const std::int64_t w = L.geo.width, h = L.geo.height;
-        for (std::uint32_t tx = 0; tx < L.geo.tiles_x; ++tx) {
-            if (error_.failed()) return;
-            auto tile = std::make_shared<std::vector<std::uint8_t>>(store_.tile_bytes());
-            const std::int64_t x0 = std::int64_t(tx) * P - B;
-            // Columns [x0, x0 + T) split into a clamped left run, a copied middle, a clamped right run.
-            const std::int64_t mid_b = std::clamp<std::int64_t>(x0, 0, w), mid_e = std::clamp<std::int64_t>(x0 + T, 0, w);
-            for (std::uint32_t j = 0; j < T; ++j) {
-                const std::int64_t sy = std::clamp<std::int64_t>(std::int64_t(ty) * P - B + j, 0, h - 1);
-                const std::uint8_t* src = L.row(static_cast<std::uint32_t>(sy));
-                std::uint8_t* dst = tile->data() + std::size_t(j) * T * tb;
-                std::int64_t x = x0;
-                for (; x < mid_b; ++x, dst += tb) std::memcpy(dst, src, tb);
-                if (mid_e > mid_b) {
-                    std::memcpy(dst, src + mid_b * tb, std::size_t(mid_e - mid_b) * tb);
-                    dst += std::size_t(mid_e - mid_b) * tb;
-                    x = mid_e;
-                }
-                for (; x < x0 + T; ++x, dst += tb) std::memcpy(dst, src + (w - 1) * tb, tb);
-            }
-            const TileKey key{L.index, tx, ty};
-            pool_.submit([this, key, tile] { finish_tile(key, *tile); });
-        }
-    }
-
-    // Worker side: classify (absent / uniform / present), encode, hand to the writer.
-    void finish_tile(const TileKey& key, const std::vector<std::uint8_t>& t) {
-        if (error_.failed()) return;
-        const std::size_t tb = store_.texel_bytes();
-        Status st;
-        if (opt_.keep && !opt_.keep(key.level, key.x, key.y)) {
-            // dropped by the caller's mask: absent; its encoded size is what it saves
-            if (!(opt_.sparse && store_.has_alpha && alpha_all_zero(t)) && !all_equal(t, tb)) {
-                auto payload = encode_tile(store_, t, enc_);
-                if (!payload) st = payload.error();
-                else bytes_dropped_.fetch_add(payload->size(), std::memory_order_relaxed);
-            }
-            dropped_[key.level].fetch_add(1, std::memory_order_relaxed);
-        } else if (opt_.sparse && store_.has_alpha && alpha_all_zero(t)) {
-            // absent: nothing to write
-        } else if (all_equal(t, tb)) {
-            st = writer_.add_uniform(key, std::span<const std::uint8_t>(t.data(), tb));
-        } else {
-            auto payload = encode_tile(store_, t, enc_);
-            if (!payload) st = payload.error();
-            else st = writer_.add_present(key, *payload);
-        }
-        if (!st) error_.set(st.error());
-        tiles_done_.fetch_add(1, std::memory_order_relaxed);
-    }
-
-    static bool all_equal(const std::vector<std::uint8_t>& t, std::size_t tb) {
-        for (std::size_t i = tb; i < t.size(); i += tb)
-            if (std::memcmp(t.data(), t.data() + i, tb) != 0) return false;
-        return true;
-    }
-
-    bool alpha_all_zero(const std::vector<std::uint8_t>& t) const {
-        const std::size_t sb = sample_bytes(store_.sample_type), tb = store_.texel_bytes();
-        for (std::size_t i = tb - sb; i < t.size(); i += tb)
-            for (std::size_t k = 0; k < sb; ++k)
-                if (t[i + k] != 0) return false;  // +0 only; any other bits mean coverage
-        return true;
-    }
-
-    const StoreInfo& store_;
-    const BuildOptions& opt_;
-    const EncodeOptions& enc_;
-    StoreWriter& writer_;
-    ThreadPool& pool_;
-    FirstError& error_;
-    MipReducer reducer_;
-    std::vector<Level> levels_;
-    std::atomic<std::uint64_t> tiles_done_{0};
-    std::vector<std::atomic<std::uint64_t>> dropped_;  // per level
-    std::atomic<std::uint64_t> bytes_dropped_{0};
+    StoreWriter& w_;
 };
 
 bool is_pow2(std::uint32_t v) { return v && !(v & (v - 1)); }
@@ -249,8 +68,7 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
     spec.sample_type = si.sample_type;
     spec.colour_space = opt.colour_space.value_or(si.colour_space);
     spec.has_alpha = si.has_alpha;
-    spec.codec = opt.codec.value_or(si.sample_type == SampleType::u8 && (si.channels == 1 || si.channels == 3) ? Codec::jpeg
-                                                                                                                : Codec::zstd);
+    spec.codec = opt.codec.value_or(build::default_codec(si));
     if (const std::string misfit = codec_misfit(spec.codec, si.sample_type, si.channels, opt.tile_size, opt.border);
         !misfit.empty())
         return make_error(Errc::invalid_argument, "--codec " + std::string(to_string(spec.codec)) + ": " + misfit + "; " +
@@ -260,11 +78,7 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
 
     const StoreInfo store = store_info(spec);
 
-    EncodeOptions enc;
-    enc.jpeg_quality = opt.quality;
-    enc.chroma = opt.chroma.value_or(opt.quality >= 90 ? Chroma::s444 : Chroma::s420);
-    enc.zstd_level = opt.zstd_level;
-    enc.bc7_effort = opt.bc7_effort;
+    const EncodeOptions enc = build::encode_options(opt);
 
     auto writer = StoreWriter::create(output, spec);
     if (!writer) return writer.error();
@@ -278,32 +92,17 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
     std::uint64_t bytes_dropped = 0;
     {
         ThreadPool pool(threads, 2 * threads + 2);
-        PyramidBuilder pyramid(store, opt, enc, **writer, pool, error);
-        const ParallelFor parallel = [&pool](std::size_t n, const std::function<void(std::size_t, std::size_t)>& fn) {
-            pool.parallel_for(n, 1, fn);
-        };
-        // Small strips keep the rows held per level near the minimum (one tile row plus borders).
-        const std::uint32_t strip = 64;
-        for (std::uint32_t y = 0; y < si.height && !error.failed(); y += strip) {
-            Chunk c;
-            c.first = y;
-            c.count = std::min(strip, si.height - y);
-            c.data.resize(std::size_t(c.count) * pyramid.row_bytes0());
-            Status st = source.read_rows(y, c.count, c.data.data(), parallel);
-            if (!st) {
-                error.set(st.error());
-                break;
-            }
-            pyramid.push(0, std::move(c));
-            if (progress) {
-                prog.rows_done = y + std::min(strip, si.height - y);
-                prog.tiles_done = pyramid.tiles_done().load();
-                progress(prog);
-            }
-        }
-        pool.wait_idle();
-        if (!error.failed() && !pyramid.complete()) error.set(make_error(Errc::io_error, "internal error: pyramid incomplete"));
-        prog.tiles_done = pyramid.tiles_done().load();
+        WriterSink sink(**writer);
+        PyramidBuilder pyramid(store, opt, enc, sink, pool, error);
+        ImageSource* const sources[] = {&source};
+        PyramidBuilder* const pyramids[] = {&pyramid};
+        build::stream_sources(sources, pyramids, pool, error, [&](std::uint64_t rows_done) {
+            if (!progress) return;
+            prog.rows_done = rows_done;
+            prog.tiles_done = pyramid.tiles_done();
+            progress(prog);
+        });
+        prog.tiles_done = pyramid.tiles_done();
         if (opt.keep) {
             for (std::size_t l = 0; l < store.levels.size(); ++l) dropped.push_back(pyramid.tiles_dropped(l));
             bytes_dropped = pyramid.bytes_dropped();

@@ -299,7 +299,15 @@ ProceduralTerrain::ProceduralTerrain(std::uint64_t size) : size_(size) {
     }
 }
 
-void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const {
+void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const { fbm_row<true>(y, out, nullptr); }
+
+void ProceduralTerrain::height_row(std::uint64_t y, float* out) const { fbm_row<false>(y, nullptr, out); }
+
+// The fBm sums of row y, chunk by chunk: with kColour, the colour (ramp by height, hill shading by
+// the facing sums) into `rgb`; without, only the heights into `heights`. Both paths add the same
+// octaves in the same order, so the heights are exactly those the colour is made from.
+template <bool kColour>
+void ProceduralTerrain::fbm_row(std::uint64_t y, std::uint8_t* out, float* heights) const {
     assert(y < size_);
 
     // Everything about each octave that depends only on y.
@@ -352,7 +360,8 @@ void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const {
     std::uint8_t texels[3 * kChunk + 1];
     for (std::uint64_t x0 = 0; x0 < size_; x0 += kChunk) {
         std::fill(std::begin(height), std::end(height), 0.0f);
-        for (auto& f : facing) std::fill(std::begin(f), std::end(f), 0.0f);
+        if constexpr (kColour)
+            for (auto& f : facing) std::fill(std::begin(f), std::end(f), 0.0f);
 
         // fBm: add each octave's height and facing into the buffers, four texels at a time.
         for (int k = 0; k < octave_count_; ++k) {
@@ -404,7 +413,7 @@ void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const {
                         smoothstep(lane, p, o.inv_spacing, s, q);
                     }
                     store4(height + dst, load4(height + dst) + (h0 + h1 * s));
-                    store4(face + dst, load4(face + dst) + ((f0 + f1 * s) + f2 * q));
+                    if constexpr (kColour) store4(face + dst, load4(face + dst) + ((f0 + f1 * s) + f2 * q));
                 }
             };
             if (r.curve != nullptr)
@@ -413,6 +422,10 @@ void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const {
                 accumulate(std::false_type{});
         }
 
+        if constexpr (!kColour) {
+            std::memcpy(heights + x0, height + kPad, sizeof(float) * std::min<std::uint64_t>(kChunk, size_ - x0));
+            continue;
+        } else {
         // Colour: ramp by height, hill shading from the facing sums.
         for (std::size_t i = 0; i < kChunk; i += 4) {
             const V4 h = load4(height + kPad + i);
@@ -447,9 +460,10 @@ void ProceduralTerrain::render_row(std::uint64_t y, std::uint8_t* out) const {
             }
         }
         std::memcpy(out + 3 * x0, texels, 3 * std::min<std::uint64_t>(kChunk, size_ - x0));
+        }
     }
 
-    draw_grid(y, out);
+    if constexpr (kColour) draw_grid(y, out);
 }
 
 void ProceduralTerrain::draw_grid(std::uint64_t y, std::uint8_t* out) const {

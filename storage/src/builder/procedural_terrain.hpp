@@ -20,6 +20,10 @@ public:
     // Writes texels [0, size) of row y (y < size) as RGB8 (sRGB), 3*size bytes, into out.
     // Never allocates.
     void render_row(std::uint64_t y, std::uint8_t* out) const;
+    // The height field the colours of row y are made from (the fBm sum before the colour ramp:
+    // sea below 0, land above, within [-1, 1]), size floats into out. Deterministic like
+    // render_row, and as cheap minus the shading. Never allocates.
+    void height_row(std::uint64_t y, float* out) const;
 
 private:
     static constexpr int kMaxOctaves = 12;
@@ -44,6 +48,8 @@ private:
         float relief;   // how strongly hill shading applies (weak under water)
     };
 
+    template <bool kColour>
+    void fbm_row(std::uint64_t y, std::uint8_t* rgb, float* heights) const;
     void draw_grid(std::uint64_t y, std::uint8_t* out) const;
 
     std::uint64_t size_;

@@ -4,7 +4,10 @@
 #include <charconv>
 #include <cstring>
 #include <filesystem>
+#include <iterator>
+#include <utility>
 
+#include "procedural_layers.hpp"
 #include "procedural_terrain.hpp"
 #include "sources_internal.hpp"
 #include "tessera/storage/image_source.hpp"
@@ -36,11 +39,20 @@ private:
 };
 
 Result<std::unique_ptr<ImageSource>> open_procedural(const std::string& spec) {
-    // procedural:terrain:SIZE
-    const std::string prefix = "procedural:terrain:";
-    if (spec.rfind(prefix, 0) != 0)
-        return make_error(Errc::invalid_argument, "unknown procedural source '" + spec + "' (expected procedural:terrain:SIZE)");
-    const std::string num = spec.substr(prefix.size());
+    // procedural:terrain:SIZE, and the terrain's layers procedural:terrain-height:SIZE and
+    // procedural:terrain-normal:SIZE
+    enum class Kind { colour, height, normal };
+    static constexpr std::pair<const char*, Kind> kKinds[] = {
+        {"procedural:terrain:", Kind::colour},
+        {"procedural:terrain-height:", Kind::height},
+        {"procedural:terrain-normal:", Kind::normal},
+    };
+    const auto* kind = std::find_if(std::begin(kKinds), std::end(kKinds), [&](const auto& k) { return spec.rfind(k.first, 0) == 0; });
+    if (kind == std::end(kKinds))
+        return make_error(Errc::invalid_argument, "unknown procedural source '" + spec +
+                                                      "' (expected procedural:terrain:SIZE, procedural:terrain-height:SIZE "
+                                                      "or procedural:terrain-normal:SIZE)");
+    const std::string num = spec.substr(std::strlen(kind->first));
     std::uint64_t size = 0;
     auto [p, ec] = std::from_chars(num.data(), num.data() + num.size(), size);
     if (num.empty() || ec != std::errc() || p != num.data() + num.size())
@@ -48,7 +60,13 @@ Result<std::unique_ptr<ImageSource>> open_procedural(const std::string& spec) {
     if (size < 1 || size > kMaxProceduralSize)
         return make_error(Errc::invalid_argument,
                           "procedural size must be 1 to " + std::to_string(kMaxProceduralSize) + ", got " + num);
-    return std::unique_ptr<ImageSource>(new ProceduralSource(static_cast<std::uint32_t>(size)));
+    const auto side = static_cast<std::uint32_t>(size);
+    switch (kind->second) {
+        case Kind::height: return build::make_terrain_height_source(side);
+        case Kind::normal: return build::make_terrain_normal_source(side);
+        case Kind::colour: break;
+    }
+    return std::unique_ptr<ImageSource>(new ProceduralSource(side));
 }
 
 }  // namespace

@@ -1,10 +1,11 @@
 #pragma once
-// `tessera build`: an image source becomes a store. The source is streamed top to bottom in
-// strips; every level keeps only the rows its next tile row and next mip row need, so memory is
-// bounded by the image width, not its area. Tiles are encoded on all cores.
+// `tessera build`: an image source (or several, as layers) becomes a store. The source is streamed
+// top to bottom in strips; every level keeps only the rows its next tile row and next mip row
+// need, so memory is bounded by the image width, not its area. Tiles are encoded on all cores.
 #include <cstdint>
 #include <functional>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -62,5 +63,22 @@ Result<BuildSummary> build_store(const std::string& input, const std::string& ou
 // Same, from a source the caller made.
 Result<BuildSummary> build_store(ImageSource& source, const std::string& output, const BuildOptions& options,
                                  const BuildProgressFn& progress = {});
+
+// One layer of a multi-layer build (`tessera build --layer NAME[:CODEC]=INPUT`).
+struct LayerInput {
+    std::string name;            // 1..31 bytes of [a-z0-9_-], unique in the store
+    std::string input;           // as for build_store: an image file or a procedural source
+    std::optional<Codec> codec;  // default: jpeg for 8-bit grey/RGB, zstd otherwise
+};
+
+// Builds a multi-layer store (docs/store-format.md, "Layers"): 2 to 16 inputs of the same width
+// and height, each tile one bundle of every layer's part in its layer's codec. The sources stream
+// in step through one pyramid each, on one pool, and each tile's parts are joined as they are
+// encoded: memory is the single-layer build's times the layer count, and nothing is written twice.
+// `options` apply to every layer, except `codec` (per layer here: it must be unset) and `sparse`
+// (layers with an alpha channel make absent parts; a tile absent in every layer is absent). On
+// any error nothing is left at `output`; the message names the layer at fault.
+Result<BuildSummary> build_layered_store(std::span<const LayerInput> layers, const std::string& output,
+                                         const BuildOptions& options, const BuildProgressFn& progress = {});
 
 }  // namespace tessera::storage

@@ -5,12 +5,27 @@
 #include <cstddef>
 #include <cstdint>
 #include <span>
+#include <string>
+#include <string_view>
 #include <vector>
 #include "tessera/result.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace tessera::storage {
+
+// A layered store has 2 to 16 layers, named by 1 to 31 bytes of [a-z0-9_-].
+inline constexpr std::size_t kMinLayers = 2;
+inline constexpr std::size_t kMaxLayers = 16;
+inline constexpr std::size_t kMaxLayerNameBytes = 31;
+
+// Why `name` cannot name a layer; empty when it can.
+std::string layer_name_misfit(std::string_view name);
+
+// Why these layers cannot make a store with this tile geometry (count, names, duplicate names,
+// channels, alpha, a codec that is `layers` or does not fit the layer's samples); empty when they
+// can. The writer refuses such a spec, the reader such a file, with this message.
+std::string layers_misfit(std::span<const LayerInfo> layers, std::uint32_t tile_size, std::uint32_t border);
 
 // One layer's part of a bundle: present (a payload in the layer's codec), uniform (one texel
 // value of the layer's samples) or absent (no bytes; a viewer shows the parent page).

@@ -24,11 +24,16 @@ StoreTotals store_totals(const StoreInfo& info);
 // Payload bits per texel; 0 for no texels.
 double bits_per_texel(std::uint64_t bytes, std::uint64_t texels);
 
+// A layer's share of a store's payload bytes (the rest of a layered store's payload is the bundles'
+// tables of 8 bytes per layer); 0 for an empty store.
+double payload_share(std::uint64_t bytes, std::uint64_t total);
+
 // name, version (the store id in hex: what the server calls the store's version), format_version,
 // file_size, the image (width, height, channels, sample_type, colour_space, has_alpha, codec), the
 // tiles (tile_size, tile_payload, border), levels (the count), level_info (per level: geometry,
-// tile counts, payload_bytes, bits_per_texel) and totals (the same summed, raw_bytes and
-// compression_ratio).
+// tile counts, payload_bytes, bits_per_texel), layers (a multi-layer store's: name, channels,
+// sample_type, colour_space, has_alpha, codec, payload_bytes, payload_share; empty otherwise) and
+// totals (the same summed, raw_bytes of every layer and compression_ratio).
 nlohmann::json store_json(std::string_view name, const StoreInfo& info);
 
 }  // namespace tessera::storage

@@ -9,6 +9,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <vector>
 
 #include "tessera/result.hpp"
 #include "tessera/storage/types.hpp"
@@ -27,6 +28,9 @@ struct StoreSpec {
     ColourSpace colour_space = ColourSpace::srgb;
     Codec codec = Codec::raw;
     bool has_alpha = false;
+    // A multi-layer store (docs/store-format.md, "Layers"): 2 to 16 layers, codec Codec::layers,
+    // and channels .. has_alpha repeating layer 0's, as in StoreInfo. Empty: a single-layer store.
+    std::vector<LayerInfo> layers;
 };
 
 // Checks a spec against the format's limits; the message names the offending field.
@@ -44,9 +48,12 @@ public:
     static Result<std::unique_ptr<StoreWriter>> create(const std::string& path, const StoreSpec& spec);
 
     virtual ~StoreWriter() = default;
-    // A tile with a payload in the store's codec. Thread-safe.
+    // A tile with a payload in the store's codec. Thread-safe. In a layered store the payload is a
+    // bundle (join_layers, tessera/storage/layers.hpp) that must split into the spec's layers and
+    // hold at least one layer that is not absent (a tile with no layer's data is absent: not added).
     virtual Status add_present(const TileKey& key, std::span<const std::uint8_t> payload) = 0;
     // A tile whose every texel (border included) equals `value` (texel_bytes() bytes). Thread-safe.
+    // Refused in a layered store: its uniform layers are uniform parts of a bundle.
     virtual Status add_uniform(const TileKey& key, std::span<const std::uint8_t> value) = 0;
     // Tiles never added are absent. Writes, syncs and renames into place.
     virtual Status finish(const Progress& progress = {}) = 0;

@@ -40,6 +40,9 @@ struct LayerInfo {
     ColourSpace colour_space = ColourSpace::srgb;
     Codec codec = Codec::raw;         // never Codec::layers
     bool has_alpha = false;
+    // Bytes of this layer's parts in the stored bundles (each distinct bundle counted once), as the
+    // writer recorded it; a reader reports it without reading tiles. Not part of a spec.
+    std::uint64_t payload_bytes = 0;
 };
 
 // Everything a reader needs to know about a store besides its tiles.
