@@ -265,6 +265,51 @@ TEST(ReplyCodec, CodecUniformMakesAUniformTile) {
     for (auto c : {Codec::raw, Codec::zstd, Codec::jpeg}) EXPECT_EQ(protocol::from_proto(protocol::to_proto(c)), c);
     for (auto k : {TileKind::absent, TileKind::present, TileKind::uniform})
         EXPECT_EQ(protocol::from_proto(protocol::to_proto(k)), k);
+    for (auto c : {Codec::bc1, Codec::bc4, Codec::bc5, Codec::bc7, Codec::layers})
+        EXPECT_EQ(protocol::from_proto(protocol::to_proto(c)), c) << to_string(c);
+    EXPECT_EQ(protocol::to_proto(Codec::layers), v1::CODEC_LAYERS);
+    EXPECT_EQ(protocol::reply_codec(TileStatus::ok, TileKind::present, Codec::layers), v1::CODEC_LAYERS);
+}
+
+// A multi-layer store's description crosses the wire with every layer's fields, in order; a
+// single-layer store's has no layers.
+TEST(ReplyCodec, StoreMetadataCarriesLayers) {
+    namespace storage = tessera::storage;
+    storage::StoreInfo info;
+    info.width = 1000;
+    info.height = 700;
+    info.tile_payload = 120;
+    info.border = 4;
+    info.codec = Codec::layers;
+    info.channels = 4;
+    info.has_alpha = true;
+    info.version_major = 1;
+    info.version_minor = 1;
+    info.levels = storage::level_geometry(info.width, info.height, info.tile_payload);
+    info.layers = {storage::LayerInfo{"albedo", 4, storage::SampleType::u8, storage::ColourSpace::srgb, Codec::bc7, true},
+                   storage::LayerInfo{"normal", 2, storage::SampleType::u8, storage::ColourSpace::linear, Codec::bc5},
+                   storage::LayerInfo{"height", 1, storage::SampleType::f32, storage::ColourSpace::linear, Codec::zstd}};
+    const v1::StoreMetadata m = protocol::to_proto("t", info);
+    EXPECT_EQ(m.codec(), v1::CODEC_LAYERS);
+    ASSERT_EQ(m.layers_size(), 3);
+    EXPECT_EQ(m.layers(2).sample_type(), v1::SAMPLE_F32);
+    const storage::StoreInfo back = protocol::from_proto(m);
+    EXPECT_EQ(back.codec, Codec::layers);
+    EXPECT_EQ(back.version_minor, 1u);
+    ASSERT_EQ(back.layers.size(), info.layers.size());
+    for (std::size_t i = 0; i < info.layers.size(); ++i) {
+        SCOPED_TRACE(info.layers[i].name);
+        EXPECT_EQ(back.layers[i].name, info.layers[i].name);
+        EXPECT_EQ(back.layers[i].channels, info.layers[i].channels);
+        EXPECT_EQ(back.layers[i].sample_type, info.layers[i].sample_type);
+        EXPECT_EQ(back.layers[i].colour_space, info.layers[i].colour_space);
+        EXPECT_EQ(back.layers[i].codec, info.layers[i].codec);
+        EXPECT_EQ(back.layers[i].has_alpha, info.layers[i].has_alpha);
+    }
+    info.layers.clear();
+    info.codec = Codec::jpeg;
+    EXPECT_EQ(protocol::to_proto("t", info).layers_size(), 0);
+    EXPECT_TRUE(protocol::from_proto(protocol::to_proto("t", info)).layers.empty());
 }
 
 }  // namespace
