@@ -41,6 +41,8 @@
 #include "tessera/client/scene/lod.hpp"
 #include "tessera/client/scene/scene.hpp"
 #include "tessera/storage/builder.hpp"
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/image_source.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "transcode.hpp"
@@ -300,12 +302,18 @@ std::set<std::uint32_t> levels_in_view(const sc::Camera& cam, const st::StoreInf
 // Block formats: the reference holds the same decoded blocks (decode_store_levels' format), or
 // with `lossless_reference` the store's own texels; at most `max_off_fraction` of the pixels may
 // be off by more than 3.
-std::unique_ptr<Vt> expect_matches_reference(const gl::RendererConfig& cfg, const sc::Scene& scene,
-                                             std::span<const sc::Camera> cameras, double min_psnr = 50.0,
-                                             int max_error = 3, bool lossless_reference = false,
-                                             double max_off_fraction = 0.001, tessera::Codec codec = tessera::Codec::zstd) {
-    ScratchDir dir;
-    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128, nullptr, codec);
+// The format a layer's reference levels are decoded in: the atlas's own block format (its texels
+// exactly), else RGBA8.
+tessera::client::PageFormat reference_format(const gl::RendererConfig& cfg, std::uint32_t layer, bool lossless) {
+    const auto f = layer == 0 ? cfg.page_format : cfg.more_layers.at(layer - 1).page_format;
+    return lossless || !tessera::client::is_block_compressed(f) ? tessera::client::PageFormat::rgba8 : f;
+}
+
+// Loads every page of `store` and renders `cameras` with the VT and with the reference renderer
+// (the drawn layer, lit by the normal layer where cfg says so), expecting the frames to match.
+std::unique_ptr<Vt> expect_store_matches_reference(const gl::RendererConfig& cfg, const std::string& store, const sc::Scene& scene,
+                                                   std::span<const sc::Camera> cameras, double min_psnr, int max_error,
+                                                   bool lossless_reference, double max_off_fraction) {
     auto vt = make_vt(cfg, store, scene);
     if (!vt) {
         ADD_FAILURE() << "no VT";
@@ -315,13 +323,21 @@ std::unique_ptr<Vt> expect_matches_reference(const gl::RendererConfig& cfg, cons
         ADD_FAILURE() << "resident " << vt->runtime->residency().stats().resident_pages << " of " << page_count(vt->info);
         return nullptr;
     }
-    auto levels = gl::decode_store_levels(store, 16384,
-                                          lossless_reference ? tessera::client::PageFormat::rgba8 : cfg.page_format);
+    auto levels = gl::decode_store_levels(store, 16384, reference_format(cfg, cfg.show_layer, lossless_reference), cfg.show_layer);
     if (!levels) {
         ADD_FAILURE() << levels.error().message;
         return nullptr;
     }
-    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    std::vector<gl::ReferenceRenderer::Level> normals;
+    if (cfg.normal_layer && cfg.show_layer == 0) {
+        auto n = gl::decode_store_levels(store, 16384, reference_format(cfg, *cfg.normal_layer, lossless_reference), *cfg.normal_layer);
+        if (!n) {
+            ADD_FAILURE() << n.error().message;
+            return nullptr;
+        }
+        normals = std::move(*n);
+    }
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels, normals);
     if (!ref) {
         ADD_FAILURE() << ref.error().message;
         return nullptr;
@@ -353,13 +369,24 @@ std::unique_ptr<Vt> expect_matches_reference(const gl::RendererConfig& cfg, cons
         EXPECT_EQ(f.counters.fallback_unbiased, 0u);
         EXPECT_EQ(f.counters.fallback_biased, 0u);
         const auto wanted = levels_in_view(cam, vt->info, cfg);
-        std::printf("  %s %s camera (%.0f, %.0f, %.0f): levels %zu (%u..%u), %zu textured pixels, PSNR %.1f dB, max error %d "
+        std::printf("  layer %u%s %s %s camera (%.0f, %.0f, %.0f): levels %zu (%u..%u), %zu textured pixels, PSNR %.1f dB, max error %d "
                     "(%zu pixels off by more than 3)\n",
-                    std::string(tessera::client::to_string(cfg.page_format)).c_str(), filter_name(cfg.filter), cam.position[0],
+                    cfg.show_layer, cfg.normal_layer && cfg.show_layer == 0 ? " lit" : "",
+                    std::string(tessera::client::to_string(reference_format(cfg, cfg.show_layer, false))).c_str(),
+                    filter_name(cfg.filter), cam.position[0],
                     cam.position[1], cam.position[2], wanted.size(), *wanted.begin(), *wanted.rbegin(), count(mask), e.psnr,
                     e.max_error, off_by_more_than_3);
     }
     return vt;
+}
+
+std::unique_ptr<Vt> expect_matches_reference(const gl::RendererConfig& cfg, const sc::Scene& scene,
+                                             std::span<const sc::Camera> cameras, double min_psnr = 50.0,
+                                             int max_error = 3, bool lossless_reference = false,
+                                             double max_off_fraction = 0.001, tessera::Codec codec = tessera::Codec::zstd) {
+    ScratchDir dir;
+    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128, nullptr, codec);
+    return expect_store_matches_reference(cfg, store, scene, cameras, min_psnr, max_error, lossless_reference, max_off_fraction);
 }
 
 class RenderVsReference : public ::testing::TestWithParam<gl::Filter> {};
@@ -489,6 +516,133 @@ TEST(RenderDataPages, SixteenBitAndFloatLayersOnTheGpuEqualTheStoreExactly) {
             EXPECT_EQ(pages, page_count(info));
             EXPECT_EQ(vt->renderer->stats().gl_errors, 0u);
         }
+}
+
+// A three-layer store of the procedural terrain: colour (lossless), normals (`normal_codec`) and
+// heights (16-bit, lossless), 1024² in 128-texel tiles.
+std::string build_layered_terrain(const std::string& path, tessera::Codec normal_codec) {
+    const st::LayerInput layers[] = {{"colour", "procedural:terrain:1024", tessera::Codec::zstd},
+                                     {"normal", "procedural:terrain-normal:1024", normal_codec},
+                                     {"height", "procedural:terrain-height:1024", tessera::Codec::zstd}};
+    st::BuildOptions o;
+    o.tile_size = 128;
+    o.border = 4;
+    o.threads = 2;
+    auto r = st::build_layered_store(layers, path, o);
+    EXPECT_TRUE(r.ok()) << r.error().message;
+    return path;
+}
+
+// The pool of that store: colour rgba8 (sRGB), normals rgba8 or bc5, heights r16 exactly.
+gl::RendererConfig layered_config(gl::Filter filter, tessera::client::PageFormat normal_format) {
+    auto cfg = config(filter, 128, 128, /*srgb=*/true);  // every page of the 1024² store: 120
+    cfg.more_layers = {{normal_format, false}, {tessera::client::PageFormat::r16, false}};
+    return cfg;
+}
+
+// Every layer of a multi-layer store renders as the reference renders that layer alone (one page
+// table, one residency, an atlas per layer), and the colour lit by the normal layer as the
+// reference lights it; with the normals in bc5 too. No pixel falls back in any layer.
+TEST(RenderLayers, EveryLayerMatchesTheReference) {
+    REQUIRE_GL(ctx);
+    using tessera::client::PageFormat;
+    const sc::Camera cameras[] = {
+        looking(512, -60, 90, kPi / 2, -0.42),
+        straight_down(350.5, 450.25, height_for(1.7, straight_down(0, 0, 1), 192)),
+    };
+    for (const auto normal_format : {PageFormat::rgba8, PageFormat::bc5}) {
+        ScratchDir dir;
+        const std::string store = build_layered_terrain(
+            dir.file("layers.tsr"), normal_format == PageFormat::bc5 ? tessera::Codec::bc5 : tessera::Codec::zstd);
+        for (const auto filter : {gl::Filter::bilinear, gl::Filter::trilinear}) {
+            // BC5 as RenderBlockPages holds block pages: bilinear against the same blocks, where a
+            // few pixels on level boundaries show two levels' block errors; trilinear's second
+            // level is each page's 2x2 means encoded again, not the next level's own blocks.
+            const bool bc5 = normal_format == PageFormat::bc5, bilinear = filter == gl::Filter::bilinear;
+            const double min_psnr = !bc5 || bilinear ? 50.0 : 44.0;
+            const int max_error = !bc5 ? 3 : bilinear ? 8 : 16;
+            const double off_fraction = !bc5 || bilinear ? 0.001 : 0.01;
+            for (std::uint32_t show = 0; show < 3; ++show) {
+                SCOPED_TRACE("normals " + std::string(tessera::client::to_string(normal_format)) + " " + filter_name(filter) + " layer " +
+                             std::to_string(show));
+                auto cfg = layered_config(filter, normal_format);
+                cfg.show_layer = show;
+                cfg.srgb = show == 0;  // data layers are shown as they are
+                const auto vt =
+                    expect_store_matches_reference(cfg, store, terrain(1024, 1024, 512), cameras, min_psnr, max_error, false, off_fraction);
+                ASSERT_TRUE(vt);
+                EXPECT_EQ(vt->renderer->pool_format().layer_count(), 3u);
+                EXPECT_EQ(vt->renderer->stats().malformed_uploads, 0u);
+            }
+            SCOPED_TRACE("normals " + std::string(tessera::client::to_string(normal_format)) + " " + filter_name(filter) + " lit");
+            auto cfg = layered_config(filter, normal_format);
+            cfg.normal_layer = 1;
+            ASSERT_TRUE(expect_store_matches_reference(cfg, store, terrain(1024, 1024, 512), cameras, min_psnr, max_error, false, off_fraction));
+        }
+    }
+}
+
+// A 16-bit height layer's texels on the GPU are the store's exactly, page by page, in a pool
+// whose other layers are colour and normals; a pool that does not fit the store's layers is
+// refused with the layer named.
+TEST(RenderLayers, SixteenBitHeightLayerReadsBackExactly) {
+    REQUIRE_GL(ctx);
+    using tessera::client::PageFormat;
+    ScratchDir dir;
+    const std::string store = build_layered_terrain(dir.file("layers.tsr"), tessera::Codec::bc5);
+    auto cfg = layered_config(gl::Filter::trilinear, PageFormat::bc5);
+    auto vt = make_vt(cfg, store, terrain(1024, 1024, 512));
+    ASSERT_TRUE(vt);
+    ASSERT_TRUE(load_everything(*vt));
+    render_vt(*vt->renderer, straight_down(512, 512, height_for(1.0, straight_down(0, 0, 1), cfg.height)));
+    auto reader = st::StoreReader::open(store);
+    ASSERT_TRUE(reader.ok());
+    const auto& info = (*reader)->info();
+    ASSERT_EQ(info.layers.size(), 3u);
+    const st::StoreInfo height = st::layer_store_info(info, 2);
+    ASSERT_EQ(height.sample_type, st::SampleType::u16);
+    std::vector<std::uint8_t> want;
+    std::size_t pages = 0;
+    const auto* table = vt->runtime->residency().table(vt->texture);
+    ASSERT_NE(table, nullptr);
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                auto tile = (*reader)->read_tile({l, x, y});
+                ASSERT_TRUE(tile.ok());
+                auto parts = st::split_layers(info, tile->bytes);
+                ASSERT_TRUE(parts.ok()) << parts.error().message;
+                ASSERT_TRUE(st::decode_tile(height, st::layer_tile(tile->key, (*parts)[2]), want).ok());
+                const auto e = table->entry(l, x, y);
+                ASSERT_TRUE(tessera::client::PageTable::entry_valid(e));
+                ASSERT_EQ(tessera::client::PageTable::entry_level(e), l);
+                EXPECT_EQ(vt->renderer->read_page(tessera::client::PageTable::entry_slot(e), 2), want)
+                    << "height page " << l << "/" << x << "/" << y << " differs on the GPU";
+                ++pages;
+            }
+    EXPECT_EQ(pages, page_count(info));
+    EXPECT_TRUE(vt->renderer->read_page(0, 3).empty()) << "there is no layer 3";
+
+    // A pool of two layers, or with bc4 where the normals have two channels: refused, named.
+    auto wrong = layered_config(gl::Filter::bilinear, PageFormat::bc4);
+    auto r = gl::VtRenderer::create(wrong);
+    ASSERT_TRUE(r.ok());
+    tessera::client::RuntimeConfig rc;
+    rc.residency.pool_slots = wrong.pool_slots;
+    auto rt = tessera::client::Runtime::create(rc, **r);
+    ASSERT_TRUE(rt.ok());
+    auto source = tessera::client::make_local_store_source(1);
+    auto tex = (*rt)->add_texture(*source, store);
+    ASSERT_FALSE(tex.ok());
+    EXPECT_NE(tex.error().message.find("layer normal"), std::string::npos) << tex.error().message;
+    wrong.more_layers.pop_back();
+    auto r2 = gl::VtRenderer::create(wrong);
+    ASSERT_TRUE(r2.ok());
+    auto rt2 = tessera::client::Runtime::create(rc, **r2);
+    ASSERT_TRUE(rt2.ok());
+    auto tex2 = (*rt2)->add_texture(*source, store);
+    ASSERT_FALSE(tex2.ok());
+    EXPECT_NE(tex2.error().message.find("3 layers"), std::string::npos) << tex2.error().message;
 }
 
 // Displaced terrain (hills hide other hills) drawn front to back instead of with a depth

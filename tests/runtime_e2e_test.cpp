@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <set>
+#include <sstream>
 
 #include "server_process.hpp"
 #include "tessera/client/fakes/uploaders.hpp"
@@ -96,6 +97,70 @@ TEST(RuntimeEndToEnd, FetchesFromARealServerAndSurvivesItsRestart) {
     EXPECT_TRUE(source->available());
     EXPECT_EQ(uploader.malformed(), 0u);
     EXPECT_GT(rt.summary().latency().count(), level0.size());
+}
+
+
+// The sum of a Prometheus counter's samples (every label set) in a /metrics body.
+double metric_sum(const std::string& body, const std::string& name) {
+    std::istringstream in(body);
+    std::string line;
+    double sum = 0;
+    while (std::getline(in, line))
+        if (line.rfind(name, 0) == 0 && (line.size() > name.size() && (line[name.size()] == ' ' || line[name.size()] == '{')))
+            sum += std::stod(line.substr(line.rfind(' ') + 1));
+    return sum;
+}
+
+// A multi-layer store over gRPC: each page's three layers (colour, BC5 normals, 16-bit heights)
+// come in one request and one reply, and reach the pool together in one upload holding every
+// layer in its format. The server's counter of tiles sent equals the pages the client uploaded
+// (per-layer requests would triple it).
+TEST(RuntimeEndToEnd, ALayeredStoreComesInOneRequestPerPage) {
+    ScratchDir dir;
+    const std::string store = dir.file("layers.tsr");
+    auto built = tessera::test::run_tessera("build --layer colour=procedural:terrain:1024 --layer normal:bc5=procedural:terrain-normal:1024 "
+                                            "--layer height=procedural:terrain-height:1024 --tile-size 128 --quiet -o " + store);
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    ServerProcess srv({"--store", store}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+
+    TileStreamOptions net;
+    net.target = srv.grpc_address();
+    auto source = make_grpc_source(net);
+    PagePoolFormat pool;
+    pool.format = PageFormat::rgba8;
+    pool.more_layers = {PageFormat::bc5, PageFormat::r16};
+    FakeUploader uploader(pool);
+    RuntimeConfig config;
+    config.residency.pool_slots = 256;
+    config.transcode_threads = 1;
+    auto created = Runtime::create(config, uploader);
+    ASSERT_TRUE(created.ok()) << created.error().message;
+    auto& rt = **created;
+    auto tex = rt.add_texture(*source, "layers");
+    ASSERT_TRUE(tex.ok()) << tex.error().message;
+    const auto& info = *rt.texture_info(*tex);
+    ASSERT_EQ(info.layers.size(), 3u);
+    EXPECT_EQ(info.layers[1].codec, tessera::Codec::bc5);
+    EXPECT_EQ(info.layers[2].sample_type, tessera::storage::SampleType::u16);
+
+    const auto level0 = whole_texture(info, 0);
+    ASSERT_TRUE(frames_until(rt, level0, [&] { return rt.frame(level0, std::uint32_t(level0.size()), 1).fallback_estimate == 0.0f; }, 60s))
+        << "resident: " << rt.residency().stats().resident_pages;
+    EXPECT_EQ(uploader.malformed(), 0u);
+    const std::size_t bytes = pool.upload_bytes(info.tile_size());
+    EXPECT_EQ(bytes, std::size_t(128) * 128 * (4 + 1 + 2));
+    for (const auto& p : uploader.pages()) ASSERT_EQ(p.data.size(), bytes);
+    const std::size_t uploaded = uploader.pages().size();
+    ASSERT_GE(uploaded, level0.size());
+
+    tessera::test::HttpConnection http(srv.http_port());
+    const auto metrics = http.get("/metrics");
+    ASSERT_EQ(metrics.status, 200);
+    const double sent = metric_sum(metrics.body, "tessera_tiles_sent_total");
+    EXPECT_GE(sent, double(uploaded)) << metrics.body.substr(0, 2000);
+    EXPECT_LT(sent, 1.5 * double(uploaded)) << "more tiles sent than pages: one request per layer?";
+    std::printf("  %zu pages uploaded (3 layers each, %zu bytes), %.0f tiles sent by the server\n", uploaded, bytes, sent);
 }
 
 }  // namespace

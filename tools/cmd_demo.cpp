@@ -33,6 +33,7 @@ Command add_demo(CLI::App& app) {
         float guard_band = 0.1f;
         bool no_pace = false;
         std::string page_format = "auto";
+        bool layers = false;
     };
     auto a = std::make_shared<Args>();
     CLI::App* c = app.add_subcommand("demo", "Build the procedural demo store (if missing), verify it and summarise it");
@@ -48,6 +49,8 @@ Command add_demo(CLI::App& app) {
     c->add_option("--page-format", a->page_format, "auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f (tessera view --help)")->capture_default_str();
     c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
     c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
+    c->add_flag("--layers", a->layers,
+                "a multi-layer store: colour (JPEG), normals (BC5) and heights (16-bit), the colour lit by the normals");
     c->add_flag("--no-pace", a->no_pace,
                 "render as fast as the GPU can (default: each frame held to 1/60 s of wall time, as a display would)");
     return [a]() -> int {
@@ -55,21 +58,27 @@ Command add_demo(CLI::App& app) {
         std::error_code ec;
         fs::create_directories(a->dir, ec);
         if (ec) throw Failure(fmt::format("cannot create '{}': {}", a->dir, ec.message()));
-        const std::string store = (fs::path(a->dir) / "terrain.tsr").string();
+        const std::string name = a->layers ? "terrain_layers" : "terrain";
+        const std::string store = (fs::path(a->dir) / (name + ".tsr")).string();
         const std::string input = fmt::format("procedural:terrain:{}", a->size);
+        const storage::LayerInput layers[] = {{"colour", input, std::nullopt},
+                                              {"normal", fmt::format("procedural:terrain-normal:{}", a->size), Codec::bc5},
+                                              {"height", fmt::format("procedural:terrain-height:{}", a->size), Codec::zstd}};
         bool build = a->rebuild;
         if (!build) {
             auto existing = storage::StoreReader::open(store);
-            build = !existing || existing.value()->info().width != a->size;
+            build = !existing || existing.value()->info().width != a->size || existing.value()->info().layered() != a->layers;
         }
         if (build) {
-            fmt::print("building {} from {} ...\n", store, input);
+            fmt::print("building {} from {}{} ...\n", store, input, a->layers ? " (colour, normal and height layers)" : "");
             std::fflush(stdout);
             ProgressBar bar("build", true);
-            auto r = storage::build_store(input, store, storage::BuildOptions{}, [&](const storage::BuildProgress& p) {
+            const auto progress = [&](const storage::BuildProgress& p) {
                 if (p.writing) bar.update(p.bytes_total ? double(p.bytes_written) / double(p.bytes_total) : 1.0, "writing");
                 else bar.update(double(p.rows_done) / double(p.rows_total), fmt::format("tiles {}/{}", p.tiles_done, p.tiles_total));
-            });
+            };
+            auto r = a->layers ? storage::build_layered_store(layers, store, storage::BuildOptions{}, progress)
+                               : storage::build_store(input, store, storage::BuildOptions{}, progress);
             bar.finish();
             if (!r) throw Failure(r.error().message);
             fmt::print("built in {} ({:.1f} MP/s)\n", human_seconds(r->seconds), double(r->source_texels) / 1e6 / r->seconds);
@@ -99,7 +108,7 @@ Command add_demo(CLI::App& app) {
         sc.log_quiet = true;  // its warnings and errors still show
         auto srv = server::Server::start(sc);
         if (!srv) throw Failure(fmt::format("cannot start the demo server: {}", srv.error().message));
-        const std::string url = fmt::format("grpc://127.0.0.1:{}/terrain", (*srv)->grpc_port());
+        const std::string url = fmt::format("grpc://127.0.0.1:{}/{}", (*srv)->grpc_port(), name);
         fmt::print("\nserver     {} (gRPC on loopback)\n", url);
 
         ViewerOptions vo;
