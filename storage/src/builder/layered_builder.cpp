@@ -208,22 +208,8 @@ Result<BuildSummary> build_layered_store(std::span<const LayerInput> layers, con
     }
     if (error.failed()) return error.get();  // the writer's destructor removes its temporary files
 
-    prog.writing = true;
-    TESSERA_TRY((*writer)->finish([&](std::uint64_t done, std::uint64_t total) {
-        if (!progress) return;
-        prog.bytes_written = done;
-        prog.bytes_total = total;
-        progress(prog);
-    }));
-    auto reader = StoreReader::open(output);
-    if (!reader) return reader.error();
-    BuildSummary summary;
-    summary.info = (*reader)->info();
-    summary.source_texels = std::uint64_t(first.width) * first.height * layers.size();
-    summary.tiles_dropped = std::move(dropped);
-    summary.bytes_dropped = bytes_dropped;
-    summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return summary;
+    return build::finish_build(**writer, output, prog, progress, std::uint64_t(first.width) * first.height * layers.size(),
+                               std::move(dropped), bytes_dropped, t0);
 }
 
 }  // namespace tessera::storage

@@ -1,8 +1,11 @@
 #include "pyramid_builder.hpp"
 
+#include "tessera/storage/store_reader.hpp"
+
 #include <algorithm>
 #include <cstring>
 #include <memory>
+#include <string>
 
 namespace tessera::storage::build {
 
@@ -194,6 +197,28 @@ void stream_sources(std::span<ImageSource* const> sources, std::span<PyramidBuil
                 error.set(make_error(Errc::io_error, "internal error: pyramid incomplete"));
                 break;
             }
+}
+
+Result<BuildSummary> finish_build(StoreWriter& writer, const std::string& output, BuildProgress& prog,
+                                  const BuildProgressFn& progress, std::uint64_t source_texels,
+                                  std::vector<std::uint64_t> tiles_dropped, std::uint64_t bytes_dropped,
+                                  std::chrono::steady_clock::time_point started) {
+    prog.writing = true;
+    TESSERA_TRY(writer.finish([&](std::uint64_t done, std::uint64_t total) {
+        if (!progress) return;
+        prog.bytes_written = done;
+        prog.bytes_total = total;
+        progress(prog);
+    }));
+    auto reader = StoreReader::open(output);
+    if (!reader) return reader.error();
+    BuildSummary summary;
+    summary.info = (*reader)->info();
+    summary.source_texels = source_texels;
+    summary.tiles_dropped = std::move(tiles_dropped);
+    summary.bytes_dropped = bytes_dropped;
+    summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+    return summary;
 }
 
 }  // namespace tessera::storage::build

@@ -4,6 +4,7 @@
 // cut (borders clamped at the image's edges), classified (absent, uniform, present), encoded on
 // the pool and handed to a TileSink.
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <deque>
 #include <functional>
@@ -15,6 +16,7 @@
 #include "mip_reducer.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_writer.hpp"
 #include "thread_pool.hpp"
 
 namespace tessera::storage::build {
@@ -107,5 +109,12 @@ Codec default_codec(const SourceInfo& source);
 // the pool. `on_strip` gets the rows read so far, summed over the sources.
 void stream_sources(std::span<ImageSource* const> sources, std::span<PyramidBuilder* const> pyramids, ThreadPool& pool,
                     FirstError& error, const std::function<void(std::uint64_t rows_done)>& on_strip);
+
+// The end of every build: the writer lays the store out (reporting bytes written through
+// `progress`), the store is opened back, and the summary says what was built.
+Result<BuildSummary> finish_build(StoreWriter& writer, const std::string& output, BuildProgress& prog,
+                                  const BuildProgressFn& progress, std::uint64_t source_texels,
+                                  std::vector<std::uint64_t> tiles_dropped, std::uint64_t bytes_dropped,
+                                  std::chrono::steady_clock::time_point started);
 
 }  // namespace tessera::storage::build
