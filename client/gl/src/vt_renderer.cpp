@@ -101,6 +101,11 @@ public:
             more_atlases_.push_back(std::make_unique<PageAtlas>(staging_));
             TESSERA_TRY(more_atlases_.back()->init(layer_config(i), max_texture));
         }
+        pool_ = atlas_.pool_format();
+        for (const auto& a : more_atlases_) {
+            pool_.more_layers.push_back(a->pool_format().format);
+            pool_.second_level = pool_.second_level || a->pool_format().second_level;
+        }
         tables_.init(c.pool_slots, c.tile_size, c.border, max_texture, max_ssbo);
 
         // Programs.
@@ -163,18 +168,11 @@ public:
 
     // ---- PageUploader -----------------------------------------------------------------------
 
-    PagePoolFormat pool_format() const override {
-        PagePoolFormat f = atlas_.pool_format();
-        for (const auto& a : more_atlases_) {
-            f.more_layers.push_back(a->pool_format().format);
-            f.second_level = f.second_level || a->pool_format().second_level;
-        }
-        return f;
-    }
+    PagePoolFormat pool_format() const override { return pool_; }
 
     void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) override {
         // One upload holds every layer's page, in layer order (PagePoolFormat::layer_offset).
-        const PagePoolFormat pool = pool_format();
+        const PagePoolFormat& pool = pool_;
         if (page_data.size() != pool.upload_bytes(tile_size)) {
             ++stats_.malformed_uploads;
             return;
@@ -440,6 +438,7 @@ private:
     StagingRing staging_;
     PageAtlas atlas_;                                     // layer 0
     std::vector<std::unique_ptr<PageAtlas>> more_atlases_;  // layers 1, 2, ...: the same grid
+    PagePoolFormat pool_;                                   // every atlas's format, set by init
     PageTableTextures tables_;
     SceneGeometry geometry_;
     TextureId scene_texture_ = 0;
