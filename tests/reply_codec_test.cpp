@@ -289,6 +289,7 @@ TEST(ReplyCodec, StoreMetadataCarriesLayers) {
     info.layers = {storage::LayerInfo{"albedo", 4, storage::SampleType::u8, storage::ColourSpace::srgb, Codec::bc7, true},
                    storage::LayerInfo{"normal", 2, storage::SampleType::u8, storage::ColourSpace::linear, Codec::bc5},
                    storage::LayerInfo{"height", 1, storage::SampleType::f32, storage::ColourSpace::linear, Codec::zstd}};
+    for (std::size_t i = 0; i < info.layers.size(); ++i) info.layers[i].payload_bytes = 1000003 * (i + 1);
     const v1::StoreMetadata m = protocol::to_proto("t", info);
     EXPECT_EQ(m.codec(), v1::CODEC_LAYERS);
     ASSERT_EQ(m.layers_size(), 3);
@@ -305,6 +306,7 @@ TEST(ReplyCodec, StoreMetadataCarriesLayers) {
         EXPECT_EQ(back.layers[i].colour_space, info.layers[i].colour_space);
         EXPECT_EQ(back.layers[i].codec, info.layers[i].codec);
         EXPECT_EQ(back.layers[i].has_alpha, info.layers[i].has_alpha);
+        EXPECT_EQ(back.layers[i].payload_bytes, info.layers[i].payload_bytes);
     }
     info.layers.clear();
     info.codec = Codec::jpeg;

@@ -115,6 +115,7 @@ v1::StoreMetadata to_proto(std::string_view name, const storage::StoreInfo& info
         lm->set_colour_space(to_proto(l.colour_space));
         lm->set_codec(to_proto(l.codec));
         lm->set_has_alpha(l.has_alpha);
+        lm->set_payload_bytes(l.payload_bytes);
     }
     return m;
 }
@@ -153,6 +154,7 @@ storage::StoreInfo from_proto(const v1::StoreMetadata& m) {
         l.colour_space = from_proto(lm.colour_space());
         l.codec = from_proto(lm.codec());
         l.has_alpha = lm.has_alpha();
+        l.payload_bytes = lm.payload_bytes();
         info.layers.push_back(std::move(l));
     }
     return info;
