@@ -477,6 +477,33 @@ FunctionSource height_source(std::uint32_t side, st::SampleType type) {
 // 16-bit and float pages on the GPU are the store's samples exactly (no 8-bit clamp): every page
 // of every level read back from the atlas equals the stored tile, bilinear (one level) and
 // trilinear (two: the page-mip pass draws into R16 and R32F too).
+// Every page of every level of `store` is resident in `vt`, and layer `layer` of its atlas slot
+// reads back as `want_page` says the page should be (`want_page` fills its buffer from the stored
+// tile, or fails the test). Returns the pages compared.
+std::size_t expect_pages_read_back(Vt& vt, const st::StoreReader& reader, std::uint32_t layer,
+                                   const std::function<bool(const st::Tile&, std::vector<std::uint8_t>&)>& want_page) {
+    const auto& info = reader.info();
+    const auto* table = vt.runtime->residency().table(vt.texture);
+    EXPECT_NE(table, nullptr);
+    if (!table) return 0;
+    std::vector<std::uint8_t> want;
+    std::size_t pages = 0;
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                auto tile = reader.read_tile({l, x, y});
+                EXPECT_TRUE(tile.ok());
+                if (!tile || !want_page(*tile, want)) return pages;
+                const auto e = table->entry(l, x, y);
+                EXPECT_TRUE(tessera::client::PageTable::entry_valid(e));
+                EXPECT_EQ(tessera::client::PageTable::entry_level(e), l);
+                EXPECT_EQ(vt.renderer->read_page(tessera::client::PageTable::entry_slot(e), layer), want)
+                    << "layer " << layer << " page " << l << "/" << x << "/" << y << " differs on the GPU";
+                ++pages;
+            }
+    return pages;
+}
+
 TEST(RenderDataPages, SixteenBitAndFloatLayersOnTheGpuEqualTheStoreExactly) {
     REQUIRE_GL(ctx);
     using tessera::client::PageFormat;
@@ -496,23 +523,12 @@ TEST(RenderDataPages, SixteenBitAndFloatLayersOnTheGpuEqualTheStoreExactly) {
             ASSERT_TRUE(reader.ok());
             const auto& info = (*reader)->info();
             tessera::client::Scratch scratch;
-            std::vector<std::uint8_t> want(page_bytes(format, info.tile_size()));
-            std::size_t pages = 0;
-            const auto* table = vt->runtime->residency().table(vt->texture);
-            ASSERT_NE(table, nullptr);
-            for (std::uint32_t l = 0; l < info.level_count(); ++l)
-                for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
-                    for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
-                        auto tile = (*reader)->read_tile({l, x, y});
-                        ASSERT_TRUE(tile.ok());
-                        ASSERT_TRUE(tessera::client::transcode_page(info, tile->kind, info.codec, tile->bytes, format, want, scratch).ok());
-                        const auto e = table->entry(l, x, y);
-                        ASSERT_TRUE(tessera::client::PageTable::entry_valid(e));
-                        ASSERT_EQ(tessera::client::PageTable::entry_level(e), l);
-                        EXPECT_EQ(vt->renderer->read_page(tessera::client::PageTable::entry_slot(e)), want)
-                            << "page " << l << "/" << x << "/" << y << " differs on the GPU";
-                        ++pages;
-                    }
+            const std::size_t pages = expect_pages_read_back(*vt, **reader, 0, [&](const st::Tile& tile, std::vector<std::uint8_t>& want) {
+                want.resize(page_bytes(format, info.tile_size()));
+                const bool ok = tessera::client::transcode_page(info, tile.kind, info.codec, tile.bytes, format, want, scratch).ok();
+                EXPECT_TRUE(ok);
+                return ok;
+            });
             EXPECT_EQ(pages, page_count(info));
             EXPECT_EQ(vt->renderer->stats().gl_errors, 0u);
         }
@@ -601,25 +617,13 @@ TEST(RenderLayers, SixteenBitHeightLayerReadsBackExactly) {
     ASSERT_EQ(info.layers.size(), 3u);
     const st::StoreInfo height = st::layer_store_info(info, 2);
     ASSERT_EQ(height.sample_type, st::SampleType::u16);
-    std::vector<std::uint8_t> want;
-    std::size_t pages = 0;
-    const auto* table = vt->runtime->residency().table(vt->texture);
-    ASSERT_NE(table, nullptr);
-    for (std::uint32_t l = 0; l < info.level_count(); ++l)
-        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
-            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
-                auto tile = (*reader)->read_tile({l, x, y});
-                ASSERT_TRUE(tile.ok());
-                auto parts = st::split_layers(info, tile->bytes);
-                ASSERT_TRUE(parts.ok()) << parts.error().message;
-                ASSERT_TRUE(st::decode_tile(height, st::layer_tile(tile->key, (*parts)[2]), want).ok());
-                const auto e = table->entry(l, x, y);
-                ASSERT_TRUE(tessera::client::PageTable::entry_valid(e));
-                ASSERT_EQ(tessera::client::PageTable::entry_level(e), l);
-                EXPECT_EQ(vt->renderer->read_page(tessera::client::PageTable::entry_slot(e), 2), want)
-                    << "height page " << l << "/" << x << "/" << y << " differs on the GPU";
-                ++pages;
-            }
+    const std::size_t pages = expect_pages_read_back(*vt, **reader, 2, [&](const st::Tile& tile, std::vector<std::uint8_t>& want) {
+        auto parts = st::split_layers(info, tile.bytes);
+        EXPECT_TRUE(parts.ok()) << (parts ? "" : parts.error().message);
+        const bool ok = parts && st::decode_tile(height, st::layer_tile(tile.key, (*parts)[2]), want).ok();
+        EXPECT_TRUE(ok);
+        return ok;
+    });
     EXPECT_EQ(pages, page_count(info));
     EXPECT_TRUE(vt->renderer->read_page(0, 3).empty()) << "there is no layer 3";
 
