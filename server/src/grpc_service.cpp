@@ -5,6 +5,7 @@
 #include <atomic>
 
 #include "auth.hpp"
+#include "grpc_handoff.hpp"
 #include "reply_buffer.hpp"
 #include "tessera/protocol/wire.hpp"
 
@@ -40,6 +41,7 @@ public:
         : ctx_(ctx), scheduler_(scheduler), peer_(context->peer()) {
         if (!authorized) {
             finished_ = true;
+            handoff_to_grpc(this);
             Finish(grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "missing or wrong bearer token"));
             return;
         }
@@ -49,6 +51,7 @@ public:
             viewers_refused->inc();
             finished_ = true;
             const bool draining = scheduler_.draining();
+            handoff_to_grpc(this);
             Finish(grpc::Status(
                 draining ? grpc::StatusCode::UNAVAILABLE : grpc::StatusCode::RESOURCE_EXHAUSTED,
                 draining ? "the server is shutting down"
@@ -57,10 +60,12 @@ public:
         }
         id_ = *id;
         ctx_.log.debug("viewer connected", {{"viewer", id_}, {"peer", peer_}});
+        handoff_to_grpc(this);
         StartRead(&read_buf_);
     }
 
     void OnReadDone(bool ok) override {
+        reaction_from_grpc(this);
         if (!ok) {  // the viewer half-closed (or left): finish once its admitted work is sent
             std::unique_lock lock(mu_);
             read_closed_ = true;
@@ -82,11 +87,16 @@ public:
         std::lock_guard lock(mu_);
         if (finished_) return;
         // A viewer that sends batches but does not read replies stops being read too.
-        if (scheduler_.outbox_full(id_)) read_paused_ = true;
-        else StartRead(&read_buf_);
+        if (scheduler_.outbox_full(id_)) {
+            read_paused_ = true;
+        } else {
+            handoff_to_grpc(this);
+            StartRead(&read_buf_);
+        }
     }
 
     void OnWriteDone(bool ok) override {
+        reaction_from_grpc(this);
         const bool full = scheduler_.messages_written(id_, current_, ok);
         current_.clear();  // releases the tiles
         {
@@ -99,6 +109,7 @@ public:
             }
             if (read_paused_ && !read_closed_ && !finished_ && !full) {
                 read_paused_ = false;
+                handoff_to_grpc(this);
                 StartRead(&read_buf_);
             }
         }
@@ -106,12 +117,14 @@ public:
     }
 
     void OnCancel() override {
+        reaction_from_grpc(this);
         std::unique_lock lock(mu_);
         broken_ = true;
         finish_locked(lock, grpc::Status::CANCELLED);
     }
 
     void OnDone() override {
+        reaction_from_grpc(this);
         if (link_) link_->detach();
         if (id_) scheduler_.remove_viewer(id_);
         ctx_.log.debug("viewer disconnected", {{"viewer", id_}, {"peer", peer_}});
@@ -127,6 +140,7 @@ public:
         if (scheduler_.next_messages(id_, current_, multi ? ctx_.config.grpc_message_bytes : 0)) {
             writing_ = true;
             encode_replies(current_, multi, write_buf_, scratch_);
+            handoff_to_grpc(this);
             StartWrite(&write_buf_);
             return;
         }
@@ -145,6 +159,7 @@ private:
     void finish_locked(std::unique_lock<std::recursive_mutex>&, const grpc::Status& status) {
         if (finished_ || writing_) return;  // a running write finishes first (OnWriteDone)
         finished_ = true;
+        handoff_to_grpc(this);
         Finish(status);
     }
 
