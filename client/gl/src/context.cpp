@@ -4,12 +4,14 @@
 #include "tessera/client/gl/context.hpp"
 
 #include <dlfcn.h>
+#include <link.h>
 #include <epoxy/egl.h>
 #include <epoxy/gl.h>
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 #include <fmt/format.h>
 
+#include <string>
 #include <vector>
 
 namespace tessera::client::gl {
@@ -53,10 +55,26 @@ private:
 
 std::string egl_error(const char* what) { return fmt::format("{} failed (EGL error 0x{:04x})", what, eglGetError()); }
 
+// glfwTerminate unloads the GL driver the window's context loaded, while the driver still holds
+// allocations: LeakSanitizer then reports them from an unloaded, unnameable module (so no
+// suppression can name it). Marking every loaded library RTLD_NODELETE keeps the driver mapped
+// until the process ends, as the headless context does by never calling eglTerminate.
+void keep_loaded_libraries() {
+    std::vector<std::string> names;
+    dl_iterate_phdr(
+        [](dl_phdr_info* info, std::size_t, void* out) {
+            if (info->dlpi_name && *info->dlpi_name) static_cast<std::vector<std::string>*>(out)->push_back(info->dlpi_name);
+            return 0;
+        },
+        &names);
+    for (const auto& name : names) dlopen(name.c_str(), RTLD_LAZY | RTLD_NOLOAD | RTLD_NODELETE);
+}
+
 class WindowContext final : public GlContext {
 public:
     explicit WindowContext(GLFWwindow* w) : window_(w) {}
     ~WindowContext() override {
+        keep_loaded_libraries();
         glfwDestroyWindow(window_);
         glfwTerminate();
     }
