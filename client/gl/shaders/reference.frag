@@ -13,9 +13,28 @@ const vec2 ref_size = REF_TEXTURE_SIZE;  // level-0 texels (compiled in, as the 
 
 layout(location = 0) out vec4 o_colour;
 
+#ifdef REF_SECOND_LEVELS
+// A block-format atlas holds under each page of level L its own second level (ref_second's mip
+// L), and trilinear blends level L with that rather than with level L + 1.
+uniform sampler2D ref_second;
+#ifdef VT_LIT
+uniform sampler2D ref_normal_second;
+#endif
+vec4 ref_blend(sampler2D fine, sampler2D second, vec2 texel, float lod) {
+    float lc = vt_clamped_lod(lod);
+    float l = floor(lc);
+    vec4 c = textureLod(fine, texel / ref_size, l);
+    return lc > l ? mix(c, textureLod(second, texel / ref_size, l), lc - l) : c;
+}
+vec4 ref_trilinear(vec2 texel, float lod) { return ref_blend(ref_texture, ref_second, texel, lod); }
+#ifdef VT_LIT
+vec4 ref_normal_trilinear(vec2 texel, float lod) { return ref_blend(ref_normals, ref_normal_second, texel, lod); }
+#endif
+#else
 vec4 ref_trilinear(vec2 texel, float lod) { return textureLod(ref_texture, texel / ref_size, vt_clamped_lod(lod)); }
 #ifdef VT_LIT
 vec4 ref_normal_trilinear(vec2 texel, float lod) { return textureLod(ref_normals, texel / ref_size, vt_clamped_lod(lod)); }
+#endif
 #endif
 
 void main() {

@@ -14,8 +14,12 @@
 
 namespace tessera::client::gl {
 
-Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side,
-                                                                  PageFormat format, std::uint32_t layer) {
+namespace {
+
+// Both public functions: `second` selects each page's first level (every level of the store) or
+// the second level an atlas of `format` holds under it (levels 0 .. count - 2, half their size).
+Result<std::vector<ReferenceRenderer::Level>> decode_levels(const std::string& store_path, std::uint32_t max_side, PageFormat format,
+                                                           std::uint32_t layer, bool second) {
     auto opened = storage::StoreReader::open(store_path);
     if (!opened) return opened.error();
     const auto& reader = **opened;
@@ -31,15 +35,21 @@ Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::str
     if (Status st = check_page_format(info, format); !st) return Error{st.error().code, store_path + ": " + st.error().message};
     if (format != PageFormat::rgba8 && !is_block_compressed(format))
         return Error{Errc::invalid_argument, fmt::format("{}: reference levels of {} pages are not made", store_path, to_string(format))};
-    std::vector<std::uint8_t> page(rgba8_page_bytes(info)), blocks(page_bytes(format, ts));
+    if (second && (!is_block_compressed(format) || ts % 8 != 0 || P % 2 != 0))
+        return Error{Errc::invalid_argument,
+                     fmt::format("{}: second levels are made for block formats with tiles a multiple of 8 texels", store_path)};
+    // A second level is the page at half size: its tile, interior and border halve.
+    const std::uint32_t side = second ? ts / 2 : ts, payload = second ? P / 2 : P, border = second ? B / 2 : B;
+    std::vector<std::uint8_t> page(std::size_t(side) * side * 4), blocks(page_upload_bytes(format, ts, second));
     Scratch scratch;
     std::vector<ReferenceRenderer::Level> out;
-    for (std::uint32_t l = 0; l < info.level_count(); ++l) {
+    for (std::uint32_t l = 0; l + (second ? 1 : 0) < info.level_count(); ++l) {
         const auto& li = info.levels[l];
+        const std::uint32_t level_w = second ? (li.width + 1) / 2 : li.width, level_h = second ? (li.height + 1) / 2 : li.height;
         ReferenceRenderer::Level level;
-        level.width = li.width;
-        level.height = li.height;
-        level.rgba8.assign(std::size_t(li.width) * li.height * 4, 0);
+        level.width = level_w;
+        level.height = level_h;
+        level.rgba8.assign(std::size_t(level_w) * level_h * 4, 0);
         for (std::uint32_t ty = 0; ty < li.tiles_y; ++ty) {
             std::vector<TileKey> keys;
             for (std::uint32_t tx = 0; tx < li.tiles_x; ++tx) keys.push_back(TileKey{l, tx, ty});
@@ -58,12 +68,12 @@ Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::str
                     if (kind == TileKind::absent) continue;
                 }
                 Status st = format == PageFormat::rgba8 ? transcode_to_rgba8(info, kind, info.codec, bytes, page, scratch)
-                                                        : transcode_page(info, kind, info.codec, bytes, format, blocks, scratch);
+                                                        : transcode_page(info, kind, info.codec, bytes, format, blocks, scratch, second);
                 if (!st) return Error{st.error().code, fmt::format("{}: tile {}/{}/{}: {}", store_path, l, tx, ty, st.error().message)};
                 // Block pages: decoded back as the GPU samples them, so the reference holds the
-                // atlas's texels.
+                // atlas's texels (the second level's blocks follow the page's).
                 if (format != PageFormat::rgba8) {
-                    decode_block_page(format, blocks.data(), ts, page.data());
+                    decode_block_page(format, blocks.data() + (second ? page_bytes(format, ts) : 0), side, page.data());
                     // The atlas reads bc4 as (r, r, r, 1) and bc5 as (r, r, r, g) (page_atlas.cpp).
                     if (format == PageFormat::bc4 || format == PageFormat::bc5)
                         for (std::size_t i = 0; i < page.size(); i += 4) {
@@ -72,16 +82,28 @@ Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::str
                         }
                 }
                 // The interior [B, B + P) of the tile is level texels [tx * P, (tx + 1) * P).
-                const std::uint32_t x0 = tx * P, y0 = ty * P;
-                const std::uint32_t w = std::min(P, li.width - x0), h = std::min(P, li.height - y0);
+                const std::uint32_t x0 = tx * payload, y0 = ty * payload;
+                const std::uint32_t w = std::min(payload, level_w - x0), h = std::min(payload, level_h - y0);
                 for (std::uint32_t y = 0; y < h; ++y)
-                    std::memcpy(level.rgba8.data() + (std::size_t(y0 + y) * li.width + x0) * 4,
-                                page.data() + (std::size_t(B + y) * ts + B) * 4, std::size_t(w) * 4);
+                    std::memcpy(level.rgba8.data() + (std::size_t(y0 + y) * level_w + x0) * 4,
+                                page.data() + (std::size_t(border + y) * side + border) * 4, std::size_t(w) * 4);
             }
         }
         out.push_back(std::move(level));
     }
     return out;
+}
+
+}  // namespace
+
+Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side,
+                                                                  PageFormat format, std::uint32_t layer) {
+    return decode_levels(store_path, max_side, format, layer, false);
+}
+
+Result<std::vector<ReferenceRenderer::Level>> decode_store_second_levels(const std::string& store_path, std::uint32_t max_side,
+                                                                         PageFormat format, std::uint32_t layer) {
+    return decode_levels(store_path, max_side, format, layer, true);
 }
 
 ImageError compare_images(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b, std::uint32_t width,

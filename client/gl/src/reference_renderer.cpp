@@ -16,7 +16,8 @@ class ReferenceRendererImpl final : public ReferenceRenderer {
 public:
     explicit ReferenceRendererImpl(const RendererConfig& c) : cfg_(c) {}
 
-    Status init(std::span<const Level> levels, std::span<const Level> normals) {
+    Status init(std::span<const Level> levels, std::span<const Level> normals, std::span<const Level> second,
+                std::span<const Level> normal_second) {
         if (cfg_.width == 0 || cfg_.height == 0) return Error{Errc::invalid_argument, "reference: zero width or height"};
         if (cfg_.max_anisotropy < 1 || cfg_.max_anisotropy > 8) return Error{Errc::invalid_argument, "reference: max_anisotropy must be 1..8"};
         if (levels.empty() || levels.size() > 32) return Error{Errc::invalid_argument, "reference: 1..32 levels"};
@@ -36,6 +37,22 @@ public:
                                          "use power-of-two sides)",
                                          l, lv.width, lv.height, levels[l - 1].width, levels[l - 1].height)};
         }
+        const bool blend_second = !second.empty() && cfg_.filter != Filter::bilinear && levels.size() > 1;
+        if (!second.empty()) {
+            if (second.size() + 1 != levels.size())
+                return Error{Errc::invalid_argument,
+                             fmt::format("reference: {} second levels for {} levels (one per level but the last)", second.size(), levels.size())};
+            if (lit && normal_second.size() != second.size())
+                return Error{Errc::invalid_argument, "reference: lit with second levels needs the normal layer's second levels too"};
+            for (std::size_t l = 0; l < second.size(); ++l) {
+                const auto& want = levels[l + 1];
+                for (const auto* s : {&second[l], lit ? &normal_second[l] : &second[l]})
+                    if (s->width != want.width || s->height != want.height || s->rgba8.size() != want.rgba8.size())
+                        return Error{Errc::invalid_argument,
+                                     fmt::format("reference: second level {} is {}x{}, level {} is {}x{}", l, s->width, s->height, l + 1,
+                                                 want.width, want.height)};
+            }
+        }
         GLint max_size = 0;
         glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
         if (levels[0].width > std::uint32_t(max_size) || levels[0].height > std::uint32_t(max_size))
@@ -45,11 +62,16 @@ public:
                                      levels[0].width, levels[0].height, max_size)};
         texture_ = level_texture(levels, cfg_.srgb);
         if (lit) normals_ = level_texture(normals, false);
+        if (blend_second) {
+            second_ = level_texture(second, cfg_.srgb);
+            if (lit) normal_second_ = level_texture(normal_second, false);
+        }
         if (auto e = take_gl_errors("reference texture"); !e.empty()) return Error{Errc::resource_exhausted, e};
 
         auto p = build_program("scene.vert", "reference.frag",
                                vt_shader_defines(cfg_, 1, 1) +
-                                   fmt::format("#define REF_TEXTURE_SIZE vec2({}.0, {}.0)\n", levels[0].width, levels[0].height));
+                                   fmt::format("#define REF_TEXTURE_SIZE vec2({}.0, {}.0)\n", levels[0].width, levels[0].height) +
+                                   (blend_second ? "#define REF_SECOND_LEVELS\n" : ""));
         if (!p) return p.error();
         program_ = std::move(*p);
         const GLuint id = program_.get();
@@ -58,6 +80,10 @@ public:
         chunk_.texel_origin = uniform(program_, "u_texel_origin");
         glProgramUniform1i(id, uniform(program_, "ref_texture"), 0);
         if (lit) glProgramUniform1i(id, uniform(program_, "ref_normals"), 3);
+        if (blend_second) {
+            glProgramUniform1i(id, uniform(program_, "ref_second"), 1);
+            if (lit) glProgramUniform1i(id, uniform(program_, "ref_normal_second"), 4);
+        }
         glProgramUniform1ui(id, uniform(program_, "u_levels"), std::uint32_t(levels.size()));
 
         auto t = make_colour_target(cfg_.width, cfg_.height, cfg_.srgb);
@@ -83,6 +109,8 @@ public:
         glDisable(GL_SCISSOR_TEST);
         glBindTextureUnit(0, texture_.get());
         if (normals_) glBindTextureUnit(3, normals_.get());
+        if (second_) glBindTextureUnit(1, second_.get());
+        if (normal_second_) glBindTextureUnit(4, normal_second_.get());
         glUseProgram(program_.get());
         geometry_.draw(program_, chunk_, camera);
         glUseProgram(0);
@@ -116,6 +144,7 @@ private:
     RendererConfig cfg_;
     Texture texture_;
     Texture normals_;  // the normal layer's levels, when the scene is lit by them
+    Texture second_, normal_second_;  // the block atlas's second levels, when given (trilinear, anisotropic)
     Program program_;
     GLint u_view_projection_ = -1;
     ChunkUniforms chunk_;
@@ -126,9 +155,10 @@ private:
 }  // namespace
 
 Result<std::unique_ptr<ReferenceRenderer>> ReferenceRenderer::create(const RendererConfig& config, std::span<const Level> levels,
-                                                                    std::span<const Level> normals) {
+                                                                    std::span<const Level> normals, std::span<const Level> second_levels,
+                                                                    std::span<const Level> normal_second_levels) {
     auto r = std::make_unique<ReferenceRendererImpl>(config);
-    if (Status st = r->init(levels, normals); !st) return st.error();
+    if (Status st = r->init(levels, normals, second_levels, normal_second_levels); !st) return st.error();
     return std::unique_ptr<ReferenceRenderer>(std::move(r));
 }
 

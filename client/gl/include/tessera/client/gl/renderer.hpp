@@ -173,8 +173,14 @@ public:
     // mip chain rounds down, the store's rounds up: they agree for power-of-two sides).
     // `normals`: the normal layer's levels, needed when config lights the scene (normal_layer set
     // and show_layer 0): the reference lights its colour as the VT pass does.
+    // `second_levels` (optional; and `normal_second_levels` when lit): what a block-format atlas
+    // holds under each page of level L as its coarser level (decode_store_second_levels), one per
+    // level but the last, the size of level L + 1. Given, trilinear and anisotropic lookups blend
+    // level L with it, as the VT does, instead of with level L + 1.
     static Result<std::unique_ptr<ReferenceRenderer>> create(const RendererConfig& config, std::span<const Level> levels,
-                                                             std::span<const Level> normals = {});
+                                                             std::span<const Level> normals = {},
+                                                             std::span<const Level> second_levels = {},
+                                                             std::span<const Level> normal_second_levels = {});
     virtual ~ReferenceRenderer() = default;
     virtual Status set_scene(const scene::Scene& scene) = 0;
     virtual void render(const scene::Camera& camera) = 0;
@@ -189,6 +195,12 @@ public:
 // as (r, r, r, g)). `layer`: which layer of a multi-layer store (0 for any other store).
 Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side = 16384,
                                                                   PageFormat format = PageFormat::rgba8, std::uint32_t layer = 0);
+// The second level a block-format atlas holds under each page (the page's 2x2 means encoded
+// again, or a block-codec store's stored blocks of it), decoded as a GPU samples them and laid out
+// as a level: one per store level but the last, each the size of the next level. Errors: those of
+// decode_store_levels; a format that is not a block format, tiles not a multiple of 8 texels.
+Result<std::vector<ReferenceRenderer::Level>> decode_store_second_levels(const std::string& store_path, std::uint32_t max_side,
+                                                                         PageFormat format, std::uint32_t layer = 0);
 
 // PSNR (dB, over RGB, 8-bit) and max absolute error of two RGBA8 images of equal size, over the
 // pixels where `mask` (optional: width*height bytes, one per pixel, non-zero = count) is set.
