@@ -724,21 +724,41 @@ TEST(RenderVsReferenceSmallRing, UploadsStillLandWhenTheStagingRingIsFull) {
 
 // ---------------------------------------------------------------------------------------------
 
-class RenderSeams : public ::testing::TestWithParam<gl::Filter> {};
+// RGBA8 pages, and block pages (BC1 transcoded on the client, BC7 as the builder stored it) with a
+// border of 8, so that the atlas's second level is seamless too (docs/renderer.md, "Page
+// formats"): their reference holds the same decoded blocks, both levels.
+struct SeamCase {
+    gl::Filter filter;
+    tessera::client::PageFormat format = tessera::client::PageFormat::rgba8;
+    tessera::Codec codec = tessera::Codec::zstd;
+    std::uint32_t border = 4;
+};
+class RenderSeams : public ::testing::TestWithParam<SeamCase> {};
 
 TEST_P(RenderSeams, NoDiscontinuitiesAtPageBordersAtAnyLevel) {
     REQUIRE_GL(ctx);
     ScratchDir dir;
+    const SeamCase& c = GetParam();
     auto pattern = pattern_source(1024, 1024);
-    const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56: borders everywhere
-    const auto cfg = config(GetParam(), 64, 512, /*srgb=*/false, 192, 144);
+    // Tiles of 64: P = 56 (48 with a border of 8), borders everywhere.
+    const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern, c.codec, c.border);
+    auto cfg = config(c.filter, 64, 1024, /*srgb=*/false, 192, 144);  // every page resident (685 with P = 48)
+    cfg.border = c.border;
+    cfg.page_format = c.format;
+    const double P = 64.0 - 2.0 * c.border;
     const auto scene = terrain(1024, 1024, 256);
     auto vt = make_vt(cfg, store, scene);
     ASSERT_TRUE(vt);
     ASSERT_TRUE(load_everything(*vt));
-    auto levels = gl::decode_store_levels(store);
+    auto levels = gl::decode_store_levels(store, 16384, c.format);
     ASSERT_TRUE(levels.ok()) << levels.error().message;
-    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    std::vector<gl::ReferenceRenderer::Level> second;
+    if (tessera::client::is_block_compressed(c.format) && c.filter != gl::Filter::bilinear) {
+        auto s = gl::decode_store_second_levels(store, 16384, c.format);
+        ASSERT_TRUE(s.ok()) << s.error().message;
+        second = std::move(*s);
+    }
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels, {}, second);
     ASSERT_TRUE(ref.ok()) << ref.error().message;
     ASSERT_TRUE((*ref)->set_scene(scene).ok());
 
@@ -752,7 +772,7 @@ TEST_P(RenderSeams, NoDiscontinuitiesAtPageBordersAtAnyLevel) {
     for (const double lod : {-1.3, 0.4, 1.5, 2.6, 3.4, 4.3}) {
         const double tpp = std::exp2(lod);
         const double h = height_for(tpp, straight_down(0, 0, 1), cfg.height);
-        views.push_back({straight_down(56.0 * 9 + 3.3, 56.0 * 8 - 2.6, h), "straight down"});
+        views.push_back({straight_down(P * 9 + 3.3, P * 8 - 2.6, h), "straight down"});
     }
     views.push_back({looking(500, -30, 14, kPi / 2 + 0.3, -0.16), "grazing"});  // anisotropy up to the limit
     views.push_back({looking(-40, 520, 30, 0.05, -0.3), "grazing 2"});
@@ -766,15 +786,24 @@ TEST_P(RenderSeams, NoDiscontinuitiesAtPageBordersAtAnyLevel) {
         EXPECT_GE(e.psnr, 50.0) << v.what << " at z " << v.camera.position[2] << ": max error " << e.max_error;
         EXPECT_LE(e.max_error, 3) << v.what << " at z " << v.camera.position[2];
         EXPECT_EQ(f.counters.fallback_unbiased, 0u);
-        std::printf("  %s %s z=%.1f levels %u..%u: PSNR %.1f dB, max error %d over %llu px\n", filter_name(GetParam()), v.what,
+        std::printf("  %s %s %s z=%.1f levels %u..%u: PSNR %.1f dB, max error %d over %llu px\n",
+                    std::string(tessera::client::to_string(c.format)).c_str(), filter_name(c.filter), v.what,
                     v.camera.position[2], lv.empty() ? 0 : *lv.begin(), lv.empty() ? 0 : *lv.rbegin(), e.psnr, e.max_error,
                     static_cast<unsigned long long>(e.pixels));
     }
 }
 
-INSTANTIATE_TEST_SUITE_P(Filters, RenderSeams,
-                         ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
-                         [](const auto& p) { return std::string(filter_name(p.param)); });
+INSTANTIATE_TEST_SUITE_P(
+    Formats, RenderSeams,
+    ::testing::Values(SeamCase{gl::Filter::bilinear}, SeamCase{gl::Filter::trilinear}, SeamCase{gl::Filter::anisotropic},
+                      SeamCase{gl::Filter::bilinear, PageFormat::bc1, tessera::Codec::zstd, 8},
+                      SeamCase{gl::Filter::trilinear, PageFormat::bc1, tessera::Codec::zstd, 8},
+                      SeamCase{gl::Filter::anisotropic, PageFormat::bc1, tessera::Codec::zstd, 8},
+                      SeamCase{gl::Filter::anisotropic, PageFormat::bc7, tessera::Codec::bc7, 8}),
+    [](const auto& p) {
+        return std::string(tessera::client::to_string(p.param.format)) + "_" + filter_name(p.param.filter) +
+               (p.param.codec == tessera::Codec::zstd ? "" : "_" + std::string(tessera::to_string(p.param.codec)) + "_store");
+    });
 
 // ---------------------------------------------------------------------------------------------
 

@@ -21,6 +21,7 @@ uniform vec4 u_chunk_bounds;
 uniform uvec2 u_texel_origin;
 // Per texture and per frame.
 uniform uint u_levels;
+uniform vec2 u_texture_size;
 uniform int u_table_column;
 uniform int u_table_last_row;
 uniform float u_bias;
@@ -32,6 +33,7 @@ flat out vec2 vt_chunk_base;
 flat out vec4 vt_chunk_bounds;
 flat out uvec2 vt_texel_origin;
 flat out uint vt_levels;
+flat out vec2 vt_texture_size;
 flat out int vt_table_column;
 flat out int vt_table_last_row;
 flat out float vt_bias;
@@ -44,6 +46,7 @@ void main() {
     vt_chunk_bounds = u_chunk_bounds;
     vt_texel_origin = u_texel_origin;
     vt_levels = u_levels;
+    vt_texture_size = u_texture_size;
     vt_table_column = u_table_column;
     vt_table_last_row = u_table_last_row;
     vt_bias = u_bias;

@@ -54,6 +54,7 @@ const float vt_max_anisotropy = VT_MAX_ANISOTROPY;      // 1..8 (anisotropic fil
 const vec4 vt_no_data_colour = VT_NO_DATA_COLOUR;       // entry 0: nothing resident on the path
 
 flat in uint vt_levels;             // levels of the virtual texture (the last one is one page)
+flat in vec2 vt_texture_size;       // its level-0 texels (integers, exact below 2^24)
 flat in float vt_bias;              // LoD bias (0 in the reference renderer)
 // Where level L's entries start in vt_page_table (PageTable::dense_level_origin): level 0 at
 // (0, 0), level L >= 1 at (vt_table_column, (L - 1) + U - (U >> (L - 1))), U = vt_table_last_row.
@@ -184,8 +185,22 @@ VtPos vt_ancestor_position(VtPos p, int d) {
     return a;
 }
 
+// The centres of level `level`'s edge texels, in that level's texels from the start of `page`: xy
+// the first, zw the last (beyond any page but the first and the last). Lookups clamp to them, as
+// GL_CLAMP_TO_EDGE does at every level, so no bilinear footprint reads the tile border outside
+// the texture: it holds copies of the edge texels, which a block format encodes in blocks of their
+// own and decodes differently from the edge. (Levels round up: ceil is the level's size.) Exact:
+// integers below 2^24, and halves relative to the page.
+vec4 vt_centre_bounds(ivec2 page, int level) {
+    vec2 size = ceil(vt_texture_size * vt_exp2_neg(level));
+    vec2 start = vec2(page) * float(vt_payload);
+    // Relative to the page first: near 2^24 a half is not a float, a small offset is.
+    precise vec2 to_end = size - start;
+    return vec4(0.5 - start, to_end - 0.5);
+}
+
 // The level-L position of the fragment at `local` (level-0 texels from the chunk's origin),
-// clamped to the texture (GL_CLAMP_TO_EDGE) with the far bound 1/256 of a level-0 texel inside
+// clamped to the texture's extent with the far bound 1/256 of a level-0 texel inside
 // the edge. Worked out at level 0 first, which needs no level and so runs beside the LoD
 // arithmetic: the page (one division by P, the float quotient one off at most at a page edge,
 // which the range check of the remainder corrects; q - k * P is exact) and the position in it.
@@ -195,7 +210,7 @@ VtPos vt_ancestor_position(VtPos p, int d) {
 // (within 2^-16 of a level-L texel, as any position at level L): the footprint is then the edge
 // texel and its copy in the tile border. (A GPU has time to spare for the LoD chain; a software
 // rasterizer runs these instructions one after the other, and a shorter chain is cheaper.)
-VtPos vt_level_position(vec2 local, int level) {
+VtPos vt_level_position_in_texture(vec2 local, int level) {
     vec2 q0 = clamp(vt_chunk_base + local, vt_chunk_bounds.xy, vt_chunk_bounds.zw - 1.0 / 256.0);
     float payload = float(vt_payload);
     vec2 k = floor(q0 * vt_inv_payload);
@@ -205,6 +220,14 @@ VtPos vt_level_position(vec2 local, int level) {
     p0.page = vt_chunk_page + ivec2(k + fix);
     p0.in_page = r - fix * payload;
     return vt_ancestor_position(p0, level);
+}
+
+// The same, clamped to the level's edge-texel centres (vt_centre_bounds): where a lookup reads.
+VtPos vt_level_position(vec2 local, int level) {
+    VtPos p = vt_level_position_in_texture(local, level);
+    vec4 b = vt_centre_bounds(p.page, level);
+    p.in_page = clamp(p.in_page, b.xy, b.zw);
+    return p;
 }
 
 // The page-table entry of `page` at `level`.
@@ -242,23 +265,45 @@ vec2 vt_cell_origin(uint e) {
 // fraction: trilinear's weight of the next coarser level, which the atlas's second level holds for
 // every resident page; a fallback samples its ancestor at its own level only (both trilinear levels
 // would fall back to it). Ignored by the bilinear filter.
+#if VT_FILTER != VT_BILINEAR
+#ifdef VT_BLOCK_EDGES
+// A trilinear lookup of a block atlas at `coord` (atlas texels), whose coarser level is read at
+// `coarse` instead where the two differ: at the texture's edges, where the page's second-level
+// border holds its own blocks of the edge texels (docs/renderer.md, "Page formats").
+vec4 vt_trilinear_texel(sampler2D atlas, vec2 coord, vec2 coarse, float fraction) {
+    if (fraction == 0.0 || coarse == coord) return textureLod(atlas, coord * vt_inv_atlas_size, fraction);
+    return mix(textureLod(atlas, coord * vt_inv_atlas_size, 0.0), textureLod(atlas, coarse * vt_inv_atlas_size, 1.0), fraction);
+}
+#else
+vec4 vt_trilinear_texel(sampler2D atlas, vec2 coord, vec2 coarse, float fraction) {
+    return textureLod(atlas, coord * vt_inv_atlas_size, fraction);
+}
+#endif
+#endif
+
 vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint resident) {
     int r = int((e >> 24) & 31u);
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
     vec2 cell = vt_cell_origin(e);
+#if VT_FILTER != VT_BILINEAR
+    // The coarser level's own edge-texel centres, half a level-L texel further in.
+    vec4 b = vt_centre_bounds(p.page, level);
+    vec2 coarse = cell + clamp(in_page, b.xy + 0.5, b.zw - 0.5);
+    float f = r > level ? 0.0 : fraction;
+#endif
 #ifdef VT_ATLAS_RECT
     vec4 c = texture(vt_atlas, cell + in_page);
 #elif VT_FILTER == VT_BILINEAR
     vec4 c = textureLod(vt_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
 #else
-    vec4 c = textureLod(vt_atlas, (cell + in_page) * vt_inv_atlas_size, r > level ? 0.0 : fraction);
+    vec4 c = vt_trilinear_texel(vt_atlas, cell + in_page, coarse, f);
 #endif
     bool valid = (e >> 31) != 0u;
 #ifdef VT_LIT
 #if VT_FILTER == VT_BILINEAR
     vec4 second = textureLod(vt_second_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
 #else
-    vec4 second = textureLod(vt_second_atlas, (cell + in_page) * vt_inv_atlas_size, r > level ? 0.0 : fraction);
+    vec4 second = vt_trilinear_texel(vt_second_atlas, cell + in_page, coarse, f);
 #endif
     vt_second_texel = valid ? second : vt_no_data_colour;
 #endif
@@ -377,7 +422,7 @@ VtSample vt_sample(vec2 local) {
     float lc = vt_clamped_lod(lod);
     int l0 = int(lc);
     float payload = float(vt_payload);
-    VtPos p = vt_level_position(local, l0);
+    VtPos p = vt_level_position_in_texture(local, l0);  // the taps' centre: each tap is clamped
     ivec2 low = ivec2(lessThan(p.in_page, vec2(0.5 * payload)));
     ivec2 corner = p.page - low;
     uvec4 block = vt_entries_2x2(corner, l0);
@@ -388,9 +433,8 @@ VtSample vt_sample(vec2 local) {
     float count;
     vt_aniso_taps(dx, dy, lc, axis, count);
     float scale = vt_exp2_neg(l0);
-    vec2 page_start = vec2((corner << l0) - vt_chunk_page) * payload;  // level-0 texels from the chunk's page
-    vec2 lo = (vt_chunk_bounds.xy - page_start) * scale;
-    vec2 hi = (vt_chunk_bounds.zw - page_start) * scale - 1.0 / 256.0;
+    vec4 bounds = vt_centre_bounds(corner, l0);  // the edge texels' centres, from the corner page
+    vec2 lo = bounds.xy, hi = bounds.zw;
     vec2 step = axis * (scale / count);                                                // between taps
     vec2 first = p.in_page + vec2(low) * payload - step * (0.5 * (count - 1.0));  // tap 0
     float fraction = lc - float(l0);
@@ -408,9 +452,10 @@ VtSample vt_sample(vec2 local) {
         bvec2 up = greaterThanEqual(t, vec2(payload));
         vec4 a = up.y ? (up.x ? m11.map : m01.map) : (up.x ? m10.map : m00.map);
         float w = up.y ? (up.x ? m11.weight : m01.weight) : (up.x ? m10.weight : m00.weight);
-        sum += w * textureLod(vt_atlas, (t * a.x + a.yz) * vt_inv_atlas_size, a.w);
+        vec2 coarse = clamp(t, lo + 0.5, hi - 0.5) * a.x + a.yz;  // as vt_sample_entry
+        sum += w * vt_trilinear_texel(vt_atlas, t * a.x + a.yz, coarse, a.w);
 #ifdef VT_LIT
-        second_sum += w * textureLod(vt_second_atlas, (t * a.x + a.yz) * vt_inv_atlas_size, a.w);
+        second_sum += w * vt_trilinear_texel(vt_second_atlas, t * a.x + a.yz, coarse, a.w);
 #endif
         valid += w;
     }

@@ -10,6 +10,13 @@
 
 namespace tessera::client::gl::detail {
 
+namespace {
+bool any_block_layer(const RendererConfig& c) {
+    if (is_block_compressed(c.page_format)) return true;
+    return std::any_of(c.more_layers.begin(), c.more_layers.end(), [](const auto& l) { return is_block_compressed(l.page_format); });
+}
+}  // namespace
+
 std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width, std::uint32_t atlas_height) {
     const int filter = c.filter == Filter::bilinear ? 0 : c.filter == Filter::trilinear ? 1 : 2;  // vt_sample.glsl's VT_*
     return fmt::format(
@@ -22,7 +29,9 @@ std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width
                 ? "#define VT_ATLAS_RECT 1\n"
                 : "") +
            // Lighting by a normal layer: vt_sample also samples that layer's atlas (docs/renderer.md, "Layers").
-           (c.normal_layer && c.show_layer == 0 ? "#define VT_LIT 1\n" : "");
+           (c.normal_layer && c.show_layer == 0 ? "#define VT_LIT 1\n" : "") +
+           // Block atlases' second levels have their own border blocks at the texture's edges.
+           (c.filter != Filter::bilinear && any_block_layer(c) ? "#define VT_BLOCK_EDGES 1\n" : "");
 }
 
 SceneGeometry::SceneGeometry() : vao_(make_vertex_array()) {}

@@ -27,7 +27,7 @@ using namespace detail;
 // the fragment shader: vt_sample.glsl, "Inputs").
 struct VtUniforms {
     GLint view_projection = -1, bias = -1, main_pixel = -1;
-    GLint table_column = -1, table_last_row = -1, levels = -1, texture_id = -1;
+    GLint table_column = -1, table_last_row = -1, levels = -1, texture_size = -1, texture_id = -1;
     GLint page_table = -1, atlas = -1, second_atlas = -1, dir_offset = -1, dir_width = -1;
     ChunkUniforms chunk;
 
@@ -39,6 +39,7 @@ struct VtUniforms {
         table_column = uniform(p, "u_table_column");
         table_last_row = uniform(p, "u_table_last_row");
         levels = uniform(p, "u_levels");
+        texture_size = uniform(p, "u_texture_size");
         texture_id = uniform(p, "vt_texture_id");
         page_table = uniform(p, "vt_page_table");
         dir_offset = uniform(p, "vt_dir_offset");
@@ -427,6 +428,7 @@ private:
         glProgramUniform1i(id, u.table_column, GLint(t.pages[0]));
         glProgramUniform1i(id, u.table_last_row, GLint(t.pages[1]) - 1);
         glProgramUniform1ui(id, u.levels, t.levels);
+        glProgramUniform2f(id, u.texture_size, float(t.texels[0]), float(t.texels[1]));
         glProgramUniform1ui(id, u.texture_id, t.id);
         if (t.sparse) {
             glProgramUniform1uiv(id, u.dir_offset, GLsizei(t.levels), t.dir_offset.data());
