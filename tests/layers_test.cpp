@@ -613,7 +613,7 @@ TEST(LayerBuild, TerrainNormalsFollowTheHeightField) {
     ASSERT_EQ(normal.type, SampleType::u8);
     ASSERT_EQ(height.channels, 1u);
     ASSERT_EQ(height.type, SampleType::u16);
-    const double scale = double(N) * build::kTerrainReliefPerSize;  // texels of height per unit of the field
+    const double scale = double(N) * tessera::storage::kTerrainReliefPerSize;  // texels of height per unit of the field
     auto h = [&](std::int64_t x, std::int64_t y) {
         x = std::clamp<std::int64_t>(x, 0, N - 1);
         y = std::clamp<std::int64_t>(y, 0, N - 1);

@@ -137,6 +137,48 @@ TEST(Terrain, DisplacementIsSmoothDeterministicAndBounded) {
     EXPECT_EQ(terrain_height(o, 5000, 5000), 0.0);
 }
 
+// A height field (a store's height layer) displaces the terrain instead of the height function:
+// its samples at their cell centres exactly, bilinear between them, clamped beyond the edges.
+TEST(Terrain, AHeightFieldDisplacesTheGroundBilinearly) {
+    TerrainOptions o;
+    o.vt_width = o.vt_height = 1024;
+    o.chunk_texels = 512;
+    o.quads_per_chunk = 8;
+    o.displacement = 200;
+    auto f = std::make_shared<HeightField>();
+    f->width = 4;
+    f->height = 2;  // cells of 256 x 512 texels: centres at x = 128, 384, 640, 896 and y = 256, 768
+    f->samples = {0.0f, 0.25f, 0.5f, 1.0f,  //
+                  1.0f, 0.75f, 0.5f, 0.0f};
+    o.heights = f;
+    auto s = make_terrain(o);
+    ASSERT_TRUE(s.ok()) << s.error().message;
+    EXPECT_DOUBLE_EQ(terrain_height(o, 128, 256), 0.0);
+    EXPECT_DOUBLE_EQ(terrain_height(o, 896, 256), 200.0);
+    EXPECT_DOUBLE_EQ(terrain_height(o, 128, 768), 200.0);
+    EXPECT_DOUBLE_EQ(terrain_height(o, 256, 256), 25.0);   // halfway between 0 and 0.25
+    EXPECT_DOUBLE_EQ(terrain_height(o, 128, 512), 100.0);  // halfway between 0 and 1
+    EXPECT_DOUBLE_EQ(terrain_height(o, 0, 0), 0.0);        // clamped to the corner sample
+    EXPECT_DOUBLE_EQ(terrain_height(o, 1024, 0), 200.0);
+    double lo = 1e9, hi = -1e9;
+    for (const Chunk& c : s->chunks)
+        for (const Vertex& v : c.vertices) {
+            const double z = terrain_height(o, c.origin[0] + v.position[0], c.origin[1] + v.position[1]);
+            EXPECT_FLOAT_EQ(v.position[2], static_cast<float>(z));
+            EXPECT_GE(z, c.bounds_min[2]);
+            EXPECT_LE(z, c.bounds_max[2]);
+            lo = std::min(lo, z);
+            hi = std::max(hi, z);
+        }
+    EXPECT_DOUBLE_EQ(lo, 0.0);
+    EXPECT_DOUBLE_EQ(hi, 200.0);
+
+    f->samples.pop_back();  // not width x height samples
+    EXPECT_FALSE(make_terrain(o).ok());
+    f->samples.push_back(std::nanf(""));
+    EXPECT_FALSE(make_terrain(o).ok());
+}
+
 TEST(Terrain, BadOptions) {
     TerrainOptions o;
     EXPECT_FALSE(make_terrain(o).ok());  // zero size

@@ -50,7 +50,8 @@ Command add_demo(CLI::App& app) {
     c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
     c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
     c->add_flag("--layers", a->layers,
-                "a multi-layer store: colour (JPEG), normals (BC5) and heights (16-bit), the colour lit by the normals");
+                "a multi-layer store: colour (JPEG), normals (BC5) and heights (16-bit); the ground displaced by the heights "
+                "and lit by the normals");
     c->add_flag("--no-pace", a->no_pace,
                 "render as fast as the GPU can (default: each frame held to 1/60 s of wall time, as a display would)");
     return [a]() -> int {
@@ -123,6 +124,8 @@ Command add_demo(CLI::App& app) {
         vo.psnr_every = a->psnr_every;
         vo.prefetch_lod = a->prefetch_lod;
         vo.guard_band = a->guard_band;
+        // With layers, the ground is the height layer's, at the relief its normals were made for.
+        if (a->layers) vo.displacement = 2.0 * a->size * storage::kTerrainReliefPerSize;
         // Paced like a 60 Hz display: unpaced, a GPU renders the 60-frames-per-second path many
         // times faster than tiles can arrive, which no viewer on a screen would do.
         vo.pace = !a->no_pace;

@@ -20,7 +20,9 @@ Command add_view(CLI::App& app) {
     c->add_option("--store", o->store, "FILE.tsr, or a server store: grpc://HOST:PORT/NAME (grpcs:// for TLS)")->required();
     c->add_option("--scene", o->scene, "terrain, or an atlas OBJ written by `tessera build --atlas --obj-out`")
         ->capture_default_str();
-    c->add_option("--displacement", o->displacement, "terrain: peak height of the displaced ground (0: flat)")
+    c->add_option("--displacement", o->displacement,
+                  "terrain: peak height of the displaced ground (0: flat); with a one-channel layer named height, "
+                  "the ground follows that layer, its full range spanning this height")
         ->capture_default_str();
     c->add_option("--path", o->path, "camera path: flyover, dive, whip, walk, or a path file (docs/paths.md)")
         ->capture_default_str();

@@ -17,6 +17,7 @@
 
 #include "atomic_file.hpp"
 #include "commands.hpp"
+#include "height_layer.hpp"
 #include "png_write.hpp"
 #include "progress.hpp"
 #include "svg_plot.hpp"
@@ -330,6 +331,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     if (auto st = r.add_texture(*texture, *rt.texture_info(*texture)); !st.ok()) throw Failure(st.error().message);
 
     // Scene and path.
+    std::string displaced_by;  // the layer the terrain follows, for the summary
     Result<scene::Scene> sc = [&]() -> Result<scene::Scene> {
         if (o.scene == "terrain") {
             scene::TerrainOptions t;
@@ -338,6 +340,17 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             t.displacement = o.displacement;
             // Keep the vertex count sane for huge textures: at most 64 chunks per side.
             while (std::max(info->width, info->height) / t.chunk_texels > 64) t.chunk_texels *= 2;
+            // A store with a height layer: the ground follows it, one quad per height sample up
+            // to 128 quads per chunk (the normal layer lights the detail between them).
+            if (const auto layer = height_layer(*info); layer && o.displacement > 0) {
+                const std::uint64_t chunks = (std::max(info->width, info->height) + t.chunk_texels - 1) / t.chunk_texels;
+                t.quads_per_chunk = 128;
+                auto h = read_height_layer(*source, 0, *info, *layer, std::uint32_t(std::min<std::uint64_t>(chunks * 128, 1u << 16)));
+                if (!h) return h.error();
+                t.heights = h->field;
+                displaced_by = fmt::format("layer {} (level {}, {}x{} samples, {} tiles)", info->layers[*layer].name, h->level,
+                                               h->field->width, h->field->height, h->tiles);
+            }
             return scene::make_terrain(t);
         }
         return scene::load_obj_scene(o.scene, info->width, info->height);
@@ -391,6 +404,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         for (std::uint32_t i = 1; i <= o.png_count; ++i) png_frames.push_back(frames * i / (o.png_count + 1));
 
     ViewerReport rep;
+    rep.displaced_by = displaced_by;
     rep.renderer = (*ctx)->renderer();
     rep.page_format = rc.page_format;
     rep.pool_pages = rc.pool_slots;
@@ -744,6 +758,7 @@ std::string summary_text(const ViewerReport& rep) {
     s += fmt::format("GPU pool      {} pages of {}, {} per page, {} in all; {:.1f} M texels\n", rep.pool_pages,
                      client::to_string(rep.page_format), human_bytes(rep.gpu_page_bytes),
                      human_bytes(rep.gpu_page_bytes * rep.pool_pages), double(rep.pool_texels) / 1e6);
+    if (!rep.displaced_by.empty()) s += fmt::format("terrain       displaced by {}\n", rep.displaced_by);
     if (!rep.layers.empty()) {
         std::string layers;
         for (const auto& l : rep.layers) layers += (layers.empty() ? "" : ", ") + l;

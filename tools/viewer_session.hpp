@@ -17,7 +17,7 @@ struct ViewerOptions {
     std::string store;            // FILE.tsr, grpc://HOST:PORT/NAME, grpcs://HOST:PORT/NAME or HOST:PORT/NAME
     std::string reference_store;  // local .tsr for the PSNR reference (default: `store` when it is a file)
     std::string scene = "terrain";  // "terrain" or an atlas OBJ file (tessera build --atlas --obj-out)
-    double displacement = 0;      // terrain height, world units (0: flat)
+    double displacement = 0;      // terrain height, world units (0: flat); a store's height layer spans it
     std::string path = "flyover";  // built-in name or a path file
     std::uint32_t width = 1280, height = 720;
     bool headless = true;
@@ -107,6 +107,7 @@ struct ViewerReport {
     // has one), pages, and texels of level 0.
     client::PageFormat page_format = client::PageFormat::rgba8;
     std::vector<std::string> layers;  // a multi-layer pool's layers: "name format", in order
+    std::string displaced_by;  // the layer the terrain follows ("layer height (level 4, ...)"), or empty
     std::uint64_t gpu_page_bytes = 0;
     std::uint32_t pool_pages = 0;
     std::uint64_t pool_texels = 0;

@@ -1,5 +1,6 @@
 // The `terrain` scene: the virtual texture on a ground plane, cut into chunks with double-precision
-// origins and integer texel origins, optionally displaced by a smooth deterministic height field.
+// origins and integer texel origins, optionally displaced by a height field (a store's height
+// layer) or a smooth deterministic height function.
 #include <algorithm>
 #include <cmath>
 #include <numbers>
@@ -17,6 +18,19 @@ constexpr std::uint64_t kMaxVertices = std::uint64_t(1) << 26;
 
 double terrain_height(const TerrainOptions& o, double x, double y) {
     if (o.displacement == 0) return 0;
+    if (o.heights) {
+        const HeightField& f = *o.heights;
+        // Sample (i, j) sits at the centre of cell (i, j): grid position (x / cell) - 0.5.
+        const double gx = std::clamp(x * f.width / std::max(1.0, double(o.vt_width)) - 0.5, 0.0, double(f.width - 1));
+        const double gy = std::clamp(y * f.height / std::max(1.0, double(o.vt_height)) - 0.5, 0.0, double(f.height - 1));
+        const auto x0 = static_cast<std::uint32_t>(gx), y0 = static_cast<std::uint32_t>(gy);
+        const std::uint32_t x1 = std::min(x0 + 1, f.width - 1), y1 = std::min(y0 + 1, f.height - 1);
+        const double fx = gx - x0, fy = gy - y0;
+        const auto at = [&](std::uint32_t i, std::uint32_t j) { return double(f.samples[std::size_t(j) * f.width + i]); };
+        const double top = at(x0, y0) + (at(x1, y0) - at(x0, y0)) * fx;
+        const double bottom = at(x0, y1) + (at(x1, y1) - at(x0, y1)) * fx;
+        return o.displacement * (top + (bottom - top) * fy);
+    }
     // A few products of sines with wavelengths proportional to the terrain's size; the weights sum
     // to 1 and each term lies in [-1, 1], so the height stays within [0, displacement].
     const double size = std::max({1.0, double(o.vt_width), double(o.vt_height)});
@@ -40,6 +54,11 @@ Result<Scene> make_terrain(const TerrainOptions& o) {
     if (o.quads_per_chunk == 0) return make_error(Errc::invalid_argument, "terrain: quads_per_chunk must be at least 1");
     if (!std::isfinite(o.displacement) || o.displacement < 0)
         return make_error(Errc::invalid_argument, "terrain: displacement must be finite and not negative");
+    if (o.heights && (o.heights->width == 0 || o.heights->height == 0 ||
+                      o.heights->samples.size() != std::size_t(o.heights->width) * o.heights->height))
+        return make_error(Errc::invalid_argument, "terrain: the height field has no samples or not width x height of them");
+    if (o.heights && !std::all_of(o.heights->samples.begin(), o.heights->samples.end(), [](float v) { return std::isfinite(v); }))
+        return make_error(Errc::invalid_argument, "terrain: the height field holds a NaN or an infinity");
     const std::uint64_t cx_count = (std::uint64_t(o.vt_width) + o.chunk_texels - 1) / o.chunk_texels;
     const std::uint64_t cy_count = (std::uint64_t(o.vt_height) + o.chunk_texels - 1) / o.chunk_texels;
     const std::uint64_t q = o.quads_per_chunk;

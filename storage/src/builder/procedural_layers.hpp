@@ -8,15 +8,10 @@
 #include <cstdint>
 #include <memory>
 
+#include "tessera/storage/builder.hpp"  // kTerrainReliefPerSize: the relief the normals assume
 #include "tessera/storage/image_source.hpp"
 
 namespace tessera::storage::build {
-
-// The relief the normals assume: a height h (the field's value, in [-1, 1]) stands
-// h * size * kTerrainReliefPerSize level-0 texels above the sea, so the full range of the height
-// layer (0 to 65535) spans 2 * size * kTerrainReliefPerSize texels. Relative to the size, so that
-// the terrain's slopes look the same at any size (its coarse octaves scale with the size).
-inline constexpr float kTerrainReliefPerSize = 0.0625f;
 
 std::unique_ptr<ImageSource> make_terrain_height_source(std::uint32_t size);
 std::unique_ptr<ImageSource> make_terrain_normal_source(std::uint32_t size);

@@ -64,6 +64,13 @@ Result<BuildSummary> build_store(const std::string& input, const std::string& ou
 Result<BuildSummary> build_store(ImageSource& source, const std::string& output, const BuildOptions& options,
                                  const BuildProgressFn& progress = {});
 
+// The procedural terrain's relief (procedural:terrain-height:SIZE, procedural:terrain-normal:SIZE):
+// a height h in [-1, 1] (stored as 0..65535) stands h * size * kTerrainReliefPerSize level-0 texels
+// above the sea, so the height layer's full range spans 2 * size * kTerrainReliefPerSize texels,
+// the relief its normal layer is lit for. Relative to the size, so that the terrain's slopes look
+// the same at any size (its coarse octaves scale with the size).
+inline constexpr float kTerrainReliefPerSize = 0.0625f;
+
 // One layer of a multi-layer build (`tessera build --layer NAME[:CODEC]=INPUT`).
 struct LayerInput {
     std::string name;            // 1..31 bytes of [a-z0-9_-], unique in the store

@@ -6,6 +6,7 @@
 // its vertices carry float texel offsets relative to it, small enough to be exact to a fraction of
 // a texel; likewise positions are float offsets from a double-precision chunk origin.
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -48,15 +49,27 @@ struct Scene {
     double chunk_pitch = 0;
 };
 
+// Heights over the whole virtual texture, e.g. a level of a store's height layer: width x height
+// samples in [0, 1], row-major from (0, 0), sample (i, j) at the centre of the texture's cell
+// (i, j) of that grid. Read bilinearly, clamped at the edges.
+struct HeightField {
+    std::uint32_t width = 0, height = 0;
+    std::vector<float> samples;
+};
+
 struct TerrainOptions {
     std::uint32_t vt_width = 0;   // the virtual texture's size: the plane is vt_width x vt_height
     std::uint32_t vt_height = 0;  // world units (one unit per level-0 texel), from (0,0) to (w,h)
     std::uint32_t chunk_texels = 4096;  // chunk side in level-0 texels (the last row/column may be smaller)
     std::uint32_t quads_per_chunk = 16;  // grid resolution per chunk side
     double displacement = 0;  // peak height in world units; 0: a flat plane (z = 0)
+    // Where the heights come from: this field (height = displacement * sample), or when null a
+    // smooth deterministic function of the position.
+    std::shared_ptr<const HeightField> heights;
 };
-// The `terrain` scene: one virtual texture on a ground plane (optionally displaced by a smooth
-// deterministic height function). Errors: zero sizes, chunk_texels or quads_per_chunk 0.
+// The `terrain` scene: one virtual texture on a ground plane, optionally displaced (by `heights`
+// or the height function). Errors: zero sizes, chunk_texels or quads_per_chunk 0, a height field
+// with no samples or a wrong number of them.
 Result<Scene> make_terrain(const TerrainOptions& options);
 
 // True when no triangle of the scene can hide another: all lie in one plane and face the same way
@@ -66,7 +79,8 @@ Result<Scene> make_terrain(const TerrainOptions& options);
 // (Chunk::grid_quads), which it draws front to back.
 bool overdraw_free(const Scene& scene);
 
-// Height of the displaced terrain at world (x, y) (0 when displacement is 0); what make_terrain uses.
+// Height of the displaced terrain at world (x, y) (0 when displacement is 0); what make_terrain uses
+// (options.heights read bilinearly, or the height function).
 double terrain_height(const TerrainOptions& options, double x, double y);
 
 // The `atlas` scene: an OBJ file whose texture coordinates address the packed atlas virtual
