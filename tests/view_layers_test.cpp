@@ -1,6 +1,6 @@
 // `tessera view` on a multi-layer store: the terrain displaced by the store's height layer, read
-// through the viewer's own tile source (a file, or a server over gRPC), and the geometry it makes
-// (headless, llvmpipe, tiny images).
+// through the viewer's own tile source (a file, or a server over gRPC), and each layer's page
+// format (headless, llvmpipe, tiny images).
 #include <gtest/gtest.h>
 
 #include <regex>
@@ -52,6 +52,26 @@ TEST(ViewLayers, AHeightLayerDisplacesTheTerrainOverGrpc) {
     auto r = run_tessera(view("grpc://" + server.grpc_address() + "/layers", "--displacement 64"));
     ASSERT_EQ(r.exit_code, 0) << r.out << server.log();
     EXPECT_EQ(displaced_line(r.out), "layer height (level 2, 128x128 samples, 4 tiles)") << r.out;
+}
+
+// Each layer's page format can be chosen: BC5 normals decoded to RGBA8, the colour encoded to BC1
+// on the transcode threads; a format a layer cannot take, or a layer the store lacks, is an error
+// naming it.
+TEST(ViewLayers, EachLayersPageFormatCanBeChosen) {
+    const std::string store = cached_store(kLayers, "layers.tsr");
+    auto r = run_tessera(view(store, "--layer-format normal=rgba8 --layer-format colour=bc1"));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_NE(r.out.find("layers        3 per page: colour bc1, normal rgba8, height r16"), std::string::npos) << r.out;
+
+    auto misfit = run_tessera(view(store, "--layer-format normal=bc4"));
+    EXPECT_NE(misfit.exit_code, 0);
+    EXPECT_NE(misfit.out.find("layer normal: page format bc4 does not fit this store"), std::string::npos) << misfit.out;
+    auto unknown = run_tessera(view(store, "--layer-format relief=bc4"));
+    EXPECT_NE(unknown.exit_code, 0);
+    EXPECT_NE(unknown.out.find("NAME one of colour, normal, height"), std::string::npos) << unknown.out;
+    auto single = run_tessera(view(cached_store("procedural:terrain:512 --tile-size 128", "terrain.tsr"), "--layer-format colour=bc1"));
+    EXPECT_NE(single.exit_code, 0);
+    EXPECT_NE(single.out.find("the store has one layer"), std::string::npos) << single.out;
 }
 
 TEST(ViewLayers, AStoreWithoutAHeightLayerKeepsTheHeightFunction) {

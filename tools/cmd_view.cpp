@@ -47,6 +47,9 @@ Command add_view(CLI::App& app) {
     c->add_option("--show-layer", o->show_layer,
                   "a multi-layer store: the layer to draw (default: the first; a layer named \"normal\" lights it)");
     c->add_flag("--unlit", o->unlit, "a multi-layer store: do not light the first layer by its \"normal\" layer");
+    c->add_option("--layer-format", o->layer_formats,
+                  "a multi-layer store: NAME=FORMAT, a layer's page format (as --page-format; repeatable; default: its "
+                  "block format, or its 16-bit/float samples exactly, else rgba8)");
     c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
     c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();
     c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size")->capture_default_str();

@@ -214,6 +214,7 @@ client::PageFormat layer_page_format(const storage::LayerInfo& l) {
 void configure_layers(const storage::StoreInfo& info, const ViewerOptions& o, client::gl::RendererConfig& rc) {
     if (!info.layered()) {
         if (!o.show_layer.empty()) throw Failure(fmt::format("--show-layer '{}': the store has one layer", o.show_layer));
+        if (!o.layer_formats.empty()) throw Failure(fmt::format("--layer-format '{}': the store has one layer", o.layer_formats[0]));
         return;
     }
     for (std::size_t i = 1; i < info.layers.size(); ++i)
@@ -226,6 +227,23 @@ void configure_layers(const storage::StoreInfo& info, const ViewerOptions& o, cl
     }
     if (!o.show_layer.empty() && info.layers[rc.show_layer].name != o.show_layer)
         throw Failure(fmt::format("--show-layer '{}': the store's layers are {}", o.show_layer, names));
+    // Chosen formats; whether each fits its layer is checked with the pool (the error names it).
+    for (const auto& spec : o.layer_formats) {
+        const auto eq = spec.find('=');
+        const std::string name = spec.substr(0, eq), format = eq == std::string::npos ? "" : spec.substr(eq + 1);
+        const auto it = std::find_if(info.layers.begin(), info.layers.end(), [&](const auto& l) { return l.name == name; });
+        if (eq == std::string::npos || it == info.layers.end())
+            throw Failure(fmt::format("--layer-format '{}': expected NAME=FORMAT with NAME one of {}", spec, names));
+        const auto i = std::size_t(it - info.layers.begin());
+        client::PageFormat& f = i == 0 ? rc.page_format : rc.more_layers[i - 1].page_format;
+        if (format == "auto") {
+            f = layer_page_format(*it);
+        } else if (const auto parsed = client::parse_page_format(format)) {
+            f = *parsed;
+        } else {
+            throw Failure(fmt::format("--layer-format '{}': expected auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f", spec));
+        }
+    }
     // The drawn layer's colour space decides the target's: data layers are shown as they are.
     rc.srgb = info.layers[rc.show_layer].colour_space == storage::ColourSpace::srgb;
 }

@@ -34,9 +34,11 @@ struct ViewerOptions {
     // A multi-layer store (docs/renderer.md, "Layers"): which layer to draw (empty: the first), and
     // whether a layer named "normal" lights the first one (on unless `unlit`). Layers after the
     // first keep their store's block format, or their 16-bit/float samples exactly (r16, r16f,
-    // r32f), else rgba8; --page-format is the first layer's.
+    // r32f), else rgba8; --page-format is the first layer's. `layer_formats`: "NAME=FORMAT" each,
+    // a layer's page format chosen (FORMAT as page_format; a misfit is an error naming the layer).
     std::string show_layer;
     bool unlit = false;
+    std::vector<std::string> layer_formats;
     client::gl::Filter filter = client::gl::Filter::trilinear;
     std::uint32_t anisotropy = 8;
     std::uint32_t feedback_scale = 8;
