@@ -403,9 +403,9 @@ std::unique_ptr<Vt> expect_matches_reference(const gl::RendererConfig& cfg, cons
                                              std::span<const sc::Camera> cameras, double min_psnr = 50.0,
                                              int max_error = 3, bool lossless_reference = false,
                                              double max_off_fraction = 0.001, tessera::Codec codec = tessera::Codec::zstd,
-                                             std::uint32_t border = 4) {
+                                             std::uint32_t border = 4, const std::string& input = "procedural:terrain:2048") {
     ScratchDir dir;
-    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:2048", 128, nullptr, codec, border);
+    const std::string store = build_store(dir.file("terrain.tsr"), input, 128, nullptr, codec, border);
     return expect_store_matches_reference(cfg, store, scene, cameras, min_psnr, max_error, lossless_reference, max_off_fraction);
 }
 
@@ -448,6 +448,7 @@ struct BlockCase {
     double max_off_fraction;  // of pixels off by more than 3
     tessera::Codec store_codec = tessera::Codec::zstd;  // a block codec: the builder's blocks, uploaded as stored
     std::uint32_t border = 4;
+    const char* input = "procedural:terrain:2048";  // bc4: the terrain's 16-bit heights (one channel)
 };
 class RenderBlockPages : public ::testing::TestWithParam<BlockCase> {};
 
@@ -462,7 +463,7 @@ TEST_P(RenderBlockPages, MatchTheReference) {
         straight_down(700.5, 900.25, height_for(1.7, straight_down(0, 0, 1), cfg.height)),
     };
     const auto vt = expect_matches_reference(cfg, terrain(2048, 2048, 512), cameras, b.min_psnr, b.max_error,
-                                             b.lossless_reference, b.max_off_fraction, b.store_codec, b.border);
+                                             b.lossless_reference, b.max_off_fraction, b.store_codec, b.border, b.input);
     ASSERT_TRUE(vt);
     EXPECT_EQ(vt->renderer->pool_format().format, b.format);
     EXPECT_EQ(vt->renderer->pool_format().second_level, b.filter != gl::Filter::bilinear);
@@ -476,6 +477,10 @@ INSTANTIATE_TEST_SUITE_P(
                       BlockCase{PageFormat::bc1, gl::Filter::trilinear, true, false, 50.0, 32, 0.001, tessera::Codec::zstd, 8},
                       BlockCase{PageFormat::bc1, gl::Filter::anisotropic, true, false, 50.0, 32, 0.001, tessera::Codec::zstd, 8},
                       BlockCase{PageFormat::bc5, gl::Filter::trilinear, false, false, 50.0, 3, 0.0, tessera::Codec::zstd, 8},
+                      BlockCase{PageFormat::bc4, gl::Filter::bilinear, false, false, 50.0, 3, 0.0, tessera::Codec::zstd, 4,
+                                "procedural:terrain-height:2048"},
+                      BlockCase{PageFormat::bc4, gl::Filter::trilinear, false, false, 50.0, 3, 0.0, tessera::Codec::zstd, 8,
+                                "procedural:terrain-height:2048"},
                       BlockCase{PageFormat::bc1, gl::Filter::trilinear, true, true, 32.0, 255, 1.0},
                       BlockCase{PageFormat::bc1, gl::Filter::bilinear, true, false, 50.0, 32, 0.001, tessera::Codec::bc1},
                       BlockCase{PageFormat::bc7, gl::Filter::bilinear, true, false, 50.0, 32, 0.001, tessera::Codec::bc7},
