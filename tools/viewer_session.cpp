@@ -522,6 +522,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     auto last_title = start;
     double lat_count = 0, lat_sum_ms = 0;
     std::uint32_t done = 0;
+    std::vector<std::uint8_t> pop_before, pop_ref_before;  // the frame before a compared one, and its reference
+    std::uint32_t pop_before_frame = UINT32_MAX;
     for (std::uint32_t f = 0; f < frames || (win && o.frames == 0); ++f) {
         const auto t0 = Clock::now();
         watch_link(t0);
@@ -572,9 +574,19 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         take_counters();
         rec.frame_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 
-        // Measurements that wait for the GPU happen outside the timed part of the frame.
+        // Measurements that wait for the GPU happen outside the timed part of the frame. The frame
+        // before each compared one is kept with its reference, for popping between the two.
         const bool png = std::find(png_frames.begin(), png_frames.end(), f) != png_frames.end();
-        const bool psnr = reference && o.psnr_every && (f % o.psnr_every == o.psnr_every - 1 || f + 1 == frames);
+        const auto compared = [&](std::uint32_t i) {
+            return reference && o.psnr_every && (i % o.psnr_every == o.psnr_every - 1 || i + 1 == frames);
+        };
+        const bool psnr = compared(f);
+        if (!win && !psnr && f + 1 < frames && compared(f + 1)) {
+            pop_before = r.read_color();
+            reference->render(cam);
+            pop_ref_before = reference->read_color();
+            pop_before_frame = f;
+        }
         if (png || psnr) {
             const auto color = r.read_color();
             if (png) {
@@ -588,6 +600,18 @@ ViewerReport run_viewer(const ViewerOptions& o) {
                 const auto err = client::gl::compare_images(color, ref, o.width, o.height);
                 rec.psnr = err.psnr;
                 rec.max_error = err.max_error;
+                if (f > 0 && pop_before_frame == f - 1) {
+                    const auto pops = client::gl::count_pops(pop_before, color, pop_ref_before, ref, o.width, o.height);
+                    if (pops.pixels > 0) {
+                        rec.pop_rate = pops.rate();
+                        rec.pop_largest = pops.largest;
+                    }
+                }
+                if (!win && f + 1 < frames && compared(f + 1)) {  // compared every frame: the next pair's first
+                    pop_before = color;
+                    pop_ref_before = ref;
+                    pop_before_frame = f;
+                }
                 if (png) {
                     const std::string file = (fs::path(o.out_dir) / fmt::format("reference_{:05}.png", f)).string();
                     write_png(file, o.width, o.height, ref);
@@ -673,6 +697,27 @@ double ViewerReport::min_psnr() const {
         if (!std::isnan(f.psnr)) m = std::isnan(m) ? f.psnr : std::min(m, f.psnr);
     return m;
 }
+double ViewerReport::mean_pop_rate() const {
+    double s = 0;
+    std::size_t n = 0;
+    for (const auto& f : frames)
+        if (!std::isnan(f.pop_rate)) s += f.pop_rate, ++n;
+    return n ? s / double(n) : kNaN;
+}
+double ViewerReport::max_pop_rate() const {
+    double m = kNaN;
+    for (const auto& f : frames)
+        if (!std::isnan(f.pop_rate)) m = std::isnan(m) ? f.pop_rate : std::max(m, f.pop_rate);
+    return m;
+}
+int ViewerReport::largest_pop() const {
+    int m = -1;
+    for (const auto& f : frames) m = std::max(m, f.pop_largest);
+    return m;
+}
+std::size_t ViewerReport::pop_pairs() const {
+    return std::size_t(std::count_if(frames.begin(), frames.end(), [](const auto& f) { return !std::isnan(f.pop_rate); }));
+}
 int ViewerReport::max_error() const {
     int m = -1;
     for (const auto& f : frames) m = std::max(m, f.max_error);
@@ -716,7 +761,7 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
         else
             out << "frame,time_s,frame_ms,pages_wanted,pages_resident,pages_requested,pages_uploaded,pages_evicted,"
                    "lod_bias,textured_pixels,fallback_pixels,fallback_pixels_biased,fallback_rate,fallback_rate_biased,"
-                   "tile_latency_ms,bytes_received,psnr_db,max_error,connected,unserved_s\n";
+                   "tile_latency_ms,bytes_received,psnr_db,max_error,connected,unserved_s,pop_rate,pop_largest\n";
         for (std::size_t i = 0; i < rep.frames.size(); ++i) {
             const auto& f = rep.frames[i];
             if (json)
@@ -725,22 +770,30 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
                     "\"pages_requested\": {}, \"pages_uploaded\": {}, \"pages_evicted\": {}, \"lod_bias\": {}, "
                     "\"textured_pixels\": {}, \"fallback_pixels\": {}, \"fallback_pixels_biased\": {}, "
                     "\"fallback_rate\": {}, \"fallback_rate_biased\": {}, \"tile_latency_ms\": {}, "
-                    "\"bytes_received\": {}, \"psnr_db\": {}, \"max_error\": {}, \"connected\": {}, \"unserved_s\": {}}}{}\n",
+                    "\"bytes_received\": {}, \"psnr_db\": {}, \"max_error\": {}, \"connected\": {}, \"unserved_s\": {}, "
+                    "\"pop_rate\": {}, \"pop_largest\": {}}}{}\n",
                     f.frame, jnum(f.time_s), jnum(f.frame_ms), f.pages_wanted, f.pages_resident, f.pages_requested,
                     f.pages_uploaded, f.pages_evicted, jnum(f.bias), f.textured_pixels, f.fallback_unbiased,
                     f.fallback_biased, jnum(f.fallback_rate()), jnum(f.fallback_rate_biased()), jnum(f.tile_latency_ms),
                     f.bytes_received, jnum(std::min(f.psnr, 999.0)), f.max_error < 0 ? "null" : std::to_string(f.max_error),
-                    f.connected, jnum(f.unserved_s), i + 1 < rep.frames.size() ? "," : "");
+                    f.connected, jnum(f.unserved_s), jnum(f.pop_rate), f.pop_largest < 0 ? "null" : std::to_string(f.pop_largest),
+                    i + 1 < rep.frames.size() ? "," : "");
             else
-                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.time_s),
+                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.time_s),
                                    num(f.frame_ms), f.pages_wanted, f.pages_resident, f.pages_requested,
                                    f.pages_uploaded, f.pages_evicted, num(f.bias), f.textured_pixels,
                                    f.fallback_unbiased, f.fallback_biased, num(f.fallback_rate()),
                                    num(f.fallback_rate_biased()), num(f.tile_latency_ms), f.bytes_received,
                                    num(std::min(f.psnr, 999.0)), f.max_error < 0 ? "" : std::to_string(f.max_error),
-                                   f.connected ? 1 : 0, num(f.unserved_s));
+                                   f.connected ? 1 : 0, num(f.unserved_s), num(f.pop_rate),
+                                   f.pop_largest < 0 ? "" : std::to_string(f.pop_largest));
         }
-        if (json) out << "], \"summary\": " << rep.summary.to_json() << "}\n";
+        if (json)
+            out << "], "
+                << fmt::format("\"popping\": {{\"mean_rate\": {}, \"max_rate\": {}, \"largest\": {}, \"pairs\": {}}}, ",
+                               jnum(rep.mean_pop_rate()), jnum(rep.max_pop_rate()),
+                               rep.largest_pop() < 0 ? "null" : std::to_string(rep.largest_pop()), rep.pop_pairs())
+                << "\"summary\": " << rep.summary.to_json() << "}\n";
     });
 }
 
@@ -796,6 +849,9 @@ std::string summary_text(const ViewerReport& rep) {
     if (!std::isnan(psnr))
         s += fmt::format("PSNR          mean {:.2f} dB, min {:.2f} dB, max error {} (against the reference)\n", psnr,
                          rep.min_psnr(), rep.max_error());
+    if (const double pop = rep.mean_pop_rate(); !std::isnan(pop))
+        s += fmt::format("popping       mean {:.4f}% of covered pixels per frame, max {:.4f}%, largest jump {} ({} frame pairs)\n",
+                         100 * pop, 100 * rep.max_pop_rate(), rep.largest_pop(), rep.pop_pairs());
     s += fmt::format("tile latency  p50 {:.2f} ms, p99 {:.2f} ms, max {:.2f} ms ({} pages, request -> mapped)\n",
                      lat.quantile(0.5), lat.quantile(0.99), lat.max_ms(), lat.count());
     s += fmt::format("bytes         {} received, {} uploaded\n", human_bytes(rep.summary.bytes_received()),

@@ -94,6 +94,11 @@ struct FrameRecord {
     std::uint64_t bytes_received = 0;
     double psnr = kNaN;
     int max_error = -1;
+    // Popping since the previous frame (docs/viewer.md, "Measures"), on the frames compared with
+    // the reference whose previous frame was too: the fraction of covered pixels that popped
+    // (NaN: not measured) and the largest change the reference did not make.
+    double pop_rate = kNaN;
+    int pop_largest = -1;
     bool connected = true;  // the tile source's link was up when the frame ran
     double unserved_s = 0;  // seconds the link has been down so far in the run (warm-up included)
     double fallback_rate() const { return textured_pixels ? double(fallback_unbiased) / double(textured_pixels) : kNaN; }
@@ -133,6 +138,10 @@ struct ViewerReport {
     double mean_psnr() const;             // over the compared frames (NaN: none)
     double min_psnr() const;
     int max_error() const;
+    double mean_pop_rate() const;         // over the measured frame pairs (NaN: none)
+    double max_pop_rate() const;
+    int largest_pop() const;              // -1: none measured
+    std::size_t pop_pairs() const;
     double frame_ms_quantile(double q) const;
     double mean_frame_ms() const;
     double cache_hit_ratio() const;       // (RAM + disk hits) / requests that found data anywhere

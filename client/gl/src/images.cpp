@@ -134,4 +134,24 @@ ImageError compare_images(std::span<const std::uint8_t> a, std::span<const std::
     return e;
 }
 
+PopCount count_pops(std::span<const std::uint8_t> before, std::span<const std::uint8_t> after, std::span<const std::uint8_t> ref_before,
+                    std::span<const std::uint8_t> ref_after, std::uint32_t width, std::uint32_t height, int threshold) {
+    const std::size_t n = std::size_t(width) * height;
+    PopCount c;
+    if (before.size() != n * 4 || after.size() != n * 4 || ref_before.size() != n * 4 || ref_after.size() != n * 4) return c;
+    for (std::size_t i = 0; i < n; ++i) {
+        if (ref_before[i * 4 + 3] == 0 || ref_after[i * 4 + 3] == 0) continue;
+        ++c.pixels;
+        int d = 0;
+        for (std::size_t ch = 0; ch < 3; ++ch) {
+            const int vt = int(after[i * 4 + ch]) - int(before[i * 4 + ch]);
+            const int ref = int(ref_after[i * 4 + ch]) - int(ref_before[i * 4 + ch]);
+            d = std::max(d, std::abs(vt - ref));
+        }
+        c.largest = std::max(c.largest, d);
+        if (d > threshold) ++c.popped;
+    }
+    return c;
+}
+
 }  // namespace tessera::client::gl

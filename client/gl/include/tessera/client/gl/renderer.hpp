@@ -214,4 +214,19 @@ struct ImageError {
 ImageError compare_images(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b, std::uint32_t width,
                           std::uint32_t height, std::span<const std::uint8_t> mask = {});
 
+// Popping between two consecutive frames (docs/viewer.md, "Measures"): a pixel pops when its change
+// from `before` to `after` differs from the reference renderer's change over the same two camera
+// poses (`ref_before`, `ref_after`) by more than `threshold` in R, G or B, i.e. a change that the
+// camera's motion does not explain (a page arriving or leaving, a LoD bias step). Counted over the
+// pixels the reference covers in both frames (alpha non-zero); `largest`: the largest such
+// difference among them, popping or not. Images of the wrong size count nothing.
+struct PopCount {
+    std::uint64_t pixels = 0;  // covered in both reference frames
+    std::uint64_t popped = 0;
+    int largest = 0;
+    double rate() const { return pixels ? double(popped) / double(pixels) : 0.0; }
+};
+PopCount count_pops(std::span<const std::uint8_t> before, std::span<const std::uint8_t> after, std::span<const std::uint8_t> ref_before,
+                    std::span<const std::uint8_t> ref_after, std::uint32_t width, std::uint32_t height, int threshold = 16);
+
 }  // namespace tessera::client::gl
