@@ -75,7 +75,8 @@ TEST(PopMeasure, OnlyPixelsTheReferenceCoversInBothFramesCount) {
     EXPECT_EQ(bad.rate(), 0.0);
 }
 
-// `tessera view --psnr-every 1` measures every pair of consecutive frames. From an empty pool the
+// `tessera view --psnr-every 1` measures every pair of consecutive frames (and every run, each
+// page's time to detail). From an empty pool the
 // first pages replace the no-data colour over most of the frame: that pops. With the first view
 // loaded before the path starts (the default warm-up) and the path moving slowly, nothing does.
 TEST(PopMeasure, TheViewerReportsPoppingWhenPagesArriveOnScreen) {
@@ -90,6 +91,13 @@ TEST(PopMeasure, TheViewerReportsPoppingWhenPagesArriveOnScreen) {
     EXPECT_EQ(c["pairs"], 39);
     EXPECT_GT(c["max_rate"].get<double>(), 0.3) << c;
     EXPECT_GE(c["largest"].get<int>(), 100) << c;
+    // Time to detail: every page mapped counts, from the frame whose feedback first wanted it.
+    EXPECT_NE(cold.out.find("time to detail p50 "), std::string::npos) << cold.out;
+    const auto t = nlohmann::json::parse(tessera::test::slurp(dir.file("cold.json")))["summary"]["time_to_detail_frames"];
+    const auto uploaded = nlohmann::json::parse(tessera::test::slurp(dir.file("cold.json")))["summary"]["pages"]["uploaded"];
+    EXPECT_EQ(t["count"], uploaded) << t;
+    EXPECT_GE(t["p50"].get<double>(), 1.0) << t;
+    EXPECT_GE(t["max"].get<double>(), t["p50"].get<double>()) << t;
 
     auto warm = run_tessera(view + "--stats " + dir.file("warm.json"));
     ASSERT_EQ(warm.exit_code, 0) << warm.out;

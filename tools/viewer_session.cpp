@@ -854,6 +854,10 @@ std::string summary_text(const ViewerReport& rep) {
                          100 * pop, 100 * rep.max_pop_rate(), rep.largest_pop(), rep.pop_pairs());
     s += fmt::format("tile latency  p50 {:.2f} ms, p99 {:.2f} ms, max {:.2f} ms ({} pages, request -> mapped)\n",
                      lat.quantile(0.5), lat.quantile(0.99), lat.max_ms(), lat.count());
+    if (rep.summary.time_to_detail_count() > 0)
+        s += fmt::format("time to detail p50 {:.0f} frames, p90 {:.0f}, max {} ({} pages, first wanted -> first drawn)\n",
+                         rep.summary.time_to_detail_quantile(0.5), rep.summary.time_to_detail_quantile(0.9),
+                         rep.summary.time_to_detail_max(), rep.summary.time_to_detail_count());
     s += fmt::format("bytes         {} received, {} uploaded\n", human_bytes(rep.summary.bytes_received()),
                      human_bytes(rep.summary.bytes_uploaded()));
     s += fmt::format("pages         {} requested, {} uploaded, {} evicted; cache hit ratio {}\n",

@@ -316,11 +316,14 @@ private:
     // at the first frame without it would cancel it again and again before it arrives. Carried
     // pages rank below every page of this frame's feedback, the longest unseen last.
     void keep_recently_wanted() {
-        for (const auto& [key, rank] : desired_) last_seen_[key] = frame_no_;
+        for (const auto& [key, rank] : desired_) {
+            auto [seen, fresh] = last_seen_.try_emplace(key, Seen{frame_no_, frame_no_});
+            if (!fresh) seen->second.last = frame_no_;
+        }
         // Bounded like the feedback itself: past that many pages, only this frame's are kept.
         const bool over_bound = last_seen_.size() > config_.max_feedback_pages;
         for (auto it = last_seen_.begin(); it != last_seen_.end();) {
-            const std::uint64_t unseen = frame_no_ - it->second;
+            const std::uint64_t unseen = frame_no_ - it->second.last;
             if (unseen == 0) {
                 ++it;
                 continue;
@@ -545,6 +548,9 @@ private:
             ++stats_.pages_uploaded;
             stats_.bytes_uploaded += p.bytes;
             summary_.record_latency(now - it->second.requested);
+            // Drawn from the next frame on.
+            if (auto seen = last_seen_.find(key); seen != last_seen_.end())
+                summary_.record_time_to_detail(frame_no_ + 1 - seen->second.first);
             free_staging_.push_back(it->second.staging);
             work_.erase(it);
         }
@@ -605,7 +611,11 @@ private:
     std::uint64_t frame_no_ = 0;
     std::uint64_t next_ticket_ = 1;
     std::unordered_map<PageKey, float, PageKeyHash> desired_;
-    std::unordered_map<PageKey, std::uint64_t, PageKeyHash> last_seen_;  // wanted, not resident: frame last seen
+    // Wanted, not resident: the frames it was first and last seen wanted (first: time to detail).
+    struct Seen {
+        std::uint64_t first = 0, last = 0;
+    };
+    std::unordered_map<PageKey, Seen, PageKeyHash> last_seen_;
     std::unordered_map<PageKey, Work, PageKeyHash> work_;
     std::unordered_map<std::uint64_t, PageKey> tickets_;
     std::unordered_set<PageKey, PageKeyHash> absent_;

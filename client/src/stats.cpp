@@ -32,16 +32,9 @@ double LatencyHistogram::mean_ms() const { return mean() / 1000.0; }
 double LatencyHistogram::min_ms() const { return static_cast<double>(min()) / 1000.0; }
 double LatencyHistogram::max_ms() const { return static_cast<double>(max()) / 1000.0; }
 
-double LatencyHistogram::quantile(double q) const {
-    if (count() == 0) return 0.0;
-    if (!(q > 0.0)) return min_ms();
-    if (q >= 1.0) return max_ms();
-    const std::size_t b = quantile_bucket(q);
-    double mid = static_cast<double>(bucket_low(b));
-    if (b >= kSub) mid += 0.5 * static_cast<double>(bucket_width(b));
-    mid = std::clamp(mid, static_cast<double>(min()), static_cast<double>(max()));
-    return mid / 1000.0;
-}
+double LatencyHistogram::quantile(double q) const { return Counts::quantile_value(q) / 1000.0; }
+
+double StatsSummary::time_to_detail_quantile(double q) const { return time_to_detail_.quantile_value(q); }
 
 // --- JSON / CSV helpers ---
 
@@ -203,6 +196,11 @@ std::string StatsSummary::to_json() const {
                            {"p90", json_num(latency_.quantile(0.9))},
                            {"p99", json_num(latency_.quantile(0.99))},
                            {"max", json_num(latency_.max_ms())}};
+    j["time_to_detail_frames"] = Json{{"count", time_to_detail_.count()},
+                                      {"mean", json_num(time_to_detail_.mean())},
+                                      {"p50", json_num(time_to_detail_.quantile_value(0.5))},
+                                      {"p90", json_num(time_to_detail_.quantile_value(0.9))},
+                                      {"max", time_to_detail_.max()}};
     j["lod_bias"] = Json{{"last", json_num(bias_last_)}, {"mean", json_num(mean_lod_bias())}, {"max", json_num(bias_max_)}};
     j["fallback_estimate_mean"] = json_num(mean_fallback_estimate());
     j["skipped"] = Json{{"cancelled_waiting", cancelled_waiting_}, {"cancelled_arrived", cancelled_arrived_},

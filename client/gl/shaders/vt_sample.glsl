@@ -286,9 +286,10 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
     vec2 cell = vt_cell_origin(e);
 #if VT_FILTER != VT_BILINEAR
-    // The coarser level's own edge-texel centres, half a level-L texel further in.
+    // The coarser level's own edge-texel centres, half a level-L texel further in (min of max:
+    // a one-texel level has none, and clamp would be undefined).
     vec4 b = vt_centre_bounds(p.page, level);
-    vec2 coarse = cell + clamp(in_page, b.xy + 0.5, b.zw - 0.5);
+    vec2 coarse = cell + min(max(in_page, b.xy + 0.5), b.zw - 0.5);
     float f = r > level ? 0.0 : fraction;
 #endif
 #ifdef VT_ATLAS_RECT
@@ -452,7 +453,7 @@ VtSample vt_sample(vec2 local) {
         bvec2 up = greaterThanEqual(t, vec2(payload));
         vec4 a = up.y ? (up.x ? m11.map : m01.map) : (up.x ? m10.map : m00.map);
         float w = up.y ? (up.x ? m11.weight : m01.weight) : (up.x ? m10.weight : m00.weight);
-        vec2 coarse = clamp(t, lo + 0.5, hi - 0.5) * a.x + a.yz;  // as vt_sample_entry
+        vec2 coarse = min(max(t, lo + 0.5), hi - 0.5) * a.x + a.yz;  // as vt_sample_entry
         sum += w * vt_trilinear_texel(vt_atlas, t * a.x + a.yz, coarse, a.w);
 #ifdef VT_LIT
         second_sum += w * vt_trilinear_texel(vt_second_atlas, t * a.x + a.yz, coarse, a.w);

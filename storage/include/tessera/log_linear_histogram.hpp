@@ -81,6 +81,18 @@ public:
         return kBuckets - 1;
     }
 
+    // The nearest-rank q-quantile as a value: the middle of the bucket holding it (exact below
+    // kSub), clamped to [min, max]; q <= 0 gives min, q >= 1 max; 0 when empty.
+    double quantile_value(double q) const {
+        if (count_ == 0) return 0.0;
+        if (!(q > 0.0)) return static_cast<double>(min_);
+        if (q >= 1.0) return static_cast<double>(max_);
+        const std::size_t b = quantile_bucket(q);
+        double mid = static_cast<double>(bucket_low(b));
+        if (b >= kSub) mid += 0.5 * static_cast<double>(bucket_width(b));
+        return std::clamp(mid, static_cast<double>(min_), static_cast<double>(max_));
+    }
+
 private:
     std::array<std::uint64_t, kBuckets> counts_{};
     std::uint64_t count_ = 0;
