@@ -851,7 +851,15 @@ TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
         });
     std::this_thread::sleep_for(3s);
     const long rss_flood = srv.rss_kib();
-    EXPECT_LT(rss_flood - rss_start, 64 * 1024) << "RSS grew from " << rss_start << " to " << rss_flood << " KiB";
+    // ThreadSanitizer keeps shadow memory and access history for what the server touched (in its
+    // RSS, several times the memory itself): the bounds hold for other builds (ASan's quarantine
+    // is kept small by the tessera binary).
+#if defined(__SANITIZE_THREAD__)
+    constexpr long kGrowthKiB = 8 * 64 * 1024, kAfterKiB = 8 * 32 * 1024;
+#else
+    constexpr long kGrowthKiB = 64 * 1024, kAfterKiB = 32 * 1024;
+#endif
+    EXPECT_LT(rss_flood - rss_start, kGrowthKiB) << "RSS grew from " << rss_start << " to " << rss_flood << " KiB";
 
     // What the first viewer is told: the long name and the long store list once each per batch,
     // and no more error replies than the bound (the rest counted in the ack).
@@ -881,7 +889,7 @@ TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
     for (int i = 0; i < 300 && (open = stats(srv.grpc_address()).viewers()) != 0; ++i) std::this_thread::sleep_for(10ms);
     EXPECT_EQ(open, 0u);
     const long rss_after = srv.rss_kib();
-    EXPECT_LT(rss_after - rss_start, 32 * 1024) << "RSS " << rss_start << " KiB at start, " << rss_after << " KiB after";
+    EXPECT_LT(rss_after - rss_start, kAfterKiB) << "RSS " << rss_start << " KiB at start, " << rss_after << " KiB after";
     // And it still serves.
     Viewer after(srv.grpc_address());
     ASSERT_TRUE(after.send(batch(1, "small", {{0, 0, 0, 1}})));
@@ -1129,7 +1137,10 @@ TEST_F(ServerGrpc, WatchPicksUpAReplacedStoreWithoutSignal) {
 }
 
 TEST_F(ServerGrpc, SigtermDrainsAdmittedRequests) {
-    ServerProcess srv({"--store", Stores::raw(), "--viewer-buffer", "64KiB", "--io-threads", "1"}, dir.file("log"));
+    // A drain timeout far past what the drain needs (it ends when the last tile is out), also
+    // under a sanitizer's slowdown: this test is about what a drain delivers, not its deadline.
+    ServerProcess srv({"--store", Stores::raw(), "--viewer-buffer", "64KiB", "--io-threads", "1", "--drain-timeout", "120000"},
+                      dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     const auto keys = level_keys(Stores::raw(), 0);  // 289 raw tiles, ~57 MiB
     Viewer v(srv.grpc_address());
@@ -1149,7 +1160,7 @@ TEST_F(ServerGrpc, SigtermDrainsAdmittedRequests) {
     for (const auto& t : v.tiles) ok += t.status() == v1::TILE_OK;
     EXPECT_EQ(ok, keys.size());
     EXPECT_EQ(st.error_code(), grpc::StatusCode::UNAVAILABLE) << st.error_message();
-    EXPECT_EQ(srv.wait_exit(20s), std::optional<int>(0)) << srv.log();
+    EXPECT_EQ(srv.wait_exit(130s), std::optional<int>(0)) << srv.log();
     EXPECT_NE(srv.log().find("\"msg\":\"stopped\""), std::string::npos);
 }
 

@@ -39,10 +39,12 @@ public:
     StreamReactor(ServerContext& ctx, Scheduler& scheduler, grpc::CallbackServerContext* context, bool authorized,
                   Counter* viewers_refused)
         : ctx_(ctx), scheduler_(scheduler), peer_(context->peer()) {
+        // Until the handler returns the reactor is not bound: Start*/Finish here only queue their
+        // operation in the reactor (gRPC issues them at binding), so the handoff comes after them.
         if (!authorized) {
             finished_ = true;
-            handoff_to_grpc(this);
             Finish(grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "missing or wrong bearer token"));
+            handoff_to_grpc(this);
             return;
         }
         link_ = std::make_shared<ReactorLink>(this);
@@ -51,17 +53,17 @@ public:
             viewers_refused->inc();
             finished_ = true;
             const bool draining = scheduler_.draining();
-            handoff_to_grpc(this);
             Finish(grpc::Status(
                 draining ? grpc::StatusCode::UNAVAILABLE : grpc::StatusCode::RESOURCE_EXHAUSTED,
                 draining ? "the server is shutting down"
                          : "too many viewers (limit " + std::to_string(ctx_.config.max_viewers) + "); retry later"));
+            handoff_to_grpc(this);
             return;
         }
         id_ = *id;
         ctx_.log.debug("viewer connected", {{"viewer", id_}, {"peer", peer_}});
-        handoff_to_grpc(this);
         StartRead(&read_buf_);
+        handoff_to_grpc(this);
     }
 
     void OnReadDone(bool ok) override {
