@@ -36,6 +36,11 @@ TEST(Bench, QuickSweepWritesTableAndPlots) {
         EXPECT_GT(p["store_bytes"].get<std::uint64_t>(), 0u) << p.dump();
         EXPECT_GT(p["bytes_received"].get<std::uint64_t>(), 0u) << p.dump();
         EXPECT_GT(p["full_detail_ms"].get<double>(), 0.0) << p.dump();
+        // The temporal measures (docs/viewer.md, "Measures"): a rate, and frames.
+        const double pop = p["pop_rate"].get<double>();
+        EXPECT_GE(pop, 0.0) << p.dump();
+        EXPECT_LE(pop, 1.0) << p.dump();
+        EXPECT_GE(p["time_to_detail_p50_frames"].get<double>(), 1.0) << p.dump();
     }
     // The lossless point is compared with a lossless reference: its error is the streaming's and
     // the filtering's only, so it is at least as good as the lossy baseline's.

@@ -69,6 +69,7 @@ struct Point {
     std::uint64_t bytes_received = 0, pages_requested = 0;
     double fallback = kNaN, fallback_biased = kNaN, psnr_mean = kNaN, psnr_min = kNaN, mean_bias = kNaN;
     int max_error = -1;
+    double pop_rate = kNaN, time_to_detail_p50 = kNaN;  // temporal quality (docs/viewer.md, "Measures")
     double wall_s = 0;
     std::uint64_t gpu_page_bytes = 0;  // the pool's bytes per page, second level included
 };
@@ -354,6 +355,8 @@ Command add_bench(CLI::App& app) {
             p.psnr_mean = rep.mean_psnr();
             p.psnr_min = rep.min_psnr();
             p.max_error = rep.max_error();
+            p.pop_rate = rep.mean_pop_rate();
+            if (rep.summary.time_to_detail_count() > 0) p.time_to_detail_p50 = rep.summary.time_to_detail_quantile(0.5);
             p.mean_bias = rep.summary.mean_lod_bias();
             p.gpu_page_bytes = rep.gpu_page_bytes;
             p.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
@@ -374,9 +377,10 @@ Command add_bench(CLI::App& app) {
             out << "sweep,label,tile_size,border,codec,quality,page_format,gpu_page_bytes,feedback_scale,pool,bias_policy,"
                    "upload_pages_per_frame,latency_ms,prefetch_lod,build_s,store_bytes,frame_ms_mean,frame_ms_p99,"
                    "full_detail_ms,full_detail_reached,bytes_received,pages_requested,fallback_rate,"
-                   "fallback_rate_biased,mean_lod_bias,psnr_mean_db,psnr_min_db,max_error,wall_s,recommended\n";
+                   "fallback_rate_biased,mean_lod_bias,psnr_mean_db,psnr_min_db,max_error,wall_s,recommended,pop_rate,"
+                   "time_to_detail_p50_frames\n";
             for (const auto& p : pts)
-                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                                    p.sweep, p.label, p.s.tile, p.s.border, tessera::to_string(p.s.codec),
                                    p.s.codec == Codec::jpeg ? std::to_string(p.s.quality) : std::string(),
                                    p.s.page_format, p.gpu_page_bytes, p.s.feedback_scale, p.s.pool, p.s.bias, p.s.upload,
@@ -385,7 +389,7 @@ Command add_bench(CLI::App& app) {
                                    p.bytes_received, p.pages_requested, num(p.fallback, 6), num(p.fallback_biased, 6),
                                    num(p.mean_bias, 4), num(std::min(p.psnr_mean, 99.0), 6),
                                    num(std::min(p.psnr_min, 99.0), 6), p.max_error, num(p.wall_s, 4),
-                                   &p == best ? 1 : 0);
+                                   &p == best ? 1 : 0, num(p.pop_rate, 6), num(p.time_to_detail_p50, 4));
             if (!out) throw Failure(fmt::format("cannot write '{}'", csv_file));
         }
         // bench.json
@@ -433,6 +437,8 @@ Command add_bench(CLI::App& app) {
                 e["psnr_mean_db"] = jn(std::min(p.psnr_mean, 99.0));
                 e["psnr_min_db"] = jn(std::min(p.psnr_min, 99.0));
                 e["max_error"] = p.max_error;
+                e["pop_rate"] = jn(p.pop_rate);
+                e["time_to_detail_p50_frames"] = jn(p.time_to_detail_p50);
                 e["wall_s"] = p.wall_s;
                 e["recommended"] = &p == best;
                 arr.push_back(std::move(e));
