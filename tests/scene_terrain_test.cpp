@@ -173,6 +173,16 @@ TEST(Terrain, AHeightFieldDisplacesTheGroundBilinearly) {
     EXPECT_DOUBLE_EQ(lo, 0.0);
     EXPECT_DOUBLE_EQ(hi, 200.0);
 
+    // A store level's samples cover 2^L texels each, the last overhanging a texture whose size is
+    // not a multiple: the centres stay where the level puts them.
+    TerrainOptions odd = o;
+    odd.vt_width = odd.vt_height = 1000;
+    auto g = std::make_shared<HeightField>(*f);
+    g->texels_per_sample = 256;  // 4 x 2 samples of 256: centres at x = 128, 384, 640, 896
+    odd.heights = g;
+    EXPECT_DOUBLE_EQ(terrain_height(odd, 896, 128), 200.0);
+    EXPECT_DOUBLE_EQ(terrain_height(odd, 256, 128), 25.0);
+
     f->samples.pop_back();  // not width x height samples
     EXPECT_FALSE(make_terrain(o).ok());
     f->samples.push_back(std::nanf(""));

@@ -71,22 +71,33 @@ Result<HeightLayerRead> read_height_layer(client::TileSource& source, client::Te
     auto field = std::make_shared<scene::HeightField>();
     field->width = li.width;
     field->height = li.height;
+    field->texels_per_sample = std::ldexp(1.0, int(level));  // store levels round up: not width / size
     field->samples.assign(std::size_t(li.width) * li.height, 0.0f);
     const std::uint32_t P = info.tile_payload, B = info.border, ts = info.tile_size();
     const std::size_t sb = storage::sample_bytes(part_info.sample_type);
     std::vector<bool> seen(requests.size(), false);
     std::size_t done = 0;
+    std::uint64_t frame = 1;
+    bool retry = false;
     std::vector<client::SourceTile> arrived;
     std::vector<std::uint8_t> samples;
     const auto deadline = std::chrono::steady_clock::now() + timeout;
     const auto fail = [&](Error e) {
-        source.set_requests(2, {});
+        source.set_requests(++frame, {});
         return e;
     };
     while (done < requests.size()) {
         if (std::chrono::steady_clock::now() > deadline)
             return fail(Error{Errc::io_error, fmt::format("height layer: {} of {} tiles of level {} arrived in {} s", done,
                                                              requests.size(), level, timeout.count() / 1000.0)});
+        if (retry) {  // what has not arrived, again, after a pause
+            std::this_thread::sleep_for(std::chrono::milliseconds(50));
+            std::vector<client::SourceRequest> again;
+            for (std::size_t i = 0; i < requests.size(); ++i)
+                if (!seen[i]) again.push_back(requests[i]);
+            source.set_requests(++frame, again);
+            retry = false;
+        }
         arrived.clear();
         if (source.poll(arrived) == 0) {
             std::this_thread::sleep_for(std::chrono::milliseconds(2));
@@ -99,6 +110,13 @@ Result<HeightLayerRead> read_height_layer(client::TileSource& source, client::Te
             seen[index] = true;
             ++done;
             const std::string where = fmt::format("height layer: tile {}/{}/{}", level, t.page.x, t.page.y);
+            if (t.status == TileStatus::unavailable || t.status == TileStatus::resource_exhausted ||
+                t.status == TileStatus::deadline_exceeded) {  // the server's to retry: ask again
+                seen[index] = false;
+                --done;
+                retry = true;
+                continue;
+            }
             if (t.status != TileStatus::ok) return fail(Error{Errc::io_error, where + ": " + t.message});
             if (t.data.kind == TileKind::absent) continue;  // no data: the sea floor, 0
             storage::Tile tile{t.page.tile(), t.data.kind, false, 0, std::move(t.data.payload)};
@@ -119,7 +137,7 @@ Result<HeightLayerRead> read_height_layer(client::TileSource& source, client::Te
                         sample_at(samples.data() + (std::size_t(B + y) * ts + B + x) * sb, part_info.sample_type);
         }
     }
-    source.set_requests(2, {});
+    source.set_requests(++frame, {});
 
     // To [0, 1]: integers by their range, floats by what they hold.
     float lo = 0, hi = 1;

@@ -25,8 +25,9 @@ struct HeightLayerRead {
 // Reads layer `layer` of texture `texture` (bound to `source`) at the coarsest level at least
 // `samples_across` samples wide (or level 0), every tile of it, within `timeout`. Samples become
 // [0, 1]: u8 / 255, u16 / 65535, floats spread from their minimum to their maximum. Absent tiles
-// read as 0. Leaves the source with no requests. Errors: a tile the source cannot deliver (its
-// message), a part that does not decode, the timeout.
+// read as 0. Tiles the server asks to retry (unavailable, overloaded, past their deadline) are
+// asked for again. Leaves the source with no requests. Errors: a tile the source cannot deliver
+// (its message), a part that does not decode, the timeout.
 Result<HeightLayerRead> read_height_layer(client::TileSource& source, client::TextureId texture, const storage::StoreInfo& info,
                                           std::size_t layer, std::uint32_t samples_across,
                                           std::chrono::milliseconds timeout = std::chrono::seconds(30));

@@ -236,8 +236,8 @@ void configure_layers(const storage::StoreInfo& info, const ViewerOptions& o, cl
             throw Failure(fmt::format("--layer-format '{}': expected NAME=FORMAT with NAME one of {}", spec, names));
         const auto i = std::size_t(it - info.layers.begin());
         client::PageFormat& f = i == 0 ? rc.page_format : rc.more_layers[i - 1].page_format;
-        if (format == "auto") {
-            f = layer_page_format(*it);
+        if (format == "auto") {  // as --page-format auto for the first layer
+            f = i == 0 ? client::page_format_of(it->codec).value_or(client::PageFormat::rgba8) : layer_page_format(*it);
         } else if (const auto parsed = client::parse_page_format(format)) {
             f = *parsed;
         } else {
@@ -359,11 +359,14 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             // Keep the vertex count sane for huge textures: at most 64 chunks per side.
             while (std::max(info->width, info->height) / t.chunk_texels > 64) t.chunk_texels *= 2;
             // A store with a height layer: the ground follows it, one quad per height sample up
-            // to 128 quads per chunk (the normal layer lights the detail between them).
+            // to 128 quads per chunk and about 4 M vertices (the normal layer lights the detail
+            // between them).
             if (const auto layer = height_layer(*info); layer && o.displacement > 0) {
                 const std::uint64_t chunks = (std::max(info->width, info->height) + t.chunk_texels - 1) / t.chunk_texels;
-                t.quads_per_chunk = 128;
-                auto h = read_height_layer(*source, 0, *info, *layer, std::uint32_t(std::min<std::uint64_t>(chunks * 128, 1u << 16)));
+                // At most about 4 M vertices in all (64 chunks a side get 31 quads each).
+                t.quads_per_chunk = std::uint32_t(std::clamp<double>(std::floor(2048.0 / double(chunks)) - 1, 16, 128));
+                auto h = read_height_layer(*source, 0, *info, *layer,
+                                           std::uint32_t(std::min<std::uint64_t>(chunks * t.quads_per_chunk, 1u << 16)));
                 if (!h) return h.error();
                 t.heights = h->field;
                 displaced_by = fmt::format("layer {} (level {}, {}x{} samples, {} tiles)", info->layers[*layer].name, h->level,

@@ -199,6 +199,17 @@ vec4 vt_centre_bounds(ivec2 page, int level) {
     return vec4(0.5 - start, to_end - 0.5);
 }
 
+// The centres of the next coarser level's edge texels, in level-`level` texels from the start of
+// `page` (level L + 1 has ceil(size / 2) texels, so its last centre is 2 * that - 1 here: for an
+// odd size, past the level's own last centre). Where a trilinear lookup of a block atlas reads
+// its coarser level (vt_trilinear_texel). Never empty: a level of one texel gives 1 and 1.
+vec4 vt_coarse_bounds(ivec2 page, int level) {
+    vec2 size = ceil(vt_texture_size * vt_exp2_neg(level + 1));
+    vec2 start = vec2(page) * float(vt_payload);
+    precise vec2 to_end = 2.0 * size - start;
+    return vec4(1.0 - start, to_end - 1.0);
+}
+
 // The level-L position of the fragment at `local` (level-0 texels from the chunk's origin),
 // clamped to the texture's extent with the far bound 1/256 of a level-0 texel inside
 // the edge. Worked out at level 0 first, which needs no level and so runs beside the LoD
@@ -286,10 +297,10 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
     vec2 cell = vt_cell_origin(e);
 #if VT_FILTER != VT_BILINEAR
-    // The coarser level's own edge-texel centres, half a level-L texel further in (min of max:
-    // a one-texel level has none, and clamp would be undefined).
-    vec4 b = vt_centre_bounds(p.page, level);
-    vec2 coarse = cell + min(max(in_page, b.xy + 0.5), b.zw - 0.5);
+    // The coarser level read at its own edge-texel centres. (A fallback samples its ancestor's
+    // level only, f = 0: `coarse` is then unused.)
+    vec4 b = vt_coarse_bounds(p.page, level);
+    vec2 coarse = cell + clamp(in_page, b.xy, b.zw);
     float f = r > level ? 0.0 : fraction;
 #endif
 #ifdef VT_ATLAS_RECT
@@ -436,6 +447,7 @@ VtSample vt_sample(vec2 local) {
     float scale = vt_exp2_neg(l0);
     vec4 bounds = vt_centre_bounds(corner, l0);  // the edge texels' centres, from the corner page
     vec2 lo = bounds.xy, hi = bounds.zw;
+    vec4 coarse_bounds = vt_coarse_bounds(corner, l0);  // the coarser level's, for block atlases
     vec2 step = axis * (scale / count);                                                // between taps
     vec2 first = p.in_page + vec2(low) * payload - step * (0.5 * (count - 1.0));  // tap 0
     float fraction = lc - float(l0);
@@ -453,7 +465,7 @@ VtSample vt_sample(vec2 local) {
         bvec2 up = greaterThanEqual(t, vec2(payload));
         vec4 a = up.y ? (up.x ? m11.map : m01.map) : (up.x ? m10.map : m00.map);
         float w = up.y ? (up.x ? m11.weight : m01.weight) : (up.x ? m10.weight : m00.weight);
-        vec2 coarse = min(max(t, lo + 0.5), hi - 0.5) * a.x + a.yz;  // as vt_sample_entry
+        vec2 coarse = clamp(t, coarse_bounds.xy, coarse_bounds.zw) * a.x + a.yz;  // as vt_sample_entry
         sum += w * vt_trilinear_texel(vt_atlas, t * a.x + a.yz, coarse, a.w);
 #ifdef VT_LIT
         second_sum += w * vt_trilinear_texel(vt_second_atlas, t * a.x + a.yz, coarse, a.w);

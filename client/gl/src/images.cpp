@@ -35,9 +35,10 @@ Result<std::vector<ReferenceRenderer::Level>> decode_levels(const std::string& s
     if (Status st = check_page_format(info, format); !st) return Error{st.error().code, store_path + ": " + st.error().message};
     if (format != PageFormat::rgba8 && !is_block_compressed(format))
         return Error{Errc::invalid_argument, fmt::format("{}: reference levels of {} pages are not made", store_path, to_string(format))};
-    if (second && (!is_block_compressed(format) || ts % 8 != 0 || P % 2 != 0))
+    if (second && (!is_block_compressed(format) || ts % 8 != 0 || B % 2 != 0))
         return Error{Errc::invalid_argument,
-                     fmt::format("{}: second levels are made for block formats with tiles a multiple of 8 texels", store_path)};
+                     fmt::format("{}: second levels are made for block formats with tiles a multiple of 8 texels and an even border",
+                                 store_path)};
     // A second level is the page at half size: its tile, interior and border halve.
     const std::uint32_t side = second ? ts / 2 : ts, payload = second ? P / 2 : P, border = second ? B / 2 : B;
     std::vector<std::uint8_t> page(std::size_t(side) * side * 4), blocks(page_upload_bytes(format, ts, second));

@@ -20,9 +20,11 @@ double terrain_height(const TerrainOptions& o, double x, double y) {
     if (o.displacement == 0) return 0;
     if (o.heights) {
         const HeightField& f = *o.heights;
-        // Sample (i, j) sits at the centre of cell (i, j): grid position (x / cell) - 0.5.
-        const double gx = std::clamp(x * f.width / std::max(1.0, double(o.vt_width)) - 0.5, 0.0, double(f.width - 1));
-        const double gy = std::clamp(y * f.height / std::max(1.0, double(o.vt_height)) - 0.5, 0.0, double(f.height - 1));
+        // Sample (i, j) sits at the centre of its cell: grid position x / cell - 0.5.
+        const double cx = f.texels_per_sample > 0 ? f.texels_per_sample : std::max(1.0, double(o.vt_width)) / f.width;
+        const double cy = f.texels_per_sample > 0 ? f.texels_per_sample : std::max(1.0, double(o.vt_height)) / f.height;
+        const double gx = std::clamp(x / cx - 0.5, 0.0, double(f.width - 1));
+        const double gy = std::clamp(y / cy - 0.5, 0.0, double(f.height - 1));
         const auto x0 = static_cast<std::uint32_t>(gx), y0 = static_cast<std::uint32_t>(gy);
         const std::uint32_t x1 = std::min(x0 + 1, f.width - 1), y1 = std::min(y0 + 1, f.height - 1);
         const double fx = gx - x0, fy = gy - y0;

@@ -50,11 +50,14 @@ struct Scene {
 };
 
 // Heights over the whole virtual texture, e.g. a level of a store's height layer: width x height
-// samples in [0, 1], row-major from (0, 0), sample (i, j) at the centre of the texture's cell
-// (i, j) of that grid. Read bilinearly, clamped at the edges.
+// samples in [0, 1], row-major from (0, 0), sample (i, j) covering level-0 texels
+// [i * t, (i + 1) * t) x [j * t, (j + 1) * t) with t = texels_per_sample (a store level L: 2^L,
+// its last samples possibly overhanging the texture, as store levels round up), read at their
+// centres; 0: the samples divide the texture evenly. Read bilinearly, clamped at the edges.
 struct HeightField {
     std::uint32_t width = 0, height = 0;
     std::vector<float> samples;
+    double texels_per_sample = 0;
 };
 
 struct TerrainOptions {
