@@ -93,9 +93,14 @@ void for_each_block(const std::uint8_t* rgba, std::uint32_t size, Encode&& encod
 }  // namespace
 
 namespace {
-// The real-time encoder's loop, compiled twice: for AVX2 (its 16-texel loops in two 8-lane steps)
-// and for the baseline, picked once at load time by the CPU (GCC's target_clones).
-[[gnu::target_clones("avx2", "default")]] void encode_bc1_fast(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) {
+// The real-time encoder's loop, compiled twice on x86-64: for AVX2 (its 16-texel loops in two
+// 8-lane steps) and for the baseline, picked once at load time by the CPU (GCC's target_clones).
+#if defined(__x86_64__) && defined(__GNUC__)
+#define TESSERA_X86_CLONES [[gnu::target_clones("avx2", "default")]]
+#else
+#define TESSERA_X86_CLONES
+#endif
+TESSERA_X86_CLONES void encode_bc1_fast(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) {
     const std::size_t row_bytes = std::size_t(size) * 4;
     for (std::uint32_t by = 0; by < size; by += 4)
         for (std::uint32_t bx = 0; bx < size; bx += 4, out += 8)
