@@ -694,12 +694,19 @@ double ViewerReport::mean_psnr() const {
         if (!std::isnan(f.psnr)) s += std::min(f.psnr, 99.0), ++n;  // identical frames count as 99 dB
     return n ? s / n : kNaN;
 }
-double ViewerReport::min_psnr() const {
+namespace {
+// The smallest (or largest) of a per-frame measure over the frames that have it (NaN: none).
+double extreme(const std::vector<FrameRecord>& frames, double FrameRecord::*measure, bool largest) {
     double m = kNaN;
-    for (const auto& f : frames)
-        if (!std::isnan(f.psnr)) m = std::isnan(m) ? f.psnr : std::min(m, f.psnr);
+    for (const auto& f : frames) {
+        const double v = f.*measure;
+        if (!std::isnan(v)) m = std::isnan(m) ? v : largest ? std::max(m, v) : std::min(m, v);
+    }
     return m;
 }
+}  // namespace
+
+double ViewerReport::min_psnr() const { return extreme(frames, &FrameRecord::psnr, false); }
 double ViewerReport::mean_pop_rate() const {
     double s = 0;
     std::size_t n = 0;
@@ -707,12 +714,7 @@ double ViewerReport::mean_pop_rate() const {
         if (!std::isnan(f.pop_rate)) s += f.pop_rate, ++n;
     return n ? s / double(n) : kNaN;
 }
-double ViewerReport::max_pop_rate() const {
-    double m = kNaN;
-    for (const auto& f : frames)
-        if (!std::isnan(f.pop_rate)) m = std::isnan(m) ? f.pop_rate : std::max(m, f.pop_rate);
-    return m;
-}
+double ViewerReport::max_pop_rate() const { return extreme(frames, &FrameRecord::pop_rate, true); }
 int ViewerReport::largest_pop() const {
     int m = -1;
     for (const auto& f : frames) m = std::max(m, f.pop_largest);
