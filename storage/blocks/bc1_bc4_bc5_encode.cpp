@@ -94,17 +94,31 @@ void for_each_block(const std::uint8_t* rgba, std::uint32_t size, Encode&& encod
 
 namespace {
 // The real-time encoder's loop, compiled twice on x86-64: for AVX2 (its 16-texel loops in two
-// 8-lane steps) and for the baseline, picked once at load time by the CPU (GCC's target_clones).
-#if defined(__x86_64__) && defined(__GNUC__)
-#define TESSERA_X86_CLONES [[gnu::target_clones("avx2", "default")]]
-#else
-#define TESSERA_X86_CLONES
-#endif
-TESSERA_X86_CLONES void encode_bc1_fast(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) {
+// 8-lane steps) and for the baseline, picked once by the CPU on first use. An explicit choice, not
+// GCC's target_clones: a clone resolver runs while the dynamic loader relocates, before a
+// sanitizer's runtime is up, and crashes sanitized builds.
+[[gnu::always_inline]] inline void encode_bc1_loop(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) {
     const std::size_t row_bytes = std::size_t(size) * 4;
     for (std::uint32_t by = 0; by < size; by += 4)
         for (std::uint32_t bx = 0; bx < size; bx += 4, out += 8)
             bc1_block(rgba + by * row_bytes + std::size_t(bx) * 4, row_bytes, out);
+}
+
+void encode_bc1_baseline(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) { encode_bc1_loop(rgba, size, out); }
+
+#if defined(__x86_64__) && defined(__GNUC__)
+[[gnu::target("avx2"), gnu::flatten]] void encode_bc1_avx2(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) {
+    encode_bc1_loop(rgba, size, out);
+}
+#endif
+
+void encode_bc1_fast(const std::uint8_t* rgba, std::uint32_t size, std::uint8_t* out) {
+#if defined(__x86_64__) && defined(__GNUC__)
+    static const auto encode = __builtin_cpu_supports("avx2") ? encode_bc1_avx2 : encode_bc1_baseline;
+#else
+    constexpr auto encode = encode_bc1_baseline;
+#endif
+    encode(rgba, size, out);
 }
 }  // namespace
 
