@@ -57,6 +57,14 @@ Command add_view(CLI::App& app) {
         ->capture_default_str();
     c->add_option("--guard-band", o->guard_band, "feedback sees this fraction more of the scene on each side (0..1)")
         ->capture_default_str();
+    c->add_option("--fade-ms", o->fade_ms,
+                  "arriving pages blend in from their parent level over this many milliseconds, and LoD-bias changes "
+                  "spread over as long (0: off, pages show at once)")
+        ->capture_default_str();
+    c->add_option("--link-latency-ms", o->link_latency_ms,
+                  "emulate a network link to the source: this one-way delay per request, milliseconds (0: none)");
+    c->add_option("--link-jitter-ms", o->link_jitter_ms, "emulated link: random extra delay up to this, milliseconds");
+    c->add_option("--link-bandwidth", o->link_bandwidth_bits_per_s, "emulated link: bits per second (0: unlimited)");
     c->add_option("--upload-pages", o->upload_pages_per_frame, "pages uploaded per frame at most")->capture_default_str();
     c->add_option("--ram-cache", o->ram_cache_bytes, "RAM tile cache, bytes (0: off)")->capture_default_str();
     c->add_option("--disk-cache", o->disk_cache_dir, "disk tile cache directory (persists across runs)");

@@ -14,6 +14,7 @@
 #include <map>
 #include <sstream>
 #include <thread>
+#include <utility>
 
 #include "atomic_file.hpp"
 #include "commands.hpp"
@@ -313,6 +314,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rc.max_anisotropy = o.anisotropy;
     rc.feedback_prefetch_lod = o.prefetch_lod;
     rc.feedback_guard_band = o.guard_band;
+    rc.fade_ms = o.fade_ms;
     rc.pool_slots = o.pool;
     rc.tile_size = info->tile_size();
     rc.border = info->border;
@@ -434,7 +436,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     for (std::size_t i = 0; i <= rc.more_layers.size(); ++i) {
         const client::PageFormat f = i == 0 ? rc.page_format : rc.more_layers[i - 1].page_format;
         rep.gpu_page_bytes += client::page_bytes(f, rc.tile_size) +
-                              (rc.filter != client::gl::Filter::bilinear ? client::page_bytes(f, rc.tile_size / 2) : 0);
+                              (rc.has_second_level() ? client::page_bytes(f, rc.tile_size / 2) : 0);
         if (info->layered()) rep.layers.push_back(info->layers[i].name + " " + std::string(client::to_string(f)));
     }
     rep.pool_texels = std::uint64_t(rc.pool_slots) * rc.tile_size * rc.tile_size;
@@ -476,21 +478,25 @@ ViewerReport run_viewer(const ViewerOptions& o) {
 
     GLFWwindow* win = (*ctx)->window();
     client::gl::FeedbackFrame fb;
-    if (o.warmup && !win) {
-        // The loading screen: the path's first view until it is fully resident.
-        const scene::Camera first = path->at(0);
+    // Renders `cam` until it is fully resident and faded in (or o.warmup_timeout_s passes): the
+    // loading screen before the path, and the settled view after it. Returns whether it got
+    // there; counts its frames in `settle_frames`. Counters come back frames late (more of them
+    // the faster the GPU), so done means clean counters for a frame rendered after the pipeline
+    // went idle, with every page at full weight.
+    double clock_s = 0;  // the renderer's clock: path time plus the settling frames before it
+    auto settle = [&](const scene::Camera& cam, std::uint32_t& settle_frames) {
         const auto w0 = Clock::now();
         std::vector<client::gl::FrameCounters> wc;
-        // Done at clean counters for a frame rendered after the pipeline went idle. Counters come
-        // back frames late (more of them the faster the GPU), so the test is on the frame they
-        // belong to, not on how recent they are.
         std::uint64_t idle_from = 0;  // first frame rendered with nothing in flight; 0: busy
+        bool settled = false;
         for (;;) {
             watch_link(Clock::now());
-            const std::uint64_t rf = r.render(first, rt.lod_bias());
+            r.set_time(clock_s);
+            clock_s += 1.0 / o.fps;
+            const std::uint64_t rf = r.render(cam, rt.lod_bias());
             if (r.poll_feedback(fb)) rt.frame(fb.ids, fb.width, fb.height, fb.bias);
             else rt.frame_without_feedback();
-            ++rep.warmup_frames;
+            ++settle_frames;
             if (rt.in_flight() > 0) idle_from = 0;
             else if (idle_from == 0) idle_from = rf + 1;  // this frame's uploads show from the next one
             wc.clear();
@@ -498,16 +504,23 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             const bool clean_since_idle = idle_from > 0 && std::any_of(wc.begin(), wc.end(), [&](const auto& c) {
                 return c.frame >= idle_from && c.textured_pixels > 0 && c.fallback_unbiased == 0;
             });
-            if (clean_since_idle) {
-                rep.warmup_complete = true;
+            if (clean_since_idle && r.stats().fading_pages == 0) {
+                settled = true;
                 break;
             }
             if (std::chrono::duration<double>(Clock::now() - w0).count() > o.warmup_timeout_s) break;
         }
-        rep.warmup_ms = std::chrono::duration<double, std::milli>(Clock::now() - w0).count();
-        r.finish(&wc, nullptr);  // drain the warm-up's readbacks: the path's records start clean
+        r.finish(&wc, nullptr);  // drain the readbacks: what follows starts clean
         rt.frame_without_feedback();
+        return settled;
+    };
+    if (o.warmup && !win) {
+        // The loading screen: the path's first view until it is fully resident.
+        const auto w0 = Clock::now();
+        rep.warmup_complete = settle(path->at(0), rep.warmup_frames);
+        rep.warmup_ms = std::chrono::duration<double, std::milli>(Clock::now() - w0).count();
     }
+    const double path_clock_start = clock_s;
 
     FreeCamera free_cam;
     std::unique_ptr<client::gl::Hud> hud;
@@ -525,8 +538,13 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     auto last_title = start;
     double lat_count = 0, lat_sum_ms = 0;
     std::uint32_t done = 0;
-    std::vector<std::uint8_t> pop_before, pop_ref_before;  // the frame before a compared one, and its reference
-    std::uint32_t pop_before_frame = UINT32_MAX;
+    // Popping: before the runtime's uploads for a compared frame, what that frame would show
+    // without them (VtRenderer::render_preview); set for the next frame only.
+    std::vector<std::uint8_t> preview, next_preview;
+    std::uint32_t preview_frame = UINT32_MAX, next_preview_frame = UINT32_MAX;
+    const auto compared = [&](std::uint32_t i) {
+        return reference && o.psnr_every && (i % o.psnr_every == o.psnr_every - 1 || i + 1 == frames);
+    };
     for (std::uint32_t f = 0; f < frames || (win && o.frames == 0); ++f) {
         const auto t0 = Clock::now();
         watch_link(t0);
@@ -542,7 +560,16 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             if (free_cam.active) cam = free_cam.camera;
         }
         const float bias = rt.lod_bias();
+        r.set_time(path_clock_start + t);  // after the warm-up's frames
         const std::uint64_t render_frame = r.render(cam, bias);
+        // Measured, not timed: the next frame's camera drawn before this frame's uploads.
+        double preview_ms = 0;
+        if (!win && f + 1 < frames && compared(f + 1)) {
+            const auto p0 = Clock::now();
+            next_preview = r.render_preview(path->at(double(f + 1) / o.fps));
+            next_preview_frame = f + 1;
+            preview_ms = std::chrono::duration<double, std::milli>(Clock::now() - p0).count();
+        }
         const client::FrameStats* s = nullptr;
         if (r.poll_feedback(fb)) {
             s = &rt.frame(fb.ids, fb.width, fb.height, fb.bias);
@@ -575,21 +602,11 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         lat_sum_ms = sum;
         by_render_frame[render_frame] = f;
         take_counters();
-        rec.frame_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+        rec.frame_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count() - preview_ms;
 
-        // Measurements that wait for the GPU happen outside the timed part of the frame. The frame
-        // before each compared one is kept with its reference, for popping between the two.
+        // Measurements that wait for the GPU happen outside the timed part of the frame.
         const bool png = std::find(png_frames.begin(), png_frames.end(), f) != png_frames.end();
-        const auto compared = [&](std::uint32_t i) {
-            return reference && o.psnr_every && (i % o.psnr_every == o.psnr_every - 1 || i + 1 == frames);
-        };
         const bool psnr = compared(f);
-        if (!win && !psnr && f + 1 < frames && compared(f + 1)) {
-            pop_before = r.read_color();
-            reference->render(cam);
-            pop_ref_before = reference->read_color();
-            pop_before_frame = f;
-        }
         if (png || psnr) {
             const auto color = r.read_color();
             if (png) {
@@ -603,17 +620,13 @@ ViewerReport run_viewer(const ViewerOptions& o) {
                 const auto err = client::gl::compare_images(color, ref, o.width, o.height);
                 rec.psnr = err.psnr;
                 rec.max_error = err.max_error;
-                if (f > 0 && pop_before_frame == f - 1) {
-                    const auto pops = client::gl::count_pops(pop_before, color, pop_ref_before, ref, o.width, o.height);
+                if (preview_frame == f) {
+                    // The same camera before and after: the reference's change is none.
+                    const auto pops = client::gl::count_pops(preview, color, ref, ref, o.width, o.height);
                     if (pops.pixels > 0) {
                         rec.pop_rate = pops.rate();
                         rec.pop_largest = pops.largest;
                     }
-                }
-                if (!win && f + 1 < frames && compared(f + 1)) {  // compared every frame: the next pair's first
-                    pop_before = color;
-                    pop_ref_before = ref;
-                    pop_before_frame = f;
                 }
                 if (png) {
                     const std::string file = (fs::path(o.out_dir) / fmt::format("reference_{:05}.png", f)).string();
@@ -653,6 +666,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
                                             .c_str());
             }
         }
+        std::swap(preview, next_preview);
+        preview_frame = std::exchange(next_preview_frame, UINT32_MAX);
         if (o.pace && !win) std::this_thread::sleep_until(t0 + std::chrono::duration<double>(1.0 / o.fps));
         bar.update(double(f + 1) / frames, fmt::format("frame {}/{}", f + 1, frames));
         done = f + 1;
@@ -671,6 +686,17 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rep.down_at_end = !link_monitor.connected();
     rep.last_link_error = link_monitor.last_error();
     rep.summary = rt.summary();
+    rep.fade_frames = std::uint32_t(std::ceil(double(o.fade_ms) / 1000.0 * o.fps));
+    // PSNR once settled: the path's last view held until it is resident and faded in.
+    if (reference && !win && done == frames && done > 0) {
+        const scene::Camera last = path->at(double(done - 1) / o.fps);
+        rep.settled_complete = settle(last, rep.settled_frames);
+        const auto color = r.read_color();
+        reference->render(last);
+        const auto err = client::gl::compare_images(color, reference->read_color(), o.width, o.height);
+        rep.settled_psnr = err.psnr;
+        rep.settled_max_error = err.max_error;
+    }
     if (trace) {
         if (auto st = trace->close(); !st.ok()) throw Failure(st.error().message);
     }
@@ -854,15 +880,20 @@ std::string summary_text(const ViewerReport& rep) {
     if (!std::isnan(psnr))
         s += fmt::format("PSNR          mean {:.2f} dB, min {:.2f} dB, max error {} (against the reference)\n", psnr,
                          rep.min_psnr(), rep.max_error());
+    if (!std::isnan(rep.settled_psnr))
+        s += fmt::format("settled       PSNR {:.2f} dB, max error {} at the last view {} ({} frames after the path)\n",
+                         std::min(rep.settled_psnr, 99.0), rep.settled_max_error,
+                         rep.settled_complete ? "resident and faded in" : "NOT settled (timed out)", rep.settled_frames);
     if (const double pop = rep.mean_pop_rate(); !std::isnan(pop))
         s += fmt::format("popping       mean {:.4f}% of covered pixels per frame, max {:.4f}%, largest jump {} ({} frame pairs)\n",
                          100 * pop, 100 * rep.max_pop_rate(), rep.largest_pop(), rep.pop_pairs());
     s += fmt::format("tile latency  p50 {:.2f} ms, p99 {:.2f} ms, max {:.2f} ms ({} pages, request -> mapped)\n",
                      lat.quantile(0.5), lat.quantile(0.99), lat.max_ms(), lat.count());
     if (rep.summary.time_to_detail_count() > 0)
-        s += fmt::format("time to detail p50 {:.0f} frames, p90 {:.0f}, max {} ({} pages, first wanted -> first drawn)\n",
+        s += fmt::format("time to detail p50 {:.0f} frames, p90 {:.0f}, max {} ({} pages, first wanted -> first drawn){}\n",
                          rep.summary.time_to_detail_quantile(0.5), rep.summary.time_to_detail_quantile(0.9),
-                         rep.summary.time_to_detail_max(), rep.summary.time_to_detail_count());
+                         rep.summary.time_to_detail_max(), rep.summary.time_to_detail_count(),
+                         rep.fade_frames ? fmt::format("; full weight {} frames later (the fade)", rep.fade_frames) : "");
     s += fmt::format("bytes         {} received, {} uploaded\n", human_bytes(rep.summary.bytes_received()),
                      human_bytes(rep.summary.bytes_uploaded()));
     s += fmt::format("pages         {} requested, {} uploaded, {} evicted; cache hit ratio {}\n",

@@ -13,6 +13,10 @@
 
 namespace tessera::tools {
 
+// Blending in: how long an arriving page takes to reach full weight, by default (docs/benchmarks.md,
+// "Popping": the pop rate against the fade time).
+constexpr float kDefaultFadeMs = 150.0f;
+
 struct ViewerOptions {
     std::string store;            // FILE.tsr, grpc://HOST:PORT/NAME, grpcs://HOST:PORT/NAME or HOST:PORT/NAME
     std::string reference_store;  // local .tsr for the PSNR reference (default: `store` when it is a file)
@@ -44,6 +48,9 @@ struct ViewerOptions {
     std::uint32_t feedback_scale = 8;
     float prefetch_lod = 0.3f;  // RendererConfig::feedback_prefetch_lod (docs/renderer.md, "Prefetch")
     float guard_band = 0.1f;    // RendererConfig::feedback_guard_band
+    // RendererConfig::fade_ms (docs/renderer.md, "Blending in"): arriving pages blend in over this
+    // long, on path time (headless) or wall time (windowed); 0: off.
+    float fade_ms = kDefaultFadeMs;
     std::uint64_t ram_cache_bytes = 256ull << 20;
     std::string disk_cache_dir;
     std::uint64_t disk_cache_bytes = 1ull << 30;
@@ -125,6 +132,13 @@ struct ViewerReport {
     double warmup_ms = kNaN;        // first view: time to full detail (NaN: no warm-up)
     std::uint32_t warmup_frames = 0;
     bool warmup_complete = false;   // false: it timed out
+    // The path's last view held until resident and faded in, against the reference (headless,
+    // with --psnr-every): PSNR once settled (NaN: not measured).
+    double settled_psnr = kNaN;
+    int settled_max_error = -1;
+    std::uint32_t settled_frames = 0;
+    bool settled_complete = false;
+    std::uint32_t fade_frames = 0;  // frames a page takes to reach full weight once drawn (0: no fade)
     // The tile source's link over the whole run, warm-up included (a local store: always up).
     bool remote = false;            // tiles came from a server
     double run_s = 0;               // wall time the link was watched (warm-up and path)

@@ -6,7 +6,8 @@
 //     #define VT_FILTER <VT_BILINEAR | VT_TRILINEAR | VT_ANISOTROPIC>
 //     #define VT_TILE_SIZE, VT_BORDER, VT_MAX_ANISOTROPY, VT_ATLAS_SIZE, VT_NO_DATA_COLOUR
 //     [#define VT_SPARSE_TABLE 1]   (vt.frag for two-level page tables: see vt_entry)
-//     [#define VT_ATLAS_RECT 1]     (RGBA8 pages, bilinear: a rectangle atlas in texel coordinates)
+//     [#define VT_ATLAS_RECT 1]     (RGBA8 pages, one level: a rectangle atlas in texel coordinates)
+//     [#define VT_FADE 1]           (blending in: each atlas cell's weight, see vt_fade_floor)
 //     <this file> <the shader>
 // (detail::vt_shader_defines). It is drawn with scene.vert, which forwards the per-draw,
 // per-texture and per-frame values as flat varyings (see "Inputs").
@@ -105,6 +106,16 @@ vec3 vt_lit(vec3 colour, vec4 normal_texel) {
 }
 #endif
 uniform uint vt_texture_id;         // for the feedback id (feedback.frag: 1/N of the pixels)
+#ifdef VT_FADE
+// Blending in (docs/renderer.md, "Blending in"): one weight per atlas cell (R8, the atlas's grid),
+// 0 when the cell's page has just arrived, 1 once it has faded in. A lookup of a cell reads its
+// second level (the page's parent level over it) with at least 1 - weight of the blend, so the
+// image moves from the parent's texels to the page's over the fade, whatever the filter.
+uniform sampler2D vt_fade;
+
+// The least weight of the second level in a lookup of entry e's cell: 1 - the cell's weight.
+float vt_fade_floor(uint e) { return 1.0 - texelFetch(vt_fade, ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu)), 0).r; }
+#endif
 
 // ---------------------------------------------------------------------------------------------
 // The LoD rule (tessera/scene/lod.hpp). dx, dy: derivatives of the level-0 texel coordinate per
@@ -276,7 +287,7 @@ vec2 vt_cell_origin(uint e) {
 // fraction: trilinear's weight of the next coarser level, which the atlas's second level holds for
 // every resident page; a fallback samples its ancestor at its own level only (both trilinear levels
 // would fall back to it). Ignored by the bilinear filter.
-#if VT_FILTER != VT_BILINEAR
+#if VT_FILTER != VT_BILINEAR || defined(VT_FADE)
 #ifdef VT_BLOCK_EDGES
 // A trilinear lookup of a block atlas at `coord` (atlas texels), whose coarser level is read at
 // `coarse` instead where the two differ: at the texture's edges, where the page's second-level
@@ -294,25 +305,36 @@ vec4 vt_trilinear_texel(sampler2D atlas, vec2 coord, vec2 coarse, float fraction
 
 vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint resident) {
     int r = int((e >> 24) & 31u);
+#ifdef VT_FADE
+    // The coarser level read at its own edge-texel centres, of the page sampled (a fallback's
+    // ancestor too: its second level shows while it fades in).
+    VtPos a = vt_ancestor_position(p, max(r - level, 0));
+    vec2 in_page = a.in_page;
+    vec4 b = vt_coarse_bounds(a.page, max(r, level));
+    float f = max(r > level ? 0.0 : fraction, vt_fade_floor(e));
+#else
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
-    vec2 cell = vt_cell_origin(e);
 #if VT_FILTER != VT_BILINEAR
     // The coarser level read at its own edge-texel centres. (A fallback samples its ancestor's
     // level only, f = 0: `coarse` is then unused.)
     vec4 b = vt_coarse_bounds(p.page, level);
-    vec2 coarse = cell + clamp(in_page, b.xy, b.zw);
     float f = r > level ? 0.0 : fraction;
+#endif
+#endif
+    vec2 cell = vt_cell_origin(e);
+#if VT_FILTER != VT_BILINEAR || defined(VT_FADE)
+    vec2 coarse = cell + clamp(in_page, b.xy, b.zw);
 #endif
 #ifdef VT_ATLAS_RECT
     vec4 c = texture(vt_atlas, cell + in_page);
-#elif VT_FILTER == VT_BILINEAR
+#elif VT_FILTER == VT_BILINEAR && !defined(VT_FADE)
     vec4 c = textureLod(vt_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
 #else
     vec4 c = vt_trilinear_texel(vt_atlas, cell + in_page, coarse, f);
 #endif
     bool valid = (e >> 31) != 0u;
 #ifdef VT_LIT
-#if VT_FILTER == VT_BILINEAR
+#if VT_FILTER == VT_BILINEAR && !defined(VT_FADE)
     vec4 second = textureLod(vt_second_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
 #else
     vec4 second = vt_trilinear_texel(vt_second_atlas, cell + in_page, coarse, f);
@@ -380,7 +402,13 @@ VtTapMap vt_tap_map(uint e, ivec2 corner, ivec2 offset, int level, float fractio
     // vt_ancestor_position of page corner + offset with t - offset * P in it.
     vec2 base = (vec2((corner + offset) & ((1 << d) - 1)) - vec2(offset)) * (payload * s);
     VtTapMap m;
+#ifdef VT_FADE
+    // (A fallback's taps read its second level with the edge bounds of level `level`: only while
+    // it fades in, and only at the texture's edges, where they differ.)
+    m.map = vec4(s, vt_cell_origin(e) + base, max(r > level ? 0.0 : fraction, vt_fade_floor(e)));
+#else
     m.map = vec4(s, vt_cell_origin(e) + base, r > level ? 0.0 : fraction);
+#endif
     m.weight = (e >> 31) != 0u ? 1.0 : 0.0;
     return m;
 }

@@ -69,7 +69,7 @@ Status check_page_format_support(const RendererConfig& c) {
         default: return refuse("the renderer's atlas does not hold it");
     }
     if (c.tile_size % 4 != 0) return refuse(fmt::format("tiles of {} texels are not whole 4x4 blocks", c.tile_size));
-    if (c.filter != Filter::bilinear && c.tile_size % 8 != 0)
+    if (c.has_second_level() && c.tile_size % 8 != 0)
         return refuse(fmt::format("the second level of tiles of {} texels is not whole 4x4 blocks (a multiple of 8)", c.tile_size));
     return {};
 }
@@ -98,7 +98,7 @@ Status PageAtlas::init(const RendererConfig& c, std::uint32_t max_texture) {
     // (no normalisation, no mip level to select): fewer instructions per lookup on a software
     // rasterizer. Block formats cannot live in a rectangle texture: always 2D.
     // A multi-layer pool's atlases are all 2D: the shader samples two of them with one coordinate.
-    const bool two_levels = c.filter != Filter::bilinear;
+    const bool two_levels = c.has_second_level();
     const bool blocks = is_block_compressed(c.page_format);
     internal_format_ = internal_format(c);
     texture_ = make_texture(two_levels || blocks || !c.more_layers.empty() ? GL_TEXTURE_2D : GL_TEXTURE_RECTANGLE);

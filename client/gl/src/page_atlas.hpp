@@ -1,9 +1,10 @@
 #pragma once
 // The physical page atlas: the pool's pages in one texture, a near-square grid of tile_size cells
 // (slot s in column s % columns, row s / columns), in the configured page format. Pages arrive
-// through the staging ring; with two levels (trilinear, anisotropic) each cell's second level
+// through the staging ring; with two levels (RendererConfig::has_second_level) each cell's second level
 // holds the page's next coarser level: rendered on the GPU for uncompressed pages (page_mips.hpp),
 // uploaded with the page for block formats, which cannot be rendered into.
+#include <algorithm>
 #include <cstdint>
 #include <optional>
 #include <span>
@@ -54,6 +55,9 @@ public:
     // The slot's cell as a GPU page-table entry names it (vt_sample.glsl's vt_cell_origin): column
     // in bits 0..11, row in bits 12..23, so the shader places a page without a division.
     std::uint32_t cell_code(SlotId slot) const { return (slot % columns_) | ((slot / columns_) << 12); }
+    // The grid: cells per row, and rows.
+    std::uint32_t columns() const { return columns_; }
+    std::uint32_t rows() const { return height_ / std::max<std::uint32_t>(tile_size_, 1); }
 
 private:
     static constexpr std::uint32_t kMaxCells = 4096;  // per side: 12 bits each in a GPU entry

@@ -25,13 +25,15 @@ std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width
         filter, c.tile_size, c.border, c.max_anisotropy, atlas_width, atlas_height, kNoDataColour[0], kNoDataColour[1],
         kNoDataColour[2], kNoDataColour[3]) +
            // The rectangle atlas (one level of RGBA8 pages): see VtRenderer's atlas.
-           (c.filter == Filter::bilinear && !is_block_compressed(c.page_format) && c.more_layers.empty()
+           (!c.has_second_level() && !is_block_compressed(c.page_format) && c.more_layers.empty()
                 ? "#define VT_ATLAS_RECT 1\n"
                 : "") +
+           // Blending in: each atlas cell's weight (docs/renderer.md, "Blending in").
+           (c.fade_ms > 0.0f ? "#define VT_FADE 1\n" : "") +
            // Lighting by a normal layer: vt_sample also samples that layer's atlas (docs/renderer.md, "Layers").
            (c.normal_layer && c.show_layer == 0 ? "#define VT_LIT 1\n" : "") +
            // Block atlases' second levels have their own border blocks at the texture's edges.
-           (c.filter != Filter::bilinear && any_block_layer(c) ? "#define VT_BLOCK_EDGES 1\n" : "");
+           (c.has_second_level() && any_block_layer(c) ? "#define VT_BLOCK_EDGES 1\n" : "");
 }
 
 SceneGeometry::SceneGeometry() : vao_(make_vertex_array()) {}

@@ -10,6 +10,7 @@
 
 #include "gl_util.hpp"
 #include "page_atlas.hpp"
+#include "page_fade.hpp"
 #include "page_table.hpp"
 #include "page_table_texture.hpp"
 #include "readback_ring.hpp"
@@ -28,7 +29,7 @@ using namespace detail;
 struct VtUniforms {
     GLint view_projection = -1, bias = -1, main_pixel = -1;
     GLint table_column = -1, table_last_row = -1, levels = -1, texture_size = -1, texture_id = -1;
-    GLint page_table = -1, atlas = -1, second_atlas = -1, dir_offset = -1, dir_width = -1;
+    GLint page_table = -1, atlas = -1, second_atlas = -1, fade = -1, dir_offset = -1, dir_width = -1;
     ChunkUniforms chunk;
 
     explicit VtUniforms(const Program& p = Program()) {
@@ -46,6 +47,7 @@ struct VtUniforms {
         dir_width = uniform(p, "vt_dir_width");
         atlas = uniform(p, "vt_atlas");
         second_atlas = uniform(p, "vt_second_atlas");
+        fade = uniform(p, "vt_fade");
         chunk.chunk_offset = uniform(p, "u_chunk_offset");
         chunk.chunk_page = uniform(p, "u_chunk_page");
         chunk.chunk_base = uniform(p, "u_chunk_base");
@@ -67,10 +69,11 @@ public:
             return Error{Errc::invalid_argument, fmt::format("renderer: pool_slots must be 1..{}", PageTable::kMaxSlots)};
         if (c.tile_size <= 2 * c.border || c.border == 0)
             return Error{Errc::invalid_argument, fmt::format("renderer: tile_size {} and border {} leave no payload (border >= 1)", c.tile_size, c.border)};
-        if (c.filter != Filter::bilinear && (c.tile_size % 2 != 0 || c.border % 2 != 0))
+        if (!(c.fade_ms >= 0 && c.fade_ms <= 10000)) return Error{Errc::invalid_argument, "renderer: fade_ms must be 0..10000"};
+        if (c.has_second_level() && (c.tile_size % 2 != 0 || c.border % 2 != 0))
             return Error{Errc::invalid_argument,
-                         fmt::format("renderer: the trilinear and anisotropic filters need an even tile size and border "
-                                     "(the atlas's second level halves pages), got {} and {}",
+                         fmt::format("renderer: the trilinear and anisotropic filters and blending in need an even tile size and "
+                                     "border (the atlas's second level halves pages), got {} and {}",
                                      c.tile_size, c.border)};
         // The anisotropic taps span under 2 * max_anisotropy texels of one level, and vt_sample.glsl
         // looks them up in the 2x2 pages around the centre: a page must be wider than that.
@@ -135,7 +138,9 @@ public:
             glProgramUniform1i(p, u.page_table, 0);
             glProgramUniform1i(p, u.atlas, 1);
             if (u.second_atlas >= 0) glProgramUniform1i(p, u.second_atlas, 2);
+            if (u.fade >= 0) glProgramUniform1i(p, u.fade, 3);
         }
+        TESSERA_TRY(fade_.init(atlas_.columns(), atlas_.rows(), c.fade_ms));
         fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
         fb_height_ = (c.height + c.feedback_scale - 1) / c.feedback_scale;
         // Derivatives per main-target pixel: a main pixel is fb_width / width feedback pixels (of a
@@ -187,6 +192,7 @@ public:
                 return;
             }
         }
+        fade_.arrived(slot);
         ++stats_.pages_uploaded;
     }
 
@@ -222,12 +228,21 @@ public:
 
     // ---- Frames -----------------------------------------------------------------------------
 
-    std::uint64_t render(const scene::Camera& camera, float lod_bias) override {
+    void set_time(double seconds) override {
+        time_ = std::max(seconds, time_);
+        time_set_ = true;
+    }
+
+    std::uint64_t render(const scene::Camera& camera, float requested_bias) override {
+        if (!time_set_ && frame_ > 0) time_ += 1.0 / 60.0;
+        time_set_ = false;
         ++frame_;
         ++stats_.frames;
         staging_.close_batch();  // the uploads since the last frame, fenced together
         staging_.retire();
         for (std::size_t i = 0; i <= more_atlases_.size(); ++i) atlas(i).make_page_mips();  // after the frame's page uploads, in stream order
+        const float lod_bias = fade_.frame(time_, requested_bias);  // the weights of this frame's cells
+        stats_.fading_pages = fade_.fading();
 
         const double aspect = double(cfg_.width) / double(cfg_.height);
         const auto vp = view_projection(camera, aspect);
@@ -240,21 +255,16 @@ public:
             use_page_table(*tex);
             set_texture_uniforms(vt_program_, vt_u_, *tex);
             set_texture_uniforms(feedback_program_, feedback_u_, *tex);
-            glBindTextureUnit(1, atlas(cfg_.show_layer).texture());
-            if (cfg_.normal_layer) glBindTextureUnit(2, atlas(*cfg_.normal_layer).texture());
+            bind_atlases();
         }
+        last_bias_ = lod_bias;
         stats_.visible_chunks = tex ? geometry_.visible_chunks() : 0;
         for (auto* p : {&depth_program_, &vt_program_, &feedback_program_}) {
             const VtUniforms& u = p == &depth_program_ ? depth_u_ : p == &vt_program_ ? vt_u_ : feedback_u_;
             glProgramUniformMatrix4fv(p->get(), u.view_projection, 1, GL_FALSE, vp.data());
             glProgramUniform1f(p->get(), u.bias, lod_bias);
         }
-        glEnable(GL_CULL_FACE);
-        glCullFace(GL_BACK);
-        glFrontFace(GL_CCW);
-        glEnable(GL_DEPTH_TEST);
-        glDisable(GL_BLEND);
-        glDisable(GL_SCISSOR_TEST);
+        set_pass_state();
 
         // Feedback pass at 1/N: the ids of the nearest surface (its own depth buffer). Read back
         // after the main pass: a software rasterizer finishes a pass when it is read, so reading it
@@ -308,34 +318,17 @@ public:
         }
 
         // Main pass: depth pre-pass, then the VT pass at GL_LEQUAL with early fragment tests, so
-        // each visible pixel is shaded and counted once. A scene where no triangle can hide another
-        // (scene::overdraw_free: the flat terrain) needs no pre-pass: the VT pass alone shades
-        // each pixel once. Nor does a heightfield drawn front to back (displaced terrain): there
-        // each pixel's first fragment is its visible one, and GL_LESS rejects the rest.
-        const bool prepass = depth_prepass_ && !front_to_back;
+        // each visible pixel is shaded and counted once (draw_main).
         begin_colour_pass(main_);
         const auto counter_slot = counters_.begin_frame();  // zeroes the counters
         if (tex) {
-            if (prepass) {
-                ++stats_.depth_prepasses;
-                glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
-                glDepthFunc(GL_LESS);
-                glUseProgram(depth_program_.get());
-                geometry_.draw(depth_program_, depth_u_.chunk, camera);
-                glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-                glDepthMask(GL_FALSE);
-            }
-            glDepthFunc(prepass ? GL_LEQUAL : GL_LESS);
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, counters_.counters());
-            glUseProgram(vt_program_.get());
             // Textured pixels come from an occlusion query (the VT pass shades each visible pixel
             // once), not from a per-fragment atomic: atomics on one address from every fragment
             // serialise a software rasterizer's threads.
+            if (depth_prepass_ && !front_to_back) ++stats_.depth_prepasses;
             if (counter_slot) glBeginQuery(GL_SAMPLES_PASSED, counters_.query(*counter_slot));
-            geometry_.draw(vt_program_, vt_u_.chunk, camera);
+            draw_main(camera, front_to_back, counters_.counters());
             if (counter_slot) glEndQuery(GL_SAMPLES_PASSED);
-            glDepthMask(GL_TRUE);
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, 0);
         }
         glUseProgram(0);
         glDisable(GL_FRAMEBUFFER_SRGB);
@@ -349,6 +342,38 @@ public:
             ++stats_.counters_skipped;
         glFlush();  // start the GPU on this frame; never waits
         return frame_;
+    }
+
+    std::vector<std::uint8_t> render_preview(const scene::Camera& camera) override {
+        if (!preview_.fbo) {
+            auto t = make_colour_target(cfg_.width, cfg_.height, cfg_.srgb);
+            if (!t) return {};
+            preview_ = std::move(*t);
+            preview_counters_ = make_buffer();
+            const std::uint32_t zero[4] = {0, 0, 0, 0};
+            glNamedBufferStorage(preview_counters_.get(), sizeof zero, zero, 0);
+        }
+        const VirtualTexture* tex = has_scene_ ? tables_.find(scene_texture_) : nullptr;
+        begin_colour_pass(preview_);
+        if (tex) {
+            const auto vp = view_projection(camera, double(cfg_.width) / double(cfg_.height));
+            geometry_.cull(camera, double(cfg_.width) / double(cfg_.height));
+            const bool front_to_back = depth_prepass_ && geometry_.order_front_to_back(camera);
+            use_page_table(*tex);
+            set_texture_uniforms(vt_program_, vt_u_, *tex);
+            bind_atlases();
+            for (auto* p : {&depth_program_, &vt_program_}) {
+                const VtUniforms& u = p == &depth_program_ ? depth_u_ : vt_u_;
+                glProgramUniformMatrix4fv(p->get(), u.view_projection, 1, GL_FALSE, vp.data());
+                glProgramUniform1f(p->get(), u.bias, last_bias_);
+            }
+            set_pass_state();
+            draw_main(camera, front_to_back, preview_counters_.get());
+        }
+        glUseProgram(0);
+        glDisable(GL_FRAMEBUFFER_SRGB);
+        glBindFramebuffer(GL_FRAMEBUFFER, 0);
+        return read_colour(preview_);
     }
 
     bool poll_feedback(FeedbackFrame& out) override {
@@ -413,6 +438,45 @@ private:
 
     void set_page_layout(const VirtualTexture& t) { geometry_.set_page_layout(t.payload, t.texels[0], t.texels[1]); }
 
+    void bind_atlases() {
+        glBindTextureUnit(1, atlas(cfg_.show_layer).texture());
+        if (cfg_.normal_layer) glBindTextureUnit(2, atlas(*cfg_.normal_layer).texture());
+        if (fade_.enabled()) glBindTextureUnit(3, fade_.texture());
+    }
+
+    static void set_pass_state() {
+        glEnable(GL_CULL_FACE);
+        glCullFace(GL_BACK);
+        glFrontFace(GL_CCW);
+        glEnable(GL_DEPTH_TEST);
+        glDisable(GL_BLEND);
+        glDisable(GL_SCISSOR_TEST);
+    }
+
+    // The main pass into the bound colour target (cleared): depth pre-pass, then the VT pass at
+    // GL_LEQUAL with early fragment tests, so each visible pixel is shaded and counted once, its
+    // fallback counted in `counters`. A scene where no triangle can hide another
+    // (scene::overdraw_free: the flat terrain) needs no pre-pass: the VT pass alone shades each
+    // pixel once. Nor does a heightfield drawn front to back (displaced terrain): there each
+    // pixel's first fragment is its visible one, and GL_LESS rejects the rest.
+    void draw_main(const scene::Camera& camera, bool front_to_back, GLuint counters) {
+        const bool prepass = depth_prepass_ && !front_to_back;
+        if (prepass) {
+            glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
+            glDepthFunc(GL_LESS);
+            glUseProgram(depth_program_.get());
+            geometry_.draw(depth_program_, depth_u_.chunk, camera);
+            glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+            glDepthMask(GL_FALSE);
+        }
+        glDepthFunc(prepass ? GL_LEQUAL : GL_LESS);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, counters);
+        glUseProgram(vt_program_.get());
+        geometry_.draw(vt_program_, vt_u_.chunk, camera);
+        glDepthMask(GL_TRUE);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, 0);
+    }
+
     // Binds `t`'s page table and puts the VT program of its layout in vt_program_.
     void use_page_table(const VirtualTexture& t) {
         if (t.sparse != vt_program_sparse_) {
@@ -442,6 +506,9 @@ private:
     std::vector<std::unique_ptr<PageAtlas>> more_atlases_;  // layers 1, 2, ...: the same grid
     PagePoolFormat pool_;                                   // every atlas's format, set by init
     PageTableTextures tables_;
+    PageFade fade_;
+    double time_ = 0;        // the renderer's clock, seconds (set_time)
+    bool time_set_ = false;  // set for the next frame
     SceneGeometry geometry_;
     TextureId scene_texture_ = 0;
     bool has_scene_ = false;
@@ -456,6 +523,9 @@ private:
     bool vt_program_sparse_ = false;
 
     ColourTarget main_;
+    ColourTarget preview_;       // render_preview's, made on first use
+    Buffer preview_counters_;    // the fallback counters render_preview's VT pass writes (unread)
+    float last_bias_ = 0;        // the bias the last frame drew with
     Texture fb_ids_;
     Renderbuffer fb_depth_;
     Framebuffer fb_fbo_;

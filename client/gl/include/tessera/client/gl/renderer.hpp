@@ -78,6 +78,16 @@ struct RendererConfig {
     // (pages about to turn into view). Both 0: the feedback is exactly what the image samples.
     float feedback_prefetch_lod = 0.0f;  // 0..2
     float feedback_guard_band = 0.0f;    // 0..1
+    // Blending in (docs/renderer.md, "Blending in"): a page that becomes resident is blended from
+    // its parent level to itself over `fade_ms` milliseconds of the renderer's clock (set_time),
+    // per atlas cell, with every filter and page format; LoD-bias changes are spread over the same
+    // time (at most one level per fade_ms). 0: off, pages show at full weight the frame they
+    // arrive (the exactness tests' behaviour). On, the atlas has its second level with every
+    // filter (has_second_level).
+    float fade_ms = 0.0f;  // 0..10000
+    // Whether the atlas holds each page's next coarser level under it: the trilinear and
+    // anisotropic filters read it, and blending in fades from it.
+    bool has_second_level() const { return filter != Filter::bilinear || fade_ms > 0.0f; }
 };
 
 // The colour drawn where nothing is resident on a page's path (an empty entry): opaque magenta,
@@ -107,6 +117,7 @@ struct RendererStats {
     std::uint64_t depth_prepasses = 0;        // frames drawn with a depth pre-pass (scenes that need one
                                               // and cannot be drawn front to back)
     std::size_t visible_chunks = 0;           // last frame
+    std::size_t fading_pages = 0;             // last frame: pages blending in (RendererConfig::fade_ms)
 };
 
 // A feedback buffer read back from the GPU.
@@ -136,6 +147,16 @@ public:
     // Renders one frame: feedback pass (at 1/N, depth-tested, same LoD math) and the VT pass with
     // the fallback counters. Returns the frame number. Never waits on the GPU.
     virtual std::uint64_t render(const scene::Camera& camera, float lod_bias) = 0;
+    // The time of the next render(), seconds (any origin, never decreasing), the clock blending in
+    // runs on: a viewer's path time (headless, frame / fps) or wall time. Never set: each render()
+    // is 1/60 s after the one before.
+    virtual void set_time(double seconds) = 0;
+    // What the next frame would show at `camera` if no page, page table, blending weight or bias
+    // changed: the main pass drawn now, with the last frame's state, into a target of its own
+    // (RGBA8 as read_color). No feedback, no counters, the frame number unchanged. Call it after
+    // render() and before the runtime's next uploads: the viewer's pop rate compares it with the
+    // next frame (docs/viewer.md, "Measures"). Waits: for measurement, not the render loop.
+    virtual std::vector<std::uint8_t> render_preview(const scene::Camera& camera) = 0;
     // A finished feedback readback, if any (the newest; older finished ones are dropped). Never waits.
     virtual bool poll_feedback(FeedbackFrame& out) = 0;
     // Finished counter readbacks, oldest first, appended. Never waits.
