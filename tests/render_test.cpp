@@ -1074,6 +1074,135 @@ TEST(RenderTrilinear, CoarserLevelIsTheStoredParentWhenItIsResident) {
     expect_trilinear_matches(/*parents=*/true, /*inverted_parents=*/true);
 }
 
+// Blending in (docs/renderer.md, "Blending in"). A static camera at lod `fine` (trilinear and
+// anisotropic: fine + 0.5) over the whole pattern, level fine + 1 and the root resident and faded
+// in; then level `fine` arrives. With fade_ms F, in frames F/8 apart the image moves from the view
+// of level fine + 1 to the view of level fine gradually: the first frame after the arrival is the
+// view before it (the new pages show their parent level), each frame changes by at most an eighth
+// of the whole change (plus rounding), and after F the frame is the one a renderer without
+// blending draws from the same pages (max error <= 1), which matches the reference.
+void expect_fades_in(gl::Filter filter) {
+    ScratchDir dir;
+    auto pattern = pattern_source(1024, 1024);
+    const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56
+    auto levels = gl::decode_store_levels(store);
+    ASSERT_TRUE(levels.ok()) << levels.error().message;
+    const auto info = store_geometry(1024, 1024, 64);
+    const std::uint32_t ts = info.tile_size(), P = info.tile_payload, B = info.border, fine = 2;
+    // Level fine + 1 inverted (in the pages and the reference alike): a change no fade could hide.
+    for (std::size_t i = 0; i < (*levels)[fine + 1].rgba8.size(); ++i)
+        if (i % 4 != 3) (*levels)[fine + 1].rgba8[i] = std::uint8_t(255 - (*levels)[fine + 1].rgba8[i]);
+    auto cfg = config(filter, ts, 64, /*srgb=*/false, 192, 144);
+    const double fade_s = 0.2;
+    cfg.fade_ms = float(fade_s * 1000);
+    auto plain_cfg = cfg;
+    plain_cfg.fade_ms = 0;
+    auto made = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(made.ok()) << made.error().message;
+    auto plain_made = gl::VtRenderer::create(plain_cfg);
+    ASSERT_TRUE(plain_made.ok()) << plain_made.error().message;
+    gl::VtRenderer& fading = **made;
+    gl::VtRenderer& plain = **plain_made;
+    const auto scene = terrain(1024, 1024, 256);
+    for (gl::VtRenderer* r : {&fading, &plain}) {
+        ASSERT_TRUE(r->add_texture(0, info).ok());
+        ASSERT_TRUE(r->set_scene(scene, 0).ok());
+    }
+    auto table = PageTable::create(0, info.levels[0].tiles_x, info.levels[0].tiles_y, info.level_count());
+    ASSERT_TRUE(table.ok()) << table.error().message;
+    std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
+    tessera::client::SlotId next = 0;
+    const auto upload_level = [&](std::uint32_t l) {
+        const auto& L = (*levels)[l];
+        for (std::uint32_t py = 0; py < info.levels[l].tiles_y; ++py)
+            for (std::uint32_t px = 0; px < info.levels[l].tiles_x; ++px) {
+                for (std::uint32_t j = 0; j < ts; ++j)
+                    for (std::uint32_t i = 0; i < ts; ++i) {
+                        const auto x = std::clamp<std::int64_t>(std::int64_t(px) * P - B + i, 0, L.width - 1);
+                        const auto y = std::clamp<std::int64_t>(std::int64_t(py) * P - B + j, 0, L.height - 1);
+                        std::copy_n(&L.rgba8[(std::size_t(y) * L.width + std::size_t(x)) * 4], 4,
+                                    &page[(std::size_t(j) * ts + i) * 4]);
+                    }
+                fading.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
+                plain.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
+                ASSERT_TRUE(table->map(l, px, py, next++).ok());
+            }
+        upload_dirty(*table, fading);
+        table->mark_all_dirty();
+        upload_dirty(*table, plain);
+    };
+    const double lod = fine + (filter == gl::Filter::bilinear ? 0.0 : 0.5);
+    const auto cam = straight_down(512, 512, height_for(std::exp2(lod), straight_down(0, 0, 1), cfg.height));
+    const auto frame_at = [&](double t) {
+        fading.set_time(t);
+        return render_vt(fading, cam);
+    };
+    upload_level(fine + 1);
+    upload_level(info.level_count() - 1);
+    double t = 0;
+    for (; t <= fade_s + 1e-9; t += fade_s / 4) frame_at(t);
+    const Frame before = frame_at(t);
+    EXPECT_EQ(fading.stats().fading_pages, 0u) << "the coarse levels have faded in";
+    EXPECT_GT(before.counters.fallback_unbiased, 0u) << "level " << fine << " is not resident yet";
+
+    upload_level(fine);
+    const Frame after = render_vt(plain, cam);  // the pages at full weight, at once
+    EXPECT_EQ(after.counters.fallback_unbiased, 0u);
+    const auto mask = coverage(after.rgba);
+    ASSERT_GT(count(mask), std::size_t(cfg.width * cfg.height / 2));
+    const auto max_diff = [&](const std::vector<std::uint8_t>& a, const std::vector<std::uint8_t>& b) {
+        int m = 0;
+        for (std::size_t i = 0; i < mask.size(); ++i)
+            for (std::size_t ch = 0; mask[i] && ch < 3; ++ch) m = std::max(m, std::abs(int(a[i * 4 + ch]) - int(b[i * 4 + ch])));
+        return m;
+    };
+    const int whole = max_diff(before.rgba, after.rgba);
+    EXPECT_GE(whole, 64) << "the two levels must differ for the test to see a fade";
+    const int step_bound = (whole + 7) / 8 + 2;
+    std::vector<std::uint8_t> last = before.rgba;
+    int largest_step = 0;
+    for (int k = 0; k <= 8; ++k) {
+        const Frame f = frame_at(t + k * fade_s / 8);
+        const int step = max_diff(last, f.rgba);
+        if (k == 0) {
+            EXPECT_LE(step, 2) << "the arriving pages first show their parent level";
+            EXPECT_GT(fading.stats().fading_pages, 0u);
+        } else {
+            EXPECT_LE(step, step_bound) << "frame " << k << " of the fade changes by more than an eighth of " << whole;
+        }
+        EXPECT_EQ(f.counters.fallback_unbiased, 0u) << "a fading page counts as resident";
+        largest_step = std::max(largest_step, step);
+        last = f.rgba;
+    }
+    EXPECT_GT(largest_step, 0);
+    EXPECT_EQ(fading.stats().fading_pages, 0u);
+    const auto e = gl::compare_images(last, after.rgba, cfg.width, cfg.height, mask);
+    EXPECT_LE(e.max_error, 1) << "after the fade, the frame is the one drawn without blending";
+
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    ASSERT_TRUE(ref.ok()) << ref.error().message;
+    ASSERT_TRUE((*ref)->set_scene(scene).ok());
+    (*ref)->render(cam);
+    const auto want = (*ref)->read_color();
+    const auto r = gl::compare_images(last, want, cfg.width, cfg.height, coverage(want));
+    EXPECT_GE(r.psnr, 50.0) << "max error " << r.max_error;
+    EXPECT_LE(r.max_error, 3);
+    std::printf("  %s: the whole change %d, largest step %d (bound %d), after the fade max error %d against no blending, "
+                "%.1f dB against the reference\n",
+                filter_name(filter), whole, largest_step, step_bound, e.max_error, r.psnr);
+}
+
+class RenderFade : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderFade, AnArrivingPageFadesInAndEndsExact) {
+    REQUIRE_GL(ctx);
+    expect_fades_in(GetParam());
+}
+
+INSTANTIATE_TEST_SUITE_P(Filters, RenderFade,
+                         ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
+                         [](const auto& p) { return std::string(filter_name(p.param)); });
+
 TEST(RenderCounters, FallbackPixelsAgainstTheUnbiasedAndTheBiasedLevel) {
     REQUIRE_GL(ctx);
     const auto info = store_geometry(2048, 2048, 128);

@@ -7,7 +7,7 @@
 //     #define VT_TILE_SIZE, VT_BORDER, VT_MAX_ANISOTROPY, VT_ATLAS_SIZE, VT_NO_DATA_COLOUR
 //     [#define VT_SPARSE_TABLE 1]   (vt.frag for two-level page tables: see vt_entry)
 //     [#define VT_ATLAS_RECT 1]     (RGBA8 pages, one level: a rectangle atlas in texel coordinates)
-//     [#define VT_FADE 1]           (blending in: each atlas cell's weight, see vt_fade_floor)
+//     [#define VT_FADE 1]           (blending in: each atlas cell's weight, see vt_faded_fraction)
 //     <this file> <the shader>
 // (detail::vt_shader_defines). It is drawn with scene.vert, which forwards the per-draw,
 // per-texture and per-frame values as flat varyings (see "Inputs").
@@ -108,13 +108,18 @@ vec3 vt_lit(vec3 colour, vec4 normal_texel) {
 uniform uint vt_texture_id;         // for the feedback id (feedback.frag: 1/N of the pixels)
 #ifdef VT_FADE
 // Blending in (docs/renderer.md, "Blending in"): one weight per atlas cell (R8, the atlas's grid),
-// 0 when the cell's page has just arrived, 1 once it has faded in. A lookup of a cell reads its
-// second level (the page's parent level over it) with at least 1 - weight of the blend, so the
-// image moves from the parent's texels to the page's over the fade, whatever the filter.
+// 0 when the cell's page has just arrived, 1 once it has faded in. A lookup of a cell blends its
+// second level (the page's parent level over it) in with weight 1 - w (1 - f), w the cell's
+// weight and f the filter's own fraction: all of it when the page arrives, the filter's own blend
+// once it has faded in, linearly between, so the image moves from the parent's texels to the
+// page's view evenly over the fade, whatever the filter.
 uniform sampler2D vt_fade;
 
-// The least weight of the second level in a lookup of entry e's cell: 1 - the cell's weight.
-float vt_fade_floor(uint e) { return 1.0 - texelFetch(vt_fade, ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu)), 0).r; }
+// The second level's weight in a lookup of entry e's cell whose filter blends with `fraction`.
+float vt_faded_fraction(uint e, float fraction) {
+    float w = texelFetch(vt_fade, ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu)), 0).r;
+    return 1.0 - w * (1.0 - fraction);
+}
 #endif
 
 // ---------------------------------------------------------------------------------------------
@@ -311,7 +316,7 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
     VtPos a = vt_ancestor_position(p, max(r - level, 0));
     vec2 in_page = a.in_page;
     vec4 b = vt_coarse_bounds(a.page, max(r, level));
-    float f = max(r > level ? 0.0 : fraction, vt_fade_floor(e));
+    float f = vt_faded_fraction(e, r > level ? 0.0 : fraction);
 #else
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
 #if VT_FILTER != VT_BILINEAR
@@ -405,7 +410,7 @@ VtTapMap vt_tap_map(uint e, ivec2 corner, ivec2 offset, int level, float fractio
 #ifdef VT_FADE
     // (A fallback's taps read its second level with the edge bounds of level `level`: only while
     // it fades in, and only at the texture's edges, where they differ.)
-    m.map = vec4(s, vt_cell_origin(e) + base, max(r > level ? 0.0 : fraction, vt_fade_floor(e)));
+    m.map = vec4(s, vt_cell_origin(e) + base, vt_faded_fraction(e, r > level ? 0.0 : fraction));
 #else
     m.map = vec4(s, vt_cell_origin(e) + base, r > level ? 0.0 : fraction);
 #endif
