@@ -14,6 +14,11 @@
 // frame draws a heightfield where hills hide hills (front to back, so still without a depth
 // pre-pass: docs/renderer.md).
 // --filter: only that filter (bilinear, trilinear or anisotropic) instead of all three.
+// --fade-ms: also two VT renderers with blending in (RendererConfig::fade_ms), drawn on the same
+// camera, their pages loaded the same way: one whose pages have faded in (what blending costs a
+// frame where nothing fades), and one whose clock stands still halfway through the fade of every
+// page (what it costs while every pixel fades, both levels of every lookup read: the worst case).
+// Reports their frame times against the VT's without blending.
 #include <epoxy/gl.h>
 
 #include <algorithm>
@@ -65,16 +70,19 @@ int fail(const std::string& what) {
 
 int main(int argc, char** argv) {
     if (argc < 2)
-        return fail("usage: vt_vs_plain STORE.tsr [--size WxH] [--frames N] [--displacement H] [--filter NAME] [--json FILE]");
+        return fail("usage: vt_vs_plain STORE.tsr [--size WxH] [--frames N] [--displacement H] [--filter NAME] [--fade-ms MS] "
+                    "[--json FILE]");
     std::string store = argv[1], json, only;
     unsigned w = 640, h = 360, frames = 240;
     double displacement = 0;
+    float fade_ms = 0;
     for (int i = 2; i + 1 < argc; i += 2) {
         if (!std::strcmp(argv[i], "--size")) std::sscanf(argv[i + 1], "%ux%u", &w, &h);
         else if (!std::strcmp(argv[i], "--frames")) frames = unsigned(std::atoi(argv[i + 1]));
         else if (!std::strcmp(argv[i], "--json")) json = argv[i + 1];
         else if (!std::strcmp(argv[i], "--displacement")) displacement = std::atof(argv[i + 1]);
         else if (!std::strcmp(argv[i], "--filter")) only = argv[i + 1];
+        else if (!std::strcmp(argv[i], "--fade-ms")) fade_ms = float(std::atof(argv[i + 1]));
         else return fail(std::string("unknown flag ") + argv[i]);
     }
     auto ctx = client::gl::GlContext::create_headless();
@@ -111,42 +119,63 @@ int main(int argc, char** argv) {
         rc.tile_size = info->tile_size();
         rc.border = info->border;
         rc.srgb = info->colour_space == storage::ColourSpace::srgb;
-        auto vt = client::gl::VtRenderer::create(rc);
-        if (!vt) return fail(vt.error().message);
         auto ref = client::gl::ReferenceRenderer::create(rc, *levels);
         if (!ref) return fail(ref.error().message);
-        client::RuntimeConfig cfg;
-        cfg.residency.pool_slots = rc.pool_slots;
-        cfg.upload_pages_per_frame = 256;
-        cfg.upload_bytes_per_frame = 256u << 20;
-        auto rt = client::Runtime::create(cfg, **vt);
-        if (!rt) return fail(rt.error().message);
-        auto tex = (*rt)->add_texture(*source, store);
-        if (!tex) return fail(tex.error().message);
-        if (auto st = (*vt)->add_texture(*tex, *info); !st.ok()) return fail(st.error().message);
         scene::TerrainOptions t;
         t.vt_width = info->width;
         t.vt_height = info->height;
         t.displacement = displacement;
         auto sc = scene::make_terrain(t);
         if (!sc) return fail(sc.error().message);
-        if (auto st = (*vt)->set_scene(*sc, *tex); !st.ok()) return fail(st.error().message);
         if (auto st = (*ref)->set_scene(*sc); !st.ok()) return fail(st.error().message);
         auto path = scene::CameraPath::builtin("flyover", *sc);
         if (!path) return fail(path.error().message);
         const auto cam_at = [&](unsigned f) { return path->at(path->duration() * f / std::max(frames - 1, 1u)); };
 
-        // Loading pass: every frame's pages resident.
-        client::gl::FeedbackFrame fb;
-        for (unsigned f = 0; f < frames; ++f)
-            for (int k = 0; k < 40; ++k) {
-                (*vt)->render(cam_at(f), 0);
-                if ((*vt)->poll_feedback(fb)) (*rt)->frame(fb.ids, fb.width, fb.height, 0);
-                else (*rt)->frame_without_feedback();
-                if ((*rt)->in_flight() == 0 && k > 3) break;
-            }
+        // A VT renderer with its runtime, every frame's pages resident (a loading pass).
+        struct Vt {
+            std::unique_ptr<client::gl::VtRenderer> renderer;
+            std::unique_ptr<client::Runtime> runtime;
+        };
+        const auto make_vt = [&](float fade, bool frozen) -> tessera::Result<Vt> {
+            client::gl::RendererConfig c = rc;
+            c.fade_ms = fade;
+            auto vt = client::gl::VtRenderer::create(c);
+            if (!vt) return vt.error();
+            client::RuntimeConfig cfg;
+            cfg.residency.pool_slots = rc.pool_slots;
+            cfg.upload_pages_per_frame = 256;
+            cfg.upload_bytes_per_frame = 256u << 20;
+            auto rt = client::Runtime::create(cfg, **vt);
+            if (!rt) return rt.error();
+            auto tex = (*rt)->add_texture(*source, store);
+            if (!tex) return tex.error();
+            if (auto st = (*vt)->add_texture(*tex, *info); !st.ok()) return st.error();
+            if (auto st = (*vt)->set_scene(*sc, *tex); !st.ok()) return st.error();
+            client::gl::FeedbackFrame fb;
+            for (unsigned f = 0; f < frames; ++f)
+                for (int k = 0; k < 40; ++k) {
+                    if (frozen) (*vt)->set_time(0);
+                    (*vt)->render(cam_at(f), 0);
+                    if ((*vt)->poll_feedback(fb)) (*rt)->frame(fb.ids, fb.width, fb.height, 0);
+                    else (*rt)->frame_without_feedback();
+                    if ((*rt)->in_flight() == 0 && k > 3) break;
+                }
+            for (int k = 0; fade > 0 && !frozen && k < 120 && (*vt)->stats().fading_pages > 0; ++k) (*vt)->render(cam_at(frames - 1), 0);
+            std::vector<client::gl::FrameCounters> counters;
+            (*vt)->finish(&counters, nullptr);
+            return Vt{std::move(*vt), std::move(*rt)};
+        };
+        auto plain_vt = make_vt(0, false);
+        if (!plain_vt) return fail(plain_vt.error().message);
+        tessera::Result<Vt> faded_vt = Vt{}, fading_vt = Vt{};
+        if (fade_ms > 0) faded_vt = make_vt(fade_ms, false), fading_vt = make_vt(fade_ms, true);
+        if (!faded_vt) return fail(faded_vt.error().message);
+        if (!fading_vt) return fail(fading_vt.error().message);
+        auto* vt = &plain_vt->renderer;
+        auto* rt = &plain_vt->runtime;
         std::vector<client::gl::FrameCounters> counters;
-        (*vt)->finish(&counters, nullptr);
+        std::vector<double> fade_ms_frames[2], fade_cpu[2];  // faded in, fading
 
         std::vector<double> vt_ms, plain_ms, vt_cpu, plain_cpu;
         for (unsigned f = 0; f < frames; ++f) {
@@ -162,6 +191,19 @@ int main(int argc, char** argv) {
             auto t2 = Clock::now();
             const double c2 = cpu_ms();
             (*rt)->frame_without_feedback();  // keeps the readback rings moving, uploads nothing
+            for (int k = 0; k < 2 && fade_ms > 0; ++k) {
+                Vt& v = k == 0 ? *faded_vt : *fading_vt;
+                if (k == 1) v.renderer->set_time(fade_ms / 2000.0);  // every page at half weight
+                const double c3 = cpu_ms();
+                const auto t3 = Clock::now();
+                v.renderer->render(cam, 0);
+                glFinish();
+                fade_ms_frames[k].push_back(std::chrono::duration<double, std::milli>(Clock::now() - t3).count());
+                fade_cpu[k].push_back(cpu_ms() - c3);
+                v.runtime->frame_without_feedback();
+                counters.clear();
+                v.renderer->poll_counters(counters);
+            }
             vt_ms.push_back(std::chrono::duration<double, std::milli>(t1 - t0).count());
             plain_ms.push_back(std::chrono::duration<double, std::milli>(t2 - t1).count());
             vt_cpu.push_back(c1 - c0);
@@ -173,13 +215,27 @@ int main(int argc, char** argv) {
         const double cpu_ratio = median(vt_cpu) / median(plain_cpu);
         std::printf("%-12s %10.2f %10.2f %10.2f %7.2fx %10.2f %10.2f %7.2fx\n", names[fi], mean(vt_ms), median(vt_ms),
                     median(plain_ms), ratio, median(vt_cpu), median(plain_cpu), cpu_ratio);
-        char buf[640];
+        std::string fade_json;
+        for (int k = 0; k < 2 && fade_ms > 0; ++k) {
+            const char* what = k == 0 ? "faded_in" : "all_fading";
+            const double fr = median(fade_ms_frames[k]) / median(vt_ms), fc = median(fade_cpu[k]) / median(vt_cpu);
+            std::printf("%-12s %10.2f %10.2f %10s %7.3fx %10.2f %10s %7.3fx  (--fade-ms %g, %s, against the VT without)\n",
+                        k == 0 ? "  + fade" : "  + fading", mean(fade_ms_frames[k]), median(fade_ms_frames[k]), "", fr,
+                        median(fade_cpu[k]), "", fc, fade_ms, k == 0 ? "every page faded in" : "every page fading");
+            char fb[320];
+            std::snprintf(fb, sizeof fb,
+                          ", \"fade_ms\": %g, \"%s_vt_median_ms\": %.3f, \"%s_vs_vt_median\": %.4f, \"%s_vt_cpu_median_ms\": "
+                          "%.3f, \"%s_vs_vt_cpu_median\": %.4f",
+                          fade_ms, what, median(fade_ms_frames[k]), what, fr, what, median(fade_cpu[k]), what, fc);
+            fade_json += fb;
+        }
+        char buf[1024];
         std::snprintf(buf, sizeof buf,
                       "%s{\"filter\": \"%s\", \"vt_mean_ms\": %.3f, \"vt_median_ms\": %.3f, \"plain_mean_ms\": %.3f, "
                       "\"plain_median_ms\": %.3f, \"ratio_median\": %.3f, \"vt_cpu_median_ms\": %.3f, "
-                      "\"plain_cpu_median_ms\": %.3f, \"cpu_ratio_median\": %.3f}",
+                      "\"plain_cpu_median_ms\": %.3f, \"cpu_ratio_median\": %.3f%s}",
                       first ? "" : ", ", names[fi], mean(vt_ms), median(vt_ms), mean(plain_ms), median(plain_ms), ratio,
-                      median(vt_cpu), median(plain_cpu), cpu_ratio);
+                      median(vt_cpu), median(plain_cpu), cpu_ratio, fade_json.c_str());
         out_json += buf;
         first = false;
     }

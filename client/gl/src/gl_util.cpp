@@ -16,6 +16,7 @@ void delete_renderbuffer(GLuint id) { glDeleteRenderbuffers(1, &id); }
 void delete_vertex_array(GLuint id) { glDeleteVertexArrays(1, &id); }
 void delete_program(GLuint id) { glDeleteProgram(id); }
 void delete_query(GLuint id) { glDeleteQueries(1, &id); }
+void delete_sampler(GLuint id) { glDeleteSamplers(1, &id); }
 
 Texture make_texture(GLenum target) {
     GLuint id = 0;
@@ -41,6 +42,12 @@ VertexArray make_vertex_array() {
     GLuint id = 0;
     glCreateVertexArrays(1, &id);
     return VertexArray(id);
+}
+
+Sampler make_sampler() {
+    GLuint id = 0;
+    glCreateSamplers(1, &id);
+    return Sampler(id);
 }
 
 Query make_query(GLenum target) {

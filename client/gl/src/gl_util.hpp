@@ -47,6 +47,7 @@ void delete_renderbuffer(GLuint id);
 void delete_vertex_array(GLuint id);
 void delete_program(GLuint id);
 void delete_query(GLuint id);
+void delete_sampler(GLuint id);
 
 using Texture = Handle<delete_texture>;
 using Buffer = Handle<delete_buffer>;
@@ -55,6 +56,7 @@ using Renderbuffer = Handle<delete_renderbuffer>;
 using VertexArray = Handle<delete_vertex_array>;
 using Program = Handle<delete_program>;
 using Query = Handle<delete_query>;
+using Sampler = Handle<delete_sampler>;
 
 Texture make_texture(GLenum target);
 Buffer make_buffer();
@@ -62,6 +64,7 @@ Framebuffer make_framebuffer();
 Renderbuffer make_renderbuffer();
 VertexArray make_vertex_array();
 Query make_query(GLenum target);
+Sampler make_sampler();
 
 // An owned fence.
 class Fence {

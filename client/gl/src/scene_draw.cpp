@@ -28,8 +28,7 @@ std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width
            (!c.has_second_level() && !is_block_compressed(c.page_format) && c.more_layers.empty()
                 ? "#define VT_ATLAS_RECT 1\n"
                 : "") +
-           // Blending in: each atlas cell's weight (docs/renderer.md, "Blending in").
-           (c.fade_ms > 0.0f ? "#define VT_FADE 1\n" : "") +
+
            // Lighting by a normal layer: vt_sample also samples that layer's atlas (docs/renderer.md, "Layers").
            (c.normal_layer && c.show_layer == 0 ? "#define VT_LIT 1\n" : "") +
            // Block atlases' second levels have their own border blocks at the texture's edges.

@@ -116,31 +116,40 @@ public:
         const std::string defines = vt_shader_defines(c, atlas_.width(), atlas_.height());
         auto depth = build_program("scene.vert", "depth.frag", defines);
         if (!depth) return depth.error();
-        auto vt = build_program("scene.vert", "vt.frag", defines);
-        if (!vt) return vt.error();
-        auto vt_sparse = build_program("scene.vert", "vt.frag", defines + "#define VT_SPARSE_TABLE 1\n");
-        if (!vt_sparse) return vt_sparse.error();
-        vt_other_program_ = std::move(*vt_sparse);
-        vt_other_u_ = VtUniforms(vt_other_program_);
+        // The VT pass: per page-table layout (dense, two-level) and, with blending in, a variant
+        // that reads the cells' weights, drawn only in frames where some cell is fading.
+        for (int sparse = 0; sparse < 2; ++sparse)
+            for (int fading = 0; fading < (c.fade_ms > 0 ? 2 : 1); ++fading) {
+                auto vt = build_program("scene.vert", "vt.frag",
+                                        defines + (sparse ? "#define VT_SPARSE_TABLE 1\n" : "") + (fading ? "#define VT_FADE 1\n" : ""));
+                if (!vt) return vt.error();
+                vt_programs_[sparse][fading] = std::move(*vt);
+                vt_us_[sparse][fading] = VtUniforms(vt_programs_[sparse][fading]);
+            }
         auto fb = build_program("scene.vert", "feedback.frag", defines);
         if (!fb) return fb.error();
         depth_program_ = std::move(*depth);
-        vt_program_ = std::move(*vt);
         feedback_program_ = std::move(*fb);
         depth_u_ = VtUniforms(depth_program_);
-        vt_u_ = VtUniforms(vt_program_);
         feedback_u_ = VtUniforms(feedback_program_);
-        for (auto* pu : {&vt_u_, &feedback_u_, &vt_other_u_}) {
-            const GLuint p = pu == &vt_u_         ? vt_program_.get()
-                             : pu == &feedback_u_ ? feedback_program_.get()
-                                                  : vt_other_program_.get();
-            const auto& u = *pu;
-            glProgramUniform1i(p, u.page_table, 0);
-            glProgramUniform1i(p, u.atlas, 1);
-            if (u.second_atlas >= 0) glProgramUniform1i(p, u.second_atlas, 2);
-            if (u.fade >= 0) glProgramUniform1i(p, u.fade, 3);
-        }
+        const auto set_units = [](const Program& p, const VtUniforms& u) {
+            if (!p) return;
+            glProgramUniform1i(p.get(), u.page_table, 0);
+            glProgramUniform1i(p.get(), u.atlas, 1);
+            if (u.second_atlas >= 0) glProgramUniform1i(p.get(), u.second_atlas, 2);
+            if (u.fade >= 0) glProgramUniform1i(p.get(), u.fade, 3);
+        };
+        set_units(feedback_program_, feedback_u_);
+        for (int sparse = 0; sparse < 2; ++sparse)
+            for (int fading = 0; fading < 2; ++fading) set_units(vt_programs_[sparse][fading], vt_us_[sparse][fading]);
         TESSERA_TRY(fade_.init(atlas_.columns(), atlas_.rows(), c.fade_ms));
+        if (c.filter == Filter::bilinear && c.fade_ms > 0) {
+            level_zero_sampler_ = make_sampler();
+            glSamplerParameteri(level_zero_sampler_.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+            glSamplerParameteri(level_zero_sampler_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+            glSamplerParameteri(level_zero_sampler_.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+            glSamplerParameteri(level_zero_sampler_.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+        }
         fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
         fb_height_ = (c.height + c.feedback_scale - 1) / c.feedback_scale;
         // Derivatives per main-target pixel: a main pixel is fb_width / width feedback pixels (of a
@@ -243,6 +252,7 @@ public:
         for (std::size_t i = 0; i <= more_atlases_.size(); ++i) atlas(i).make_page_mips();  // after the frame's page uploads, in stream order
         const float lod_bias = fade_.frame(time_, requested_bias);  // the weights of this frame's cells
         stats_.fading_pages = fade_.fading();
+        vt_fading_ = fade_.fading() > 0 ? 1 : 0;  // at full weight everywhere, the lookups need no weights
 
         const double aspect = double(cfg_.width) / double(cfg_.height);
         const auto vp = view_projection(camera, aspect);
@@ -253,14 +263,14 @@ public:
             // A heightfield drawn front to back shades each visible pixel once without the pre-pass.
             front_to_back = depth_prepass_ && geometry_.order_front_to_back(camera);
             use_page_table(*tex);
-            set_texture_uniforms(vt_program_, vt_u_, *tex);
+            set_texture_uniforms(vt_program(), vt_u(), *tex);
             set_texture_uniforms(feedback_program_, feedback_u_, *tex);
             bind_atlases();
         }
         last_bias_ = lod_bias;
         stats_.visible_chunks = tex ? geometry_.visible_chunks() : 0;
-        for (auto* p : {&depth_program_, &vt_program_, &feedback_program_}) {
-            const VtUniforms& u = p == &depth_program_ ? depth_u_ : p == &vt_program_ ? vt_u_ : feedback_u_;
+        for (auto* p : {&depth_program_, &vt_program(), &feedback_program_}) {
+            const VtUniforms& u = p == &depth_program_ ? depth_u_ : p == &vt_program() ? vt_u() : feedback_u_;
             glProgramUniformMatrix4fv(p->get(), u.view_projection, 1, GL_FALSE, vp.data());
             glProgramUniform1f(p->get(), u.bias, lod_bias);
         }
@@ -331,6 +341,7 @@ public:
             if (counter_slot) glEndQuery(GL_SAMPLES_PASSED);
         }
         glUseProgram(0);
+        release_samplers();
         glDisable(GL_FRAMEBUFFER_SRGB);
         if (feedback_slot) feedback_.read(*feedback_slot, fb_fbo_.get(), frame_, lod_bias);
         glBindFramebuffer(GL_FRAMEBUFFER, 0);
@@ -360,10 +371,10 @@ public:
             geometry_.cull(camera, double(cfg_.width) / double(cfg_.height));
             const bool front_to_back = depth_prepass_ && geometry_.order_front_to_back(camera);
             use_page_table(*tex);
-            set_texture_uniforms(vt_program_, vt_u_, *tex);
+            set_texture_uniforms(vt_program(), vt_u(), *tex);
             bind_atlases();
-            for (auto* p : {&depth_program_, &vt_program_}) {
-                const VtUniforms& u = p == &depth_program_ ? depth_u_ : vt_u_;
+            for (auto* p : {&depth_program_, &vt_program()}) {
+                const VtUniforms& u = p == &depth_program_ ? depth_u_ : vt_u();
                 glProgramUniformMatrix4fv(p->get(), u.view_projection, 1, GL_FALSE, vp.data());
                 glProgramUniform1f(p->get(), u.bias, last_bias_);
             }
@@ -371,6 +382,7 @@ public:
             draw_main(camera, front_to_back, preview_counters_.get());
         }
         glUseProgram(0);
+        release_samplers();
         glDisable(GL_FRAMEBUFFER_SRGB);
         glBindFramebuffer(GL_FRAMEBUFFER, 0);
         return read_colour(preview_);
@@ -440,8 +452,23 @@ private:
 
     void bind_atlases() {
         glBindTextureUnit(1, atlas(cfg_.show_layer).texture());
+        // Bilinear with blending in: the atlas has its second level for the fades only; a frame
+        // where nothing fades samples level 0 alone (GL_LINEAR), as without blending.
+        if (cfg_.filter == Filter::bilinear && level_zero_sampler_) {
+            const GLuint sampler = vt_fading_ ? 0 : level_zero_sampler_.get();
+            glBindSampler(1, sampler);
+            glBindSampler(2, sampler);
+        }
         if (cfg_.normal_layer) glBindTextureUnit(2, atlas(*cfg_.normal_layer).texture());
         if (fade_.enabled()) glBindTextureUnit(3, fade_.texture());
+    }
+
+    // The units' own texture filters again, for whatever else draws in this context (the HUD, a
+    // reference renderer).
+    void release_samplers() {
+        if (!level_zero_sampler_) return;
+        glBindSampler(1, 0);
+        glBindSampler(2, 0);
     }
 
     static void set_pass_state() {
@@ -471,21 +498,19 @@ private:
         }
         glDepthFunc(prepass ? GL_LEQUAL : GL_LESS);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, counters);
-        glUseProgram(vt_program_.get());
-        geometry_.draw(vt_program_, vt_u_.chunk, camera);
+        glUseProgram(vt_program().get());
+        geometry_.draw(vt_program(), vt_u().chunk, camera);
         glDepthMask(GL_TRUE);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, 0);
     }
 
-    // Binds `t`'s page table and puts the VT program of its layout in vt_program_.
+    // Binds `t`'s page table and makes the VT program of its layout vt_program().
     void use_page_table(const VirtualTexture& t) {
-        if (t.sparse != vt_program_sparse_) {
-            std::swap(vt_program_, vt_other_program_);
-            std::swap(vt_u_, vt_other_u_);
-            vt_program_sparse_ = t.sparse;
-        }
+        vt_sparse_ = t.sparse ? 1 : 0;
         t.bind();
     }
+    Program& vt_program() { return vt_programs_[vt_sparse_][vt_fading_]; }
+    const VtUniforms& vt_u() const { return vt_us_[vt_sparse_][vt_fading_]; }
 
     void set_texture_uniforms(const Program& p, const VtUniforms& u, const VirtualTexture& t) {
         const GLuint id = p.get();
@@ -507,6 +532,7 @@ private:
     PagePoolFormat pool_;                                   // every atlas's format, set by init
     PageTableTextures tables_;
     PageFade fade_;
+    Sampler level_zero_sampler_;  // bilinear with blending in: the atlases' level 0 alone (bind_atlases)
     double time_ = 0;        // the renderer's clock, seconds (set_time)
     bool time_set_ = false;  // set for the next frame
     SceneGeometry geometry_;
@@ -514,13 +540,13 @@ private:
     bool has_scene_ = false;
     bool depth_prepass_ = true;  // false for scenes where no triangle can hide another
 
-    Program depth_program_, vt_program_, feedback_program_;
-    VtUniforms depth_u_, vt_u_, feedback_u_;
-    // The VT program for the other page-table layout (two-level while vt_program_ is dense, and
-    // the other way round): use_page_table swaps them to the scene texture's.
-    Program vt_other_program_;
-    VtUniforms vt_other_u_;
-    bool vt_program_sparse_ = false;
+    Program depth_program_, feedback_program_;
+    VtUniforms depth_u_, feedback_u_;
+    // The VT programs: [two-level page table][reads the blending weights]; vt_program() is the
+    // frame's (use_page_table, and render() by whether any cell is fading).
+    Program vt_programs_[2][2];
+    VtUniforms vt_us_[2][2];
+    int vt_sparse_ = 0, vt_fading_ = 0;
 
     ColourTarget main_;
     ColourTarget preview_;       // render_preview's, made on first use
