@@ -14,6 +14,7 @@
 #include <atomic>
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <future>
@@ -760,34 +761,73 @@ TEST(DiskTileCache, ConcurrentGetsAndPuts) {
     EXPECT_EQ(s.bytes, tree_info(dir.str()).bytes);
 }
 
+// The killed writer of KilledWriterNeverYieldsACorruptTile: this test binary run again with
+// TESSERA_TEST_CACHE_WRITER="DIR ROUND" in its environment, which writes into the cache at DIR
+// as fast as it can until it is killed, before main (and gtest) start. A fresh process rather than
+// a fork: a forked child of a multi-threaded parent may not start threads (ThreadSanitizer refuses
+// it outright), and the cache's writer thread is what the test kills.
+namespace {
+constexpr std::uint32_t kWriterKeys = 300;
+constexpr std::uint64_t kWriterBudget = 2 << 20;  // < all keys' bytes: evictions run while killed
+TileId writer_key(std::uint32_t i) { return tid(i % 20, i / 20, static_cast<std::uint8_t>(i % 3), 0xABCDEF); }
+std::size_t writer_size(std::uint32_t i) { return std::size_t{1} + (i * 2654435761u) % 24000; }
+
+[[maybe_unused]] const bool kIsWriter = [] {
+    const char* spec = std::getenv("TESSERA_TEST_CACHE_WRITER");
+    if (!spec) return false;
+    char dir[4096];
+    int round = 0;
+    if (std::sscanf(spec, "%4095s %d", dir, &round) != 2) ::_exit(2);
+    DiskCacheOptions opt;
+    opt.byte_budget = kWriterBudget;
+    opt.max_queue_entries = 64;
+    auto r = DiskTileCache::open(dir, std::move(opt));
+    if (!r.ok()) ::_exit(3);
+    DiskTileCache& c = *r.value();
+    std::puts("writing");  // the parent kills only once the cache is open
+    std::fflush(stdout);
+    for (std::uint32_t i = static_cast<std::uint32_t>(round) * 37;; ++i) {
+        const std::uint32_t k = i % kWriterKeys;
+        if (!c.put(writer_key(k), make_tile(writer_key(k), writer_size(k)))) c.flush();
+    }
+}();
+}  // namespace
+
 // The acceptance test: a writer process SIGKILLed at random moments never leaves anything that
 // reads back wrong. Each entry's bytes are a function of its key, so the parent can check them.
 TEST(DiskTileCache, KilledWriterNeverYieldsACorruptTile) {
     Scratch dir;
-    constexpr std::uint32_t kKeys = 300;
-    constexpr std::uint64_t kBudget = 2 << 20;  // < all keys' bytes: evictions run while killed
-    auto key = [](std::uint32_t i) { return tid(i % 20, i / 20, static_cast<std::uint8_t>(i % 3), 0xABCDEF); };
-    auto size_of = [](std::uint32_t i) { return std::size_t{1} + (i * 2654435761u) % 24000; };
+    constexpr std::uint32_t kKeys = kWriterKeys;
+    constexpr std::uint64_t kBudget = kWriterBudget;
+    auto key = writer_key;
+    auto size_of = writer_size;
     std::mt19937 rng(2024);
     std::size_t rounds_with_entries = 0, total_entries = 0, temps_left = 0;
     for (int round = 0; round < 20; ++round) {
         const int delay_ms = 1 + static_cast<int>(rng() % 50);
         SCOPED_TRACE("round " + std::to_string(round) + ", killed after " + std::to_string(delay_ms) + " ms");
+        int out[2];
+        ASSERT_EQ(::pipe(out), 0);
+        // The environment (a sanitizer's options included) and the writer's spec, made before the
+        // fork: the child makes only async-signal-safe calls until exec.
+        std::string spec = "TESSERA_TEST_CACHE_WRITER=" + dir.str() + " " + std::to_string(round);
+        std::vector<char*> envp;
+        for (char** e = environ; *e; ++e)
+            if (std::strncmp(*e, "TESSERA_TEST_CACHE_WRITER=", 26) != 0) envp.push_back(*e);
+        envp.push_back(spec.data());
+        envp.push_back(nullptr);
         const pid_t pid = ::fork();
         ASSERT_GE(pid, 0);
         if (pid == 0) {
-            // Child: write as fast as possible until killed.
-            DiskCacheOptions opt;
-            opt.byte_budget = kBudget;
-            opt.max_queue_entries = 64;
-            auto r = DiskTileCache::open(dir.str(), std::move(opt));
-            if (!r.ok()) ::_exit(3);
-            DiskTileCache& c = *r.value();
-            for (std::uint32_t i = static_cast<std::uint32_t>(round) * 37;; ++i) {
-                const std::uint32_t k = i % kKeys;
-                if (!c.put(key(k), make_tile(key(k), size_of(k)))) c.flush();
-            }
+            ::dup2(out[1], 1);
+            ::execle("/proc/self/exe", "client_cache_test", static_cast<char*>(nullptr), envp.data());
+            ::_exit(4);
         }
+        ::close(out[1]);
+        char ready[8] = {};
+        const ssize_t got = ::read(out[0], ready, sizeof ready);  // "writing": the cache is open
+        ::close(out[0]);
+        ASSERT_GT(got, 0) << "the writer did not start";
         std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms));
         ASSERT_EQ(::kill(pid, SIGKILL), 0);
         int status = 0;
