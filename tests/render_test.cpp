@@ -1075,13 +1075,14 @@ TEST(RenderTrilinear, CoarserLevelIsTheStoredParentWhenItIsResident) {
 }
 
 // Blending in (docs/renderer.md, "Blending in"). A static camera at lod `fine` (trilinear and
-// anisotropic: fine + 0.5) over the whole pattern, level fine + 1 and the root resident and faded
-// in; then level `fine` arrives. With fade_ms F, in frames F/8 apart the image moves from the view
+// anisotropic: fine + 0.5) over the whole pattern, level fine + 1 (with `parent_resident`; else
+// only the root: the pixels draw the root until level `fine` arrives) and the root resident and
+// faded in; then level `fine` arrives. With fade_ms F, in frames F/8 apart the image moves from the view
 // of level fine + 1 to the view of level fine gradually: the first frame after the arrival is the
 // view before it (the new pages show their parent level), each frame changes by at most an eighth
 // of the whole change (plus rounding), and after F the frame is the one a renderer without
 // blending draws from the same pages (max error <= 1), which matches the reference.
-void expect_fades_in(gl::Filter filter) {
+void expect_fades_in(gl::Filter filter, bool parent_resident) {
     ScratchDir dir;
     auto pattern = pattern_source(1024, 1024);
     const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56
@@ -1090,8 +1091,9 @@ void expect_fades_in(gl::Filter filter) {
     const auto info = store_geometry(1024, 1024, 64);
     const std::uint32_t ts = info.tile_size(), P = info.tile_payload, B = info.border, fine = 2;
     // Level fine + 1 inverted (in the pages and the reference alike): a change no fade could hide.
-    for (std::size_t i = 0; i < (*levels)[fine + 1].rgba8.size(); ++i)
-        if (i % 4 != 3) (*levels)[fine + 1].rgba8[i] = std::uint8_t(255 - (*levels)[fine + 1].rgba8[i]);
+    if (parent_resident)
+        for (std::size_t i = 0; i < (*levels)[fine + 1].rgba8.size(); ++i)
+            if (i % 4 != 3) (*levels)[fine + 1].rgba8[i] = std::uint8_t(255 - (*levels)[fine + 1].rgba8[i]);
     auto cfg = config(filter, ts, 64, /*srgb=*/false, 192, 144);
     const double fade_s = 0.2;
     cfg.fade_ms = float(fade_s * 1000);
@@ -1137,7 +1139,7 @@ void expect_fades_in(gl::Filter filter) {
         fading.set_time(t);
         return render_vt(fading, cam);
     };
-    upload_level(fine + 1);
+    if (parent_resident) upload_level(fine + 1);
     upload_level(info.level_count() - 1);
     double t = 0;
     for (; t <= fade_s + 1e-9; t += fade_s / 4) frame_at(t);
@@ -1187,20 +1189,33 @@ void expect_fades_in(gl::Filter filter) {
     const auto r = gl::compare_images(last, want, cfg.width, cfg.height, coverage(want));
     EXPECT_GE(r.psnr, 50.0) << "max error " << r.max_error;
     EXPECT_LE(r.max_error, 3);
-    std::printf("  %s: the whole change %d, largest step %d (bound %d), after the fade max error %d against no blending, "
-                "%.1f dB against the reference\n",
-                filter_name(filter), whole, largest_step, step_bound, e.max_error, r.psnr);
+    std::printf("  %s, %s: the whole change %d, largest step %d (bound %d), after the fade max error %d against no "
+                "blending, %.1f dB against the reference\n",
+                filter_name(filter), parent_resident ? "from the parent" : "from the root", whole, largest_step, step_bound,
+                e.max_error, r.psnr);
 }
 
 class RenderFade : public ::testing::TestWithParam<gl::Filter> {};
 
 TEST_P(RenderFade, AnArrivingPageFadesInAndEndsExact) {
     REQUIRE_GL(ctx);
-    expect_fades_in(GetParam());
+    expect_fades_in(GetParam(), /*parent_resident=*/true);
 }
 
 INSTANTIATE_TEST_SUITE_P(Filters, RenderFade,
                          ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
+                         [](const auto& p) { return std::string(filter_name(p.param)); });
+
+// Bilinear and trilinear fade from the ancestor the pixels drew, however far up (the anisotropic
+// taps fade from the page's parent level: docs/renderer.md, "Blending in").
+class RenderFadeFromAncestor : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderFadeFromAncestor, APageWhoseParentIsAbsentFadesFromTheAncestorDrawn) {
+    REQUIRE_GL(ctx);
+    expect_fades_in(GetParam(), /*parent_resident=*/false);
+}
+
+INSTANTIATE_TEST_SUITE_P(Filters, RenderFadeFromAncestor, ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear),
                          [](const auto& p) { return std::string(filter_name(p.param)); });
 
 TEST(RenderCounters, FallbackPixelsAgainstTheUnbiasedAndTheBiasedLevel) {

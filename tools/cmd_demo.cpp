@@ -32,6 +32,7 @@ Command add_demo(CLI::App& app) {
         float prefetch_lod = 0.3f;
         float guard_band = 0.1f;
         float fade_ms = kDefaultFadeMs;
+        double motion_prefetch_ms = kDefaultMotionPrefetchMs;
         bool no_pace = false;
         std::string page_format = "auto";
         bool layers = false;
@@ -51,6 +52,9 @@ Command add_demo(CLI::App& app) {
     c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
     c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
     c->add_option("--fade-ms", a->fade_ms, "arriving pages blend in over this many milliseconds (0: off)")->capture_default_str();
+    c->add_option("--motion-prefetch-ms", a->motion_prefetch_ms,
+                  "every other frame's feedback sees the view this far ahead, from the camera's motion (0: off)")
+        ->capture_default_str();
     c->add_flag("--layers", a->layers,
                 "a multi-layer store: colour (JPEG), normals (BC5) and heights (16-bit); the ground displaced by the heights "
                 "and lit by the normals");
@@ -127,6 +131,7 @@ Command add_demo(CLI::App& app) {
         vo.prefetch_lod = a->prefetch_lod;
         vo.guard_band = a->guard_band;
         vo.fade_ms = a->fade_ms;
+        vo.motion_prefetch_ms = a->motion_prefetch_ms;
         // With layers, the ground is the height layer's, at the relief its normals were made for.
         if (a->layers) vo.displacement = 2.0 * a->size * storage::kTerrainReliefPerSize;
         // Paced like a 60 Hz display: unpaced, a GPU renders the 60-frames-per-second path many

@@ -61,6 +61,12 @@ Command add_view(CLI::App& app) {
                   "arriving pages blend in from their parent level over this many milliseconds, and LoD-bias changes "
                   "spread over as long (0: off, pages show at once)")
         ->capture_default_str();
+    c->add_option("--motion-prefetch-ms", o->motion_prefetch_ms,
+                  "motion prefetch: the feedback of every --motion-prefetch-every-th frame sees the view this many "
+                  "milliseconds ahead, extrapolated from the camera's motion (0: off)")
+        ->capture_default_str();
+    c->add_option("--motion-prefetch-every", o->motion_prefetch_every, "motion prefetch: every N-th frame's feedback (>= 1)")
+        ->capture_default_str();
     c->add_option("--link-latency-ms", o->link_latency_ms,
                   "emulate a network link to the source: this one-way delay per request, milliseconds (0: none)");
     c->add_option("--link-jitter-ms", o->link_jitter_ms, "emulated link: random extra delay up to this, milliseconds");

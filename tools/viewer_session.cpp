@@ -538,6 +538,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     auto last_title = start;
     double lat_count = 0, lat_sum_ms = 0;
     std::uint32_t done = 0;
+    scene::Camera prev_cam;  // the last frame's camera and time, for motion prefetch
+    double prev_t = 0;
     // Popping: before the runtime's uploads for a compared frame, what that frame would show
     // without them (VtRenderer::render_preview); set for the next frame only.
     std::vector<std::uint8_t> preview, next_preview;
@@ -561,6 +563,13 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         }
         const float bias = rt.lod_bias();
         r.set_time(path_clock_start + t);  // after the warm-up's frames
+        if (o.motion_prefetch_ms > 0 && f > 0 && f % std::max<std::uint32_t>(o.motion_prefetch_every, 1) == 0 && t > prev_t)
+            if (const auto ahead = scene::extrapolate(prev_cam, prev_t, cam, t, o.motion_prefetch_ms / 1000.0)) {
+                r.set_feedback_camera(*ahead);
+                ++rep.predicted_feedback_frames;
+            }
+        prev_cam = cam;
+        prev_t = t;
         const std::uint64_t render_frame = r.render(cam, bias);
         // Measured, not timed: the next frame's camera drawn before this frame's uploads.
         double preview_ms = 0;
@@ -824,6 +833,11 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
                 << fmt::format("\"popping\": {{\"mean_rate\": {}, \"max_rate\": {}, \"largest\": {}, \"pairs\": {}}}, ",
                                jnum(rep.mean_pop_rate()), jnum(rep.max_pop_rate()),
                                rep.largest_pop() < 0 ? "null" : std::to_string(rep.largest_pop()), rep.pop_pairs())
+                << fmt::format("\"settled\": {{\"psnr_db\": {}, \"max_error\": {}, \"frames\": {}, \"complete\": {}}}, ",
+                               jnum(std::min(rep.settled_psnr, 999.0)),
+                               rep.settled_max_error < 0 ? "null" : std::to_string(rep.settled_max_error), rep.settled_frames,
+                               rep.settled_complete ? "true" : "false")
+                << fmt::format("\"fade_frames\": {}, ", rep.fade_frames)
                 << "\"summary\": " << rep.summary.to_json() << "}\n";
     });
 }
@@ -894,6 +908,8 @@ std::string summary_text(const ViewerReport& rep) {
                          rep.summary.time_to_detail_quantile(0.5), rep.summary.time_to_detail_quantile(0.9),
                          rep.summary.time_to_detail_max(), rep.summary.time_to_detail_count(),
                          rep.fade_frames ? fmt::format("; full weight {} frames later (the fade)", rep.fade_frames) : "");
+    if (rep.predicted_feedback_frames > 0)
+        s += fmt::format("prefetch      {} frames' feedback saw the view ahead (motion prefetch)\n", rep.predicted_feedback_frames);
     s += fmt::format("bytes         {} received, {} uploaded\n", human_bytes(rep.summary.bytes_received()),
                      human_bytes(rep.summary.bytes_uploaded()));
     s += fmt::format("pages         {} requested, {} uploaded, {} evicted; cache hit ratio {}\n",

@@ -16,6 +16,9 @@ namespace tessera::tools {
 // Blending in: how long an arriving page takes to reach full weight, by default (docs/benchmarks.md,
 // "Popping": the pop rate against the fade time).
 constexpr float kDefaultFadeMs = 150.0f;
+// Motion prefetch: how far ahead the predicted view is, by default (docs/benchmarks.md, "Motion
+// prefetch").
+constexpr double kDefaultMotionPrefetchMs = 200.0;
 
 struct ViewerOptions {
     std::string store;            // FILE.tsr, grpc://HOST:PORT/NAME, grpcs://HOST:PORT/NAME or HOST:PORT/NAME
@@ -51,6 +54,12 @@ struct ViewerOptions {
     // RendererConfig::fade_ms (docs/renderer.md, "Blending in"): arriving pages blend in over this
     // long, on path time (headless) or wall time (windowed); 0: off.
     float fade_ms = kDefaultFadeMs;
+    // Motion prefetch (docs/renderer.md, "Motion prefetch"): every `motion_prefetch_every`-th
+    // frame's feedback sees the view `motion_prefetch_ms` ahead, extrapolated from the camera's
+    // velocity and angular velocity over the last frame, so its pages are requested before they
+    // come into view. 0: off.
+    double motion_prefetch_ms = kDefaultMotionPrefetchMs;
+    std::uint32_t motion_prefetch_every = 2;
     std::uint64_t ram_cache_bytes = 256ull << 20;
     std::string disk_cache_dir;
     std::uint64_t disk_cache_bytes = 1ull << 30;
@@ -139,6 +148,7 @@ struct ViewerReport {
     std::uint32_t settled_frames = 0;
     bool settled_complete = false;
     std::uint32_t fade_frames = 0;  // frames a page takes to reach full weight once drawn (0: no fade)
+    std::uint32_t predicted_feedback_frames = 0;  // frames whose feedback saw a predicted view
     // The tile source's link over the whole run, warm-up included (a local store: always up).
     bool remote = false;            // tiles came from a server
     double run_s = 0;               // wall time the link was watched (warm-up and path)

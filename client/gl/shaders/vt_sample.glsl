@@ -7,7 +7,7 @@
 //     #define VT_TILE_SIZE, VT_BORDER, VT_MAX_ANISOTROPY, VT_ATLAS_SIZE, VT_NO_DATA_COLOUR
 //     [#define VT_SPARSE_TABLE 1]   (vt.frag for two-level page tables: see vt_entry)
 //     [#define VT_ATLAS_RECT 1]     (RGBA8 pages, one level: a rectangle atlas in texel coordinates)
-//     [#define VT_FADE 1]           (blending in: each atlas cell's weight, see vt_faded_fraction)
+//     [#define VT_FADE 1]           (blending in: each atlas cell's weight, see vt_fade_weight)
 //     <this file> <the shader>
 // (detail::vt_shader_defines). It is drawn with scene.vert, which forwards the per-draw,
 // per-texture and per-frame values as flat varyings (see "Inputs").
@@ -108,18 +108,17 @@ vec3 vt_lit(vec3 colour, vec4 normal_texel) {
 uniform uint vt_texture_id;         // for the feedback id (feedback.frag: 1/N of the pixels)
 #ifdef VT_FADE
 // Blending in (docs/renderer.md, "Blending in"): one weight per atlas cell (R8, the atlas's grid),
-// 0 when the cell's page has just arrived, 1 once it has faded in. A lookup of a cell blends its
-// second level (the page's parent level over it) in with weight 1 - w (1 - f), w the cell's
-// weight and f the filter's own fraction: all of it when the page arrives, the filter's own blend
-// once it has faded in, linearly between, so the image moves from the parent's texels to the
-// page's view evenly over the fade, whatever the filter.
+// 0 in the first frame that draws the cell's page, 1 once it has faded in. Bilinear and trilinear
+// lookups blend the page with what was drawn before it arrived (vt_sample_entry); the anisotropic
+// taps blend its second level (its parent level over it) in with weight 1 - w (1 - f), f the
+// filter's own fraction (vt_faded_fraction).
 uniform sampler2D vt_fade;
 
-// The second level's weight in a lookup of entry e's cell whose filter blends with `fraction`.
-float vt_faded_fraction(uint e, float fraction) {
-    float w = texelFetch(vt_fade, ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu)), 0).r;
-    return 1.0 - w * (1.0 - fraction);
-}
+float vt_fade_weight(uint e) { return texelFetch(vt_fade, ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu)), 0).r; }
+
+// The second level's weight in an anisotropic tap of entry e's cell whose filter blends with
+// `fraction`: all of it when the page arrives, the filter's own blend once it has faded in.
+float vt_faded_fraction(uint e, float fraction) { return 1.0 - vt_fade_weight(e) * (1.0 - fraction); }
 #endif
 
 // ---------------------------------------------------------------------------------------------
@@ -292,7 +291,7 @@ vec2 vt_cell_origin(uint e) {
 // fraction: trilinear's weight of the next coarser level, which the atlas's second level holds for
 // every resident page; a fallback samples its ancestor at its own level only (both trilinear levels
 // would fall back to it). Ignored by the bilinear filter.
-#if VT_FILTER != VT_BILINEAR || defined(VT_FADE)
+#if VT_FILTER != VT_BILINEAR
 #ifdef VT_BLOCK_EDGES
 // A trilinear lookup of a block atlas at `coord` (atlas texels), whose coarser level is read at
 // `coarse` instead where the two differ: at the texture's edges, where the page's second-level
@@ -308,46 +307,62 @@ vec4 vt_trilinear_texel(sampler2D atlas, vec2 coord, vec2 coarse, float fraction
 #endif
 #endif
 
-vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint resident) {
+// One lookup of entry e as described above; under VT_LIT also the normal layer's texel.
+vec4 vt_sample_entry_once(VtPos p, int level, uint e, float fraction) {
     int r = int((e >> 24) & 31u);
-#ifdef VT_FADE
-    // The coarser level read at its own edge-texel centres, of the page sampled (a fallback's
-    // ancestor too: its second level shows while it fades in).
-    VtPos a = vt_ancestor_position(p, max(r - level, 0));
-    vec2 in_page = a.in_page;
-    vec4 b = vt_coarse_bounds(a.page, max(r, level));
-    float f = vt_faded_fraction(e, r > level ? 0.0 : fraction);
-#else
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
+    vec2 cell = vt_cell_origin(e);
 #if VT_FILTER != VT_BILINEAR
     // The coarser level read at its own edge-texel centres. (A fallback samples its ancestor's
     // level only, f = 0: `coarse` is then unused.)
     vec4 b = vt_coarse_bounds(p.page, level);
-    float f = r > level ? 0.0 : fraction;
-#endif
-#endif
-    vec2 cell = vt_cell_origin(e);
-#if VT_FILTER != VT_BILINEAR || defined(VT_FADE)
     vec2 coarse = cell + clamp(in_page, b.xy, b.zw);
+    float f = r > level ? 0.0 : fraction;
 #endif
 #ifdef VT_ATLAS_RECT
     vec4 c = texture(vt_atlas, cell + in_page);
-#elif VT_FILTER == VT_BILINEAR && !defined(VT_FADE)
+#elif VT_FILTER == VT_BILINEAR
     vec4 c = textureLod(vt_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
 #else
     vec4 c = vt_trilinear_texel(vt_atlas, cell + in_page, coarse, f);
 #endif
     bool valid = (e >> 31) != 0u;
 #ifdef VT_LIT
-#if VT_FILTER == VT_BILINEAR && !defined(VT_FADE)
+#if VT_FILTER == VT_BILINEAR
     vec4 second = textureLod(vt_second_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
 #else
     vec4 second = vt_trilinear_texel(vt_second_atlas, cell + in_page, coarse, f);
 #endif
     vt_second_texel = valid ? second : vt_no_data_colour;
 #endif
-    resident = valid ? uint(r) : 32u;
     return valid ? c : vt_no_data_colour;
+}
+
+vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint resident) {
+    vec4 c = vt_sample_entry_once(p, level, e, fraction);
+    bool valid = (e >> 31) != 0u;
+    int r = int((e >> 24) & 31u);
+#ifdef VT_FADE
+    // Blending in: a cell below full weight w shows mix(before, now, w), `before` being what the
+    // pixel drew until its page arrived: the nearest resident ancestor above the page, which the
+    // entry one level up names, sampled as that fallback was (at its own level). The root page has
+    // nothing above it and shows at once.
+    float w = vt_fade_weight(e);
+    int up = max(r, level) + 1;
+    if (valid && up < int(vt_levels)) {
+#ifdef VT_LIT
+        vec4 second_now = vt_second_texel;
+#endif
+        VtPos q = vt_ancestor_position(p, up - level);
+        vec4 before = vt_sample_entry_once(q, up, vt_entry(q.page, up), 0.0);
+        c = mix(before, c, w);
+#ifdef VT_LIT
+        vt_second_texel = mix(vt_second_texel, second_now, w);
+#endif
+    }
+#endif
+    resident = valid ? uint(r) : 32u;
+    return c;
 }
 
 vec4 vt_lookup_at(VtPos p, int level, float fraction, out uint resident) {

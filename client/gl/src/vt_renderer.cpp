@@ -6,6 +6,8 @@
 
 #include <algorithm>
 #include <numeric>
+#include <optional>
+#include <utility>
 #include <string>
 
 #include "gl_util.hpp"
@@ -143,13 +145,7 @@ public:
         for (int sparse = 0; sparse < 2; ++sparse)
             for (int fading = 0; fading < 2; ++fading) set_units(vt_programs_[sparse][fading], vt_us_[sparse][fading]);
         TESSERA_TRY(fade_.init(atlas_.columns(), atlas_.rows(), c.fade_ms));
-        if (c.filter == Filter::bilinear && c.fade_ms > 0) {
-            level_zero_sampler_ = make_sampler();
-            glSamplerParameteri(level_zero_sampler_.get(), GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-            glSamplerParameteri(level_zero_sampler_.get(), GL_TEXTURE_MAG_FILTER, GL_LINEAR);
-            glSamplerParameteri(level_zero_sampler_.get(), GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-            glSamplerParameteri(level_zero_sampler_.get(), GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
-        }
+
         fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
         fb_height_ = (c.height + c.feedback_scale - 1) / c.feedback_scale;
         // Derivatives per main-target pixel: a main pixel is fb_width / width feedback pixels (of a
@@ -237,6 +233,8 @@ public:
 
     // ---- Frames -----------------------------------------------------------------------------
 
+    void set_feedback_camera(const scene::Camera& camera) override { feedback_camera_ = camera; }
+
     void set_time(double seconds) override {
         time_ = std::max(seconds, time_);
         time_set_ = true;
@@ -280,11 +278,15 @@ public:
         // after the main pass: a software rasterizer finishes a pass when it is read, so reading it
         // here would hold the CPU until then in the middle of the frame.
         const auto feedback_slot = feedback_.acquire();
+        // A predicted view's feedback: its own culling, then the frame's again for the main pass.
+        const std::optional<scene::Camera> feedback_camera = std::exchange(feedback_camera_, std::nullopt);
+        const scene::Camera& fcam = feedback_camera && feedback_slot ? *feedback_camera : camera;
+        if (tex && &fcam != &camera) geometry_.cull(fcam, aspect);
         if (const auto slot = feedback_slot) {
             // Jitter: shift the feedback pass by a sub-pixel offset (clip-space translation, so
             // depth and the exact derivatives are unaffected) cycling over the N x N main pixels
             // one feedback pixel covers.
-            scene::Mat4f fvp = vp;
+            scene::Mat4f fvp = &fcam == &camera ? vp : view_projection(fcam, aspect);
             if (cfg_.feedback_jitter && cfg_.feedback_scale > 1) {
                 const std::uint32_t n = cfg_.feedback_scale, cells = n * n;
                 // A full-period stride over the cells (odd multiplier coprime to n*n for n a power
@@ -321,7 +323,11 @@ public:
             glClearBufferfv(GL_DEPTH, 0, &far_depth);
             if (tex) {
                 glUseProgram(feedback_program_.get());
-                geometry_.draw(feedback_program_, feedback_u_.chunk, camera);
+                geometry_.draw(feedback_program_, feedback_u_.chunk, fcam);
+                if (&fcam != &camera) {  // the frame's culling and order again
+                    geometry_.cull(camera, aspect);
+                    if (front_to_back) front_to_back = geometry_.order_front_to_back(camera);
+                }
             }
         } else {
             ++stats_.feedback_skipped;
@@ -341,7 +347,6 @@ public:
             if (counter_slot) glEndQuery(GL_SAMPLES_PASSED);
         }
         glUseProgram(0);
-        release_samplers();
         glDisable(GL_FRAMEBUFFER_SRGB);
         if (feedback_slot) feedback_.read(*feedback_slot, fb_fbo_.get(), frame_, lod_bias);
         glBindFramebuffer(GL_FRAMEBUFFER, 0);
@@ -382,7 +387,6 @@ public:
             draw_main(camera, front_to_back, preview_counters_.get());
         }
         glUseProgram(0);
-        release_samplers();
         glDisable(GL_FRAMEBUFFER_SRGB);
         glBindFramebuffer(GL_FRAMEBUFFER, 0);
         return read_colour(preview_);
@@ -452,23 +456,9 @@ private:
 
     void bind_atlases() {
         glBindTextureUnit(1, atlas(cfg_.show_layer).texture());
-        // Bilinear with blending in: the atlas has its second level for the fades only; a frame
-        // where nothing fades samples level 0 alone (GL_LINEAR), as without blending.
-        if (cfg_.filter == Filter::bilinear && level_zero_sampler_) {
-            const GLuint sampler = vt_fading_ ? 0 : level_zero_sampler_.get();
-            glBindSampler(1, sampler);
-            glBindSampler(2, sampler);
-        }
+
         if (cfg_.normal_layer) glBindTextureUnit(2, atlas(*cfg_.normal_layer).texture());
         if (fade_.enabled()) glBindTextureUnit(3, fade_.texture());
-    }
-
-    // The units' own texture filters again, for whatever else draws in this context (the HUD, a
-    // reference renderer).
-    void release_samplers() {
-        if (!level_zero_sampler_) return;
-        glBindSampler(1, 0);
-        glBindSampler(2, 0);
     }
 
     static void set_pass_state() {
@@ -532,7 +522,7 @@ private:
     PagePoolFormat pool_;                                   // every atlas's format, set by init
     PageTableTextures tables_;
     PageFade fade_;
-    Sampler level_zero_sampler_;  // bilinear with blending in: the atlases' level 0 alone (bind_atlases)
+    std::optional<scene::Camera> feedback_camera_;  // set_feedback_camera, for the next frame
     double time_ = 0;        // the renderer's clock, seconds (set_time)
     bool time_set_ = false;  // set for the next frame
     SceneGeometry geometry_;

@@ -1,6 +1,7 @@
 // The double-precision camera: its frame, the view rotation and the GL projection.
 #include "tessera/client/scene/camera.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace tessera::scene {
@@ -67,6 +68,22 @@ std::array<double, 4> world_to_clip(const Camera& c, double aspect, const Vec3d&
     const double ez = -(f[0] * d[0] + f[1] * d[1] + f[2] * d[2]);  // eye space: -Z ahead
     const double t = 1.0 / std::tan(c.fov_y / 2.0), n = c.near_plane, fa = c.far_plane;
     return {t / aspect * ex, t * ey, (fa + n) / (n - fa) * ez + 2.0 * fa * n / (n - fa), -ez};
+}
+
+std::optional<Camera> extrapolate(const Camera& before, double t0, const Camera& now, double t1, double ahead) {
+    if (!(t1 > t0) || !(ahead > 0)) return std::nullopt;
+    const double k = ahead / (t1 - t0);
+    constexpr double kPi = 3.14159265358979323846;
+    const double dyaw = std::remainder(now.yaw - before.yaw, 2 * kPi);
+    const double dpitch = now.pitch - before.pitch;
+    const Vec3d dp = {now.position[0] - before.position[0], now.position[1] - before.position[1],
+                      now.position[2] - before.position[2]};
+    if (dyaw == 0 && dpitch == 0 && dp[0] == 0 && dp[1] == 0 && dp[2] == 0) return std::nullopt;
+    Camera c = now;
+    for (int i = 0; i < 3; ++i) c.position[std::size_t(i)] += k * dp[std::size_t(i)];
+    c.yaw = now.yaw + k * dyaw;
+    c.pitch = std::clamp(now.pitch + k * dpitch, -kPi / 2, kPi / 2);
+    return c;
 }
 
 }  // namespace tessera::scene

@@ -79,15 +79,14 @@ struct RendererConfig {
     float feedback_prefetch_lod = 0.0f;  // 0..2
     float feedback_guard_band = 0.0f;    // 0..1
     // Blending in (docs/renderer.md, "Blending in"): a page that becomes resident is blended from
-    // its parent level to itself over `fade_ms` milliseconds of the renderer's clock (set_time),
-    // per atlas cell, with every filter and page format; LoD-bias changes are spread over the same
-    // time (at most one level per fade_ms). 0: off, pages show at full weight the frame they
-    // arrive (the exactness tests' behaviour). On, the atlas has its second level with every
-    // filter (has_second_level).
+    // what was drawn before it (its nearest resident ancestor) to itself over `fade_ms`
+    // milliseconds of the renderer's clock (set_time), per atlas cell, with every filter and page
+    // format; LoD-bias changes are spread over the same time (at most one level per fade_ms). 0:
+    // off, pages show at full weight the frame they arrive (the exactness tests' behaviour).
     float fade_ms = 0.0f;  // 0..10000
     // Whether the atlas holds each page's next coarser level under it: the trilinear and
-    // anisotropic filters read it, and blending in fades from it.
-    bool has_second_level() const { return filter != Filter::bilinear || fade_ms > 0.0f; }
+    // anisotropic filters read it.
+    bool has_second_level() const { return filter != Filter::bilinear; }
 };
 
 // The colour drawn where nothing is resident on a page's path (an empty entry): opaque magenta,
@@ -147,6 +146,10 @@ public:
     // Renders one frame: feedback pass (at 1/N, depth-tested, same LoD math) and the VT pass with
     // the fallback counters. Returns the frame number. Never waits on the GPU.
     virtual std::uint64_t render(const scene::Camera& camera, float lod_bias) = 0;
+    // The camera the next render()'s feedback pass sees instead of the frame's: a view a few
+    // frames ahead, predicted from the camera's motion, so that its pages are requested before
+    // they come into view (docs/renderer.md, "Motion prefetch"). Applies to one frame.
+    virtual void set_feedback_camera(const scene::Camera& camera) = 0;
     // The time of the next render(), seconds (any origin, never decreasing), the clock blending in
     // runs on: a viewer's path time (headless, frame / fps) or wall time. Never set: each render()
     // is 1/60 s after the one before.

@@ -7,6 +7,7 @@
 // x and y). yaw: radians, 0 looks along +X, pi/2 along +Y. pitch: radians, 0 horizontal,
 // negative looks down. fov_y: vertical field of view, radians.
 #include <array>
+#include <optional>
 
 namespace tessera::scene {
 
@@ -39,5 +40,10 @@ std::array<float, 3> camera_relative(const Vec3d& origin, const Vec3d& camera_po
 // Clip coordinates (x, y, z, w) of a world point, all in double and camera-relative: the same
 // transform as projection * view_rotation * (world - position). NDC = xyz / w (w > 0 in front).
 std::array<double, 4> world_to_clip(const Camera& c, double aspect, const Vec3d& world);
+
+// The camera `ahead` seconds after `now`, moving on as it moved from `before` (at time t0) to
+// `now` (at t1): position, yaw (the short way round) and pitch extrapolated linearly, pitch kept
+// within +-90 degrees, the rest of `now`. Nothing when t1 <= t0 or the camera did not move.
+std::optional<Camera> extrapolate(const Camera& before, double t0, const Camera& now, double t1, double ahead);
 
 }  // namespace tessera::scene
