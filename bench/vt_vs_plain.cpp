@@ -161,7 +161,10 @@ int main(int argc, char** argv) {
                     else (*rt)->frame_without_feedback();
                     if ((*rt)->in_flight() == 0 && k > 3) break;
                 }
-            for (int k = 0; fade > 0 && !frozen && k < 120 && (*vt)->stats().fading_pages > 0; ++k) (*vt)->render(cam_at(frames - 1), 0);
+            if (fade > 0 && !frozen) {  // every page at full weight: one frame past the longest fade
+                (*vt)->set_time(1e6);
+                (*vt)->render(cam_at(frames - 1), 0);
+            }
             std::vector<client::gl::FrameCounters> counters;
             (*vt)->finish(&counters, nullptr);
             return Vt{std::move(*vt), std::move(*rt)};

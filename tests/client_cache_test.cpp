@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <fcntl.h>
+#include <poll.h>
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
@@ -775,9 +776,11 @@ std::size_t writer_size(std::uint32_t i) { return std::size_t{1} + (i * 26544357
 [[maybe_unused]] const bool kIsWriter = [] {
     const char* spec = std::getenv("TESSERA_TEST_CACHE_WRITER");
     if (!spec) return false;
-    char dir[4096];
-    int round = 0;
-    if (std::sscanf(spec, "%4095s %d", dir, &round) != 2) ::_exit(2);
+    const std::string s = spec;  // "DIR ROUND", DIR possibly with spaces
+    const auto space = s.rfind(' ');
+    if (space == std::string::npos) ::_exit(2);
+    const std::string dir = s.substr(0, space);
+    const int round = std::atoi(s.c_str() + space + 1);
     DiskCacheOptions opt;
     opt.byte_budget = kWriterBudget;
     opt.max_queue_entries = 64;
@@ -824,10 +827,12 @@ TEST(DiskTileCache, KilledWriterNeverYieldsACorruptTile) {
             ::_exit(4);
         }
         ::close(out[1]);
+        pollfd ready_fd{out[0], POLLIN, 0};
         char ready[8] = {};
-        const ssize_t got = ::read(out[0], ready, sizeof ready);  // "writing": the cache is open
+        const bool started = ::poll(&ready_fd, 1, 30000) == 1 && ::read(out[0], ready, sizeof ready) > 0;  // "writing"
         ::close(out[0]);
-        ASSERT_GT(got, 0) << "the writer did not start";
+        if (!started) ::kill(pid, SIGKILL);
+        ASSERT_TRUE(started) << "the writer did not start within 30 s";
         std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms));
         ASSERT_EQ(::kill(pid, SIGKILL), 0);
         int status = 0;

@@ -131,3 +131,31 @@ TEST(Camera, CameraRelativeMathIsExactAround2To24) {
 }
 
 }  // namespace
+
+// Motion prefetch's prediction: linear in position, yaw (the short way across +-pi) and pitch,
+// scaled by how far ahead over how long the last step took; nothing for a still camera.
+TEST(Camera, ExtrapolateContinuesTheLastMotion) {
+    using tessera::scene::Camera;
+    using tessera::scene::extrapolate;
+    Camera a, b;
+    a.position = {100, 200, 50};
+    b.position = {110, 190, 52};
+    a.yaw = std::numbers::pi - 0.1;  // turning left across +-pi
+    b.yaw = -std::numbers::pi + 0.1;
+    a.pitch = -0.30;
+    b.pitch = -0.25;
+    const auto c = extrapolate(a, 1.0, b, 1.5, 1.0);  // two steps of 0.5 s ahead
+    ASSERT_TRUE(c.has_value());
+    EXPECT_NEAR(c->position[0], 130, 1e-9);
+    EXPECT_NEAR(c->position[1], 170, 1e-9);
+    EXPECT_NEAR(c->position[2], 56, 1e-9);
+    EXPECT_NEAR(c->yaw, -std::numbers::pi + 0.5, 1e-9);  // +0.2 per step, not -6.08
+    EXPECT_NEAR(c->pitch, -0.15, 1e-9);
+    EXPECT_EQ(c->fov_y, b.fov_y);
+
+    b.pitch = -1.5;
+    a.pitch = -1.3;
+    EXPECT_NEAR(extrapolate(a, 0, b, 0.1, 1.0)->pitch, -std::numbers::pi / 2, 1e-12) << "never past straight down";
+    EXPECT_FALSE(extrapolate(b, 0, b, 0.1, 1.0).has_value()) << "a still camera predicts nothing";
+    EXPECT_FALSE(extrapolate(a, 0.2, b, 0.1, 1.0).has_value()) << "time must move forward";
+}

@@ -564,10 +564,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         const float bias = rt.lod_bias();
         r.set_time(path_clock_start + t);  // after the warm-up's frames
         if (o.motion_prefetch_ms > 0 && f > 0 && f % std::max<std::uint32_t>(o.motion_prefetch_every, 1) == 0 && t > prev_t)
-            if (const auto ahead = scene::extrapolate(prev_cam, prev_t, cam, t, o.motion_prefetch_ms / 1000.0)) {
+            if (const auto ahead = scene::extrapolate(prev_cam, prev_t, cam, t, o.motion_prefetch_ms / 1000.0))
                 r.set_feedback_camera(*ahead);
-                ++rep.predicted_feedback_frames;
-            }
         prev_cam = cam;
         prev_t = t;
         const std::uint64_t render_frame = r.render(cam, bias);
@@ -696,9 +694,11 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rep.last_link_error = link_monitor.last_error();
     rep.summary = rt.summary();
     rep.fade_frames = std::uint32_t(std::ceil(double(o.fade_ms) / 1000.0 * o.fps));
+    rep.predicted_feedback_frames = r.stats().predicted_feedback;
     // PSNR once settled: the path's last view held until it is resident and faded in.
     if (reference && !win && done == frames && done > 0) {
         const scene::Camera last = path->at(double(done - 1) / o.fps);
+        clock_s = path_clock_start + double(done) / o.fps;  // the renderer's clock after the path
         rep.settled_complete = settle(last, rep.settled_frames);
         const auto color = r.read_color();
         reference->render(last);

@@ -148,7 +148,7 @@ struct ViewerReport {
     std::uint32_t settled_frames = 0;
     bool settled_complete = false;
     std::uint32_t fade_frames = 0;  // frames a page takes to reach full weight once drawn (0: no fade)
-    std::uint32_t predicted_feedback_frames = 0;  // frames whose feedback saw a predicted view
+    std::uint64_t predicted_feedback_frames = 0;  // frames whose feedback saw a predicted view
     // The tile source's link over the whole run, warm-up included (a local store: always up).
     bool remote = false;            // tiles came from a server
     double run_s = 0;               // wall time the link was watched (warm-up and path)

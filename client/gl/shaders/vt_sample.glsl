@@ -347,6 +347,7 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
     // pixel drew until its page arrived: the nearest resident ancestor above the page, which the
     // entry one level up names, sampled as that fallback was (at its own level). The root page has
     // nothing above it and shows at once.
+    // Nothing resident above (the ancestor arrives later, or never was): at once, too.
     float w = vt_fade_weight(e);
     int up = max(r, level) + 1;
     if (valid && up < int(vt_levels)) {
@@ -354,10 +355,12 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
         vec4 second_now = vt_second_texel;
 #endif
         VtPos q = vt_ancestor_position(p, up - level);
-        vec4 before = vt_sample_entry_once(q, up, vt_entry(q.page, up), 0.0);
-        c = mix(before, c, w);
+        uint e_up = vt_entry(q.page, up);
+        vec4 before = vt_sample_entry_once(q, up, e_up, 0.0);
+        float wb = (e_up >> 31) != 0u ? w : 1.0;
+        c = mix(before, c, wb);
 #ifdef VT_LIT
-        vt_second_texel = mix(vt_second_texel, second_now, w);
+        vt_second_texel = mix(vt_second_texel, second_now, wb);
 #endif
     }
 #endif
@@ -425,7 +428,9 @@ VtTapMap vt_tap_map(uint e, ivec2 corner, ivec2 offset, int level, float fractio
 #ifdef VT_FADE
     // (A fallback's taps read its second level with the edge bounds of level `level`: only while
     // it fades in, and only at the texture's edges, where they differ.)
-    m.map = vec4(s, vt_cell_origin(e) + base, vt_faded_fraction(e, r > level ? 0.0 : fraction));
+    // (The root has no second level to fade from: it shows at once.)
+    float f = r > level ? 0.0 : fraction;
+    m.map = vec4(s, vt_cell_origin(e) + base, r + 1 < int(vt_levels) ? vt_faded_fraction(e, f) : f);
 #else
     m.map = vec4(s, vt_cell_origin(e) + base, r > level ? 0.0 : fraction);
 #endif

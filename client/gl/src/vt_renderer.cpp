@@ -74,8 +74,8 @@ public:
         if (!(c.fade_ms >= 0 && c.fade_ms <= 10000)) return Error{Errc::invalid_argument, "renderer: fade_ms must be 0..10000"};
         if (c.has_second_level() && (c.tile_size % 2 != 0 || c.border % 2 != 0))
             return Error{Errc::invalid_argument,
-                         fmt::format("renderer: the trilinear and anisotropic filters and blending in need an even tile size and "
-                                     "border (the atlas's second level halves pages), got {} and {}",
+                         fmt::format("renderer: the trilinear and anisotropic filters need an even tile size and border "
+                                     "(the atlas's second level halves pages), got {} and {}",
                                      c.tile_size, c.border)};
         // The anisotropic taps span under 2 * max_anisotropy texels of one level, and vt_sample.glsl
         // looks them up in the 2x2 pages around the centre: a page must be wider than that.
@@ -281,6 +281,7 @@ public:
         // A predicted view's feedback: its own culling, then the frame's again for the main pass.
         const std::optional<scene::Camera> feedback_camera = std::exchange(feedback_camera_, std::nullopt);
         const scene::Camera& fcam = feedback_camera && feedback_slot ? *feedback_camera : camera;
+        if (&fcam != &camera) ++stats_.predicted_feedback;
         if (tex && &fcam != &camera) geometry_.cull(fcam, aspect);
         if (const auto slot = feedback_slot) {
             // Jitter: shift the feedback pass by a sub-pixel offset (clip-space translation, so
@@ -297,9 +298,10 @@ public:
                 const double jx = ((cell % n) + 0.5) / n - 0.5, jy = ((cell / n) + 0.5) / n - 0.5;  // feedback pixels
                 const double dx = 2.0 * jx / fb_width_, dy = 2.0 * jy / fb_height_;                // NDC
                 // T * VP with T translating clip x, y by (dx, dy) * w: column-major rows 0 and 1.
+                const scene::Mat4f base = fvp;  // the feedback camera's (a predicted one's w row too)
                 for (int c = 0; c < 4; ++c) {
-                    fvp[std::size_t(c * 4 + 0)] += float(dx) * vp[std::size_t(c * 4 + 3)];
-                    fvp[std::size_t(c * 4 + 1)] += float(dy) * vp[std::size_t(c * 4 + 3)];
+                    fvp[std::size_t(c * 4 + 0)] += float(dx) * base[std::size_t(c * 4 + 3)];
+                    fvp[std::size_t(c * 4 + 1)] += float(dy) * base[std::size_t(c * 4 + 3)];
                 }
             }
             if (cfg_.feedback_guard_band > 0) {  // clip x, y scaled by 1/(1+g): a wider view

@@ -117,6 +117,7 @@ struct RendererStats {
                                               // and cannot be drawn front to back)
     std::size_t visible_chunks = 0;           // last frame
     std::size_t fading_pages = 0;             // last frame: pages blending in (RendererConfig::fade_ms)
+    std::uint64_t predicted_feedback = 0;     // feedback passes drawn from set_feedback_camera's camera
 };
 
 // A feedback buffer read back from the GPU.
