@@ -235,6 +235,8 @@ std::uint64_t page_count(const st::StoreInfo& info) {
 }
 
 // Drives the runtime with a feedback naming every page of every level until all are resident.
+// Gives up after `timeout` without a page becoming resident (a bound on stalls, not on the whole
+// load, which a sanitizer's slowdown stretches).
 bool load_everything(Vt& vt, std::chrono::seconds timeout = 60s) {
     std::vector<FeedbackId> ids;
     for (std::uint32_t l = 0; l < vt.info.level_count(); ++l)
@@ -242,10 +244,14 @@ bool load_everything(Vt& vt, std::chrono::seconds timeout = 60s) {
             for (std::uint32_t x = 0; x < vt.info.levels[l].tiles_x; ++x)
                 ids.push_back(tessera::client::pack_feedback(PageKey{vt.texture, std::uint8_t(l), x, y}));
     const auto total = page_count(vt.info);
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    auto deadline = std::chrono::steady_clock::now() + timeout;
+    std::size_t resident = 0;
     while (std::chrono::steady_clock::now() < deadline) {
         vt.runtime->frame(ids, std::uint32_t(ids.size()), 1, 0.0f);
-        if (vt.runtime->residency().stats().resident_pages == total && vt.runtime->in_flight() == 0) return true;
+        const std::size_t now_resident = vt.runtime->residency().stats().resident_pages;
+        if (now_resident == total && vt.runtime->in_flight() == 0) return true;
+        if (now_resident > resident) deadline = std::chrono::steady_clock::now() + timeout;
+        resident = now_resident;
         std::this_thread::sleep_for(2ms);
     }
     return false;
