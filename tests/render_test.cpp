@@ -1003,6 +1003,19 @@ void upload_dirty(PageTable& table, gl::VtRenderer& r) {
     }
 }
 
+// Page (px, py) of a decoded level as the builder cuts it: ts x ts RGBA8 texels, a payload of P and
+// a border of B, clamped at the level's edges.
+void cut_page(const gl::ReferenceRenderer::Level& L, std::uint32_t px, std::uint32_t py, std::uint32_t ts, std::uint32_t P,
+              std::uint32_t B, std::vector<std::uint8_t>& page) {
+    page.resize(std::size_t(ts) * ts * 4);
+    for (std::uint32_t j = 0; j < ts; ++j)
+        for (std::uint32_t i = 0; i < ts; ++i) {
+            const auto x = std::clamp<std::int64_t>(std::int64_t(px) * P - B + i, 0, L.width - 1);
+            const auto y = std::clamp<std::int64_t>(std::int64_t(py) * P - B + j, 0, L.height - 1);
+            std::copy_n(&L.rgba8[(std::size_t(y) * L.width + std::size_t(x)) * 4], 4, &page[(std::size_t(j) * ts + i) * 4]);
+        }
+}
+
 // Trilinear takes the coarser of its two levels from the atlas's second level, not from a second
 // page-table lookup: the parent page's texels when the parent is in the atlas, else the page's 2x2
 // means. A view at lod 2.5 over the whole texture (its edges included), level 2 and the root
@@ -1034,16 +1047,9 @@ void expect_trilinear_matches(bool parents, bool inverted_parents) {
     std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
     tessera::client::SlotId next = 0;
     const auto upload_level = [&](std::uint32_t l) {
-        const auto& L = (*levels)[l];
         for (std::uint32_t py = 0; py < info.levels[l].tiles_y; ++py)
             for (std::uint32_t px = 0; px < info.levels[l].tiles_x; ++px) {
-                for (std::uint32_t j = 0; j < ts; ++j)
-                    for (std::uint32_t i = 0; i < ts; ++i) {
-                        const auto x = std::clamp<std::int64_t>(std::int64_t(px) * P - B + i, 0, L.width - 1);
-                        const auto y = std::clamp<std::int64_t>(std::int64_t(py) * P - B + j, 0, L.height - 1);
-                        std::copy_n(&L.rgba8[(std::size_t(y) * L.width + std::size_t(x)) * 4], 4,
-                                    &page[(std::size_t(j) * ts + i) * 4]);
-                    }
+                cut_page((*levels)[l], px, py, ts, P, B, page);
                 renderer.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
                 ASSERT_TRUE(table->map(l, px, py, next++).ok());
             }
@@ -1121,16 +1127,9 @@ void expect_fades_in(gl::Filter filter, bool parent_resident) {
     std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
     tessera::client::SlotId next = 0;
     const auto upload_level = [&](std::uint32_t l) {
-        const auto& L = (*levels)[l];
         for (std::uint32_t py = 0; py < info.levels[l].tiles_y; ++py)
             for (std::uint32_t px = 0; px < info.levels[l].tiles_x; ++px) {
-                for (std::uint32_t j = 0; j < ts; ++j)
-                    for (std::uint32_t i = 0; i < ts; ++i) {
-                        const auto x = std::clamp<std::int64_t>(std::int64_t(px) * P - B + i, 0, L.width - 1);
-                        const auto y = std::clamp<std::int64_t>(std::int64_t(py) * P - B + j, 0, L.height - 1);
-                        std::copy_n(&L.rgba8[(std::size_t(y) * L.width + std::size_t(x)) * 4], 4,
-                                    &page[(std::size_t(j) * ts + i) * 4]);
-                    }
+                cut_page((*levels)[l], px, py, ts, P, B, page);
                 fading.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
                 plain.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
                 ASSERT_TRUE(table->map(l, px, py, next++).ok());
