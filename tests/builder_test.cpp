@@ -470,3 +470,162 @@ TEST(Builder, MemoryStaysBoundedOnALargeSource) {
     ASSERT_TRUE(r.ok());
     EXPECT_EQ((*r)->info().width, 16384u);
 }
+
+// Straight and associated alpha from files other tools wrote (ImageMagick, oiiotool): tiles hold
+// straight alpha (docs/store-format.md, "Alpha"); a straight file comes back texel for texel, an
+// associated one made straight (re-associating gives the file's texel), and mips weight by alpha
+// once, as the reference does.
+namespace {
+
+// Runs a shell command; the test fails with its output when it does not exit 0.
+::testing::AssertionResult run_tool(const std::string& cmd) {
+    const int rc = std::system((cmd + " > /dev/null 2>&1").c_str());
+    if (rc == 0) return ::testing::AssertionSuccess();
+    return ::testing::AssertionFailure() << "'" << cmd << "' exited " << rc;
+}
+
+// The file's samples as stored, alpha untouched (OpenImageIO told to keep straight alpha straight;
+// associated files come as they are).
+RefImage read_file_samples(const std::string& path) {
+    RefImage im;
+    OIIO::ImageSpec config;
+    config.attribute("oiio:UnassociatedAlpha", 1);
+    auto in = OIIO::ImageInput::open(path, &config);
+    EXPECT_TRUE(in) << path;
+    if (!in) return im;
+    const OIIO::ImageSpec& s = in->spec();
+    im.width = std::uint32_t(s.width);
+    im.height = std::uint32_t(s.height);
+    im.channels = std::uint32_t(s.nchannels);
+    OIIO::TypeDesc type = OIIO::TypeDesc::UINT8;
+    switch (s.format.basetype) {
+        case OIIO::TypeDesc::UINT16: im.type = SampleType::u16; type = OIIO::TypeDesc::UINT16; break;
+        case OIIO::TypeDesc::HALF: im.type = SampleType::f16; type = OIIO::TypeDesc::HALF; break;
+        default: break;
+    }
+    im.bytes.resize(std::size_t(im.width) * im.height * im.texel_bytes());
+    EXPECT_TRUE(in->read_image(0, 0, 0, int(im.channels), type, im.bytes.data())) << in->geterror();
+    return im;
+}
+
+// An RGBA pattern whose alpha spans 0 (with colour under it), 1, 220 and 255, and whose first
+// texel is grey 52 at alpha 220 (a premultiplying reader returns 44 there).
+RefImage alpha_pattern(std::uint32_t w, std::uint32_t h, SampleType t) {
+    RefImage im = make_image(w, h, 4, t);
+    static const std::uint32_t alphas[] = {220, 0, 1, 64, 128, 220, 255, 255, 17};
+    for (std::uint32_t y = 0; y < h; ++y)
+        for (std::uint32_t x = 0; x < w; ++x) {
+            std::uint32_t v[4] = {(x * 7 + y * 3) % 256, (x * 2 + y * 11 + 40) % 256, (200 + x * 5 + y) % 256,
+                                  alphas[(x / 3 + y / 5) % 9]};
+            if (x == 0 && y == 0) v[0] = v[1] = v[2] = 52;
+            for (int c = 0; c < 4; ++c) {
+                const std::size_t i = (std::size_t(y) * w + x) * 4 + c;
+                if (t == SampleType::u8) set<std::uint8_t>(im, i, std::uint8_t(v[c]));
+                else set<std::uint16_t>(im, i, std::uint16_t(v[c] * 257 + (c < 3 ? x % 200 : 0)));
+            }
+        }
+    return im;
+}
+
+void write_raw(const std::string& path, const RefImage& im) {
+    std::FILE* f = std::fopen(path.c_str(), "wb");
+    ASSERT_TRUE(f);
+    ASSERT_EQ(std::fwrite(im.bytes.data(), 1, im.bytes.size(), f), im.bytes.size());
+    std::fclose(f);
+}
+
+// Straight from associated file samples, by the documented rule (docs/store-format.md, "Alpha"),
+// checking on the way that re-associating the straight texel gives the file's texel back.
+RefImage made_straight(const RefImage& file) {
+    RefImage out = file;
+    const std::size_t texels = std::size_t(file.width) * file.height;
+    for (std::size_t i = 0; i < texels; ++i) {
+        if (file.type == SampleType::f16) {
+            const auto* p = reinterpret_cast<const std::uint16_t*>(file.bytes.data()) + i * 4;
+            auto* s = reinterpret_cast<std::uint16_t*>(out.bytes.data()) + i * 4;
+            const float a = test::from_half(p[3]);
+            for (int c = 0; c < 3; ++c) s[c] = test::to_half(a > 0.0f ? test::from_half(p[c]) / a : 0.0f);
+            continue;
+        }
+        const std::uint64_t maxv = file.type == SampleType::u8 ? 255 : 65535;
+        auto get = [&](const RefImage& im, std::size_t k) -> std::uint64_t {
+            return im.type == SampleType::u8 ? im.bytes[k] : reinterpret_cast<const std::uint16_t*>(im.bytes.data())[k];
+        };
+        const std::uint64_t a = get(file, i * 4 + 3);
+        for (int c = 0; c < 3; ++c) {
+            const std::uint64_t p = get(file, i * 4 + c);
+            const std::uint64_t s = a == 0 ? 0 : std::min(maxv, (p * maxv + a / 2) / a);
+            if (a > 0) {
+                EXPECT_EQ((s * a + maxv / 2) / maxv, p) << "texel " << i << " does not re-associate";
+            }
+            if (file.type == SampleType::u8) out.bytes[i * 4 + c] = std::uint8_t(s);
+            else reinterpret_cast<std::uint16_t*>(out.bytes.data())[i * 4 + c] = std::uint16_t(s);
+        }
+    }
+    return out;
+}
+
+}  // namespace
+
+TEST(Builder, AlphaFromOtherToolsIsStoredStraightAndWeightedOnce) {
+    ScratchDir d;
+    const std::string im = "convert-im6.q16";  // ImageMagick 6 (Debian's imagemagick package)
+    const RefImage rgba8 = alpha_pattern(150, 110, SampleType::u8), rgba16 = alpha_pattern(150, 110, SampleType::u16);
+    write_raw(d.file("in8.rgba"), rgba8);
+    write_raw(d.file("in16.rgba"), rgba16);
+    // Grey + alpha (PNG colour type 4): the pattern's red as grey, written as RGBA with R = G = B.
+    RefImage grey_alpha = make_image(150, 110, 2, SampleType::u8), grey_rgba = rgba8;
+    for (std::size_t i = 0; i < std::size_t(150) * 110; ++i) {
+        grey_alpha.bytes[i * 2] = grey_rgba.bytes[i * 4 + 1] = grey_rgba.bytes[i * 4 + 2] = rgba8.bytes[i * 4];
+        grey_alpha.bytes[i * 2 + 1] = rgba8.bytes[i * 4 + 3];
+    }
+    write_raw(d.file("grey.rgba"), grey_rgba);
+    const std::string raw8 = " -size 150x110 -depth 8 rgba:" + d.file("in8.rgba");
+    const std::string raw16 = " -size 150x110 -depth 16 -endian LSB rgba:" + d.file("in16.rgba");
+    // Straight alpha: PNG (OpenImageIO's reader), TIFF with unassociated ExtraSamples (Tessera's own
+    // TIFF reader; planar, OpenImageIO's), 16-bit PNG.
+    ASSERT_TRUE(run_tool(im + raw8 + " " + d.file("straight.png")));
+    ASSERT_TRUE(run_tool(im + raw8 + " -define tiff:alpha=unassociated " + d.file("straight.tif")));
+    ASSERT_TRUE(run_tool(im + raw8 + " -define tiff:alpha=unassociated -interlace plane " + d.file("straight_planar.tif")));
+    ASSERT_TRUE(run_tool(im + raw16 + " " + d.file("straight16.png")));
+    ASSERT_TRUE(run_tool(im + " -size 150x110 -depth 8 rgba:" + d.file("grey.rgba") + " -type GrayscaleAlpha " + d.file("grey_alpha.png")));
+    // Associated alpha: TIFF with ExtraSamples = 1 (both readers), OpenEXR half written by oiiotool.
+    ASSERT_TRUE(run_tool(im + raw8 + " -define tiff:alpha=associated " + d.file("assoc.tif")));
+    ASSERT_TRUE(run_tool(im + raw8 + " -define tiff:alpha=associated -interlace plane " + d.file("assoc_planar.tif")));
+    ASSERT_TRUE(run_tool("oiiotool " + d.file("straight.png") + " -d half -o " + d.file("assoc.exr")));
+
+    struct Case {
+        const char* file;
+        bool associated;
+        const RefImage* original;  // the straight texels a straight file must give back
+    };
+    const Case cases[] = {{"straight.png", false, &rgba8},  {"straight.tif", false, &rgba8}, {"straight_planar.tif", false, &rgba8},
+                          {"straight16.png", false, &rgba16}, {"grey_alpha.png", false, &grey_alpha}, {"assoc.tif", true, nullptr},   {"assoc_planar.tif", true, nullptr},
+                          {"assoc.exr", true, nullptr}};
+    for (const Case& c : cases) {
+        SCOPED_TRACE(c.file);
+        const RefImage file = read_file_samples(d.file(c.file));
+        ASSERT_EQ(file.channels, c.original ? c.original->channels : 4u);
+        if (c.original) {
+            ASSERT_TRUE(file.bytes == c.original->bytes) << "the tool did not write the texels given";
+        }
+        const RefImage straight = c.associated ? made_straight(file) : file;
+        BuildOptions o = small_tiles(Codec::zstd);
+        auto r = build_store(d.file(c.file), d.file("a.tsr"), o);
+        ASSERT_TRUE(r.ok()) << r.error().message;
+        EXPECT_TRUE(r->info.has_alpha);
+        auto reader = StoreReader::open(d.file("a.tsr"));
+        ASSERT_TRUE(reader.ok());
+        const ColourSpace cs = (*reader)->info().colour_space;
+        EXPECT_EQ(cs, file.type == SampleType::f16 ? ColourSpace::linear : ColourSpace::srgb);
+        expect_exact(Built{*reader, test::reference_pyramid(straight, cs, true, o.tile_size - 2 * o.border)});
+        if (!c.associated && file.type == SampleType::u8) {  // the texel: grey 52 at alpha 220
+            auto t = (*reader)->read_tile({0, 0, 0});
+            std::vector<std::uint8_t> decoded;
+            ASSERT_TRUE(t.ok() && decode_tile((*reader)->info(), *t, decoded).ok());
+            const std::size_t at = (std::size_t(o.border) * o.tile_size + o.border) * file.channels;
+            EXPECT_EQ(int(decoded[at]), 52);
+            EXPECT_EQ(int(decoded[at + file.channels - 1]), 220);
+        }
+    }
+}

@@ -6,12 +6,6 @@
 #include <cstring>
 
 namespace tessera::test {
-namespace {
-
-using storage::SampleType;
-
-double to_linear(double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4); }
-double to_srgb(double v) { return v <= 0.0031308 ? v * 12.92 : 1.055 * std::pow(v, 1.0 / 2.4) - 0.055; }
 
 // Plain IEEE half conversions (independent of the builder's bit-twiddling ones).
 float from_half(std::uint16_t h) {
@@ -41,6 +35,13 @@ std::uint16_t to_half(float f) {
     std::uint16_t pick = dlo < dhi ? lo : (dhi < dlo ? hi : ((lo & 1) ? hi : lo));
     return sign | pick;
 }
+
+namespace {
+
+using storage::SampleType;
+
+double to_linear(double v) { return v <= 0.04045 ? v / 12.92 : std::pow((v + 0.055) / 1.055, 2.4); }
+double to_srgb(double v) { return v <= 0.0031308 ? v * 12.92 : 1.055 * std::pow(v, 1.0 / 2.4) - 0.055; }
 
 double get(const RefImage& im, std::size_t i) {
     switch (im.type) {

@@ -16,6 +16,10 @@ struct RefImage {
     std::size_t texel_bytes() const { return channels * storage::sample_bytes(type); }
 };
 
+// Plain IEEE half conversions, independent of the builder's (round to nearest, ties to even).
+float from_half(std::uint16_t h);
+std::uint16_t to_half(float f);
+
 // Level 0 is `base`; each next level halves (rounding up) until it fits in one tile of `payload`.
 std::vector<RefImage> reference_pyramid(const RefImage& base, storage::ColourSpace cs, bool has_alpha, std::uint32_t payload);
 

@@ -16,6 +16,7 @@ packages=(
   libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libtinyobjloader-dev  # GL client (llvmpipe headless)
   libgtest-dev libgmock-dev libbenchmark-dev
   xvfb xauth                          # windowed-mode tests on an X server without a display
+  imagemagick openimageio-tools       # tests read images other tools wrote (alpha conventions, formats)
   python3 python3-yaml time systemd   # systemd: systemd-analyze lints deploy/tessera.service
 )
 missing=()

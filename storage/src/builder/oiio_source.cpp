@@ -7,18 +7,27 @@
 #include <filesystem>
 
 #include "oiio_plugin_abi.hpp"
+#include "straight_alpha.hpp"
 
 namespace tessera::storage {
 namespace {
 
 class OiioSource final : public ImageSource {
 public:
-    OiioSource(std::unique_ptr<OIIO::ImageInput> in, SourceInfo info, OIIO::TypeDesc type)
-        : in_(std::move(in)), info_(std::move(info)), type_(type) {}
+    OiioSource(std::unique_ptr<OIIO::ImageInput> in, SourceInfo info, OIIO::TypeDesc type, bool associated)
+        : in_(std::move(in)), info_(std::move(info)), type_(type), associated_(associated) {}
     ~OiioSource() override { in_->close(); }
     const SourceInfo& info() const override { return info_; }
 
     Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor&) override {
+        Status st = read_file_rows(y0, count, dst);
+        if (st && associated_) build::make_alpha_straight(dst, std::size_t(info_.width) * count, info_);
+        return st;
+    }
+
+private:
+    // The file's own samples (alpha as the file holds it).
+    Status read_file_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst) {
         const OIIO::ImageSpec& s = in_->spec();
         const std::size_t row = std::size_t(info_.width) * info_.channels * sample_bytes(info_.sample_type);
         if (s.tile_width == 0) {
@@ -47,7 +56,6 @@ public:
         return {};
     }
 
-private:
     // OIIO reports some damage (a truncated TIFF strip, corrupt JPEG data) only as a pending error
     // message while the read itself "succeeds" with made-up texels, so a pending message fails too.
     Status failure() {
@@ -59,6 +67,7 @@ private:
     std::unique_ptr<OIIO::ImageInput> in_;
     SourceInfo info_;
     OIIO::TypeDesc type_;
+    bool associated_;  // the file's alpha is associated: made straight as read
     std::vector<std::uint8_t> band_;
     std::uint32_t band_index_ = 0;
 };
@@ -70,7 +79,11 @@ std::string oiio_error(std::string msg) {
 }
 
 Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
-    auto in = OIIO::ImageInput::open(path);
+    // Keep straight alpha straight (OpenImageIO would associate it on read); files whose alpha is
+    // associated (OpenEXR, TIFF ExtraSamples = 1) still come associated and are made straight.
+    OIIO::ImageSpec config;
+    config.attribute("oiio:UnassociatedAlpha", 1);
+    auto in = OIIO::ImageInput::open(path, &config);
     if (!in) return make_error(Errc::unsupported, "cannot read '" + path + "' as an image: " + oiio_error({}));
     const OIIO::ImageSpec& s = in->spec();
     SourceInfo info;
@@ -95,13 +108,16 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
     info.has_alpha = (info.channels == 2 || info.channels == 4) && (s.alpha_channel == s.nchannels - 1 || s.alpha_channel < 0);
     if (s.alpha_channel < 0 && info.channels == 2) info.has_alpha = true;  // grey + alpha by convention
     if (s.alpha_channel < 0 && info.channels == 4) info.has_alpha = true;  // RGBA by convention
+    // Associated only when OpenImageIO knows the channel as alpha and did not keep it straight.
+    const bool associated = info.has_alpha && s.alpha_channel == s.nchannels - 1 && s.get_int_attribute("oiio:UnassociatedAlpha", 0) == 0;
+    if (associated) info.description.insert(info.description.size() - 1, ", associated alpha made straight");
     const std::string cs = s.get_string_attribute("oiio:ColorSpace");
     if (cs == "sRGB" || cs == "srgb" || cs == "srgb_rec709_scene") info.colour_space = ColourSpace::srgb;
     else if (cs == "Linear" || cs == "linear" || cs == "lin_srgb" || cs == "scene_linear") info.colour_space = ColourSpace::linear;
     else
         info.colour_space = (info.sample_type == SampleType::u8 || info.sample_type == SampleType::u16) ? ColourSpace::srgb
                                                                                                          : ColourSpace::linear;
-    return std::unique_ptr<ImageSource>(new OiioSource(std::move(in), std::move(info), type));
+    return std::unique_ptr<ImageSource>(new OiioSource(std::move(in), std::move(info), type, associated));
 }
 
 }  // namespace
@@ -132,7 +148,10 @@ extern "C" __attribute__((visibility("default"))) bool tessera_oiio_write(const 
     static const OIIO::TypeDesc types[] = {OIIO::TypeDesc::UINT8, OIIO::TypeDesc::UINT16, OIIO::TypeDesc::HALF, OIIO::TypeDesc::FLOAT};
     const OIIO::TypeDesc type = types[static_cast<int>(si.sample_type)];
     OIIO::ImageSpec spec(int(si.width), int(si.height), int(si.channels), type);
-    if (si.has_alpha) spec.alpha_channel = int(si.channels) - 1;
+    if (si.has_alpha) {
+        spec.alpha_channel = int(si.channels) - 1;
+        spec.attribute("oiio:UnassociatedAlpha", 1);  // sources are straight; PNG and TIFF keep it so
+    }
     spec.attribute("oiio:ColorSpace", si.colour_space == ColourSpace::srgb ? "sRGB" : "Linear");
     spec.attribute("compression", "none");
     if (!out->open(path, spec)) {

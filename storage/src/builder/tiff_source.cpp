@@ -9,6 +9,7 @@
 #include <cstring>
 
 #include "sources_internal.hpp"
+#include "straight_alpha.hpp"
 
 namespace tessera::storage {
 namespace {
@@ -23,7 +24,7 @@ void tiff_error(const char* module, const char* fmt, va_list ap) {
 
 class TiffSource final : public ImageSource {
 public:
-    TiffSource(TIFF* tif, SourceInfo info) : tif_(tif), info_(std::move(info)) {
+    TiffSource(TIFF* tif, SourceInfo info, bool associated) : tif_(tif), info_(std::move(info)), associated_(associated) {
         tiled_ = TIFFIsTiled(tif_) != 0;
         if (tiled_) {
             TIFFGetField(tif_, TIFFTAG_TILEWIDTH, &tw_);
@@ -37,6 +38,14 @@ public:
     const SourceInfo& info() const override { return info_; }
 
     Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor&) override {
+        Status st = read_file_rows(y0, count, dst);
+        if (st && associated_) build::make_alpha_straight(dst, std::size_t(info_.width) * count, info_);
+        return st;
+    }
+
+private:
+    // The file's own samples (alpha as the file holds it).
+    Status read_file_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst) {
         const std::size_t texel = std::size_t(info_.channels) * sample_bytes(info_.sample_type);
         const std::size_t row = std::size_t(info_.width) * texel;
         tiff_error_text.clear();
@@ -71,12 +80,12 @@ public:
         return {};
     }
 
-private:
     Status failure() const {
         return make_error(Errc::corrupt, info_.description + ": " + (tiff_error_text.empty() ? "read failed" : tiff_error_text));
     }
     TIFF* tif_;
     SourceInfo info_;
+    bool associated_;  // ExtraSamples says associated alpha: made straight as read
     bool tiled_ = false;
     std::uint32_t tw_ = 0, th_ = 0;
     std::vector<std::uint8_t> tile_, band_;
@@ -141,9 +150,16 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path) {
         return make_error(Errc::invalid_argument, info.description + " has zero size");
     }
     info.has_alpha = spp == 2 || spp == 4;
+    // ExtraSamples: 1 associated alpha, 2 unassociated, 0 unspecified (taken as straight, kept as is).
+    bool associated = false;
+    std::uint16_t extra_count = 0;
+    std::uint16_t* extra = nullptr;
+    if (info.has_alpha && TIFFGetField(tif, TIFFTAG_EXTRASAMPLES, &extra_count, &extra) && extra_count >= 1 && extra)
+        associated = extra[extra_count - 1] == EXTRASAMPLE_ASSOCALPHA;
+    if (associated) info.description = path + " (TIFF, associated alpha made straight)";
     info.colour_space = (info.sample_type == SampleType::u8 || info.sample_type == SampleType::u16) ? ColourSpace::srgb
                                                                                                      : ColourSpace::linear;
-    return std::unique_ptr<ImageSource>(new TiffSource(tif, std::move(info)));
+    return std::unique_ptr<ImageSource>(new TiffSource(tif, std::move(info), associated));
 }
 
 }  // namespace tessera::storage
