@@ -9,18 +9,20 @@ pkg_check_modules(GRPCPP REQUIRED IMPORTED_TARGET grpc++)
 pkg_check_modules(PROTOBUF REQUIRED IMPORTED_TARGET protobuf)
 find_package(absl REQUIRED CONFIG)  # comes with gRPC; the server's flat hash maps
 find_package(nlohmann_json REQUIRED CONFIG)
-find_package(ZLIB REQUIRED)  # PNG encoding of decoded tiles
+find_package(ZLIB REQUIRED)  # PNG encoding (tiles over HTTP, the viewer's frames)
 # stb_dxt: BC1/BC4/BC5 blocks (tessera::blocks), for block-codec stores and the client's pages.
 pkg_check_modules(STB REQUIRED IMPORTED_TARGET stb)
 if(NOT TESSERA_FUZZ_ONLY)
-  # Debian 12's OpenImageIO CMake config names /usr/include/opencv4 even when OpenCV is not
-  # installed; its pkg-config file is sound, so use that.
-  pkg_check_modules(OIIO REQUIRED IMPORTED_TARGET OpenImageIO)
-  pkg_check_modules(TIFF REQUIRED IMPORTED_TARGET libtiff-4)
   find_package(CLI11 REQUIRED CONFIG)
   find_package(fmt REQUIRED CONFIG)
   find_package(Boost 1.74 REQUIRED CONFIG)  # header-only Asio and Beast
   find_package(OpenSSL REQUIRED)
+endif()
+if(NOT TESSERA_FUZZ_ONLY AND NOT TESSERA_SERVER_ONLY)
+  # Debian 12's OpenImageIO CMake config names /usr/include/opencv4 even when OpenCV is not
+  # installed; its pkg-config file is sound, so use that.
+  pkg_check_modules(OIIO REQUIRED IMPORTED_TARGET OpenImageIO)
+  pkg_check_modules(TIFF REQUIRED IMPORTED_TARGET libtiff-4)
   # The GL client: libepoxy dispatches GL calls for both EGL (headless) and GLFW (windowed).
   pkg_check_modules(EPOXY REQUIRED IMPORTED_TARGET epoxy)
   pkg_check_modules(EGL REQUIRED IMPORTED_TARGET egl)

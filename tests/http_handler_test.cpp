@@ -24,7 +24,7 @@
 #include "http_handler.hpp"
 #include "log.hpp"
 #include "metrics.hpp"
-#include "png_encode.hpp"
+#include "tessera/storage/png_encode.hpp"
 #include "prometheus_text.hpp"
 #include "server_context.hpp"
 #include "store_registry.hpp"
@@ -495,15 +495,15 @@ TEST_F(HandlerTest, PngReadsBackWithLibpng) {
 TEST(PngEncode, RefusesFloatsAndWrongSizes) {
     storage::StoreInfo info = storage::store_info(spec_of(8, 8, 8, 0, 1, SampleType::f32, ColourSpace::linear, Codec::raw));
     std::vector<std::uint8_t> texels(info.tile_bytes());
-    auto r = encode_png(info, texels);
+    auto r = storage::encode_tile_png(info, texels);
     ASSERT_FALSE(r.ok());
     EXPECT_EQ(r.error().code, Errc::unsupported);
     EXPECT_NE(r.error().message.find("f32"), std::string::npos) << r.error().message;
     info.sample_type = SampleType::f16;
-    EXPECT_EQ(encode_png(info, std::vector<std::uint8_t>(info.tile_bytes())).error().code, Errc::unsupported);
+    EXPECT_EQ(storage::encode_tile_png(info, std::vector<std::uint8_t>(info.tile_bytes())).error().code, Errc::unsupported);
     info.sample_type = SampleType::u8;
-    EXPECT_EQ(encode_png(info, std::vector<std::uint8_t>(info.tile_bytes() - 1)).error().code, Errc::invalid_argument);
-    EXPECT_TRUE(encode_png(info, std::vector<std::uint8_t>(info.tile_bytes())).ok());
+    EXPECT_EQ(storage::encode_tile_png(info, std::vector<std::uint8_t>(info.tile_bytes() - 1)).error().code, Errc::invalid_argument);
+    EXPECT_TRUE(storage::encode_tile_png(info, std::vector<std::uint8_t>(info.tile_bytes())).ok());
 }
 
 TEST_F(HandlerTest, FloatStoresHaveNoPng) {

@@ -1,7 +1,10 @@
-// tessera: build, inspect, verify and serve streaming virtual texture stores.
+// tessera: build, inspect, verify and serve streaming virtual texture stores, view and load-test
+// them. tessera-server (TESSERA_SERVER_BINARY): serve, inspect and verify only, for deployments --
+// no GL, GLFW, OpenImageIO or tinyobjloader among its libraries.
 #include <malloc.h>
 
 #include <cstdio>
+#include <cstring>
 #include <exception>
 #include <map>
 
@@ -22,15 +25,33 @@ int main(int argc, char** argv) {
     // them back to the OS on free instead of keeping them in the heap (the default raises the
     // threshold after the first free, which inflates peak RSS by tens of MiB).
     mallopt(M_MMAP_THRESHOLD, 1 << 20);
+#ifdef TESSERA_SERVER_BINARY
+    CLI::App app{"Tessera's tile server (serve, inspect and verify stores; the full `tessera` builds and views them)",
+                 "tessera-server"};
+    app.set_version_flag("--version", "tessera-server 0.1.0");
+#else
     CLI::App app{"Tessera: streaming virtual textures (tile stores, server, client runtime)", "tessera"};
-    app.require_subcommand(1);
     app.set_version_flag("--version", "tessera 0.1.0");
+#endif
+    app.require_subcommand(1);
     std::map<CLI::App*, Command> commands;
     auto reg = [&](Command (*add)(CLI::App&)) {
         const std::size_t before = app.get_subcommands({}).size();
         Command c = add(app);
         commands[app.get_subcommands({})[before]] = std::move(c);
     };
+#ifdef TESSERA_SERVER_BINARY
+    // The full binary's other commands: say where they are rather than "a subcommand is required".
+    for (const char* other : {"build", "source", "view", "loadtest", "bench", "demo"})
+        if (argc > 1 && std::strcmp(argv[1], other) == 0) {
+            std::fprintf(stderr, "tessera-server: error: '%s' is a command of the full tessera binary; tessera-server only serves, "
+                                 "inspects and verifies stores\n", other);
+            return 2;
+        }
+    reg(add_inspect);
+    reg(add_verify);
+    reg(add_serve);
+#else
     reg(add_build);
     reg(add_inspect);
     reg(add_verify);
@@ -40,6 +61,7 @@ int main(int argc, char** argv) {
     reg(add_loadtest);
     reg(add_bench);
     reg(add_demo);
+#endif
     try {
         app.parse(argc, argv);
     } catch (const CLI::CallForHelp& e) {
@@ -49,17 +71,17 @@ int main(int argc, char** argv) {
     } catch (const CLI::CallForVersion& e) {
         return app.exit(e);
     } catch (const CLI::ParseError& e) {
-        std::fprintf(stderr, "tessera: error: %s (see tessera --help)\n", e.what());
+        std::fprintf(stderr, "%s: error: %s (see %s --help)\n", app.get_name().c_str(), e.what(), app.get_name().c_str());
         return 2;
     }
     try {
         for (auto& [sub, run] : commands)
             if (sub->parsed()) return run();
     } catch (const Failure& f) {
-        std::fprintf(stderr, "tessera: error: %s\n", f.what());
+        std::fprintf(stderr, "%s: error: %s\n", app.get_name().c_str(), f.what());
         return f.code;
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "tessera: error: %s\n", e.what());
+        std::fprintf(stderr, "%s: error: %s\n", app.get_name().c_str(), e.what());
         return 1;
     }
     return 0;

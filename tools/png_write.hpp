@@ -1,6 +1,6 @@
 #pragma once
-// PNG output for the viewer's frames (stb_image_write, so the command line needs no OpenImageIO:
-// that lives in the builder's module, loaded on demand).
+// PNG output for the viewer's frames, through the same encoder as the server's PNG tiles (so the
+// command line needs no OpenImageIO: that lives in the builder's module, loaded on demand).
 #include <cstdint>
 #include <string>
 #include <vector>

@@ -9,11 +9,11 @@
 #include <nlohmann/json.hpp>
 
 #include "auth.hpp"
-#include "png_encode.hpp"
 #include "tessera/hex.hpp"
 #include "tessera/protocol/wire.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/layers.hpp"
+#include "tessera/storage/png_encode.hpp"
 #include "tessera/storage/store_json.hpp"
 
 namespace tessera::server {
@@ -569,7 +569,7 @@ HttpResponse HttpHandler::tile(const HttpRequestView& req, std::string_view name
         std::vector<std::uint8_t> texels;
         if (const Status s = storage::decode_tile(png_info, *decoded, texels); !s.ok())
             return error(500, "tile does not decode: " + s.error().message, api);
-        auto encoded = encode_png(png_info, texels);
+        auto encoded = storage::encode_tile_png(png_info, texels);
         if (!encoded.ok())
             return error(encoded.error().code == Errc::unsupported ? 406 : 500, encoded.error().message, api);
         r.content_type = "image/png";

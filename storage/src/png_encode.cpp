@@ -1,4 +1,4 @@
-#include "png_encode.hpp"
+#include "tessera/storage/png_encode.hpp"
 
 #include <zlib.h>
 
@@ -7,7 +7,7 @@
 #include <string>
 #include <string_view>
 
-namespace tessera::server {
+namespace tessera::storage {
 
 namespace {
 
@@ -34,32 +34,35 @@ void put_chunk(std::vector<std::uint8_t>& out, std::string_view type, std::span<
 
 }  // namespace
 
-Result<std::vector<std::uint8_t>> encode_png(const storage::StoreInfo& info, std::span<const std::uint8_t> texels) {
+Result<std::vector<std::uint8_t>> encode_png(const PngImage& image) {
     std::size_t sample = 0;
-    switch (info.sample_type) {
-        case storage::SampleType::u8: sample = 1; break;
-        case storage::SampleType::u16: sample = 2; break;
-        case storage::SampleType::f16:
-        case storage::SampleType::f32:
+    switch (image.sample_type) {
+        case SampleType::u8: sample = 1; break;
+        case SampleType::u16: sample = 2; break;
+        case SampleType::f16:
+        case SampleType::f32:
             return make_error(Errc::unsupported, "PNG has no floating-point samples: this store holds " +
-                                                     std::string(storage::to_string(info.sample_type)) +
+                                                     std::string(to_string(image.sample_type)) +
                                                      " data; fetch the stored payload instead");
     }
-    if (info.channels < 1 || info.channels > 4)
-        return make_error(Errc::invalid_argument, "PNG needs 1 to 4 channels, the store has " + std::to_string(info.channels));
-    const std::uint32_t side = info.tile_size();
-    const std::size_t pixel = info.channels * sample;  // bytes per pixel
-    const std::size_t row = std::size_t(side) * pixel;
-    if (side == 0 || texels.size() != row * side)
-        return make_error(Errc::invalid_argument, "PNG encode: expected " + std::to_string(row * side) +
-                                                      " bytes of texels, got " + std::to_string(texels.size()));
+    if (image.channels < 1 || image.channels > 4)
+        return make_error(Errc::invalid_argument, "PNG needs 1 to 4 channels, the image has " + std::to_string(image.channels));
+    const std::uint32_t w = image.width, h = image.height;
+    const std::size_t pixel = image.channels * sample;  // bytes per pixel
+    const std::size_t row = std::size_t(w) * pixel;
+    // PNG sizes are 31-bit; zlib takes a uLong of input, and one IDAT chunk holds under 4 GiB.
+    if (w == 0 || h == 0 || w > 0x7fffffffu || h > 0x7fffffffu || double(row + 1) * h > double(0xffffffffu) / 2)
+        return make_error(Errc::invalid_argument, "PNG encode: image size " + std::to_string(w) + "x" + std::to_string(h) + " out of range");
+    if (image.texels.size() != row * h)
+        return make_error(Errc::invalid_argument, "PNG encode: expected " + std::to_string(row * h) +
+                                                      " bytes of texels, got " + std::to_string(image.texels.size()));
 
     // Filtered scanlines: one filter-type byte (1 = Sub) per row, then the row with each byte
     // minus the byte one pixel to its left. 16-bit samples are written big-endian first.
-    std::vector<std::uint8_t> raw(std::size_t(side) * (row + 1));
+    std::vector<std::uint8_t> raw(std::size_t(h) * (row + 1));
     std::vector<std::uint8_t> be(sample == 2 ? row : 0);
-    for (std::uint32_t y = 0; y < side; ++y) {
-        const std::uint8_t* src = texels.data() + std::size_t(y) * row;
+    for (std::uint32_t y = 0; y < h; ++y) {
+        const std::uint8_t* src = image.texels.data() + std::size_t(y) * row;
         if (sample == 2) {
             for (std::size_t i = 0; i < row; i += 2) {
                 be[i] = src[i + 1];
@@ -85,16 +88,16 @@ Result<std::vector<std::uint8_t>> encode_png(const storage::StoreInfo& info, std
     for (std::uint8_t b : kSignature) out.push_back(b);  // (insert() trips a GCC 12 false -Wstringop-overflow)
 
     std::vector<std::uint8_t> ihdr;
-    put_u32(ihdr, side);
-    put_u32(ihdr, side);
+    put_u32(ihdr, w);
+    put_u32(ihdr, h);
     ihdr.push_back(static_cast<std::uint8_t>(sample * 8));  // bit depth
-    ihdr.push_back(kColourType[info.channels]);
+    ihdr.push_back(kColourType[image.channels]);
     ihdr.push_back(0);  // compression: deflate
     ihdr.push_back(0);  // filter method 0 (adaptive, five types)
     ihdr.push_back(0);  // no interlace
     put_chunk(out, "IHDR", ihdr);
 
-    if (info.colour_space == storage::ColourSpace::srgb) {
+    if (image.colour_space == ColourSpace::srgb) {
         const std::uint8_t intent = 0;  // perceptual
         put_chunk(out, "sRGB", std::span(&intent, 1));
     } else {
@@ -107,4 +110,9 @@ Result<std::vector<std::uint8_t>> encode_png(const storage::StoreInfo& info, std
     return out;
 }
 
-}  // namespace tessera::server
+Result<std::vector<std::uint8_t>> encode_tile_png(const StoreInfo& info, std::span<const std::uint8_t> texels) {
+    const std::uint32_t side = info.tile_size();
+    return encode_png(PngImage{side, side, info.channels, info.sample_type, info.colour_space, texels});
+}
+
+}  // namespace tessera::storage
