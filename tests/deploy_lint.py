@@ -313,9 +313,9 @@ def check_systemd(rep: Report, ctx: Context) -> None:
         rep.fail(f"expected one ExecStart=, found {len(exec_start)}")
     else:
         argv = shlex.split(exec_start[0].lstrip("-@:+!"))
-        rep.check(argv[:2] == ["/usr/local/bin/tessera", "serve"],
-                  "ExecStart runs /usr/local/bin/tessera serve (cmake --install prefix /usr/local)",
-                  f"ExecStart should run `/usr/local/bin/tessera serve ...`, got {exec_start[0]!r}")
+        rep.check(argv[:2] == ["/usr/local/bin/tessera-server", "serve"],
+                  "ExecStart runs /usr/local/bin/tessera-server serve (cmake --install prefix /usr/local)",
+                  f"ExecStart should run `/usr/local/bin/tessera-server serve ...`, got {exec_start[0]!r}")
         opts = option_values(argv[2:])
         conf = (opts.get("config") or [None])[-1]
         rep.check(conf == "/etc/tessera/tessera.conf", "ExecStart reads --config /etc/tessera/tessera.conf",
@@ -403,7 +403,7 @@ def verify_with_systemd_analyze(rep: Report, ctx: Context, unit: Path, text: str
             rep.fail(f"temporary directory {tmpdir} has white space: unit not verified (set TMPDIR)")
             return
         # Point every Exec*= that runs a `tessera` at the binary we have (paths only, no other edit).
-        rewritten = re.sub(r"^(Exec[A-Za-z]+=[-@:+!]*)(/\S*/)?tessera(?=\s|$)",
+        rewritten = re.sub(r"^(Exec[A-Za-z]+=[-@:+!]*)(/\S*/)?tessera(-server)?(?=\s|$)",
                            lambda m: m.group(1) + str(binary), text, flags=re.M)
         copy = tmpdir / unit.name
         copy.write_text(rewritten)
@@ -1211,8 +1211,8 @@ def check_dockerfile(rep: Report, ctx: Context) -> None:
                       f"line {n}: HEALTHCHECK --{flag[0]}={flag[1]} is not a duration")
     ep = fin("ENTRYPOINT")
     ep_arr = json_array(ep[-1][1]) if ep else None
-    rep.check(ep_arr == ["tessera", "serve"], 'ENTRYPOINT ["tessera", "serve"] (exec form: signals reach tessera)',
-              f"ENTRYPOINT should be [\"tessera\", \"serve\"] in exec form, got {ep[-1][1] if ep else None!r}")
+    rep.check(ep_arr == ["tessera-server", "serve"], 'ENTRYPOINT ["tessera-server", "serve"] (exec form: signals reach it)',
+              f"ENTRYPOINT should be [\"tessera-server\", \"serve\"] in exec form, got {ep[-1][1] if ep else None!r}")
     cmds = fin("CMD")
     cmd_arr = json_array(cmds[-1][1]) if cmds else None
     if cmd_arr is None:

@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "commands.hpp"
+#include "service_notify.hpp"
 #include "tessera/server/server.hpp"
 
 namespace tessera::tools {
@@ -74,13 +75,18 @@ int run_serve(ServeArgs& a) {
     auto started = server::Server::start(c);
     if (!started) throw Failure(started.error().message);
     std::unique_ptr<server::Server> srv = std::move(*started);
+    // Stores open, ports listening: a Type=notify unit is started now (and /readyz says 200).
+    notify_service_manager("READY=1\nSTATUS=serving");
     for (;;) {
         int sig = 0;
         if (sigwait(&signals, &sig) != 0) continue;
         if (sig == SIGHUP) {
+            notify_service_manager("RELOADING=1\n" + monotonic_usec_field());
             srv->reload();
+            notify_service_manager("READY=1\nSTATUS=serving");
             continue;
         }
+        notify_service_manager("STOPPING=1");
         // SIGTERM or SIGINT: drain, then exit 0. A watchdog bounds the whole stop: whatever the
         // streams or the transport are doing, the process is gone within --drain-timeout plus
         // kStopGrace (an orchestrator's kill deadline is set from the drain timeout).

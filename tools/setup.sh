@@ -18,6 +18,7 @@ packages=(
   xvfb xauth                          # windowed-mode tests on an X server without a display
   imagemagick openimageio-tools       # tests read images other tools wrote (alpha conventions, formats)
   python3 python3-yaml time systemd   # systemd: systemd-analyze lints deploy/tessera.service
+  mmdebstrap                          # deploy/build-image.py: the image's root filesystem
 )
 missing=()
 for p in "${packages[@]}"; do
