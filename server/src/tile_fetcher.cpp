@@ -1,7 +1,9 @@
 #include "tile_fetcher.hpp"
 
 #include <algorithm>
+#include <condition_variable>
 #include <cstdio>
+#include <functional>
 
 namespace tessera::server {
 
@@ -12,6 +14,8 @@ TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log
     read_bytes_ = &metrics.counter("tessera_store_read_bytes_total", "Bytes read from store files, gaps included");
     cache_hits_ = &metrics.counter("tessera_cache_hits_total", "Tile lookups served from the RAM cache");
     cache_misses_ = &metrics.counter("tessera_cache_misses_total", "Tile lookups that went to the store file");
+    reads_saved_ = &metrics.counter("tessera_store_reads_saved_total",
+                                    "Cache misses answered by a read of the same tile already in flight for another request");
     metrics.gauge_callback("tessera_cache_bytes", "Bytes held by the RAM tile cache", {},
                            [this] { return double(cache_.stats().bytes); });
     metrics.gauge_callback("tessera_cache_budget_bytes", "Byte budget of the RAM tile cache", {},
@@ -48,6 +52,22 @@ FetchedTile stale_tile(const StoreHandle& store) {
 
 }  // namespace
 
+struct TileFetcher::Flight {
+    std::mutex m;
+    std::condition_variable cv;
+    bool done = false;
+    FetchedTile result;
+};
+
+std::size_t TileFetcher::CacheKeyHash::operator()(const CacheKey& k) const noexcept {
+    std::uint64_t h = k.store_version ^ (std::uint64_t(k.tile.level) << 58) ^ (std::uint64_t(k.tile.x) << 29) ^ k.tile.y;
+    h ^= h >> 33;  // splitmix64's finaliser: neighbouring tiles land far apart
+    h *= 0xff51afd7ed558ccdULL;
+    h ^= h >> 33;
+    h *= 0xc4ceb9fe1a85ec53ULL;
+    return static_cast<std::size_t>(h ^ (h >> 33));
+}
+
 void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
                         std::vector<FetchedTile>& out) {
     if (store.stale.load(std::memory_order_relaxed)) {
@@ -82,6 +102,62 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
     }
     if (misses.empty()) return;
 
+    // Lead the reads nobody is doing; join the others.
+    std::vector<TileKey> lead_keys;
+    std::vector<std::size_t> lead_index;
+    std::vector<std::shared_ptr<Flight>> led;
+    std::vector<std::pair<std::size_t, std::shared_ptr<Flight>>> joined;
+    {
+        std::lock_guard lock(flights_mutex_);
+        for (std::size_t j = 0; j < misses.size(); ++j) {
+            auto [it, inserted] = flights_.try_emplace(CacheKey{store.version, misses[j]});
+            if (!inserted) {
+                joined.emplace_back(miss_index[j], it->second);
+                continue;
+            }
+            it->second = std::make_shared<Flight>();
+            led.push_back(it->second);
+            lead_keys.push_back(misses[j]);
+            lead_index.push_back(miss_index[j]);
+        }
+    }
+    // Answer every led flight and take it out of the table; on any exit, an exception included,
+    // so that no joiner waits forever.
+    bool published = false;
+    auto publish = [&](bool read_done) {
+        published = true;
+        {
+            std::lock_guard lock(flights_mutex_);
+            for (const TileKey& k : lead_keys) flights_.erase(CacheKey{store.version, k});
+        }
+        for (std::size_t j = 0; j < led.size(); ++j) {
+            {
+                std::lock_guard lock(led[j]->m);
+                led[j]->result = read_done ? out[lead_index[j]] : error_tile(TileStatus::internal, "the tile read failed");
+                led[j]->done = true;
+            }
+            led[j]->cv.notify_all();
+        }
+    };
+    struct OnExit {
+        std::function<void()> fn;
+        ~OnExit() { fn(); }
+    } on_exit{[&] {
+        if (!published) publish(false);
+    }};
+    if (!lead_keys.empty()) read_misses(store, lead_keys, lead_index, out);
+    publish(true);
+    // Then the reads other requests lead (each of ours is done, so no two fetches wait on each other).
+    for (auto& [i, flight] : joined) {
+        std::unique_lock lock(flight->m);
+        flight->cv.wait(lock, [&f = *flight] { return f.done; });
+        out[i] = flight->result;
+        reads_saved_->inc();
+    }
+}
+
+void TileFetcher::read_misses(const StoreHandle& store, const std::vector<TileKey>& misses,
+                              const std::vector<std::size_t>& miss_index, std::vector<FetchedTile>& out) {
     storage::BatchStats stats;
     auto results = store.reader->read_tiles(misses, &stats);
     reads_->inc(stats.reads);

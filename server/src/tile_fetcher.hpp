@@ -1,10 +1,14 @@
 #pragma once
 // Reads tiles for both front ends (gRPC scheduler workers, HTTP handlers): RAM cache first, then
 // one batch read per store for the misses (the reader coalesces payloads adjacent in the file).
+// A miss whose tile is already being read for another request joins that read instead of reading
+// it again (single flight), so however many viewers miss a tile at once it is read once.
 // Every payload is checksum-verified by the reader; one that fails is answered DATA_LOSS and
 // logged, never served.
 #include <memory>
+#include <mutex>
 #include <span>
+#include <unordered_map>
 #include <string>
 #include <vector>
 
@@ -34,8 +38,17 @@ public:
     TileCache& cache() { return cache_; }
     std::uint64_t reads() const { return reads_->value(); }
     std::uint64_t tiles_read() const { return tiles_read_->value(); }
+    std::uint64_t reads_saved() const { return reads_saved_->value(); }
 
 private:
+    struct Flight;  // one tile's read in progress, and its result once done
+    struct CacheKeyHash {
+        std::size_t operator()(const CacheKey& k) const noexcept;
+    };
+    // Reads `keys` (cache misses this call leads) into out[index[j]].
+    void read_misses(const StoreHandle& store, const std::vector<TileKey>& keys, const std::vector<std::size_t>& index,
+                     std::vector<FetchedTile>& out);
+
     TileCache& cache_;
     MetricsRegistry& metrics_;
     Logger& log_;
@@ -44,6 +57,9 @@ private:
     Counter* read_bytes_;
     Counter* cache_hits_;
     Counter* cache_misses_;
+    Counter* reads_saved_;  // misses that joined a read already in flight
+    std::mutex flights_mutex_;
+    std::unordered_map<CacheKey, std::shared_ptr<Flight>, CacheKeyHash> flights_;  // bounded by reads in progress
 };
 
 }  // namespace tessera::server

@@ -1,4 +1,4 @@
-#include "byte_source.hpp"
+#include "tessera/storage/byte_source.hpp"
 
 #include <fcntl.h>
 #include <sys/stat.h>

@@ -6,7 +6,7 @@
 #include <atomic>
 #include <numeric>
 
-#include "byte_source.hpp"
+#include "tessera/storage/byte_source.hpp"
 #include "format.hpp"
 #include "tessera/storage/layers.hpp"
 
@@ -408,6 +408,13 @@ Result<std::shared_ptr<StoreReader>> StoreReader::open(const std::string& path) 
 
 Result<std::shared_ptr<StoreReader>> StoreReader::open_memory(std::vector<std::uint8_t> bytes) {
     return finish_open(memory_source(std::move(bytes)));
+}
+
+Result<std::shared_ptr<StoreReader>> StoreReader::open_source(std::unique_ptr<ByteSource> source, const std::string& name) {
+    if (!source) return make_error(Errc::invalid_argument, name + ": no byte source");
+    auto r = finish_open(std::move(source));
+    if (!r) return make_error(r.error().code, name + ": " + r.error().message);
+    return r;
 }
 
 }  // namespace tessera::storage

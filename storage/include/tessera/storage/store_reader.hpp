@@ -38,6 +38,8 @@ struct BatchStats {
     std::uint64_t bytes = 0;  // bytes read, including gaps bridged by coalescing
 };
 
+class ByteSource;
+
 class StoreReader {
 public:
     // Opens a store file. Errors: not_found, io_error, corrupt (bad header/index, truncation),
@@ -45,6 +47,8 @@ public:
     static Result<std::shared_ptr<StoreReader>> open(const std::string& path);
     // Same, over bytes in memory (tests, fuzzing, stores received over the network).
     static Result<std::shared_ptr<StoreReader>> open_memory(std::vector<std::uint8_t> bytes);
+    // Same, over any byte source (tessera/storage/byte_source.hpp); `name` prefixes errors.
+    static Result<std::shared_ptr<StoreReader>> open_source(std::unique_ptr<ByteSource> source, const std::string& name);
 
     virtual ~StoreReader() = default;
     virtual const StoreInfo& info() const = 0;

@@ -1,7 +1,9 @@
 #pragma once
-// Where a reader's bytes come from: a file (read with pread, never mapped: a file truncated or
-// rewritten under a reader must give errors, not SIGBUS) or a buffer in memory. Stores are meant
-// to be replaced by rename; a file changed in place anyway is noticed by changed().
+// Where a store reader's bytes come from: a file (read with pread, never mapped: a file truncated
+// or rewritten under a reader must give errors, not SIGBUS), a buffer in memory, or an
+// application's own source (object storage, an HTTP range reader, a test's slow disk), opened with
+// StoreReader::open_source. Stores are meant to be replaced by rename; a file changed in place
+// anyway is noticed by changed(). read() may be called from several threads at once.
 #include <cstdint>
 #include <memory>
 #include <string>

@@ -1,0 +1,188 @@
+// The server's tile fetcher: however many requests miss a tile at once, it is read once (the
+// others join the read in flight), each gets the tile, and a counter says how many reads that saved.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "log.hpp"
+#include "metrics.hpp"
+#include "store_registry.hpp"
+#include "tessera/storage/byte_source.hpp"
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "tessera/storage/store_writer.hpp"
+#include "test_util.hpp"
+#include "tile_cache.hpp"
+#include "tile_fetcher.hpp"
+
+using namespace tessera;
+using namespace tessera::server;
+using namespace std::chrono_literals;
+
+namespace {
+
+// A store in memory whose reads past its index wait at a gate the test opens: a slow disk.
+class GatedSource final : public storage::ByteSource {
+public:
+    GatedSource(std::vector<std::uint8_t> bytes, std::uint64_t gate_from) : bytes_(std::move(bytes)), gate_from_(gate_from) {}
+    std::uint64_t size() const override { return bytes_.size(); }
+    Status read(std::uint64_t offset, std::uint64_t length, std::uint8_t* dst) const override {
+        if (offset + length > bytes_.size()) return make_error(Errc::corrupt, "past the end");
+        if (offset >= gate_from_) {
+            reads_waiting_.fetch_add(1);
+            std::unique_lock lock(m_);
+            cv_.wait(lock, [&] { return open_; });
+        }
+        std::copy_n(bytes_.begin() + std::ptrdiff_t(offset), length, dst);
+        return {};
+    }
+    void close_gate() {
+        std::lock_guard lock(m_);
+        open_ = false;
+    }
+    void open_gate() {
+        {
+            std::lock_guard lock(m_);
+            open_ = true;
+        }
+        cv_.notify_all();
+    }
+    int reads_waiting() const { return reads_waiting_.load(); }
+
+private:
+    std::vector<std::uint8_t> bytes_;
+    std::uint64_t gate_from_;
+    mutable std::mutex m_;
+    mutable std::condition_variable cv_;
+    bool open_ = true;
+    mutable std::atomic<int> reads_waiting_{0};
+};
+
+// A 64x64 RGB raw store, tiles of 16, every tile present; its bytes.
+std::vector<std::uint8_t> small_store(const test::ScratchDir& dir) {
+    storage::StoreSpec s;
+    s.width = s.height = 64;
+    s.tile_payload = 16;
+    s.channels = 3;
+    s.codec = Codec::raw;
+    const std::string path = dir.file("s.tsr");
+    auto w = storage::StoreWriter::create(path, s);
+    EXPECT_TRUE(w.ok());
+    const storage::StoreInfo info = storage::store_info(s);
+    for (std::uint32_t l = 0; l < info.level_count(); ++l)
+        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
+            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
+                std::vector<std::uint8_t> texels(info.tile_bytes(), static_cast<std::uint8_t>(l * 50 + y * 4 + x));
+                auto payload = storage::encode_tile(info, texels, {});
+                EXPECT_TRUE((*w)->add_present({l, x, y}, *payload).ok());
+            }
+    EXPECT_TRUE((*w)->finish().ok());
+    return test::read_file(path);
+}
+
+}  // namespace
+
+TEST(TileFetcher, ConcurrentMissesOfOneTileReadItOnce) {
+    test::ScratchDir dir;
+    auto bytes = small_store(dir);
+    const std::uint64_t data_offset = [&] {
+        auto r = storage::StoreReader::open_memory(bytes);
+        return (*r)->locate({0, 0, 0})->offset;  // payloads start here; the index lies before
+    }();
+    auto gated = std::make_unique<GatedSource>(bytes, data_offset);
+    GatedSource* gate = gated.get();
+    auto reader = storage::StoreReader::open_source(std::move(gated), "gated");
+    ASSERT_TRUE(reader.ok()) << reader.error().message;
+
+    const int null_fd = ::open("/dev/null", O_WRONLY | O_CLOEXEC);
+    Logger log(LogFormat::text, LogLevel::error, null_fd);
+    MetricsRegistry metrics;
+    TileCache cache(1 << 20);
+    TileFetcher fetcher(cache, metrics, log);
+    StoreHandle store;
+    store.name = "gated";
+    store.reader = *reader;
+    store.version = (*reader)->info().store_id;
+    store.metrics.data_loss = &metrics.counter("test_data_loss_total", "test");
+
+    constexpr int kViewers = 8;
+    gate->close_gate();
+    std::vector<FetchedTile> got(kViewers);
+    std::vector<std::thread> viewers;
+    viewers.emplace_back([&] { got[0] = fetcher.fetch_one(store, {0, 1, 2}); });
+    // The first read is at the gate before the others miss the same tile.
+    for (auto until = std::chrono::steady_clock::now() + 10s; gate->reads_waiting() == 0 && std::chrono::steady_clock::now() < until;)
+        std::this_thread::sleep_for(1ms);
+    ASSERT_EQ(gate->reads_waiting(), 1);
+    for (int v = 1; v < kViewers; ++v) viewers.emplace_back([&, v] { got[v] = fetcher.fetch_one(store, {0, 1, 2}); });
+    // They join it: each counts as a saved read once answered; none reaches the gate itself.
+    for (auto until = std::chrono::steady_clock::now() + 2s; std::chrono::steady_clock::now() < until;)
+        std::this_thread::sleep_for(5ms);
+    EXPECT_EQ(gate->reads_waiting(), 1) << "a second read of the same tile went to the store";
+    gate->open_gate();
+    for (auto& t : viewers) t.join();
+
+    EXPECT_EQ(fetcher.tiles_read(), 1u);
+    EXPECT_EQ(fetcher.reads_saved(), std::uint64_t(kViewers - 1));
+    for (int v = 0; v < kViewers; ++v) {
+        ASSERT_EQ(got[v].status, TileStatus::ok) << got[v].message;
+        ASSERT_TRUE(got[v].tile);
+        EXPECT_EQ(got[v].tile->bytes, got[0].tile->bytes);
+    }
+    // Later misses of other tiles read as before; a hit reads nothing.
+    EXPECT_EQ(fetcher.fetch_one(store, {0, 1, 2}).status, TileStatus::ok);
+    EXPECT_EQ(fetcher.tiles_read(), 1u);
+    EXPECT_EQ(fetcher.fetch_one(store, {0, 3, 3}).status, TileStatus::ok);
+    EXPECT_EQ(fetcher.tiles_read(), 2u);
+    EXPECT_EQ(fetcher.reads_saved(), std::uint64_t(kViewers - 1));
+    ::close(null_fd);
+}
+
+TEST(TileFetcher, ABatchJoinsTheReadsInFlightAndLeadsTheRest) {
+    test::ScratchDir dir;
+    auto bytes = small_store(dir);
+    auto gated = std::make_unique<GatedSource>(bytes, (*storage::StoreReader::open_memory(bytes))->locate({0, 0, 0})->offset);
+    GatedSource* gate = gated.get();
+    auto reader = storage::StoreReader::open_source(std::move(gated), "gated");
+    ASSERT_TRUE(reader.ok());
+    const int null_fd = ::open("/dev/null", O_WRONLY | O_CLOEXEC);
+    Logger log(LogFormat::text, LogLevel::error, null_fd);
+    MetricsRegistry metrics;
+    TileCache cache(0);  // no cache: only the flights can save reads
+    TileFetcher fetcher(cache, metrics, log);
+    StoreHandle store;
+    store.name = "gated";
+    store.reader = *reader;
+    store.version = (*reader)->info().store_id;
+    store.metrics.data_loss = &metrics.counter("test_data_loss_total", "test");
+
+    gate->close_gate();
+    FetchedTile first;
+    std::thread a([&] { first = fetcher.fetch_one(store, {0, 2, 2}); });
+    for (auto until = std::chrono::steady_clock::now() + 10s; gate->reads_waiting() == 0 && std::chrono::steady_clock::now() < until;)
+        std::this_thread::sleep_for(1ms);
+    ASSERT_EQ(gate->reads_waiting(), 1);
+    // A batch of three: (2,2) is in flight, (0,0) and (3,0) are not (and (0,0) twice).
+    const std::vector<TileKey> keys{{0, 0, 0}, {0, 2, 2}, {0, 3, 0}, {0, 0, 0}};
+    std::vector<FetchedTile> out;
+    std::thread b([&] { fetcher.fetch(store, keys, out); });
+    for (auto until = std::chrono::steady_clock::now() + 10s; gate->reads_waiting() < 2 && std::chrono::steady_clock::now() < until;)
+        std::this_thread::sleep_for(1ms);
+    gate->open_gate();
+    a.join();
+    b.join();
+    ASSERT_EQ(out.size(), keys.size());
+    for (const auto& f : out) ASSERT_EQ(f.status, TileStatus::ok) << f.message;
+    EXPECT_EQ(out[1].tile->bytes, first.tile->bytes);
+    EXPECT_EQ(out[0].tile->bytes, out[3].tile->bytes);
+    EXPECT_EQ(fetcher.tiles_read(), 3u);  // (2,2) once, (0,0) once, (3,0) once
+    EXPECT_EQ(fetcher.reads_saved(), 2u);
+    ::close(null_fd);
+}
