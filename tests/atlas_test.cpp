@@ -10,6 +10,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <random>
 #include <set>
 #include <string>
 #include <vector>
@@ -151,6 +152,17 @@ TEST_F(AtlasBuild, GalleryTexelsSurviveThePacking) {
     ASSERT_EQ(orig.GetShapes().size(), packed.GetShapes().size());
     AtlasTexels atlas(*reader);
     std::map<std::string, Rgb8Image> textures;
+    std::set<std::string> repeating;  // textures with coordinates outside [0, 1]
+    for (const auto& sh : orig.GetShapes())
+        for (std::size_t i = 0; i < sh.mesh.indices.size(); ++i) {
+            const int t = sh.mesh.indices[i].texcoord_index, m = sh.mesh.material_ids[i / 3];
+            if (t < 0 || m < 0) continue;
+            for (int a = 0; a < 2; ++a) {
+                const double c = orig.GetAttrib().texcoords[2 * std::size_t(t) + a];
+                if (c < -1e-5 || c > 1 + 1e-5) repeating.insert(orig.GetMaterials()[std::size_t(m)].diffuse_texname);
+            }
+        }
+    EXPECT_EQ(repeating.size(), 1u);  // the box a whole repeat away
     std::size_t compared = 0, solid = 0, edges = 0;
     for (std::size_t s = 0; s < orig.GetShapes().size(); ++s) {
         const auto& om = orig.GetShapes()[s].mesh;
@@ -210,8 +222,9 @@ TEST_F(AtlasBuild, GalleryTexelsSurviveThePacking) {
                 EXPECT_EQ(got, tex->at(ix, iy)) << mat.name << " face " << f << " texel " << ix << "," << iy;
                 ++compared;
             }
-            // Padding: left of a texture's u = 0 edge, the atlas repeats the edge column (16 texels).
-            if (tex) {
+            // Padding: left of a texture's u = 0 edge, the atlas repeats the edge column (16 texels);
+            // a texture used outside [0, 1] (a repeating one) continues around instead.
+            if (tex && repeating.count(mat.diffuse_texname) == 0) {
                 const double cy = (puv[0][1] + puv[1][1] + puv[2][1]) / 3 * info.height;
                 for (int k = 0; k < 3; ++k) {
                     if (ouv[k][0] - ru != 0.0) continue;
@@ -275,19 +288,6 @@ TEST_F(AtlasBuild, BadInputFailsAndLeavesNothing) {
     // A missing material library.
     fs::remove(dir_.file("g2/gallery.mtl"));
     expect_fails("build --atlas " + q(dir_.file("g2/gallery.obj")) + args, "gallery.obj");
-    // A texture repeating across a triangle.
-    fs::create_directory(dir_.file("rep"));
-    fs::copy_file(gallery_ + "/textures/box_2.png", dir_.file("rep/tile.png"));
-    const std::string mtl = "newmtl tiles\nmap_Kd tile.png\n";
-    const std::string obj = "mtllib rep.mtl\nv 0 0 0\nv 4 0 0\nv 4 0 -4\nv 0 0 -4\nvt 0 0\nvt 3 0\nvt 3 3\nvt 0 3\n"
-                            "usemtl tiles\nf 1/1 2/2 3/3 4/4\n";
-    write_file(dir_.file("rep/rep.mtl"), std::vector<std::uint8_t>(mtl.begin(), mtl.end()));
-    write_file(dir_.file("rep/rep.obj"), std::vector<std::uint8_t>(obj.begin(), obj.end()));
-    const RunResult rep = run_tessera("build --atlas " + q(dir_.file("rep/rep.obj")) + args);
-    expect_one_line_error(rep);
-    EXPECT_NE(rep.out.find("material 'tiles'"), std::string::npos) << rep.out;
-    EXPECT_NE(rep.out.find("texture repeats across a triangle"), std::string::npos) << rep.out;
-    EXPECT_TRUE(entries(out).empty());
     // Flags: both an input and --atlas, --obj-out without --atlas, the same file twice, a bad alignment.
     EXPECT_EQ(run_tessera("build procedural:terrain:64 --atlas " + q(gallery_ + "/gallery.obj") + args).exit_code, 2);
     EXPECT_EQ(run_tessera("build procedural:terrain:64 -o " + q(out + "/a.tsr") + " --obj-out " + q(out + "/a.obj")).exit_code, 2);
@@ -303,3 +303,151 @@ TEST_F(AtlasBuild, BadInputFailsAndLeavesNothing) {
 }
 
 }  // namespace
+
+namespace {
+
+// The triangle of `mesh` (rewritten OBJ, Z up after load) whose XZ projection holds (x, z), and
+// the point's barycentric weights in it.
+bool find_piece(const tinyobj::ObjReader& r, double x, double z, std::array<double, 2>& uv) {
+    const auto& at = r.GetAttrib();
+    for (const auto& sh : r.GetShapes()) {
+        const auto& idx = sh.mesh.indices;
+        for (std::size_t f = 0; f + 2 < idx.size(); f += 3) {
+            double px[3], pz[3];
+            for (int k = 0; k < 3; ++k) {
+                px[k] = at.vertices[3 * std::size_t(idx[f + k].vertex_index)];
+                pz[k] = at.vertices[3 * std::size_t(idx[f + k].vertex_index) + 2];
+            }
+            const double d = (pz[1] - pz[2]) * (px[0] - px[2]) + (px[2] - px[1]) * (pz[0] - pz[2]);
+            if (std::abs(d) < 1e-12) continue;
+            const double w0 = ((pz[1] - pz[2]) * (x - px[2]) + (px[2] - px[1]) * (z - pz[2])) / d;
+            const double w1 = ((pz[2] - pz[0]) * (x - px[2]) + (px[0] - px[2]) * (z - pz[2])) / d;
+            const double w2 = 1 - w0 - w1;
+            if (w0 < 1e-9 || w1 < 1e-9 || w2 < 1e-9) continue;
+            uv = {0, 0};
+            const double w[3] = {w0, w1, w2};
+            for (int k = 0; k < 3; ++k)
+                for (int a = 0; a < 2; ++a) uv[a] += w[k] * at.texcoords[2 * std::size_t(idx[f + k].texcoord_index) + a];
+            return true;
+        }
+    }
+    return false;
+}
+
+}  // namespace
+
+// Real exports tile brick and concrete across faces (SketchUp writes u from -721 to 316): such
+// triangles are cut where the texture repeats, each piece samples one copy, and the texture's
+// atlas padding continues it around (docs/atlas.md, "Repeating textures"). Also: a colour-only
+// material, an n-gon, several objects and groups.
+TEST_F(AtlasBuild, RepeatingTexturesAreCutAtTheirRepeats) {
+    fs::create_directory(dir_.file("rep"));
+    fs::copy_file(gallery_ + "/textures/box_2.png", dir_.file("rep/tile.png"));
+    const std::string mtl = "newmtl tiles\nmap_Kd tile.png\nnewmtl paint\nKd 0.8 0.2 0.1\n";
+    // A 4 x 4 floor quad whose texture repeats from u -1.25 to 2.5 and v -0.5 to 1.75; a pentagon
+    // (an n-gon) of paint beside it, in another object and group.
+    const std::string obj =
+        "mtllib rep.mtl\n"
+        "o floor\ng floor\nv 0 0 0\nv 4 0 0\nv 4 0 -4\nv 0 0 -4\nvt -1.25 -0.5\nvt 2.5 -0.5\nvt 2.5 1.75\nvt -1.25 1.75\n"
+        "usemtl tiles\nf 1/1 2/2 3/3 4/4\n"
+        "o sign\ng sign\nv 5 0 0\nv 7 0 0\nv 7.5 1 -1\nv 6 2 -2\nv 4.5 1 -1\nusemtl paint\nf 5 6 7 8 9\n";
+    write_file(dir_.file("rep/rep.mtl"), std::vector<std::uint8_t>(mtl.begin(), mtl.end()));
+    write_file(dir_.file("rep/rep.obj"), std::vector<std::uint8_t>(obj.begin(), obj.end()));
+    const std::string store = dir_.file("out/rep.tsr"), out_obj = dir_.file("out/rep.obj");
+    const RunResult r = run_tessera("build --codec zstd --atlas " + q(dir_.file("rep/rep.obj")) + " -o " + q(store) +
+                                    " --obj-out " + q(out_obj));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_NE(r.out.find("1 repeating textures"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("up axis y (auto"), std::string::npos) << r.out;
+
+    auto reader = storage::StoreReader::open(store);
+    ASSERT_TRUE(reader.ok());
+    const storage::StoreInfo info = (*reader)->info();
+    auto scene = tessera::scene::load_obj_scene(out_obj, info.width, info.height);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    std::size_t triangles = 0;
+    for (const auto& c : scene->chunks) triangles += c.indices.size() / 3;
+    // The quad's two triangles over 4 x 3 repeats, cut into pieces; the pentagon as 3 triangles.
+    EXPECT_GT(triangles, 20u);
+
+    // Every point of the floor samples the texel GL_REPEAT would: texture texel (frac(u), 1 - frac(v)).
+    const Rgb8Image tex = read_png(dir_.file("rep/tile.png"));
+    ASSERT_GT(tex.width, 0);
+    const tinyobj::ObjReader packed = read_obj(out_obj);
+    AtlasTexels atlas(*reader);
+    std::mt19937 rng(5);
+    std::uniform_real_distribution<double> pos(0.0, 4.0);
+    std::size_t compared = 0;
+    for (int i = 0; i < 2000; ++i) {
+        const double x = pos(rng), z = -pos(rng);
+        const double u = -1.25 + 3.75 * (x / 4.0), v = -0.5 + 2.25 * (-z / 4.0);
+        const double tx = (u - std::floor(u)) * tex.width, ty = (1.0 - (v - std::floor(v))) * tex.height;
+        if (tx - std::floor(tx) < 0.02 || std::ceil(tx) - tx < 0.02 || ty - std::floor(ty) < 0.02 || std::ceil(ty) - ty < 0.02)
+            continue;  // on a texel edge
+        std::array<double, 2> puv{};
+        ASSERT_TRUE(find_piece(packed, x, z, puv)) << x << "," << z;
+        const double ax = puv[0] * info.width, ay = puv[1] * info.height;
+        if (ax - std::floor(ax) < 0.02 || std::ceil(ax) - ax < 0.02 || ay - std::floor(ay) < 0.02 || std::ceil(ay) - ay < 0.02)
+            continue;
+        EXPECT_EQ(atlas.at(std::uint32_t(ax), std::uint32_t(ay)), tex.at(int(tx), int(ty))) << "at " << x << "," << z;
+        ++compared;
+    }
+    EXPECT_GT(compared, 1500u);
+
+    // The padding wraps: left of the image, its right columns; above it, its bottom rows.
+    std::uint32_t left = info.width, top = info.height;  // the image's top-left texel: the smallest packed texel
+    for (const auto& sh : packed.GetShapes())
+        if (sh.name == "floor")
+            for (const auto& ix : sh.mesh.indices) {
+                left = std::min(left, std::uint32_t(std::lround(packed.GetAttrib().texcoords[2 * std::size_t(ix.texcoord_index)] * info.width)));
+                top = std::min(top, std::uint32_t(std::lround(packed.GetAttrib().texcoords[2 * std::size_t(ix.texcoord_index) + 1] * info.height)));
+            }
+    ASSERT_GE(left, 16u);
+    ASSERT_GE(top, 16u);
+    for (std::uint32_t d = 1; d <= 16; ++d)
+        for (std::uint32_t k : {0u, 7u, 31u}) {
+            EXPECT_EQ(atlas.at(left - d, top + k), tex.at(tex.width - int(d), int(k))) << "left padding " << d;
+            EXPECT_EQ(atlas.at(left + k, top - d), tex.at(int(k), tex.height - int(d))) << "top padding " << d;
+        }
+    // The paint: its Kd everywhere the sign samples.
+    for (const auto& sh : packed.GetShapes())
+        if (sh.name == "sign") {
+            EXPECT_EQ(sh.mesh.indices.size(), 9u);  // the pentagon as three triangles
+            const auto t = sh.mesh.indices[0].texcoord_index;
+            const auto got = atlas.at(std::uint32_t(packed.GetAttrib().texcoords[2 * std::size_t(t)] * info.width),
+                                      std::uint32_t(packed.GetAttrib().texcoords[2 * std::size_t(t) + 1] * info.height));
+            EXPECT_EQ(got, (std::array<std::uint8_t, 3>{204, 51, 26}));
+        }
+}
+
+// Z-up exports (SketchUp, CAD) are detected by their shape or named with --up, and the rewritten
+// OBJ says so; the scene comes out with the right side up either way.
+TEST_F(AtlasBuild, UpAxisIsDetectedOrGiven) {
+    fs::create_directory(dir_.file("site"));
+    fs::copy_file(gallery_ + "/textures/box_2.png", dir_.file("site/t.png"));
+    const std::string mtl = "newmtl t\nmap_Kd t.png\n";
+    // A flat 100 x 80 site (z up) with a 3-unit post standing on it.
+    const std::string obj = "mtllib s.mtl\nv 0 0 0\nv 100 0 0\nv 100 80 0\nv 0 80 0\nv 50 40 0\nv 51 40 0\nv 50 40 3\n"
+                            "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl t\nf 1/1 2/2 3/3 4/4\nf 5/1 6/2 7/3\n";
+    write_file(dir_.file("site/s.mtl"), std::vector<std::uint8_t>(mtl.begin(), mtl.end()));
+    write_file(dir_.file("site/s.obj"), std::vector<std::uint8_t>(obj.begin(), obj.end()));
+    for (const std::string up : {"", " --up z", " --up y"}) {
+        SCOPED_TRACE(up);
+        const std::string store = dir_.file("out/s.tsr"), out_obj = dir_.file("out/s.obj");
+        const RunResult r = run_tessera("build -q --atlas " + q(dir_.file("site/s.obj")) + " -o " + q(store) + " --obj-out " + q(out_obj) + up);
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        auto reader = storage::StoreReader::open(store);
+        ASSERT_TRUE(reader.ok());
+        auto scene = tessera::scene::load_obj_scene(out_obj, (*reader)->info().width, (*reader)->info().height);
+        ASSERT_TRUE(scene.ok());
+        const double height = scene->bounds_max[2] - scene->bounds_min[2];
+        if (up == " --up y") {
+            EXPECT_NEAR(height, 80.0, 1e-3);  // told y: the site stands on its edge
+        } else {
+            EXPECT_NEAR(height, 3.0, 1e-3);  // the post stands up
+            EXPECT_NEAR(scene->bounds_max[0] - scene->bounds_min[0], 100.0, 1e-3);
+            EXPECT_NEAR(scene->bounds_max[1] - scene->bounds_min[1], 80.0, 1e-3);
+        }
+    }
+    expect_one_line_error(run_tessera("build --atlas " + q(dir_.file("site/s.obj")) + " -o " + q(dir_.file("out/x.tsr")) + " --up x"));
+}

@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 
@@ -51,13 +52,13 @@ std::string material_list(const scene::AtlasImageRef& img) {
 
 Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string& store, const std::string& obj_out,
                                       const storage::BuildOptions& options, const storage::AtlasPackOptions& pack,
-                                      const storage::BuildProgressFn& progress) {
+                                      const storage::BuildProgressFn& progress, scene::UpAxis up) {
     TESSERA_TRY(storage::validate(options));
     if (obj_out.empty()) return make_error(Errc::invalid_argument, "--obj-out: no file given");
     if (same_file(obj_out, store)) return make_error(Errc::invalid_argument, "--obj-out and --output name the same file");
     if (same_file(obj_out, obj)) return make_error(Errc::invalid_argument, "--obj-out would overwrite the input OBJ");
 
-    auto input = scene::ObjAtlasInput::load(obj);
+    auto input = scene::ObjAtlasInput::load(obj, up);
     if (!input) return input.error();
     const auto& refs = input->images();
 
@@ -78,6 +79,7 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
         if (!src) return make_error(src.error().code, material_list(r) + ": " + src.error().message);
         sizes[i] = {(*src)->info().width, (*src)->info().height};
         items[i].source = std::move(*src);
+        items[i].wrap = r.repeats;
     }
     auto layout = storage::pack_atlas(sizes, pack);
     if (!layout) return layout.error();
@@ -116,6 +118,10 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
     s.build = std::move(*built);
     s.images = refs.size();
     s.triangles = input->triangle_count();
+    s.repeat_pieces = input->repeat_piece_count();
+    s.up = input->up_axis();
+    s.extent = input->extent();
+    s.repeating_images = static_cast<std::size_t>(std::count_if(refs.begin(), refs.end(), [](const auto& r) { return r.repeats; }));
     return s;
 }
 

@@ -6,6 +6,9 @@
 #include <cstdint>
 #include <string>
 
+#include <array>
+
+#include "tessera/client/scene/atlas.hpp"
 #include "tessera/result.hpp"
 #include "tessera/storage/atlas.hpp"
 #include "tessera/storage/builder.hpp"
@@ -16,6 +19,10 @@ struct AtlasBuildSummary {
     storage::BuildSummary build;
     std::size_t images = 0;     // distinct images packed (textures and solid tiles)
     std::size_t triangles = 0;  // triangles in the rewritten OBJ
+    std::size_t repeat_pieces = 0;  // of them, pieces of triangles cut where their textures repeat
+    std::size_t repeating_images = 0;  // images whose texture coordinates leave [0, 1] (padding wraps)
+    scene::UpAxis up = scene::UpAxis::y;  // resolved
+    std::array<double, 3> extent{0, 0, 0};  // the OBJ's extent along x, y, z
 };
 
 // A material without a texture becomes a solid tile this many texels wide (before padding).
@@ -26,6 +33,7 @@ inline constexpr std::uint32_t kSolidTileTexels = 8;
 // place once the store is complete.
 Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string& store, const std::string& obj_out,
                                       const storage::BuildOptions& options, const storage::AtlasPackOptions& pack,
-                                      const storage::BuildProgressFn& progress = {});
+                                      const storage::BuildProgressFn& progress = {},
+                                      scene::UpAxis up = scene::UpAxis::automatic);
 
 }  // namespace tessera::tools

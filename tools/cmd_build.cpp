@@ -45,7 +45,7 @@ storage::LayerInput parse_layer(const std::string& spec) {
 
 Command add_build(CLI::App& app) {
     struct Args {
-        std::string input, output, codec, chroma, colour_space = "auto", atlas, obj_out;
+        std::string input, output, codec, chroma, colour_space = "auto", atlas, obj_out, up = "auto";
         std::vector<std::string> layers;
         std::string visibility, visibility_view = "1280x720";
         double visibility_fps = 30;
@@ -97,6 +97,10 @@ Command add_build(CLI::App& app) {
     c->add_option("--atlas-align", a->pack.alignment, "With --atlas: cells start at and span multiples of this (power of two)")
         ->capture_default_str();
     c->add_option("--atlas-padding", a->pack.padding, "With --atlas: texels of edge replication around each texture")
+        ->capture_default_str();
+    c->add_option("--up", a->up, "With --atlas: the OBJ's up axis, y (OBJ's convention), z (SketchUp, CAD) or auto "
+                                 "(z when the scene is flatter along z than y)")
+        ->check(CLI::IsMember({"auto", "y", "z"}))
         ->capture_default_str();
 
     return [a, c]() -> int {
@@ -166,7 +170,8 @@ Command add_build(CLI::App& app) {
             }
         };
         if (!a->atlas.empty()) {
-            auto result = build_atlas(a->atlas, a->output, a->obj_out, opt, a->pack, on_progress);
+            const scene::UpAxis up = a->up == "y" ? scene::UpAxis::y : a->up == "z" ? scene::UpAxis::z : scene::UpAxis::automatic;
+            auto result = build_atlas(a->atlas, a->output, a->obj_out, opt, a->pack, on_progress, up);
             bar.finish();
             const std::string messages = library_messages.release();
             if (!result) throw Failure(result.error().message);
@@ -175,6 +180,11 @@ Command add_build(CLI::App& app) {
                 const auto& s = *result;
                 fmt::print("built {} from {} images of {} ({} triangles) in {}\n", a->output, s.images, a->atlas, s.triangles,
                            human_seconds(s.build.seconds));
+                fmt::print("up axis {} ({}; the scene spans {:.4g} x {:.4g} x {:.4g} in x, y, z)\n", s.up == scene::UpAxis::z ? "z" : "y",
+                           a->up == "auto" ? "auto, --up to choose" : "--up", s.extent[0], s.extent[1], s.extent[2]);
+                if (s.repeating_images > 0)
+                    fmt::print("{} repeating textures (padding wraps around); {} triangles are pieces cut at their repeats\n",
+                               s.repeating_images, s.repeat_pieces);
                 fmt::print("wrote {} (texture coordinates in the atlas, v down)\n", a->obj_out);
                 print_store_summary(a->output, s.build.info);
             }

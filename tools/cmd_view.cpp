@@ -24,7 +24,8 @@ Command add_view(CLI::App& app) {
                   "terrain: peak height of the displaced ground (0: flat); with a one-channel layer named height, "
                   "the ground follows that layer, its full range spanning this height")
         ->capture_default_str();
-    c->add_option("--path", o->path, "camera path: flyover, dive, whip, walk, or a path file (docs/paths.md)")
+    c->add_option("--path", o->path, "camera path: auto (flyover over the terrain, orbit around an OBJ scene), flyover, dive, "
+                                     "whip, walk, orbit, or a path file (docs/paths.md)")
         ->capture_default_str();
     c->add_option("--size", *size, "WIDTHxHEIGHT of the image")->capture_default_str();
     c->add_flag("--headless", o->headless, "render offscreen (EGL), no window");

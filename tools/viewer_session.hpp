@@ -25,7 +25,7 @@ struct ViewerOptions {
     std::string reference_store;  // local .tsr for the PSNR reference (default: `store` when it is a file)
     std::string scene = "terrain";  // "terrain" or an atlas OBJ file (tessera build --atlas --obj-out)
     double displacement = 0;      // terrain height, world units (0: flat); a store's height layer spans it
-    std::string path = "flyover";  // built-in name or a path file
+    std::string path = "auto";  // built-in name (auto: flyover over the terrain, orbit around an OBJ scene) or a path file
     std::uint32_t width = 1280, height = 720;
     bool headless = true;
     std::uint32_t frames = 0;  // 0: the whole path at `fps`

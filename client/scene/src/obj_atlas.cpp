@@ -7,6 +7,7 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <tuple>
 #include <unordered_map>
 
 #include "tessera/client/scene/atlas.hpp"
@@ -34,6 +35,43 @@ struct Shape {
     std::vector<Triangle> triangles;
 };
 
+// A corner being clipped: where it is (position, normal) and its texture coordinate before any
+// shift. Clipping interpolates all of them linearly along an edge.
+struct ClipVertex {
+    double p[3] = {0, 0, 0};
+    double n[3] = {0, 0, 0};
+    double uv[2] = {0, 0};
+    int v = -1, vn = -1;  // indices of an original corner's position and normal (-1: made by clipping)
+};
+
+// The part of `poly` with coordinate `axis` of uv >= bound (keep_above) or <= bound. The two ends
+// of an edge are put in a fixed order before interpolating, so the triangles on both sides of a
+// shared edge make bit-identical new corners there (no cracks).
+std::vector<ClipVertex> clip(const std::vector<ClipVertex>& poly, int axis, double bound, bool keep_above) {
+    std::vector<ClipVertex> out;
+    auto inside = [&](const ClipVertex& c) { return keep_above ? c.uv[axis] >= bound : c.uv[axis] <= bound; };
+    for (std::size_t i = 0; i < poly.size(); ++i) {
+        const ClipVertex& a = poly[i];
+        const ClipVertex& b = poly[(i + 1) % poly.size()];
+        const bool ia = inside(a), ib = inside(b);
+        if (ia) out.push_back(a);
+        if (ia == ib) continue;
+        const bool a_first = std::tie(a.uv[0], a.uv[1], a.p[0], a.p[1], a.p[2]) < std::tie(b.uv[0], b.uv[1], b.p[0], b.p[1], b.p[2]);
+        const ClipVertex& e0 = a_first ? a : b;
+        const ClipVertex& e1 = a_first ? b : a;
+        const double t = (bound - e0.uv[axis]) / (e1.uv[axis] - e0.uv[axis]);
+        ClipVertex m;
+        for (int k = 0; k < 3; ++k) {
+            m.p[k] = e0.p[k] + t * (e1.p[k] - e0.p[k]);
+            m.n[k] = e0.n[k] + t * (e1.n[k] - e0.n[k]);
+        }
+        for (int k = 0; k < 2; ++k) m.uv[k] = e0.uv[k] + t * (e1.uv[k] - e0.uv[k]);
+        m.uv[axis] = bound;  // exactly on the repeat boundary
+        out.push_back(m);
+    }
+    return out;
+}
+
 std::string trim_newlines(std::string s) {
     std::replace(s.begin(), s.end(), '\n', ' ');
     while (!s.empty() && s.back() == ' ') s.pop_back();
@@ -50,11 +88,19 @@ void append(std::string& out, const char* fmt, double a, double b, double c) {
 
 }  // namespace
 
+// Triangles one face may be cut into at repeat boundaries, and in all: a texture repeated
+// thousands of times across one face would otherwise make millions of triangles silently.
+constexpr std::uint64_t kMaxPiecesPerTriangle = 1u << 16;
+constexpr std::uint64_t kMaxTriangles = 1u << 24;
+
 struct ObjAtlasInput::Impl {
     std::vector<float> positions, normals;
     std::vector<Shape> shapes;
     std::vector<AtlasImageRef> images;
     std::size_t triangles = 0;
+    std::size_t cut_pieces = 0;  // pieces of triangles cut at texture repeats
+    UpAxis up = UpAxis::y;
+    std::array<double, 3> extent{0, 0, 0};
 };
 
 ObjAtlasInput::ObjAtlasInput(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -63,8 +109,11 @@ ObjAtlasInput& ObjAtlasInput::operator=(ObjAtlasInput&&) noexcept = default;
 ObjAtlasInput::~ObjAtlasInput() = default;
 const std::vector<AtlasImageRef>& ObjAtlasInput::images() const { return impl_->images; }
 std::size_t ObjAtlasInput::triangle_count() const { return impl_->triangles; }
+std::size_t ObjAtlasInput::repeat_piece_count() const { return impl_->cut_pieces; }
+UpAxis ObjAtlasInput::up_axis() const { return impl_->up; }
+std::array<double, 3> ObjAtlasInput::extent() const { return impl_->extent; }
 
-Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path) {
+Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path, UpAxis up) {
     std::error_code ec;
     if (!fs::exists(obj_path, ec)) return make_error(Errc::not_found, "OBJ file '" + obj_path + "' does not exist");
     if (fs::is_directory(obj_path, ec)) return make_error(Errc::invalid_argument, "OBJ file '" + obj_path + "' is a directory");
@@ -130,6 +179,26 @@ Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path) {
         return index;
     };
 
+    // Corners made by clipping: one new position (normal) per distinct value, shared by the pieces
+    // on both sides of a cut.
+    struct BitsHash {
+        std::size_t operator()(const std::array<std::uint32_t, 3>& k) const noexcept {
+            return (std::size_t(k[0]) * 0x9e3779b97f4a7c15ULL) ^ (std::size_t(k[1]) * 0xc2b2ae3d27d4eb4fULL) ^ k[2];
+        }
+    };
+    using NewIndex = std::unordered_map<std::array<std::uint32_t, 3>, int, BitsHash>;
+    NewIndex new_positions, new_normals;
+    auto new_index = [](std::vector<float>& values, NewIndex& seen, const double (&x)[3], bool normalise) -> int {
+        double len = normalise ? std::sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) : 1.0;
+        if (!(len > 0)) len = 1.0;
+        const float f[3] = {static_cast<float>(x[0] / len), static_cast<float>(x[1] / len), static_cast<float>(x[2] / len)};
+        std::array<std::uint32_t, 3> key;
+        std::memcpy(key.data(), f, sizeof f);
+        auto [it, inserted] = seen.emplace(key, static_cast<int>(values.size() / 3));
+        if (inserted) values.insert(values.end(), f, f + 3);
+        return it->second;
+    };
+
     for (const tinyobj::shape_t& s : reader.GetShapes()) {
         Shape shape;
         shape.name = s.name;
@@ -150,31 +219,87 @@ Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path) {
                     tri.c[c].n = idx[c].normal_index;
                     if (idx[c].texcoord_index < 0) has_uv = false;
                 }
-                if (has_uv) {
-                    // Shift the triangle by whole repeats so that it lies in [0, 1] on each axis.
+                if (!has_uv) {
+                    shape.triangles.push_back(tri);
+                    continue;
+                }
+                // Where the texture repeats across the triangle, cut it at every whole repeat (u = k,
+                // v = j) and shift each piece by its repeat into [0, 1]: exact, since the texture
+                // repeats, and each piece samples one copy of the image in its atlas cell, whose
+                // padding wraps around (docs/atlas.md, "Repeating textures").
+                std::vector<ClipVertex> poly(3);
+                double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+                for (int c = 0; c < 3; ++c) {
+                    ClipVertex& cv = poly[static_cast<std::size_t>(c)];
+                    cv.v = idx[c].vertex_index;
+                    cv.vn = idx[c].normal_index;
+                    for (int d = 0; d < 3; ++d) cv.p[d] = attrib.vertices[3 * static_cast<std::size_t>(cv.v) + d];
+                    if (cv.vn >= 0)
+                        for (int d = 0; d < 3; ++d) cv.n[d] = attrib.normals[3 * static_cast<std::size_t>(cv.vn) + d];
                     for (int axis = 0; axis < 2; ++axis) {
-                        double val[3], lo = INFINITY, hi = -INFINITY;
-                        for (int c = 0; c < 3; ++c) {
-                            val[c] = attrib.texcoords[2 * static_cast<std::size_t>(idx[c].texcoord_index) + axis];
-                            lo = std::min(lo, val[c]);
-                            hi = std::max(hi, val[c]);
-                        }
-                        const double shift = std::floor(lo + kRepeatSlack);
-                        if (!std::isfinite(lo) || !std::isfinite(hi) || hi - shift > 1.0 + kRepeatSlack) {
-                            char range[96];
-                            std::snprintf(range, sizeof range, "%s from %.6g to %.6g", axis == 0 ? "u" : "v", lo, hi);
-                            return make_error(Errc::unsupported,
-                                              "material '" + material_name(material) + "' (shape '" + s.name +
-                                                  "'): texture repeats across a triangle (" + range +
-                                                  "); atlas mode cannot pack repeating textures");
-                        }
-                        for (int c = 0; c < 3; ++c) {
-                            const double shifted = std::clamp(val[c] - shift, 0.0, 1.0);
-                            (axis == 0 ? tri.c[c].u : tri.c[c].t) = shifted;
-                        }
+                        cv.uv[axis] = attrib.texcoords[2 * static_cast<std::size_t>(idx[c].texcoord_index) + axis];
+                        lo[axis] = std::min(lo[axis], cv.uv[axis]);
+                        hi[axis] = std::max(hi[axis], cv.uv[axis]);
                     }
                 }
-                shape.triangles.push_back(tri);
+                if (!std::isfinite(lo[0]) || !std::isfinite(hi[0]) || !std::isfinite(lo[1]) || !std::isfinite(hi[1]))
+                    return make_error(Errc::invalid_argument, "material '" + material_name(material) + "' (shape '" + s.name +
+                                                                  "'): a texture coordinate is not a finite number");
+                // Repeats the triangle touches on each axis: [first, last] (slack: 1.0000001 is 1).
+                std::int64_t first[2], last[2];
+                for (int axis = 0; axis < 2; ++axis) {
+                    first[axis] = static_cast<std::int64_t>(std::floor(lo[axis] + kRepeatSlack));
+                    last[axis] = std::max(first[axis], static_cast<std::int64_t>(std::ceil(hi[axis] - kRepeatSlack)) - 1);
+                    if (lo[axis] < -kRepeatSlack || hi[axis] > 1.0 + kRepeatSlack) impl->images[image].repeats = true;
+                }
+                const std::uint64_t pieces = std::uint64_t(last[0] - first[0] + 1) * std::uint64_t(last[1] - first[1] + 1);
+                if (pieces > kMaxPiecesPerTriangle) {
+                    char range[160];
+                    std::snprintf(range, sizeof range, "u from %.6g to %.6g, v from %.6g to %.6g", lo[0], hi[0], lo[1], hi[1]);
+                    return make_error(Errc::unsupported, "material '" + material_name(material) + "' (shape '" + s.name +
+                                                             "'): texture repeats " + std::to_string(pieces) +
+                                                             " times across one triangle (" + range + "); at most " +
+                                                             std::to_string(kMaxPiecesPerTriangle) + " are cut into pieces");
+                }
+                for (std::int64_t ru = first[0]; ru <= last[0]; ++ru) {
+                    std::vector<ClipVertex> column = poly;
+                    if (ru > first[0]) column = clip(column, 0, double(ru), true);
+                    if (ru < last[0]) column = clip(column, 0, double(ru + 1), false);
+                    if (column.size() < 3) continue;
+                    for (std::int64_t rv = first[1]; rv <= last[1]; ++rv) {
+                        std::vector<ClipVertex> piece = column;
+                        if (rv > first[1]) piece = clip(piece, 1, double(rv), true);
+                        if (rv < last[1]) piece = clip(piece, 1, double(rv + 1), false);
+                        if (piece.size() < 3) continue;
+                        // Corners made by clipping become new positions (and normals) of the OBJ.
+                        std::vector<Corner> corners(piece.size());
+                        for (std::size_t c = 0; c < piece.size(); ++c) {
+                            const ClipVertex& cv = piece[c];
+                            Corner& out = corners[c];
+                            out.v = cv.v;
+                            out.n = cv.vn;
+                            if (cv.v < 0) {
+                                out.v = new_index(impl->positions, new_positions, cv.p, false);
+                                if (poly[0].vn >= 0 && poly[1].vn >= 0 && poly[2].vn >= 0)
+                                    out.n = new_index(impl->normals, new_normals, cv.n, true);
+                            }
+                            out.u = std::clamp(cv.uv[0] - double(ru), 0.0, 1.0);
+                            out.t = std::clamp(cv.uv[1] - double(rv), 0.0, 1.0);
+                        }
+                        for (std::size_t c = 1; c + 1 < corners.size(); ++c) {
+                            Triangle piece_tri;
+                            piece_tri.image = image;
+                            piece_tri.c[0] = corners[0];
+                            piece_tri.c[1] = corners[c];
+                            piece_tri.c[2] = corners[c + 1];
+                            shape.triangles.push_back(piece_tri);
+                        }
+                        if (pieces > 1) ++impl->cut_pieces;
+                    }
+                }
+                if (impl->triangles + shape.triangles.size() > kMaxTriangles)
+                    return make_error(Errc::unsupported, "OBJ '" + obj_path + "': more than " + std::to_string(kMaxTriangles) +
+                                                             " triangles once repeating textures are cut at their repeats");
             }
             offset += nv;
         }
@@ -182,6 +307,14 @@ Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path) {
         if (!shape.triangles.empty()) impl->shapes.push_back(std::move(shape));
     }
     if (impl->triangles == 0) return make_error(Errc::invalid_argument, "OBJ '" + obj_path + "' has no triangles");
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (std::size_t i = 0; i + 2 < impl->positions.size(); i += 3)
+        for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(lo[k], double(impl->positions[i + static_cast<std::size_t>(k)]));
+            hi[k] = std::max(hi[k], double(impl->positions[i + static_cast<std::size_t>(k)]));
+        }
+    for (int k = 0; k < 3; ++k) impl->extent[static_cast<std::size_t>(k)] = hi[k] > lo[k] ? hi[k] - lo[k] : 0.0;
+    impl->up = up != UpAxis::automatic ? up : impl->extent[2] < impl->extent[1] ? UpAxis::z : UpAxis::y;
     return ObjAtlasInput(std::move(impl));
 }
 
@@ -200,6 +333,7 @@ Result<std::string> ObjAtlasInput::rewrite(std::span<const AtlasRect> rects, std
     std::string out;
     out.reserve(64 * (m.positions.size() / 3 + m.normals.size() / 3 + 3 * m.triangles));
     out += "# tessera-atlas " + std::to_string(atlas_width) + " " + std::to_string(atlas_height) + "\n";
+    out += std::string("# tessera-up ") + (m.up == UpAxis::z ? "z" : "y") + "\n";
     out += "# Written by `tessera build --atlas`" + (source_note.empty() ? std::string() : " from " + source_note) + ".\n";
     out += "# Texture coordinates address the whole atlas (" + std::to_string(atlas_width) + "x" + std::to_string(atlas_height) +
            " texels): u right, v DOWN (v = 0 is the atlas's top row), unlike the usual OBJ convention.\n";

@@ -20,6 +20,15 @@ std::string one_line(std::string s) {
     return s;
 }
 
+// The up axis named by "# tessera-up y|z" among the first comment lines: true for z (default y).
+bool z_up(const std::string& path) {
+    std::ifstream f(path);
+    std::string line;
+    for (int i = 0; i < 8 && std::getline(f, line) && line.rfind('#', 0) == 0; ++i)
+        if (line.rfind("# tessera-up ", 0) == 0) return line.size() > 13 && (line[13] == 'z' || line[13] == 'Z');
+    return false;
+}
+
 // The atlas size named by the first line ("# tessera-atlas W H"), if the file has one.
 bool atlas_size_of(const std::string& path, std::uint64_t& w, std::uint64_t& h) {
     std::ifstream f(path);
@@ -61,9 +70,12 @@ Result<Scene> load_obj_scene(const std::string& obj_path, std::uint32_t vt_width
         scene.bounds_min[k] = INFINITY;
         scene.bounds_max[k] = -INFINITY;
     }
-    // OBJ is Y up; this library is Z up: (x, y, z) -> (x, -z, y), a rotation (winding is kept).
+    // OBJ is Y up unless the file says "# tessera-up z"; this library is Z up: a Y-up file maps
+    // (x, y, z) -> (x, -z, y), a rotation (winding is kept).
+    const bool file_z_up = z_up(obj_path);
     auto world = [&](int v) -> Vec3d {
         const std::size_t i = 3 * static_cast<std::size_t>(v);
+        if (file_z_up) return {double(a.vertices[i]), double(a.vertices[i + 1]), double(a.vertices[i + 2])};
         return {double(a.vertices[i]), -double(a.vertices[i + 2]), double(a.vertices[i + 1])};
     };
     auto texel = [&](int t) -> std::array<double, 2> {

@@ -197,6 +197,28 @@ std::vector<Keyframe> walk(const Box& b) {
         T, 0.5);
 }
 
+// orbit: around the scene, looking at the centre of its box from 30 degrees above, one turn in 30
+// s; it starts where the whole box fits the view (its bounding sphere inside the vertical field of
+// view) and moves in to 40% of that distance and back out twice per turn, so both the whole scene
+// and its detail are seen. The default for OBJ scenes (a site, a building, a room seen from outside).
+std::vector<Keyframe> orbit(const Box& b, double fov_y) {
+    const double T = 30.0, elevation = 30.0 * kDeg;
+    const Vec3d c{b.cx(), b.cy(), 0.5 * (b.z0 + b.z1)};
+    const double framed = std::max(0.5 * b.diagonal() / std::sin(0.5 * fov_y), 1e-3);
+    return sample(
+        [&](double t) {
+            const double d = framed * (0.7 + 0.3 * std::cos(2 * kPi * 2.0 * t / T));
+            const double yaw = 0.25 * kPi + 2 * kPi * t / T;  // view direction; the camera sits opposite
+            Keyframe k;
+            k.position = {c[0] - d * std::cos(elevation) * std::cos(yaw), c[1] - d * std::cos(elevation) * std::sin(yaw),
+                          c[2] + d * std::sin(elevation)};
+            k.yaw = yaw;
+            k.pitch = -elevation;
+            return k;
+        },
+        T, 0.25);
+}
+
 }  // namespace
 
 Result<CameraPath> CameraPath::from_keyframes(std::vector<Keyframe> keys, double fov_y) {
@@ -293,7 +315,7 @@ Result<CameraPath> CameraPath::load(const std::string& file) {
     return parse(ss.str(), file);
 }
 
-std::vector<std::string> CameraPath::builtin_names() { return {"flyover", "dive", "whip", "walk"}; }
+std::vector<std::string> CameraPath::builtin_names() { return {"auto", "flyover", "dive", "whip", "walk", "orbit"}; }
 
 Result<CameraPath> CameraPath::builtin(const std::string& name, const Scene& scene) {
     const Box b{scene.bounds_min[0], scene.bounds_min[1], scene.bounds_min[2],
@@ -304,11 +326,14 @@ Result<CameraPath> CameraPath::builtin(const std::string& name, const Scene& sce
         return make_error(Errc::invalid_argument, "scene '" + scene.name + "' has an empty extent");
     const double fov = Camera{}.fov_y;
     std::vector<Keyframe> keys;
-    if (name == "flyover") keys = flyover(b);
-    else if (name == "dive") keys = dive(b, fov);
-    else if (name == "whip") keys = whip(b);
-    else if (name == "walk") keys = walk(b);
-    else return make_error(Errc::invalid_argument, "unknown camera path '" + name + "' (built-ins: flyover, dive, whip, walk)");
+    // auto: the terrain's flyover; around any other scene (a finite site or object), the orbit.
+    const std::string chosen = name != "auto" ? name : scene.name == "terrain" ? "flyover" : "orbit";
+    if (chosen == "flyover") keys = flyover(b);
+    else if (chosen == "dive") keys = dive(b, fov);
+    else if (chosen == "whip") keys = whip(b);
+    else if (chosen == "walk") keys = walk(b);
+    else if (chosen == "orbit") keys = orbit(b, fov);
+    else return make_error(Errc::invalid_argument, "unknown camera path '" + name + "' (built-ins: auto, flyover, dive, whip, walk, orbit)");
     auto p = from_keyframes(std::move(keys), fov);
     if (!p) return p;
     p->far_ = std::max(p->far_, 4.0 * b.diagonal());

@@ -39,7 +39,8 @@ class ItemReader {
 public:
     ItemReader(AtlasItem item, const AtlasCell& cell) : item_(std::move(item)), cell_(cell) {}
 
-    // Row r (0 <= r < height) as RGB8; rows are asked for in non-decreasing order.
+    // Row r (0 <= r < height) as RGB8; rows are asked for in non-decreasing order, except for a
+    // wrapping item, which is read whole on first use (its padding needs rows from both ends).
     Result<const std::uint8_t*> row(std::uint32_t r, const ParallelFor& parallel) {
         const std::size_t out_row = std::size_t(cell_.width) * 3;
         if (!item_.source) {
@@ -51,7 +52,7 @@ public:
         }
         while (r >= first_ + count_) {
             const SourceInfo& si = item_.source->info();
-            const std::uint32_t n = std::min(kStrip, cell_.height - next_);
+            const std::uint32_t n = item_.wrap ? cell_.height - next_ : std::min(kStrip, cell_.height - next_);
             const std::size_t sb = sample_bytes(si.sample_type), in_row = std::size_t(si.width) * si.channels * sb;
             raw_.resize(in_row * n);
             strip_.resize(out_row * n);
@@ -74,6 +75,7 @@ public:
         }
     }
     const AtlasCell& cell() const { return cell_; }
+    bool wraps() const { return item_.wrap && item_.source; }
 
 private:
     static constexpr std::uint32_t kStrip = 64;
@@ -165,18 +167,26 @@ public:
                     item.release();
                     continue;
                 }
-                const std::uint32_t r = static_cast<std::uint32_t>(
-                    std::clamp<std::int64_t>(std::int64_t(y) - c.y, 0, std::int64_t(c.height) - 1));
+                // Padding: the image's edge repeated (clamp), or for a repeating texture the image
+                // continued around (wrap), as GL_REPEAT would sample it.
+                const bool wrap = item.wraps();
+                const std::int64_t dy = std::int64_t(y) - c.y, h = c.height, w = c.width;
+                const std::uint32_t r = static_cast<std::uint32_t>(wrap ? ((dy % h) + h) % h : std::clamp<std::int64_t>(dy, 0, h - 1));
                 auto src = item.row(r, parallel);
                 if (!src) return src.error();
                 const std::uint8_t* s = *src;
                 std::uint8_t* d = out + std::size_t(c.cell_x) * 3;
                 const std::uint32_t left = c.x - c.cell_x, right = c.cell_x + c.cell_width - (c.x + c.width);
-                for (std::uint32_t i = 0; i < left; ++i, d += 3) std::memcpy(d, s, 3);
+                for (std::uint32_t i = 0; i < left; ++i, d += 3) {
+                    const std::int64_t sx = wrap ? (((std::int64_t(i) - left) % w) + w) % w : 0;
+                    std::memcpy(d, s + sx * 3, 3);
+                }
                 std::memcpy(d, s, std::size_t(c.width) * 3);
                 d += std::size_t(c.width) * 3;
-                const std::uint8_t* last = s + std::size_t(c.width - 1) * 3;
-                for (std::uint32_t i = 0; i < right; ++i, d += 3) std::memcpy(d, last, 3);
+                for (std::uint32_t i = 0; i < right; ++i, d += 3) {
+                    const std::int64_t sx = wrap ? std::int64_t(i) % w : w - 1;
+                    std::memcpy(d, s + sx * 3, 3);
+                }
             }
         }
         return {};

@@ -6,7 +6,7 @@
 // Layout (docs/atlas.md): every image gets a cell of (image + 2 x padding) texels rounded up to a
 // multiple of `alignment` (a power of two), at a position that is a multiple of `alignment`; the
 // image sits `padding` texels in from the cell's top-left corner and the rest of the cell repeats its
-// edge texels (edge clamp). So up to level log2(alignment) no mip texel mixes two cells, and up to
+// edge texels (edge clamp) or, for a repeating texture, continues it around its edges (wrap). So up to level log2(alignment) no mip texel mixes two cells, and up to
 // level log2(padding) a bilinear tap beside an image reads that image's own edge. Cells are packed
 // on shelves (tallest first) into the width that gives the smallest atlas among a few candidates;
 // texels no cell covers are black. Deterministic: the same sizes give the same layout.
@@ -49,10 +49,13 @@ Result<AtlasLayout> pack_atlas(std::span<const AtlasImageSize> sizes, const Atla
 
 // One image of the atlas: a source (any sample type and 1..4 channels; grey is replicated, alpha
 // is dropped, 16-bit and float samples are scaled to 8 bits, linear ones encoded as sRGB), or a
-// solid colour when `source` is null.
+// solid colour when `source` is null. `wrap`: a repeating texture, whose padding continues the
+// image around its edges (toroidally) instead of repeating its edge texels; it is read whole when
+// the atlas rows reach its cell, not strip by strip.
 struct AtlasItem {
     std::unique_ptr<ImageSource> source;
     std::array<std::uint8_t, 3> colour{};
+    bool wrap = false;
 };
 
 // The atlas as an 8-bit sRGB RGB source: items[i] fills layout.cells[i] (a source must have that

@@ -25,7 +25,13 @@ struct AtlasImageRef {
     std::string texture;                   // the texture file, resolved against the OBJ's folder; empty: solid
     std::array<std::uint8_t, 3> colour{};  // solid only: Kd as 8-bit values
     std::vector<std::string> materials;    // the materials that use this image (for messages)
+    bool repeats = false;                  // texture coordinates leave [0, 1]: its cell's padding wraps around
 };
+
+// Which OBJ axis points up. OBJ's convention is Y, but SketchUp and many CAD and GIS exports are Z
+// up. automatic: Z when the scene is flatter along Z than along Y (a site, a landscape, a room
+// written Z up), else Y -- a Z-up tower taller than it is deep needs an explicit z.
+enum class UpAxis { automatic, y, z };
 
 // Where an image was placed in the atlas: its level-0 texel rectangle (row 0 at the top).
 struct AtlasRect {
@@ -34,11 +40,13 @@ struct AtlasRect {
 
 class ObjAtlasInput {
 public:
-    // Reads the OBJ and its MTL files (found beside the OBJ). Errors: the OBJ missing or malformed,
-    // a material library or material that cannot be found, no triangles, and a texture that
-    // repeats across a triangle (its u or v range, after shifting the triangle by a whole number of
-    // repeats, does not fit in [0, 1]): the message names the material.
-    static Result<ObjAtlasInput> load(const std::string& obj_path);
+    // Reads the OBJ and its MTL files (found beside the OBJ). A triangle across which its texture
+    // repeats is cut at the repeats (u = k, v = j) into pieces that each lie in one copy, with new
+    // positions (and normals) where the cuts cross its edges. Errors: the OBJ missing or malformed,
+    // a material library or material that cannot be found, no triangles, a texture coordinate that
+    // is not finite, more than 2^16 repeats across one triangle or 2^24 triangles in all: the
+    // message names the material.
+    static Result<ObjAtlasInput> load(const std::string& obj_path, UpAxis up = UpAxis::automatic);
 
     ObjAtlasInput(ObjAtlasInput&&) noexcept;
     ObjAtlasInput& operator=(ObjAtlasInput&&) noexcept;
@@ -46,11 +54,15 @@ public:
 
     // Distinct images, in first-use order (the same texture file used by two materials is one image).
     const std::vector<AtlasImageRef>& images() const;
-    std::size_t triangle_count() const;
+    std::size_t triangle_count() const;     // after cutting at repeats
+    std::size_t repeat_piece_count() const;  // triangles (after fan triangulation) that cutting made
+    UpAxis up_axis() const;                  // y or z, resolved
+    std::array<double, 3> extent() const;    // the positions' extent along x, y, z (OBJ axes)
 
     // The rewritten OBJ text: positions and normals as they were, texture coordinates mapped into
     // rects[i] for images()[i] (a solid image's texels all map to its middle texel's centre), one
-    // object per shape, triangles only, no materials. `source_note` goes into a comment.
+    // object per shape, triangles only, no materials. `source_note` goes into a comment; the up
+    // axis into "# tessera-up y|z" on the second line (load_obj_scene reads it).
     Result<std::string> rewrite(std::span<const AtlasRect> rects, std::uint32_t atlas_width, std::uint32_t atlas_height,
                                 const std::string& source_note) const;
 

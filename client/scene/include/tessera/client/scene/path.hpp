@@ -11,7 +11,8 @@
 // Times strictly increase; at least two keyframes. Errors name the file, line and what is wrong.
 // Built-in paths are made for a scene's bounds: flyover (low, turning), dive (an orbit that spirals
 // down to the ground through every level), whip (fast 180-degree turns: cache stress), walk (eye
-// height through an atlas scene).
+// height through an atlas scene), orbit (around the scene looking at it, from framing the whole
+// box to close up); auto is flyover for the terrain and orbit for any other scene.
 #include <string>
 #include <string_view>
 #include <vector>
@@ -33,7 +34,7 @@ public:
     static Result<CameraPath> from_keyframes(std::vector<Keyframe> keys, double fov_y);
     static Result<CameraPath> load(const std::string& file);
     static Result<CameraPath> parse(std::string_view text, const std::string& name_for_errors);
-    // "flyover", "dive", "whip", "walk" for `scene` (its bounds); error for an unknown name.
+    // "auto", "flyover", "dive", "whip", "walk", "orbit" for `scene` (its bounds); error for an unknown name.
     static Result<CameraPath> builtin(const std::string& name, const Scene& scene);
     static std::vector<std::string> builtin_names();
 

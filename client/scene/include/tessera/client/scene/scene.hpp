@@ -88,7 +88,8 @@ double terrain_height(const TerrainOptions& options, double x, double y);
 
 // The `atlas` scene: an OBJ file whose texture coordinates address the packed atlas virtual
 // texture (written by `tessera build --atlas`, see atlas.hpp): u, v in [0, 1] of the atlas, v down.
-// Positions are taken as they are (Y up in OBJ; converted to this library's Z up).
+// Positions are taken as they are: Y up (OBJ's convention), or Z up when the file's header says
+// "# tessera-up z"; converted to this library's Z up.
 Result<Scene> load_obj_scene(const std::string& obj_path, std::uint32_t vt_width, std::uint32_t vt_height);
 
 }  // namespace tessera::scene
