@@ -158,7 +158,7 @@ TEST(Path, InterpolationIsLinearForTwoKeysAndTakesTheShortArc) {
     EXPECT_NEAR(m.pitch, -0.25, 1e-12);
     // 170 -> -170 degrees passes through 180, not through 0.
     EXPECT_NEAR(std::abs(std::remainder(m.yaw, 2 * kPi)), kPi, 1e-9);
-    EXPECT_EQ(p->builtin_names().size(), 4u);
+    EXPECT_EQ(p->builtin_names().size(), 6u);
 }
 
 // Samples a path at `hz`; checks bounds, height and continuity, and returns the cameras.
@@ -244,8 +244,14 @@ TEST(Path, BuiltinsOnATerrain) {
     auto walk = CameraPath::builtin("walk", s);
     ASSERT_TRUE(walk.ok());
     for (const Camera& c : walk_through(*walk, s, 30, 0)) EXPECT_NEAR(c.position[2], 1.7, 1e-9);
+    // auto is the flyover on the terrain.
+    auto automatic = CameraPath::builtin("auto", s);
+    ASSERT_TRUE(automatic.ok());
+    auto flyover = CameraPath::builtin("flyover", s);
+    ASSERT_TRUE(flyover.ok());
+    EXPECT_EQ(automatic->to_text(), flyover->to_text());
     // Unknown name.
-    auto bad = CameraPath::builtin("orbit", s);
+    auto bad = CameraPath::builtin("spiral", s);
     ASSERT_FALSE(bad.ok());
     EXPECT_NE(bad.error().message.find("flyover"), std::string::npos);
     // An empty scene has no bounds to build from.
@@ -296,3 +302,32 @@ TEST(Path, DiveNeedsEveryLevel) {
 }
 
 }  // namespace
+
+// orbit (auto's choice for any scene but the terrain): starts with the whole box in view, always
+// looks at its centre, comes in to 40% of that distance.
+TEST(Path, OrbitFramesAnObjScene) {
+    Scene s;
+    s.name = "atlas";
+    s.bounds_min[0] = -70, s.bounds_min[1] = -55, s.bounds_min[2] = -6;
+    s.bounds_max[0] = 75, s.bounds_max[1] = 86, s.bounds_max[2] = 18;
+    auto automatic = CameraPath::builtin("auto", s);
+    auto orbit = CameraPath::builtin("orbit", s);
+    ASSERT_TRUE(automatic.ok() && orbit.ok());
+    EXPECT_EQ(automatic->to_text(), orbit->to_text());
+    const double cx = 2.5, cy = 15.5, cz = 6;
+    const double half_diagonal = 0.5 * std::sqrt(145.0 * 145.0 + 141.0 * 141.0 + 24.0 * 24.0);
+    double nearest = 1e30;
+    for (double t = 0; t <= orbit->duration(); t += 0.1) {
+        const Camera c = orbit->at(t);
+        const double dx = cx - c.position[0], dy = cy - c.position[1], dz = cz - c.position[2];
+        const double d = std::sqrt(dx * dx + dy * dy + dz * dz);
+        nearest = std::min(nearest, d);
+        // Looking at the centre: the view direction is the direction to it.
+        const double vx = std::cos(c.pitch) * std::cos(c.yaw), vy = std::cos(c.pitch) * std::sin(c.yaw), vz = std::sin(c.pitch);
+        EXPECT_NEAR((vx * dx + vy * dy + vz * dz) / d, 1.0, 1e-3) << "t " << t;
+        if (t == 0) {
+            EXPECT_GE(d * std::sin(c.fov_y / 2), half_diagonal * 0.999);  // the bounding sphere fits the view
+        }
+    }
+    EXPECT_NEAR(nearest, 0.4 * half_diagonal / std::sin(orbit->fov_y() / 2), 0.02 * half_diagonal);
+}

@@ -124,8 +124,12 @@ Command add_serve(CLI::App& app) {
     auto& c = a->config;
     auto* s = app.add_subcommand("serve", "Serve tile stores over gRPC (streaming viewers) and HTTP");
     s->set_config("--config", "", "Read options from a file (key = value lines named like the long options)");
-    s->add_option("--store", c.store_files, "A store file to serve (repeatable); its name is the file name without .tsr");
+    s->add_option("--store", c.store_files,
+                  "A store to serve (repeatable): a file, s3://BUCKET/KEY.tsr or http(s)://HOST/PATH.tsr (range requests; "
+                  "S3 credentials and endpoint from the AWS_* environment, docs/server.md); named by its file name without .tsr");
     s->add_option("--store-dir", c.store_dirs, "Serve every *.tsr file in this directory (repeatable)");
+    s->add_option("--remote-ca", c.remote_ca_file, "PEM roots to verify https:// and S3 stores (default: the system's)");
+    s->add_option("--remote-concurrency", c.remote_concurrency, "Range requests in flight per remote store")->capture_default_str();
     s->add_option("--grpc", c.grpc_address, "gRPC listen address HOST:PORT (port 0: any; \"\": off)")->capture_default_str();
     s->add_option("--http", c.http_address, "HTTP listen address HOST:PORT (port 0: any; \"\": off)")->capture_default_str();
     s->add_option("--tls-cert", c.tls_cert_file, "PEM certificate chain: serve gRPC and HTTP over TLS only");

@@ -19,16 +19,25 @@ packages=(
   imagemagick openimageio-tools       # tests read images other tools wrote (alpha conventions, formats)
   python3 python3-yaml time systemd   # systemd: systemd-analyze lints deploy/tessera.service
   mmdebstrap                          # deploy/build-image.py: the image's root filesystem
+  nginx-light                         # remote stores over plain HTTP range requests (tests)
 )
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+# Node and npm for the web-side test tools (an S3 server); any installed npm will do.
+command -v npm >/dev/null 2>&1 || missing+=(nodejs npm)
 if ((${#missing[@]})); then
   echo "setup: installing ${missing[*]}"
   export DEBIAN_FRONTEND=noninteractive
   apt-get update -qq
   apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# The npm packages the tests drive (tests/npm/package-lock.json pins them), when the lock changed.
+if [[ ! -f tests/npm/node_modules/.package-lock.json || tests/npm/package-lock.json -nt tests/npm/node_modules/.package-lock.json ]]; then
+  echo "setup: installing the test tools from npm (tests/npm)"
+  (cd tests/npm && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
 fi
 
 build_type=${TESSERA_BUILD_TYPE:-RelWithDebInfo}

@@ -16,12 +16,21 @@
 #include "server_context.hpp"
 #include "store_registry.hpp"
 #include "tessera/server/server.hpp"
+#include "tessera/storage/remote_source.hpp"
 #include "tile_cache.hpp"
 #include "tile_fetcher.hpp"
 
 namespace tessera::server {
 
 namespace {
+
+RemoteStores remote_stores(const ServerConfig& config) {
+    storage::RemoteOptions o;
+    o.ca_file = config.remote_ca_file;
+    o.max_concurrency = std::max(1u, config.remote_concurrency);
+    return RemoteStores{[o](const std::string& location) { return storage::open_remote_source(location, o); },
+                        [o](const std::string& location) { return storage::remote_version(location, o); }};
+}
 
 Result<std::string> read_text_file(const std::string& path, const char* what) {
     std::ifstream in(path, std::ios::binary);
@@ -68,7 +77,7 @@ public:
     explicit ServerImpl(const ServerConfig& config)
         : config_(config),
           log_(config.log_json ? LogFormat::json : LogFormat::text, config.log_debug ? LogLevel::debug : config.log_quiet ? LogLevel::warn : LogLevel::info),
-          stores_(config.store_files, config.store_dirs, log_, metrics_),
+          stores_(config.store_files, config.store_dirs, log_, metrics_, remote_stores(config)),
           cache_(config.cache_bytes),
           fetcher_(cache_, metrics_, log_),
           ctx_{config_, log_, metrics_, stores_, fetcher_} {}
@@ -84,6 +93,15 @@ public:
             if (!http) return http.error();
             http_ = std::move(*http);
         }
+        // Remote stores' requests (process totals; 0 without remote stores).
+        metrics_.gauge_callback("tessera_remote_requests", "HTTP requests to remote stores (HEAD and range GET, retries included)", {},
+                                [] { return double(storage::remote_counters().requests.load()); });
+        metrics_.gauge_callback("tessera_remote_retries", "Of them, retries after a failure or a 5xx/408/429", {},
+                                [] { return double(storage::remote_counters().retries.load()); });
+        metrics_.gauge_callback("tessera_remote_read_bytes", "Bytes received by range GETs from remote stores", {},
+                                [] { return double(storage::remote_counters().bytes.load()); });
+        metrics_.gauge_callback("tessera_remote_failures", "Remote reads that failed after every try", {},
+                                [] { return double(storage::remote_counters().failures.load()); });
         metrics_.gauge_callback("tessera_uptime_seconds", "Seconds since the server started", {}, [this] {
             return std::chrono::duration<double>(std::chrono::steady_clock::now() - ctx_.started).count();
         });

@@ -36,9 +36,10 @@ FileIdentity identity_of(const StoreHandle& h) { return {h.device, h.inode, h.si
 }  // namespace
 
 StoreRegistry::StoreRegistry(std::vector<std::string> files, std::vector<std::string> dirs, Logger& log,
-                             MetricsRegistry& metrics)
+                             MetricsRegistry& metrics, RemoteStores remote)
     : files_(std::move(files)),
       dirs_(std::move(dirs)),
+      remote_(std::move(remote)),
       log_(log),
       metrics_(metrics),
       stores_(std::make_shared<const std::vector<std::shared_ptr<const StoreHandle>>>()) {
@@ -67,10 +68,66 @@ Status StoreRegistry::open() {
 
 ReloadReport StoreRegistry::reload() { return scan(false, nullptr); }
 
+bool StoreRegistry::is_remote(const std::string& location) {
+    return location.starts_with("s3://") || location.starts_with("http://") || location.starts_with("https://");
+}
+
+// A remote store: unchanged while its version (ETag, one HEAD) is the one it was opened at;
+// otherwise opened again as a new version. While the remote cannot be reached, the version
+// already open keeps serving.
+void StoreRegistry::scan_remote(const std::string& name, const std::string& location, const std::shared_ptr<const StoreHandle>& prev,
+                                bool first, std::vector<std::shared_ptr<const StoreHandle>>& next, ReloadReport& report,
+                                const std::function<void(Error)>& fail) {
+    if (!remote_.open || !remote_.version) {
+        fail(Error{Errc::unsupported, "store " + location + ": remote stores are not available in this program"});
+        ++report.failed;
+        return;
+    }
+    if (prev && prev->path == location && !prev->stale.load()) {
+        auto v = remote_.version(location);
+        if (!v) {
+            if (!first) log_.warn("remote store unreachable; serving the version already open", {{"store", name}, {"error", v.error().message}});
+            next.push_back(prev);
+            return;
+        }
+        if (*v == prev->remote_version) {
+            next.push_back(prev);
+            return;
+        }
+    }
+    auto src = remote_.open(location);
+    std::string version = src ? (*src)->version() : std::string();
+    auto reader = src ? storage::StoreReader::open_source(std::move(*src), location) : Result<std::shared_ptr<storage::StoreReader>>(src.error());
+    if (!reader) {
+        fail(Error{reader.error().code, "store " + name + " (" + location + "): " + reader.error().message});
+        ++report.failed;
+        if (prev) next.push_back(prev);
+        return;
+    }
+    auto h = std::make_shared<StoreHandle>();
+    h->name = name;
+    h->path = location;
+    h->reader = std::move(*reader);
+    h->version = h->reader->info().store_id;
+    h->metrics = metrics_for(name);
+    h->remote_version = version;
+    char id[24];
+    std::snprintf(id, sizeof id, "%016llx", static_cast<unsigned long long>(h->version));
+    if (!prev) {
+        ++report.added;
+        log_.info("store added", {{"store", name}, {"path", location}, {"version", id}, {"etag", version},
+                                  {"width", h->info().width}, {"height", h->info().height}});
+    } else {
+        ++report.replaced;
+        log_.info("store replaced", {{"store", name}, {"path", location}, {"version", id}, {"etag", version}});
+    }
+    next.push_back(std::move(h));
+}
+
 ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
     std::lock_guard scan_lock(reload_mutex_);
     reloads_->inc();
-    auto fail = [&](Error e) {
+    std::function<void(Error)> fail = [&](Error e) {
         log_.error("store scan", {{"error", e.message}});
         if (first_error && first_error->ok()) *first_error = std::move(e);
     };
@@ -97,7 +154,9 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         }
     }
     for (const auto& file : files_) {
-        const std::string name = protocol::store_name_of_file(fs::path(file).filename().string());
+        // A remote location's name is its last path segment, as a file's.
+        const std::string leaf = is_remote(file) ? file.substr(file.find_last_of('/') + 1) : fs::path(file).filename().string();
+        const std::string name = protocol::store_name_of_file(leaf);
         if (name.empty()) {
             fail(Error{Errc::invalid_argument,
                        "store file " + file + ": the name must be <identifier>.tsr (letters, digits, _ . -)"});
@@ -116,8 +175,12 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
     ReloadReport report;
     auto next = std::make_shared<std::vector<std::shared_ptr<const StoreHandle>>>();
     for (const auto& [name, path] : wanted) {
-        FileIdentity id;
         const auto prev = old.find(name);
+        if (is_remote(path)) {
+            scan_remote(name, path, prev == old.end() ? nullptr : prev->second, first, *next, report, fail);
+            continue;
+        }
+        FileIdentity id;
         if (!identify(path, id)) {
             fail(Error{Errc::not_found, "store file " + path + " does not exist or is not a regular file"});
             ++report.failed;

@@ -11,6 +11,7 @@
 // a read fails and the file's size or mtime has changed. docs/server.md, "Replacing a store".
 #include <atomic>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -20,6 +21,7 @@
 #include "log.hpp"
 #include "metrics.hpp"
 #include "tessera/result.hpp"
+#include "tessera/storage/byte_source.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace tessera::server {
@@ -41,6 +43,7 @@ struct StoreHandle {
     // File identity at open time (to notice a replaced file).
     std::uint64_t device = 0, inode = 0, size = 0;
     std::int64_t mtime_ns = 0;
+    std::string remote_version;  // a remote store's ETag at open ("" for files)
     // The file changed in place under this version: nothing more is read from it.
     mutable std::atomic<bool> stale{false};
     const storage::StoreInfo& info() const { return reader->info(); }
@@ -50,10 +53,17 @@ struct ReloadReport {
     unsigned added = 0, replaced = 0, removed = 0, failed = 0;
 };
 
+// How the registry reaches stores at s3:// and http(s):// locations (the server passes
+// storage/remote_source.hpp's functions; without them such a location is an error).
+struct RemoteStores {
+    std::function<Result<std::unique_ptr<storage::ByteSource>>(const std::string& location)> open;
+    std::function<Result<std::string>(const std::string& location)> version;  // ETag by HEAD
+};
+
 class StoreRegistry {
 public:
     StoreRegistry(std::vector<std::string> files, std::vector<std::string> dirs, Logger& log,
-                  MetricsRegistry& metrics);
+                  MetricsRegistry& metrics, RemoteStores remote = {});
     ~StoreRegistry();  // removes its gauge callback from the registry
     StoreRegistry(const StoreRegistry&) = delete;
     StoreRegistry& operator=(const StoreRegistry&) = delete;
@@ -69,10 +79,14 @@ public:
 private:
     struct Scan;
     ReloadReport scan(bool first, Status* first_error);
+    static bool is_remote(const std::string& location);
+    void scan_remote(const std::string& name, const std::string& location, const std::shared_ptr<const StoreHandle>& prev, bool first,
+                     std::vector<std::shared_ptr<const StoreHandle>>& next, ReloadReport& report, const std::function<void(Error)>& fail);
     StoreMetrics metrics_for(const std::string& name);
 
     std::vector<std::string> files_;
     std::vector<std::string> dirs_;
+    RemoteStores remote_;
     Logger& log_;
     MetricsRegistry& metrics_;
     Counter* reloads_ = nullptr;

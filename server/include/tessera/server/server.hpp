@@ -15,7 +15,11 @@ namespace tessera::server {
 struct ServerConfig {
     // Stores: single files, and directories whose *.tsr files are all served. A store is named by
     // its file name without ".tsr"; files whose names are not identifiers are skipped (logged).
+    // A store file may be remote: s3://BUCKET/KEY.tsr or http(s)://HOST/PATH.tsr
+    // (tessera/storage/remote_source.hpp; its ETag is its version, checked at every rescan).
     std::vector<std::string> store_files;
+    std::string remote_ca_file;          // PEM roots for https:// stores ("": the system's)
+    unsigned remote_concurrency = 8;     // range requests in flight per remote store
     std::vector<std::string> store_dirs;
     // Rescan the directories and files this often (0: only on SIGHUP / reload()).
     std::chrono::milliseconds watch_interval{2000};

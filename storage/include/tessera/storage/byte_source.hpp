@@ -22,6 +22,8 @@ public:
     // True when the bytes may no longer be those that were opened (a file whose size or
     // modification time changed since). Costs a system call: ask after a failure, not per read.
     virtual bool changed() const { return false; }
+    // The version of the bytes where the source knows one (a remote object's ETag); "" otherwise.
+    virtual std::string version() const { return {}; }
 };
 
 Result<std::unique_ptr<ByteSource>> open_file_source(const std::string& path);

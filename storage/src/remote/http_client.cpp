@@ -1,0 +1,178 @@
+#include "http_client.hpp"
+
+#include <openssl/ssl.h>
+
+#include <algorithm>
+#include <boost/asio/connect.hpp>
+#include <boost/asio/io_context.hpp>
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/ssl.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <boost/beast/ssl.hpp>
+#include <cctype>
+#include <optional>
+
+namespace tessera::storage::remote {
+
+namespace asio = boost::asio;
+namespace beast = boost::beast;
+namespace http = beast::http;
+namespace ssl = asio::ssl;
+using tcp = asio::ip::tcp;
+using error_code = boost::system::error_code;
+
+struct HttpClient::Connection {
+    asio::io_context ioc;
+    std::optional<ssl::context> tls;
+    std::optional<beast::tcp_stream> plain;
+    std::optional<beast::ssl_stream<beast::tcp_stream>> secure;
+    beast::flat_buffer buffer;
+    bool open = false;
+
+    beast::tcp_stream& lowest() { return secure ? beast::get_lowest_layer(*secure) : *plain; }
+    void close() {
+        error_code ignored;
+        if (secure || plain) lowest().socket().close(ignored);
+        secure.reset();
+        plain.reset();
+        buffer.clear();
+        open = false;
+    }
+    // Runs one asynchronous operation to completion on this connection's own loop.
+    template <class Start>
+    error_code run(Start start) {
+        error_code result = asio::error::would_block;
+        start([&result](error_code ec, auto&&...) { result = ec; });
+        ioc.restart();
+        ioc.run();
+        return result;
+    }
+};
+
+HttpClient::HttpClient(Origin origin, unsigned max_connections, std::chrono::milliseconds timeout, std::string ca_file)
+    : origin_(std::move(origin)), max_connections_(std::max(1u, max_connections)), timeout_(timeout), ca_file_(std::move(ca_file)) {}
+
+HttpClient::~HttpClient() = default;
+
+std::string HttpClient::host_header() const {
+    const bool default_port = (origin_.tls && origin_.port == "443") || (!origin_.tls && origin_.port == "80");
+    const bool v6 = origin_.host.find(':') != std::string::npos;
+    const std::string host = v6 ? "[" + origin_.host + "]" : origin_.host;
+    return default_port ? host : host + ":" + origin_.port;
+}
+
+std::unique_ptr<HttpClient::Connection> HttpClient::take() {
+    std::unique_lock lock(m_);
+    cv_.wait(lock, [&] { return busy_ < max_connections_; });
+    ++busy_;
+    if (!idle_.empty()) {
+        auto c = std::move(idle_.back());
+        idle_.pop_back();
+        return c;
+    }
+    return std::make_unique<Connection>();
+}
+
+void HttpClient::give_back(std::unique_ptr<Connection> c) {
+    {
+        std::lock_guard lock(m_);
+        --busy_;
+        if (c && c->open) idle_.push_back(std::move(c));
+    }
+    cv_.notify_one();
+}
+
+Result<HttpResponse> HttpClient::request(const std::string& method, const std::string& target,
+                                         const std::vector<std::pair<std::string, std::string>>& headers, std::uint64_t max_body) {
+    std::unique_ptr<Connection> c = take();
+    struct Return {
+        HttpClient& client;
+        std::unique_ptr<Connection>& c;
+        ~Return() { client.give_back(std::move(c)); }
+    } give_back_on_exit{*this, c};
+    const std::string where = (origin_.tls ? "https://" : "http://") + host_header();
+    auto fail = [&](const std::string& what, const error_code& ec) -> Error {
+        c->close();
+        return Error{Errc::io_error, where + ": " + what + ": " + ec.message()};
+    };
+
+    for (int attempt = 0;; ++attempt) {
+        const bool reused = c->open;
+        if (!c->open) {
+            tcp::resolver resolver(c->ioc);
+            tcp::resolver::results_type endpoints;
+            error_code ec = c->run([&](auto handler) {
+                resolver.async_resolve(origin_.host, origin_.port, [&endpoints, handler](error_code e, tcp::resolver::results_type r) mutable {
+                    endpoints = std::move(r);
+                    handler(e);
+                });
+            });
+            if (ec) return fail("cannot resolve " + origin_.host, ec);
+            if (origin_.tls) {
+                if (!c->tls) {
+                    c->tls.emplace(ssl::context::tls_client);
+                    c->tls->set_options(ssl::context::default_workarounds | ssl::context::no_sslv2 | ssl::context::no_sslv3 |
+                                        ssl::context::no_tlsv1 | ssl::context::no_tlsv1_1);
+                    error_code e;
+                    if (ca_file_.empty()) c->tls->set_default_verify_paths(e);
+                    else c->tls->load_verify_file(ca_file_, e);
+                    if (e) return fail("TLS roots" + (ca_file_.empty() ? std::string() : " " + ca_file_), e);
+                    c->tls->set_verify_mode(ssl::verify_peer);
+                }
+                c->secure.emplace(c->ioc, *c->tls);
+                if (!SSL_set_tlsext_host_name(c->secure->native_handle(), origin_.host.c_str()))
+                    return fail("TLS server name", error_code(static_cast<int>(::ERR_get_error()), asio::error::get_ssl_category()));
+                c->secure->set_verify_callback(ssl::host_name_verification(origin_.host));
+            } else {
+                c->plain.emplace(c->ioc);
+            }
+            c->lowest().expires_after(timeout_);
+            ec = c->run([&](auto handler) { c->lowest().async_connect(endpoints, handler); });
+            if (ec) return fail("cannot connect", ec);
+            if (origin_.tls) {
+                c->lowest().expires_after(timeout_);
+                ec = c->run([&](auto handler) { c->secure->async_handshake(ssl::stream_base::client, handler); });
+                if (ec) return fail("TLS handshake", ec);
+            }
+            c->open = true;
+        }
+
+        http::request<http::empty_body> req{http::string_to_verb(method), target, 11};
+        req.set(http::field::host, host_header());
+        req.set(http::field::user_agent, "tessera");
+        for (const auto& [k, v] : headers) req.set(k, v);
+        http::response_parser<http::string_body> parser;
+        parser.body_limit(max_body);
+        if (method == "HEAD") parser.skip(true);
+        c->lowest().expires_after(timeout_);
+        error_code ec = c->secure ? c->run([&](auto handler) { http::async_write(*c->secure, req, handler); })
+                                  : c->run([&](auto handler) { http::async_write(*c->plain, req, handler); });
+        if (!ec) {
+            c->lowest().expires_after(timeout_);
+            ec = c->secure ? c->run([&](auto handler) { http::async_read(*c->secure, c->buffer, parser, handler); })
+                           : c->run([&](auto handler) { http::async_read(*c->plain, c->buffer, parser, handler); });
+        }
+        if (ec) {
+            // A kept-alive connection the server closed meanwhile: once more on a fresh one.
+            if (reused && attempt == 0 && ec != beast::error::timeout && ec != http::error::body_limit) {
+                c->close();
+                continue;
+            }
+            return fail(ec == http::error::body_limit ? "answer larger than expected" : method + " " + target, ec);
+        }
+        auto res = parser.release();
+        HttpResponse out;
+        out.status = res.result_int();
+        for (const auto& f : res) {
+            std::string name(f.name_string());
+            std::transform(name.begin(), name.end(), name.begin(), [](unsigned char ch) { return char(std::tolower(ch)); });
+            out.headers[name] = std::string(f.value());
+        }
+        out.body = std::move(res.body());
+        if (!res.keep_alive()) c->close();
+        return out;
+    }
+}
+
+}  // namespace tessera::storage::remote

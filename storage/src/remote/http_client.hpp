@@ -1,0 +1,68 @@
+#pragma once
+// A small blocking HTTP/1.1 client for remote stores (Boost.Beast over Asio, TLS through OpenSSL):
+// keep-alive connections to one origin, at most `max_connections` requests at once (callers
+// beyond wait), a deadline per request. Retries are the caller's (remote_source.cpp), which knows
+// which answers are worth retrying.
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "tessera/result.hpp"
+
+namespace tessera::storage::remote {
+
+struct Origin {
+    bool tls = false;
+    std::string host;  // name or address, as in the URL
+    std::string port;  // "80", "443" or the URL's
+};
+
+struct HttpResponse {
+    unsigned status = 0;
+    std::map<std::string, std::string> headers;  // names lower case
+    std::string body;
+    std::string header(const std::string& lower_name) const {
+        auto it = headers.find(lower_name);
+        return it == headers.end() ? std::string() : it->second;
+    }
+};
+
+class HttpClient {
+public:
+    // ca_file: PEM roots for TLS ("" = the system's).
+    HttpClient(Origin origin, unsigned max_connections, std::chrono::milliseconds timeout, std::string ca_file);
+    ~HttpClient();
+    HttpClient(const HttpClient&) = delete;
+    HttpClient& operator=(const HttpClient&) = delete;
+
+    // One request (no body); a transport failure (connect, TLS, timeout, a broken answer) is an
+    // error with code io_error, an HTTP status of any value a response. Bodies above `max_body`
+    // bytes are an error.
+    Result<HttpResponse> request(const std::string& method, const std::string& target,
+                                 const std::vector<std::pair<std::string, std::string>>& headers, std::uint64_t max_body);
+
+    const Origin& origin() const { return origin_; }
+    std::string host_header() const;  // "host" or "host:port" when the port is not the default
+
+private:
+    struct Connection;
+    std::unique_ptr<Connection> take();
+    void give_back(std::unique_ptr<Connection> c);
+
+    Origin origin_;
+    unsigned max_connections_;
+    std::chrono::milliseconds timeout_;
+    std::string ca_file_;
+    std::mutex m_;
+    std::condition_variable cv_;
+    unsigned busy_ = 0;
+    std::vector<std::unique_ptr<Connection>> idle_;
+};
+
+}  // namespace tessera::storage::remote

@@ -1,0 +1,61 @@
+// Remote stores' pieces that need no server: the S3 Signature V4 signer against AWS's published
+// example, location parsing, and the errors of an unreachable origin (the servers are in
+// remote_store_test.py: s3rver, nginx, a flaky origin).
+#include <gtest/gtest.h>
+
+#include <chrono>
+
+#include "remote/s3_sign.hpp"
+#include "tessera/storage/remote_source.hpp"
+
+using namespace tessera;
+using namespace tessera::storage;
+
+// docs.aws.amazon.com/AmazonS3/latest/API/sig-v4-header-based-auth.html, "Example: GET Object".
+TEST(S3Signature, MatchesAwsPublishedGetObjectExample) {
+    const remote::S3Credentials c{"AKIAIOSFODNN7EXAMPLE", "wJalrXUtnFEMI/K7MDENG/bPxRfiCYEXAMPLEKEY", ""};
+    const std::map<std::string, std::string> headers{{"host", "examplebucket.s3.amazonaws.com"},
+                                                     {"range", "bytes=0-9"},
+                                                     {"x-amz-content-sha256", remote::kEmptyPayloadSha256},
+                                                     {"x-amz-date", "20130524T000000Z"}};
+    EXPECT_EQ(remote::sigv4_authorization("GET", "/test.txt", "", headers, remote::kEmptyPayloadSha256, c, "us-east-1", "s3",
+                                          "20130524T000000Z"),
+              "AWS4-HMAC-SHA256 Credential=AKIAIOSFODNN7EXAMPLE/20130524/us-east-1/s3/aws4_request, "
+              "SignedHeaders=host;range;x-amz-content-sha256;x-amz-date, "
+              "Signature=f0e8bdb87c964420e857bd35b5d6ed310bd44f0170aba48dd91039c6036bdb41");
+    // One character of the secret changes the signature.
+    const remote::S3Credentials other{c.access_key, "xJalrXUtnFEMI/K7MDENG/bPxRfiCYEXAMPLEKEY", ""};
+    EXPECT_EQ(remote::sigv4_authorization("GET", "/test.txt", "", headers, remote::kEmptyPayloadSha256, other, "us-east-1", "s3",
+                                          "20130524T000000Z")
+                  .find("f0e8bdb8"),
+              std::string::npos);
+    EXPECT_EQ(remote::uri_encode_path("/maps/a b+c/x~y.tsr"), "/maps/a%20b%2Bc/x~y.tsr");
+}
+
+TEST(RemoteSource, LocationsAreCheckedBeforeAnyRequest) {
+    EXPECT_TRUE(is_remote_location("s3://b/k.tsr"));
+    EXPECT_TRUE(is_remote_location("https://h/p.tsr"));
+    EXPECT_FALSE(is_remote_location("ftp://h/p.tsr"));
+    EXPECT_FALSE(is_remote_location("/srv/p.tsr"));
+    for (const char* bad : {"s3://bucket", "s3://bucket/", "s3:///key", "http://", "http://user@host/x.tsr", "http://host:port/x.tsr",
+                            "http://[::1/x.tsr"}) {
+        auto r = open_remote_source(bad);
+        ASSERT_FALSE(r.ok()) << bad;
+        EXPECT_EQ(r.error().code, Errc::invalid_argument) << bad << ": " << r.error().message;
+    }
+}
+
+TEST(RemoteSource, AnUnreachableOriginFailsAfterItsRetries) {
+    RemoteOptions o;
+    o.attempts = 3;
+    o.backoff = std::chrono::milliseconds(5);
+    o.timeout = std::chrono::milliseconds(2000);
+    const auto before = remote_counters().retries.load();
+    // Port 1 on loopback: connection refused at once.
+    auto r = open_remote_source("http://127.0.0.1:1/store.tsr", o);
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, Errc::io_error);
+    EXPECT_NE(r.error().message.find("127.0.0.1:1"), std::string::npos) << r.error().message;
+    EXPECT_NE(r.error().message.find("after 3 tries"), std::string::npos) << r.error().message;
+    EXPECT_EQ(remote_counters().retries.load() - before, 2u);
+}

@@ -1,0 +1,301 @@
+#!/usr/bin/env python3
+"""Stores in object storage and behind plain HTTP: tessera-server serves s3://BUCKET/KEY.tsr from an
+S3 implementation (s3rver, from npm: path-style addressing, access keys, ranges, ETags, If-Match;
+it does not check V4 signatures, so remote_source_test checks the signer against AWS's published
+example) and http://HOST/PATH.tsr from nginx, tile for tile as it serves the same file from disk;
+a replaced object is served as a new version after a rescan, never mixed with the old one; an
+unknown access key and a missing object are clear errors at start; the remote counters move."""
+import argparse
+import datetime
+import http.server
+import threading
+import hashlib
+import hmac
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+
+KEY = SECRET = "S3RVER"  # s3rver's built-in credentials
+
+
+def fail(msg):
+    print("FAIL: " + msg, flush=True)
+    sys.exit(1)
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def sigv4_put(endpoint, bucket, key, body):
+    """PUT an object with AWS Signature V4 (what any S3 client does), independent of Tessera's signer."""
+    host = endpoint.split("//", 1)[1]
+    now = datetime.datetime.now(datetime.timezone.utc)
+    amz, date = now.strftime("%Y%m%dT%H%M%SZ"), now.strftime("%Y%m%d")
+    payload = hashlib.sha256(body).hexdigest()
+    path = f"/{bucket}/{key}"
+    headers = {"host": host, "x-amz-content-sha256": payload, "x-amz-date": amz}
+    canonical = "\n".join(["PUT", path, "", "".join(f"{k}:{headers[k]}\n" for k in sorted(headers)),
+                           ";".join(sorted(headers)), payload])
+    scope = f"{date}/us-east-1/s3/aws4_request"
+    to_sign = "\n".join(["AWS4-HMAC-SHA256", amz, scope, hashlib.sha256(canonical.encode()).hexdigest()])
+    k = hmac.new(("AWS4" + SECRET).encode(), date.encode(), hashlib.sha256).digest()
+    for part in ("us-east-1", "s3", "aws4_request"):
+        k = hmac.new(k, part.encode(), hashlib.sha256).digest()
+    sig = hmac.new(k, to_sign.encode(), hashlib.sha256).hexdigest()
+    req = urllib.request.Request(endpoint + path, data=body, method="PUT")
+    for h, v in headers.items():
+        if h != "host":
+            req.add_header(h, v)
+    req.add_header("Authorization", f"AWS4-HMAC-SHA256 Credential={KEY}/{scope}, SignedHeaders={';'.join(sorted(headers))}, Signature={sig}")
+    with urllib.request.urlopen(req, timeout=30) as r:
+        if r.status != 200:
+            fail(f"PUT {path}: {r.status}")
+
+
+def serve(binary, stores, env=None, expect_fail=False):
+    args = [binary, "serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0", "--watch-interval", "0", "--log-format", "json"]
+    for s in stores:
+        args += ["--store", s]
+    p = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, env=env)
+    lines = []
+    for line in p.stderr:
+        lines.append(line)
+        m = re.search(r'"msg":"listening","grpc":"[^"]*","http":"127\.0\.0\.1:(\d+)"', line)
+        if m:
+            if expect_fail:
+                stop(p)
+                fail("serve started although it should not have")
+            return p, int(m.group(1))
+    rc = p.wait()
+    if expect_fail:
+        return rc, "".join(lines)
+    fail(f"serve exited {rc}:\n{''.join(lines)}")
+
+
+def stop(p):
+    p.send_signal(signal.SIGTERM)
+    p.wait(timeout=60)
+
+
+def get(port, path):
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=30) as r:
+            return r.status, dict(r.headers), r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, dict(e.headers), e.read()
+
+
+def tiles_of(port, store, keys):
+    return {k: get(port, f"/v1/stores/{store}/tiles/{k[0]}/{k[1]}/{k[2]}")[2] for k in keys}
+
+
+def metric(port, name):
+    body = get(port, "/metrics")[2].decode()
+    m = re.search(rf"^{name}(?:{{[^}}]*}})? ([0-9.e+]+)$", body, re.M)
+    return float(m.group(1)) if m else None
+
+
+class FlakyOrigin(http.server.BaseHTTPRequestHandler):
+    """Serves one file with ranges and an ETag, but answers 503 to the first two tries of each request."""
+    data = b""
+    tries = {}
+    lock = threading.Lock()
+
+    def log_message(self, *args):
+        pass
+
+    def answer(self, body):
+        key = (self.command, self.headers.get("Range"))
+        with self.lock:
+            n = self.tries[key] = self.tries.get(key, 0) + 1
+        if n <= 2:
+            self.send_response(503)
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+            return
+        rng = self.headers.get("Range")
+        status, part = 200, self.data
+        if rng:
+            a, b = rng.split("=")[1].split("-")
+            part, status = self.data[int(a):int(b) + 1], 206
+        self.send_response(status)
+        self.send_header("ETag", '"v1"')
+        self.send_header("Content-Length", str(len(part) if status == 206 else len(self.data)))
+        if status == 206:
+            self.send_header("Content-Range", f"bytes {a}-{b}/{len(self.data)}")
+        self.end_headers()
+        if body:
+            self.wfile.write(part)
+
+    def do_HEAD(self):
+        self.answer(False)
+
+    def do_GET(self):
+        self.answer(True)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--tessera", required=True)
+    ap.add_argument("--server", required=True)
+    ap.add_argument("--s3rver", required=True)
+    a = ap.parse_args()
+    for tool in (a.s3rver, shutil.which("nginx") or "/usr/sbin/nginx"):
+        if not os.path.exists(tool):
+            fail(f"{tool} is missing (tools/setup.sh installs it)")
+
+    with tempfile.TemporaryDirectory() as d:
+        one, two = os.path.join(d, "one.tsr"), os.path.join(d, "two.tsr")
+        subprocess.run([a.tessera, "build", "-q", "procedural:terrain:1200", "-o", one, "--tile-size", "128"], check=True)
+        subprocess.run([a.tessera, "build", "-q", "procedural:terrain:1000", "-o", two, "--tile-size", "128", "--quality", "60"],
+                       check=True)
+        keys = [(0, x, y) for x in range(0, 10, 3) for y in range(0, 10, 4)] + [(2, 1, 1), (4, 0, 0), (3, 0, 0)]
+
+        # The reference: the same file from disk.
+        p, port = serve(a.server, [one])
+        want = tiles_of(port, "one", keys)
+        want_info = json.loads(get(port, "/v1/stores/one")[2])
+        stop(p)
+        p, port = serve(a.server, [two])
+        want_two = tiles_of(port, "two", [(0, 0, 0), (0, 7, 7), (3, 0, 0)])
+        stop(p)
+
+        # --- S3 (s3rver, signatures checked) ---
+        s3dir = os.path.join(d, "s3")
+        os.makedirs(s3dir)
+        s3port = free_port()
+        s3 = subprocess.Popen([a.s3rver, "-d", s3dir, "-a", "127.0.0.1", "-p", str(s3port), "--configure-bucket", "tiles", "-s"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            endpoint = f"http://127.0.0.1:{s3port}"
+            for _ in range(200):
+                try:
+                    socket.create_connection(("127.0.0.1", s3port), timeout=1).close()
+                    break
+                except OSError:
+                    time.sleep(0.05)
+            sigv4_put(endpoint, "tiles", "maps/terrain.tsr", open(one, "rb").read())
+            env = dict(os.environ, AWS_ACCESS_KEY_ID=KEY, AWS_SECRET_ACCESS_KEY=SECRET, AWS_ENDPOINT_URL=endpoint,
+                       AWS_REGION="us-east-1")
+            p, port = serve(a.server, ["s3://tiles/maps/terrain.tsr"], env)
+            try:
+                info = json.loads(get(port, "/v1/stores/terrain")[2])
+                if info.get("width") != want_info["width"] or info.get("levels") != want_info["levels"]:
+                    fail(f"store info over S3: {info}")
+                got = tiles_of(port, "terrain", keys)
+                bad = [k for k in keys if got[k] != want[k]]
+                if bad:
+                    fail(f"tiles over S3 differ from the file's: {bad}")
+                requests, read = metric(port, "tessera_remote_requests"), metric(port, "tessera_remote_read_bytes")
+                print(f"S3: {len(keys)} tiles as from disk; {requests:.0f} requests, {read:.0f} bytes read")
+                if not requests or not read:
+                    fail("remote counters did not move")
+
+                # Replace the object: the next rescan opens the new version; tiles are the new store's.
+                status, headers, _ = get(port, "/v1/stores/terrain/tiles/0/0/0")
+                old_version = headers.get("ETag")
+                sigv4_put(endpoint, "tiles", "maps/terrain.tsr", open(two, "rb").read())
+                p.send_signal(signal.SIGHUP)
+                for _ in range(100):
+                    time.sleep(0.1)
+                    status, headers, body = get(port, "/v1/stores/terrain/tiles/0/0/0")
+                    if headers.get("ETag") != old_version:
+                        break
+                if body != want_two[(0, 0, 0)]:
+                    fail(f"after replacing the object: status {status}, the tile is not the new store's")
+                for k, v in want_two.items():
+                    if get(port, f"/v1/stores/terrain/tiles/{k[0]}/{k[1]}/{k[2]}")[2] != v:
+                        fail(f"tile {k} after the replacement is not the new store's")
+                print("S3: the replaced object is served as a new version after SIGHUP")
+            finally:
+                stop(p)
+
+            # Clear errors at start: an unknown access key, a missing object.
+            rc, log = serve(a.server, ["s3://tiles/maps/terrain.tsr"], dict(env, AWS_ACCESS_KEY_ID="NOSUCHKEY"), expect_fail=True)
+            if rc == 0 or "access denied" not in log:
+                fail(f"an unknown access key: exit {rc}, log {log[-400:]}")
+            rc, log = serve(a.server, ["s3://tiles/maps/none.tsr"], env, expect_fail=True)
+            if rc == 0 or "no such object" not in log:
+                fail(f"a missing object: exit {rc}, log {log[-400:]}")
+            print("S3: an unknown access key and a missing object fail at start with a message")
+        finally:
+            s3.terminate()
+            s3.wait()
+
+        # --- plain HTTP range requests (nginx) ---
+        www = os.path.join(d, "www")
+        os.makedirs(www)
+        shutil.copy(one, os.path.join(www, "terrain.tsr"))
+        for path, mode in ((d, 0o755), (www, 0o755), (os.path.join(www, "terrain.tsr"), 0o644)):
+            os.chmod(path, mode)  # nginx's workers drop root
+        nport = free_port()
+        conf = os.path.join(d, "nginx.conf")
+        with open(conf, "w") as f:
+            f.write(f"""daemon off; pid {d}/nginx.pid; error_log {d}/nginx-error.log;
+events {{ worker_connections 64; }}
+http {{ access_log {d}/nginx-access.log; client_body_temp_path {d}/body; proxy_temp_path {d}/proxy;
+  fastcgi_temp_path {d}/fcgi; uwsgi_temp_path {d}/uwsgi; scgi_temp_path {d}/scgi;
+  server {{ listen 127.0.0.1:{nport}; root {www}; }} }}
+""")
+        nginx = subprocess.Popen([shutil.which("nginx") or "/usr/sbin/nginx", "-c", conf, "-p", d],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            for _ in range(200):
+                try:
+                    socket.create_connection(("127.0.0.1", nport), timeout=1).close()
+                    break
+                except OSError:
+                    time.sleep(0.05)
+            p, port = serve(a.server, [f"http://127.0.0.1:{nport}/terrain.tsr"])
+            try:
+                got = tiles_of(port, "terrain", keys)
+                bad = [k for k in keys if got[k] != want[k]]
+                if bad:
+                    fail(f"tiles over HTTP differ from the file's: {bad}")
+                ranges = sum(1 for line in open(os.path.join(d, "nginx-access.log")) if '" 206 ' in line)
+                print(f"nginx: {len(keys)} tiles as from disk, {ranges} range requests answered 206")
+                if ranges == 0:
+                    fail("nginx answered no range request")
+            finally:
+                stop(p)
+        finally:
+            nginx.terminate()
+            nginx.wait()
+
+        # --- an origin that fails twice before each answer: retried with backoff, served intact ---
+        FlakyOrigin.data = open(one, "rb").read()
+        origin = http.server.ThreadingHTTPServer(("127.0.0.1", 0), FlakyOrigin)
+        threading.Thread(target=origin.serve_forever, daemon=True).start()
+        try:
+            p, port = serve(a.server, [f"http://127.0.0.1:{origin.server_address[1]}/flaky.tsr"])
+            try:
+                got = tiles_of(port, "flaky", keys[:5])
+                bad = [k for k in keys[:5] if got[k] != want[k]]
+                if bad:
+                    fail(f"tiles from the flaky origin differ: {bad}")
+                retries, requests = metric(port, "tessera_remote_retries"), metric(port, "tessera_remote_requests")
+                distinct = len(FlakyOrigin.tries)
+                print(f"flaky origin: 5 tiles intact; {requests:.0f} requests of which {retries:.0f} retries for {distinct} distinct requests")
+                if retries < 2 * distinct:
+                    fail(f"expected at least {2 * distinct} retries, counted {retries}")
+            finally:
+                stop(p)
+        finally:
+            origin.shutdown()
+    print("PASS")
+
+
+if __name__ == "__main__":
+    main()
