@@ -48,6 +48,7 @@
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
+#include "server_process.hpp"
 #include "test_util.hpp"
 #include "tile_cache.hpp"
 #include "tile_fetcher.hpp"
@@ -304,23 +305,8 @@ protected:
         return std::string(t->bytes.begin(), t->bytes.end());
     }
 
-    // Generates a self-signed P-256 certificate for localhost with the openssl CLI. A failure is
-    // the test's failure, with openssl's own output: tools/setup.sh installs openssl.
     ::testing::AssertionResult make_certificate(std::string& cert, std::string& key) {
-        cert = dir_.file("cert.pem");
-        key = dir_.file("key.pem");
-        const std::string out = dir_.file("openssl.out");
-        const std::string cmd = "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes "
-                                "-subj /CN=localhost -addext subjectAltName=DNS:localhost,IP:127.0.0.1 -days 1 "
-                                "-keyout " + key + " -out " + cert + " >" + out + " 2>&1";
-        const int rc = std::system(cmd.c_str());
-        if (rc == 0) return ::testing::AssertionSuccess();
-        std::ifstream in(out);
-        std::stringstream said;
-        said << in.rdbuf();
-        return ::testing::AssertionFailure()
-               << "cannot make a TLS test certificate with the openssl CLI (tools/setup.sh installs openssl): `"
-               << cmd << "` failed (std::system returned " << rc << "): " << said.str();
+        return tessera::test::make_test_certificate(dir_, cert, key);
     }
 
     // A client TLS context that trusts exactly the certificate made above.

@@ -174,3 +174,49 @@ TEST(Loadtest, BadFlags) {
     r = run_tessera("loadtest --store terrain");
     EXPECT_EQ(r.exit_code, 2) << r.out;
 }
+
+// A secured deployment can be load-tested: TLS (grpcs:// or --tls with --tls-ca) and a bearer
+// token (--token or --token-file); a wrong token, or plain text to a TLS server, is a clear error.
+TEST(Loadtest, TlsAndTokenServer) {
+    ScratchDir dir;
+    std::string cert, key;
+    ASSERT_TRUE(tessera::test::make_test_certificate(dir, cert, key));
+    {
+        std::ofstream t(dir.file("token"));
+        t << "  l0ad-t3st-token \n";
+    }
+    auto& s = Server::get();
+    ServerProcess srv({"--store", s.file("terrain.tsr"), "--tls-cert", cert, "--tls-key", key, "--auth-token-file", dir.file("token")},
+                      dir.file("server.log"), "127.0.0.1:0", false);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const std::string port = srv.grpc_address().substr(srv.grpc_address().rfind(':') + 1);
+    const std::string json = dir.file("r.json");
+    auto r = run_tessera("loadtest --server grpcs://localhost:" + port + " --tls-ca " + cert + " --token-file " + dir.file("token") +
+                         " --store terrain --viewers 2 --duration 1 --warmup 0.5 --quiet --json " + json);
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    const auto j = load(json);
+    ASSERT_EQ(j["runs"].size(), 1u);
+    EXPECT_GT(j["runs"][0]["tiles"].get<std::uint64_t>(), 0u) << j.dump();
+    EXPECT_EQ(j["runs"][0]["failed"].get<std::uint64_t>(), 0u);
+    // The token inline, TLS by flag.
+    r = run_tessera("loadtest --server localhost:" + port + " --tls --tls-ca " + cert + " --token l0ad-t3st-token --store terrain "
+                    "--viewers 1 --duration 0.5 --warmup 0 --quiet");
+    EXPECT_EQ(r.exit_code, 0) << r.out;
+    // A wrong token: refused before any viewer starts, and says why.
+    r = run_tessera("loadtest --server grpcs://localhost:" + port + " --tls-ca " + cert + " --token wrong --store terrain --duration 0.5");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_NE(r.out.find("UNAUTHENTICATED"), std::string::npos) << r.out;
+    // No TLS to a TLS-only server: an error that suggests it.
+    r = run_tessera("loadtest --server localhost:" + port + " --token l0ad-t3st-token --store terrain --duration 0.5 --connect-timeout 2");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_NE(r.out.find("--tls"), std::string::npos) << r.out;
+    // Both a token and a token file, or an empty token file: flag errors.
+    {
+        std::ofstream e(dir.file("empty"));
+    }
+    r = run_tessera("loadtest --server grpcs://localhost:" + port + " --token a --token-file " + dir.file("token") + " --store terrain");
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    r = run_tessera("loadtest --server grpcs://localhost:" + port + " --token-file " + dir.file("empty") + " --store terrain");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_NE(r.out.find("empty"), std::string::npos) << r.out;
+}

@@ -107,22 +107,6 @@ std::vector<Req> level_keys(const std::string& path, std::uint32_t level, float 
     return out;
 }
 
-// A self-signed P-256 certificate for localhost, made with the openssl CLI. A failure is the
-// test's failure, with openssl's own output: tools/setup.sh installs openssl.
-::testing::AssertionResult make_certificate(const ScratchDir& dir, std::string& cert, std::string& key) {
-    cert = dir.file("cert.pem");
-    key = dir.file("key.pem");
-    const std::string out = dir.file("openssl.out");
-    const std::string cmd = "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -subj /CN=localhost "
-                            "-addext subjectAltName=DNS:localhost -days 1 -keyout " + key + " -out " + cert + " >" + out +
-                            " 2>&1";
-    const int rc = std::system(cmd.c_str());
-    if (rc == 0) return ::testing::AssertionSuccess();
-    return ::testing::AssertionFailure()
-           << "cannot make a TLS test certificate with the openssl CLI (tools/setup.sh installs openssl): `" << cmd
-           << "` failed (std::system returned " << rc << "): " << tessera::test::slurp(out);
-}
-
 // A channel that trusts exactly that certificate.
 std::shared_ptr<grpc::Channel> tls_channel(const std::string& address, const std::string& cert) {
     grpc::SslCredentialsOptions ssl;
@@ -1171,7 +1155,7 @@ TEST_F(ServerGrpc, SigtermDrainsAdmittedRequests) {
 
 TEST_F(ServerGrpc, TlsServesOnlyTls) {
     std::string cert, key;
-    ASSERT_TRUE(make_certificate(dir, cert, key));
+    ASSERT_TRUE(tessera::test::make_test_certificate(dir, cert, key));
     ServerProcess srv({"--store", Stores::small(), "--tls-cert", cert, "--tls-key", key}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
     auto stub = v1::TileService::NewStub(tls_channel(srv.grpc_address(), cert));
@@ -1189,7 +1173,7 @@ TEST_F(ServerGrpc, TlsRepliesOver16KiBCarryExactBytes) {
     // and JPEG tiles, several to a message, over TLS. Each tile's bytes and checksum must be the
     // stored payload's.
     std::string cert, key;
-    ASSERT_TRUE(make_certificate(dir, cert, key));
+    ASSERT_TRUE(tessera::test::make_test_certificate(dir, cert, key));
     ServerProcess srv({"--store", Stores::jpeg(), "--store", Stores::raw(), "--tls-cert", cert, "--tls-key", key},
                       dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();

@@ -2,6 +2,7 @@
 // Integration-test helpers: a real `tessera serve` process on loopback (ephemeral ports, logs
 // to a file), a minimal HTTP/1.1 client over a socket, and process memory readings.
 #include <arpa/inet.h>
+#include <gtest/gtest.h>
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <signal.h>
@@ -30,6 +31,21 @@ inline std::string slurp(const std::string& path) {
     std::stringstream ss;
     ss << in.rdbuf();
     return ss.str();
+}
+
+// A self-signed P-256 certificate for localhost (and 127.0.0.1) in `dir`, made with the openssl
+// CLI. A failure is the test's failure, with openssl's own output: tools/setup.sh installs openssl.
+inline ::testing::AssertionResult make_test_certificate(const ScratchDir& dir, std::string& cert, std::string& key) {
+    cert = dir.file("cert.pem");
+    key = dir.file("key.pem");
+    const std::string out = dir.file("openssl.out");
+    const std::string cmd = "openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes "
+                            "-subj /CN=localhost -addext subjectAltName=DNS:localhost,IP:127.0.0.1 -days 1 "
+                            "-keyout " + key + " -out " + cert + " >" + out + " 2>&1";
+    const int rc = std::system(cmd.c_str());
+    if (rc == 0) return ::testing::AssertionSuccess();
+    return ::testing::AssertionFailure() << "cannot make a TLS test certificate with the openssl CLI (tools/setup.sh installs openssl): `"
+                                         << cmd << "` failed (std::system returned " << rc << "): " << slurp(out);
 }
 
 // `tessera serve ARGS --grpc 127.0.0.1:0 --http 127.0.0.1:0`, started in the constructor,

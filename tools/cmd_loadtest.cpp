@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "commands.hpp"
+#include "server_credentials.hpp"
 #include "svg_plot.hpp"
 #include "tessera/client/emulated_source.hpp"
 #include "tessera/client/fakes/uploaders.hpp"
@@ -60,9 +61,22 @@ struct Options {
     double latency_ms = 0, jitter_ms = 0, bandwidth_mbit = 0;
     unsigned threads = 0;
     double connect_timeout = 5;
+    std::string token, token_file, tls_ca;
+    bool tls = false;
     std::string json, plot;
     bool quiet = false;
 };
+
+// How every connection to the server is made: address, timeout, token, TLS roots (o.tls_ca holds
+// the PEM text once the command has read it).
+client::TileStreamOptions stream_options(const Options& o) {
+    client::TileStreamOptions so;
+    so.target = o.server;
+    so.connect_timeout = std::chrono::milliseconds(static_cast<long>(o.connect_timeout * 1000));
+    so.auth_token = o.token;
+    if (o.tls) so.tls_root_certs_pem = o.tls_ca;
+    return so;
+}
 
 // Per-second series, indexed by seconds since the measured window began.
 struct Buckets {
@@ -226,10 +240,8 @@ public:
             std::mt19937_64 rng(o_.seed * 0x9E3779B97F4A7C15ull + i);
             v->phase = std::chrono::duration_cast<Clock::duration>(
                 std::uniform_real_distribution<double>(0, 1)(rng) * std::chrono::duration<double>(period));
-            client::TileStreamOptions so;
-            so.target = o_.server;
+            client::TileStreamOptions so = stream_options(o_);
             so.seed = o_.seed * 1000003 + i + 1;
-            so.connect_timeout = std::chrono::milliseconds(static_cast<long>(o_.connect_timeout * 1000));
             std::unique_ptr<client::TileSource> src = client::make_grpc_source(so);
             if (o_.latency_ms > 0 || o_.jitter_ms > 0 || o_.bandwidth_mbit > 0) {
                 client::EmulatedLink link;
@@ -522,7 +534,11 @@ void write_plot(const Options& o, const std::vector<RunResult>& runs, const std:
 Command add_loadtest(CLI::App& app) {
     auto o = std::make_shared<Options>();
     CLI::App* c = app.add_subcommand("loadtest", "Simulated viewers (no GL) against a Tessera server: tile latency, throughput, fallback");
-    c->add_option("--server", o->server, "the server's gRPC address, HOST:PORT")->required();
+    c->add_option("--server", o->server, "the server's gRPC address, HOST:PORT (grpcs://HOST:PORT: TLS)")->required();
+    c->add_option("--token", o->token, "bearer token for the server");
+    c->add_option("--token-file", o->token_file, "read the bearer token from this file (first line)");
+    c->add_flag("--tls", o->tls, "TLS to the server (as grpcs://)");
+    c->add_option("--tls-ca", o->tls_ca, "PEM roots to verify the server (default: the system's; implies --tls)");
     c->add_option("--store", o->store, "store name on the server")->required();
     c->add_option("--viewers", o->viewers, "simulated viewers; a list (1,16,64) runs each in turn")
         ->delimiter(',')
@@ -553,13 +569,26 @@ Command add_loadtest(CLI::App& app) {
     c->add_flag("-q,--quiet", o->quiet, "no progress lines");
     return [o]() -> int {
         if (o->path.empty() && o->trace.empty()) o->path = "flyover";
-        // Reach the server first: a clear error instead of N viewers timing out.
-        client::TileStreamOptions so;
-        so.target = o->server;
-        so.connect_timeout = std::chrono::milliseconds(static_cast<long>(o->connect_timeout * 1000));
+        // Credentials once (a bad file fails here), then reach the server first: a clear error
+        // instead of N viewers timing out.
+        if (o->server.rfind("grpcs://", 0) == 0) {
+            o->server = o->server.substr(8);
+            o->tls = true;
+        } else if (o->server.rfind("grpc://", 0) == 0) {
+            o->server = o->server.substr(7);
+        }
+        if (!o->tls_ca.empty()) o->tls = true;
+        o->token = bearer_token(o->token, o->token_file);
+        o->token_file.clear();
+        if (o->tls) o->tls_ca = tls_roots_pem(o->tls_ca);  // from here on: the PEM text
+        client::TileStreamOptions so = stream_options(*o);
         auto probe = client::TileStreamClient::create(so);
         auto meta = probe->get_store(o->store, so.connect_timeout);
-        if (!meta) throw Failure(fmt::format("--server {} --store {}: {}", o->server, o->store, meta.error().message));
+        if (!meta) {
+            const bool maybe_tls = !o->tls && meta.error().message.find("UNAVAILABLE") != std::string::npos;
+            throw Failure(fmt::format("--server {} --store {}: {}{}", o->server, o->store, meta.error().message,
+                                      maybe_tls ? " (if the server is TLS-only, use grpcs://HOST:PORT or --tls)" : ""));
+        }
         probe.reset();
         auto geometry_source = client::make_grpc_source(so);
         auto info = geometry_source->bind(0, o->store);

@@ -21,6 +21,7 @@
 #include "height_layer.hpp"
 #include "png_write.hpp"
 #include "progress.hpp"
+#include "server_credentials.hpp"
 #include "svg_plot.hpp"
 #include "tessera/client/emulated_source.hpp"
 #include "tessera/client/feedback_trace.hpp"
@@ -74,14 +75,6 @@ StoreLocation parse_store(const std::string& spec) {
     if (loc.address.find(':') == std::string::npos)
         throw Failure(fmt::format("--store '{}': the server address needs a port (HOST:PORT/NAME)", spec));
     return loc;
-}
-
-std::string read_file(const std::string& path) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw Failure(fmt::format("cannot read '{}'", path));
-    std::ostringstream s;
-    s << in.rdbuf();
-    return s.str();
 }
 
 // Free-flying camera for the windowed viewer: WASD move, Q/E down/up, left-drag looks, scroll
@@ -274,10 +267,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         client::TileStreamOptions so;
         so.target = loc.address;
         so.auth_token = o.auth_token;
-        if (loc.tls) {
-            so.tls_root_certs_pem = o.tls_ca_file.empty() ? std::string() : read_file(o.tls_ca_file);
-            if (so.tls_root_certs_pem.empty()) so.tls_root_certs_pem = read_file("/etc/ssl/certs/ca-certificates.crt");
-        }
+        if (loc.tls) so.tls_root_certs_pem = tls_roots_pem(o.tls_ca_file);
         source = client::make_grpc_source(so);
         store_name = loc.name;
     } else {
