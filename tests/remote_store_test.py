@@ -108,10 +108,13 @@ def metric(port, name):
 
 
 class FlakyOrigin(http.server.BaseHTTPRequestHandler):
-    """Serves one file with ranges and an ETag, but answers 503 to the first two tries of each request."""
+    """Serves one file with ranges and an ETag, but answers 503 to the first two tries of each
+    request (fail_first), and waits `delay` seconds before each range (a far origin)."""
     data = b""
     tries = {}
     lock = threading.Lock()
+    fail_first = 2
+    delay = 0.0
 
     def log_message(self, *args):
         pass
@@ -120,13 +123,15 @@ class FlakyOrigin(http.server.BaseHTTPRequestHandler):
         key = (self.command, self.headers.get("Range"))
         with self.lock:
             n = self.tries[key] = self.tries.get(key, 0) + 1
-        if n <= 2:
+        if n <= self.fail_first:
             self.send_response(503)
             self.send_header("Content-Length", "0")
             self.end_headers()
             return
         rng = self.headers.get("Range")
         status, part = 200, self.data
+        if rng and self.delay:
+            time.sleep(self.delay)
         if rng:
             a, b = rng.split("=")[1].split("-")
             part, status = self.data[int(a):int(b) + 1], 206
@@ -290,6 +295,46 @@ http {{ access_log {d}/nginx-access.log; client_body_temp_path {d}/body; proxy_t
                 print(f"flaky origin: 5 tiles intact; {requests:.0f} requests of which {retries:.0f} retries for {distinct} distinct requests")
                 if retries < 2 * distinct:
                     fail(f"expected at least {2 * distinct} retries, counted {retries}")
+            finally:
+                stop(p)
+        finally:
+            origin.shutdown()
+
+        # --- 16 clients missing the same tiles at once, from a far origin: one read per tile ---
+        FlakyOrigin.fail_first, FlakyOrigin.delay, FlakyOrigin.tries = 0, 0.2, {}
+        origin = http.server.ThreadingHTTPServer(("127.0.0.1", 0), FlakyOrigin)
+        threading.Thread(target=origin.serve_forever, daemon=True).start()
+        try:
+            p, port = serve(a.server, [f"http://127.0.0.1:{origin.server_address[1]}/far.tsr"])
+            try:
+                wanted = [(0, x, y) for x in range(5) for y in range(4)]
+                barrier = threading.Barrier(16)
+                errors = []
+
+                def client():
+                    for k in wanted:
+                        barrier.wait()
+                        if get(port, f"/v1/stores/far/tiles/{k[0]}/{k[1]}/{k[2]}")[2] != want.get(k, None) and k in want:
+                            errors.append(k)
+
+                threads = [threading.Thread(target=client) for _ in range(16)]
+                t0 = time.time()
+                for t in threads:
+                    t.start()
+                for t in threads:
+                    t.join()
+                elapsed = time.time() - t0
+                read = metric(port, "tessera_store_tiles_read_total")
+                saved = metric(port, "tessera_store_reads_saved_total")
+                hits = metric(port, "tessera_cache_hits_total")
+                print(f"coalescing: 16 clients x {len(wanted)} tiles from a 200 ms origin in {elapsed:.1f} s: "
+                      f"{read:.0f} tiles read, {saved:.0f} joined a read in flight, {hits:.0f} cache hits")
+                if errors:
+                    fail(f"wrong tiles: {errors[:5]}")
+                if read != len(wanted):
+                    fail(f"{read:.0f} store reads for {len(wanted)} distinct tiles")
+                if saved + hits != 16 * len(wanted) - len(wanted):
+                    fail(f"joined + hits = {saved + hits:.0f}, expected {15 * len(wanted)}")
             finally:
                 stop(p)
         finally:

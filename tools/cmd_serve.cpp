@@ -138,8 +138,8 @@ Command add_serve(CLI::App& app) {
                   "Require \"authorization: Bearer <token>\" with the token in this file (not /healthz, /readyz)");
     s->add_option("--cache-size", a->cache_bytes, "RAM tile cache budget, e.g. 256MiB (0: off)")
         ->transform(CLI::AsSizeValue(false))->default_str("256MiB");
-    s->add_option("--io-threads", c.io_threads, "Tile reader threads (0: all cores)")->capture_default_str();
-    s->add_option("--http-threads", c.http_threads, "HTTP event-loop threads (0: all cores)")->capture_default_str();
+    s->add_option("--io-threads", c.io_threads, "Tile reader threads (0: all cores; at least 16 with a remote store)")->capture_default_str();
+    s->add_option("--http-threads", c.http_threads, "HTTP event-loop threads (0: all cores; at least 16 with a remote store)")->capture_default_str();
     s->add_option("--max-viewers", c.max_viewers, "Concurrent StreamTiles calls; beyond: RESOURCE_EXHAUSTED")
         ->capture_default_str();
     s->add_option("--max-batch", c.max_batch, "Requests in one batch; a larger batch is refused whole")

@@ -3,6 +3,7 @@
 // server, and the watch thread that rescans the stores.
 #include <grpcpp/grpcpp.h>
 
+#include <algorithm>
 #include <condition_variable>
 #include <fstream>
 #include <sstream>
@@ -30,6 +31,22 @@ RemoteStores remote_stores(const ServerConfig& config) {
     o.max_concurrency = std::max(1u, config.remote_concurrency);
     return RemoteStores{[o](const std::string& location) { return storage::open_remote_source(location, o); },
                         [o](const std::string& location) { return storage::remote_version(location, o); }};
+}
+
+// Remote reads wait on the network, not the CPU: with a remote store, readers and HTTP loops left
+// at "all cores" become at least kRemoteThreads, so a 50 ms round trip does not cap the server at
+// cores / 50 ms reads. (HTTP loops read tiles themselves; docs/server.md, "Remote stores".)
+constexpr unsigned kRemoteThreads = 16;
+ServerConfig effective(ServerConfig c) {
+    const bool remote = std::any_of(c.store_files.begin(), c.store_files.end(), [](const std::string& s) {
+        return s.starts_with("s3://") || s.starts_with("http://") || s.starts_with("https://");
+    });
+    if (remote) {
+        const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+        if (c.io_threads == 0) c.io_threads = std::max(cores, kRemoteThreads);
+        if (c.http_threads == 0) c.http_threads = std::max(cores, kRemoteThreads);
+    }
+    return c;
 }
 
 Result<std::string> read_text_file(const std::string& path, const char* what) {
@@ -75,7 +92,7 @@ Status validate(const ServerConfig& c) {
 class ServerImpl final : public Server {
 public:
     explicit ServerImpl(const ServerConfig& config)
-        : config_(config),
+        : config_(effective(config)),
           log_(config.log_json ? LogFormat::json : LogFormat::text, config.log_debug ? LogLevel::debug : config.log_quiet ? LogLevel::warn : LogLevel::info),
           stores_(config.store_files, config.store_dirs, log_, metrics_, remote_stores(config)),
           cache_(config.cache_bytes),
