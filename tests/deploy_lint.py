@@ -901,8 +901,14 @@ def check_kubernetes(rep: Report, ctx: Context) -> None:
         rep.check(sel and all(labels.get(k) == v for k, v in sel.items()),
                   f"{where}: selector matches the pod labels",
                   f"{where}: spec.selector.matchLabels {sel} does not match template labels {labels}")
-        rep.check(int(spec.get("replicas", 1)) >= 2, f"{where}: replicas {spec.get('replicas', 1)}",
-                  f"{where}: replicas {spec.get('replicas', 1)}, expected at least 2")
+        hpas = [h for _, h in kinds("HorizontalPodAutoscaler")
+                if ((h.get("spec") or {}).get("scaleTargetRef") or {}).get("name") == d["metadata"]["name"]]
+        if hpas:  # the autoscaler owns the replica count; a fixed one would be reset by every apply
+            rep.check("replicas" not in spec, f"{where}: no fixed replicas (the HorizontalPodAutoscaler sets them)",
+                      f"{where}: spec.replicas {spec.get('replicas')} fights the HorizontalPodAutoscaler: leave it out")
+        else:
+            rep.check(int(spec.get("replicas", 1)) >= 2, f"{where}: replicas {spec.get('replicas', 1)}",
+                      f"{where}: replicas {spec.get('replicas', 1)}, expected at least 2")
         ann = (tmpl.get("metadata") or {}).get("annotations") or {}
         rep.check(ann.get("prometheus.io/scrape") == "true" and str(ann.get("prometheus.io/port")) == str(HTTP_PORT)
                   and ann.get("prometheus.io/path", "/metrics") == "/metrics",
@@ -983,6 +989,15 @@ def check_kubernetes(rep: Report, ctx: Context) -> None:
     services = kinds("Service")
     if not services:
         rep.fail("no Service")
+    # gRPC through a headless Service (every pod's address, for the clients' round robin), HTTP
+    # through a ClusterIP one (kube-proxy spreads its short requests).
+    headless = [w for w, s in services if (s.get("spec") or {}).get("clusterIP") == "None"
+                and any(p.get("name") == "grpc" for p in (s.get("spec") or {}).get("ports") or [])]
+    rep.check(bool(headless), f"headless Service for gRPC: {headless}",
+              "no headless Service (clusterIP: None) with a grpc port: clients cannot balance over the pods")
+    cluster = [w for w, s in services if (s.get("spec") or {}).get("clusterIP") != "None"
+               and any(p.get("name") == "http" for p in (s.get("spec") or {}).get("ports") or [])]
+    rep.check(bool(cluster), f"ClusterIP Service for HTTP: {cluster}", "no ClusterIP Service with an http port")
     for where, s in services:
         spec = s.get("spec") or {}
         sel = spec.get("selector") or {}
@@ -990,10 +1005,11 @@ def check_kubernetes(rep: Report, ctx: Context) -> None:
                   f"{where}: selector matches the Deployment's pods",
                   f"{where}: selector {sel} matches no Deployment pod labels")
         ports = {p.get("name"): p for p in spec.get("ports") or []}
+        if not ports:
+            rep.fail(f"{where}: no ports")
         for name, port, proto in (("grpc", GRPC_PORT, "grpc"), ("http", HTTP_PORT, None)):
             p = ports.get(name)
             if p is None:
-                rep.fail(f"{where}: no port named {name}")
                 continue
             target = p.get("targetPort", p.get("port"))
             resolved = container_ports.get(target) if isinstance(target, str) else target
@@ -1004,6 +1020,24 @@ def check_kubernetes(rep: Report, ctx: Context) -> None:
             if proto:
                 rep.check(p.get("appProtocol") == proto, f"{where}: port {name} appProtocol {proto}",
                           f"{where}: port {name} should have appProtocol: {proto}")
+    for where, h in kinds("HorizontalPodAutoscaler"):
+        spec = h.get("spec") or {}
+        ref = spec.get("scaleTargetRef") or {}
+        names = [d["metadata"]["name"] for _, d in deployments]
+        rep.check(h.get("apiVersion") == "autoscaling/v2" and ref.get("kind") == "Deployment" and ref.get("name") in names,
+                  f"{where}: scales Deployment {ref.get('name')} (autoscaling/v2)",
+                  f"{where}: scaleTargetRef {ref} is not one of the Deployments {names} (autoscaling/v2)")
+        lo, hi = spec.get("minReplicas", 1), spec.get("maxReplicas", 0)
+        rep.check(isinstance(lo, int) and isinstance(hi, int) and 2 <= lo <= hi, f"{where}: {lo} to {hi} replicas",
+                  f"{where}: minReplicas {lo} / maxReplicas {hi}: expected 2 <= min <= max")
+        metrics = spec.get("metrics") or []
+        cpu = [m for m in metrics if ((m.get("resource") or {}).get("name")) == "cpu"]
+        rep.check(bool(cpu), f"{where}: scales on CPU", f"{where}: no cpu resource metric")
+        for _, d in deployments:
+            for c in (((d.get("spec") or {}).get("template") or {}).get("spec") or {}).get("containers") or []:
+                req = ((c.get("resources") or {}).get("requests") or {})
+                rep.check("cpu" in req, f"{where}: container {c.get('name')} requests cpu (utilization needs it)",
+                          f"{where}: container {c.get('name')} has no cpu request: CPU utilization is undefined")
     for where, k in kinds("Kustomization"):
         listed = [str(r) for r in k.get("resources") or []]
         missing = [r for r in listed if not (kdir / r).exists()]

@@ -534,7 +534,8 @@ void write_plot(const Options& o, const std::vector<RunResult>& runs, const std:
 Command add_loadtest(CLI::App& app) {
     auto o = std::make_shared<Options>();
     CLI::App* c = app.add_subcommand("loadtest", "Simulated viewers (no GL) against a Tessera server: tile latency, throughput, fallback");
-    c->add_option("--server", o->server, "the server's gRPC address, HOST:PORT (grpcs://HOST:PORT: TLS)")->required();
+    c->add_option("--server", o->server, "the server's gRPC address, HOST:PORT (grpcs://HOST:PORT: TLS); several replicas as IP:PORT,IP:PORT or "
+                                         "dns:///NAME:PORT (every address of NAME), streams spread round robin")->required();
     c->add_option("--token", o->token, "bearer token for the server");
     c->add_option("--token-file", o->token_file, "read the bearer token from this file (first line)");
     c->add_flag("--tls", o->tls, "TLS to the server (as grpcs://)");

@@ -17,7 +17,8 @@ Command add_view(CLI::App& app) {
     auto quiet = std::make_shared<bool>(false);
     o->headless = false;
     CLI::App* c = app.add_subcommand("view", "View a store: windowed (mouse and keyboard camera) or headless");
-    c->add_option("--store", o->store, "FILE.tsr, or a server store: grpc://HOST:PORT/NAME (grpcs:// for TLS)")->required();
+    c->add_option("--store", o->store, "FILE.tsr, or a server store: grpc://HOST:PORT/NAME (grpcs:// for TLS; replicas: IP:PORT,IP:PORT,... or a name "
+                                         "with several addresses)")->required();
     c->add_option("--scene", o->scene, "terrain, or an atlas OBJ written by `tessera build --atlas --obj-out`")
         ->capture_default_str();
     c->add_option("--displacement", o->displacement,

@@ -167,6 +167,19 @@ BatchAckInfo decode(v1::BatchAck& a) {
 
 }  // namespace
 
+namespace {
+
+// "a:1,b:2" (IP addresses) -> "ipv4:a:1,b:2" (or ipv6:), gRPC's syntax for a fixed list; anything
+// else (host:port, a target with a scheme) as it is.
+std::string grpc_target(const std::string& target) {
+    if (target.find(',') == std::string::npos || target.find(':') == std::string::npos || target.find("://") != std::string::npos ||
+        target.starts_with("ipv4:") || target.starts_with("ipv6:"))
+        return target;
+    return (target.front() == '[' ? "ipv6:" : "ipv4:") + target;
+}
+
+}  // namespace
+
 class TileStreamClient::Impl {
 public:
     explicit Impl(TileStreamOptions options) : opts_(std::move(options)) {
@@ -185,6 +198,9 @@ public:
         args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, clamp_ms(opts_.backoff_max));
         // One connection per client (a load tester's simulated viewers must not share one).
         args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+        // Several servers (a list, or a name with several addresses): each new stream goes to the
+        // next ready one, so a stream cut by a dead server resumes on a live one.
+        args.SetLoadBalancingPolicyName("round_robin");
         std::shared_ptr<grpc::ChannelCredentials> creds;
         if (!opts_.tls_root_certs_pem.empty()) {
             grpc::SslCredentialsOptions ssl;
@@ -194,7 +210,7 @@ public:
         } else {
             creds = grpc::InsecureChannelCredentials();
         }
-        channel_ = grpc::CreateCustomChannel(opts_.target, creds, args);
+        channel_ = grpc::CreateCustomChannel(grpc_target(opts_.target), creds, args);
         stub_ = v1::TileService::NewStub(channel_);
         session_ = std::thread([this] { run_session(); });
     }

@@ -22,7 +22,11 @@ class ServerStats;  // tessera.proto's message: include "tessera.pb.h" to use se
 namespace tessera::client {
 
 struct TileStreamOptions {
-    std::string target;              // host:port
+    // host:port; several servers as a list "10.0.0.1:50051,10.0.0.2:50051" (IP addresses), or
+    // any gRPC target ("dns:///tiles.example:50051", whose every address is a server). Streams
+    // are spread over the servers (round robin) and a stream whose server dies reconnects to
+    // another, re-sending its wanted set.
+    std::string target;
     std::string auth_token;          // sent as "authorization: Bearer <token>" when non-empty
     std::string tls_root_certs_pem;  // non-empty: TLS, verifying the server against these roots
     std::string tls_server_name;     // override for the TLS name check (tests: "localhost")

@@ -1,0 +1,130 @@
+#!/usr/bin/env python3
+"""Several replicas: a headless viewer on the flyover (240 frames at 60 Hz, paced) streams from
+three servers given as one list; the server it streams from is killed with SIGKILL mid-run. The
+viewer finishes with exit 0 and no failed tiles, its stream resumes on another server within 1 s,
+and fallback over the run stays <= 1%. Then the same with a single server killed and restarted on
+its port. Prints the figures docs/benchmarks.md quotes."""
+import argparse
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+
+LISTEN = re.compile(r'"msg":"listening","grpc":"127\.0\.0\.1:(\d+)","http":"127\.0\.0\.1:(\d+)"')
+
+
+def fail(msg):
+    print("FAIL: " + msg, flush=True)
+    sys.exit(1)
+
+
+def start_server(binary, store, grpc="127.0.0.1:0"):
+    p = subprocess.Popen([binary, "serve", "--store", store, "--grpc", grpc, "--http", "127.0.0.1:0", "--watch-interval", "0"],
+                         stderr=subprocess.PIPE, text=True)
+    for line in p.stderr:
+        m = LISTEN.search(line)
+        if m:
+            return p, int(m.group(1)), int(m.group(2))
+    fail(f"server exited {p.wait()} before listening")
+
+
+def tiles_sent(http_port):
+    try:
+        body = urllib.request.urlopen(f"http://127.0.0.1:{http_port}/metrics", timeout=2).read().decode()
+    except OSError:
+        return -1
+    m = re.search(r"^tessera_tiles_sent_total(?:\{[^}]*\})? ([0-9.e+]+)", body, re.M)
+    return float(m.group(1)) if m else 0
+
+
+def view(tessera, target, stats, outage_at, action):
+    """Runs the viewer; `action()` at `outage_at` seconds into the run. Returns (rc, output, summary)."""
+    v = subprocess.Popen([tessera, "view", "--store", f"grpc://{target}/terrain", "--headless", "--size", "320x180", "--frames", "240",
+                          "--fps", "60", "--pace", "--path", "flyover", "--stats", stats],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    time.sleep(outage_at)
+    action()
+    out, _ = v.communicate(timeout=300)
+    fb = re.search(r"^fallback\s+([0-9.]+)%", out, re.M)
+    unserved = re.search(r"^server\s+([0-9.]+) s unserved", out, re.M)
+    if not fb or not unserved:
+        fail(f"viewer summary lacks fallback or server lines:\n{out}")
+    with open(stats) as f:
+        frames = json.load(f)
+    return v.returncode, out, float(fb.group(1)), float(unserved.group(1)), frames
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--tessera", required=True)
+    ap.add_argument("--server", required=True)
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        store = os.path.join(d, "terrain.tsr")
+        subprocess.run([a.tessera, "build", "-q", "procedural:terrain:8192", "-o", store], check=True)
+
+        # Three replicas behind one list; kill the one serving the viewer.
+        servers = [start_server(a.server, store) for _ in range(3)]
+        target = ",".join(f"127.0.0.1:{g}" for _, g, _ in servers)
+        killed = {}
+
+        def kill_busiest():
+            sent = [tiles_sent(h) for _, _, h in servers]
+            i = max(range(3), key=lambda k: sent[k])
+            killed.update(index=i, sent=sent)
+            servers[i][0].send_signal(signal.SIGKILL)
+
+        try:
+            rc, out, fallback, unserved, frames = view(a.tessera, target, os.path.join(d, "a.json"), 1.5, kill_busiest)
+            after = [tiles_sent(h) for _, _, h in servers]
+        finally:
+            for p, _, _ in servers:
+                if p.poll() is None:
+                    p.terminate()
+                p.wait()
+        print(f"replicas: killed server {killed['index']} (tiles sent before {killed['sent']}, after {after}); viewer exit {rc}, "
+              f"fallback {fallback:.4f}%, {unserved:.2f} s unserved")
+        if rc != 0:
+            fail(f"the viewer exited {rc}:\n{out}")
+        if sum(x for i, x in enumerate(after) if i != killed["index"] and x > 0) <= sum(
+                x for i, x in enumerate(killed["sent"]) if i != killed["index"] and x > 0):
+            fail("no other server sent tiles after the kill")
+        if unserved > 1.0:
+            fail(f"{unserved} s without a server (bound 1 s)")
+        if fallback > 1.0:
+            fail(f"fallback {fallback}% over the run (bound 1%)")
+
+        # One server, killed and restarted on its port.
+        p, grpc, _ = start_server(a.server, store)
+        restarted = {}
+
+        def restart():
+            p.send_signal(signal.SIGKILL)
+            p.wait()
+            time.sleep(0.3)
+            restarted["server"] = start_server(a.server, store, f"127.0.0.1:{grpc}")
+
+        try:
+            rc, out, fallback, unserved, frames = view(a.tessera, f"127.0.0.1:{grpc}", os.path.join(d, "b.json"), 1.5, restart)
+        finally:
+            for q in (p, restarted.get("server", (None,))[0]):
+                if q and q.poll() is None:
+                    q.terminate()
+                    q.wait()
+        print(f"restart: viewer exit {rc}, fallback {fallback:.4f}%, {unserved:.2f} s unserved (0.3 s with no server listening)")
+        if rc != 0:
+            fail(f"the viewer exited {rc}:\n{out}")
+        if unserved > 1.3:
+            fail(f"{unserved} s without a server (bound 1 s after the restart)")
+        if fallback > 1.0:
+            fail(f"fallback {fallback}% over the run (bound 1%)")
+    print("PASS")
+
+
+if __name__ == "__main__":
+    main()
