@@ -87,9 +87,17 @@ double heading(const std::function<Vec3d(double)>& pos, double t) {
 // Unwraps `yaw` to within pi of `previous`, so consecutive keys never take the long way round.
 double unwrap(double yaw, double previous) { return previous + std::remainder(yaw - previous, 2 * kPi); }
 
+// A finite scene (an OBJ site or object, not the endless-looking terrain) ends at its box: a path
+// that looks along its way or at the horizon from inside the box sees mostly what lies beyond. So
+// over a finite scene the paths look down more steeply and towards the centre.
+struct Framing {
+    bool finite = false;
+};
+
 // flyover: low over the ground (2% of the scene's size above its top), weaving along three tenths
-// of a turn around the centre, looking ahead and a little around, for 20 seconds.
-std::vector<Keyframe> flyover(const Box& b) {
+// of a turn around the centre, looking ahead and a little around, for 20 seconds. Over a finite
+// scene it looks 45 degrees inwards of its way and 45 degrees down.
+std::vector<Keyframe> flyover(const Box& b, Framing framing) {
     const double T = 20.0, S = b.size();
     auto pos = [&b, S, T](double t) -> Vec3d {
         const double theta = -0.6 * kPi + (t / T) * 0.6 * kPi;
@@ -102,9 +110,10 @@ std::vector<Keyframe> flyover(const Box& b) {
         [&](double t) {
             Keyframe k;
             k.position = pos(t);
-            k.yaw = unwrap(heading(pos, t) + 0.35 * std::sin(2 * kPi * 1.3 * t / T), prev);
+            const double inward = framing.finite ? 0.25 * kPi : 0.0;  // the centre lies a quarter turn to the left
+            k.yaw = unwrap(heading(pos, t) + inward + 0.35 * std::sin(2 * kPi * 1.3 * t / T), prev);
             prev = k.yaw;
-            k.pitch = -0.3 + 0.08 * std::sin(2 * kPi * 0.9 * t / T);
+            k.pitch = (framing.finite ? -0.8 : -0.3) + 0.08 * std::sin(2 * kPi * 0.9 * t / T);
             return k;
         },
         T, 0.5);
@@ -116,9 +125,11 @@ std::vector<Keyframe> flyover(const Box& b) {
 // units above the ground (the height falls exponentially, so every level of the texture is the
 // wanted one for a while), tilting from straight down to 35 degrees below the horizon; 27 s of
 // descent, then 3 s of orbit at the bottom.
-std::vector<Keyframe> dive(const Box& b, double fov_y) {
+std::vector<Keyframe> dive(const Box& b, double fov_y, Framing framing) {
     const double Td = 27.0, T = 30.0, S = b.size();
-    const double top = 16.0 * (0.5 * S) / std::tan(fov_y / 2.0);  // above the ground
+    // Above the ground; over a finite scene from where it fills the view instead (its few levels
+    // are all wanted on the way down anyway).
+    const double top = (framing.finite ? 0.5 : 16.0) * (0.5 * S) / std::tan(fov_y / 2.0);
     const double bottom = std::min(4.0, 0.002 * S);
     const double ratio = bottom / top;
     auto keys = sample(
@@ -141,7 +152,7 @@ std::vector<Keyframe> dive(const Box& b, double fov_y) {
 
 // whip: low (1% of the size above the top), drifting across the centre, turning 180 degrees in a
 // quarter of a second every 1.5 s, always the same way: the view swaps wholesale (cache stress).
-std::vector<Keyframe> whip(const Box& b) {
+std::vector<Keyframe> whip(const Box& b, Framing framing) {
     const double T = 12.0, S = b.size(), hold = 1.25, turn = 0.25;
     auto pos = [&b, S, T](double t) -> Vec3d {
         return {b.cx() + b.wx() * (-0.15 + 0.3 * t / T), b.cy() + b.wy() * 0.05 * std::sin(2 * kPi * t / T), b.z1 + 0.01 * S};
@@ -153,7 +164,7 @@ std::vector<Keyframe> whip(const Box& b) {
         k.time = t;
         k.position = pos(t);
         k.yaw = yaw;
-        k.pitch = -20.0 * kDeg;
+        k.pitch = (framing.finite ? -45.0 : -20.0) * kDeg;
         keys.push_back(k);
     };
     double t = 0;
@@ -176,9 +187,11 @@ std::vector<Keyframe> whip(const Box& b) {
 // walk: eye height (1.7 units, or 35% of the scene's height if that is more) above the scene's
 // floor, an ellipse around the centre (30% of the extent, at most 40 eye heights), looking about;
 // 40 seconds.
-std::vector<Keyframe> walk(const Box& b) {
+std::vector<Keyframe> walk(const Box& b, Framing framing) {
     const double T = 40.0;
-    const double eye = std::max(1.7, 0.35 * (b.z1 - b.z0));
+    // 1.7 units (or 35% of the height), but at most a tenth of the scene's size: a model a few
+    // units across is walked at its own scale.
+    const double eye = std::min(std::max(1.7, 0.35 * (b.z1 - b.z0)), 0.1 * b.size());
     const double rx = std::min(0.3 * b.wx(), 40.0 * eye), ry = std::min(0.3 * b.wy(), 40.0 * eye);
     auto pos = [&b, eye, rx, ry, T](double t) -> Vec3d {
         const double theta = -0.5 * kPi + 2 * kPi * t / T;
@@ -191,7 +204,7 @@ std::vector<Keyframe> walk(const Box& b) {
             k.position = pos(t);
             k.yaw = unwrap(heading(pos, t) + 0.35 * std::sin(2 * kPi * t / 9.0), prev);
             prev = k.yaw;
-            k.pitch = -0.08 + 0.05 * std::sin(2 * kPi * t / 13.0);
+            k.pitch = (framing.finite ? -0.32 : -0.08) + 0.05 * std::sin(2 * kPi * t / 13.0);
             return k;
         },
         T, 0.5);
@@ -202,9 +215,12 @@ std::vector<Keyframe> walk(const Box& b) {
 // view) and moves in to 40% of that distance and back out twice per turn, so both the whole scene
 // and its detail are seen. The default for OBJ scenes (a site, a building, a room seen from outside).
 std::vector<Keyframe> orbit(const Box& b, double fov_y) {
-    const double T = 30.0, elevation = 30.0 * kDeg;
+    const double T = 30.0, elevation = 35.0 * kDeg;
     const Vec3d c{b.cx(), b.cy(), 0.5 * (b.z0 + b.z1)};
-    const double framed = std::max(0.5 * b.diagonal() / std::sin(0.5 * fov_y), 1e-3);
+    // Where the box's larger side spans a 16:9 view's width (its corners may leave the frame; a
+    // flat site then fills most of it).
+    const double half_width_fov = std::atan(std::tan(0.5 * fov_y) * 16.0 / 9.0);
+    const double framed = std::max(0.5 * std::max(b.size(), b.z1 - b.z0) / std::tan(half_width_fov) + 0.5 * (b.z1 - b.z0), 1e-3);
     return sample(
         [&](double t) {
             const double d = framed * (0.7 + 0.3 * std::cos(2 * kPi * 2.0 * t / T));
@@ -328,10 +344,11 @@ Result<CameraPath> CameraPath::builtin(const std::string& name, const Scene& sce
     std::vector<Keyframe> keys;
     // auto: the terrain's flyover; around any other scene (a finite site or object), the orbit.
     const std::string chosen = name != "auto" ? name : scene.name == "terrain" ? "flyover" : "orbit";
-    if (chosen == "flyover") keys = flyover(b);
-    else if (chosen == "dive") keys = dive(b, fov);
-    else if (chosen == "whip") keys = whip(b);
-    else if (chosen == "walk") keys = walk(b);
+    const Framing framing{scene.name != "terrain"};
+    if (chosen == "flyover") keys = flyover(b, framing);
+    else if (chosen == "dive") keys = dive(b, fov, framing);
+    else if (chosen == "whip") keys = whip(b, framing);
+    else if (chosen == "walk") keys = walk(b, framing);
     else if (chosen == "orbit") keys = orbit(b, fov);
     else return make_error(Errc::invalid_argument, "unknown camera path '" + name + "' (built-ins: auto, flyover, dive, whip, walk, orbit)");
     auto p = from_keyframes(std::move(keys), fov);
