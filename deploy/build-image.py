@@ -97,6 +97,24 @@ def write_rootfs(binary, rootfs, packages, mirror):
         f.write(f"root:x:0:0:root:/root:/usr/sbin/nologin\ntessera:x:{UID}:{GID}:Tessera:/nonexistent:/usr/sbin/nologin\n")
     with open(os.path.join(rootfs, "etc/group"), "w") as f:
         f.write(f"root:x:0:\ntessera:x:{GID}:\n")
+    # The CA bundle: --variant=extract runs no maintainer scripts, so ca-certificates' postinst
+    # (update-ca-certificates) never made /etc/ssl/certs/ca-certificates.crt. Made here from its
+    # certificates, and OpenSSL's default locations (/usr/lib/ssl) pointed at it.
+    certs = []
+    for dirpath, _, filenames in sorted(os.walk(os.path.join(rootfs, "usr/share/ca-certificates"))):
+        certs += [os.path.join(dirpath, f) for f in sorted(filenames) if f.endswith(".crt")]
+    if not certs:
+        die("ca-certificates brought no certificates")
+    os.makedirs(os.path.join(rootfs, "etc/ssl/certs"), exist_ok=True)
+    with open(os.path.join(rootfs, "etc/ssl/certs/ca-certificates.crt"), "w") as bundle:
+        for c in certs:
+            text = open(c).read()
+            bundle.write(text if text.endswith("\n") else text + "\n")
+    os.makedirs(os.path.join(rootfs, "usr/lib/ssl"), exist_ok=True)
+    for link, target in (("usr/lib/ssl/certs", "/etc/ssl/certs"), ("usr/lib/ssl/cert.pem", "/etc/ssl/certs/ca-certificates.crt")):
+        path = os.path.join(rootfs, link)
+        if not os.path.lexists(path):
+            os.symlink(target, path)
     # Nothing may be missing: every library resolves inside the root filesystem.
     for d in ("var/cache/apt", "var/lib/apt/lists"):
         shutil.rmtree(os.path.join(rootfs, d), ignore_errors=True)

@@ -394,6 +394,33 @@ TEST_F(AtlasBuild, RepeatingTexturesAreCutAtTheirRepeats) {
     }
     EXPECT_GT(compared, 1500u);
 
+    // Watertight: every edge of the floor's pieces inside the quad is shared by two pieces with
+    // the same two corners (a crack or a T-junction would leave an interior edge used once).
+    {
+        std::map<std::pair<int, int>, int> edges;
+        const auto& at = packed.GetAttrib();
+        for (const auto& sh : packed.GetShapes()) {
+            if (sh.name != "floor") continue;
+            const auto& ix = sh.mesh.indices;
+            for (std::size_t f = 0; f + 2 < ix.size(); f += 3)
+                for (int k = 0; k < 3; ++k) {
+                    const int a = ix[f + k].vertex_index, b = ix[f + (k + 1) % 3].vertex_index;
+                    ++edges[{std::min(a, b), std::max(a, b)}];
+                }
+        }
+        auto on_rim = [&](int v) {
+            const double x = at.vertices[3 * std::size_t(v)], z = at.vertices[3 * std::size_t(v) + 2];
+            return std::abs(x) < 1e-6 || std::abs(x - 4) < 1e-6 || std::abs(z) < 1e-6 || std::abs(z + 4) < 1e-6;
+        };
+        std::size_t interior_once = 0;
+        for (const auto& [e, n] : edges) {
+            EXPECT_LE(n, 2) << "edge used by " << n << " pieces";
+            if (n == 1 && !(on_rim(e.first) && on_rim(e.second))) ++interior_once;
+        }
+        EXPECT_EQ(interior_once, 0u) << "cracks or T-junctions inside the floor";
+        EXPECT_GT(edges.size(), 40u);
+    }
+
     // The padding wraps: left of the image, its right columns; above it, its bottom rows.
     std::uint32_t left = info.width, top = info.height;  // the image's top-left texel: the smallest packed texel
     for (const auto& sh : packed.GetShapes())

@@ -95,6 +95,13 @@ def main():
     print(f"image built in {time.time() - t0:.1f} s")
     rootfs = os.path.join(a.out, "rootfs")
     check_archive(os.path.join(a.out, "tessera-server-oci.tar"))
+    # HTTPS and S3 stores verify against the system's roots: the bundle OpenSSL looks for is there.
+    bundle = os.path.join(rootfs, "etc/ssl/certs/ca-certificates.crt")
+    n = open(bundle).read().count("BEGIN CERTIFICATE") if os.path.exists(bundle) else 0
+    cert_pem = os.path.join(rootfs, "usr/lib/ssl/cert.pem")
+    if n < 100 or not os.path.islink(cert_pem) or os.readlink(cert_pem) != "/etc/ssl/certs/ca-certificates.crt":
+        fail(f"the image's CA bundle has {n} certificates, or OpenSSL's cert.pem does not point at it")
+    print(f"CA bundle: {n} certificates, /usr/lib/ssl/cert.pem -> /etc/ssl/certs/ca-certificates.crt")
 
     with tempfile.TemporaryDirectory() as d:
         stores = os.path.join(d, "stores")

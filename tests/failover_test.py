@@ -47,9 +47,14 @@ def view(tessera, target, stats, outage_at, action):
     v = subprocess.Popen([tessera, "view", "--store", f"grpc://{target}/terrain", "--headless", "--size", "320x180", "--frames", "240",
                           "--fps", "60", "--pace", "--path", "flyover", "--stats", stats],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    time.sleep(outage_at)
-    action()
-    out, _ = v.communicate(timeout=300)
+    try:
+        time.sleep(outage_at)
+        action()
+        out, _ = v.communicate(timeout=300)
+    finally:
+        if v.poll() is None:
+            v.kill()
+            v.wait()
     fb = re.search(r"^fallback\s+([0-9.]+)%", out, re.M)
     unserved = re.search(r"^server\s+([0-9.]+) s unserved", out, re.M)
     if not fb or not unserved:

@@ -85,6 +85,11 @@ void StoreRegistry::scan_remote(const std::string& name, const std::string& loca
     }
     if (prev && prev->path == location && !prev->stale.load()) {
         auto v = remote_.version(location);
+        if (!v && v.error().code == Errc::not_found) {  // deleted: dropped, as a vanished file
+            ++report.removed;
+            log_.info("store removed", {{"store", name}, {"path", location}});
+            return;
+        }
         if (!v) {
             if (!first) log_.warn("remote store unreachable; serving the version already open", {{"store", name}, {"error", v.error().message}});
             next.push_back(prev);

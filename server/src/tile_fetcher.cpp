@@ -115,6 +115,14 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
                 joined.emplace_back(miss_index[j], it->second);
                 continue;
             }
+            // A read that finished between the cache lookup above and here has filled the cache
+            // (a leader puts before it leaves the table): no second read.
+            if (auto hit = cache_.get(CacheKey{store.version, misses[j]})) {
+                flights_.erase(it);
+                out[miss_index[j]].tile = std::move(hit);
+                reads_saved_->inc();
+                continue;
+            }
             it->second = std::make_shared<Flight>();
             led.push_back(it->second);
             lead_keys.push_back(misses[j]);
@@ -124,8 +132,7 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
     // Answer every led flight and take it out of the table; on any exit, an exception included,
     // so that no joiner waits forever.
     bool published = false;
-    auto publish = [&](bool read_done) {
-        published = true;
+    auto publish = [&](bool read_done) noexcept {
         {
             std::lock_guard lock(flights_mutex_);
             for (const TileKey& k : lead_keys) flights_.erase(CacheKey{store.version, k});
@@ -133,11 +140,17 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
         for (std::size_t j = 0; j < led.size(); ++j) {
             {
                 std::lock_guard lock(led[j]->m);
-                led[j]->result = read_done ? out[lead_index[j]] : error_tile(TileStatus::internal, "the tile read failed");
+                // A copy that cannot be made (no memory) still answers: the joiner must not wait forever.
+                try {
+                    led[j]->result = read_done ? out[lead_index[j]] : error_tile(TileStatus::internal, "the tile read failed");
+                } catch (...) {
+                    led[j]->result.status = TileStatus::internal;
+                }
                 led[j]->done = true;
             }
             led[j]->cv.notify_all();
         }
+        published = true;
     };
     struct OnExit {
         std::function<void()> fn;

@@ -42,12 +42,18 @@ struct ClipVertex {
     double n[3] = {0, 0, 0};
     double uv[2] = {0, 0};
     int v = -1, vn = -1;  // indices of an original corner's position and normal (-1: made by clipping)
+    // The original triangle edge (corners e0, e1 of it, 0..2) this point lies on; e0 == e1: it is
+    // that corner; -1: inside the triangle, on a cut.
+    int e0 = -1, e1 = -1;
 };
 
-// The part of `poly` with coordinate `axis` of uv >= bound (keep_above) or <= bound. The two ends
-// of an edge are put in a fixed order before interpolating, so the triangles on both sides of a
-// shared edge make bit-identical new corners there (no cracks).
-std::vector<ClipVertex> clip(const std::vector<ClipVertex>& poly, int axis, double bound, bool keep_above) {
+// The part of `poly` with coordinate `axis` of uv >= bound (keep_above) or <= bound. A point where
+// a cut crosses an original edge is always interpolated between that edge's two original corners,
+// put in a fixed order, whatever piece of the edge is being clipped: the pieces on both sides of a
+// cut, and the triangles on both sides of a shared edge, make bit-identical corners there (no
+// cracks). A corner exactly on the bound is kept and makes no second point.
+std::vector<ClipVertex> clip(const std::vector<ClipVertex>& poly, const ClipVertex (&corners)[3], int axis, double bound,
+                             bool keep_above) {
     std::vector<ClipVertex> out;
     auto inside = [&](const ClipVertex& c) { return keep_above ? c.uv[axis] >= bound : c.uv[axis] <= bound; };
     for (std::size_t i = 0; i < poly.size(); ++i) {
@@ -55,10 +61,21 @@ std::vector<ClipVertex> clip(const std::vector<ClipVertex>& poly, int axis, doub
         const ClipVertex& b = poly[(i + 1) % poly.size()];
         const bool ia = inside(a), ib = inside(b);
         if (ia) out.push_back(a);
-        if (ia == ib) continue;
-        const bool a_first = std::tie(a.uv[0], a.uv[1], a.p[0], a.p[1], a.p[2]) < std::tie(b.uv[0], b.uv[1], b.p[0], b.p[1], b.p[2]);
-        const ClipVertex& e0 = a_first ? a : b;
-        const ClipVertex& e1 = a_first ? b : a;
+        if (ia == ib || a.uv[axis] == bound || b.uv[axis] == bound) continue;
+        // The original edge holding both ends, if any: then cut it, not the piece.
+        int edge[2] = {-1, -1};
+        if (a.e0 >= 0 && b.e0 >= 0) {
+            const int ends[4] = {a.e0, a.e1, b.e0, b.e1};
+            int distinct[4], n = 0;
+            for (int e : ends)
+                if (std::find(distinct, distinct + n, e) == distinct + n) distinct[n++] = e;
+            if (n == 2) edge[0] = distinct[0], edge[1] = distinct[1];
+        }
+        const ClipVertex& s0 = edge[0] >= 0 ? corners[edge[0]] : a;
+        const ClipVertex& s1 = edge[0] >= 0 ? corners[edge[1]] : b;
+        const bool a_first = std::tie(s0.uv[0], s0.uv[1], s0.p[0], s0.p[1], s0.p[2]) < std::tie(s1.uv[0], s1.uv[1], s1.p[0], s1.p[1], s1.p[2]);
+        const ClipVertex& e0 = a_first ? s0 : s1;
+        const ClipVertex& e1 = a_first ? s1 : s0;
         const double t = (bound - e0.uv[axis]) / (e1.uv[axis] - e0.uv[axis]);
         ClipVertex m;
         for (int k = 0; k < 3; ++k) {
@@ -67,6 +84,8 @@ std::vector<ClipVertex> clip(const std::vector<ClipVertex>& poly, int axis, doub
         }
         for (int k = 0; k < 2; ++k) m.uv[k] = e0.uv[k] + t * (e1.uv[k] - e0.uv[k]);
         m.uv[axis] = bound;  // exactly on the repeat boundary
+        m.e0 = edge[0];
+        m.e1 = edge[1];
         out.push_back(m);
     }
     return out;
@@ -231,6 +250,7 @@ Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path, UpAxis up
                 double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
                 for (int c = 0; c < 3; ++c) {
                     ClipVertex& cv = poly[static_cast<std::size_t>(c)];
+                    cv.e0 = cv.e1 = c;
                     cv.v = idx[c].vertex_index;
                     cv.vn = idx[c].normal_index;
                     for (int d = 0; d < 3; ++d) cv.p[d] = attrib.vertices[3 * static_cast<std::size_t>(cv.v) + d];
@@ -246,6 +266,16 @@ Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path, UpAxis up
                     return make_error(Errc::invalid_argument, "material '" + material_name(material) + "' (shape '" + s.name +
                                                                   "'): a texture coordinate is not a finite number");
                 // Repeats the triangle touches on each axis: [first, last] (slack: 1.0000001 is 1).
+                // Spans and magnitudes are checked as doubles first: no overflow, no undefined cast.
+                for (int axis = 0; axis < 2; ++axis)
+                    if (!(hi[axis] - lo[axis] <= double(kMaxPiecesPerTriangle)) || std::abs(lo[axis]) > 1e12 || std::abs(hi[axis]) > 1e12) {
+                        char range[160];
+                        std::snprintf(range, sizeof range, "u from %.6g to %.6g, v from %.6g to %.6g", lo[0], hi[0], lo[1], hi[1]);
+                        return make_error(Errc::unsupported, "material '" + material_name(material) + "' (shape '" + s.name +
+                                                                 "'): texture repeats too often across one triangle (" + range +
+                                                                 "); at most " + std::to_string(kMaxPiecesPerTriangle) + " pieces per triangle");
+                    }
+                const ClipVertex original[3] = {poly[0], poly[1], poly[2]};
                 std::int64_t first[2], last[2];
                 for (int axis = 0; axis < 2; ++axis) {
                     first[axis] = static_cast<std::int64_t>(std::floor(lo[axis] + kRepeatSlack));
@@ -263,13 +293,13 @@ Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path, UpAxis up
                 }
                 for (std::int64_t ru = first[0]; ru <= last[0]; ++ru) {
                     std::vector<ClipVertex> column = poly;
-                    if (ru > first[0]) column = clip(column, 0, double(ru), true);
-                    if (ru < last[0]) column = clip(column, 0, double(ru + 1), false);
+                    if (ru > first[0]) column = clip(column, original, 0, double(ru), true);
+                    if (ru < last[0]) column = clip(column, original, 0, double(ru + 1), false);
                     if (column.size() < 3) continue;
                     for (std::int64_t rv = first[1]; rv <= last[1]; ++rv) {
                         std::vector<ClipVertex> piece = column;
-                        if (rv > first[1]) piece = clip(piece, 1, double(rv), true);
-                        if (rv < last[1]) piece = clip(piece, 1, double(rv + 1), false);
+                        if (rv > first[1]) piece = clip(piece, original, 1, double(rv), true);
+                        if (rv < last[1]) piece = clip(piece, original, 1, double(rv + 1), false);
                         if (piece.size() < 3) continue;
                         // Corners made by clipping become new positions (and normals) of the OBJ.
                         std::vector<Corner> corners(piece.size());
@@ -287,6 +317,9 @@ Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path, UpAxis up
                             out.t = std::clamp(cv.uv[1] - double(rv), 0.0, 1.0);
                         }
                         for (std::size_t c = 1; c + 1 < corners.size(); ++c) {
+                            // A fan triangle of no area in space (two of its corners one point) is left out.
+                            if (corners[c].v == corners[0].v || corners[c + 1].v == corners[0].v || corners[c].v == corners[c + 1].v)
+                                continue;
                             Triangle piece_tri;
                             piece_tri.image = image;
                             piece_tri.c[0] = corners[0];
@@ -295,6 +328,9 @@ Result<ObjAtlasInput> ObjAtlasInput::load(const std::string& obj_path, UpAxis up
                             shape.triangles.push_back(piece_tri);
                         }
                         if (pieces > 1) ++impl->cut_pieces;
+                        if (impl->triangles + shape.triangles.size() > kMaxTriangles)
+                            return make_error(Errc::unsupported, "OBJ '" + obj_path + "': more than " + std::to_string(kMaxTriangles) +
+                                                                     " triangles once repeating textures are cut at their repeats");
                     }
                 }
                 if (impl->triangles + shape.triangles.size() > kMaxTriangles)

@@ -173,7 +173,7 @@ public:
             return make_error(Errc::io_error, location_ + ": HEAD gave no Content-Length");
         }
         std::string version = r->header("etag");
-        if (version.empty()) version = "size " + length + ", modified " + r->header("last-modified");
+        if (version.empty()) version = "modified " + r->header("last-modified");
         return std::make_pair(size, version);
     }
 
@@ -193,8 +193,13 @@ public:
         if (offset > size_ || length > size_ - offset) return make_error(Errc::corrupt, location_ + ": read past the end of the object");
         std::vector<std::pair<std::string, std::string>> extra{
             {"range", "bytes=" + std::to_string(offset) + "-" + std::to_string(offset + length - 1)}};
-        if (version_.front() == '"' || version_.starts_with("W/")) extra.emplace_back("if-match", version_);
-        auto r = send("GET", extra, length + 1);
+        // Pin the version: If-Match with a strong ETag (a weak one never matches, RFC 9110), else
+        // If-Unmodified-Since with the Last-Modified seen at open; the answer's total size is
+        // checked too, so a replaced object's bytes are never taken for the old one's.
+        if (!version_.empty() && version_.front() == '"') extra.emplace_back("if-match", version_);
+        else if (version_.starts_with("modified ") && version_.size() > 9) extra.emplace_back("if-unmodified-since", version_.substr(9));
+        // Error answers carry small bodies (S3's XML): room for them beyond a short range.
+        auto r = send("GET", extra, std::max<std::uint64_t>(length + 1, 64 * 1024));
         if (!r) {
             remote_counters().failures.fetch_add(1, std::memory_order_relaxed);
             return r.error();
@@ -204,6 +209,14 @@ public:
             return make_error(Errc::io_error, location_ + ": the object changed since it was opened (412)");
         }
         if (r->status == 206 && r->body.size() == length) {
+            // Content-Range: bytes A-B/TOTAL; another total is another object.
+            const std::string cr = r->header("content-range");
+            const auto slash = cr.rfind('/');
+            if (slash != std::string::npos && cr.substr(slash + 1) != "*" && cr.substr(slash + 1) != std::to_string(size_)) {
+                changed_.store(true);
+                return make_error(Errc::io_error, location_ + ": the object changed since it was opened (now " + cr.substr(slash + 1) +
+                                                      " bytes, was " + std::to_string(size_) + ")");
+            }
             std::copy(r->body.begin(), r->body.end(), dst);
             return {};
         }
@@ -228,6 +241,7 @@ public:
         }
         auto h = head();
         if (h && (h->second != version_ || h->first != size_)) changed_.store(true);
+        if (!h && h.error().code == Errc::not_found) changed_.store(true);  // deleted
         return changed_.load();
     }
 

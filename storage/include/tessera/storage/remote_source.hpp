@@ -7,9 +7,10 @@
 //   into one read); at most `max_concurrency` requests per store at once.
 // - Failures worth retrying (no connection, a timeout, 5xx, 408, 429) are retried with exponential
 //   backoff and full jitter, `attempts` tries in all.
-// - The object's ETag is its version: every GET carries If-Match, so bytes of a replaced object
-//   are never mixed with the old one's (412 makes changed() true, and the server reopens the store
-//   as a new version).
+// - The object's ETag is its version: every GET carries If-Match (a strong ETag; with a weak one
+//   or none, If-Unmodified-Since with its Last-Modified), and every answer's Content-Range total
+//   must be the object's size, so bytes of a replaced object are never mixed with the old one's
+//   (412 makes changed() true, and the server reopens the store as a new version).
 // - S3: AWS Signature Version 4; credentials from AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY /
 //   AWS_SESSION_TOKEN, else the shared credentials file (AWS_SHARED_CREDENTIALS_FILE or
 //   ~/.aws/credentials, profile AWS_PROFILE or "default"), else anonymous; region AWS_REGION or
@@ -43,7 +44,7 @@ bool is_remote_location(std::string_view location);
 // answer after the retries, or an answer that is not a range of the object).
 Result<std::unique_ptr<ByteSource>> open_remote_source(const std::string& location, const RemoteOptions& options = {});
 
-// The object's current version (its ETag, or size and Last-Modified when it has none), by HEAD.
+// The object's current version (its ETag, or its Last-Modified when it has none), by HEAD.
 Result<std::string> remote_version(const std::string& location, const RemoteOptions& options = {});
 
 // Totals over every remote source of the process, for metrics.
