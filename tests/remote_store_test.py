@@ -27,6 +27,17 @@ import urllib.request
 KEY = SECRET = "S3RVER"  # s3rver's built-in credentials
 
 
+def wait_for_port(port):
+    """Until something listens on 127.0.0.1:port (10 s at most)."""
+    for _ in range(200):
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            time.sleep(0.05)
+    fail(f"nothing listens on port {port}")
+
+
 def fail(msg):
     print("FAIL: " + msg, flush=True)
     sys.exit(1)
@@ -187,12 +198,7 @@ def main():
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             endpoint = f"http://127.0.0.1:{s3port}"
-            for _ in range(200):
-                try:
-                    socket.create_connection(("127.0.0.1", s3port), timeout=1).close()
-                    break
-                except OSError:
-                    time.sleep(0.05)
+            wait_for_port(s3port)
             sigv4_put(endpoint, "tiles", "maps/terrain.tsr", open(one, "rb").read())
             env = dict(os.environ, AWS_ACCESS_KEY_ID=KEY, AWS_SECRET_ACCESS_KEY=SECRET, AWS_ENDPOINT_URL=endpoint,
                        AWS_REGION="us-east-1")
@@ -259,12 +265,7 @@ http {{ access_log {d}/nginx-access.log; client_body_temp_path {d}/body; proxy_t
         nginx = subprocess.Popen([shutil.which("nginx") or "/usr/sbin/nginx", "-c", conf, "-p", d],
                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         try:
-            for _ in range(200):
-                try:
-                    socket.create_connection(("127.0.0.1", nport), timeout=1).close()
-                    break
-                except OSError:
-                    time.sleep(0.05)
+            wait_for_port(nport)
             p, port = serve(a.server, [f"http://127.0.0.1:{nport}/terrain.tsr"])
             try:
                 got = tiles_of(port, "terrain", keys)

@@ -87,39 +87,52 @@ std::vector<std::uint8_t> small_store(const test::ScratchDir& dir) {
     return test::read_file(path);
 }
 
+// A fetcher over the small store read through a gate (closed by the test), with its own log,
+// metrics and cache of `cache_bytes`.
+struct GatedFetcher {
+    explicit GatedFetcher(std::size_t cache_bytes) : cache(cache_bytes) {
+        bytes = small_store(dir);
+        const std::uint64_t payloads = (*storage::StoreReader::open_memory(bytes))->locate({0, 0, 0})->offset;  // the index lies before
+        auto source = std::make_unique<GatedSource>(bytes, payloads);
+        gate = source.get();
+        auto reader = storage::StoreReader::open_source(std::move(source), "gated");
+        EXPECT_TRUE(reader.ok());
+        store.name = "gated";
+        store.reader = *reader;
+        store.version = (*reader)->info().store_id;
+        store.metrics.data_loss = &metrics.counter("test_data_loss_total", "test");
+    }
+    ~GatedFetcher() { ::close(null_fd); }
+    // Waits (up to 10 s) until `n` reads are held at the gate.
+    bool reads_at_gate(int n) {
+        for (auto until = std::chrono::steady_clock::now() + 10s; gate->reads_waiting() < n && std::chrono::steady_clock::now() < until;)
+            std::this_thread::sleep_for(1ms);
+        return gate->reads_waiting() >= n;
+    }
+
+    test::ScratchDir dir;
+    std::vector<std::uint8_t> bytes;
+    GatedSource* gate = nullptr;
+    int null_fd = ::open("/dev/null", O_WRONLY | O_CLOEXEC);
+    Logger log{LogFormat::text, LogLevel::error, null_fd};
+    MetricsRegistry metrics;
+    TileCache cache;
+    TileFetcher fetcher{cache, metrics, log};
+    StoreHandle store;
+};
+
 }  // namespace
 
 TEST(TileFetcher, ConcurrentMissesOfOneTileReadItOnce) {
-    test::ScratchDir dir;
-    auto bytes = small_store(dir);
-    const std::uint64_t data_offset = [&] {
-        auto r = storage::StoreReader::open_memory(bytes);
-        return (*r)->locate({0, 0, 0})->offset;  // payloads start here; the index lies before
-    }();
-    auto gated = std::make_unique<GatedSource>(bytes, data_offset);
-    GatedSource* gate = gated.get();
-    auto reader = storage::StoreReader::open_source(std::move(gated), "gated");
-    ASSERT_TRUE(reader.ok()) << reader.error().message;
-
-    const int null_fd = ::open("/dev/null", O_WRONLY | O_CLOEXEC);
-    Logger log(LogFormat::text, LogLevel::error, null_fd);
-    MetricsRegistry metrics;
-    TileCache cache(1 << 20);
-    TileFetcher fetcher(cache, metrics, log);
-    StoreHandle store;
-    store.name = "gated";
-    store.reader = *reader;
-    store.version = (*reader)->info().store_id;
-    store.metrics.data_loss = &metrics.counter("test_data_loss_total", "test");
-
+    GatedFetcher g(1 << 20);
+    auto [fetcher, store, gate] = std::tie(g.fetcher, g.store, g.gate);
     constexpr int kViewers = 8;
     gate->close_gate();
     std::vector<FetchedTile> got(kViewers);
     std::vector<std::thread> viewers;
     viewers.emplace_back([&] { got[0] = fetcher.fetch_one(store, {0, 1, 2}); });
     // The first read is at the gate before the others miss the same tile.
-    for (auto until = std::chrono::steady_clock::now() + 10s; gate->reads_waiting() == 0 && std::chrono::steady_clock::now() < until;)
-        std::this_thread::sleep_for(1ms);
+    ASSERT_TRUE(g.reads_at_gate(1));
     ASSERT_EQ(gate->reads_waiting(), 1);
     for (int v = 1; v < kViewers; ++v) viewers.emplace_back([&, v] { got[v] = fetcher.fetch_one(store, {0, 1, 2}); });
     // They join it: each counts as a saved read once answered; none reaches the gate itself.
@@ -142,39 +155,20 @@ TEST(TileFetcher, ConcurrentMissesOfOneTileReadItOnce) {
     EXPECT_EQ(fetcher.fetch_one(store, {0, 3, 3}).status, TileStatus::ok);
     EXPECT_EQ(fetcher.tiles_read(), 2u);
     EXPECT_EQ(fetcher.reads_saved(), std::uint64_t(kViewers - 1));
-    ::close(null_fd);
 }
 
 TEST(TileFetcher, ABatchJoinsTheReadsInFlightAndLeadsTheRest) {
-    test::ScratchDir dir;
-    auto bytes = small_store(dir);
-    auto gated = std::make_unique<GatedSource>(bytes, (*storage::StoreReader::open_memory(bytes))->locate({0, 0, 0})->offset);
-    GatedSource* gate = gated.get();
-    auto reader = storage::StoreReader::open_source(std::move(gated), "gated");
-    ASSERT_TRUE(reader.ok());
-    const int null_fd = ::open("/dev/null", O_WRONLY | O_CLOEXEC);
-    Logger log(LogFormat::text, LogLevel::error, null_fd);
-    MetricsRegistry metrics;
-    TileCache cache(0);  // no cache: only the flights can save reads
-    TileFetcher fetcher(cache, metrics, log);
-    StoreHandle store;
-    store.name = "gated";
-    store.reader = *reader;
-    store.version = (*reader)->info().store_id;
-    store.metrics.data_loss = &metrics.counter("test_data_loss_total", "test");
-
+    GatedFetcher g(0);  // no cache: only the flights can save reads
+    auto [fetcher, store, gate] = std::tie(g.fetcher, g.store, g.gate);
     gate->close_gate();
     FetchedTile first;
     std::thread a([&] { first = fetcher.fetch_one(store, {0, 2, 2}); });
-    for (auto until = std::chrono::steady_clock::now() + 10s; gate->reads_waiting() == 0 && std::chrono::steady_clock::now() < until;)
-        std::this_thread::sleep_for(1ms);
-    ASSERT_EQ(gate->reads_waiting(), 1);
+    ASSERT_TRUE(g.reads_at_gate(1));
     // A batch of three: (2,2) is in flight, (0,0) and (3,0) are not (and (0,0) twice).
     const std::vector<TileKey> keys{{0, 0, 0}, {0, 2, 2}, {0, 3, 0}, {0, 0, 0}};
     std::vector<FetchedTile> out;
     std::thread b([&] { fetcher.fetch(store, keys, out); });
-    for (auto until = std::chrono::steady_clock::now() + 10s; gate->reads_waiting() < 2 && std::chrono::steady_clock::now() < until;)
-        std::this_thread::sleep_for(1ms);
+    g.reads_at_gate(2);
     gate->open_gate();
     a.join();
     b.join();
@@ -184,5 +178,4 @@ TEST(TileFetcher, ABatchJoinsTheReadsInFlightAndLeadsTheRest) {
     EXPECT_EQ(out[0].tile->bytes, out[3].tile->bytes);
     EXPECT_EQ(fetcher.tiles_read(), 3u);  // (2,2) once, (0,0) once, (3,0) once
     EXPECT_EQ(fetcher.reads_saved(), 2u);
-    ::close(null_fd);
 }
