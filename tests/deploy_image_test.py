@@ -20,6 +20,8 @@ import tempfile
 import time
 import urllib.request
 
+import serve_util
+
 FORBIDDEN = re.compile(r"lib(GL|GLX|EGL|OpenGL|gbm|glfw|epoxy|X11|OpenImageIO|tinyobjloader)\b", re.I)
 
 
@@ -34,11 +36,10 @@ def get(port, path):
 
 
 def wait_listening(p, what):
-    for line in p.stderr:
-        m = re.search(r'"msg":"listening","grpc":"[^"]*","http":"127\.0\.0\.1:(\d+)"', line)
-        if m:
-            return int(m.group(1))
-    fail(f"{what} exited {p.wait()} before listening")
+    ports = serve_util.wait_listening(p)
+    if not ports:
+        fail(f"{what} exited {p.wait()} before listening")
+    return ports[1]
 
 
 def check_archive(path):

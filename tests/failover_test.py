@@ -15,7 +15,8 @@ import tempfile
 import time
 import urllib.request
 
-LISTEN = re.compile(r'"msg":"listening","grpc":"127\.0\.0\.1:(\d+)","http":"127\.0\.0\.1:(\d+)"')
+import serve_util
+
 
 
 def fail(msg):
@@ -26,11 +27,10 @@ def fail(msg):
 def start_server(binary, store, grpc="127.0.0.1:0"):
     p = subprocess.Popen([binary, "serve", "--store", store, "--grpc", grpc, "--http", "127.0.0.1:0", "--watch-interval", "0"],
                          stderr=subprocess.PIPE, text=True)
-    for line in p.stderr:
-        m = LISTEN.search(line)
-        if m:
-            return p, int(m.group(1)), int(m.group(2))
-    fail(f"server exited {p.wait()} before listening")
+    ports = serve_util.wait_listening(p)
+    if not ports:
+        fail(f"server exited {p.wait()} before listening")
+    return p, ports[0], ports[1]
 
 
 def tiles_sent(http_port):
@@ -79,7 +79,13 @@ def main():
         killed = {}
 
         def kill_busiest():
-            sent = [tiles_sent(h) for _, _, h in servers]
+            # The viewer's server is the one that has sent tiles (on a loaded machine the warm-up
+            # may still be opening the stream: wait for it, 20 s at most).
+            for _ in range(200):
+                sent = [tiles_sent(h) for _, _, h in servers]
+                if max(sent) > 0:
+                    break
+                time.sleep(0.1)
             i = max(range(3), key=lambda k: sent[k])
             killed.update(index=i, sent=sent)
             servers[i][0].send_signal(signal.SIGKILL)

@@ -24,6 +24,8 @@ import time
 import urllib.error
 import urllib.request
 
+import serve_util
+
 KEY = SECRET = "S3RVER"  # s3rver's built-in credentials
 
 
@@ -81,14 +83,12 @@ def serve(binary, stores, env=None, expect_fail=False):
         args += ["--store", s]
     p = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, env=env)
     lines = []
-    for line in p.stderr:
-        lines.append(line)
-        m = re.search(r'"msg":"listening","grpc":"[^"]*","http":"127\.0\.0\.1:(\d+)"', line)
-        if m:
-            if expect_fail:
-                stop(p)
-                fail("serve started although it should not have")
-            return p, int(m.group(1))
+    ports = serve_util.wait_listening(p, lines)
+    if ports:
+        if expect_fail:
+            stop(p)
+            fail("serve started although it should not have")
+        return p, ports[1]
     rc = p.wait()
     if expect_fail:
         return rc, "".join(lines)

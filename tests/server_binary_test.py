@@ -13,6 +13,8 @@ import sys
 import tempfile
 import urllib.request
 
+import serve_util
+
 FORBIDDEN = re.compile(r"lib(GL|GLX|GLdispatch|EGL|OpenGL|gbm|glfw|epoxy|X11|xcb|OpenImageIO|tinyobjloader|opencv)", re.I)
 
 
@@ -25,11 +27,10 @@ def serve(binary, store):
     """Starts BINARY serve on ephemeral ports; returns (process, http port) once it listens."""
     p = subprocess.Popen([binary, "serve", "--store", store, "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0",
                           "--watch-interval", "0"], stderr=subprocess.PIPE, text=True)
-    for line in p.stderr:
-        m = re.search(r'"msg":"listening","grpc":"[^"]*","http":"127\.0\.0\.1:(\d+)"', line)
-        if m:
-            return p, int(m.group(1))
-    fail(f"{binary} serve exited {p.wait()} before listening")
+    ports = serve_util.wait_listening(p)
+    if not ports:
+        fail(f"{binary} serve exited {p.wait()} before listening")
+    return p, ports[1]
 
 
 def get(port, path):
