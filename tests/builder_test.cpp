@@ -501,6 +501,7 @@ RefImage read_file_samples(const std::string& path) {
     switch (s.format.basetype) {
         case OIIO::TypeDesc::UINT16: im.type = SampleType::u16; type = OIIO::TypeDesc::UINT16; break;
         case OIIO::TypeDesc::HALF: im.type = SampleType::f16; type = OIIO::TypeDesc::HALF; break;
+        case OIIO::TypeDesc::FLOAT: im.type = SampleType::f32; type = OIIO::TypeDesc::FLOAT; break;
         default: break;
     }
     im.bytes.resize(std::size_t(im.width) * im.height * im.texel_bytes());
@@ -540,6 +541,12 @@ RefImage made_straight(const RefImage& file) {
     RefImage out = file;
     const std::size_t texels = std::size_t(file.width) * file.height;
     for (std::size_t i = 0; i < texels; ++i) {
+        if (file.type == SampleType::f32) {
+            const auto* p = reinterpret_cast<const float*>(file.bytes.data()) + i * 4;
+            auto* s = reinterpret_cast<float*>(out.bytes.data()) + i * 4;
+            for (int c = 0; c < 3; ++c) s[c] = p[3] > 0.0f ? p[c] / p[3] : 0.0f;
+            continue;
+        }
         if (file.type == SampleType::f16) {
             const auto* p = reinterpret_cast<const std::uint16_t*>(file.bytes.data()) + i * 4;
             auto* s = reinterpret_cast<std::uint16_t*>(out.bytes.data()) + i * 4;
@@ -593,6 +600,9 @@ TEST(Builder, AlphaFromOtherToolsIsStoredStraightAndWeightedOnce) {
     ASSERT_TRUE(run_tool(im + raw8 + " -define tiff:alpha=associated " + d.file("assoc.tif")));
     ASSERT_TRUE(run_tool(im + raw8 + " -define tiff:alpha=associated -interlace plane " + d.file("assoc_planar.tif")));
     ASSERT_TRUE(run_tool("oiiotool " + d.file("straight.png") + " -d half -o " + d.file("assoc.exr")));
+    // Float TIFF with associated alpha and 16-bit TIFF with unassociated alpha (Tessera's TIFF reader).
+    ASSERT_TRUE(run_tool("oiiotool " + d.file("straight.png") + " -d float -o " + d.file("assoc_f32.tif")));
+    ASSERT_TRUE(run_tool("oiiotool --iconfig oiio:UnassociatedAlpha 1 " + d.file("straight16.png") + " -o " + d.file("straight16.tif")));
 
     struct Case {
         const char* file;
@@ -601,7 +611,7 @@ TEST(Builder, AlphaFromOtherToolsIsStoredStraightAndWeightedOnce) {
     };
     const Case cases[] = {{"straight.png", false, &rgba8},  {"straight.tif", false, &rgba8}, {"straight_planar.tif", false, &rgba8},
                           {"straight16.png", false, &rgba16}, {"grey_alpha.png", false, &grey_alpha}, {"assoc.tif", true, nullptr},   {"assoc_planar.tif", true, nullptr},
-                          {"assoc.exr", true, nullptr}};
+                          {"assoc.exr", true, nullptr},   {"assoc_f32.tif", true, nullptr}, {"straight16.tif", false, &rgba16}};
     for (const Case& c : cases) {
         SCOPED_TRACE(c.file);
         const RefImage file = read_file_samples(d.file(c.file));
@@ -617,7 +627,8 @@ TEST(Builder, AlphaFromOtherToolsIsStoredStraightAndWeightedOnce) {
         auto reader = StoreReader::open(d.file("a.tsr"));
         ASSERT_TRUE(reader.ok());
         const ColourSpace cs = (*reader)->info().colour_space;
-        EXPECT_EQ(cs, file.type == SampleType::f16 ? ColourSpace::linear : ColourSpace::srgb);
+        const bool floats = file.type == SampleType::f16 || file.type == SampleType::f32;
+        EXPECT_EQ(cs, floats ? ColourSpace::linear : ColourSpace::srgb);
         expect_exact(Built{*reader, test::reference_pyramid(straight, cs, true, o.tile_size - 2 * o.border)});
         if (!c.associated && file.type == SampleType::u8) {  // the texel: grey 52 at alpha 220
             auto t = (*reader)->read_tile({0, 0, 0});
