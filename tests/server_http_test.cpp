@@ -267,3 +267,32 @@ TEST_F(ServerHttp, SigtermStopsAcceptingAndExitsZero) {
 }
 
 }  // namespace
+
+// A rotated secret: SIGHUP rereads --auth-token-file; the old token is refused from then on, the
+// new one accepted; a file that cannot be read keeps the token in force.
+TEST_F(ServerHttp, SighupRereadsTheTokenFile) {
+    const std::string token_file = dir.file("token");
+    auto write_token = [&](const std::string& t) {
+        std::ofstream f(token_file, std::ios::trunc);
+        f << t << "\n";
+    };
+    write_token("first-secret");
+    ServerProcess srv({"--store", store_, "--auth-token-file", token_file, "--watch-interval", "0"}, dir.file("server.log"), "");
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const std::string tile = "/v1/stores/terrain/tiles/0/0/0";
+    auto status_with = [&](const std::string& t) { return http_get(srv.http_port(), tile, {"Authorization: Bearer " + t}).status; };
+    EXPECT_EQ(status_with("first-secret"), 200);
+    EXPECT_EQ(status_with("second-secret"), 401);
+    write_token("second-secret");
+    srv.signal(SIGHUP);
+    // The reload is asynchronous to this test: wait for it (10 s at most).
+    for (int i = 0; i < 200 && status_with("second-secret") != 200; ++i) std::this_thread::sleep_for(50ms);
+    EXPECT_EQ(status_with("second-secret"), 200);
+    EXPECT_EQ(status_with("first-secret"), 401);
+    // An unreadable token file: the server keeps the second secret and says so.
+    fs::remove(token_file);
+    srv.signal(SIGHUP);
+    for (int i = 0; i < 200 && srv.log().find("auth token not reloaded") == std::string::npos; ++i) std::this_thread::sleep_for(50ms);
+    EXPECT_NE(srv.log().find("auth token not reloaded"), std::string::npos) << srv.log();
+    EXPECT_EQ(status_with("second-secret"), 200);
+}

@@ -196,11 +196,11 @@ GrpcService::GrpcService(ServerContext& ctx, Scheduler& scheduler) : ctx_(ctx), 
 }
 
 bool GrpcService::authorized(grpc::CallbackServerContext* context) const {
-    if (ctx_.config.auth_token.empty()) return true;
+    const auto token = ctx_.auth_token();
+    if (token->empty()) return true;
     const auto& md = context->client_metadata();
     auto it = md.find("authorization");
-    if (it == md.end() || !server::authorized(std::string_view(it->second.data(), it->second.size()),
-                                              ctx_.config.auth_token)) {
+    if (it == md.end() || !server::authorized(std::string_view(it->second.data(), it->second.size()), *token)) {
         unauthenticated_->inc();
         return false;
     }

@@ -318,7 +318,7 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
         if (!ctx_.ready.load()) return text(503, "not ready\n");
         return text(200, "ready\n");
     }
-    if (!authorized(req.authorization, ctx_.config.auth_token)) {
+    if (!authorized(req.authorization, *ctx_.auth_token())) {
         HttpResponse r = error(401, "missing or wrong bearer token", api);
         r.headers.emplace_back("WWW-Authenticate", "Bearer");
         return r;

@@ -135,6 +135,11 @@ public:
     std::uint16_t grpc_port() const override { return static_cast<std::uint16_t>(grpc_port_); }
     std::uint16_t http_port() const override { return http_ ? http_->port() : 0; }
 
+    void set_auth_token(const std::string& token) override {
+        ctx_.set_auth_token(token);
+        log_.info("auth token replaced", {{"auth", !token.empty()}});
+    }
+
     void reload() override {
         const auto r = stores_.reload();
         log_.info("reload", {{"added", r.added}, {"replaced", r.replaced}, {"removed", r.removed}, {"failed", r.failed}});

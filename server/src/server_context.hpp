@@ -2,6 +2,9 @@
 // What the front ends (gRPC service, HTTP server) share: configuration, logs, metrics, the
 // stores and the tile reader. Owned by the Server; outlives both front ends.
 #include <atomic>
+#include <string>
+#include <mutex>
+#include <memory>
 #include <chrono>
 
 #include "log.hpp"
@@ -21,6 +24,22 @@ struct ServerContext {
     std::chrono::steady_clock::time_point started = std::chrono::steady_clock::now();
     std::atomic<bool> ready{false};     // stores loaded, ports bound (/readyz)
     std::atomic<bool> draining{false};  // SIGTERM received: refuse new work (/readyz fails)
+
+    // The bearer token every request needs ("" none): config.auth_token until replaced by a
+    // reload (Server::set_auth_token), read per request.
+    std::shared_ptr<const std::string> auth_token() const {
+        std::lock_guard lock(token_mutex_);
+        return token_ ? token_ : std::make_shared<const std::string>(config.auth_token);
+    }
+    void set_auth_token(std::string token) {
+        auto t = std::make_shared<const std::string>(std::move(token));
+        std::lock_guard lock(token_mutex_);
+        token_ = std::move(t);
+    }
+
+    // (Public so that the context stays an aggregate; use the two functions above.)
+    mutable std::mutex token_mutex_{};
+    std::shared_ptr<const std::string> token_{};
 };
 
 }  // namespace tessera::server

@@ -75,6 +75,8 @@ public:
 
     // Rescans the store files and directories now (what SIGHUP does).
     virtual void reload() = 0;
+    // Replaces the bearer token requests need from now on ("": none); streams already open stay.
+    virtual void set_auth_token(const std::string& token) = 0;
     // Graceful stop: refuse new work, finish what was admitted (up to drain_timeout), close.
     virtual void shutdown() = 0;
 };
