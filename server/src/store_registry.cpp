@@ -109,24 +109,34 @@ void StoreRegistry::scan_remote(const std::string& name, const std::string& loca
         if (prev) next.push_back(prev);
         return;
     }
+    auto h = new_handle(name, location, std::move(*reader));
+    h->remote_version = version;
+    announce(*h, prev != nullptr, report);
+    next.push_back(std::move(h));
+}
+
+std::shared_ptr<StoreHandle> StoreRegistry::new_handle(const std::string& name, const std::string& path,
+                                                       std::shared_ptr<storage::StoreReader> reader) {
     auto h = std::make_shared<StoreHandle>();
     h->name = name;
-    h->path = location;
-    h->reader = std::move(*reader);
+    h->path = path;
+    h->reader = std::move(reader);
     h->version = h->reader->info().store_id;
     h->metrics = metrics_for(name);
-    h->remote_version = version;
+    return h;
+}
+
+void StoreRegistry::announce(const StoreHandle& h, bool replaced, ReloadReport& report) {
     char id[24];
-    std::snprintf(id, sizeof id, "%016llx", static_cast<unsigned long long>(h->version));
-    if (!prev) {
+    std::snprintf(id, sizeof id, "%016llx", static_cast<unsigned long long>(h.version));
+    if (!replaced) {
         ++report.added;
-        log_.info("store added", {{"store", name}, {"path", location}, {"version", id}, {"etag", version},
-                                  {"width", h->info().width}, {"height", h->info().height}});
+        log_.info("store added", {{"store", h.name}, {"path", h.path}, {"version", id}, {"etag", h.remote_version},
+                                  {"width", h.info().width}, {"height", h.info().height}});
     } else {
         ++report.replaced;
-        log_.info("store replaced", {{"store", name}, {"path", location}, {"version", id}, {"etag", version}});
+        log_.info("store replaced", {{"store", h.name}, {"path", h.path}, {"version", id}, {"etag", h.remote_version}});
     }
-    next.push_back(std::move(h));
 }
 
 ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
@@ -215,26 +225,12 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
             if (prev != old.end()) next->push_back(prev->second);
             continue;
         }
-        auto h = std::make_shared<StoreHandle>();
-        h->name = name;
-        h->path = path;
-        h->reader = std::move(*reader);
-        h->version = h->reader->info().store_id;
-        h->metrics = metrics_for(name);
+        auto h = new_handle(name, path, std::move(*reader));
         h->device = id.device;
         h->inode = id.inode;
         h->size = id.size;
         h->mtime_ns = id.mtime_ns;
-        char version[24];
-        std::snprintf(version, sizeof version, "%016llx", static_cast<unsigned long long>(h->version));
-        if (prev == old.end()) {
-            ++report.added;
-            log_.info("store added", {{"store", name}, {"path", path}, {"version", version},
-                                      {"width", h->info().width}, {"height", h->info().height}});
-        } else {
-            ++report.replaced;
-            log_.info("store replaced", {{"store", name}, {"path", path}, {"version", version}});
-        }
+        announce(*h, prev != old.end(), report);
         next->push_back(std::move(h));
     }
     for (const auto& [name, h] : old) {

@@ -83,6 +83,11 @@ private:
     void scan_remote(const std::string& name, const std::string& location, const std::shared_ptr<const StoreHandle>& prev, bool first,
                      std::vector<std::shared_ptr<const StoreHandle>>& next, ReloadReport& report, const std::function<void(Error)>& fail);
     StoreMetrics metrics_for(const std::string& name);
+    // A handle for a store just opened (file or remote); the caller adds its identity.
+    std::shared_ptr<StoreHandle> new_handle(const std::string& name, const std::string& path,
+                                            std::shared_ptr<storage::StoreReader> reader);
+    // Counts and logs a store added or replaced (with its ETag when it is remote).
+    void announce(const StoreHandle& h, bool replaced, ReloadReport& report);
 
     std::vector<std::string> files_;
     std::vector<std::string> dirs_;
