@@ -19,6 +19,10 @@
 // frame where nothing fades), and one whose clock stands still halfway through the fade of every
 // page (what it costs while every pixel fades, both levels of every lookup read: the worst case).
 // Reports their frame times against the VT's without blending.
+//
+// Besides wall and CPU time, each frame's GPU time (a GL_TIME_ELAPSED query around its draw):
+// on a GPU the wall time of a small frame is mostly driver round trips, the GPU time is the
+// shading work itself.
 #include <epoxy/gl.h>
 
 #include <algorithm>
@@ -50,6 +54,25 @@ double cpu_ms() {
     clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
     return double(ts.tv_sec) * 1e3 + double(ts.tv_nsec) * 1e-6;
 }
+
+// GPU time of the commands issued between begin() and end_ms() (GL_TIME_ELAPSED), waited for.
+class GpuTimer {
+  public:
+    GpuTimer() { glGenQueries(1, &query_); }
+    ~GpuTimer() { glDeleteQueries(1, &query_); }
+    GpuTimer(const GpuTimer&) = delete;
+    GpuTimer& operator=(const GpuTimer&) = delete;
+    void begin() { glBeginQuery(GL_TIME_ELAPSED, query_); }
+    double end_ms() {
+        glEndQuery(GL_TIME_ELAPSED);
+        GLuint64 ns = 0;
+        glGetQueryObjectui64v(query_, GL_QUERY_RESULT, &ns);
+        return double(ns) * 1e-6;
+    }
+
+  private:
+    GLuint query_ = 0;
+};
 
 double median(std::vector<double> v) {
     std::sort(v.begin(), v.end());
@@ -96,8 +119,8 @@ int main(int argc, char** argv) {
                            "\", \"filters\": [";
     std::printf("VT frame vs plain texturing, %ux%u, %u frames of flyover, terrain displacement %g, %s\n", w, h, frames,
                 displacement, (*ctx)->renderer().c_str());
-    std::printf("%-12s %10s %10s %10s %8s %10s %10s %8s\n", "filter", "VT mean", "VT median", "plain med.", "ratio",
-                "VT CPU", "plain CPU", "ratio");
+    std::printf("%-12s %10s %10s %10s %8s %10s %10s %8s %10s %10s %8s\n", "filter", "VT mean", "VT median", "plain med.",
+                "ratio", "VT CPU", "plain CPU", "ratio", "VT GPU", "plain GPU", "ratio");
     const client::gl::Filter filters[] = {client::gl::Filter::bilinear, client::gl::Filter::trilinear,
                                           client::gl::Filter::anisotropic};
     const char* names[] = {"bilinear", "trilinear", "anisotropic"};
@@ -178,18 +201,23 @@ int main(int argc, char** argv) {
         auto* vt = &plain_vt->renderer;
         auto* rt = &plain_vt->runtime;
         std::vector<client::gl::FrameCounters> counters;
-        std::vector<double> fade_ms_frames[2], fade_cpu[2];  // faded in, fading
+        std::vector<double> fade_ms_frames[2], fade_cpu[2], fade_gpu[2];  // faded in, fading
+        GpuTimer gpu_timer;
 
-        std::vector<double> vt_ms, plain_ms, vt_cpu, plain_cpu;
+        std::vector<double> vt_ms, plain_ms, vt_cpu, plain_cpu, vt_gpu, plain_gpu;
         for (unsigned f = 0; f < frames; ++f) {
             const auto cam = cam_at(f);
             const double c0 = cpu_ms();
             auto t0 = Clock::now();
+            gpu_timer.begin();
             (*vt)->render(cam, 0);
+            vt_gpu.push_back(gpu_timer.end_ms());
             glFinish();
             auto t1 = Clock::now();
             const double c1 = cpu_ms();
+            gpu_timer.begin();
             (*ref)->render(cam);
+            plain_gpu.push_back(gpu_timer.end_ms());
             glFinish();
             auto t2 = Clock::now();
             const double c2 = cpu_ms();
@@ -199,7 +227,9 @@ int main(int argc, char** argv) {
                 if (k == 1) v.renderer->set_time(fade_ms / 2000.0);  // every page at half weight
                 const double c3 = cpu_ms();
                 const auto t3 = Clock::now();
+                gpu_timer.begin();
                 v.renderer->render(cam, 0);
+                fade_gpu[k].push_back(gpu_timer.end_ms());
                 glFinish();
                 fade_ms_frames[k].push_back(std::chrono::duration<double, std::milli>(Clock::now() - t3).count());
                 fade_cpu[k].push_back(cpu_ms() - c3);
@@ -216,29 +246,37 @@ int main(int argc, char** argv) {
         }
         const double ratio = median(vt_ms) / median(plain_ms);
         const double cpu_ratio = median(vt_cpu) / median(plain_cpu);
-        std::printf("%-12s %10.2f %10.2f %10.2f %7.2fx %10.2f %10.2f %7.2fx\n", names[fi], mean(vt_ms), median(vt_ms),
-                    median(plain_ms), ratio, median(vt_cpu), median(plain_cpu), cpu_ratio);
+        const double gpu_ratio = median(vt_gpu) / std::max(median(plain_gpu), 1e-6);
+        std::printf("%-12s %10.2f %10.2f %10.2f %7.2fx %10.2f %10.2f %7.2fx %10.3f %10.3f %7.2fx\n", names[fi], mean(vt_ms),
+                    median(vt_ms), median(plain_ms), ratio, median(vt_cpu), median(plain_cpu), cpu_ratio, median(vt_gpu),
+                    median(plain_gpu), gpu_ratio);
         std::string fade_json;
         for (int k = 0; k < 2 && fade_ms > 0; ++k) {
             const char* what = k == 0 ? "faded_in" : "all_fading";
             const double fr = median(fade_ms_frames[k]) / median(vt_ms), fc = median(fade_cpu[k]) / median(vt_cpu);
-            std::printf("%-12s %10.2f %10.2f %10s %7.3fx %10.2f %10s %7.3fx  (--fade-ms %g, %s, against the VT without)\n",
+            const double fg = median(fade_gpu[k]) / std::max(median(vt_gpu), 1e-6);
+            std::printf("%-12s %10.2f %10.2f %10s %7.3fx %10.2f %10s %7.3fx %10.3f %10s %7.3fx  (--fade-ms %g, %s, against the "
+                        "VT without)\n",
                         k == 0 ? "  + fade" : "  + fading", mean(fade_ms_frames[k]), median(fade_ms_frames[k]), "", fr,
-                        median(fade_cpu[k]), "", fc, fade_ms, k == 0 ? "every page faded in" : "every page fading");
-            char fb[320];
+                        median(fade_cpu[k]), "", fc, median(fade_gpu[k]), "", fg, fade_ms,
+                        k == 0 ? "every page faded in" : "every page fading");
+            char fb[480];
             std::snprintf(fb, sizeof fb,
                           ", \"fade_ms\": %g, \"%s_vt_median_ms\": %.3f, \"%s_vs_vt_median\": %.4f, \"%s_vt_cpu_median_ms\": "
-                          "%.3f, \"%s_vs_vt_cpu_median\": %.4f",
-                          fade_ms, what, median(fade_ms_frames[k]), what, fr, what, median(fade_cpu[k]), what, fc);
+                          "%.3f, \"%s_vs_vt_cpu_median\": %.4f, \"%s_vt_gpu_median_ms\": %.4f, \"%s_vs_vt_gpu_median\": %.4f",
+                          fade_ms, what, median(fade_ms_frames[k]), what, fr, what, median(fade_cpu[k]), what, fc, what,
+                          median(fade_gpu[k]), what, fg);
             fade_json += fb;
         }
         char buf[1024];
         std::snprintf(buf, sizeof buf,
                       "%s{\"filter\": \"%s\", \"vt_mean_ms\": %.3f, \"vt_median_ms\": %.3f, \"plain_mean_ms\": %.3f, "
                       "\"plain_median_ms\": %.3f, \"ratio_median\": %.3f, \"vt_cpu_median_ms\": %.3f, "
-                      "\"plain_cpu_median_ms\": %.3f, \"cpu_ratio_median\": %.3f%s}",
+                      "\"plain_cpu_median_ms\": %.3f, \"cpu_ratio_median\": %.3f, \"vt_gpu_median_ms\": %.4f, "
+                      "\"plain_gpu_median_ms\": %.4f, \"gpu_ratio_median\": %.3f%s}",
                       first ? "" : ", ", names[fi], mean(vt_ms), median(vt_ms), mean(plain_ms), median(plain_ms), ratio,
-                      median(vt_cpu), median(plain_cpu), cpu_ratio, fade_json.c_str());
+                      median(vt_cpu), median(plain_cpu), cpu_ratio, median(vt_gpu), median(plain_gpu), gpu_ratio,
+                      fade_json.c_str());
         out_json += buf;
         first = false;
     }
