@@ -709,7 +709,7 @@ TEST_F(HandlerTest, EveryBadInputGetsItsStatus) {
         {"/v1/stores/nosuch/tiles/0/0/0", 404},
         {"/v1/stores/rgb/other", 404},
         {"/v1/other", 404},
-        {"/", 404},
+        {"/", 200},  // the viewer's list of stores
         {"/nope", 404},
         // out of range
         {"/v1/stores/rgb/tiles/3/0/0", 404},
@@ -751,15 +751,21 @@ TEST_F(HandlerTest, OutOfRangeMessagesGiveTheValidRange) {
     EXPECT_NE(x.body.find("0..2"), std::string::npos) << x.body;
 }
 
-TEST_F(HandlerTest, OnlyGetAndHead) {
-    for (const char* m : {"POST", "PUT", "DELETE", "PATCH", "OPTIONS", "BREW"}) {
+TEST_F(HandlerTest, OnlyGetAndHeadAndPreflights) {
+    for (const char* m : {"POST", "PUT", "DELETE", "PATCH", "BREW"}) {
         SCOPED_TRACE(m);
         const HttpResponse r = get("/v1/stores/rgb/tiles/0/0/0", {}, {}, m);
         EXPECT_EQ(r.status, 405u);
         ASSERT_NE(r.header("Allow"), nullptr);
-        EXPECT_EQ(*r.header("Allow"), "GET, HEAD");
+        EXPECT_EQ(*r.header("Allow"), "GET, HEAD, OPTIONS");
     }
     EXPECT_EQ(get("/healthz", {}, {}, "POST").status, 405u);
+    // OPTIONS: what may be asked, answered without a body and without auth.
+    const HttpResponse o = get("/v1/stores/rgb/tiles/0/0/0", {}, {}, "OPTIONS");
+    EXPECT_EQ(o.status, 204u);
+    ASSERT_NE(o.header("Allow"), nullptr);
+    EXPECT_EQ(*o.header("Allow"), "GET, HEAD, OPTIONS");
+    EXPECT_TRUE(o.body.empty());
 }
 
 // ---- Probes, metadata, metrics -----------------------------------------------------------------

@@ -611,7 +611,28 @@ TEST_F(HttpServerTest, MethodsOtherThanGetAndHeadAre405) {
     auto r = c.request(http::verb::post, "/v1/stores");
     ASSERT_TRUE(r);
     EXPECT_EQ(r->result_int(), 405);
-    EXPECT_EQ((*r)[http::field::allow], "GET, HEAD");
+    EXPECT_EQ((*r)[http::field::allow], "GET, HEAD, OPTIONS");
+}
+
+// A browser's CORS preflight over the real transport: its headers reach the handler, and the
+// answer (204, no body) keeps the connection usable for the request that follows.
+TEST_F(HttpServerTest, CorsPreflightAndOriginHeaders) {
+    start();
+    PlainClient c;
+    ASSERT_FALSE(c.connect(server_->port()));
+    auto p = c.request(http::verb::options, "/v1/stores",
+                       {{"Origin", "https://viewer.example"}, {"Access-Control-Request-Method", "GET"}});
+    ASSERT_TRUE(p);
+    EXPECT_EQ(p->result_int(), 204);
+    EXPECT_EQ((*p)[http::field::access_control_allow_origin], "*");
+    EXPECT_NE(std::string((*p)[http::field::access_control_allow_headers]).find("Authorization"), std::string::npos);
+    auto r = c.request(http::verb::get, "/v1/stores", {{"Origin", "https://viewer.example"}});
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->result_int(), 200);
+    EXPECT_EQ((*r)[http::field::access_control_allow_origin], "*");
+    auto plain = c.request(http::verb::get, "/v1/stores");  // no Origin: no CORS headers
+    ASSERT_TRUE(plain);
+    EXPECT_EQ((*plain)[http::field::access_control_allow_origin], "");
 }
 
 TEST_F(HttpServerTest, IdleConnectionsTimeOut) {

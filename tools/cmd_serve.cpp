@@ -181,6 +181,14 @@ Command add_serve(CLI::App& app) {
         ->capture_default_str()->check(CLI::Range(0LL, 3600000LL));
     s->add_option("--http-max-age", c.http_max_age, "Cache-Control max-age of tiles, s (URLs with ?v=VERSION: a year)")
         ->capture_default_str();
+    s->add_option("--cors-origin", c.cors_origin,
+                  "Origin whose web pages may read responses (Access-Control-Allow-Origin): * for any, one origin, or \"\" "
+                  "for none")
+        ->capture_default_str();
+    s->add_option("--public-url", c.public_url,
+                  "URL clients reach this server at, e.g. https://tiles.example.org (IIIF ids; default: the request's Host)");
+    s->add_option("--web-cache", c.web_cache_bytes, "RAM for encoded DZI/IIIF/XYZ images, bytes (0: off)")
+        ->capture_default_str();
     s->add_option("--log-format", a->log_format, "Log lines: json or text")->capture_default_str()
         ->check(CLI::IsMember({"json", "text"}));
     s->add_option("--log-level", a->log_level, "info or debug")->capture_default_str()

@@ -20,6 +20,7 @@ packages=(
   python3 python3-yaml time systemd   # systemd: systemd-analyze lints deploy/tessera.service
   mmdebstrap                          # deploy/build-image.py: the image's root filesystem
   nginx-light                         # remote stores over plain HTTP range requests (tests)
+  chromium                            # the web viewer, tested in a real headless browser
 )
 missing=()
 for p in "${packages[@]}"; do
@@ -34,11 +35,14 @@ if ((${#missing[@]})); then
   apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 
-# The npm packages the tests drive (tests/npm/package-lock.json pins them), when the lock changed.
-if [[ ! -f tests/npm/node_modules/.package-lock.json || tests/npm/package-lock.json -nt tests/npm/node_modules/.package-lock.json ]]; then
-  echo "setup: installing the test tools from npm (tests/npm)"
-  (cd tests/npm && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
-fi
+# The npm packages (each package-lock.json pins them), when a lock changed: server/web holds
+# OpenSeadragon, which the build puts into the server's web viewer; tests/npm what the tests drive.
+for dir in server/web tests/npm; do
+  if [[ ! -f $dir/node_modules/.package-lock.json || $dir/package-lock.json -nt $dir/node_modules/.package-lock.json ]]; then
+    echo "setup: installing $dir's packages from npm"
+    (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
+  fi
+done
 
 build_type=${TESSERA_BUILD_TYPE:-RelWithDebInfo}
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE="$build_type" ${TESSERA_CMAKE_ARGS:-} >/dev/null

@@ -3,15 +3,14 @@
 // the request, calls HttpHandler::handle_http_request and writes the response it gets. The tests
 // drive the handler directly.
 //
-// Routes (GET and HEAD only; anything else is 405 with Allow: GET, HEAD):
-//   /healthz                                 200 "ok\n" (no auth)
-//   /readyz                                  200 when ready and not draining, else 503 (no auth)
+// Routes (GET and HEAD; OPTIONS answers CORS preflights; anything else is 405), each API in
+// its own file under http/ (http/apis.hpp lists them; docs/server.md describes them):
+//   /healthz, /readyz                        probes (no auth, queries ignored)
 //   /metrics                                 Prometheus text format 0.0.4
-//   /v1/stores                               {"stores": [summary, ...]} (JSON)
-//   /v1/stores/{name}                        store metadata with per-level geometry (JSON)
-//   /v1/stores/{name}/tiles/{level}/{x}/{y}  the stored payload; ?format=png decodes it to PNG;
-//                                            ?v=<version> pins the store version (immutable)
-// Errors are one line: text/plain outside /v1/, {"error": "..."} (application/json) under /v1/.
+//   /v1/...                                  Tessera's API: stores, metadata and stored tiles
+//   /dzi/..., /iiif/..., /xyz/...            Deep Zoom, IIIF Image API 3.0 and XYZ tiles for browsers
+//   /, /view/{name}, /static/...             the web viewer (OpenSeadragon) and a list of stores
+// Errors are one line: {"error": "..."} (application/json) under /v1/, text/plain elsewhere.
 #include <atomic>
 #include <chrono>
 #include <cstddef>
@@ -38,11 +37,18 @@ struct HttpRequestView {
     std::string_view if_none_match;  // If-None-Match header(s), comma-joined ("" if none)
     std::string_view accept;         // Accept header; not used for negotiation (the URL picks the
                                      // representation, so caches need no Vary)
+    std::string_view cookie = {};    // Cookie header: a browser's token (tessera_token)
+    std::string_view origin = {};    // Origin header: CORS
+    std::string_view host = {};      // Host header: absolute URLs in IIIF's info.json
+    bool secure = false;             // arrived over TLS
 };
 
 // The metric label of a request: a fixed set, never the raw path.
-enum class HttpRoute : std::uint8_t { healthz, readyz, metrics, stores, store, tile, tile_png, other };
-inline constexpr std::size_t kHttpRouteCount = 8;
+enum class HttpRoute : std::uint8_t {
+    healthz, readyz, metrics, stores, store, tile, tile_png,
+    dzi_info, dzi_tile, iiif_info, iiif_image, xyz_tile, viewer, preflight, other
+};
+inline constexpr std::size_t kHttpRouteCount = 15;
 std::string_view to_string(HttpRoute r);
 
 struct HttpResponse {
@@ -67,6 +73,25 @@ struct HttpResponse {
 // connections, ...): text/plain, Cache-Control: no-store, Server header.
 HttpResponse http_error_response(unsigned status, std::string_view message);
 
+namespace httpapi {
+class WebTileCache;
+}
+
+// A place among the tile requests served at once (config.max_http_inflight); ok() false when
+// there was none (answer 503). Released when it goes out of scope.
+class TileSlot {
+public:
+    TileSlot(std::atomic<std::size_t>& n, std::size_t limit) : n_(n), ok_(n.fetch_add(1, std::memory_order_relaxed) < limit) {}
+    ~TileSlot() { n_.fetch_sub(1, std::memory_order_relaxed); }
+    TileSlot(const TileSlot&) = delete;
+    TileSlot& operator=(const TileSlot&) = delete;
+    bool ok() const { return ok_; }
+
+private:
+    std::atomic<std::size_t>& n_;
+    bool ok_;
+};
+
 class HttpHandler {
 public:
     // Registers the HTTP metrics in ctx.metrics (idempotent: two handlers on one registry share them).
@@ -84,17 +109,23 @@ public:
     // Tile requests being served right now (bounded by config.max_http_inflight: beyond it, 503).
     std::size_t tiles_in_flight() const { return tiles_in_flight_.load(std::memory_order_relaxed); }
 
+    // For the APIs (http/apis.hpp).
+    ServerContext& context() { return ctx_; }
+    TileSlot tile_slot() { return TileSlot(tiles_in_flight_, ctx_.config.max_http_inflight); }
+    httpapi::WebTileCache& web_cache() { return *web_cache_; }
+    // Counts a tile (or web image) served from `store`, `bytes` long.
+    void count_served(const StoreHandle& store, std::size_t bytes);
+
+    ~HttpHandler();
+
 private:
     HttpResponse route(const HttpRequestView& req, HttpRoute& route, bool borrow_payload);
-    // layer: ?layer=NAME, the layer of a multi-layer store that format=png shows.
-    HttpResponse tile(const HttpRequestView& req, std::string_view name, std::string_view level,
-                      std::string_view x, std::string_view y, bool png, const std::optional<std::string>& layer,
-                      bool has_version, std::uint64_t version, bool borrow_payload);
     void record(HttpRoute route, unsigned status, std::size_t body_bytes, double seconds);
     Counter& requests_counter(HttpRoute route, unsigned status);
     Counter& tiles_served_counter(const std::string& store);
 
     ServerContext& ctx_;
+    std::unique_ptr<httpapi::WebTileCache> web_cache_;
     // tessera_http_requests_total{route, code}: registered on first use of each pair.
     static constexpr std::size_t kStatusSlots = 600;
     std::vector<std::atomic<Counter*>> requests_;  // kHttpRouteCount x kStatusSlots

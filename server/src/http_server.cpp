@@ -222,7 +222,8 @@ private:
             if_none_match.append(it->value().data(), it->value().size());
         }
         const HttpRequestView view{sv(req.method_string()), sv(req.target()), sv(req[http::field::authorization]),
-                                   if_none_match, sv(req[http::field::accept])};
+                                   if_none_match,         sv(req[http::field::accept]), sv(req[http::field::cookie]),
+                                   sv(req[http::field::origin]), sv(req[http::field::host]), Tls};
         HttpResponse r;
         try {
             r = shared_.handler.handle_http_request(view, /*borrow_payload=*/true);

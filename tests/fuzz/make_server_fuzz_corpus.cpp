@@ -138,6 +138,23 @@ int main(int argc, char** argv) {
     add("http-dot-segment", http_input(plain, "GET", "/v1/stores/../a"));
     add("http-bad-char", http_input(plain, "GET", "/v1/stores/a b"));
     add("http-not-found", http_input(plain, "GET", "/favicon.ico", "", "", "image/png"));
+    // The browser routes: Deep Zoom, IIIF, XYZ, the viewer, preflights and query tokens.
+    add("http-dzi-info", http_input(plain, "GET", "/dzi/a.dzi"));
+    add("http-dzi-tile", http_input(plain, "GET", "/dzi/a_files/9/1_1.jpg"));
+    add("http-dzi-edge-png", http_input(plain, "GET", "/dzi/b_files/8/0_0.png?v=" + hex16(b.version)));
+    add("http-dzi-small", http_input(token, "HEAD", "/dzi/a_files/0/0_0.jpg"));
+    add("http-iiif-info", http_input(plain, "GET", "/iiif/a/info.json", "", "", "application/ld+json"));
+    add("http-iiif-base", http_input(plain, "GET", "/iiif/b"));
+    add("http-iiif-tile", http_input(plain, "GET", "/iiif/a/0,0,60,60/60,60/0/default.jpg"));
+    add("http-iiif-pct", http_input(plain, "GET", "/iiif/a/pct:10.5,0,50,50/^!300,200/!90/gray.png"));
+    add("http-iiif-square", http_input(authed, "GET", "/iiif/b/square/max/180/color.jpg?access_token=t0k"));
+    add("http-iiif-bad", http_input(plain, "GET", "/iiif/a/0,0,0,9/max/45/bitonal.gif"));
+    add("http-xyz", http_input(plain, "GET", "/xyz/a/2/1/0.png"));
+    add("http-xyz-edge", http_input(plain, "GET", "/xyz/b/3/9/9.jpg"));
+    add("http-view", http_input(plain, "GET", "/view/a"));
+    add("http-index", http_input(plain, "GET", "/"));
+    add("http-static", http_input(plain, "GET", "/static/openseadragon/images/home_rest.png"));
+    add("http-options", http_input(authed, "OPTIONS", "/iiif/a/info.json"));
 
     // ---- batches ----
     const std::vector<std::string> ab = {"a", "b"};

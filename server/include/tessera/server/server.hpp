@@ -57,6 +57,12 @@ struct ServerConfig {
     std::chrono::milliseconds idle_timeout{60000};    // HTTP keep-alive idle limit
     std::chrono::milliseconds drain_timeout{10000};   // SIGTERM: longest wait for in-flight work
     unsigned http_max_age = 60;  // Cache-Control max-age for tiles (versioned URLs: a year)
+    // Browsers (docs/server.md, "Browsers"): the origins whose pages may read responses ("*":
+    // any; one origin; "": no CORS headers), the URL clients reach this server at (IIIF ids;
+    // "": the request's Host), and the RAM kept for encoded DZI/IIIF/XYZ images (0: none).
+    std::string cors_origin = "*";
+    std::string public_url;
+    std::size_t web_cache_bytes = std::size_t(64) << 20;
 
     bool log_json = true;
     bool log_debug = false;

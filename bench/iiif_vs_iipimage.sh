@@ -1,0 +1,138 @@
+#!/usr/bin/env bash
+# IIIF tiles: `tessera serve` against IIPImage (Debian's iipimage-server behind lighttpd's FastCGI,
+# as IIPImage documents), the same image on both: Tessera's store built by `tessera build`,
+# IIPImage's a tiled pyramidal JPEG TIFF made by libvips (both JPEG quality 90). Each is asked for
+# the tiles its own info.json announces, every level (a viewer's requests), as IIIF tile URLs.
+#
+#  1. peak: wrk -t2 -cCONNECTIONS, random tiles from the list, ROUNDS interleaved rounds of SECONDS;
+#  2. latency at half of each one's own median peak (open model, serve_load --http --rate).
+# Both servers, wrk and serve_load share this machine's cores; compare the ratio, not absolutes.
+# Each server keeps its own caches at their defaults (Tessera: --web-cache 64 MiB; IIPImage:
+# MAX_IMAGE_CACHE_SIZE 10 MB of tiles, here 256 MB so both hold every tile of this image).
+#
+#   bench/iiif_vs_iipimage.sh [ROUNDS] [SECONDS] [SIZE] [WORKDIR]   defaults: 3 10 8192 build/bench-iiif
+#   env: CONNECTIONS (32), TESSERA, SERVE_LOAD
+set -euo pipefail
+cd "$(dirname "$0")/.."
+rounds=${1:-3}
+secs=${2:-10}
+size=${3:-8192}
+work=$(realpath -m "${4:-build/bench-iiif}")
+conns=${CONNECTIONS:-32}
+tessera=${TESSERA:-build/tessera}
+load=${SERVE_LOAD:-build/bench/serve_load}
+for b in "$tessera" "$load"; do [ -x "$b" ] || { echo "build first: $b missing" >&2; exit 1; }; done
+need=()
+for p in iipimage-server lighttpd libvips-tools wrk; do dpkg-query -W -f='${Status}' $p 2>/dev/null | grep -q "ok installed" || need+=($p); done
+if ((${#need[@]})); then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null; fi
+mkdir -p "$work/runs"
+rm -f "$work"/runs/*.json
+free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+
+# ---- the image, twice --------------------------------------------------------------------------
+if [ ! -f "$work/src.tif" ]; then
+  for c in 1 2 3; do vips perlin "$work/p$c.v" "$size" "$size" --cell-size $((64 * c)) --seed $c; done
+  vips bandjoin "$work/p1.v $work/p2.v $work/p3.v" "$work/rgb.v"
+  vips linear "$work/rgb.v" "$work/src.tif" 127.5 127.5 --uchar
+  rm -f "$work"/p?.v "$work/rgb.v"
+fi
+[ -f "$work/pyr.tif" ] || vips tiffsave "$work/src.tif" "$work/pyr.tif" --tile --pyramid --compression jpeg --Q 90 \
+  --tile-width 256 --tile-height 256
+[ -f "$work/img.tsr" ] || "$tessera" build "$work/src.tif" -o "$work/img.tsr" --quality 90 -q
+
+# ---- IIPImage behind lighttpd (FastCGI) ----------------------------------------------------------
+ipp=$(free_port)
+mkdir -p "$work/lighttpd"
+cat > "$work/lighttpd/lighttpd.conf" <<CONF
+server.modules = ("mod_fastcgi")
+server.document-root = "$work/lighttpd"
+server.bind = "127.0.0.1"
+server.port = $ipp
+server.pid-file = "$work/lighttpd/pid"
+server.errorlog = "$work/lighttpd/error.log"
+server.max-keep-alive-requests = 100000
+fastcgi.server = ( "/fcgi-bin/iipsrv.fcgi" => ((
+  "socket" => "$work/lighttpd/iipsrv.sock",
+  "bin-path" => "/usr/lib/iipimage-server/iipsrv.fcgi",
+  "min-procs" => $(nproc), "max-procs" => $(nproc), "check-local" => "disable",
+  "bin-environment" => ( "LOGFILE" => "$work/lighttpd/iipsrv.log", "VERBOSITY" => "0",
+                         "MAX_IMAGE_CACHE_SIZE" => "256", "JPEG_QUALITY" => "90", "MAX_CVT" => "5000" )
+)))
+CONF
+lighttpd -D -f "$work/lighttpd/lighttpd.conf" &
+ipp_pid=$!
+"$tessera" serve --store "$work/img.tsr" --grpc "" --http 127.0.0.1:0 2> "$work/tessera.log" &
+tsr_pid=$!
+stop() { kill "$1" 2>/dev/null || true; wait "$1" 2>/dev/null || true; }
+trap 'stop $tsr_pid; stop $ipp_pid' EXIT
+for _ in $(seq 1 100); do grep -q '"msg":"listening"' "$work/tessera.log" && break; sleep 0.1; done
+tsr=$(grep -m1 '"msg":"listening"' "$work/tessera.log" | sed -E 's/.*"http":"([^"]*)".*/\1/')
+ipp_base="/fcgi-bin/iipsrv.fcgi?IIIF=$work/pyr.tif"
+for _ in $(seq 1 100); do curl -sf -o /dev/null "http://127.0.0.1:$ipp$ipp_base/info.json" && break; sleep 0.2; done
+
+# ---- each one's own tiles, from its info.json ----------------------------------------------------
+urls() {  # INFO_URL PREFIX SIZE_FORM ("w," or "w,h") OUT
+  curl -sf "$1" | python3 -c '
+import json, math, sys
+info = json.load(sys.stdin)
+prefix, form = sys.argv[1], sys.argv[2]
+W, H = info["width"], info["height"]
+for t in info["tiles"]:
+    tw, th = t["width"], t.get("height", t["width"])
+    for sf in t["scaleFactors"]:
+        for y in range(0, H, th * sf):
+            for x in range(0, W, tw * sf):
+                w, h = min(tw * sf, W - x), min(th * sf, H - y)
+                ow, oh = math.ceil(w / sf), math.ceil(h / sf)
+                size = f"{ow}," if form == "w," else f"{ow},{oh}"
+                print(f"{prefix}/{x},{y},{w},{h}/{size}/0/default.jpg")' "$2" "$3" > "$5"
+}
+urls "http://$tsr/iiif/img/info.json" "/iiif/img" "w,h" "$work/tessera_urls.txt"
+urls "http://127.0.0.1:$ipp$ipp_base/info.json" "$ipp_base" "w," "$work/iip_urls.txt"
+for f in tessera_urls iip_urls; do
+  n=0; bad=0
+  while read -r u; do
+    n=$((n + 1)); [ $((n % 97)) -eq 0 ] || continue
+    host=$([ $f = tessera_urls ] && echo "$tsr" || echo "127.0.0.1:$ipp")
+    [ "$(curl -s -o /dev/null -w '%{http_code}' "http://$host$u")" = 200 ] || bad=$((bad + 1))
+  done < "$work/$f.txt"
+  echo "$f: $(wc -l < "$work/$f.txt") tiles, $bad failed of a sample"
+  [ "$bad" -eq 0 ] || { echo "tile URLs fail on $f" >&2; exit 1; }
+done
+
+# ---- peak and latency at half of it --------------------------------------------------------------
+wrk_run() {  # name host urls
+  wrk -t2 -c"$conns" -d"${secs}s" -s bench/wrk_tiles.lua "http://$2" -- "$3" "$RANDOM" | sed -n 's/^WRK_JSON //p' > "$work/runs/$1.json"
+}
+for host_urls in "$tsr $work/tessera_urls.txt" "127.0.0.1:$ipp $work/iip_urls.txt"; do  # warm both caches
+  set -- $host_urls; wrk -t2 -c"$conns" -d5s -s bench/wrk_tiles.lua "http://$1" -- "$2" 1 > /dev/null
+done
+for r in $(seq 1 "$rounds"); do
+  if [ $((r % 2)) -eq 1 ]; then wrk_run "peak-tessera-$r" "$tsr" "$work/tessera_urls.txt"; wrk_run "peak-iip-$r" "127.0.0.1:$ipp" "$work/iip_urls.txt"
+  else wrk_run "peak-iip-$r" "127.0.0.1:$ipp" "$work/iip_urls.txt"; wrk_run "peak-tessera-$r" "$tsr" "$work/tessera_urls.txt"; fi
+done
+peak() {  # name -> median tiles/s
+  python3 -c '
+import json, glob, statistics, sys
+v = [json.load(open(f)) for f in glob.glob(sys.argv[1])]
+print(round(statistics.median(r["requests"] / (r["duration_us"] / 1e6) for r in v)))' "$work/runs/peak-$1-*.json"
+}
+tp=$(peak tessera); ip=$(peak iip)
+"$load" --http "$tsr" --url-file "$work/tessera_urls.txt" --connections "$conns" --rate $((tp / 2)) --duration "$secs" \
+  --json "$work/runs/half-tessera.json" > /dev/null
+"$load" --http "127.0.0.1:$ipp" --url-file "$work/iip_urls.txt" --connections "$conns" --rate $((ip / 2)) --duration "$secs" \
+  --json "$work/runs/half-iip.json" > /dev/null
+python3 - "$work" "$tp" "$ip" <<'PY'
+import json, sys
+work, tp, ip = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+def lat(name):
+    j = json.load(open(f"{work}/runs/half-{name}.json"))
+    l = j.get("latency_ms") or j.get("latency", {})
+    return j, l
+tj, tl = lat("tessera"); ij, il = lat("iip")
+print(f"{'server':<10} {'peak tiles/s':>13} {'p50 @ half':>11} {'p99 @ half':>11} {'errors @ half':>14}")
+for name, peak, l, j in [("tessera", tp, tl, tj), ("iipimage", ip, il, ij)]:
+    print(f"{name:<10} {peak:>13} {l.get('p50', float('nan')):>9.2f}ms {l.get('p99', float('nan')):>9.2f}ms {j.get('errors', 0)!s:>14}")
+print(f"tessera / iipimage: peak {tp / ip:.2f}x, p99 at half peak {il.get('p99', 0) / max(tl.get('p99', 1e-9), 1e-9):.2f}x lower")
+json.dump({"tessera_peak": tp, "iip_peak": ip, "tessera_half": tj, "iip_half": ij}, open(f"{work}/results.json", "w"))
+PY

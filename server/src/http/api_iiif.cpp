@@ -1,0 +1,267 @@
+// IIIF Image API 3.0 (https://iiif.io/api/image/3.0/), compliance level 2:
+//   /iiif/{name}                                         303 to its info.json
+//   /iiif/{name}/info.json                               the image information
+//   /iiif/{name}/{region}/{size}/{rotation}/{quality}.{format}
+// region: full, square, x,y,w,h, pct:x,y,w,h; size: max, w,, ,h, pct:n, w,h, !w,h, each with ^
+// to allow upscaling; rotation: 0, 90, 180, 270, each with ! to mirror first; quality: default,
+// color, gray; format: jpg, png. Tiles have no overlap, so every tile is cut from the interior
+// of a stored tile; any other request is assembled from the pyramid level just finer than the
+// output (docs/server.md, "Browsers").
+#include <cmath>
+
+#include <nlohmann/json.hpp>
+
+#include "apis.hpp"
+#include "tessera/hex.hpp"
+
+namespace tessera::server::httpapi {
+
+namespace {
+
+// Outputs are at most this many texels per side: a request's memory and work are bounded.
+constexpr std::uint32_t kMaxSide = 4096;
+constexpr std::uint64_t kMaxArea = std::uint64_t(4096) * 2048;
+
+struct Rect {
+    std::uint32_t x = 0, y = 0, w = 0, h = 0;
+};
+
+// Non-negative decimal with an optional fraction ("12", "12.5"); nullopt otherwise.
+std::optional<double> parse_decimal(std::string_view s) {
+    if (s.empty() || s.size() > 24) return std::nullopt;
+    double v = 0, scale = 0;
+    bool digits = false;
+    for (char c : s) {
+        if (c >= '0' && c <= '9') {
+            digits = true;
+            if (scale == 0) v = v * 10 + (c - '0');
+            else v += (c - '0') * scale, scale /= 10;
+        } else if (c == '.' && scale == 0) {
+            scale = 0.1;
+        } else {
+            return std::nullopt;
+        }
+    }
+    return digits ? std::optional(v) : std::nullopt;
+}
+
+std::vector<std::string_view> split(std::string_view s, char sep) {
+    std::vector<std::string_view> out;
+    std::size_t start = 0;
+    while (true) {
+        const std::size_t i = s.find(sep, start);
+        out.push_back(s.substr(start, i == std::string_view::npos ? std::string_view::npos : i - start));
+        if (i == std::string_view::npos) return out;
+        start = i + 1;
+    }
+}
+
+// The region in full-size texels, clipped to the image. Sets `why` (400) when invalid.
+std::optional<Rect> parse_region(std::string_view s, std::uint32_t W, std::uint32_t H, std::string& why) {
+    if (s == "full") return Rect{0, 0, W, H};
+    if (s == "square") {
+        const std::uint32_t side = std::min(W, H);
+        return Rect{(W - side) / 2, (H - side) / 2, side, side};
+    }
+    const bool pct = s.starts_with("pct:");
+    const auto parts = split(pct ? s.substr(4) : s, ',');
+    if (parts.size() != 4) {
+        why = "region must be full, square, x,y,w,h or pct:x,y,w,h";
+        return std::nullopt;
+    }
+    double v[4];
+    for (int i = 0; i < 4; ++i) {
+        std::optional<double> d;
+        if (pct) d = parse_decimal(parts[i]);
+        else if (const auto u = parse_u32(parts[i])) d = double(*u);
+        if (!d) {
+            why = pct ? "region percentages must be non-negative decimals" : "region x,y,w,h must be non-negative integers";
+            return std::nullopt;
+        }
+        v[i] = *d;
+    }
+    if (pct) {
+        v[0] = std::round(v[0] * W / 100.0), v[2] = std::round(v[2] * W / 100.0);
+        v[1] = std::round(v[1] * H / 100.0), v[3] = std::round(v[3] * H / 100.0);
+    }
+    if (v[2] <= 0 || v[3] <= 0 || v[0] >= W || v[1] >= H) {
+        why = "region is empty or outside the image";
+        return std::nullopt;
+    }
+    Rect r;
+    r.x = std::uint32_t(v[0]), r.y = std::uint32_t(v[1]);
+    r.w = std::uint32_t(std::min(v[2], double(W - r.x)));
+    r.h = std::uint32_t(std::min(v[3], double(H - r.y)));
+    return r;
+}
+
+// The output size for a region. Sets `why` (400) when invalid or over the limits.
+std::optional<std::pair<std::uint32_t, std::uint32_t>> parse_size(std::string_view s, const Rect& r, std::string& why) {
+    const bool up = s.starts_with("^");
+    if (up) s.remove_prefix(1);
+    double w = 0, h = 0;
+    const double rw = r.w, rh = r.h;
+    if (s == "max") {
+        const double f = std::min({1.0, kMaxSide / rw, kMaxSide / rh, std::sqrt(double(kMaxArea) / (rw * rh))});
+        const double g = up ? std::min({kMaxSide / rw, kMaxSide / rh, std::sqrt(double(kMaxArea) / (rw * rh))}) : f;
+        w = std::max(1.0, std::floor(rw * g)), h = std::max(1.0, std::floor(rh * g));
+    } else if (s.starts_with("pct:")) {
+        const auto p = parse_decimal(s.substr(4));
+        if (!p || *p <= 0) {
+            why = "size pct:n needs a positive number";
+            return std::nullopt;
+        }
+        w = std::max(1.0, std::round(rw * *p / 100.0)), h = std::max(1.0, std::round(rh * *p / 100.0));
+    } else {
+        const bool confined = s.starts_with("!");
+        if (confined) s.remove_prefix(1);
+        const auto parts = split(s, ',');
+        if (parts.size() != 2 || (parts[0].empty() && parts[1].empty()) || (confined && (parts[0].empty() || parts[1].empty()))) {
+            why = "size must be max, w,, ,h, pct:n, w,h or !w,h (each may start with ^)";
+            return std::nullopt;
+        }
+        const auto pw = parts[0].empty() ? std::optional<std::uint32_t>(0) : parse_u32(parts[0]);
+        const auto ph = parts[1].empty() ? std::optional<std::uint32_t>(0) : parse_u32(parts[1]);
+        if (!pw || !ph || (!parts[0].empty() && *pw == 0) || (!parts[1].empty() && *ph == 0)) {
+            why = "size width and height must be positive integers";
+            return std::nullopt;
+        }
+        if (confined) {
+            const double f = std::min(*pw / rw, *ph / rh);
+            w = std::max(1.0, std::floor(rw * f + 1e-9)), h = std::max(1.0, std::floor(rh * f + 1e-9));
+        } else if (parts[1].empty()) {
+            w = *pw, h = std::max(1.0, std::round(rh * *pw / rw));
+        } else if (parts[0].empty()) {
+            h = *ph, w = std::max(1.0, std::round(rw * *ph / rh));
+        } else {
+            w = *pw, h = *ph;
+        }
+    }
+    if (!up && (w > rw || h > rh)) {
+        why = "size is larger than the region: ask with ^ to upscale";
+        return std::nullopt;
+    }
+    if (w > kMaxSide || h > kMaxSide || w * h > double(kMaxArea)) {
+        why = "size over the limits: at most " + std::to_string(kMaxSide) + " texels a side and " +
+              std::to_string(kMaxArea) + " in all (info.json: maxWidth, maxHeight, maxArea)";
+        return std::nullopt;
+    }
+    return std::pair{std::uint32_t(w), std::uint32_t(h)};
+}
+
+// Where this image service is, as clients reach it: config.public_url, else the Host they used.
+std::string base_url(HttpHandler& handler, const HttpRequestView& req) {
+    const std::string& configured = handler.context().config.public_url;
+    if (!configured.empty()) return configured.back() == '/' ? configured.substr(0, configured.size() - 1) : configured;
+    const std::string host = req.host.empty() ? handler.context().config.http_address : std::string(req.host);
+    return std::string(req.secure ? "https://" : "http://") + host;
+}
+
+nlohmann::json info_json(const StoreHandle& h, const std::string& id) {
+    const storage::StoreInfo& info = h.info();
+    nlohmann::json factors = nlohmann::json::array(), sizes = nlohmann::json::array();
+    for (std::uint32_t k = 0; k < info.level_count(); ++k) factors.push_back(std::uint64_t(1) << k);
+    for (std::uint32_t k = info.level_count(); k-- > 0;) {
+        const auto& l = info.levels[k];
+        if (l.width <= kMaxSide && l.height <= kMaxSide && std::uint64_t(l.width) * l.height <= kMaxArea)
+            sizes.push_back({{"width", l.width}, {"height", l.height}});
+    }
+    return {{"@context", "http://iiif.io/api/image/3/context.json"},
+            {"id", id},
+            {"type", "ImageService3"},
+            {"protocol", "http://iiif.io/api/image"},
+            {"profile", "level2"},
+            {"width", info.width},
+            {"height", info.height},
+            {"maxWidth", kMaxSide},
+            {"maxHeight", kMaxSide},
+            {"maxArea", kMaxArea},
+            {"sizes", sizes},
+            {"tiles", nlohmann::json::array({{{"width", info.tile_payload}, {"height", info.tile_payload},
+                                              {"scaleFactors", factors}}})},
+            {"extraQualities", {"color", "gray"}},
+            {"extraFeatures", {"mirroring", "sizeUpscaling"}}};
+}
+
+}  // namespace
+
+HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool) {
+    const auto& seg = req.segments;
+    if (seg.size() < 2) return error(404, "an IIIF URL is /iiif/{name}/info.json or /iiif/{name}/{region}/{size}/{rotation}/{quality}.{format}", false);
+    if (!req.query.empty()) return error(400, "IIIF requests take no query parameters", false);
+    HttpResponse failed;
+    const auto store = find_web_store(handler, seg[1], failed);
+    if (seg.size() == 2 || (seg.size() == 3 && seg[2] == "info.json")) route = HttpRoute::iiif_info;
+    else route = HttpRoute::iiif_image;
+    if (!store) return failed;
+    const StoreHandle& h = *store->handle;
+    const std::string id = base_url(handler, *req.raw) + "/iiif/" + h.name;
+    if (seg.size() == 2) {  // the base URI: to its image information
+        HttpResponse r;
+        r.status = 303;
+        r.headers.emplace_back("Location", id + "/info.json");
+        r.headers.emplace_back("Cache-Control", "no-cache");
+        return r;
+    }
+    if (seg.size() == 3) {
+        if (seg[2] != "info.json") return error(404, "no such IIIF resource: " + seg[2], false);
+        const bool ld = req.raw->accept.find("application/ld+json") != std::string_view::npos;
+        HttpResponse r = json_response(info_json(h, id), ld ? "application/ld+json;profile=\"http://iiif.io/api/image/3/context.json\""
+                                                            : "application/json");
+        r.headers.emplace_back("Link", "<http://iiif.io/api/image/3/level2.json>;rel=\"profile\"");
+        r.headers.emplace_back("X-Tessera-Store-Version", hex16(h.version));
+        return r;
+    }
+    if (seg.size() != 6)
+        return error(400, "an IIIF image request is /iiif/{name}/{region}/{size}/{rotation}/{quality}.{format}", false);
+    const storage::StoreInfo& info = h.info();
+    std::string why;
+    const auto region = parse_region(seg[2], info.width, info.height, why);
+    if (!region) return error(400, why, false);
+    const auto size = parse_size(seg[3], *region, why);
+    if (!size) return error(400, why, false);
+    std::string_view rot = seg[4];
+    const bool mirrored = rot.starts_with("!");
+    if (mirrored) rot.remove_prefix(1);
+    const auto degrees = parse_decimal(rot);
+    if (!degrees || *degrees >= 360) return error(400, "rotation must be a number of degrees from 0 to 360, maybe after !", false);
+    if (std::fmod(*degrees, 90.0) != 0) return error(501, "only rotations by multiples of 90 degrees are supported", false);
+    const std::size_t dot = seg[5].rfind('.');
+    if (dot == std::string::npos) return error(400, "quality and format: {quality}.{format}", false);
+    const std::string quality = seg[5].substr(0, dot), format = seg[5].substr(dot + 1);
+    if (quality == "bitonal") return error(501, "quality bitonal is not supported (default, color, gray)", false);
+    if (quality != "default" && quality != "color" && quality != "gray")
+        return error(400, "quality must be default, color, gray or bitonal", false);
+    if (format == "tif" || format == "gif" || format == "jp2" || format == "pdf" || format == "webp")
+        return error(501, "format " + format + " is not supported (jpg, png)", false);
+    if (format != "jpg" && format != "png") return error(400, "format must be jpg or png", false);
+
+    const std::uint32_t ow = size->first, oh = size->second;
+    const WebAnswer answer{"iiif-" + std::to_string(region->x) + "," + std::to_string(region->y) + "," +
+                               std::to_string(region->w) + "," + std::to_string(region->h) + "-" + std::to_string(ow) +
+                               "," + std::to_string(oh) + "-" + (mirrored ? "!" : "") + std::to_string(int(*degrees)) +
+                               "-" + quality + "." + format,
+                           format, false};
+    return web_image_response(handler, *req.raw, h, answer, [&](WebFailure& failure) -> std::optional<WebImage> {
+        // The coarsest level that still has at least the output's resolution.
+        const double scale = std::min(double(region->w) / ow, double(region->h) / oh);
+        std::uint32_t k = 0;
+        while (k + 1 < info.level_count() && double(std::uint64_t(2) << k) <= scale + 1e-9) ++k;
+        const auto& lk = info.levels[k];
+        const auto lo = [&](std::uint32_t v) { return std::uint32_t(v >> k); };
+        const auto hi = [&](std::uint32_t v, std::uint32_t limit) {
+            return std::uint32_t(std::min<std::uint64_t>((std::uint64_t(v) + (std::uint64_t(1) << k) - 1) >> k, limit));
+        };
+        const std::uint32_t x0 = lo(region->x), y0 = lo(region->y);
+        const std::uint32_t x1 = std::max(x0 + 1, hi(region->x + region->w, lk.width)),
+                            y1 = std::max(y0 + 1, hi(region->y + region->h, lk.height));
+        auto image = render_region(handler.context().fetcher, h, store->look, Region{k, x0, y0, x1 - x0, y1 - y0}, ow, oh,
+                                   failure);
+        if (!image) return image;
+        if (quality == "gray") *image = to_grey(*image);
+        if (mirrored) *image = mirror(*image);
+        return rotate_quarters(*image, unsigned(*degrees / 90));
+    });
+}
+
+}  // namespace tessera::server::httpapi

@@ -1,0 +1,82 @@
+#pragma once
+// The HTTP APIs, one file each, and what they share with the router (http_handler.cpp):
+//   api_v1.cpp    /v1/stores, /v1/stores/{name}, /v1/stores/{name}/tiles/{level}/{x}/{y}
+//   api_dzi.cpp   /dzi/{name}.dzi, /dzi/{name}_files/{level}/{x}_{y}.{jpg|png}
+//   api_iiif.cpp  /iiif/{name}/info.json, /iiif/{name}/{region}/{size}/{rotation}/{quality}.{format}
+//   api_xyz.cpp   /xyz/{name}/{z}/{x}/{y}.{jpg|png}
+//   viewer.cpp    /, /view/{name}, /static/... (the web viewer and its OpenSeadragon)
+// docs/server.md describes each.
+#include <string>
+
+#include "../http_handler.hpp"
+#include "common.hpp"
+#include "web_image.hpp"
+
+namespace tessera::server::httpapi {
+
+// An API answers the requests whose first path segment is its own. It sets `route` (the metric
+// label) as soon as it knows which of its routes the request is for.
+using ApiFn = HttpResponse (*)(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload);
+
+HttpResponse api_v1(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload);
+HttpResponse api_dzi(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload);
+HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload);
+HttpResponse api_xyz(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload);
+HttpResponse viewer_index(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload);
+HttpResponse viewer_page(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload);
+HttpResponse viewer_static(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload);
+
+// A web image answer, shared by the DZI, IIIF and XYZ routes: the encoded image under an ETag
+// made of the store version and `variant` (what was asked, so each URL has its own tag),
+// cached in the handler's web tile cache, 304 on a matching If-None-Match, and the tile
+// counters counted. `render` makes the image when it is not cached.
+struct WebAnswer {
+    std::string variant;     // e.g. "dzi-3-1_2.jpg": unique per representation within a store version
+    std::string format;      // "jpg" or "png"
+    bool immutable = false;  // the URL pins the store version
+};
+template <class Render>
+HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
+                                 const WebAnswer& answer, Render&& render);
+
+// The store a web route names, or the error to answer: 400 for an invalid name, 404 unknown,
+// 406 for samples a browser cannot show.
+struct WebStore {
+    std::shared_ptr<const StoreHandle> handle;
+    WebLook look;
+};
+std::optional<WebStore> find_web_store(HttpHandler& handler, const std::string& name, HttpResponse& error_response);
+
+// The encoded body behind an ETag: what web_image_response serves once it has the bytes.
+HttpResponse web_body_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
+                               const WebAnswer& answer, std::shared_ptr<const std::string> body);
+std::string web_etag(const StoreHandle& store, const WebAnswer& answer);
+std::string web_cache_key(const StoreHandle& store, const WebAnswer& answer);
+
+template <class Render>
+HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
+                                const WebAnswer& answer, Render&& render) {
+    const std::string etag = web_etag(store, answer);
+    if (!req.if_none_match.empty() && if_none_match_matches(req.if_none_match, etag))
+        return web_body_response(handler, req, store, answer, nullptr);
+    const std::string key = web_cache_key(store, answer);
+    std::shared_ptr<const std::string> body = handler.web_cache().find(key);
+    if (!body) {
+        TileSlot slot = handler.tile_slot();
+        if (!slot.ok()) return retry_later("too many tile requests in flight; retry", false);
+        WebFailure failure;
+        std::optional<WebImage> image = render(failure);
+        if (!image) {
+            HttpResponse r = error(failure.status, failure.message, false);
+            if (failure.status == 503) r.headers.emplace_back("Retry-After", "1");
+            return r;
+        }
+        std::optional<std::string> encoded = encode_web(*image, answer.format, failure);
+        if (!encoded) return error(failure.status, failure.message, false);
+        body = std::make_shared<const std::string>(std::move(*encoded));
+        handler.web_cache().insert(key, body);
+    }
+    return web_body_response(handler, req, store, answer, std::move(body));
+}
+
+}  // namespace tessera::server::httpapi

@@ -1,0 +1,54 @@
+// What the browser-facing routes (DZI, IIIF, XYZ) share: finding a store they can show, and
+// answering with an encoded image under an ETag, from the web tile cache when it is there.
+#include "apis.hpp"
+#include "tessera/hex.hpp"
+#include "tessera/protocol/wire.hpp"
+
+namespace tessera::server::httpapi {
+
+std::optional<WebStore> find_web_store(HttpHandler& handler, const std::string& name, HttpResponse& error_response) {
+    if (!protocol::valid_store_name(name)) {
+        error_response = error(400, "invalid store name", false);
+        return std::nullopt;
+    }
+    auto h = handler.context().stores.find(name);
+    if (!h) {
+        error_response = error(404, "unknown store '" + name + "'", false);
+        return std::nullopt;
+    }
+    WebStore s{h, web_look(h->info())};
+    if (!s.look.refused.empty()) {
+        error_response = error(406, s.look.refused, false);
+        return std::nullopt;
+    }
+    return s;
+}
+
+std::string web_etag(const StoreHandle& store, const WebAnswer& answer) {
+    return "\"" + hex16(store.version) + "-" + answer.variant + "\"";
+}
+
+std::string web_cache_key(const StoreHandle& store, const WebAnswer& answer) {
+    return store.name + "/" + hex16(store.version) + "/" + answer.variant;
+}
+
+HttpResponse web_body_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
+                               const WebAnswer& answer, std::shared_ptr<const std::string> body) {
+    HttpResponse r;
+    r.headers.emplace_back("ETag", web_etag(store, answer));
+    r.headers.emplace_back("Cache-Control", answer.immutable
+                                                ? "public, max-age=" + std::to_string(kImmutableMaxAge) + ", immutable"
+                                                : "public, max-age=" + std::to_string(handler.context().config.http_max_age));
+    r.headers.emplace_back("X-Tessera-Store-Version", hex16(store.version));
+    if (!body) {
+        r.status = 304;
+        return r;
+    }
+    r.status = 200;
+    r.content_type = answer.format == "png" ? "image/png" : "image/jpeg";
+    r.body = *body;
+    if (req.method != "HEAD") handler.count_served(store, r.body.size());
+    return r;
+}
+
+}  // namespace tessera::server::httpapi
