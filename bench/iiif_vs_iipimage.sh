@@ -5,7 +5,10 @@
 # the tiles its own info.json announces, every level (a viewer's requests), as IIIF tile URLs.
 #
 #  1. peak: wrk -t2 -cCONNECTIONS, random tiles from the list, ROUNDS interleaved rounds of SECONDS;
-#  2. latency at half of each one's own median peak (open model, serve_load --http --rate).
+#  2. latency at half of each one's own median peak (open model, serve_load --http --rate), and
+#     at one common rate (IIPImage's half peak) for all.
+# Tessera runs twice: as deployed (encoded web tiles cached) and with --web-cache 0, every tile
+# decoded, cropped and encoded again per request, as IIPImage does with its cached raw tiles.
 # Both servers, wrk and serve_load share this machine's cores; compare the ratio, not absolutes.
 # Each server keeps its own caches at their defaults (Tessera: --web-cache 64 MiB; IIPImage:
 # MAX_IMAGE_CACHE_SIZE 10 MB of tiles, here 256 MB so both hold every tile of this image).
@@ -63,10 +66,16 @@ lighttpd -D -f "$work/lighttpd/lighttpd.conf" &
 ipp_pid=$!
 "$tessera" serve --store "$work/img.tsr" --grpc "" --http 127.0.0.1:0 2> "$work/tessera.log" &
 tsr_pid=$!
+"$tessera" serve --store "$work/img.tsr" --grpc "" --http 127.0.0.1:0 --web-cache 0 2> "$work/tessera_nocache.log" &
+tnc_pid=$!
 stop() { kill "$1" 2>/dev/null || true; wait "$1" 2>/dev/null || true; }
-trap 'stop $tsr_pid; stop $ipp_pid' EXIT
-for _ in $(seq 1 100); do grep -q '"msg":"listening"' "$work/tessera.log" && break; sleep 0.1; done
-tsr=$(grep -m1 '"msg":"listening"' "$work/tessera.log" | sed -E 's/.*"http":"([^"]*)".*/\1/')
+trap 'stop $tsr_pid; stop $tnc_pid; stop $ipp_pid' EXIT
+listening() {
+  for _ in $(seq 1 100); do grep -q '"msg":"listening"' "$1" && break; sleep 0.1; done
+  grep -m1 '"msg":"listening"' "$1" | sed -E 's/.*"http":"([^"]*)".*/\1/'
+}
+tsr=$(listening "$work/tessera.log")
+tnc=$(listening "$work/tessera_nocache.log")
 ipp_base="/fcgi-bin/iipsrv.fcgi?IIIF=$work/pyr.tif"
 for _ in $(seq 1 100); do curl -sf -o /dev/null "http://127.0.0.1:$ipp$ipp_base/info.json" && break; sleep 0.2; done
 
@@ -85,7 +94,7 @@ for t in info["tiles"]:
                 w, h = min(tw * sf, W - x), min(th * sf, H - y)
                 ow, oh = math.ceil(w / sf), math.ceil(h / sf)
                 size = f"{ow}," if form == "w," else f"{ow},{oh}"
-                print(f"{prefix}/{x},{y},{w},{h}/{size}/0/default.jpg")' "$2" "$3" > "$5"
+                print(f"{prefix}/{x},{y},{w},{h}/{size}/0/default.jpg")' "$2" "$3" > "$4"
 }
 urls "http://$tsr/iiif/img/info.json" "/iiif/img" "w,h" "$work/tessera_urls.txt"
 urls "http://127.0.0.1:$ipp$ipp_base/info.json" "$ipp_base" "w," "$work/iip_urls.txt"
@@ -101,38 +110,50 @@ for f in tessera_urls iip_urls; do
 done
 
 # ---- peak and latency at half of it --------------------------------------------------------------
-wrk_run() {  # name host urls
-  wrk -t2 -c"$conns" -d"${secs}s" -s bench/wrk_tiles.lua "http://$2" -- "$3" "$RANDOM" | sed -n 's/^WRK_JSON //p' > "$work/runs/$1.json"
+declare -A host=([tessera]=$tsr [tessera-nocache]=$tnc [iip]=127.0.0.1:$ipp)
+declare -A list=([tessera]=$work/tessera_urls.txt [tessera-nocache]=$work/tessera_urls.txt [iip]=$work/iip_urls.txt)
+names=(tessera tessera-nocache iip)
+wrk_run() {  # run-name server
+  wrk -t2 -c"$conns" -d"${secs}s" -s bench/wrk_tiles.lua "http://${host[$2]}" -- "${list[$2]}" "$RANDOM" \
+    | sed -n 's/^WRK_JSON //p' > "$work/runs/$1.json"
 }
-for host_urls in "$tsr $work/tessera_urls.txt" "127.0.0.1:$ipp $work/iip_urls.txt"; do  # warm both caches
-  set -- $host_urls; wrk -t2 -c"$conns" -d5s -s bench/wrk_tiles.lua "http://$1" -- "$2" 1 > /dev/null
-done
-for r in $(seq 1 "$rounds"); do
-  if [ $((r % 2)) -eq 1 ]; then wrk_run "peak-tessera-$r" "$tsr" "$work/tessera_urls.txt"; wrk_run "peak-iip-$r" "127.0.0.1:$ipp" "$work/iip_urls.txt"
-  else wrk_run "peak-iip-$r" "127.0.0.1:$ipp" "$work/iip_urls.txt"; wrk_run "peak-tessera-$r" "$tsr" "$work/tessera_urls.txt"; fi
+for n in "${names[@]}"; do wrk -t2 -c"$conns" -d5s -s bench/wrk_tiles.lua "http://${host[$n]}" -- "${list[$n]}" 1 > /dev/null; done
+for r in $(seq 1 "$rounds"); do  # interleaved, the order turned each round
+  for i in 0 1 2; do n=${names[$(((i + r) % 3))]}; wrk_run "peak-$n-$r" "$n"; done
 done
 peak() {  # name -> median tiles/s
   python3 -c '
 import json, glob, statistics, sys
 v = [json.load(open(f)) for f in glob.glob(sys.argv[1])]
-print(round(statistics.median(r["requests"] / (r["duration_us"] / 1e6) for r in v)))' "$work/runs/peak-$1-*.json"
+print(round(statistics.median(r["requests"] / (r["duration_us"] / 1e6) for r in v)))' "$work/runs/peak-$1-[0-9]*.json"
 }
-tp=$(peak tessera); ip=$(peak iip)
-"$load" --http "$tsr" --url-file "$work/tessera_urls.txt" --connections "$conns" --rate $((tp / 2)) --duration "$secs" \
-  --json "$work/runs/half-tessera.json" > /dev/null
-"$load" --http "127.0.0.1:$ipp" --url-file "$work/iip_urls.txt" --connections "$conns" --rate $((ip / 2)) --duration "$secs" \
-  --json "$work/runs/half-iip.json" > /dev/null
-python3 - "$work" "$tp" "$ip" <<'PY'
+declare -A pk
+for n in "${names[@]}"; do pk[$n]=$(peak "$n"); done
+common=$((pk[iip] / 2))
+for n in "${names[@]}"; do
+  "$load" --http "${host[$n]}" --url-file "${list[$n]}" --connections "$conns" --rate $((pk[$n] / 2)) --duration "$secs" \
+    --json "$work/runs/half-$n.json" > /dev/null
+  "$load" --http "${host[$n]}" --url-file "${list[$n]}" --connections "$conns" --rate "$common" --duration "$secs" \
+    --json "$work/runs/common-$n.json" > /dev/null
+done
+python3 - "$work" "${pk[tessera]}" "${pk[tessera-nocache]}" "${pk[iip]}" "$common" <<'PY'
 import json, sys
-work, tp, ip = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-def lat(name):
-    j = json.load(open(f"{work}/runs/half-{name}.json"))
-    l = j.get("latency_ms") or j.get("latency", {})
-    return j, l
-tj, tl = lat("tessera"); ij, il = lat("iip")
-print(f"{'server':<10} {'peak tiles/s':>13} {'p50 @ half':>11} {'p99 @ half':>11} {'errors @ half':>14}")
-for name, peak, l, j in [("tessera", tp, tl, tj), ("iipimage", ip, il, ij)]:
-    print(f"{name:<10} {peak:>13} {l.get('p50', float('nan')):>9.2f}ms {l.get('p99', float('nan')):>9.2f}ms {j.get('errors', 0)!s:>14}")
-print(f"tessera / iipimage: peak {tp / ip:.2f}x, p99 at half peak {il.get('p99', 0) / max(tl.get('p99', 1e-9), 1e-9):.2f}x lower")
-json.dump({"tessera_peak": tp, "iip_peak": ip, "tessera_half": tj, "iip_half": ij}, open(f"{work}/results.json", "w"))
+work = sys.argv[1]
+peaks = dict(zip(["tessera", "tessera-nocache", "iip"], map(int, sys.argv[2:5])))
+common = int(sys.argv[5])
+def run(kind, name):
+    return json.load(open(f"{work}/runs/{kind}-{name}.json"))
+print(f"{'server':<16} {'peak tiles/s':>13} {'p50 / p99 @ half peak':>24} {'p50 / p99 @ ' + str(common) + '/s':>24}")
+rows = {}
+for name, peak in peaks.items():
+    h, c = run("half", name), run("common", name)
+    hl, cl = h["latency_ms"], c["latency_ms"]
+    rows[name] = {"peak": peak, "half": h, "common": c}
+    print(f"{name:<16} {peak:>13} {hl['p50']:>10.2f} / {hl['p99']:>7.2f} ms {cl['p50']:>10.2f} / {cl['p99']:>7.2f} ms"
+          + (f"  errors {h['errors'] + c['errors']}" if h["errors"] + c["errors"] else ""))
+for name in ["tessera", "tessera-nocache"]:
+    r = rows[name]
+    print(f"{name} / iipimage: peak {r['peak'] / peaks['iip']:.2f}x; p99 at {common}/s "
+          f"{rows['iip']['common']['latency_ms']['p99'] / r['common']['latency_ms']['p99']:.2f}x lower")
+json.dump(rows, open(f"{work}/results.json", "w"))
 PY

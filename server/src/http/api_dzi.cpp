@@ -40,14 +40,9 @@ std::string dzi_xml(const storage::StoreInfo& info, const WebLook& look) {
 HttpResponse api_dzi(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool borrow_payload) {
     const auto& seg = req.segments;
     std::string name;
-    if (const std::string unknown = req.unknown_params({"v"}); !unknown.empty())
-        return error(400, "unknown query parameter " + unknown + " (known: v)", false);
-    bool twice = false;
-    const auto v = req.param("v", &twice);
     std::optional<std::uint64_t> version;
-    if (twice) return error(400, "query parameter 'v' given twice", false);
-    if (v && !(version = parse_version(*v))) return error(400, "query parameter 'v' must be the store version in hex", false);
     HttpResponse failed;
+    if (!pinned_version(req, version, failed)) return failed;
 
     if (seg.size() == 2 && strip_suffix(seg[1], ".dzi", name)) {
         route = HttpRoute::dzi_info;

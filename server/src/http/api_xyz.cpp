@@ -13,14 +13,9 @@ HttpResponse api_xyz(HttpHandler& handler, const ParsedRequest& req, HttpRoute& 
     const auto& seg = req.segments;
     if (seg.size() != 5) return error(404, "an XYZ tile URL is /xyz/{name}/{z}/{x}/{y}.{jpg|png}", false);
     route = HttpRoute::xyz_tile;
-    if (const std::string unknown = req.unknown_params({"v"}); !unknown.empty())
-        return error(400, "unknown query parameter " + unknown + " (known: v)", false);
-    bool twice = false;
-    const auto v = req.param("v", &twice);
     std::optional<std::uint64_t> version;
-    if (twice) return error(400, "query parameter 'v' given twice", false);
-    if (v && !(version = parse_version(*v))) return error(400, "query parameter 'v' must be the store version in hex", false);
     HttpResponse failed;
+    if (!pinned_version(req, version, failed)) return failed;
     const auto store = find_web_store(handler, seg[1], failed);
     if (!store) return failed;
     const StoreHandle& h = *store->handle;

@@ -47,6 +47,10 @@ struct WebStore {
 };
 std::optional<WebStore> find_web_store(HttpHandler& handler, const std::string& name, HttpResponse& error_response);
 
+// The one query parameter DZI and XYZ URLs take, ?v={version} (a store version pinned, as in
+// /v1). False, with the 400 to answer in `failed`, for anything else.
+bool pinned_version(const ParsedRequest& req, std::optional<std::uint64_t>& version, HttpResponse& failed);
+
 // The encoded body behind an ETag: what web_image_response serves once it has the bytes.
 HttpResponse web_body_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
                                const WebAnswer& answer, std::shared_ptr<const std::string> body);

@@ -24,6 +24,24 @@ std::optional<WebStore> find_web_store(HttpHandler& handler, const std::string& 
     return s;
 }
 
+bool pinned_version(const ParsedRequest& req, std::optional<std::uint64_t>& version, HttpResponse& failed) {
+    if (const std::string unknown = req.unknown_params({"v"}); !unknown.empty()) {
+        failed = error(400, "unknown query parameter " + unknown + " (known: v)", false);
+        return false;
+    }
+    bool twice = false;
+    const auto v = req.param("v", &twice);
+    if (twice) {
+        failed = error(400, "query parameter 'v' given twice", false);
+        return false;
+    }
+    if (v && !(version = parse_version(*v))) {
+        failed = error(400, "query parameter 'v' must be the store version in hex", false);
+        return false;
+    }
+    return true;
+}
+
 std::string web_etag(const StoreHandle& store, const WebAnswer& answer) {
     return "\"" + hex16(store.version) + "-" + answer.variant + "\"";
 }
