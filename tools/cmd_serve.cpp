@@ -83,6 +83,7 @@ int run_serve(ServeArgs& a) {
         if (sig == SIGHUP) {
             notify_service_manager("RELOADING=1\n" + monotonic_usec_field());
             srv->reload();
+            (void)srv->reload_tls();  // a renewed certificate; an error is logged and the old one stays
             // The token file again (a rotated secret): a file that cannot be read or is empty keeps
             // the token in force.
             if (!a.auth_token_file.empty()) {
@@ -194,7 +195,7 @@ Command add_serve(CLI::App& app) {
     s->add_option("--log-level", a->log_level, "info or debug")->capture_default_str()
         ->check(CLI::IsMember({"info", "debug"}));
     s->footer(
-        "Signals: SIGHUP rescans the stores and rereads --auth-token-file; SIGTERM/SIGINT stop accepting, finish admitted work\n"
+        "Signals: SIGHUP rescans the stores and rereads --auth-token-file, --tls-cert and --tls-key; SIGTERM/SIGINT stop accepting, finish admitted work\n"
         "(up to --drain-timeout) and exit 0. Logs are one JSON object per line on stderr.");
     // Debian 12's CLI11 (2.1) reads config files only for the main app (CLIUtils/CLI11#1056),
     // so apply --config here: keys are long option names, top level or under [serve]; the

@@ -79,7 +79,18 @@ struct SessionBase;
 struct Shared {
     ServerContext& ctx;
     HttpHandler handler;
-    std::unique_ptr<ssl::context> tls;  // null: plain HTTP
+    // null: plain HTTP. Replaced whole by reload_tls; a session keeps the context it started
+    // with (its own reference), so connections already open are never disturbed.
+    std::shared_ptr<ssl::context> tls_;
+    mutable std::mutex tls_mutex;
+    std::shared_ptr<ssl::context> tls() const {
+        std::lock_guard lock(tls_mutex);
+        return tls_;
+    }
+    void set_tls(std::shared_ptr<ssl::context> t) {
+        std::lock_guard lock(tls_mutex);
+        tls_ = std::move(t);
+    }
 
     std::atomic<bool> draining{false};
     std::atomic<bool> stopped{false};
@@ -121,7 +132,7 @@ class Session final : public SessionBase {
 
 public:
     Session(Shared& shared, tcp::socket&& socket, bool reject)
-        : shared_(shared), stream_(make_stream(shared, std::move(socket))), reject_(reject) {
+        : shared_(shared), tls_(Tls ? shared.tls() : nullptr), stream_(make_stream(tls_, std::move(socket))), reject_(reject) {
         (reject_ ? shared_.rejects : shared_.connections).fetch_add(1);
     }
     ~Session() override {
@@ -162,8 +173,8 @@ public:
     }
 
 private:
-    static Stream make_stream(Shared& shared, tcp::socket&& socket) {
-        if constexpr (Tls) return Stream(std::move(socket), *shared.tls);
+    static Stream make_stream(const std::shared_ptr<ssl::context>& tls, tcp::socket&& socket) {
+        if constexpr (Tls) return Stream(std::move(socket), *tls);
         else return Stream(std::move(socket));
     }
     std::shared_ptr<Session> self() { return std::static_pointer_cast<Session>(shared_from_this()); }
@@ -344,6 +355,7 @@ private:
     }
 
     Shared& shared_;
+    std::shared_ptr<ssl::context> tls_;  // the context this session's TLS stream was made from
     Stream stream_;
     const bool reject_;
     State state_ = State::reading;
@@ -397,14 +409,14 @@ bool readable(const std::string& path) {
     return f.good();
 }
 
-Result<std::unique_ptr<ssl::context>> make_tls_context(const ServerConfig& config) {
+Result<std::shared_ptr<ssl::context>> make_tls_context(const ServerConfig& config) {
     if (config.tls_cert_file.empty() != config.tls_key_file.empty())
         return make_error(Errc::invalid_argument, "TLS needs both a certificate and a key file");
     if (!readable(config.tls_cert_file))
         return make_error(Errc::io_error, "cannot read TLS certificate '" + config.tls_cert_file + "'");
     if (!readable(config.tls_key_file))
         return make_error(Errc::io_error, "cannot read TLS key '" + config.tls_key_file + "'");
-    auto tls = std::make_unique<ssl::context>(ssl::context::tls_server);
+    auto tls = std::make_shared<ssl::context>(ssl::context::tls_server);
     error_code ec;
     tls->set_options(ssl::context::default_workarounds | ssl::context::no_sslv2 | ssl::context::no_sslv3 |
                          ssl::context::no_tlsv1 | ssl::context::no_tlsv1_1 | ssl::context::single_dh_use,
@@ -440,12 +452,20 @@ public:
 
     ~HttpServerImpl() override { stop(); }
 
+    Status reload_tls() override {
+        if (!shared_.tls()) return {};
+        auto tls = make_tls_context(shared_.ctx.config);
+        if (!tls.ok()) return tls.error();  // the old certificate stays in force
+        shared_.set_tls(std::move(tls.value()));
+        return {};
+    }
+
     Status open() {
         const ServerConfig& config = shared_.ctx.config;
         if (!config.tls_cert_file.empty() || !config.tls_key_file.empty()) {
             auto tls = make_tls_context(config);
             if (!tls.ok()) return tls.error();
-            shared_.tls = std::move(tls.value());
+            shared_.set_tls(std::move(tls.value()));
         }
         auto ep = resolve_endpoint(config.http_address, *iocs_.front());
         if (!ep.ok()) return ep.error();
@@ -464,7 +484,7 @@ public:
         net::dispatch(accept_strand_, [this] { do_accept(); });
         for (unsigned i = 0; i < thread_count_; ++i) threads_.emplace_back([this, i] { run(*iocs_[i]); });
         shared_.ctx.log.info("http listening", {{"address", config.http_address}, {"port", static_cast<unsigned>(port_)},
-                                                {"tls", shared_.tls != nullptr}, {"threads", thread_count_}});
+                                                {"tls", shared_.tls() != nullptr}, {"threads", thread_count_}});
         return {};
     }
 
@@ -567,7 +587,7 @@ private:
             // A flood past the limit: no session at all. Plain HTTP still gets its 503, written
             // into the new socket's empty send buffer without waiting; TLS cannot answer without
             // a handshake, so it is closed.
-            if (!shared_.tls) {
+            if (!shared_.tls()) {
                 static const std::string canned = "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\n"
                                                   "Retry-After: 1\r\nConnection: close\r\nContent-Length: 21\r\n\r\n"
                                                   "too many connections\n";
@@ -580,7 +600,7 @@ private:
             return do_accept();
         }
         std::shared_ptr<SessionBase> s;
-        if (shared_.tls) s = std::make_shared<Session<true>>(shared_, std::move(socket), reject);
+        if (shared_.tls()) s = std::make_shared<Session<true>>(shared_, std::move(socket), reject);
         else s = std::make_shared<Session<false>>(shared_, std::move(socket), reject);
         {
             std::lock_guard lock(shared_.sessions_mutex);

@@ -18,6 +18,9 @@ public:
     static Result<std::unique_ptr<HttpServer>> start(ServerContext& ctx);
     virtual ~HttpServer() = default;  // stops and joins
     virtual std::uint16_t port() const = 0;
+    // TLS: rereads the certificate and key files for connections accepted from now on (those
+    // open keep theirs). On an error the old certificate stays and the error is returned.
+    virtual Status reload_tls() = 0;
     // Stop accepting; idle keep-alive connections close; requests being served finish.
     virtual void begin_drain() = 0;
     // True once no request is being served (or the timeout passed: false).

@@ -2,9 +2,19 @@
 // logger, metrics, stores, cache, fetcher, context, scheduler, gRPC service and server, HTTP
 // server, and the watch thread that rescans the stores.
 #include <grpcpp/grpcpp.h>
+#include <grpcpp/security/server_credentials.h>
+#include <grpcpp/security/tls_certificate_provider.h>
+#include <grpcpp/security/tls_credentials_options.h>
+
+#include <openssl/err.h>
+#include <openssl/pem.h>
+#include <openssl/x509.h>
+#include <sys/stat.h>
 
 #include <algorithm>
 #include <condition_variable>
+#include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <thread>
@@ -37,6 +47,8 @@ RemoteStores remote_stores(const ServerConfig& config) {
 // at "all cores" become at least kRemoteThreads, so a 50 ms round trip does not cap the server at
 // cores / 50 ms reads. (HTTP loops read tiles themselves; docs/server.md, "Remote stores".)
 constexpr unsigned kRemoteThreads = 16;
+// How often gRPC's TLS credentials look at the certificate and key files for a renewal.
+constexpr unsigned kTlsRefreshSeconds = 2;
 ServerConfig effective(ServerConfig c) {
     const bool remote = std::any_of(c.store_files.begin(), c.store_files.end(), [](const std::string& s) {
         return s.starts_with("s3://") || s.starts_with("http://") || s.starts_with("https://");
@@ -55,6 +67,26 @@ Result<std::string> read_text_file(const std::string& path, const char* what) {
     std::ostringstream ss;
     ss << in.rdbuf();
     return ss.str();
+}
+
+// Whether `key_pem` is the private key of the first certificate in `cert_pem`.
+Status check_key_pair(const std::string& cert_pem, const std::string& key_pem, const ServerConfig& c) {
+    BIO* cb = BIO_new_mem_buf(cert_pem.data(), int(cert_pem.size()));
+    BIO* kb = BIO_new_mem_buf(key_pem.data(), int(key_pem.size()));
+    X509* cert = cb ? PEM_read_bio_X509(cb, nullptr, nullptr, nullptr) : nullptr;
+    EVP_PKEY* key = kb ? PEM_read_bio_PrivateKey(kb, nullptr, nullptr, nullptr) : nullptr;
+    const bool ok = cert && key && X509_check_private_key(cert, key) == 1;
+    EVP_PKEY_free(key);
+    X509_free(cert);
+    BIO_free(kb);
+    BIO_free(cb);
+    ERR_clear_error();
+    if (!cert) return Error{Errc::invalid_argument, "no PEM certificate in TLS certificate " + c.tls_cert_file};
+    if (!key) return Error{Errc::invalid_argument, "no PEM private key in TLS key " + c.tls_key_file};
+    if (!ok)
+        return Error{Errc::invalid_argument,
+                     "TLS key '" + c.tls_key_file + "' does not match the certificate '" + c.tls_cert_file + "'"};
+    return {};
 }
 
 // HOST:PORT with a port in 0..65535 (0: any); HOST may be a bracketed IPv6 literal.
@@ -99,7 +131,13 @@ public:
           fetcher_(cache_, metrics_, log_),
           ctx_{config_, log_, metrics_, stores_, fetcher_} {}
 
-    ~ServerImpl() override { shutdown(); }
+    ~ServerImpl() override {
+        shutdown();
+        if (!identity_dir_.empty()) {
+            std::error_code ec;
+            std::filesystem::remove_all(identity_dir_, ec);
+        }
+    }
 
     Status start() {
         TESSERA_TRY(stores_.open());
@@ -138,6 +176,18 @@ public:
     void set_auth_token(const std::string& token) override {
         ctx_.set_auth_token(token);
         log_.info("auth token replaced", {{"auth", !token.empty()}});
+    }
+
+    Status reload_tls() override {
+        if (config_.tls_cert_file.empty()) return {};
+        Status s = http_ ? http_->reload_tls() : Status();
+        if (s.ok() && !identity_file_.empty()) s = publish_identity();
+        if (!s.ok()) {
+            log_.error("TLS certificate not reloaded; the old one stays", {{"error", s.error().message}});
+            return s;
+        }
+        log_.info("TLS certificate reloaded", {{"http", http_ != nullptr}, {"grpc_within_s", kTlsRefreshSeconds}});
+        return {};
     }
 
     void reload() override {
@@ -182,16 +232,44 @@ private:
         return colon == std::string::npos ? address : address.substr(0, colon);
     }
 
+    // Checks that --tls-key is the key of --tls-cert and writes both, as one file, where gRPC's
+    // file watcher reads them (a private directory, the file renamed into place whole).
+    Status publish_identity() {
+        auto cert = read_text_file(config_.tls_cert_file, "TLS certificate");
+        if (!cert) return cert.error();
+        auto key = read_text_file(config_.tls_key_file, "TLS key");
+        if (!key) return key.error();
+        if (const Status st = check_key_pair(*cert, *key, config_); !st.ok()) return st;
+        if (identity_dir_.empty()) {
+            std::string dir = (std::filesystem::temp_directory_path() / "tessera-tls-XXXXXX").string();
+            if (!::mkdtemp(dir.data())) return Error{Errc::io_error, "cannot make a private directory for the TLS identity"};
+            identity_dir_ = dir;
+            identity_file_ = dir + "/identity.pem";
+        }
+        const std::string tmp = identity_file_ + ".new";
+        {
+            std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+            ::chmod(tmp.c_str(), 0600);
+            out << *key << "\n" << *cert;
+            if (!out.flush()) return Error{Errc::io_error, "cannot write the TLS identity copy " + tmp};
+        }
+        if (std::rename(tmp.c_str(), identity_file_.c_str()) != 0)
+            return Error{Errc::io_error, "cannot replace the TLS identity copy " + identity_file_};
+        return {};
+    }
+
     Status start_grpc() {
         std::shared_ptr<grpc::ServerCredentials> creds;
         if (!config_.tls_cert_file.empty()) {
-            auto cert = read_text_file(config_.tls_cert_file, "TLS certificate");
-            if (!cert) return cert.error();
-            auto key = read_text_file(config_.tls_key_file, "TLS key");
-            if (!key) return key.error();
-            grpc::SslServerCredentialsOptions ssl;
-            ssl.pem_key_cert_pairs.push_back({*key, *cert});
-            creds = grpc::SslServerCredentials(ssl);
+            // gRPC watches a private copy of the key and certificate, one file replaced whole and
+            // only once the pair is checked (publish_identity): a renewal reaches new connections
+            // within kTlsRefreshSeconds of SIGHUP, and a broken one never reaches them.
+            if (const Status st = publish_identity(); !st.ok()) return st;
+            auto provider = std::make_shared<grpc::experimental::FileWatcherCertificateProvider>(
+                identity_file_, identity_file_, kTlsRefreshSeconds);
+            grpc::experimental::TlsServerCredentialsOptions tls(provider);
+            tls.watch_identity_key_cert_pairs();
+            creds = grpc::experimental::TlsServerCredentials(tls);
         } else {
             creds = grpc::InsecureServerCredentials();
         }
@@ -233,6 +311,7 @@ private:
     std::unique_ptr<grpc::Server> grpc_server_;
     int grpc_port_ = 0;
     std::unique_ptr<HttpServer> http_;
+    std::string identity_dir_, identity_file_;  // gRPC's copy of the TLS key and certificate
 
     std::mutex watch_mutex_;
     std::condition_variable watch_cv_;

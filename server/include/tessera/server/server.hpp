@@ -81,6 +81,10 @@ public:
 
     // Rescans the store files and directories now (what SIGHUP does).
     virtual void reload() = 0;
+    // Rereads --tls-cert and --tls-key (what SIGHUP does): HTTP connections accepted from now on
+    // use them; gRPC watches the files itself and switches within a few seconds. Connections
+    // already open keep their certificate. On an error the old certificate stays (logged).
+    virtual Status reload_tls() = 0;
     // Replaces the bearer token requests need from now on ("": none); streams already open stay.
     virtual void set_auth_token(const std::string& token) = 0;
     // Graceful stop: refuse new work, finish what was admitted (up to drain_timeout), close.
