@@ -20,7 +20,7 @@ server=$!
 trap 'kill $server 2>/dev/null || true' EXIT
 for _ in $(seq 1 100); do grep -q '"msg":"listening"' "$work/serve.log" && break; sleep 0.1; done
 echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs); commit $(git rev-parse --short HEAD)"
-"$tessera" loadtest --server "127.0.0.1:$port" --store terrain --viewers 1,16,64 \
+"$tessera" loadtest --server "127.0.0.1:$port" --server-pid "$server" --store terrain --viewers 1,16,64 \
   --json "$work/viewers.json" --plot "$work/viewers.svg" --quiet "$@"
-"$tessera" loadtest --server "127.0.0.1:$port" --store terrain --ramp --max-viewers 64 \
+"$tessera" loadtest --server "127.0.0.1:$port" --server-pid "$server" --store terrain --ramp --max-viewers 64 \
   --json "$work/ramp.json" --plot "$work/ramp.svg" --quiet "$@"

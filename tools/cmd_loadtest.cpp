@@ -10,6 +10,11 @@
 // Threads: a pool of --threads drivers (default min(viewers, cores)), each owning a fixed subset
 // of viewers and running their frames in schedule order. Nothing else is created here; the
 // sources and the runtime (transcode_threads 0: decoding happens inside frame()) own theirs.
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <sstream>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
@@ -65,7 +70,34 @@ struct Options {
     bool tls = false;
     std::string json, plot;
     bool quiet = false;
+    int server_pid = 0;          // > 0: the server's CPU time is read from /proc/PID/stat
+    unsigned replica_cores = 0;  // capacity plan: cores per server replica (0: this machine's)
+    unsigned plan_viewers = 10000;
 };
+
+// CPU seconds (user + system) a process has used, from /proc/PID/stat; nullopt when unreadable.
+std::optional<double> process_cpu_s(int pid) {
+    std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
+    std::string line;
+    if (!std::getline(f, line)) return std::nullopt;
+    const auto close = line.rfind(')');  // the command name may hold spaces
+    if (close == std::string::npos) return std::nullopt;
+    std::istringstream rest(line.substr(close + 2));
+    std::string field;
+    double utime = 0, stime = 0;
+    for (int i = 3; i <= 15 && rest >> field; ++i) {
+        if (i == 14) utime = std::stod(field);
+        if (i == 15) stime = std::stod(field);
+    }
+    return (utime + stime) / double(sysconf(_SC_CLK_TCK));
+}
+
+// This process's CPU seconds: the load generator's own cost.
+double self_cpu_s() {
+    rusage u{};
+    getrusage(RUSAGE_SELF, &u);
+    return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + double(u.ru_utime.tv_usec + u.ru_stime.tv_usec) * 1e-6;
+}
 
 // How every connection to the server is made: address, timeout, token, TLS roots (o.tls_ca holds
 // the PEM text once the command has read it).
@@ -205,6 +237,15 @@ struct RunResult {
     std::vector<double> fallback_by_second, p99_by_second;
     std::vector<nlohmann::json> per_viewer;
     bool pass = false;
+    // CPU over the measured window: the server's (--server-pid; negative when unknown) and this
+    // generator's own. generator_bound: the generator could not keep its schedule (over 1% of
+    // frames late or any skipped), so the step measures it, not the server.
+    double server_cpu_s = -1, generator_cpu_s = 0;
+    bool generator_bound = false;
+    // Server CPU seconds per viewer-second; NaN without --server-pid.
+    double server_cpu_per_viewer_s() const {
+        return server_cpu_s < 0 || viewers == 0 ? std::nan("") : server_cpu_s / (double(viewers) * seconds);
+    }
 };
 
 std::pair<std::uint32_t, std::uint32_t> parse_size(const std::string& s, const char* flag) {
@@ -297,10 +338,25 @@ public:
                 for (unsigned i = t; i < n; i += threads) mine.push_back(viewers[i].get());
                 drive(mine, start, period, window_start, end);
             });
+        // The CPU both sides used over the measured window.
+        double server_cpu0 = -1, server_cpu1 = -1, gen_cpu0 = 0, gen_cpu1 = 0;
+        std::thread sampler([&] {
+            const auto sample = [&](double& server, double& gen) {
+                gen = self_cpu_s();
+                if (o_.server_pid > 0) server = process_cpu_s(o_.server_pid).value_or(-1);
+            };
+            std::this_thread::sleep_until(window_start);
+            sample(server_cpu0, gen_cpu0);
+            std::this_thread::sleep_until(end);
+            sample(server_cpu1, gen_cpu1);
+        });
         for (auto& th : pool) th.join();
+        sampler.join();
 
         // Results.
         RunResult r;
+        if (server_cpu0 >= 0 && server_cpu1 >= server_cpu0) r.server_cpu_s = server_cpu1 - server_cpu0;
+        r.generator_cpu_s = gen_cpu1 - gen_cpu0;
         r.viewers = n;
         r.threads = threads;
         r.seconds = o_.duration;
@@ -351,6 +407,7 @@ public:
             r.p99_by_second.push_back(all.latency[b].count() ? all.latency[b].quantile(0.99) : std::nan(""));
         }
         r.fallback = px > 0 ? fpx / px : 0.0;
+        r.generator_bound = r.skipped > 0 || double(r.late) > std::max(5.0, 0.01 * double(r.frames));
         // A step where the server turned viewers away does not hold, whatever the others saw.
         r.pass = r.latency.quantile(0.99) <= o_.ramp_p99_ms && r.fallback <= o_.ramp_fallback && r.tiles > 0 &&
                  r.failed == 0 && r.streams_refused == 0;
@@ -437,21 +494,38 @@ void print_table(const std::vector<RunResult>& runs) {
     std::string groups = fmt::format("{:57} {:^39} {:^14}", "", "tile latency (ms)", "refused");
     groups.erase(groups.find_last_not_of(' ') + 1);
     fmt::print("{}\n", groups);
-    fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>6} {:>6} {:>9}\n",
+    fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>6} {:>6} {:>9} {:>9} {:>8}\n",
                "viewers", "frames", "late", "skipped", "discon", "tiles/s", "MB/s", "p50", "p90", "p99", "p99.9", "max",
-               "streams", "tiles", "failed", "fallback");
+               "streams", "tiles", "failed", "fallback", "srv ms/vs", "gen CPU");
     for (const auto& r : runs) {
         const auto& h = r.latency;
+        const double per_vs = r.server_cpu_per_viewer_s();
         fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8.0f} {:>8.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7} "
-                   "{:>6} {:>6} {:>8.3f}%\n",
+                   "{:>6} {:>6} {:>8.3f}% {:>9} {:>7.0f}%{}\n",
                    r.viewers, r.frames, r.late, r.skipped, r.unavailable, r.tiles / r.seconds, r.bytes / r.seconds / 1e6,
                    h.quantile(0.5), h.quantile(0.9), h.quantile(0.99), h.quantile(0.999), h.max_ms(), r.streams_refused,
-                   r.refused, r.failed, r.fallback * 100);
+                   r.refused, r.failed, r.fallback * 100, std::isnan(per_vs) ? std::string("-") : fmt::format("{:.2f}", per_vs * 1e3),
+                   100 * r.generator_cpu_s / r.seconds, r.generator_bound ? " generator-bound" : "");
     }
     fmt::print("latency: ms, request issued (scheduled frame time) -> tile received; fallback: pixel-weighted\n");
     fmt::print("discon: frames run while the viewer's stream was down; refused streams: streams the server turned "
                "away (RESOURCE_EXHAUSTED: too many viewers); refused tiles: TILE_RESOURCE_EXHAUSTED replies (queues "
                "full); failed: other non-OK replies\n");
+    fmt::print("srv ms/vs: the server's CPU ms per viewer-second (--server-pid); gen CPU: this load generator's CPU, "
+               "% of one core; generator-bound: over 1% of frames (and 5) late, or any skipped, so the step measures the "
+               "generator, not the server\n");
+}
+
+// Viewers one server core carries, from the busiest step the generator kept up with (NaN without
+// --server-pid or such a step), and the step it came from.
+std::pair<double, unsigned> viewers_per_core(const std::vector<RunResult>& runs) {
+    std::pair<double, unsigned> best{std::nan(""), 0};
+    for (const auto& r : runs) {
+        const double per_vs = r.server_cpu_per_viewer_s();
+        if (r.generator_bound || std::isnan(per_vs) || per_vs <= 0) continue;
+        if (r.viewers >= best.second) best = {1.0 / per_vs, r.viewers};
+    }
+    return best;
 }
 
 nlohmann::json run_json(const RunResult& r) {
@@ -476,6 +550,11 @@ nlohmann::json run_json(const RunResult& r) {
             {"fallback", r.fallback},
             {"fallback_by_second", r.fallback_by_second},
             {"pass", r.pass},
+            {"server_cpu_s", r.server_cpu_s < 0 ? nlohmann::json(nullptr) : nlohmann::json(r.server_cpu_s)},
+            {"server_cpu_s_per_viewer_s",
+             std::isnan(r.server_cpu_per_viewer_s()) ? nlohmann::json(nullptr) : nlohmann::json(r.server_cpu_per_viewer_s())},
+            {"generator_cpu_s", r.generator_cpu_s},
+            {"generator_bound", r.generator_bound},
             {"per_viewer", r.per_viewer}};
 }
 
@@ -568,7 +647,17 @@ Command add_loadtest(CLI::App& app) {
     c->add_option("--json", o->json, "write the results as JSON");
     c->add_option("--plot", o->plot, "write a plot (SVG): fallback and p99 over time, or vs viewers");
     c->add_flag("-q,--quiet", o->quiet, "no progress lines");
+    c->add_option("--server-pid", o->server_pid,
+                  "the server's process id on this machine: its CPU time per viewer-second is measured (/proc), and "
+                  "viewers per core and the replicas for --plan-viewers are derived")
+        ->check(CLI::Range(1, 1 << 30));
+    c->add_option("--plan-viewers", o->plan_viewers, "capacity plan: viewers to serve")->capture_default_str()
+        ->check(CLI::Range(1u, 100000000u));
+    c->add_option("--replica-cores", o->replica_cores, "capacity plan: cores per server replica (0: this machine's)")
+        ->capture_default_str();
     return [o]() -> int {
+        if (o->server_pid > 0 && !process_cpu_s(o->server_pid))
+            throw Failure(fmt::format("--server-pid {}: no such process here (/proc/{}/stat)", o->server_pid, o->server_pid), 2);
         if (o->path.empty() && o->trace.empty()) o->path = "flyover";
         // Credentials once (a bad file fails here), then reach the server first: a clear error
         // instead of N viewers timing out.
@@ -642,7 +731,12 @@ Command add_loadtest(CLI::App& app) {
                 if (!o->quiet)
                     fmt::print(stderr, "loadtest: {} viewers: p99 {:.2f} ms, fallback {:.4f}% -> {}\n", n,
                                r.latency.quantile(0.99), r.fallback * 100, r.pass ? "holds" : "does not hold");
-                if (!r.pass) break;  // more viewers only load the server more
+                if (!r.pass) {  // more viewers only load the server (or the generator) more
+                    if (r.generator_bound && !o->quiet)
+                        fmt::print(stderr, "loadtest: the generator could not keep up at {} viewers: the ramp measured "
+                                           "it, not the server\n", n);
+                    break;
+                }
                 best = n;
             }
         }
@@ -656,8 +750,25 @@ Command add_loadtest(CLI::App& app) {
             else
                 fmt::print("ramp: no step holds p99 <= {} ms and fallback <= {}%\n", o->ramp_p99_ms, o->ramp_fallback * 100);
         }
+        const auto [per_core, from_step] = viewers_per_core(runs);
+        const unsigned cores = o->replica_cores ? o->replica_cores : std::max(1u, std::thread::hardware_concurrency());
+        const double replicas = std::ceil(double(o->plan_viewers) / (per_core * cores));
+        if (o->server_pid > 0) {
+            if (std::isnan(per_core))
+                fmt::print("capacity: no step measured the server (every step generator-bound)\n");
+            else
+                fmt::print("capacity: {:.0f} viewers per server core (server CPU {:.2f} ms per viewer-second at {} "
+                           "viewers); {} viewers need {:.0f} replica{} of {} cores at full CPU (plan for headroom)\n",
+                           per_core, 1e3 / per_core, from_step, o->plan_viewers, replicas, replicas == 1 ? "" : "s", cores);
+        }
         if (!o->json.empty()) {
             nlohmann::json j;
+            if (o->server_pid > 0)
+                j["capacity"] = {{"viewers_per_core", std::isnan(per_core) ? nlohmann::json(nullptr) : nlohmann::json(per_core)},
+                                 {"from_step_viewers", from_step},
+                                 {"plan_viewers", o->plan_viewers},
+                                 {"replica_cores", cores},
+                                 {"replicas", std::isnan(per_core) ? nlohmann::json(nullptr) : nlohmann::json(replicas)}};
             j["tool"] = "tessera loadtest";
             j["server"] = o->server;
             j["store"] = o->store;
