@@ -3,6 +3,8 @@
 // and bad flags rejected. Short runs (about 2 s each): figures, not timings, are checked.
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -30,6 +32,7 @@ public:
         return s;
     }
     std::string address() const { return srv_->grpc_address(); }
+    pid_t pid() const { return srv_->pid(); }
     std::string file(const std::string& name) const { return dir_->file(name); }
 
 private:
@@ -110,6 +113,36 @@ TEST(Loadtest, EmulatedLinkAddsLatency) {
 
 // More viewers than the server admits: the table shows the refused streams and the frames run
 // with the stream down, not only the JSON.
+// With --server-pid: the server's CPU per viewer-second per run, and a capacity plan from it.
+TEST(Loadtest, ServerCpuGivesViewersPerCoreAndReplicas) {
+    auto& s = Server::get();
+    const std::string json = s.file("cpu.json");
+    auto r = run_tessera("loadtest --server " + s.address() + " --server-pid " + std::to_string(s.pid()) +
+                         " --store terrain --viewers 2 --duration 1.5 --warmup 0.3 --fps 30 --plan-viewers 10000 "
+                         "--replica-cores 4 --json " + json + " --quiet");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_NE(r.out.find("srv ms/vs"), std::string::npos) << r.out;
+    const auto j = load(json);
+    const auto& run = j["runs"][0];
+    ASSERT_TRUE(run["server_cpu_s"].is_number()) << run.dump();
+    EXPECT_GT(run["server_cpu_s"].get<double>(), 0.0);  // the server did work for two viewers
+    EXPECT_GT(run["generator_cpu_s"].get<double>(), 0.0);
+    const double per_vs = run["server_cpu_s_per_viewer_s"].get<double>();
+    EXPECT_NEAR(per_vs, run["server_cpu_s"].get<double>() / (2 * 1.5), 1e-9);
+    if (!run["generator_bound"].get<bool>()) {
+        const auto& cap = j["capacity"];
+        ASSERT_TRUE(cap["viewers_per_core"].is_number()) << cap.dump();
+        EXPECT_NEAR(cap["viewers_per_core"].get<double>(), 1.0 / per_vs, 1e-6);
+        EXPECT_EQ(cap["replica_cores"].get<unsigned>(), 4u);
+        EXPECT_DOUBLE_EQ(cap["replicas"].get<double>(), std::ceil(10000.0 / (cap["viewers_per_core"].get<double>() * 4)));
+        EXPECT_NE(r.out.find("capacity:"), std::string::npos) << r.out;
+    }
+    // A process that is not there is a usage error, before any viewer starts.
+    auto bad = run_tessera("loadtest --server " + s.address() + " --server-pid 999999999 --store terrain --duration 0.5");
+    EXPECT_EQ(bad.exit_code, 2) << bad.out;
+    EXPECT_NE(bad.out.find("--server-pid"), std::string::npos) << bad.out;
+}
+
 TEST(Loadtest, RefusedStreamsShowInTheTable) {
     ScratchDir dir;
     auto b = run_tessera("build procedural:terrain:1024 -o " + dir.file("terrain.tsr") + " --quiet");
