@@ -1,7 +1,11 @@
 // Remote stores' pieces that need no server: the S3 Signature V4 signer against AWS's published
 // example, location parsing, and the errors of an unreachable origin (the servers are in
 // remote_store_test.py: s3rver, nginx, a flaky origin).
+#include <arpa/inet.h>
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
 
 #include <chrono>
 
@@ -58,4 +62,32 @@ TEST(RemoteSource, AnUnreachableOriginFailsAfterItsRetries) {
     EXPECT_NE(r.error().message.find("127.0.0.1:1"), std::string::npos) << r.error().message;
     EXPECT_NE(r.error().message.find("after 3 tries"), std::string::npos) << r.error().message;
     EXPECT_EQ(remote_counters().retries.load() - before, 2u);
+}
+
+// An origin that accepts connections and never answers: the read gives up at its deadline,
+// not after attempts x timeout (here 4 x 10 s).
+TEST(RemoteSource, ASilentOriginFailsAtTheReadsDeadline) {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    ASSERT_GE(fd, 0);
+    sockaddr_in addr{};
+    addr.sin_family = AF_INET;
+    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
+    ASSERT_EQ(::listen(fd, 16), 0);  // the kernel completes connections; nobody reads them
+    socklen_t len = sizeof addr;
+    ASSERT_EQ(::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len), 0);
+    RemoteOptions o;
+    o.attempts = 4;
+    o.timeout = std::chrono::milliseconds(10000);
+    o.backoff = std::chrono::milliseconds(50);
+    o.deadline = std::chrono::milliseconds(600);
+    const auto t0 = std::chrono::steady_clock::now();
+    auto r = open_remote_source("http://127.0.0.1:" + std::to_string(ntohs(addr.sin_port)) + "/store.tsr", o);
+    const auto took = std::chrono::steady_clock::now() - t0;
+    ::close(fd);
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, Errc::io_error);
+    EXPECT_NE(r.error().message.find("600 ms deadline"), std::string::npos) << r.error().message;
+    EXPECT_LT(took, std::chrono::milliseconds(2000));
+    EXPECT_GE(took, std::chrono::milliseconds(550));
 }

@@ -62,9 +62,9 @@ std::string HttpClient::host_header() const {
     return default_port ? host : host + ":" + origin_.port;
 }
 
-std::unique_ptr<HttpClient::Connection> HttpClient::take() {
+std::unique_ptr<HttpClient::Connection> HttpClient::take(Deadline deadline) {
     std::unique_lock lock(m_);
-    cv_.wait(lock, [&] { return busy_ < max_connections_; });
+    if (!cv_.wait_until(lock, deadline, [&] { return busy_ < max_connections_; })) return nullptr;
     ++busy_;
     if (!idle_.empty()) {
         auto c = std::move(idle_.back());
@@ -84,14 +84,23 @@ void HttpClient::give_back(std::unique_ptr<Connection> c) {
 }
 
 Result<HttpResponse> HttpClient::request(const std::string& method, const std::string& target,
-                                         const std::vector<std::pair<std::string, std::string>>& headers, std::uint64_t max_body) {
-    std::unique_ptr<Connection> c = take();
+                                         const std::vector<std::pair<std::string, std::string>>& headers, std::uint64_t max_body,
+                                         Deadline deadline) {
+    const std::string where = (origin_.tls ? "https://" : "http://") + host_header();
+    std::unique_ptr<Connection> c = take(deadline);
+    if (!c) return Error{Errc::io_error, where + ": no connection free before the read's deadline"};
     struct Return {
         HttpClient& client;
         std::unique_ptr<Connection>& c;
         ~Return() { client.give_back(std::move(c)); }
     } give_back_on_exit{*this, c};
-    const std::string where = (origin_.tls ? "https://" : "http://") + host_header();
+    // Each step within the client's timeout and what is left of the deadline.
+    const auto step_time = [&]() -> std::chrono::steady_clock::duration {
+        if (deadline == Deadline::max()) return timeout_;
+        const auto left = deadline - std::chrono::steady_clock::now();
+        return std::max<std::chrono::steady_clock::duration>(std::min<std::chrono::steady_clock::duration>(timeout_, left),
+                                                             std::chrono::milliseconds(1));
+    };
     auto fail = [&](const std::string& what, const error_code& ec) -> Error {
         c->close();
         return Error{Errc::io_error, where + ": " + what + ": " + ec.message()};
@@ -127,11 +136,11 @@ Result<HttpResponse> HttpClient::request(const std::string& method, const std::s
             } else {
                 c->plain.emplace(c->ioc);
             }
-            c->lowest().expires_after(timeout_);
+            c->lowest().expires_after(step_time());
             ec = c->run([&](auto handler) { c->lowest().async_connect(endpoints, handler); });
             if (ec) return fail("cannot connect", ec);
             if (origin_.tls) {
-                c->lowest().expires_after(timeout_);
+                c->lowest().expires_after(step_time());
                 ec = c->run([&](auto handler) { c->secure->async_handshake(ssl::stream_base::client, handler); });
                 if (ec) return fail("TLS handshake", ec);
             }
@@ -145,11 +154,11 @@ Result<HttpResponse> HttpClient::request(const std::string& method, const std::s
         http::response_parser<http::string_body> parser;
         parser.body_limit(max_body);
         if (method == "HEAD") parser.skip(true);
-        c->lowest().expires_after(timeout_);
+        c->lowest().expires_after(step_time());
         error_code ec = c->secure ? c->run([&](auto handler) { http::async_write(*c->secure, req, handler); })
                                   : c->run([&](auto handler) { http::async_write(*c->plain, req, handler); });
         if (!ec) {
-            c->lowest().expires_after(timeout_);
+            c->lowest().expires_after(step_time());
             ec = c->secure ? c->run([&](auto handler) { http::async_read(*c->secure, c->buffer, parser, handler); })
                            : c->run([&](auto handler) { http::async_read(*c->plain, c->buffer, parser, handler); });
         }

@@ -43,16 +43,19 @@ public:
 
     // One request (no body); a transport failure (connect, TLS, timeout, a broken answer) is an
     // error with code io_error, an HTTP status of any value a response. Bodies above `max_body`
-    // bytes are an error.
+    // bytes are an error. `deadline` bounds the whole request, the wait for a free connection
+    // included (each step also within the client's timeout); past it the request fails.
+    using Deadline = std::chrono::steady_clock::time_point;
     Result<HttpResponse> request(const std::string& method, const std::string& target,
-                                 const std::vector<std::pair<std::string, std::string>>& headers, std::uint64_t max_body);
+                                 const std::vector<std::pair<std::string, std::string>>& headers, std::uint64_t max_body,
+                                 Deadline deadline = Deadline::max());
 
     const Origin& origin() const { return origin_; }
     std::string host_header() const;  // "host" or "host:port" when the port is not the default
 
 private:
     struct Connection;
-    std::unique_ptr<Connection> take();
+    std::unique_ptr<Connection> take(Deadline deadline);  // null when the deadline passed first
     void give_back(std::unique_ptr<Connection> c);
 
     Origin origin_;

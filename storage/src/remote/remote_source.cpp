@@ -264,14 +264,20 @@ private:
                               std::uint64_t max_body) const {
         thread_local std::mt19937_64 rng{std::random_device{}()};
         Result<HttpResponse> last = make_error(Errc::io_error, location_ + ": no attempt made");
+        const auto deadline = std::chrono::steady_clock::now() + options_.deadline;
+        unsigned tries = 0;
         for (unsigned attempt = 0; attempt < std::max(1u, options_.attempts); ++attempt) {
             if (attempt > 0) {
-                remote_counters().retries.fetch_add(1, std::memory_order_relaxed);
-                // Full jitter: uniform in [0, backoff * 2^(attempt-1)].
+                // Full jitter: uniform in [0, backoff * 2^(attempt-1)]; no retry that the
+                // deadline would cut short before it starts.
                 const auto cap = options_.backoff * (1u << std::min(attempt - 1, 10u));
                 std::uniform_int_distribution<long long> d(0, std::max<long long>(1, cap.count()));
-                std::this_thread::sleep_for(std::chrono::milliseconds(d(rng)));
+                const auto pause = std::chrono::milliseconds(d(rng));
+                if (std::chrono::steady_clock::now() + pause >= deadline) break;
+                remote_counters().retries.fetch_add(1, std::memory_order_relaxed);
+                std::this_thread::sleep_for(pause);
             }
+            ++tries;
             auto headers = extra;
             if (target_.s3 && !target_.credentials.access_key.empty()) {
                 const std::time_t now = std::time(nullptr);
@@ -290,14 +296,16 @@ private:
                 headers.emplace_back("authorization", auth);
             }
             remote_counters().requests.fetch_add(1, std::memory_order_relaxed);
-            last = client_.request(method, target_.path, headers, max_body);
+            last = client_.request(method, target_.path, headers, max_body, deadline);
             if (last && !retryable(last->status)) {
                 if (method == "GET") remote_counters().bytes.fetch_add(last->body.size(), std::memory_order_relaxed);
                 return last;
             }
         }
         if (last) return last;  // a retryable status every time: the caller reports it
-        return make_error(Errc::io_error, last.error().message + " (after " + std::to_string(std::max(1u, options_.attempts)) + " tries)");
+        return make_error(Errc::io_error, last.error().message + " (after " + std::to_string(tries) + " tr" +
+                                              (tries == 1 ? "y" : "ies") + ", within the read's " +
+                                              std::to_string(options_.deadline.count()) + " ms deadline)");
     }
 
     std::string location_;

@@ -33,6 +33,9 @@ struct RemoteOptions {
     unsigned attempts = 4;                       // tries per read, the first included
     std::chrono::milliseconds timeout{10000};    // per request (connect, send, answer)
     std::chrono::milliseconds backoff{100};      // before the first retry; doubles each time, jittered
+    // A whole read, every try and wait included: no read (and no request waiting on it) hangs
+    // on a slow store for longer than this.
+    std::chrono::milliseconds deadline{15000};
     std::string ca_file;                         // PEM roots for https ("": the system's)
 };
 
