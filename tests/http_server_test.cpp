@@ -810,7 +810,8 @@ TEST_F(HttpServerTest, AuthOverTheWire) {
                        {{"Authorization", "Bearer tok"}});
     ASSERT_TRUE(v);
     EXPECT_EQ(v->result_int(), 200);
-    EXPECT_EQ((*v)[http::field::cache_control], "public, max-age=31536000, immutable");
+    // A token's answer is private: a shared cache must not hand it to someone without the token.
+    EXPECT_EQ((*v)[http::field::cache_control], "private, max-age=31536000, immutable");
 }
 
 TEST_F(HttpServerTest, ManyClientsAtOnceGetTheRightBytes) {

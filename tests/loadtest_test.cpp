@@ -121,7 +121,7 @@ TEST(Loadtest, ServerCpuGivesViewersPerCoreAndReplicas) {
                          " --store terrain --viewers 2 --duration 1.5 --warmup 0.3 --fps 30 --plan-viewers 10000 "
                          "--replica-cores 4 --json " + json + " --quiet");
     ASSERT_EQ(r.exit_code, 0) << r.out;
-    EXPECT_NE(r.out.find("srv ms/vs"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("srv-ms/vs"), std::string::npos) << r.out;
     const auto j = load(json);
     const auto& run = j["runs"][0];
     ASSERT_TRUE(run["server_cpu_s"].is_number()) << run.dump();

@@ -175,6 +175,10 @@ def spec_checks(port, name, width, height, tile, overlap):
     st, _, data = get(port, f"/iiif/{name}/full/!200,200/90/default.png")
     fw, fh = size_of(get(port, f"/iiif/{name}/full/!200,200/0/default.png")[2])
     check(size_of(data) == (fh, fw), "IIIF rotation by 90 swaps width and height")
+    st, _, data = get(port, f"/iiif/{name}/full/!{width * 3},{height * 3}/0/default.png")
+    check(st == 200 and size_of(data) == (width, height), "IIIF !w,h larger than the image gives the image's size")
+    st, _, data = get(port, f"/iiif/{name}/0,0,{width},8/1,8/0/default.png")
+    check(st == 200 and size_of(data) == (1, 8), "IIIF: a size stretched along one axis")
     check(get(port, "/iiif/nosuch/info.json")[0] == 404, "IIIF unknown store: 404")
 
     # ---- XYZ ----
@@ -236,6 +240,12 @@ def main():
         check(psnr(rgb(get(port, f"/dzi/pic_files/{level}/2_1.jpg")[2]), ref) >= 35, "DZI tile matches the source")
         edge = get(port, f"/dzi/pic_files/{level}/0_0.jpg")[2]
         check(psnr(rgb(edge), rgb(src, crop=(252, 252, 0, 0))) >= 35, "DZI edge tile is the source's corner")
+        # A crop that starts and ends between the texels of the level it is made from.
+        st, _, data = get(port, "/iiif/pic/101,103,401,299/133,99/0/default.png")
+        want = subprocess.run(["convert", src, "-crop", "401x299+101+103", "+repage", "-resize", "133x99!", "-depth", "8",
+                               "rgb:-"], capture_output=True, check=True).stdout
+        value = psnr(rgb(data), want)
+        check(st == 200 and value >= 35, f"IIIF crop between texels matches ImageMagick's ({value:.2f} dB)")
         # 16-bit: shown at 8 bits; float: no web view, said so.
         st, _, data = get(port, "/iiif/deep/full/max/0/default.png")
         check(st == 200 and psnr(rgb(data), rgb(deep_src)) >= 40, "16-bit store shown at 8 bits")

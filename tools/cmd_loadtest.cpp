@@ -494,35 +494,36 @@ void print_table(const std::vector<RunResult>& runs) {
     std::string groups = fmt::format("{:57} {:^39} {:^14}", "", "tile latency (ms)", "refused");
     groups.erase(groups.find_last_not_of(' ') + 1);
     fmt::print("{}\n", groups);
-    fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>6} {:>6} {:>9} {:>9} {:>8}\n",
+    fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8} {:>8} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} {:>6} {:>6} {:>9} {:>9} {:>8} {:>9}\n",
                "viewers", "frames", "late", "skipped", "discon", "tiles/s", "MB/s", "p50", "p90", "p99", "p99.9", "max",
-               "streams", "tiles", "failed", "fallback", "srv ms/vs", "gen CPU");
+               "streams", "tiles", "failed", "fallback", "srv-ms/vs", "gen-CPU", "limit");
     for (const auto& r : runs) {
         const auto& h = r.latency;
         const double per_vs = r.server_cpu_per_viewer_s();
         fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8.0f} {:>8.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7} "
-                   "{:>6} {:>6} {:>8.3f}% {:>9} {:>7.0f}%{}\n",
+                   "{:>6} {:>6} {:>8.3f}% {:>9} {:>7.0f}% {:>9}\n",
                    r.viewers, r.frames, r.late, r.skipped, r.unavailable, r.tiles / r.seconds, r.bytes / r.seconds / 1e6,
                    h.quantile(0.5), h.quantile(0.9), h.quantile(0.99), h.quantile(0.999), h.max_ms(), r.streams_refused,
                    r.refused, r.failed, r.fallback * 100, std::isnan(per_vs) ? std::string("-") : fmt::format("{:.2f}", per_vs * 1e3),
-                   100 * r.generator_cpu_s / r.seconds, r.generator_bound ? " generator-bound" : "");
+                   100 * r.generator_cpu_s / r.seconds, r.generator_bound ? "generator" : "-");
     }
     fmt::print("latency: ms, request issued (scheduled frame time) -> tile received; fallback: pixel-weighted\n");
     fmt::print("discon: frames run while the viewer's stream was down; refused streams: streams the server turned "
                "away (RESOURCE_EXHAUSTED: too many viewers); refused tiles: TILE_RESOURCE_EXHAUSTED replies (queues "
                "full); failed: other non-OK replies\n");
-    fmt::print("srv ms/vs: the server's CPU ms per viewer-second (--server-pid); gen CPU: this load generator's CPU, "
-               "% of one core; generator-bound: over 1% of frames (and 5) late, or any skipped, so the step measures the "
-               "generator, not the server\n");
+    fmt::print("srv-ms/vs: the server's CPU ms per viewer-second (--server-pid); gen-CPU: this load generator's CPU, "
+               "% of one core; limit \"generator\": over 1% of frames (and 5) late, or any skipped, so the step measures "
+               "the generator, not the server\n");
 }
 
-// Viewers one server core carries, from the busiest step the generator kept up with (NaN without
-// --server-pid or such a step), and the step it came from.
+// Viewers one server core carries, from the busiest step that held (its targets met, no stream
+// turned away, nothing failed) and that the generator kept up with; NaN without --server-pid or
+// such a step. A step past the server's limit would understate its cost per viewer.
 std::pair<double, unsigned> viewers_per_core(const std::vector<RunResult>& runs) {
     std::pair<double, unsigned> best{std::nan(""), 0};
     for (const auto& r : runs) {
         const double per_vs = r.server_cpu_per_viewer_s();
-        if (r.generator_bound || std::isnan(per_vs) || per_vs <= 0) continue;
+        if (!r.pass || r.refused > 0 || r.generator_bound || std::isnan(per_vs) || per_vs <= 0) continue;
         if (r.viewers >= best.second) best = {1.0 / per_vs, r.viewers};
     }
     return best;
@@ -755,7 +756,7 @@ Command add_loadtest(CLI::App& app) {
         const double replicas = std::ceil(double(o->plan_viewers) / (per_core * cores));
         if (o->server_pid > 0) {
             if (std::isnan(per_core))
-                fmt::print("capacity: no step measured the server (every step generator-bound)\n");
+                fmt::print("capacity: no step measured the server (none held its targets with the generator keeping up)\n");
             else
                 fmt::print("capacity: {:.0f} viewers per server core (server CPU {:.2f} ms per viewer-second at {} "
                            "viewers); {} viewers need {:.0f} replica{} of {} cores at full CPU (plan for headroom)\n",

@@ -3,6 +3,7 @@
 // Also the HTTP metrics every route shares.
 #include "http_handler.hpp"
 
+#include <algorithm>
 #include <array>
 #include <exception>
 
@@ -119,6 +120,20 @@ void HttpHandler::record_transport_response(unsigned status, std::size_t body_by
     record(HttpRoute::other, status, body_bytes, 0.0);
 }
 
+namespace {
+
+// The target as logs may hold it: an access_token's value replaced (logs outlive secrets).
+std::string loggable_target(std::string_view target) {
+    std::string t(target);
+    for (std::size_t at = t.find("access_token="); at != std::string::npos; at = t.find("access_token=", at + 1)) {
+        const std::size_t v = at + 13, end = t.find('&', v);
+        t.replace(v, (end == std::string::npos ? t.size() : end) - v, "REDACTED");
+    }
+    return t;
+}
+
+}  // namespace
+
 HttpResponse HttpHandler::handle_http_request(const HttpRequestView& req, bool borrow_payload) {
     const auto t0 = std::chrono::steady_clock::now();
     HttpRoute route_label = HttpRoute::other;
@@ -126,7 +141,7 @@ HttpResponse HttpHandler::handle_http_request(const HttpRequestView& req, bool b
     try {
         res = route(req, route_label, borrow_payload);
     } catch (const std::exception& e) {
-        ctx_.log.error("http handler failed", {{"target", req.target}, {"error", e.what()}});
+        ctx_.log.error("http handler failed", {{"target", loggable_target(req.target)}, {"error", e.what()}});
         res = httpapi::error(500, "internal error", req.target.starts_with("/v1/"));
     }
     res.route = route_label;
@@ -135,9 +150,9 @@ HttpResponse HttpHandler::handle_http_request(const HttpRequestView& req, bool b
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     record(route_label, res.status, req.method == "HEAD" ? 0 : res.body_size(), seconds);
     if (res.status >= 500 && res.status != 503)
-        ctx_.log.warn("http request failed", {{"target", req.target}, {"status", res.status}, {"body", res.body}});
+        ctx_.log.warn("http request failed", {{"target", loggable_target(req.target)}, {"status", res.status}, {"body", res.body}});
     else if (ctx_.log.enabled(LogLevel::debug))
-        ctx_.log.debug("http request", {{"method", req.method}, {"target", req.target}, {"status", res.status},
+        ctx_.log.debug("http request", {{"method", req.method}, {"target", loggable_target(req.target)}, {"status", res.status},
                                         {"bytes", static_cast<std::uint64_t>(res.body_size())}, {"seconds", seconds}});
     return res;
 }
@@ -187,21 +202,25 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
         return r;
     }
     if (!well_formed) return httpapi::error(400, why, api);
+    HttpResponse res;
     if (parsed.segments.empty()) {
         route_label = HttpRoute::viewer;
-        return httpapi::viewer_index(*this, parsed, route_label, borrow_payload);
+        res = httpapi::viewer_index(*this, parsed, route_label, borrow_payload);
+    } else {
+        const auto r = std::find_if(kRoutes.begin(), kRoutes.end(),
+                                    [&](const Route& x) { return parsed.segments.front() == x.first_segment; });
+        if (r == kRoutes.end()) return httpapi::error(404, "no such route: " + std::string(raw_path), api);
+        res = r->answer(*this, parsed, route_label, borrow_payload);
     }
-    for (const Route& r : kRoutes)
-        if (parsed.segments.front() == r.first_segment) {
-            HttpResponse res = r.answer(*this, parsed, route_label, borrow_payload);
-            // A browser that came with ?access_token= keeps it as a cookie for the page's own
-            // requests (docs/server.md, "Browsers").
-            if (!query_token.empty() && route_label == HttpRoute::viewer && res.status == 200)
-                res.headers.emplace_back("Set-Cookie",
-                                         "tessera_token=" + query_token + "; Path=/; HttpOnly; SameSite=Strict");
-            return res;
-        }
-    return httpapi::error(404, "no such route: " + std::string(raw_path), api);
+    // A browser that came to a page with ?access_token= keeps the token as a cookie for the
+    // page's own requests (docs/server.md, "Browsers"): only when a token is required and it
+    // was right, and only a token that cannot smuggle cookie attributes.
+    const bool cookie_safe = query_token.find_first_of(";, \t\"\\") == std::string::npos;
+    if (!query_token.empty() && cookie_safe && !ctx_.auth_token()->empty() && route_label == HttpRoute::viewer &&
+        res.status == 200)
+        res.headers.emplace_back("Set-Cookie", "tessera_token=" + query_token + "; Path=/; HttpOnly; SameSite=Strict" +
+                                                   (req.secure ? "; Secure" : ""));
+    return res;
 }
 
 HttpResponse handle_http_request(ServerContext& ctx, const HttpRequestView& req) {

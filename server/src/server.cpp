@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <condition_variable>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -180,8 +181,9 @@ public:
 
     Status reload_tls() override {
         if (config_.tls_cert_file.empty()) return {};
-        Status s = http_ ? http_->reload_tls() : Status();
-        if (s.ok() && !identity_file_.empty()) s = publish_identity();
+        // The pair is checked (and gRPC's copy written) first: a broken renewal changes nothing.
+        Status s = identity_file_.empty() ? check_key_pair_files() : publish_identity();
+        if (s.ok() && http_) s = http_->reload_tls();
         if (!s.ok()) {
             log_.error("TLS certificate not reloaded; the old one stays", {{"error", s.error().message}});
             return s;
@@ -234,6 +236,14 @@ private:
 
     // Checks that --tls-key is the key of --tls-cert and writes both, as one file, where gRPC's
     // file watcher reads them (a private directory, the file renamed into place whole).
+    Status check_key_pair_files() const {
+        auto cert = read_text_file(config_.tls_cert_file, "TLS certificate");
+        if (!cert) return cert.error();
+        auto key = read_text_file(config_.tls_key_file, "TLS key");
+        if (!key) return key.error();
+        return check_key_pair(*cert, *key, config_);
+    }
+
     Status publish_identity() {
         auto cert = read_text_file(config_.tls_cert_file, "TLS certificate");
         if (!cert) return cert.error();
@@ -241,7 +251,12 @@ private:
         if (!key) return key.error();
         if (const Status st = check_key_pair(*cert, *key, config_); !st.ok()) return st;
         if (identity_dir_.empty()) {
-            std::string dir = (std::filesystem::temp_directory_path() / "tessera-tls-XXXXXX").string();
+            // systemd's RuntimeDirectory= when there is one (a tmpfs, removed with the service),
+            // else the temporary directory.
+            const char* runtime = std::getenv("RUNTIME_DIRECTORY");
+            const std::filesystem::path base =
+                runtime && *runtime ? std::filesystem::path(runtime) : std::filesystem::temp_directory_path();
+            std::string dir = (base / "tessera-tls-XXXXXX").string();
             if (!::mkdtemp(dir.data())) return Error{Errc::io_error, "cannot make a private directory for the TLS identity"};
             identity_dir_ = dir;
             identity_file_ = dir + "/identity.pem";

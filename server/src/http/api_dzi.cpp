@@ -89,7 +89,7 @@ HttpResponse api_dzi(HttpHandler& handler, const ParsedRequest& req, HttpRoute& 
                               std::to_string(*level) + ": x in 0.." + std::to_string(cols - 1) + ", y in 0.." +
                               std::to_string(rows - 1), false);
     const auto span = [&](std::uint32_t i, std::uint32_t size, std::uint32_t& lo, std::uint32_t& hi) {
-        lo = i * P - (i > 0 ? O : 0);
+        lo = i * P > O ? i * P - O : 0;
         hi = std::min<std::uint64_t>(std::uint64_t(i + 1) * P + O, size);
     };
     std::uint32_t x0, x1, y0, y1;

@@ -126,8 +126,8 @@ std::optional<std::pair<std::uint32_t, std::uint32_t>> parse_size(std::string_vi
             why = "size width and height must be positive integers";
             return std::nullopt;
         }
-        if (confined) {
-            const double f = std::min(*pw / rw, *ph / rh);
+        if (confined) {  // the largest size within w, h (and, without ^, within the region)
+            const double f = up ? std::min(*pw / rw, *ph / rh) : std::min({1.0, *pw / rw, *ph / rh});
             w = std::max(1.0, std::floor(rw * f + 1e-9)), h = std::max(1.0, std::floor(rh * f + 1e-9));
         } else if (parts[1].empty()) {
             w = *pw, h = std::max(1.0, std::round(rh * *pw / rw));
@@ -243,20 +243,30 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
                                "-" + quality + "." + format,
                            format, false};
     return web_image_response(handler, *req.raw, h, answer, [&](WebFailure& failure) -> std::optional<WebImage> {
-        // The coarsest level that still has at least the output's resolution.
-        const double scale = std::min(double(region->w) / ow, double(region->h) / oh);
+        // The coarsest level that still has the output's resolution along both axes' larger
+        // reduction: the texels read stay within about 4x the output's (a stretched size is
+        // upsampled along its other axis), whatever region and size are asked for.
+        const double scale = std::max(double(region->w) / ow, double(region->h) / oh);
         std::uint32_t k = 0;
         while (k + 1 < info.level_count() && double(std::uint64_t(2) << k) <= scale + 1e-9) ++k;
         const auto& lk = info.levels[k];
-        const auto lo = [&](std::uint32_t v) { return std::uint32_t(v >> k); };
-        const auto hi = [&](std::uint32_t v, std::uint32_t limit) {
-            return std::uint32_t(std::min<std::uint64_t>((std::uint64_t(v) + (std::uint64_t(1) << k) - 1) >> k, limit));
-        };
-        const std::uint32_t x0 = lo(region->x), y0 = lo(region->y);
-        const std::uint32_t x1 = std::max(x0 + 1, hi(region->x + region->w, lk.width)),
-                            y1 = std::max(y0 + 1, hi(region->y + region->h, lk.height));
+        const double f = double(std::uint64_t(1) << k);
+        // The level-k texels the region touches, and where in them it starts and ends.
+        const double fx0 = region->x / f, fy0 = region->y / f;
+        // A region to the image's edge ends at the level's edge (levels round their size up).
+        const double fx1 = region->x + region->w == info.width ? double(lk.width)
+                                                                : std::min((double(region->x) + region->w) / f, double(lk.width));
+        const double fy1 = region->y + region->h == info.height
+                               ? double(lk.height)
+                               : std::min((double(region->y) + region->h) / f, double(lk.height));
+        const auto x0 = std::uint32_t(fx0), y0 = std::uint32_t(fy0);
+        const std::uint32_t x1 = std::max(x0 + 1, std::uint32_t(std::ceil(fx1 - 1e-9)));
+        const std::uint32_t y1 = std::max(y0 + 1, std::uint32_t(std::ceil(fy1 - 1e-9)));
+        const bool aligned = fx0 == x0 && fy0 == y0 && fx1 == x1 && fy1 == y1;
         auto image = render_region(handler.context().fetcher, h, store->look, Region{k, x0, y0, x1 - x0, y1 - y0}, ow, oh,
-                                   failure);
+                                   failure,
+                                   aligned ? std::nullopt
+                                           : std::optional(SourceWindow{fx0 - x0, fy0 - y0, fx1 - fx0, fy1 - fy0}));
         if (!image) return image;
         if (quality == "gray") *image = to_grey(*image);
         if (mirrored) *image = mirror(*image);

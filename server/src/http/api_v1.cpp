@@ -93,15 +93,13 @@ HttpResponse tile(HttpHandler& handler, const HttpRequestView& req, std::string_
                      api);
     const std::string png_tag = !png ? "" : info.layered() ? "-png-" + info.layers[layer].name : "-png";
 
-    const std::string cache_control = has_version
-        ? "public, max-age=" + std::to_string(kImmutableMaxAge) + ", immutable"
-        : "public, max-age=" + std::to_string(ctx_.config.http_max_age);
+    const std::string cache = cache_control(ctx_, has_version);
     const TileKey key{*level, *x, *y};
     auto etag_of = [&](std::uint64_t checksum) {
         return "\"" + version_hex + "-" + hex16(checksum) + png_tag + "\"";
     };
     auto common_headers = [&](HttpResponse& r, TileKind kind, std::string_view codec) {
-        r.headers.emplace_back("Cache-Control", cache_control);
+        r.headers.emplace_back("Cache-Control", cache);
         r.headers.emplace_back("X-Tessera-Store-Version", version_hex);
         r.headers.emplace_back("X-Tessera-Kind", std::string(tessera::to_string(kind)));
         if (!codec.empty()) r.headers.emplace_back("X-Tessera-Codec", std::string(codec));

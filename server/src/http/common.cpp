@@ -205,6 +205,12 @@ HttpResponse retry_later(std::string_view message, bool json) {
     return r;
 }
 
+std::string cache_control(const ServerContext& ctx, bool immutable) {
+    const std::string scope = ctx.auth_token()->empty() ? "public" : "private";
+    return immutable ? scope + ", max-age=" + std::to_string(kImmutableMaxAge) + ", immutable"
+                     : scope + ", max-age=" + std::to_string(ctx.config.http_max_age);
+}
+
 std::optional<std::uint32_t> parse_u32(std::string_view s) {
     if (s.empty() || s.size() > 10) return std::nullopt;
     if (s.size() > 1 && s.front() == '0') return std::nullopt;
@@ -266,20 +272,22 @@ std::string request_token(const HttpRequestView& req, const std::string& query_t
 }
 
 void add_cors_headers(HttpResponse& r, const ServerConfig& config, std::string_view origin) {
-    if (config.cors_origin.empty() || origin.empty()) return;
-    if (config.cors_origin != "*" && origin != config.cors_origin) return;
+    if (config.cors_origin.empty()) return;
+    // One allowed origin: the answer depends on the Origin header, so caches must key on it.
+    if (config.cors_origin != "*") r.headers.emplace_back("Vary", "Origin");
+    if (origin.empty() || (config.cors_origin != "*" && origin != config.cors_origin)) return;
     r.headers.emplace_back("Access-Control-Allow-Origin", config.cors_origin);
     // The headers a script may read besides the safelisted ones.
     r.headers.emplace_back("Access-Control-Expose-Headers",
                            "ETag, X-Tessera-Store-Version, X-Tessera-Kind, X-Tessera-Codec, X-Tessera-Checksum, "
                            "X-Tessera-Layer");
-    if (config.cors_origin != "*") r.headers.emplace_back("Vary", "Origin");
 }
 
 HttpResponse preflight(const ServerConfig& config, const HttpRequestView& req) {
     HttpResponse r;
     r.status = 204;
     r.headers.emplace_back("Allow", "GET, HEAD, OPTIONS");
+    if (!config.cors_origin.empty() && config.cors_origin != "*") r.headers.emplace_back("Vary", "Origin");
     if (!config.cors_origin.empty() && !req.origin.empty() &&
         (config.cors_origin == "*" || req.origin == config.cors_origin)) {
         r.headers.emplace_back("Access-Control-Allow-Origin", config.cors_origin);
@@ -287,7 +295,6 @@ HttpResponse preflight(const ServerConfig& config, const HttpRequestView& req) {
         // Authorization is never covered by a wildcard: named.
         r.headers.emplace_back("Access-Control-Allow-Headers", "Authorization, If-None-Match");
         r.headers.emplace_back("Access-Control-Max-Age", "86400");
-        if (config.cors_origin != "*") r.headers.emplace_back("Vary", "Origin");
     }
     r.headers.emplace_back("Cache-Control", "no-store");
     return r;

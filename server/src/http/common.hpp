@@ -49,6 +49,11 @@ HttpResponse json_response(const nlohmann::json& j, std::string_view content_typ
 // A 503 that asks the client to come back (Retry-After: 1).
 HttpResponse retry_later(std::string_view message, bool json);
 
+// Cache-Control for a cacheable answer: public, or private when the server requires a token (a
+// shared cache must not hand a token's answer to someone without it). immutable: the URL pins a
+// store version (a year).
+std::string cache_control(const ServerContext& ctx, bool immutable);
+
 // A strict decimal: digits only, no sign, no leading zeros (one URL per resource), below 2^32.
 std::optional<std::uint32_t> parse_u32(std::string_view s);
 // 1 to 16 hex digits.

@@ -125,7 +125,7 @@ HttpResponse viewer_static(HttpHandler&, const ParsedRequest& req, HttpRoute& ro
     const std::string etag = "\"" + hex16(XXH3_64bits(a->data, a->size)) + "\"";
     HttpResponse r;
     r.headers.emplace_back("ETag", etag);
-    r.headers.emplace_back("Cache-Control", "public, max-age=86400");
+    r.headers.emplace_back("Cache-Control", "public, max-age=86400");  // OpenSeadragon: the same for everyone
     if (!req.raw->if_none_match.empty() && if_none_match_matches(req.raw->if_none_match, etag)) {
         r.status = 304;
         return r;

@@ -54,9 +54,7 @@ HttpResponse web_body_response(HttpHandler& handler, const HttpRequestView& req,
                                const WebAnswer& answer, std::shared_ptr<const std::string> body) {
     HttpResponse r;
     r.headers.emplace_back("ETag", web_etag(store, answer));
-    r.headers.emplace_back("Cache-Control", answer.immutable
-                                                ? "public, max-age=" + std::to_string(kImmutableMaxAge) + ", immutable"
-                                                : "public, max-age=" + std::to_string(handler.context().config.http_max_age));
+    r.headers.emplace_back("Cache-Control", cache_control(handler.context(), answer.immutable));
     r.headers.emplace_back("X-Tessera-Store-Version", hex16(store.version));
     if (!body) {
         r.status = 304;

@@ -79,18 +79,21 @@ struct Tap {
     std::uint32_t src;
     float weight;
 };
-std::vector<std::vector<Tap>> taps_for(std::uint32_t n, std::uint32_t m) {
+// Output texel i covers [off + i s, off + (i + 1) s) of the n source texels, s = span / m: the
+// window may start and end inside a texel (a crop not aligned to the level's texels).
+std::vector<std::vector<Tap>> taps_for(std::uint32_t n, std::uint32_t m, double off, double span) {
     std::vector<std::vector<Tap>> taps(m);
-    const double s = double(n) / double(m);
+    const double s = span / double(m);
     for (std::uint32_t i = 0; i < m; ++i) {
-        if (m <= n) {  // area: the source span [i s, (i + 1) s), each texel by its overlap
-            const double a = i * s, b = std::min(double(n), (i + 1) * s);
-            for (auto j = std::uint32_t(a); j < n && double(j) < b; ++j) {
+        if (s >= 1.0) {  // area: the source span, each texel by its overlap
+            const double a = off + i * s, b = std::min(double(n), off + (i + 1) * s);
+            for (auto j = std::uint32_t(std::max(0.0, a)); j < n && double(j) < b; ++j) {
                 const double w = std::min(b, double(j) + 1) - std::max(a, double(j));
-                if (w > 1e-9) taps[i].push_back({j, float(w / s)});
+                if (w > 1e-9) taps[i].push_back({j, float(w / (b - a))});
             }
+            if (taps[i].empty()) taps[i].push_back({std::min(n - 1, std::uint32_t(std::max(0.0, a))), 1.0f});
         } else {  // bilinear between texel centres, clamped at the edges
-            const double c = std::clamp((i + 0.5) * s - 0.5, 0.0, double(n - 1));
+            const double c = std::clamp(off + (i + 0.5) * s - 0.5, 0.0, double(n - 1));
             const auto j0 = std::uint32_t(c);
             const float f = float(c - j0);
             taps[i].push_back({j0, 1.0f - f});
@@ -106,9 +109,10 @@ std::vector<std::vector<Tap>> taps_for(std::uint32_t n, std::uint32_t m) {
 class Resampler {
 public:
     Resampler(std::uint32_t src_w, std::uint32_t src_h, std::uint32_t out_w, std::uint32_t out_h, std::uint32_t channels,
-              bool alpha)
-        : out_w_(out_w), c_(channels), alpha_(alpha), h_taps_(taps_for(src_w, out_w)), inverse_(src_h), last_(out_h, 0) {
-        const auto v = taps_for(src_h, out_h);
+              bool alpha, const SourceWindow& win)
+        : out_w_(out_w), c_(channels), alpha_(alpha), h_taps_(taps_for(src_w, out_w, win.x, win.w)), inverse_(src_h),
+          last_(out_h, 0) {
+        const auto v = taps_for(src_h, out_h, win.y, win.h);
         for (std::uint32_t i = 0; i < out_h; ++i)
             for (const Tap& t : v[i]) {
                 inverse_[t.src].push_back({i, t.weight});
@@ -185,7 +189,8 @@ std::uint32_t scaled_size(std::uint32_t size, std::uint32_t k) {
 }
 
 std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& store, const WebLook& look,
-                                      const Region& r, std::uint32_t out_w, std::uint32_t out_h, WebFailure& failure) {
+                                      const Region& r, std::uint32_t out_w, std::uint32_t out_h, WebFailure& failure,
+                                      std::optional<SourceWindow> window) {
     const storage::StoreInfo& info = store.info();
     const std::uint32_t P = info.tile_payload, B = info.border, T = info.tile_size(), c = look.channels;
     if (r.level >= info.level_count() || r.w == 0 || r.h == 0 || out_w == 0 || out_h == 0 ||
@@ -193,14 +198,15 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
         failure = {400, "region outside the image"};
         return std::nullopt;
     }
-    const bool copy = out_w == r.w && out_h == r.h;
+    const bool copy = !window && out_w == r.w && out_h == r.h;
     WebImage out;
     std::optional<Resampler> resampler;
     if (copy) {
         out.width = out_w, out.height = out_h, out.channels = c;
         out.texels.assign(std::size_t(out_w) * out_h * c, 0);
     } else {
-        resampler.emplace(r.w, r.h, out_w, out_h, c, look.has_alpha);
+        resampler.emplace(r.w, r.h, out_w, out_h, c, look.has_alpha,
+                          window.value_or(SourceWindow{0, 0, double(r.w), double(r.h)}));
     }
     const std::uint32_t tx0 = r.x / P, tx1 = (r.x + r.w - 1) / P, ty0 = r.y / P, ty1 = (r.y + r.h - 1) / P;
     std::vector<TileKey> keys;

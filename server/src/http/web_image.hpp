@@ -52,9 +52,14 @@ struct WebFailure {
 struct Region {
     std::uint32_t level = 0, x = 0, y = 0, w = 0, h = 0;
 };
+// `window`: the part of the region the output shows, in region texels, when it starts or ends
+// inside a texel (a crop finer than the level's texels); default the whole region.
+struct SourceWindow {
+    double x = 0, y = 0, w = 0, h = 0;
+};
 std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& store, const WebLook& look,
                                       const Region& region, std::uint32_t out_w, std::uint32_t out_h,
-                                      WebFailure& failure);
+                                      WebFailure& failure, std::optional<SourceWindow> window = std::nullopt);
 
 // The whole image at scale 1/2^k for any k (levels past the store's coarsest are area-averaged
 // from it): the rectangle of level-k texels [x, x + w) x [y, y + h) rendered at its own size.
