@@ -48,7 +48,7 @@ std::string shown_as(const storage::StoreInfo& info, const WebLook& look) {
 const char* const kPageStyle =
     "html,body{margin:0;height:100%;background:#16181b;color:#d8dadd;font:14px system-ui,sans-serif}"
     "a{color:#8cb4ff}#viewer{position:absolute;inset:0}"
-    "#bar{position:absolute;left:8px;top:8px;z-index:2;background:rgba(0,0,0,.65);padding:5px 9px;border-radius:4px}"
+    "#bar{position:absolute;left:8px;bottom:8px;z-index:2;background:rgba(0,0,0,.65);padding:5px 9px;border-radius:4px}"
     "table{border-collapse:collapse;margin:16px}td,th{padding:4px 12px;text-align:left;border-bottom:1px solid #333}";
 
 }  // namespace
