@@ -1086,15 +1086,22 @@ TEST(RenderTrilinear, CoarserLevelIsTheStoredParentWhenItIsResident) {
     expect_trilinear_matches(/*parents=*/true, /*inverted_parents=*/true);
 }
 
+// What is drawn when level `fine` arrives in expect_fades_in: its parent level, faded in or half-way
+// through its own fade, or only the root.
+enum class FadeFrom { parent, fading_parent, root };
+
 // Blending in (docs/renderer.md, "Blending in"). A static camera at lod `fine` (trilinear and
-// anisotropic: fine + 0.5) over the whole pattern, level fine + 1 (with `parent_resident`; else
-// only the root: the pixels draw the root until level `fine` arrives) and the root resident and
-// faded in; then level `fine` arrives. With fade_ms F, in frames F/8 apart the image moves from the view
-// of level fine + 1 to the view of level fine gradually: the first frame after the arrival is the
-// view before it (the new pages show their parent level), each frame changes by at most an eighth
-// of the whole change (plus rounding), and after F the frame is the one a renderer without
-// blending draws from the same pages (max error <= 1), which matches the reference.
-void expect_fades_in(gl::Filter filter, bool parent_resident) {
+// anisotropic: fine + 0.5) over the whole pattern, level fine + 1 (FadeFrom::parent; else only the
+// root: the pixels draw the root until level `fine` arrives) and the root resident and faded in;
+// with FadeFrom::fading_parent level fine + 1 arrives after the root and level `fine` half-way
+// through its fade. Then level `fine` arrives. With fade_ms F, in frames F/8 apart the image moves
+// from what was drawn to the view of level fine gradually: the first frame after the arrival is
+// the frame before it (however the pixels were drawn: a fading ancestor is blended as it was),
+// each frame changes by at most an eighth of the whole change (plus rounding; with a fading
+// parent, plus an eighth of the parent's own change), and after F the frame is the one a renderer
+// without blending draws from the same pages (max error <= 1), which matches the reference.
+void expect_fades_in(gl::Filter filter, FadeFrom from) {
+    const bool parent_resident = from != FadeFrom::root;
     ScratchDir dir;
     auto pattern = pattern_source(1024, 1024);
     const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56
@@ -1144,12 +1151,24 @@ void expect_fades_in(gl::Filter filter, bool parent_resident) {
         fading.set_time(t);
         return render_vt(fading, cam);
     };
-    if (parent_resident) upload_level(fine + 1);
+    if (from == FadeFrom::parent) upload_level(fine + 1);
     upload_level(info.level_count() - 1);
     double t = 0;
     for (; t <= fade_s + 1e-9; t += fade_s / 4) frame_at(t);
-    const Frame before = frame_at(t);
     EXPECT_EQ(fading.stats().fading_pages, 0u) << "the coarse levels have faded in";
+    int parent_change = 0;  // FadeFrom::fading_parent: how far the parent's own fade moves the image
+    if (from == FadeFrom::fading_parent) {
+        const Frame root_only = frame_at(t);
+        upload_level(fine + 1);
+        const Frame parent_full = render_vt(plain, cam);
+        for (std::size_t i = 0; i < root_only.rgba.size(); ++i)
+            if (i % 4 != 3 && parent_full.rgba[i / 4 * 4 + 3])
+                parent_change = std::max(parent_change, std::abs(int(root_only.rgba[i]) - int(parent_full.rgba[i])));
+        for (int k = 1; k <= 4; ++k) frame_at(t + k * fade_s / 8);
+        t += 4 * fade_s / 8;
+        EXPECT_GT(fading.stats().fading_pages, 0u) << "level " << fine + 1 << " is half-way through its fade";
+    }
+    const Frame before = frame_at(t);
     EXPECT_GT(before.counters.fallback_unbiased, 0u) << "level " << fine << " is not resident yet";
 
     upload_level(fine);
@@ -1164,8 +1183,8 @@ void expect_fades_in(gl::Filter filter, bool parent_resident) {
         return m;
     };
     const int whole = max_diff(before.rgba, after.rgba);
-    EXPECT_GE(whole, 64) << "the two levels must differ for the test to see a fade";
-    const int step_bound = (whole + 7) / 8 + 2;
+    EXPECT_GE(whole + parent_change, 64) << "the levels must differ for the test to see a fade";
+    const int step_bound = (whole + parent_change + 7) / 8 + 2;
     std::vector<std::uint8_t> last = before.rgba;
     int largest_step = 0;
     for (int k = 0; k <= 8; ++k) {
@@ -1196,7 +1215,9 @@ void expect_fades_in(gl::Filter filter, bool parent_resident) {
     EXPECT_LE(r.max_error, 3);
     std::printf("  %s, %s: the whole change %d, largest step %d (bound %d), after the fade max error %d against no "
                 "blending, %.1f dB against the reference\n",
-                filter_name(filter), parent_resident ? "from the parent" : "from the root", whole, largest_step, step_bound,
+                filter_name(filter),
+                from == FadeFrom::parent ? "from the parent" : from == FadeFrom::root ? "from the root" : "from a fading parent", whole,
+                largest_step, step_bound,
                 e.max_error, r.psnr);
 }
 
@@ -1204,7 +1225,7 @@ class RenderFade : public ::testing::TestWithParam<gl::Filter> {};
 
 TEST_P(RenderFade, AnArrivingPageFadesInAndEndsExact) {
     REQUIRE_GL(ctx);
-    expect_fades_in(GetParam(), /*parent_resident=*/true);
+    expect_fades_in(GetParam(), FadeFrom::parent);
 }
 
 INSTANTIATE_TEST_SUITE_P(Filters, RenderFade,
@@ -1217,7 +1238,14 @@ class RenderFadeFromAncestor : public ::testing::TestWithParam<gl::Filter> {};
 
 TEST_P(RenderFadeFromAncestor, APageWhoseParentIsAbsentFadesFromTheAncestorDrawn) {
     REQUIRE_GL(ctx);
-    expect_fades_in(GetParam(), /*parent_resident=*/false);
+    expect_fades_in(GetParam(), FadeFrom::root);
+}
+
+// A page arriving while its parent still fades in starts from what the pixels drew: the parent
+// blended with its own ancestor (fast camera turns bring parent and child a frame or two apart).
+TEST_P(RenderFadeFromAncestor, APageArrivingWhileItsParentFadesStartsFromTheBlend) {
+    REQUIRE_GL(ctx);
+    expect_fades_in(GetParam(), FadeFrom::fading_parent);
 }
 
 INSTANTIATE_TEST_SUITE_P(Filters, RenderFadeFromAncestor, ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear),

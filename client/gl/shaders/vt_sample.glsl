@@ -113,6 +113,7 @@ uniform uint vt_texture_id;         // for the feedback id (feedback.frag: 1/N o
 // taps blend its second level (its parent level over it) in with weight 1 - w (1 - f), f the
 // filter's own fraction (vt_faded_fraction).
 uniform sampler2D vt_fade;
+#define VT_FADE_CHAIN 4  // fading ancestors a blend follows (vt_sample_entry)
 
 float vt_fade_weight(uint e) { return texelFetch(vt_fade, ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu)), 0).r; }
 
@@ -345,23 +346,51 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
 #ifdef VT_FADE
     // Blending in: a cell below full weight w shows mix(before, now, w), `before` being what the
     // pixel drew until its page arrived: the nearest resident ancestor above the page, which the
-    // entry one level up names, sampled as that fallback was (at its own level). The root page has
-    // nothing above it and shows at once.
+    // entry one level up names, sampled as that fallback was (at its own level). An ancestor
+    // still fading was itself drawn blended with the ancestor above it: `before` follows that
+    // chain (up to VT_FADE_CHAIN ancestors; parent and child often arrive a frame or two apart).
+    // The root page has nothing above it and shows at once.
     // Nothing resident above (the ancestor arrives later, or never was): at once, too.
     float w = vt_fade_weight(e);
     int up = max(r, level) + 1;
-    if (valid && up < int(vt_levels)) {
-#ifdef VT_LIT
-        vec4 second_now = vt_second_texel;
-#endif
+    if (valid && w < 1.0 && up < int(vt_levels)) {
         VtPos q = vt_ancestor_position(p, up - level);
-        uint e_up = vt_entry(q.page, up);
-        vec4 before = vt_sample_entry_once(q, up, e_up, 0.0);
-        float wb = (e_up >> 31) != 0u ? w : 1.0;
-        c = mix(before, c, wb);
+        uint ea = vt_entry(q.page, up);
+        if ((ea >> 31) != 0u) {
 #ifdef VT_LIT
-        vt_second_texel = mix(vt_second_texel, second_now, wb);
+            vec4 second_now = vt_second_texel;
+            vec4 second_before = vec4(0.0);
 #endif
+            vec4 before = vec4(0.0);
+            float rest = 1.0;  // the weight of the chain not yet accounted for
+            for (int i = 0; i < VT_FADE_CHAIN; ++i) {
+                vec4 s = vt_sample_entry_once(q, up, ea, 0.0);
+#ifdef VT_LIT
+                if (i == 0) second_before = vt_second_texel;  // the normals: the first ancestor's
+#endif
+                float wa = vt_fade_weight(ea);
+                int ua = max(int((ea >> 24) & 31u), up) + 1;
+                uint next = 0u;
+                VtPos qn = q;
+                if (wa < 1.0 && ua < int(vt_levels) && i + 1 < VT_FADE_CHAIN) {
+                    qn = vt_ancestor_position(p, ua - level);
+                    next = vt_entry(qn.page, ua);
+                }
+                if ((next >> 31) == 0u) {
+                    before += rest * s;
+                    break;
+                }
+                before += rest * wa * s;
+                rest *= 1.0 - wa;
+                q = qn;
+                up = ua;
+                ea = next;
+            }
+            c = mix(before, c, w);
+#ifdef VT_LIT
+            vt_second_texel = mix(second_before, second_now, w);
+#endif
+        }
     }
 #endif
     resident = valid ? uint(r) : 32u;

@@ -85,6 +85,8 @@ public:
                                      "got {} (tile size {}, border {})",
                                      c.max_anisotropy, 2 * c.max_anisotropy, c.tile_size - 2 * c.border, c.tile_size, c.border)};
         if (c.readback_ring < 1 || c.readback_ring > 64) return Error{Errc::invalid_argument, "renderer: readback_ring must be 1..64"};
+        if (c.frames_in_flight < 1 || c.frames_in_flight > 16)
+            return Error{Errc::invalid_argument, "renderer: frames_in_flight must be 1..16"};
         if (!(c.feedback_prefetch_lod >= 0 && c.feedback_prefetch_lod <= 2))
             return Error{Errc::invalid_argument, "renderer: feedback_prefetch_lod must be 0..2"};
         if (!(c.feedback_guard_band >= 0 && c.feedback_guard_band <= 1))
@@ -173,6 +175,7 @@ public:
 
         TESSERA_TRY(feedback_.init(c.readback_ring, fb_width_, fb_height_));
         TESSERA_TRY(counters_.init(std::size_t(c.readback_ring) * 4));
+        frame_fences_.resize(c.frames_in_flight);
         if (auto e = take_gl_errors("renderer setup"); !e.empty()) return Error{Errc::resource_exhausted, e};
         return Status();
     }
@@ -245,6 +248,11 @@ public:
         time_set_ = false;
         ++frame_;
         ++stats_.frames;
+        // Frame latency: the fence in this frame's slot is the frame frames_in_flight back.
+        if (Fence& oldest = frame_fences_[frame_ % frame_fences_.size()]; !oldest.poll()) {
+            ++stats_.gpu_waits;
+            oldest.wait();
+        }
         staging_.close_batch();  // the uploads since the last frame, fenced together
         staging_.retire();
         for (std::size_t i = 0; i <= more_atlases_.size(); ++i) atlas(i).make_page_mips();  // after the frame's page uploads, in stream order
@@ -358,6 +366,7 @@ public:
             counters_.read(*counter_slot, frame_, bool(tex));
         else
             ++stats_.counters_skipped;
+        frame_fences_[frame_ % frame_fences_.size()].insert();
         glFlush();  // start the GPU on this frame; never waits
         return frame_;
     }
@@ -551,6 +560,7 @@ private:
 
     FeedbackReadback feedback_;
     CounterReadback counters_;
+    std::vector<Fence> frame_fences_;  // one per frame the GPU may be behind (frame_ modulo their count)
 
     std::uint64_t frame_ = 0;
     RendererStats stats_;

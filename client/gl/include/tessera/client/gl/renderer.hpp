@@ -67,6 +67,11 @@ struct RendererConfig {
     std::size_t staging_bytes = 32u << 20;  // page + page-table staging ring (bounded; when full, uploads go
                                             // straight from client memory: RendererStats::direct_uploads)
     std::uint32_t readback_ring = 3;   // feedback readbacks in flight (counters: 4x as many; 1..64)
+    // Frames the GPU may be behind: render() waits for the frame this many back to finish, as a
+    // swap chain's frame latency does. Headless rendering has no swap to throttle it, and on a
+    // fast GPU the CPU would otherwise queue thousands of frames, so feedback and counters came
+    // back seconds late. 1..16; at most readback_ring keeps a feedback readback every frame.
+    std::uint32_t frames_in_flight = 3;
     // Feedback jitter: each frame the feedback pass samples a different sub-pixel position of its
     // N x N block of main pixels (a fixed permutation of the N*N positions), so a page visible in
     // only a few main pixels is requested within N*N frames instead of never. Off: every frame
@@ -118,6 +123,8 @@ struct RendererStats {
     std::size_t visible_chunks = 0;           // last frame
     std::size_t fading_pages = 0;             // last frame: pages blending in (RendererConfig::fade_ms)
     std::uint64_t predicted_feedback = 0;     // feedback passes drawn from set_feedback_camera's camera
+    std::uint64_t gpu_waits = 0;              // frames whose render() waited for the GPU to finish the
+                                              // frame RendererConfig::frames_in_flight back
 };
 
 // A feedback buffer read back from the GPU.
