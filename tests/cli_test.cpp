@@ -647,4 +647,28 @@ TEST(CliVerify, EveryFlippedByteIsDetected) {
     EXPECT_EQ(run_tessera("verify -q " + q(store)).exit_code, 0);
 }
 
+// ---- the command line as a new user meets it ----------------------------------------------------
+
+bool has(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
+
+// A help screen's entry for an option or command: from "  NAME" to the next entry (a long one's
+// description is on the lines below it).
+std::string help_line(const std::string& help, const std::string& name) {
+    const std::size_t at = help.find("  " + name + " ");
+    if (at == std::string::npos) return {};
+    const std::size_t end = std::min(help.find("\n  -", at + 1), help.find("\n\n", at + 1));
+    return help.substr(at, end == std::string::npos ? std::string::npos : end - at);
+}
+
+// loadtest takes the viewer's paths: every built-in (listed by the scene library) and path files.
+TEST(CliHelp, LoadtestPathsAreTheViewersPaths) {
+    const RunResult view = run_tessera("view --help");
+    const RunResult loadtest = run_tessera("loadtest --help");
+    ASSERT_EQ(loadtest.exit_code, 0) << loadtest.out;
+    for (const char* name : {"auto", "flyover", "dive", "whip", "walk", "orbit", "path file"}) {
+        EXPECT_TRUE(has(help_line(view.out, "--path"), name)) << name << "\n" << view.out;
+        EXPECT_TRUE(has(help_line(loadtest.out, "--path"), name)) << name << "\n" << loadtest.out;
+    }
+}
+
 }  // namespace

@@ -23,6 +23,7 @@
 #include <sstream>
 
 #include "commands.hpp"
+#include "path_option.hpp"
 #include "progress.hpp"
 #include "svg_plot.hpp"
 #include "tessera/client/scene/path.hpp"
@@ -250,7 +251,7 @@ Command add_bench(CLI::App& app) {
         ->check(CLI::Range(2u, 100000u))
         ->capture_default_str();
     c->add_option("--resolution", a->resolution, "WIDTHxHEIGHT of the viewer")->capture_default_str();
-    c->add_option("--path", a->path, "camera path (flyover, dive, whip, walk or a path file; docs/paths.md)")->capture_default_str();
+    c->add_option("--path", a->path, camera_path_help())->capture_default_str();
     c->add_option("--out", a->out, "directory for stores, bench.csv, bench.json and pareto_*.svg")->capture_default_str();
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference every N frames")
         ->check(CLI::Range(1u, 100000u))

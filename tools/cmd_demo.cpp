@@ -9,6 +9,7 @@
 #include <filesystem>
 
 #include "commands.hpp"
+#include "path_option.hpp"
 #include "progress.hpp"
 #include "store_summary.hpp"
 #include "tessera/server/server.hpp"
@@ -43,7 +44,7 @@ Command add_demo(CLI::App& app) {
     c->add_option("--size", a->size, "Texels per side of the procedural terrain")->capture_default_str();
     c->add_flag("--rebuild", a->rebuild, "Build the store even if it exists");
     c->add_option("--resolution", a->resolution, "WIDTHxHEIGHT of the viewer")->capture_default_str();
-    c->add_option("--path", a->path, "camera path (flyover, dive, whip or a path file)")->capture_default_str();
+    c->add_option("--path", a->path, camera_path_help())->capture_default_str();
     c->add_option("--frames", a->frames, "frames to render (0: the whole path at 60 frames per second)")->capture_default_str();
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference renderer every N frames (0: never)")
         ->capture_default_str();
@@ -139,7 +140,7 @@ Command add_demo(CLI::App& app) {
         vo.pace = !a->no_pace;
         vo.out_dir = (fs::path(a->dir) / "frames").string();
         vo.stats_file = (fs::path(a->dir) / "frames.csv").string();
-        vo.trace_file = (fs::path(a->dir) / (a->path + ".trace")).string();
+        vo.trace_file = (fs::path(a->dir) / (fs::path(a->path).filename().string() + ".trace")).string();
         fmt::print("viewer     headless {}x{}, path {}, pool {} pages, {}\n", w, h, a->path, a->pool,
                    vo.pace ? "paced to 60 Hz" : "unpaced");
         std::fflush(stdout);

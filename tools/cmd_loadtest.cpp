@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "commands.hpp"
+#include "path_option.hpp"
 #include "server_credentials.hpp"
 #include "svg_plot.hpp"
 #include "tessera/client/emulated_source.hpp"
@@ -626,7 +627,7 @@ Command add_loadtest(CLI::App& app) {
         ->capture_default_str()
         ->check(CLI::Range(1u, 4096u));
     auto* trace = c->add_option("--trace", o->trace, "replay this feedback trace (tessera view --trace), each viewer from its own offset");
-    c->add_option("--path", o->path, "compute feedback on the CPU along a built-in camera path: flyover, dive, whip (default flyover)")
+    c->add_option("--path", o->path, "compute feedback on the CPU along a " + camera_path_help() + " (default flyover)")
         ->excludes(trace);
     c->add_option("--fps", o->fps, "frames per second per viewer (a fixed schedule)")->capture_default_str()->check(CLI::Range(1.0, 1000.0));
     c->add_option("--duration", o->duration, "measured seconds per run")->capture_default_str()->check(CLI::Range(0.1, 86400.0));
@@ -705,8 +706,8 @@ Command add_loadtest(CLI::App& app) {
             while (std::max(info->width, info->height) / t.chunk_texels > 64) t.chunk_texels *= 2;
             auto sc = scene::make_terrain(t);
             if (!sc) throw Failure(sc.error().message);
-            auto p = scene::CameraPath::builtin(o->path, *sc);
-            if (!p) throw Failure(fmt::format("--path {}: {}", o->path, p.error().message), 2);
+            auto p = scene::CameraPath::builtin_or_file(o->path, *sc);
+            if (!p) throw Failure(fmt::format("--path: {}", p.error().message), 2);
             path = std::move(*p);
             feedback_name = "path:" + o->path;
         }

@@ -6,6 +6,7 @@
 #include <cstdio>
 
 #include "commands.hpp"
+#include "path_option.hpp"
 #include "viewer_session.hpp"
 
 namespace tessera::tools {
@@ -25,9 +26,7 @@ Command add_view(CLI::App& app) {
                   "terrain: peak height of the displaced ground (0: flat); with a one-channel layer named height, "
                   "the ground follows that layer, its full range spanning this height")
         ->capture_default_str();
-    c->add_option("--path", o->path, "camera path: auto (flyover over the terrain, orbit around an OBJ scene), flyover, dive, "
-                                     "whip, walk, orbit, or a path file (docs/paths.md)")
-        ->capture_default_str();
+    c->add_option("--path", o->path, camera_path_help())->capture_default_str();
     c->add_option("--size", *size, "WIDTHxHEIGHT of the image")->capture_default_str();
     c->add_flag("--headless", o->headless, "render offscreen (EGL), no window");
     c->add_flag("!--no-hud", o->hud, "windowed: no statistics overlay (the window title still shows them)");

@@ -370,10 +370,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     }();
     if (!sc) throw Failure(fmt::format("--scene '{}': {}", o.scene, sc.error().message));
     if (auto st = r.set_scene(*sc, *texture); !st.ok()) throw Failure(st.error().message);
-    const auto names = scene::CameraPath::builtin_names();
-    auto path = std::find(names.begin(), names.end(), o.path) != names.end() ? scene::CameraPath::builtin(o.path, *sc)
-                                                                               : scene::CameraPath::load(o.path);
-    if (!path) throw Failure(fmt::format("--path '{}': {}", o.path, path.error().message));
+    auto path = scene::CameraPath::builtin_or_file(o.path, *sc);
+    if (!path) throw Failure(fmt::format("--path: {}", path.error().message));
 
     // The reference renderer, for PSNR.
     std::unique_ptr<client::gl::ReferenceRenderer> reference;
