@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <map>
@@ -649,6 +650,20 @@ TEST(CliVerify, EveryFlippedByteIsDetected) {
 
 // ---- the command line as a new user meets it ----------------------------------------------------
 
+// `tessera-server ARGS`, as run_tessera runs `tessera ARGS`.
+RunResult run_server_binary(const std::string& args) {
+    RunResult r;
+    const std::string cmd = std::string(TESSERA_SERVER_EXE) + " " + args + " 2>&1";
+    FILE* p = ::popen(cmd.c_str(), "r");
+    if (!p) return r;
+    std::array<char, 4096> buf{};
+    std::size_t n;
+    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
+    const int status = ::pclose(p);
+    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    return r;
+}
+
 bool has(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
 
 // A help screen's entry for an option or command: from "  NAME" to the next entry (a long one's
@@ -658,6 +673,58 @@ std::string help_line(const std::string& help, const std::string& name) {
     if (at == std::string::npos) return {};
     const std::size_t end = std::min(help.find("\n  -", at + 1), help.find("\n\n", at + 1));
     return help.substr(at, end == std::string::npos ? std::string::npos : end - at);
+}
+
+// Byte counts take units on every command, through serve's parser, and help shows the defaults
+// in units.
+TEST(CliVocabulary, ByteCountsTakeUnitsEverywhere) {
+    const std::map<std::string, std::vector<std::pair<std::string, std::string>>> defaults = {
+        {"view", {{"--ram-cache", "SIZE=256MiB"}, {"--disk-cache-size", "SIZE=1GiB"}}},
+        {"loadtest", {{"--ram-cache", "SIZE=0"}}},
+        {"serve",
+         {{"--cache-size", "SIZE=256MiB"}, {"--max-message", "SIZE=4MiB"}, {"--reply-message", "SIZE=64KiB"},
+          {"--viewer-buffer", "SIZE=4MiB"}, {"--total-buffer", "SIZE=512MiB"}, {"--web-cache", "SIZE=64MiB"},
+          {"--max-header", "SIZE=8KiB"}}}};
+    for (const auto& [command, options] : defaults) {
+        const RunResult r = run_tessera(command + " --help");
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        for (const auto& [option, shown] : options)
+            EXPECT_TRUE(has(help_line(r.out, option), option + " " + shown)) << command << " " << option << "\n" << r.out;
+    }
+    // Units are read: the run gets past the options and fails on the missing store instead.
+    ScratchDir d;
+    const std::string missing = q(d.file("missing.tsr"));
+    RunResult r = run_tessera("view --headless --store " + missing + " --ram-cache 64MiB --disk-cache-size 2g");
+    expect_one_line_error(r);
+    EXPECT_TRUE(has(r.out, "missing.tsr")) << r.out;
+    r = run_tessera("loadtest --server 127.0.0.1:1 --connect-timeout 0.2 --store terrain --ram-cache 16MiB");
+    expect_one_line_error(r);
+    EXPECT_FALSE(has(r.out, "--ram-cache")) << r.out;
+    r = run_tessera("serve --grpc 127.0.0.1:0 --http 127.0.0.1:0 --store " + missing + " --web-cache 1GiB --max-header 16KiB");
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_TRUE(has(r.out, "missing.tsr")) << r.out;
+    EXPECT_FALSE(has(r.out, "--web-cache") || has(r.out, "--max-header")) << r.out;
+    // A unit that is not one is an argument error naming the option.
+    r = run_tessera("view --headless --store " + missing + " --ram-cache 64XB");
+    expect_one_line_error(r);
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_TRUE(has(r.out, "--ram-cache")) << r.out;
+}
+
+TEST(CliHelp, ConfigTakesAFile) {
+    for (const bool server : {false, true}) {
+        SCOPED_TRACE(server ? "tessera-server" : "tessera");
+        const RunResult r = server ? run_server_binary("serve --help") : run_tessera("serve --help");
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        EXPECT_TRUE(has(r.out, "  --config FILE ")) << r.out;
+    }
+}
+
+TEST(CliHelp, ServeSaysBothLogFormats) {
+    const RunResult r = run_tessera("serve --help");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_FALSE(has(r.out, "Logs are one JSON object per line")) << r.out;
+    EXPECT_TRUE(has(r.out, "(--log-format json)") && has(r.out, "(--log-format text)")) << r.out;
 }
 
 // loadtest takes the viewer's paths: every built-in (listed by the scene library) and path files.

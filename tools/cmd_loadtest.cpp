@@ -31,6 +31,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
 #include "path_option.hpp"
 #include "server_credentials.hpp"
@@ -639,7 +640,7 @@ Command add_loadtest(CLI::App& app) {
     c->add_option("--seed", o->seed, "seed for phases, offsets, jitter")->capture_default_str();
     c->add_option("--feedback-size", o->feedback_size, "feedback buffer, WxH")->capture_default_str();
     c->add_option("--view-size", o->view_size, "view the feedback stands for, WxH (--path)")->capture_default_str();
-    c->add_option("--ram-cache", o->ram_cache, "RAM tile cache per viewer, bytes (0: off, every miss goes to the server)")->capture_default_str();
+    add_bytes_option(*c, "--ram-cache", o->ram_cache, "RAM tile cache per viewer, e.g. 64MiB (0: off, every miss goes to the server)");
     c->add_option("--pool", o->pool, "physical pages per viewer")->capture_default_str()->check(CLI::Range(16u, 1u << 20));
     c->add_option("--latency", o->latency_ms, "emulated link: added latency, ms")->check(CLI::Range(0.0, 60000.0));
     c->add_option("--jitter", o->jitter_ms, "emulated link: added uniform jitter, ms")->check(CLI::Range(0.0, 60000.0));
