@@ -675,6 +675,42 @@ std::string help_line(const std::string& help, const std::string& name) {
     return help.substr(at, end == std::string::npos ? std::string::npos : end - at);
 }
 
+// `--size` is the viewer's WIDTHxHEIGHT; the procedural terrain's texels per side are `--texels`.
+TEST(CliVocabulary, SizeIsTheImageAndTexelsTheTerrain) {
+    const RunResult view = run_tessera("view --help");
+    ASSERT_EQ(view.exit_code, 0) << view.out;
+    EXPECT_TRUE(has(help_line(view.out, "--size"), "WIDTHxHEIGHT")) << view.out;
+    for (const char* command : {"bench", "demo"}) {
+        SCOPED_TRACE(command);
+        const RunResult r = run_tessera(std::string(command) + " --help");
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        EXPECT_TRUE(has(help_line(r.out, "--texels"), "exels per side")) << r.out;
+        EXPECT_FALSE(has(r.out, "--size")) << r.out;
+        EXPECT_TRUE(has(help_line(r.out, "--resolution"), "WIDTHxHEIGHT")) << r.out;
+    }
+    // The range is --texels's.
+    ScratchDir d;
+    RunResult r = run_tessera("bench --quick --texels 17 --out " + q(d.file("b")));
+    expect_one_line_error(r);
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_TRUE(has(r.out, "--texels")) << r.out;
+    // The former spelling still works, with a notice; an image size given to it says where to go.
+    r = run_tessera("bench --quick --size 512 --out /proc/nope");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_TRUE(has(r.out, "note: --size is now --texels")) << r.out;
+    EXPECT_TRUE(has(r.out, "--out")) << r.out;
+    for (const std::string& command : {"bench --quick --out " + q(d.file("b")), "demo --dir " + q(d.file("demo"))}) {
+        SCOPED_TRACE(command);
+        r = run_tessera(command + " --size 1280x720");
+        expect_one_line_error(r);
+        EXPECT_TRUE(has(r.out, "--texels") && has(r.out, "--resolution")) << r.out;
+    }
+    r = run_tessera("demo --texels 512 --size 512 --dir " + q(d.file("demo")));
+    expect_one_line_error(r);
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_EQ(entries(d), std::set<std::string>{}) << r.out;
+}
+
 // Byte counts take units on every command, through serve's parser, and help shows the defaults
 // in units.
 TEST(CliVocabulary, ByteCountsTakeUnitsEverywhere) {
@@ -736,6 +772,14 @@ TEST(CliHelp, LoadtestPathsAreTheViewersPaths) {
         EXPECT_TRUE(has(help_line(view.out, "--path"), name)) << name << "\n" << view.out;
         EXPECT_TRUE(has(help_line(loadtest.out, "--path"), name)) << name << "\n" << loadtest.out;
     }
+}
+
+TEST(CliHelp, DemoSaysWhatItDoes) {
+    const RunResult r = run_tessera("--help");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    const std::string demo = help_line(r.out, "demo");
+    for (const char* part : {"serve", "headless", "fallback", "PSNR", "popping"})
+        EXPECT_TRUE(has(demo, part)) << part << "\n" << r.out;
 }
 
 }  // namespace

@@ -1,5 +1,7 @@
 #include "cli_options.hpp"
 
+#include <cstdio>
+
 namespace tessera::tools {
 
 std::string bytes_text(std::uint64_t bytes) {
@@ -18,6 +20,30 @@ CLI::Validator bytes_transform() {
     CLI::Validator v = CLI::AsSizeValue(false);
     v.description("");
     return v;
+}
+
+CLI::Option* add_texels_option(CLI::App& app, std::uint32_t& texels, const std::string& help, const CLI::Validator& check) {
+    CLI::Option* opt = app.add_option("--texels", texels, help)->check(check)->capture_default_str();
+    const CLI::Validator number(
+        [](std::string& value) -> std::string {
+            if (value.empty() || value.find_first_not_of("0123456789") != std::string::npos)
+                return "'" + value + "': --size is the former name of --texels, texels per side of the terrain (a "
+                       "number); the image size is --resolution WIDTHxHEIGHT";
+            return {};
+        },
+        "", "former name");
+    CLI::Option* former = app.add_option("--size", texels, "the former name of --texels")
+                              ->group("")  // hidden: the help shows --texels only
+                              ->excludes(opt)
+                              ->check(number)
+                              ->check(check);
+    // Once the whole command line is accepted (the command's own callback: the commands run from main).
+    app.final_callback([former, command = app.get_name()] {
+        if (former->count() > 0)
+            std::fprintf(stderr, "tessera %s: note: --size is now --texels (texels per side); --size will be removed\n",
+                         command.c_str());
+    });
+    return opt;
 }
 
 }  // namespace tessera::tools

@@ -1,6 +1,7 @@
 #pragma once
 // Options that several subcommands share, defined once so that a word means the same on every
-// command line: byte counts take units.
+// command line: byte counts take units, and `--texels` is texels per side of a procedural store
+// (`--size` is the viewer's WIDTHxHEIGHT).
 #include <CLI/CLI.hpp>
 
 #include <cstdint>
@@ -24,5 +25,12 @@ CLI::Option* add_bytes_option(CLI::App& app, const std::string& name, T& bytes, 
         ->type_name("SIZE")
         ->default_str(bytes_text(static_cast<std::uint64_t>(bytes)));
 }
+
+// `--texels N`: texels per side of the procedural terrain (`bench`, `demo`), checked by `check`.
+// `--size N`, its former name, still works: hidden from the help, it prints a one-line notice on
+// stderr once the command line is accepted (this sets the subcommand's final callback), and a
+// WIDTHxHEIGHT given to it is an error that names --texels and --resolution.
+CLI::Option* add_texels_option(CLI::App& app, std::uint32_t& texels, const std::string& help,
+                               const CLI::Validator& check);
 
 }  // namespace tessera::tools
