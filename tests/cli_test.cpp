@@ -782,4 +782,34 @@ TEST(CliHelp, DemoSaysWhatItDoes) {
         EXPECT_TRUE(has(demo, part)) << part << "\n" << r.out;
 }
 
+// CLI11's errors name the subcommand's help, for both binaries; one line, exit 2.
+TEST(CliErrors, PointToTheSubcommandsHelp) {
+    const std::vector<std::pair<std::string, std::string>> cases = {
+        {"view --no-such-flag", "run 'tessera view --help' for the options"},
+        {"view --frames many --store x.tsr", "run 'tessera view --help' for the options"},
+        {"build procedural:terrain:64", "run 'tessera build --help' for the options"},
+        {"loadtest --viewers 4", "run 'tessera loadtest --help' for the options"},
+        {"serve --log-format xml", "run 'tessera serve --help' for the options"},
+        {"no-such-command", "run 'tessera --help' for the commands"},
+        {"", "run 'tessera --help' for the commands"}};
+    for (const auto& [args, hint] : cases) {
+        SCOPED_TRACE(args);
+        const RunResult r = run_tessera(args);
+        expect_one_line_error(r);
+        EXPECT_EQ(r.exit_code, 2) << r.out;
+        EXPECT_TRUE(has(r.out, hint)) << r.out;
+    }
+    for (const auto& [args, hint] : std::vector<std::pair<std::string, std::string>>{
+             {"serve --no-such-flag", "tessera-server: error: "},
+             {"serve --no-such-flag", "run 'tessera-server serve --help' for the options"},
+             {"verify", "run 'tessera-server verify --help' for the options"},
+             {"no-such-command", "run 'tessera-server --help' for the commands"}}) {
+        SCOPED_TRACE("tessera-server " + args);
+        const RunResult r = run_server_binary(args);
+        EXPECT_EQ(r.exit_code, 2) << r.out;
+        EXPECT_EQ(line_count(r.out), 1u) << r.out;
+        EXPECT_TRUE(has(r.out, hint)) << r.out;
+    }
+}
+
 }  // namespace
