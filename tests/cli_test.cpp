@@ -812,4 +812,32 @@ TEST(CliErrors, PointToTheSubcommandsHelp) {
     }
 }
 
+// A view identical to its reference: "lossless", never "inf dB".
+TEST(CliView, LosslessPsnrIsSaidInWords) {
+    ScratchDir d;
+    // One colour everywhere: every level, every fallback and the reference are the same colour.
+    {
+        auto out = OIIO::ImageOutput::create(d.file("flat.png"));
+        ASSERT_TRUE(out);
+        OIIO::ImageSpec spec(512, 512, 3, OIIO::TypeDesc::UINT8);
+        std::vector<std::uint8_t> px(std::size_t(512) * 512 * 3, 120);
+        ASSERT_TRUE(out->open(d.file("flat.png"), spec));
+        ASSERT_TRUE(out->write_image(OIIO::TypeDesc::UINT8, px.data()));
+        ASSERT_TRUE(out->close());
+    }
+    RunResult r = run_tessera("build " + q(d.file("flat.png")) + " --codec zstd --tile-size 128 -o " + q(d.file("flat.tsr")) +
+                              " --quiet");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    r = run_tessera("view --store " + q(d.file("flat.tsr")) + " --headless --size 96x64 --frames 6 --psnr-every 1 --pool 64 "
+                    "--stats " + q(d.file("stats.json")));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_FALSE(has(r.out, "inf")) << r.out;
+    EXPECT_TRUE(has(r.out, "PSNR          lossless: the 6 compared frames are identical to the reference")) << r.out;
+    EXPECT_TRUE(has(r.out, "settled       lossless (identical to the reference)")) << r.out;
+    // The records hold numbers JSON can carry (999 for identical frames, docs/viewer.md).
+    const auto stats = nlohmann::json::parse(read_file(d.file("stats.json")));
+    EXPECT_EQ(stats["frames"][0]["psnr_db"].get<double>(), 999.0) << stats["frames"][0];
+    EXPECT_EQ(stats["settled"]["psnr_db"].get<double>(), 999.0) << stats["settled"];
+}
+
 }  // namespace

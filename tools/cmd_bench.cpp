@@ -360,10 +360,10 @@ Command add_bench(CLI::App& app) {
             p.mean_bias = rep.summary.mean_lod_bias();
             p.gpu_page_bytes = rep.gpu_page_bytes;
             p.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
-            fmt::print("[{:2}/{}] {:<10} {:<24} {:5.2f} ms  full detail {:6.0f} ms{}  fallback {:8.4f}%  PSNR {:5.2f} dB "
-                       "(min {:5.2f})  {:>9}  ({:.1f} s)\n",
+            fmt::print("[{:2}/{}] {:<10} {:<24} {:5.2f} ms  full detail {:6.0f} ms{}  fallback {:8.4f}%  PSNR {} "
+                       "(min {})  {:>9}  ({:.1f} s)\n",
                        i + 1, pts.size(), p.sweep, p.label, p.frame_ms_mean, p.full_detail_ms,
-                       p.full_detail_reached ? " " : "!", 100 * p.fallback, p.psnr_mean, p.psnr_min,
+                       p.full_detail_reached ? " " : "!", 100 * p.fallback, psnr_text(p.psnr_mean), psnr_text(p.psnr_min),
                        human_bytes(p.bytes_received), p.wall_s);
             std::fflush(stdout);
         }
