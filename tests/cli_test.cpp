@@ -703,11 +703,16 @@ TEST(CliVocabulary, SizeIsTheImageAndTexelsTheTerrain) {
         SCOPED_TRACE(command);
         r = run_tessera(command + " --size 1280x720");
         expect_one_line_error(r);
+        EXPECT_EQ(r.out.rfind("tessera: error: --size '1280x720': ", 0), 0u) << r.out;
         EXPECT_TRUE(has(r.out, "--texels") && has(r.out, "--resolution")) << r.out;
     }
+    r = run_tessera("bench --quick --size 17 --out " + q(d.file("b")));
+    expect_one_line_error(r);
+    EXPECT_EQ(r.out.rfind("tessera: error: --size (now --texels): ", 0), 0u) << r.out;
     r = run_tessera("demo --texels 512 --size 512 --dir " + q(d.file("demo")));
     expect_one_line_error(r);
     EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_EQ(r.out.rfind("tessera: error: --size: the former name of --texels", 0), 0u) << r.out;
     EXPECT_EQ(entries(d), std::set<std::string>{}) << r.out;
 }
 

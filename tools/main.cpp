@@ -86,7 +86,10 @@ int main(int argc, char** argv) {
         const std::string name = app.get_name();
         const auto parsed = app.get_subcommands();
         const std::string help = parsed.empty() ? help_hint(name, "", "commands") : help_hint(name, parsed.back()->get_name(), "options");
-        std::fprintf(stderr, "%s: error: %s (%s)\n", name.c_str(), e.what(), help.c_str());
+        // An error of a hidden option starts ": " (CLI11 2.1 leaves its name out; its message names it).
+        std::string what = e.what();
+        if (what.rfind(": ", 0) == 0) what.erase(0, 2);
+        std::fprintf(stderr, "%s: error: %s (%s)\n", name.c_str(), what.c_str(), help.c_str());
         return 2;
     }
     try {
