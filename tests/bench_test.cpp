@@ -16,7 +16,7 @@ using tessera::test::ScratchDir;
 TEST(Bench, QuickSweepWritesTableAndPlots) {
     ScratchDir dir;
     const std::string out = dir.file("bench");
-    auto r = run_tessera("bench --quick --size 512 --out " + out);
+    auto r = run_tessera("bench --quick --texels 512 --out " + out);
     ASSERT_EQ(r.exit_code, 0) << r.out;
     EXPECT_NE(r.out.find("recommended default:"), std::string::npos) << r.out;
     std::ifstream jf(out + "/bench.json");
@@ -70,14 +70,14 @@ TEST(Bench, BadFlags) {
     EXPECT_NE(r.out.find("--resolution"), std::string::npos) << r.out;
     r = run_tessera(base + "--frames 0");
     EXPECT_EQ(r.exit_code, 2) << r.out;
-    r = run_tessera(base + "--size 17");
+    r = run_tessera(base + "--texels 17");
     EXPECT_EQ(r.exit_code, 2) << r.out;
     r = run_tessera(base + "--only nosuchsweep");
     EXPECT_EQ(r.exit_code, 2) << r.out;
     r = run_tessera(base + "--path nosuchpath");
     EXPECT_EQ(r.exit_code, 2) << r.out;
     EXPECT_NE(r.out.find("--path"), std::string::npos) << r.out;
-    r = run_tessera("bench --quick --size 512 --out /proc/nope");
+    r = run_tessera("bench --quick --texels 512 --out /proc/nope");
     EXPECT_EQ(r.exit_code, 1) << r.out;
     EXPECT_NE(r.out.find("--out"), std::string::npos) << r.out;
 }

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <map>
@@ -645,6 +646,203 @@ TEST(CliVerify, EveryFlippedByteIsDetected) {
     }
     // The original is still sound (the copies never touched it).
     EXPECT_EQ(run_tessera("verify -q " + q(store)).exit_code, 0);
+}
+
+// ---- the command line as a new user meets it ----------------------------------------------------
+
+// `tessera-server ARGS`, as run_tessera runs `tessera ARGS`.
+RunResult run_server_binary(const std::string& args) {
+    RunResult r;
+    const std::string cmd = std::string(TESSERA_SERVER_EXE) + " " + args + " 2>&1";
+    FILE* p = ::popen(cmd.c_str(), "r");
+    if (!p) return r;
+    std::array<char, 4096> buf{};
+    std::size_t n;
+    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
+    const int status = ::pclose(p);
+    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    return r;
+}
+
+bool has(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
+
+// A help screen's entry for an option or command: from "  NAME" to the next entry (a long one's
+// description is on the lines below it).
+std::string help_line(const std::string& help, const std::string& name) {
+    const std::size_t at = help.find("  " + name + " ");
+    if (at == std::string::npos) return {};
+    const std::size_t end = std::min(help.find("\n  -", at + 1), help.find("\n\n", at + 1));
+    return help.substr(at, end == std::string::npos ? std::string::npos : end - at);
+}
+
+// `--size` is the viewer's WIDTHxHEIGHT; the procedural terrain's texels per side are `--texels`.
+TEST(CliVocabulary, SizeIsTheImageAndTexelsTheTerrain) {
+    const RunResult view = run_tessera("view --help");
+    ASSERT_EQ(view.exit_code, 0) << view.out;
+    EXPECT_TRUE(has(help_line(view.out, "--size"), "WIDTHxHEIGHT")) << view.out;
+    for (const char* command : {"bench", "demo"}) {
+        SCOPED_TRACE(command);
+        const RunResult r = run_tessera(std::string(command) + " --help");
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        EXPECT_TRUE(has(help_line(r.out, "--texels"), "exels per side")) << r.out;
+        EXPECT_FALSE(has(r.out, "--size")) << r.out;
+        EXPECT_TRUE(has(help_line(r.out, "--resolution"), "WIDTHxHEIGHT")) << r.out;
+    }
+    // The range is --texels's.
+    ScratchDir d;
+    RunResult r = run_tessera("bench --quick --texels 17 --out " + q(d.file("b")));
+    expect_one_line_error(r);
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_TRUE(has(r.out, "--texels")) << r.out;
+    // The former spelling still works, with a notice; an image size given to it says where to go.
+    r = run_tessera("bench --quick --size 512 --out /proc/nope");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_TRUE(has(r.out, "note: --size is now --texels")) << r.out;
+    EXPECT_TRUE(has(r.out, "--out")) << r.out;
+    for (const std::string& command : {"bench --quick --out " + q(d.file("b")), "demo --dir " + q(d.file("demo"))}) {
+        SCOPED_TRACE(command);
+        r = run_tessera(command + " --size 1280x720");
+        expect_one_line_error(r);
+        EXPECT_EQ(r.out.rfind("tessera: error: --size '1280x720': ", 0), 0u) << r.out;
+        EXPECT_TRUE(has(r.out, "--texels") && has(r.out, "--resolution")) << r.out;
+    }
+    r = run_tessera("bench --quick --size 17 --out " + q(d.file("b")));
+    expect_one_line_error(r);
+    EXPECT_EQ(r.out.rfind("tessera: error: --size (now --texels): ", 0), 0u) << r.out;
+    r = run_tessera("demo --texels 512 --size 512 --dir " + q(d.file("demo")));
+    expect_one_line_error(r);
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_EQ(r.out.rfind("tessera: error: --size: the former name of --texels", 0), 0u) << r.out;
+    EXPECT_EQ(entries(d), std::set<std::string>{}) << r.out;
+}
+
+// Byte counts take units on every command, through serve's parser, and help shows the defaults
+// in units.
+TEST(CliVocabulary, ByteCountsTakeUnitsEverywhere) {
+    const std::map<std::string, std::vector<std::pair<std::string, std::string>>> defaults = {
+        {"view", {{"--ram-cache", "SIZE=256MiB"}, {"--disk-cache-size", "SIZE=1GiB"}}},
+        {"loadtest", {{"--ram-cache", "SIZE=0"}}},
+        {"serve",
+         {{"--cache-size", "SIZE=256MiB"}, {"--max-message", "SIZE=4MiB"}, {"--reply-message", "SIZE=64KiB"},
+          {"--viewer-buffer", "SIZE=4MiB"}, {"--total-buffer", "SIZE=512MiB"}, {"--web-cache", "SIZE=64MiB"},
+          {"--max-header", "SIZE=8KiB"}}}};
+    for (const auto& [command, options] : defaults) {
+        const RunResult r = run_tessera(command + " --help");
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        for (const auto& [option, shown] : options)
+            EXPECT_TRUE(has(help_line(r.out, option), option + " " + shown)) << command << " " << option << "\n" << r.out;
+    }
+    // Units are read: the run gets past the options and fails on the missing store instead.
+    ScratchDir d;
+    const std::string missing = q(d.file("missing.tsr"));
+    RunResult r = run_tessera("view --headless --store " + missing + " --ram-cache 64MiB --disk-cache-size 2g");
+    expect_one_line_error(r);
+    EXPECT_TRUE(has(r.out, "missing.tsr")) << r.out;
+    r = run_tessera("loadtest --server 127.0.0.1:1 --connect-timeout 0.2 --store terrain --ram-cache 16MiB");
+    expect_one_line_error(r);
+    EXPECT_FALSE(has(r.out, "--ram-cache")) << r.out;
+    r = run_tessera("serve --grpc 127.0.0.1:0 --http 127.0.0.1:0 --store " + missing + " --web-cache 1GiB --max-header 16KiB");
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_TRUE(has(r.out, "missing.tsr")) << r.out;
+    EXPECT_FALSE(has(r.out, "--web-cache") || has(r.out, "--max-header")) << r.out;
+    // A unit that is not one is an argument error naming the option.
+    r = run_tessera("view --headless --store " + missing + " --ram-cache 64XB");
+    expect_one_line_error(r);
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_TRUE(has(r.out, "--ram-cache")) << r.out;
+}
+
+TEST(CliHelp, ConfigTakesAFile) {
+    for (const bool server : {false, true}) {
+        SCOPED_TRACE(server ? "tessera-server" : "tessera");
+        const RunResult r = server ? run_server_binary("serve --help") : run_tessera("serve --help");
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        EXPECT_TRUE(has(r.out, "  --config FILE ")) << r.out;
+    }
+}
+
+TEST(CliHelp, ServeSaysBothLogFormats) {
+    const RunResult r = run_tessera("serve --help");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_FALSE(has(r.out, "Logs are one JSON object per line")) << r.out;
+    EXPECT_TRUE(has(r.out, "(--log-format json)") && has(r.out, "(--log-format text)")) << r.out;
+}
+
+// loadtest takes the viewer's paths: every built-in (listed by the scene library) and path files.
+TEST(CliHelp, LoadtestPathsAreTheViewersPaths) {
+    const RunResult view = run_tessera("view --help");
+    const RunResult loadtest = run_tessera("loadtest --help");
+    ASSERT_EQ(loadtest.exit_code, 0) << loadtest.out;
+    for (const char* name : {"auto", "flyover", "dive", "whip", "walk", "orbit", "path file"}) {
+        EXPECT_TRUE(has(help_line(view.out, "--path"), name)) << name << "\n" << view.out;
+        EXPECT_TRUE(has(help_line(loadtest.out, "--path"), name)) << name << "\n" << loadtest.out;
+    }
+}
+
+TEST(CliHelp, DemoSaysWhatItDoes) {
+    const RunResult r = run_tessera("--help");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    const std::string demo = help_line(r.out, "demo");
+    for (const char* part : {"serve", "headless", "fallback", "PSNR", "popping"})
+        EXPECT_TRUE(has(demo, part)) << part << "\n" << r.out;
+}
+
+// CLI11's errors name the subcommand's help, for both binaries; one line, exit 2.
+TEST(CliErrors, PointToTheSubcommandsHelp) {
+    const std::vector<std::pair<std::string, std::string>> cases = {
+        {"view --no-such-flag", "run 'tessera view --help' for the options"},
+        {"view --frames many --store x.tsr", "run 'tessera view --help' for the options"},
+        {"build procedural:terrain:64", "run 'tessera build --help' for the options"},
+        {"loadtest --viewers 4", "run 'tessera loadtest --help' for the options"},
+        {"serve --log-format xml", "run 'tessera serve --help' for the options"},
+        {"no-such-command", "run 'tessera --help' for the commands"},
+        {"", "run 'tessera --help' for the commands"}};
+    for (const auto& [args, hint] : cases) {
+        SCOPED_TRACE(args);
+        const RunResult r = run_tessera(args);
+        expect_one_line_error(r);
+        EXPECT_EQ(r.exit_code, 2) << r.out;
+        EXPECT_TRUE(has(r.out, hint)) << r.out;
+    }
+    for (const auto& [args, hint] : std::vector<std::pair<std::string, std::string>>{
+             {"serve --no-such-flag", "tessera-server: error: "},
+             {"serve --no-such-flag", "run 'tessera-server serve --help' for the options"},
+             {"verify", "run 'tessera-server verify --help' for the options"},
+             {"no-such-command", "run 'tessera-server --help' for the commands"}}) {
+        SCOPED_TRACE("tessera-server " + args);
+        const RunResult r = run_server_binary(args);
+        EXPECT_EQ(r.exit_code, 2) << r.out;
+        EXPECT_EQ(line_count(r.out), 1u) << r.out;
+        EXPECT_TRUE(has(r.out, hint)) << r.out;
+    }
+}
+
+// A view identical to its reference: "lossless", never "inf dB".
+TEST(CliView, LosslessPsnrIsSaidInWords) {
+    ScratchDir d;
+    // One colour everywhere: every level, every fallback and the reference are the same colour.
+    {
+        auto out = OIIO::ImageOutput::create(d.file("flat.png"));
+        ASSERT_TRUE(out);
+        OIIO::ImageSpec spec(512, 512, 3, OIIO::TypeDesc::UINT8);
+        std::vector<std::uint8_t> px(std::size_t(512) * 512 * 3, 120);
+        ASSERT_TRUE(out->open(d.file("flat.png"), spec));
+        ASSERT_TRUE(out->write_image(OIIO::TypeDesc::UINT8, px.data()));
+        ASSERT_TRUE(out->close());
+    }
+    RunResult r = run_tessera("build " + q(d.file("flat.png")) + " --codec zstd --tile-size 128 -o " + q(d.file("flat.tsr")) +
+                              " --quiet");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    r = run_tessera("view --store " + q(d.file("flat.tsr")) + " --headless --size 96x64 --frames 6 --psnr-every 1 --pool 64 "
+                    "--stats " + q(d.file("stats.json")));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_FALSE(has(r.out, "inf")) << r.out;
+    EXPECT_TRUE(has(r.out, "PSNR          lossless: the 6 compared frames are identical to the reference")) << r.out;
+    EXPECT_TRUE(has(r.out, "settled       lossless (identical to the reference)")) << r.out;
+    // The records hold numbers JSON can carry (999 for identical frames, docs/viewer.md).
+    const auto stats = nlohmann::json::parse(read_file(d.file("stats.json")));
+    EXPECT_EQ(stats["frames"][0]["psnr_db"].get<double>(), 999.0) << stats["frames"][0];
+    EXPECT_EQ(stats["settled"]["psnr_db"].get<double>(), 999.0) << stats["settled"];
 }
 
 }  // namespace

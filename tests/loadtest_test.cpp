@@ -191,6 +191,30 @@ TEST(Loadtest, ServerDownIsAClearError) {
     EXPECT_NE(r.out.find("tessera: error: --server 127.0.0.1:1"), std::string::npos) << r.out;
 }
 
+// --path takes what `tessera view --path` takes: every built-in path and a path file.
+TEST(Loadtest, PathsAreTheViewersPaths) {
+    auto& s = Server::get();
+    const std::string file = s.file("low.path");
+    std::ofstream(file) << "# tessera camera path v1\n# time_s x y z yaw_deg pitch_deg\n"
+                           "0 500 500 400 45 -30\n2 3500 3500 400 45 -30\n";
+    for (const std::string& path : {file, std::string("walk"), std::string("orbit"), std::string("auto")}) {
+        SCOPED_TRACE(path);
+        const std::string json = s.file("path.json");
+        auto r = run_tessera("loadtest --server " + s.address() + " --store terrain --viewers 1 --duration 1 --warmup 0 "
+                             "--fps 30 --path " + path + " --json " + json + " --quiet");
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        const auto j = load(json);
+        EXPECT_EQ(j["feedback"].get<std::string>(), "path:" + path);
+        EXPECT_GT(j["runs"][0]["tiles"].get<std::uint64_t>(), 0u) << j.dump();
+    }
+    // A path file that does not parse: the parser's error, naming the file and line.
+    const std::string bad = s.file("bad.path");
+    std::ofstream(bad) << "0 1 2 3 4 5\n1 1 2\n";
+    auto r = run_tessera("loadtest --server " + s.address() + " --store terrain --duration 0.5 --warmup 0 --path " + bad);
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_NE(r.out.find(bad + ":2: "), std::string::npos) << r.out;
+}
+
 TEST(Loadtest, BadFlags) {
     auto& s = Server::get();
     const std::string base = "loadtest --server " + s.address() + " --store terrain ";

@@ -22,7 +22,9 @@
 #include <set>
 #include <sstream>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
+#include "path_option.hpp"
 #include "progress.hpp"
 #include "svg_plot.hpp"
 #include "tessera/client/scene/path.hpp"
@@ -230,7 +232,7 @@ const Point* recommend(const std::vector<Point>& pts) {
 
 Command add_bench(CLI::App& app) {
     struct Args {
-        std::uint32_t size = 2048;
+        std::uint32_t texels = 2048;
         std::uint32_t frames = 240;
         std::string resolution = "320x180";
         std::string path = "flyover";
@@ -243,14 +245,12 @@ Command add_bench(CLI::App& app) {
     CLI::App* c = app.add_subcommand(
         "bench", "Sweep tile size, border, codec, feedback scale, pool, bias policy, upload budget, latency and "
                  "prefetch: run time against error, with Pareto fronts and a recommended default");
-    c->add_option("--size", a->size, "texels per side of the procedural terrain")
-        ->check(CLI::Range(256u, 16384u))
-        ->capture_default_str();
+    add_texels_option(*c, a->texels, "texels per side of the procedural terrain", CLI::Range(256u, 16384u));
     c->add_option("--frames", a->frames, "frames per point (the path at 60 frames per second)")
         ->check(CLI::Range(2u, 100000u))
         ->capture_default_str();
     c->add_option("--resolution", a->resolution, "WIDTHxHEIGHT of the viewer")->capture_default_str();
-    c->add_option("--path", a->path, "camera path (flyover, dive, whip, walk or a path file; docs/paths.md)")->capture_default_str();
+    c->add_option("--path", a->path, camera_path_help())->capture_default_str();
     c->add_option("--out", a->out, "directory for stores, bench.csv, bench.json and pareto_*.svg")->capture_default_str();
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference every N frames")
         ->check(CLI::Range(1u, 100000u))
@@ -283,7 +283,7 @@ Command add_bench(CLI::App& app) {
 
         const std::set<std::string> only(a->only.begin(), a->only.end());
         std::vector<Point> pts = make_points(only, a->quick);
-        const std::string input = fmt::format("procedural:terrain:{}", a->size);
+        const std::string input = fmt::format("procedural:terrain:{}", a->texels);
         fmt::print("tessera bench: {} points, {} frames each at {}x{} over '{}' (paced at 60 fps), store {}\n",
                    pts.size(), frames, w, h, a->path, input);
         std::fflush(stdout);
@@ -360,10 +360,10 @@ Command add_bench(CLI::App& app) {
             p.mean_bias = rep.summary.mean_lod_bias();
             p.gpu_page_bytes = rep.gpu_page_bytes;
             p.wall_s = std::chrono::duration<double>(Clock::now() - t0).count();
-            fmt::print("[{:2}/{}] {:<10} {:<24} {:5.2f} ms  full detail {:6.0f} ms{}  fallback {:8.4f}%  PSNR {:5.2f} dB "
-                       "(min {:5.2f})  {:>9}  ({:.1f} s)\n",
+            fmt::print("[{:2}/{}] {:<10} {:<24} {:5.2f} ms  full detail {:6.0f} ms{}  fallback {:8.4f}%  PSNR {} "
+                       "(min {})  {:>9}  ({:.1f} s)\n",
                        i + 1, pts.size(), p.sweep, p.label, p.frame_ms_mean, p.full_detail_ms,
-                       p.full_detail_reached ? " " : "!", 100 * p.fallback, p.psnr_mean, p.psnr_min,
+                       p.full_detail_reached ? " " : "!", 100 * p.fallback, psnr_text(p.psnr_mean), psnr_text(p.psnr_min),
                        human_bytes(p.bytes_received), p.wall_s);
             std::fflush(stdout);
         }
@@ -398,7 +398,7 @@ Command add_bench(CLI::App& app) {
             using nlohmann::json;
             const auto jn = [](double v) { return std::isfinite(v) ? json(v) : json(nullptr); };
             json j;
-            j["size"] = a->size;
+            j["size"] = a->texels;
             j["frames"] = frames;
             j["resolution"] = fmt::format("{}x{}", w, h);
             j["path"] = a->path;
@@ -449,7 +449,7 @@ Command add_bench(CLI::App& app) {
             if (!out) throw Failure(fmt::format("cannot write '{}'", json_file));
         }
         // Plots.
-        const std::string where = fmt::format("{}x{}, {} frames of {}, terrain {}^2", w, h, frames, a->path, a->size);
+        const std::string where = fmt::format("{}x{}, {} frames of {}, terrain {}^2", w, h, frames, a->path, a->texels);
         const auto svg = [&](const char* name) { return (fs::path(a->out) / name).string(); };
         pareto_plot(pts, svg("pareto_frame_psnr.svg"), "tessera bench: frame time against PSNR (" + where + ")",
                     "mean frame time (ms)", "mean PSNR (dB)", true,

@@ -8,7 +8,9 @@
 #include <cstdio>
 #include <filesystem>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
+#include "path_option.hpp"
 #include "progress.hpp"
 #include "store_summary.hpp"
 #include "tessera/server/server.hpp"
@@ -22,7 +24,7 @@ namespace tessera::tools {
 Command add_demo(CLI::App& app) {
     struct Args {
         std::string dir = "tessera-demo";
-        std::uint32_t size = 16384;
+        std::uint32_t texels = 16384;
         bool rebuild = false;
         std::string resolution = "1280x720";
         std::string path = "flyover";
@@ -38,12 +40,15 @@ Command add_demo(CLI::App& app) {
         bool layers = false;
     };
     auto a = std::make_shared<Args>();
-    CLI::App* c = app.add_subcommand("demo", "Build the procedural demo store (if missing), verify it and summarise it");
+    CLI::App* c = app.add_subcommand(
+        "demo", "Build the procedural terrain store (if missing) and verify it, serve it on loopback, view it headless "
+                "along a camera path and report frame time, fallback, PSNR against the reference and popping");
     c->add_option("--dir", a->dir, "Directory for the demo's files")->capture_default_str();
-    c->add_option("--size", a->size, "Texels per side of the procedural terrain")->capture_default_str();
+    add_texels_option(*c, a->texels, "Texels per side of the procedural terrain",
+                      CLI::Range(1u, std::uint32_t(storage::kMaxProceduralSize)));
     c->add_flag("--rebuild", a->rebuild, "Build the store even if it exists");
     c->add_option("--resolution", a->resolution, "WIDTHxHEIGHT of the viewer")->capture_default_str();
-    c->add_option("--path", a->path, "camera path (flyover, dive, whip or a path file)")->capture_default_str();
+    c->add_option("--path", a->path, camera_path_help())->capture_default_str();
     c->add_option("--frames", a->frames, "frames to render (0: the whole path at 60 frames per second)")->capture_default_str();
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference renderer every N frames (0: never)")
         ->capture_default_str();
@@ -67,14 +72,14 @@ Command add_demo(CLI::App& app) {
         if (ec) throw Failure(fmt::format("cannot create '{}': {}", a->dir, ec.message()));
         const std::string name = a->layers ? "terrain_layers" : "terrain";
         const std::string store = (fs::path(a->dir) / (name + ".tsr")).string();
-        const std::string input = fmt::format("procedural:terrain:{}", a->size);
+        const std::string input = fmt::format("procedural:terrain:{}", a->texels);
         const storage::LayerInput layers[] = {{"colour", input, std::nullopt},
-                                              {"normal", fmt::format("procedural:terrain-normal:{}", a->size), Codec::bc5},
-                                              {"height", fmt::format("procedural:terrain-height:{}", a->size), Codec::zstd}};
+                                              {"normal", fmt::format("procedural:terrain-normal:{}", a->texels), Codec::bc5},
+                                              {"height", fmt::format("procedural:terrain-height:{}", a->texels), Codec::zstd}};
         bool build = a->rebuild;
         if (!build) {
             auto existing = storage::StoreReader::open(store);
-            build = !existing || existing.value()->info().width != a->size || existing.value()->info().layered() != a->layers;
+            build = !existing || existing.value()->info().width != a->texels || existing.value()->info().layered() != a->layers;
         }
         if (build) {
             fmt::print("building {} from {}{} ...\n", store, input, a->layers ? " (colour, normal and height layers)" : "");
@@ -133,13 +138,13 @@ Command add_demo(CLI::App& app) {
         vo.fade_ms = a->fade_ms;
         vo.motion_prefetch_ms = a->motion_prefetch_ms;
         // With layers, the ground is the height layer's, at the relief its normals were made for.
-        if (a->layers) vo.displacement = 2.0 * a->size * storage::kTerrainReliefPerSize;
+        if (a->layers) vo.displacement = 2.0 * a->texels * storage::kTerrainReliefPerSize;
         // Paced like a 60 Hz display: unpaced, a GPU renders the 60-frames-per-second path many
         // times faster than tiles can arrive, which no viewer on a screen would do.
         vo.pace = !a->no_pace;
         vo.out_dir = (fs::path(a->dir) / "frames").string();
         vo.stats_file = (fs::path(a->dir) / "frames.csv").string();
-        vo.trace_file = (fs::path(a->dir) / (a->path + ".trace")).string();
+        vo.trace_file = (fs::path(a->dir) / (fs::path(a->path).filename().string() + ".trace")).string();
         fmt::print("viewer     headless {}x{}, path {}, pool {} pages, {}\n", w, h, a->path, a->pool,
                    vo.pace ? "paced to 60 Hz" : "unpaced");
         std::fflush(stdout);

@@ -31,7 +31,9 @@
 #include <unordered_map>
 #include <vector>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
+#include "path_option.hpp"
 #include "server_credentials.hpp"
 #include "svg_plot.hpp"
 #include "tessera/client/emulated_source.hpp"
@@ -626,7 +628,7 @@ Command add_loadtest(CLI::App& app) {
         ->capture_default_str()
         ->check(CLI::Range(1u, 4096u));
     auto* trace = c->add_option("--trace", o->trace, "replay this feedback trace (tessera view --trace), each viewer from its own offset");
-    c->add_option("--path", o->path, "compute feedback on the CPU along a built-in camera path: flyover, dive, whip (default flyover)")
+    c->add_option("--path", o->path, "compute feedback on the CPU along a " + camera_path_help() + " (default flyover)")
         ->excludes(trace);
     c->add_option("--fps", o->fps, "frames per second per viewer (a fixed schedule)")->capture_default_str()->check(CLI::Range(1.0, 1000.0));
     c->add_option("--duration", o->duration, "measured seconds per run")->capture_default_str()->check(CLI::Range(0.1, 86400.0));
@@ -638,7 +640,7 @@ Command add_loadtest(CLI::App& app) {
     c->add_option("--seed", o->seed, "seed for phases, offsets, jitter")->capture_default_str();
     c->add_option("--feedback-size", o->feedback_size, "feedback buffer, WxH")->capture_default_str();
     c->add_option("--view-size", o->view_size, "view the feedback stands for, WxH (--path)")->capture_default_str();
-    c->add_option("--ram-cache", o->ram_cache, "RAM tile cache per viewer, bytes (0: off, every miss goes to the server)")->capture_default_str();
+    add_bytes_option(*c, "--ram-cache", o->ram_cache, "RAM tile cache per viewer, e.g. 64MiB (0: off, every miss goes to the server)");
     c->add_option("--pool", o->pool, "physical pages per viewer")->capture_default_str()->check(CLI::Range(16u, 1u << 20));
     c->add_option("--latency", o->latency_ms, "emulated link: added latency, ms")->check(CLI::Range(0.0, 60000.0));
     c->add_option("--jitter", o->jitter_ms, "emulated link: added uniform jitter, ms")->check(CLI::Range(0.0, 60000.0));
@@ -705,8 +707,8 @@ Command add_loadtest(CLI::App& app) {
             while (std::max(info->width, info->height) / t.chunk_texels > 64) t.chunk_texels *= 2;
             auto sc = scene::make_terrain(t);
             if (!sc) throw Failure(sc.error().message);
-            auto p = scene::CameraPath::builtin(o->path, *sc);
-            if (!p) throw Failure(fmt::format("--path {}: {}", o->path, p.error().message), 2);
+            auto p = scene::CameraPath::builtin_or_file(o->path, *sc);
+            if (!p) throw Failure(fmt::format("--path: {}", p.error().message), 2);
             path = std::move(*p);
             feedback_name = "path:" + o->path;
         }

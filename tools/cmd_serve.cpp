@@ -11,6 +11,7 @@
 #include <sstream>
 #include <thread>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
 #include "service_notify.hpp"
 #include "tessera/server/server.hpp"
@@ -134,7 +135,7 @@ Command add_serve(CLI::App& app) {
     auto a = std::make_shared<ServeArgs>();
     auto& c = a->config;
     auto* s = app.add_subcommand("serve", "Serve tile stores over gRPC (streaming viewers) and HTTP");
-    s->set_config("--config", "", "Read options from a file (key = value lines named like the long options)");
+    s->set_config("--config", "", "Read options from a file (key = value lines named like the long options)")->type_name("FILE");
     s->add_option("--store", c.store_files,
                   "A store to serve (repeatable): a file, s3://BUCKET/KEY.tsr or http(s)://HOST/PATH.tsr (range requests; "
                   "S3 credentials and endpoint from the AWS_* environment, docs/server.md); named by its file name without .tsr");
@@ -147,8 +148,7 @@ Command add_serve(CLI::App& app) {
     s->add_option("--tls-key", c.tls_key_file, "PEM private key for --tls-cert");
     s->add_option("--auth-token-file", a->auth_token_file,
                   "Require \"authorization: Bearer <token>\" with the token in this file (not /healthz, /readyz)");
-    s->add_option("--cache-size", a->cache_bytes, "RAM tile cache budget, e.g. 256MiB (0: off)")
-        ->transform(CLI::AsSizeValue(false))->default_str("256MiB");
+    add_bytes_option(*s, "--cache-size", a->cache_bytes, "RAM tile cache budget, e.g. 256MiB (0: off)");
     s->add_option("--io-threads", c.io_threads, "Tile reader threads (0: all cores; at least 16 with a remote store)")->capture_default_str();
     s->add_option("--http-threads", c.http_threads, "HTTP event-loop threads (0: all cores; at least 16 with a remote store)")->capture_default_str();
     s->add_option("--max-viewers", c.max_viewers, "Concurrent StreamTiles calls; beyond: RESOURCE_EXHAUSTED")
@@ -157,21 +157,16 @@ Command add_serve(CLI::App& app) {
         ->capture_default_str();
     s->add_option("--max-pending", c.max_pending, "Admitted requests waiting over all viewers; beyond: RESOURCE_EXHAUSTED")
         ->capture_default_str();
-    s->add_option("--max-message", a->max_message, "Largest gRPC message accepted, e.g. 4MiB")
-        ->transform(CLI::AsSizeValue(false))->default_str("4MiB");
-    s->add_option("--reply-message", c.grpc_message_bytes,
-                  "Tile replies packed into one gRPC message up to this size (revision 1 viewers), e.g. 64KiB")
-        ->transform(CLI::AsSizeValue(false))->default_str("64KiB");
+    add_bytes_option(*s, "--max-message", a->max_message, "Largest gRPC message accepted, e.g. 4MiB");
+    add_bytes_option(*s, "--reply-message", c.grpc_message_bytes,
+                     "Tile replies packed into one gRPC message up to this size (revision 1 viewers), e.g. 64KiB");
     s->add_option("--max-connections", c.max_connections, "Concurrent HTTP connections; beyond: 503")
         ->capture_default_str();
-    s->add_option("--max-header", c.max_header_bytes, "Largest HTTP request head in bytes; beyond: 431")
-        ->capture_default_str();
+    add_bytes_option(*s, "--max-header", c.max_header_bytes, "Largest HTTP request head, e.g. 8KiB; beyond: 431");
     s->add_option("--max-http-inflight", c.max_http_inflight, "HTTP tile requests served at once; beyond: 503")
         ->capture_default_str();
-    s->add_option("--viewer-buffer", a->viewer_buffer, "Replies read but unsent, per viewer (flow control), e.g. 4MiB")
-        ->transform(CLI::AsSizeValue(false))->default_str("4MiB");
-    s->add_option("--total-buffer", a->total_buffer, "The same over all viewers, e.g. 512MiB")
-        ->transform(CLI::AsSizeValue(false))->default_str("512MiB");
+    add_bytes_option(*s, "--viewer-buffer", a->viewer_buffer, "Replies read but unsent, per viewer (flow control), e.g. 4MiB");
+    add_bytes_option(*s, "--total-buffer", a->total_buffer, "The same over all viewers, e.g. 512MiB");
     s->add_option("--request-timeout", a->timeout_ms, "Default deadline of a tile request, ms")->capture_default_str()
         ->check(CLI::Range(1LL, 3600000LL));
     s->add_option("--watch-interval", a->watch_ms, "Rescan stores this often, ms (0: only on SIGHUP)")
@@ -188,15 +183,15 @@ Command add_serve(CLI::App& app) {
         ->capture_default_str();
     s->add_option("--public-url", c.public_url,
                   "URL clients reach this server at, e.g. https://tiles.example.org (IIIF ids; default: the request's Host)");
-    s->add_option("--web-cache", c.web_cache_bytes, "RAM for encoded DZI/IIIF/XYZ images, bytes (0: off)")
-        ->capture_default_str();
+    add_bytes_option(*s, "--web-cache", c.web_cache_bytes, "RAM for encoded DZI/IIIF/XYZ images, e.g. 64MiB (0: off)");
     s->add_option("--log-format", a->log_format, "Log lines: json or text")->capture_default_str()
         ->check(CLI::IsMember({"json", "text"}));
     s->add_option("--log-level", a->log_level, "info or debug")->capture_default_str()
         ->check(CLI::IsMember({"info", "debug"}));
     s->footer(
         "Signals: SIGHUP rescans the stores and rereads --auth-token-file, --tls-cert and --tls-key; SIGTERM/SIGINT stop accepting, finish admitted work\n"
-        "(up to --drain-timeout) and exit 0. Logs are one JSON object per line on stderr.");
+        "(up to --drain-timeout) and exit 0. Logs go to stderr, one line each: a JSON object (--log-format json) or text\n"
+        "(--log-format text).");
     // Debian 12's CLI11 (2.1) reads config files only for the main app (CLIUtils/CLI11#1056),
     // so apply --config here: keys are long option names, top level or under [serve]; the
     // command line wins; an unknown key is an error.

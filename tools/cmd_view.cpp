@@ -5,7 +5,9 @@
 #include <cmath>
 #include <cstdio>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
+#include "path_option.hpp"
 #include "viewer_session.hpp"
 
 namespace tessera::tools {
@@ -25,9 +27,7 @@ Command add_view(CLI::App& app) {
                   "terrain: peak height of the displaced ground (0: flat); with a one-channel layer named height, "
                   "the ground follows that layer, its full range spanning this height")
         ->capture_default_str();
-    c->add_option("--path", o->path, "camera path: auto (flyover over the terrain, orbit around an OBJ scene), flyover, dive, "
-                                     "whip, walk, orbit, or a path file (docs/paths.md)")
-        ->capture_default_str();
+    c->add_option("--path", o->path, camera_path_help())->capture_default_str();
     c->add_option("--size", *size, "WIDTHxHEIGHT of the image")->capture_default_str();
     c->add_flag("--headless", o->headless, "render offscreen (EGL), no window");
     c->add_flag("!--no-hud", o->hud, "windowed: no statistics overlay (the window title still shows them)");
@@ -74,9 +74,9 @@ Command add_view(CLI::App& app) {
     c->add_option("--link-jitter-ms", o->link_jitter_ms, "emulated link: random extra delay up to this, milliseconds");
     c->add_option("--link-bandwidth", o->link_bandwidth_bits_per_s, "emulated link: bits per second (0: unlimited)");
     c->add_option("--upload-pages", o->upload_pages_per_frame, "pages uploaded per frame at most")->capture_default_str();
-    c->add_option("--ram-cache", o->ram_cache_bytes, "RAM tile cache, bytes (0: off)")->capture_default_str();
+    add_bytes_option(*c, "--ram-cache", o->ram_cache_bytes, "RAM tile cache, e.g. 256MiB (0: off)");
     c->add_option("--disk-cache", o->disk_cache_dir, "disk tile cache directory (persists across runs)");
-    c->add_option("--disk-cache-size", o->disk_cache_bytes, "disk cache bound, bytes")->capture_default_str();
+    add_bytes_option(*c, "--disk-cache-size", o->disk_cache_bytes, "disk cache bound, e.g. 1GiB");
     c->add_option("--transcode-threads", o->transcode_threads, "decoder threads")->capture_default_str();
     c->add_option("--psnr-every", o->psnr_every, "compare against the reference renderer every N frames (0: never)")
         ->capture_default_str();

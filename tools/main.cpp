@@ -7,6 +7,7 @@
 #include <cstring>
 #include <exception>
 #include <map>
+#include <string>
 
 #include "commands.hpp"
 
@@ -18,6 +19,15 @@ extern "C" const char* __asan_default_options() {
     return "quarantine_size_mb=4:thread_local_quarantine_size_kb=64:allocator_release_to_os_interval_ms=50";
 }
 #endif
+
+namespace {
+
+// "run 'tessera view --help' for the options"
+std::string help_hint(const std::string& program, const std::string& subcommand, const char* what) {
+    return "run '" + program + (subcommand.empty() ? "" : " " + subcommand) + " --help' for the " + what;
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
     using namespace tessera::tools;
@@ -71,7 +81,15 @@ int main(int argc, char** argv) {
     } catch (const CLI::CallForVersion& e) {
         return app.exit(e);
     } catch (const CLI::ParseError& e) {
-        std::fprintf(stderr, "%s: error: %s (see %s --help)\n", app.get_name().c_str(), e.what(), app.get_name().c_str());
+        // One line: the error, and the help that lists the options of the subcommand it came from
+        // (CLI11 records a subcommand as parsed before it parses the subcommand's arguments).
+        const std::string name = app.get_name();
+        const auto parsed = app.get_subcommands();
+        const std::string help = parsed.empty() ? help_hint(name, "", "commands") : help_hint(name, parsed.back()->get_name(), "options");
+        // An error of a hidden option starts ": " (CLI11 2.1 leaves its name out; its message names it).
+        std::string what = e.what();
+        if (what.rfind(": ", 0) == 0) what.erase(0, 2);
+        std::fprintf(stderr, "%s: error: %s (%s)\n", name.c_str(), what.c_str(), help.c_str());
         return 2;
     }
     try {

@@ -370,10 +370,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     }();
     if (!sc) throw Failure(fmt::format("--scene '{}': {}", o.scene, sc.error().message));
     if (auto st = r.set_scene(*sc, *texture); !st.ok()) throw Failure(st.error().message);
-    const auto names = scene::CameraPath::builtin_names();
-    auto path = std::find(names.begin(), names.end(), o.path) != names.end() ? scene::CameraPath::builtin(o.path, *sc)
-                                                                               : scene::CameraPath::load(o.path);
-    if (!path) throw Failure(fmt::format("--path '{}': {}", o.path, path.error().message));
+    auto path = scene::CameraPath::builtin_or_file(o.path, *sc);
+    if (!path) throw Failure(fmt::format("--path: {}", path.error().message));
 
     // The reference renderer, for PSNR.
     std::unique_ptr<client::gl::ReferenceRenderer> reference;
@@ -855,6 +853,10 @@ void write_fallback_plot(const ViewerReport& rep, const std::string& path, const
     write_svg(p, path);
 }
 
+std::string psnr_text(double db) {
+    return std::isinf(db) && db > 0 ? std::string("lossless") : fmt::format("{:.2f} dB", db);
+}
+
 std::string summary_text(const ViewerReport& rep) {
     const auto& lat = rep.summary.latency();
     const auto pct = [](double v) { return std::isnan(v) ? std::string("n/a") : fmt::format("{:.4f}%", 100 * v); };
@@ -880,14 +882,23 @@ std::string summary_text(const ViewerReport& rep) {
                      pct(rep.fallback_rate()), pct(rep.fallback_rate_biased()));
     s += fmt::format("LoD bias      mean {:.2f}, max {:.2f}, last {:.2f}\n", rep.summary.mean_lod_bias(),
                      rep.summary.max_lod_bias(), rep.summary.last_lod_bias());
-    const double psnr = rep.mean_psnr();
-    if (!std::isnan(psnr))
-        s += fmt::format("PSNR          mean {:.2f} dB, min {:.2f} dB, max error {} (against the reference)\n", psnr,
-                         rep.min_psnr(), rep.max_error());
+    std::size_t compared = 0, identical = 0;
+    for (const auto& f : rep.frames)
+        if (!std::isnan(f.psnr)) ++compared, identical += std::isinf(f.psnr) ? 1 : 0;
+    if (compared > 0 && identical == compared)
+        s += fmt::format("PSNR          lossless: the {} compared frame{} identical to the reference (max error 0)\n",
+                         compared, compared == 1 ? " is" : "s are");
+    else if (compared > 0)
+        s += fmt::format("PSNR          mean {:.2f} dB, min {}, max error {} (against the reference{})\n", rep.mean_psnr(),
+                         psnr_text(rep.min_psnr()), rep.max_error(),
+                         identical ? fmt::format("; {} of {} frames identical, counted as 99 dB", identical, compared)
+                                   : std::string());
     if (!std::isnan(rep.settled_psnr))
-        s += fmt::format("settled       PSNR {:.2f} dB, max error {} at the last view {} ({} frames after the path)\n",
-                         std::min(rep.settled_psnr, 99.0), rep.settled_max_error,
-                         rep.settled_complete ? "resident and faded in" : "NOT settled (timed out)", rep.settled_frames);
+        s += fmt::format("settled       {}, max error {} at the last view {} ({} frames after the path)\n",
+                         std::isinf(rep.settled_psnr) ? std::string("lossless (identical to the reference)")
+                                                      : "PSNR " + psnr_text(rep.settled_psnr),
+                         rep.settled_max_error, rep.settled_complete ? "resident and faded in" : "NOT settled (timed out)",
+                         rep.settled_frames);
     if (const double pop = rep.mean_pop_rate(); !std::isnan(pop))
         s += fmt::format("popping       mean {:.4f}% of covered pixels per frame, max {:.4f}%, largest jump {} ({} frame pairs)\n",
                          100 * pop, 100 * rep.max_pop_rate(), rep.largest_pop(), rep.pop_pairs());

@@ -178,6 +178,8 @@ ViewerReport run_viewer(const ViewerOptions& options);
 void write_frame_stats(const ViewerReport& report, const std::string& path);
 // The plot of fallback rate (unbiased and biased) and LoD bias over the run, as SVG.
 void write_fallback_plot(const ViewerReport& report, const std::string& path, const std::string& title);
+// A PSNR for people: "42.17 dB", or "lossless" for identical images (+inf dB).
+std::string psnr_text(double db);
 // A one-screen summary (frames, frame time, fallback, PSNR, latency, bytes, cache hits, and for a
 // server store the seconds it was unreachable).
 std::string summary_text(const ViewerReport& report);

@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <numbers>
@@ -355,6 +356,18 @@ Result<CameraPath> CameraPath::builtin(const std::string& name, const Scene& sce
     if (!p) return p;
     p->far_ = std::max(p->far_, 4.0 * b.diagonal());
     return p;
+}
+
+Result<CameraPath> CameraPath::builtin_or_file(const std::string& name_or_file, const Scene& scene) {
+    const auto names = builtin_names();
+    if (std::find(names.begin(), names.end(), name_or_file) != names.end()) return builtin(name_or_file, scene);
+    std::error_code ec;
+    if (!std::filesystem::exists(name_or_file, ec)) {
+        std::string known;
+        for (const auto& n : names) known += (known.empty() ? "" : ", ") + n;
+        return make_error(Errc::not_found, "'" + name_or_file + "' is neither a built-in camera path (" + known + ") nor a path file");
+    }
+    return load(name_or_file);
 }
 
 double CameraPath::duration() const { return keys_.empty() ? 0.0 : keys_.back().time; }

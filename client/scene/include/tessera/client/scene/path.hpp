@@ -37,6 +37,9 @@ public:
     // "auto", "flyover", "dive", "whip", "walk", "orbit" for `scene` (its bounds); error for an unknown name.
     static Result<CameraPath> builtin(const std::string& name, const Scene& scene);
     static std::vector<std::string> builtin_names();
+    // What a --path option names (`tessera view`, `bench`, `demo`, `loadtest`): a built-in path
+    // (builtin_names()) for `scene`, else a path file (load); error when it is neither.
+    static Result<CameraPath> builtin_or_file(const std::string& name_or_file, const Scene& scene);
 
     double duration() const;            // last keyframe time
     Camera at(double time) const;       // clamped to [0, duration]

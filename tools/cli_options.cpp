@@ -1,0 +1,51 @@
+#include "cli_options.hpp"
+
+#include <cstdio>
+
+namespace tessera::tools {
+
+std::string bytes_text(std::uint64_t bytes) {
+    static const char* const units[] = {"KiB", "MiB", "GiB", "TiB"};
+    if (bytes == 0) return "0";
+    std::string unit;
+    for (const char* u : units) {
+        if (bytes % 1024 != 0) break;
+        bytes /= 1024;
+        unit = u;
+    }
+    return std::to_string(bytes) + unit;
+}
+
+CLI::Validator bytes_transform() {
+    CLI::Validator v = CLI::AsSizeValue(false);
+    v.description("");
+    return v;
+}
+
+CLI::Option* add_texels_option(CLI::App& app, std::uint32_t& texels, const std::string& help, const CLI::Validator& check) {
+    CLI::Option* opt = app.add_option("--texels", texels, help)->check(check)->capture_default_str();
+    // CLI11 leaves a hidden option's name out of its errors: these messages name --size themselves.
+    const CLI::Validator former(
+        [check](std::string& value) -> std::string {
+            if (value.empty() || value.find_first_not_of("0123456789") != std::string::npos)
+                return "--size '" + value + "': --size is the former name of --texels, texels per side of the terrain "
+                       "(a number); the image size is --resolution WIDTHxHEIGHT";
+            const std::string error = check(value);
+            return error.empty() ? error : "--size (now --texels): " + error;
+        },
+        "", "former name");
+    CLI::Option* old = app.add_option("--size", texels, "the former name of --texels")
+                           ->group("")  // hidden: the help shows --texels only
+                           ->check(former);
+    // Once the whole command line is read (the subcommand's own callback: the commands run from main).
+    app.final_callback([opt, old, command = app.get_name()] {
+        if (old->count() > 0 && opt->count() > 0)
+            throw CLI::ValidationError("--size", "the former name of --texels; give --texels only");
+        if (old->count() > 0)
+            std::fprintf(stderr, "tessera %s: note: --size is now --texels (texels per side); --size will be removed\n",
+                         command.c_str());
+    });
+    return opt;
+}
+
+}  // namespace tessera::tools
