@@ -94,6 +94,13 @@ public:
 
     Status set_scene(const scene::Scene& scene) override { return geometry_.upload(scene); }
 
+    void set_repeat(bool repeat) override {
+        const GLint wrap = repeat ? GL_REPEAT : GL_CLAMP_TO_EDGE;
+        for (const Texture* t : {&texture_, &normals_, &second_, &normal_second_})
+            if (*t)
+                for (const GLenum axis : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T}) glTextureParameteri(t->get(), axis, wrap);
+    }
+
     void render(const scene::Camera& camera) override {
         const double aspect = double(cfg_.width) / double(cfg_.height);
         const auto vp = view_projection(camera, aspect);

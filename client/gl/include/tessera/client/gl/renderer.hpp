@@ -215,6 +215,10 @@ public:
                                                              std::span<const Level> normal_second_levels = {});
     virtual ~ReferenceRenderer() = default;
     virtual Status set_scene(const scene::Scene& scene) = 0;
+    // The texture repeats past its edges (GL_REPEAT) instead of clamping (the default): one
+    // repeating texture of an OBJ scene, sampled as a GPU samples it, against which the atlas's
+    // cut and wrapped copy is checked.
+    virtual void set_repeat(bool repeat) = 0;
     virtual void render(const scene::Camera& camera) = 0;
     virtual std::vector<std::uint8_t> read_color() = 0;  // as VtRenderer::read_color
 };
