@@ -77,25 +77,30 @@ inline scene::Camera straight_down(double x, double y, double height) {
     return c;
 }
 
-// One flat chunk from (o, o) to the far corner (size, size), a world unit per level-0 texel; an
-// odd o puts low bits in its texel origin at every level.
-inline scene::Scene corner_chunk(std::uint32_t size, std::uint32_t o) {
+// A flat chunk over level-0 texels [x0, x1) x [y0, y1) of a size^2 texture (one world unit per
+// texel, texel origin (x0, y0)).
+inline scene::Scene rect_chunk(std::uint32_t size, std::uint32_t x0, std::uint32_t y0, std::uint32_t x1, std::uint32_t y1) {
     scene::Scene s;
-    s.name = "corner";
+    s.name = "rect";
     s.vt_width = s.vt_height = size;
     scene::Chunk c;
-    c.origin = {double(o), double(o), 0};
-    c.texel_origin[0] = c.texel_origin[1] = o;
-    const float e = float(size - o);
-    for (const auto& [x, y] : {std::pair{0.f, 0.f}, {e, 0.f}, {e, e}, {0.f, e}}) c.vertices.push_back({{x, y, 0}, {x, y}});
+    c.origin = {double(x0), double(y0), 0};
+    c.texel_origin[0] = x0;
+    c.texel_origin[1] = y0;
+    const float w = float(x1 - x0), h = float(y1 - y0);
+    for (const auto& [x, y] : {std::pair{0.f, 0.f}, {w, 0.f}, {w, h}, {0.f, h}}) c.vertices.push_back({{x, y, 0}, {x, y}});
     c.indices = {0, 1, 2, 0, 2, 3};
-    c.bounds_min[0] = c.bounds_min[1] = o;
-    c.bounds_max[0] = c.bounds_max[1] = size;
-    s.bounds_min[0] = s.bounds_min[1] = o;
-    s.bounds_max[0] = s.bounds_max[1] = size;
+    c.bounds_min[0] = s.bounds_min[0] = x0;
+    c.bounds_min[1] = s.bounds_min[1] = y0;
+    c.bounds_max[0] = s.bounds_max[0] = x1;
+    c.bounds_max[1] = s.bounds_max[1] = y1;
     s.chunks.push_back(std::move(c));
     return s;
 }
+
+// One flat chunk from (o, o) to the far corner (size, size); an odd o puts low bits in its texel
+// origin at every level.
+inline scene::Scene corner_chunk(std::uint32_t size, std::uint32_t o) { return rect_chunk(size, o, o, size, size); }
 
 // The low 12 bits of a texel's coordinates in RGB (A opaque): a read-back pixel names its texel.
 inline void encode_texel(std::uint32_t x, std::uint32_t y, std::uint8_t* p) {
@@ -159,12 +164,13 @@ struct TexelCheck {
 };
 
 // Every pixel of `rgba` (w x h, rows top to bottom) of a straight-down view `cam` of a chunk over
-// level-0 texels [o, size)^2 whose ray meets the ground on a level-`level` texel centre (within
-// 1e-3 texel) must be exactly expected(gx, gy): an std::array<std::uint8_t, 4> for level-`level`
-// texel (gx, gy). The first five mismatches are reported as failures.
+// level-0 texels [x0, x1) x [y0, y1) whose ray meets the ground on a level-`level` texel centre
+// (within 1e-3 texel) must be exactly expected(gx, gy): an std::array<std::uint8_t, 4> for
+// level-`level` texel (gx, gy). The first five mismatches are reported as failures.
 template <class Expected>
-TexelCheck check_texel_centres(const std::vector<std::uint8_t>& rgba, const scene::Camera& cam, std::uint32_t w,
-                               std::uint32_t h, std::uint32_t level, std::uint32_t o, std::uint32_t size, Expected expected) {
+TexelCheck check_texel_centres_in(const std::vector<std::uint8_t>& rgba, const scene::Camera& cam, std::uint32_t w,
+                                  std::uint32_t h, std::uint32_t level, double x0, double y0, double x1, double y1,
+                                  Expected expected) {
     TexelCheck r;
     const double scale = std::ldexp(1.0, int(level));
     for (std::uint32_t j = 0; j < h; ++j)
@@ -176,7 +182,7 @@ TexelCheck check_texel_centres(const std::vector<std::uint8_t>& rgba, const scen
             }
             const double lx = x / scale, ly = y / scale;
             if (std::abs(lx - std::floor(lx) - 0.5) > 1e-3 || std::abs(ly - std::floor(ly) - 0.5) > 1e-3) continue;
-            if (x < o || y < o || x >= size || y >= size) continue;  // no geometry (a level's last texel may overhang)
+            if (x < x0 || y < y0 || x >= x1 || y >= y1) continue;  // no geometry (a level's last texel may overhang)
             const auto gx = std::uint32_t(std::floor(lx)), gy = std::uint32_t(std::floor(ly));
             const std::array<std::uint8_t, 4> want = expected(gx, gy);
             const std::uint8_t* got = rgba.data() + (std::size_t(j) * w + i) * 4;
@@ -188,6 +194,13 @@ TexelCheck check_texel_centres(const std::vector<std::uint8_t>& rgba, const scen
                               << int(want[0]) << " " << int(want[1]) << " " << int(want[2]) << " " << int(want[3]);
         }
     return r;
+}
+
+// check_texel_centres_in over a chunk from `o` to the far corner: level-0 texels [o, size)^2.
+template <class Expected>
+TexelCheck check_texel_centres(const std::vector<std::uint8_t>& rgba, const scene::Camera& cam, std::uint32_t w,
+                               std::uint32_t h, std::uint32_t level, std::uint32_t o, std::uint32_t size, Expected expected) {
+    return check_texel_centres_in(rgba, cam, w, h, level, o, o, size, size, expected);
 }
 
 // encode_texel as the expectation of check_texel_centres.

@@ -56,7 +56,7 @@ Command add_build(CLI::App& app) {
     auto a = std::make_shared<Args>();
     CLI::App* c = app.add_subcommand("build", "Build a tile store from an image or a procedural source");
     c->add_option("input", a->input,
-                  "Image file (anything OpenImageIO reads) or procedural:terrain[-height|-normal]:SIZE (not with --atlas or --layer)");
+                  "Image file (anything OpenImageIO reads), procedural:terrain[-height|-normal]:SIZE (not with --atlas or --layer) or the sparse test pattern procedural:coords-sparse:SIZE (up to 16777216; docs/store-format.md, \"Sparse stores\")");
     c->add_option("-o,--output", a->output, "Store file to write (.tsr)")->required();
     c->add_option("--layer", a->layers,
                   "A layer of a multi-layer store, NAME[:CODEC]=INPUT (instead of INPUT; 2 to 16 of them, all of one size): "
@@ -164,6 +164,9 @@ Command add_build(CLI::App& app) {
                 bar.set_label("write");
                 bar.update(p.bytes_total ? double(p.bytes_written) / double(p.bytes_total) : 1.0,
                            human_bytes(p.bytes_written) + " / " + human_bytes(p.bytes_total));
+            } else if (p.rows_total == 0) {  // a sparse source: tiles, no rows
+                bar.update(p.tiles_total ? double(p.tiles_done) / double(p.tiles_total) : 0.0,
+                           fmt::format("tiles {}/{}", p.tiles_done, p.tiles_total));
             } else {
                 bar.update(p.rows_total ? double(p.rows_done) / double(p.rows_total) : 0.0,
                            fmt::format("rows {}/{}  tiles {}/{}", p.rows_done, p.rows_total, p.tiles_done, p.tiles_total));
@@ -187,6 +190,23 @@ Command add_build(CLI::App& app) {
                                s.repeating_images, s.repeat_pieces);
                 fmt::print("wrote {} (texture coordinates in the atlas, v down)\n", a->obj_out);
                 print_store_summary(a->output, s.build.info);
+            }
+            return 0;
+        }
+        if (layers.empty() && storage::is_sparse_input(a->input)) {
+            if (!a->visibility.empty()) throw Failure("--visibility does not apply to a sparse source (its absent tiles are its own)", 2);
+            auto result = storage::build_sparse_store(a->input, a->output, opt, on_progress);
+            bar.finish();
+            if (!result) throw Failure(result.error().message);
+            if (!a->quiet) {
+                std::uint64_t present = 0, total = 0;
+                for (const auto& l : result->info.levels) {
+                    present += l.present + l.uniform;
+                    total += std::uint64_t(l.tiles_x) * l.tiles_y;
+                }
+                fmt::print("built {} in {}: {} present tiles of {} ({:.2g}%), the rest absent\n", a->output,
+                           human_seconds(result->seconds), present, total, 100.0 * double(present) / double(total));
+                print_store_summary(a->output, result->info);
             }
             return 0;
         }

@@ -127,21 +127,9 @@ private:
                         std::to_string(t.page.y) + ") is outside the texture";
             return;
         }
-        const auto& level = info->levels[t.page.level];
-        const std::uint32_t size = info->tile_size(), P = info->tile_payload, B = info->border;
-        // Tile texel i covers level texel x0 + i, clamped to the level (borders, edge tiles).
-        const std::int64_t x0 = std::int64_t(t.page.x) * P - B, y0 = std::int64_t(t.page.y) * P - B;
         auto& payload = t.data.payload;
-        payload.resize(std::size_t(size) * size * 4);
-        std::uint8_t* out = payload.data();
-        for (std::uint32_t j = 0; j < size; ++j) {
-            const auto y = static_cast<std::uint32_t>(std::clamp<std::int64_t>(y0 + j, 0, level.height - 1));
-            for (std::uint32_t i = 0; i < size; ++i, out += 4) {
-                const auto x = static_cast<std::uint32_t>(std::clamp<std::int64_t>(x0 + i, 0, level.width - 1));
-                const auto texel = coords_texel(t.page.level, x, y);
-                std::copy(texel.begin(), texel.end(), out);
-            }
-        }
+        payload.resize(std::size_t(info->tile_size()) * info->tile_size() * 4);
+        storage::coords_tile(*info, t.page.tile(), payload);
         t.data.kind = TileKind::present;
         t.data.codec = Codec::raw;
         t.data.checksum = XXH3_64bits(payload.data(), payload.size());

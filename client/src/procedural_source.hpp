@@ -24,24 +24,14 @@
 
 #include "tessera/client/tile_source.hpp"
 #include "tessera/result.hpp"
+#include "tessera/storage/coords_pattern.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace tessera::client {
 
-// RGBA8 texel (x, y) of level `level` of the coords pattern: the low 12 bits of x and y (R = x bits
-// 0..7, G = y bits 0..7, B = x bits 8..11 | y bits 8..11 << 4) XORed with three bytes hashed from
-// (level, x >> 12, y >> 12); alpha 255. Any other texel of any level differs from it (barring a
-// 2^-24 hash collision between two 4096-texel regions), so a wrong texel, page or level shows.
-constexpr std::array<std::uint8_t, 4> coords_texel(std::uint32_t level, std::uint32_t x, std::uint32_t y) {
-    // splitmix64 of the (injective) packing of level and region.
-    std::uint64_t h = ((std::uint64_t(level) << 48) ^ (std::uint64_t(x >> 12) << 24) ^ std::uint64_t(y >> 12)) +
-                      0x9e3779b97f4a7c15ull;
-    h = (h ^ (h >> 30)) * 0xbf58476d1ce4e5b9ull;
-    h = (h ^ (h >> 27)) * 0x94d049bb133111ebull;
-    h ^= h >> 31;
-    return {std::uint8_t((x & 255) ^ (h & 255)), std::uint8_t((y & 255) ^ ((h >> 8) & 255)),
-            std::uint8_t((((x >> 8) & 15) | (((y >> 8) & 15) << 4)) ^ ((h >> 16) & 255)), 255};
-}
+// The pattern's texels (tessera/storage/coords_pattern.hpp): the store builder's sparse source
+// makes the same tiles.
+using storage::coords_texel;
 
 // The geometry a spec describes (StoreInfo as bind() returns it), or invalid_argument.
 Result<storage::StoreInfo> procedural_store_info(const std::string& spec);

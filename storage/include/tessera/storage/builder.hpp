@@ -53,6 +53,18 @@ struct BuildSummary {
 
 using BuildProgressFn = std::function<void(const BuildProgress&)>;
 
+// Sparse sources (docs/store-format.md, "Sparse stores"): a texture of up to 2^24 texels per side
+// with data in a few regions only, too large to stream row by row. Only the present tiles are
+// made and written; every other tile is absent, and build time and memory follow the present
+// tiles. The one sparse source so far: "procedural:coords-sparse:SIZE", the coords pattern
+// (tessera/storage/coords_pattern.hpp) at every level, in windows of 512 level texels around
+// each level's four corners and its centre (RGBA8, linear, zstd unless --codec says otherwise).
+bool is_sparse_input(const std::string& input);
+// Errors: not a sparse source, a bad size, --visibility or --sparse (BuildOptions::keep, sparse),
+// a codec that does not fit RGBA8, those of validate() and of writing.
+Result<BuildSummary> build_sparse_store(const std::string& input, const std::string& output, const BuildOptions& options,
+                                        const BuildProgressFn& progress = {});
+
 // Checks options on their own (before any input is opened): the message names the flag.
 Status validate(const BuildOptions& options);
 
