@@ -2,7 +2,10 @@
 // and corruption anywhere in the file always detected.
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <random>
+
+#include <xxhash.h>
 
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
@@ -268,4 +271,114 @@ TEST(StoreFormat, MillionsOfTilesOpenLazily) {
     EXPECT_EQ((*r)->read_tile({0, 999, 0})->kind, TileKind::absent);
     EXPECT_EQ((*r)->read_tile({0, 2047, 1023})->bytes, tile_bytes(64 * 64, 9));
     EXPECT_EQ((*r)->read_tile({1, 0, 0})->kind, TileKind::absent);
+}
+
+// A sparse index (format 1.2, docs/store-format.md "Sparse stores"): a store whose block tables
+// would be mostly empty lists only its non-empty blocks. It reads back as written, and a reader
+// refuses a table out of order, out of range, repeating a block, listing an empty one or claiming
+// more blocks than the level has, with an error even when every checksum is made to match.
+namespace {
+
+template <class T>
+T load_at(const std::vector<std::uint8_t>& b, std::size_t off) {
+    T v;
+    std::memcpy(&v, b.data() + off, sizeof v);
+    return v;
+}
+template <class T>
+void store_at(std::vector<std::uint8_t>& b, std::size_t off, T v) {
+    std::memcpy(b.data() + off, &v, sizeof v);
+}
+
+// Makes the checksums over level `l`'s block table, the level table and the header match again.
+void reseal(std::vector<std::uint8_t>& b, std::uint32_t l, std::uint64_t table_bytes) {
+    const std::uint64_t lt = load_at<std::uint64_t>(b, 40), rec = lt + std::uint64_t(l) * 96;
+    const std::uint64_t bt = load_at<std::uint64_t>(b, std::size_t(rec) + 24);
+    store_at<std::uint64_t>(b, std::size_t(rec) + 32, XXH3_64bits(b.data() + bt, table_bytes));
+    store_at<std::uint64_t>(b, 96, XXH3_64bits(b.data() + lt, std::size_t(b[30]) * 96));
+    store_at<std::uint64_t>(b, 120, XXH3_64bits(b.data(), 120));
+}
+
+}  // namespace
+
+TEST(StoreFormat, SparseIndexReadsBackAndRefusesBadTables) {
+    ScratchDir d;
+    const StoreSpec spec = raw_spec(16384, 16384, 12, 2);  // 1366 x 1366 tiles, 22 x 22 blocks at level 0
+    const std::size_t n = 16 * 16;
+    const TileKey keys[] = {{0, 0, 0}, {0, 1365, 7}, {0, 700, 1365}, {3, 20, 20}};
+    {
+        auto w = StoreWriter::create(d.file("sparse.tsr"), spec);
+        ASSERT_TRUE(w.ok());
+        for (std::size_t i = 0; i < std::size(keys); ++i) ASSERT_TRUE((*w)->add_present(keys[i], tile_bytes(n, std::uint32_t(i))).ok());
+        ASSERT_TRUE((*w)->finish().ok());
+    }
+    const std::vector<std::uint8_t> good = test::read_file(d.file("sparse.tsr"));
+    auto r = StoreReader::open_memory(good);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    EXPECT_EQ((*r)->info().version_minor, 2u);
+    EXPECT_LT(good.size(), std::size_t(1) << 20) << "the index follows the present tiles";
+    for (std::size_t i = 0; i < std::size(keys); ++i) {
+        auto t = (*r)->read_tile(keys[i]);
+        ASSERT_TRUE(t.ok()) << t.error().message;
+        EXPECT_EQ(t->bytes, tile_bytes(n, std::uint32_t(i)));
+    }
+    EXPECT_EQ((*r)->locate({0, 1, 0})->kind, TileKind::absent);
+    EXPECT_EQ((*r)->locate({0, 1365, 1365})->kind, TileKind::absent);
+    EXPECT_FALSE((*r)->index_block_empty(0, 21, 0));  // (1365, 7)
+    EXPECT_TRUE((*r)->index_block_empty(0, 21, 21));
+    EXPECT_TRUE(verify_store(**r).ok());
+
+    // Level 0's table: three records of 24 bytes, (bx, by) (0, 0), (21, 0), (10, 21).
+    const std::uint64_t rec0 = load_at<std::uint64_t>(good, 40);
+    const std::size_t bt = std::size_t(load_at<std::uint64_t>(good, std::size_t(rec0) + 24));
+    ASSERT_EQ(load_at<std::uint64_t>(good, std::size_t(rec0) + 88), 3u);
+    ASSERT_EQ(load_at<std::uint32_t>(good, bt + 24), 21u);
+    const auto refused = [&](std::vector<std::uint8_t> bad, std::uint64_t table_bytes, const char* what) {
+        reseal(bad, 0, table_bytes);
+        auto o = StoreReader::open_memory(std::move(bad));
+        ASSERT_FALSE(o.ok()) << what;
+        EXPECT_EQ(o.error().code, Errc::corrupt) << what;
+        std::printf("  %s: %s\n", what, o.error().message.c_str());
+    };
+    {
+        auto bad = good;  // records 0 and 1 swapped
+        std::swap_ranges(bad.begin() + std::ptrdiff_t(bt), bad.begin() + std::ptrdiff_t(bt + 24), bad.begin() + std::ptrdiff_t(bt + 24));
+        refused(bad, 72, "out of order");
+    }
+    {
+        auto bad = good;
+        store_at<std::uint32_t>(bad, bt + 24, 22);  // bx past the level
+        refused(bad, 72, "outside the level");
+    }
+    {
+        auto bad = good;
+        std::copy_n(good.begin() + std::ptrdiff_t(bt), 24, bad.begin() + std::ptrdiff_t(bt + 24));  // block (0, 0) twice
+        refused(bad, 72, "repeated");
+    }
+    {
+        auto bad = good;
+        store_at<std::uint64_t>(bad, bt + 8, 0);  // an empty block listed
+        refused(bad, 72, "empty block listed");
+    }
+    {
+        auto bad = good;
+        store_at<std::uint64_t>(bad, std::size_t(rec0) + 88, 22u * 22u + 1);  // more records than blocks
+        refused(bad, 72, "too many records");
+    }
+    // Every flipped byte of the header, level table and block tables is refused at open or by verify.
+    std::size_t first_entry_block = good.size();
+    for (std::uint32_t l = 0; l < good[30]; ++l) {
+        const std::size_t rec = std::size_t(rec0) + std::size_t(l) * 96;
+        const std::size_t table = std::size_t(load_at<std::uint64_t>(good, rec + 24));
+        for (std::uint64_t k = 0; k < load_at<std::uint64_t>(good, rec + 88); ++k)
+            first_entry_block = std::min(first_entry_block, std::size_t(load_at<std::uint64_t>(good, table + k * 24 + 8)));
+    }
+    std::size_t undetected = 0;
+    for (std::size_t pos = 0; pos < first_entry_block; ++pos) {
+        auto bad = good;
+        bad[pos] ^= 0x5a;
+        auto o = StoreReader::open_memory(std::move(bad));
+        if (o.ok() && verify_store(**o).ok()) ++undetected;
+    }
+    EXPECT_EQ(undetected, 0u) << "of " << first_entry_block << " index bytes";
 }

@@ -18,9 +18,13 @@ inline constexpr std::array<std::uint8_t, 8> kMagic = {'T', 'E', 'S', 'S', 'T', 
 inline constexpr std::uint16_t kVersionMajor = 1;
 inline constexpr std::uint16_t kVersionMinor = 0;         // a single-layer store
 inline constexpr std::uint16_t kVersionMinorLayers = 1;   // a multi-layer store (codec 7, a layer table)
+inline constexpr std::uint16_t kVersionMinorSparseIndex = 2;  // a single-layer store whose block tables list
+                                                              // only its non-empty blocks (kHeaderFlagSparseIndex)
+inline constexpr std::uint16_t kVersionMinorNewest = kVersionMinorSparseIndex;
 inline constexpr std::size_t kHeaderBytes = 128;
 inline constexpr std::size_t kLevelRecordBytes = 96;
 inline constexpr std::size_t kBlockRecordBytes = 16;
+inline constexpr std::size_t kSparseBlockRecordBytes = 24;  // u32 bx, u32 by, then a block record
 inline constexpr std::size_t kEntryBytes = 24;
 inline constexpr std::size_t kPaletteValueBytes = 16;
 inline constexpr std::size_t kLayerRecordBytes = 64;
@@ -32,6 +36,7 @@ inline constexpr std::uint32_t kMaxLevels = 32;
 inline constexpr std::uint32_t kMaxTileSize = 4096;
 
 inline constexpr std::uint8_t kHeaderFlagAlpha = 1;
+inline constexpr std::uint8_t kHeaderFlagSparseIndex = 2;
 inline constexpr std::uint8_t kEntryFlagDeduplicated = 1;
 
 // Little-endian field access at a byte offset.
@@ -94,6 +99,7 @@ inline constexpr std::size_t present = 56;              // u64
 inline constexpr std::size_t uniform = 64;              // u64
 inline constexpr std::size_t absent = 72;               // u64
 inline constexpr std::size_t deduplicated = 80;         // u64
+inline constexpr std::size_t block_records = 88;        // u64: sparse index: records in the block table; else 0
 }  // namespace level
 
 // Layer record field offsets (a layered store: one record per layer, directly after the level

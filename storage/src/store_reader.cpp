@@ -28,14 +28,27 @@ struct EntryBlock {
 
 struct LevelIndex {
     std::uint32_t blocks_x = 0, blocks_y = 0;
-    std::vector<std::uint8_t> block_table;  // blocks_x * blocks_y records, copied and verified at open
+    // The block table, read and verified at open: per record its entry block's offset (0: every
+    // tile absent) and checksum. Dense: blocks_x * blocks_y records, block (bx, by) at
+    // by * blocks_x + bx. Sparse (kHeaderFlagSparseIndex): the non-empty blocks only, their
+    // by * blocks_x + bx in `keys`, strictly increasing.
+    bool sparse = false;
+    std::vector<std::uint64_t> keys, offsets, checksums;
     std::uint64_t data_offset = 0, data_bytes = 0;
     // Entry blocks, read on first use (checked reads, never a mapping: a file changed under the
     // reader gives an error, not a signal). Racing threads may both read a block; one copy wins
     // and the other is freed. corrupt: the block failed its checksum (kept, so it is not re-read).
     std::unique_ptr<std::atomic<const EntryBlock*>[]> blocks;
     std::unique_ptr<std::atomic<bool>[]> corrupt;
-    std::size_t count() const { return std::size_t(blocks_x) * blocks_y; }
+    std::size_t count() const { return offsets.size(); }
+    // The record of block (bx, by) (in range), or count() when a sparse table has none: empty.
+    std::size_t record(std::uint32_t bx, std::uint32_t by) const {
+        const std::uint64_t key = std::uint64_t(by) * blocks_x + bx;
+        if (!sparse) return std::size_t(key);
+        const auto it = std::lower_bound(keys.begin(), keys.end(), key);
+        return it != keys.end() && *it == key ? std::size_t(it - keys.begin()) : count();
+    }
+    std::uint64_t entries_offset(std::size_t r) const { return r < count() ? offsets[r] : 0; }
 };
 
 class Reader final : public StoreReader {
@@ -62,6 +75,10 @@ public:
                                                      std::to_string(kVersionMajor) + ".x)");
         if (XXH3_64bits(h, header::header_checksum) != load<std::uint64_t>(h, header::header_checksum))
             return corrupt("header checksum mismatch");
+        if (info_.version_minor > kVersionMinorNewest)
+            return make_error(Errc::unsupported, "store format version " + std::to_string(info_.version_major) + "." +
+                                                     std::to_string(info_.version_minor) + " is newer than this reader (" +
+                                                     std::to_string(kVersionMajor) + "." + std::to_string(kVersionMinorNewest) + ")");
         if (load<std::uint32_t>(h, header::header_bytes) != kHeaderBytes) return corrupt("bad header size");
         const std::uint64_t declared_size = load<std::uint64_t>(h, header::file_size);
         if (declared_size != fsize)
@@ -101,6 +118,10 @@ public:
             return corrupt("codec does not fit the samples: " + misfit);
         }
         info_.has_alpha = (h[header::flags] & kHeaderFlagAlpha) != 0;
+        const bool sparse_index = (h[header::flags] & kHeaderFlagSparseIndex) != 0;
+        if (sparse_index && (info_.version_minor < kVersionMinorSparseIndex || info_.codec == Codec::layers))
+            return corrupt("a sparse index in format " + std::to_string(info_.version_major) + "." + std::to_string(info_.version_minor) +
+                           (info_.codec == Codec::layers ? " on a layered store" : ""));
         if (info_.has_alpha && info_.channels != 2 && info_.channels != 4) return corrupt("alpha flag on a 1- or 3-channel store");
         info_.store_id = load<std::uint64_t>(h, header::store_id);
 
@@ -145,12 +166,38 @@ public:
             if (ix.blocks_x != ceil_div(li.tiles_x, kBlockSide) || ix.blocks_y != ceil_div(li.tiles_y, kBlockSide))
                 return corrupt("level " + std::to_string(l) + " block counts do not match geometry");
             const std::uint64_t bt_off = load<std::uint64_t>(r, level::block_table_offset);
-            const std::uint64_t bt_bytes = std::uint64_t(ix.blocks_x) * ix.blocks_y * kBlockRecordBytes;
+            const std::uint64_t records = sparse_index ? load<std::uint64_t>(r, level::block_records) : std::uint64_t(ix.blocks_x) * ix.blocks_y;
+            if (sparse_index && records > std::uint64_t(ix.blocks_x) * ix.blocks_y)
+                return corrupt("level " + std::to_string(l) + " lists more blocks than it has");
+            if (!sparse_index && load<std::uint64_t>(r, level::block_records) != 0)
+                return corrupt("level " + std::to_string(l) + " has a block count in a dense index");
+            const std::size_t rec_bytes = sparse_index ? kSparseBlockRecordBytes : kBlockRecordBytes;
+            const std::uint64_t bt_bytes = records * rec_bytes;
             if (!inside_index(bt_off, bt_bytes)) return corrupt("level " + std::to_string(l) + " block table outside the index");
-            ix.block_table.resize(bt_bytes);
-            TESSERA_TRY(src_->read(bt_off, bt_bytes, ix.block_table.data()));
-            if (XXH3_64bits(ix.block_table.data(), bt_bytes) != load<std::uint64_t>(r, level::block_table_checksum))
+            std::vector<std::uint8_t> table(bt_bytes);
+            TESSERA_TRY(src_->read(bt_off, bt_bytes, table.data()));
+            if (XXH3_64bits(table.data(), bt_bytes) != load<std::uint64_t>(r, level::block_table_checksum))
                 return corrupt("level " + std::to_string(l) + " block table checksum mismatch");
+            ix.sparse = sparse_index;
+            ix.offsets.resize(records);
+            ix.checksums.resize(records);
+            if (sparse_index) ix.keys.resize(records);
+            for (std::size_t b = 0; b < records; ++b) {
+                const std::uint8_t* rec = table.data() + b * rec_bytes;
+                if (sparse_index) {
+                    const std::uint32_t bx = load<std::uint32_t>(rec, 0), by = load<std::uint32_t>(rec, 4);
+                    if (bx >= ix.blocks_x || by >= ix.blocks_y)
+                        return corrupt("level " + std::to_string(l) + " block record " + std::to_string(b) + " is outside the level");
+                    ix.keys[b] = std::uint64_t(by) * ix.blocks_x + bx;
+                    if (b > 0 && ix.keys[b] <= ix.keys[b - 1])
+                        return corrupt("level " + std::to_string(l) + " block records are not in order");
+                    rec += 8;
+                }
+                ix.offsets[b] = load<std::uint64_t>(rec, 0);
+                ix.checksums[b] = load<std::uint64_t>(rec, 8);
+                if (sparse_index && ix.offsets[b] == 0)
+                    return corrupt("level " + std::to_string(l) + " lists an empty block");
+            }
             ix.data_offset = load<std::uint64_t>(r, level::data_offset);
             ix.data_bytes = load<std::uint64_t>(r, level::data_bytes);
             if (ix.data_offset < data_offset_ || ix.data_offset > fsize || ix.data_bytes > fsize - ix.data_offset)
@@ -171,7 +218,7 @@ public:
             for (std::size_t b = 0; b < nblocks; ++b) {
                 ix.blocks[b].store(nullptr, std::memory_order_relaxed);
                 ix.corrupt[b].store(false, std::memory_order_relaxed);
-                const std::uint64_t eo = load<std::uint64_t>(ix.block_table.data(), b * kBlockRecordBytes);
+                const std::uint64_t eo = ix.offsets[b];
                 if (eo != 0 && !inside_index(eo, kEntryBlockBytes))
                     return corrupt("level " + std::to_string(l) + " index block " + std::to_string(b) + " outside the index");
             }
@@ -234,15 +281,15 @@ public:
     bool index_block_empty(std::uint32_t level, std::uint32_t bx, std::uint32_t by) const override {
         if (level >= index_.size() || bx >= index_[level].blocks_x || by >= index_[level].blocks_y) return true;
         const LevelIndex& ix = index_[level];
-        return load<std::uint64_t>(ix.block_table.data(), (std::size_t(by) * ix.blocks_x + bx) * kBlockRecordBytes) == 0;
+        return ix.entries_offset(ix.record(bx, by)) == 0;
     }
 
     Result<TileLocation> locate(const TileKey& key) const override {
         if (!info_.contains(key))
             return make_error(Errc::out_of_range, key_name(key) + " is outside the store");
         const LevelIndex& ix = index_[key.level];
-        const std::size_t b = std::size_t(key.y >> kBlockShift) * ix.blocks_x + (key.x >> kBlockShift);
-        const std::uint64_t eo = load<std::uint64_t>(ix.block_table.data(), b * kBlockRecordBytes);
+        const std::size_t b = ix.record(key.x >> kBlockShift, key.y >> kBlockShift);
+        const std::uint64_t eo = ix.entries_offset(b);
         if (eo == 0) return TileLocation{};  // a block with no data at all
         auto block = entry_block(ix, b, eo);
         if (!block) return make_error(block.error().code, "index block of " + key_name(key) + " " + block.error().message);
@@ -370,7 +417,7 @@ private:
         std::unique_ptr<EntryBlock> fresh(new EntryBlock);  // not value-initialized: read() fills it
         if (Status st = src_->read(eo, kEntryBlockBytes, fresh->bytes); !st)
             return make_error(st.error().code, "cannot be read: " + st.error().message);
-        if (XXH3_64bits(fresh->bytes, kEntryBlockBytes) != load<std::uint64_t>(ix.block_table.data(), b * kBlockRecordBytes + 8)) {
+        if (XXH3_64bits(fresh->bytes, kEntryBlockBytes) != ix.checksums[b]) {
             ix.corrupt[b].store(true, std::memory_order_relaxed);
             return corrupt("fails its checksum");
         }

@@ -233,19 +233,32 @@ Status Writer::finish(const Progress& progress) {
         std::uint32_t bx = 0, by = 0;
         std::uint64_t table_offset = 0;
         std::vector<std::uint64_t> block_offset;  // 0 = all absent
+        std::uint64_t records = 0;                // non-empty blocks
     };
     std::vector<LevelBlocks> lb(nlevels);
+    std::uint64_t dense_table_bytes = 0, sparse_table_bytes = 0;
     for (std::uint32_t l = 0; l < nlevels; ++l) {
         LevelBlocks& L = lb[l];
         L.bx = ceil_div(levels_[l].tiles_x, kBlockSide);
         L.by = ceil_div(levels_[l].tiles_y, kBlockSide);
-        L.table_offset = pos;
-        pos += std::uint64_t(L.bx) * L.by * kBlockRecordBytes;
         L.block_offset.assign(std::size_t(L.bx) * L.by, 0);
         for (const Record& r : records_[l]) {
             auto& off = L.block_offset[std::size_t(r.y >> kBlockShift) * L.bx + (r.x >> kBlockShift)];
-            if (off == 0) off = 1;  // marked non-empty; placed below in block order
+            if (off == 0) {
+                off = 1;  // marked non-empty; placed below in block order
+                ++L.records;
+            }
         }
+        dense_table_bytes += std::uint64_t(L.bx) * L.by * kBlockRecordBytes;
+        sparse_table_bytes += L.records * kSparseBlockRecordBytes;
+    }
+    // A sparse index (format 1.2) where the dense block tables would be mostly empty records: the
+    // index then follows the present tiles, not the texture's area (docs/store-format.md).
+    const bool sparse_index = spec_.layers.empty() && sparse_table_bytes * 4 < dense_table_bytes;
+    for (std::uint32_t l = 0; l < nlevels; ++l) {
+        LevelBlocks& L = lb[l];
+        L.table_offset = pos;
+        pos += sparse_index ? L.records * kSparseBlockRecordBytes : std::uint64_t(L.bx) * L.by * kBlockRecordBytes;
         for (auto& off : L.block_offset)
             if (off != 0) {
                 off = pos;
@@ -281,12 +294,20 @@ Status Writer::finish(const Progress& progress) {
             }
         }
         info.absent = std::uint64_t(info.tiles_x) * info.tiles_y - info.present - info.uniform;
+        std::uint8_t* rec = base + L.table_offset;
         for (std::size_t blk = 0; blk < L.block_offset.size(); ++blk) {
             const std::uint64_t eo = L.block_offset[blk];
-            std::uint8_t* rec = base + L.table_offset + blk * kBlockRecordBytes;
+            if (sparse_index) {
+                if (eo == 0) continue;
+                store<std::uint32_t>(rec, 0, std::uint32_t(blk % L.bx));
+                store<std::uint32_t>(rec, 4, std::uint32_t(blk / L.bx));
+                rec += 8;
+            }
             store<std::uint64_t>(rec, 0, eo);
             store<std::uint64_t>(rec, 8, eo ? XXH3_64bits(base + eo, kEntryBlockBytes) : 0);
+            rec += kBlockRecordBytes;
         }
+        const std::uint64_t table_bytes = std::uint64_t(rec - (base + L.table_offset));
         std::uint8_t* r = base + level_table_offset + std::size_t(l) * kLevelRecordBytes;
         store<std::uint32_t>(r, level::width, info.width);
         store<std::uint32_t>(r, level::height, info.height);
@@ -295,8 +316,8 @@ Status Writer::finish(const Progress& progress) {
         store<std::uint32_t>(r, level::blocks_x, L.bx);
         store<std::uint32_t>(r, level::blocks_y, L.by);
         store<std::uint64_t>(r, level::block_table_offset, L.table_offset);
-        store<std::uint64_t>(r, level::block_table_checksum,
-                             XXH3_64bits(base + L.table_offset, std::size_t(L.bx) * L.by * kBlockRecordBytes));
+        store<std::uint64_t>(r, level::block_table_checksum, XXH3_64bits(base + L.table_offset, table_bytes));
+        if (sparse_index) store<std::uint64_t>(r, level::block_records, L.records);
         store<std::uint64_t>(r, level::data_offset, data_offset + level_data_start[l]);
         store<std::uint64_t>(r, level::data_bytes, level_data_bytes[l]);
         store<std::uint64_t>(r, level::present, info.present);
@@ -329,7 +350,8 @@ Status Writer::finish(const Progress& progress) {
 
     std::copy(kMagic.begin(), kMagic.end(), base + header::magic);
     store<std::uint16_t>(base, header::version_major, kVersionMajor);
-    store<std::uint16_t>(base, header::version_minor, nlayers > 0 ? kVersionMinorLayers : kVersionMinor);
+    store<std::uint16_t>(base, header::version_minor,
+                         nlayers > 0 ? kVersionMinorLayers : sparse_index ? kVersionMinorSparseIndex : kVersionMinor);
     store<std::uint32_t>(base, header::header_bytes, kHeaderBytes);
     store<std::uint32_t>(base, header::width, spec_.width);
     store<std::uint32_t>(base, header::height, spec_.height);
@@ -340,7 +362,7 @@ Status Writer::finish(const Progress& progress) {
     base[header::sample_type] = static_cast<std::uint8_t>(spec_.sample_type);
     base[header::colour_space] = static_cast<std::uint8_t>(spec_.colour_space);
     base[header::codec] = static_cast<std::uint8_t>(spec_.codec);
-    base[header::flags] = spec_.has_alpha ? kHeaderFlagAlpha : 0;
+    base[header::flags] = std::uint8_t((spec_.has_alpha ? kHeaderFlagAlpha : 0) | (sparse_index ? kHeaderFlagSparseIndex : 0));
     base[header::block_shift] = kBlockShift;
     store<std::uint64_t>(base, header::level_table_offset, level_table_offset);
     store<std::uint32_t>(base, header::level_table_bytes, static_cast<std::uint32_t>(nlevels * kLevelRecordBytes));

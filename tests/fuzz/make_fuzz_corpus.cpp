@@ -93,6 +93,28 @@ Status write_layered_store(const std::string& path) {
     return (*created)->finish();
 }
 
+// A sparse index (format 1.2): 2048 x 2048 texels in 16-texel tiles, three tiles present, so its
+// block tables list three non-empty blocks of 9 x 9 (a store of a few hundred kilobytes).
+Status write_sparse_store(const std::string& path) {
+    StoreSpec spec;
+    spec.width = spec.height = 2048;
+    spec.tile_payload = 12;
+    spec.border = 2;
+    spec.channels = 4;
+    spec.sample_type = SampleType::u8;
+    spec.colour_space = ColourSpace::srgb;
+    spec.codec = Codec::zstd;
+    auto created = StoreWriter::create(path, spec);
+    if (!created) return created.error();
+    const StoreInfo info = store_info(spec);
+    std::vector<std::uint8_t> texels(info.tile_bytes());
+    for (std::size_t i = 0; i < texels.size(); ++i) texels[i] = static_cast<std::uint8_t>(i * 13 + (i >> 6));
+    auto payload = encode_tile(info, texels, {});
+    if (!payload) return payload.error();
+    for (const TileKey key : {TileKey{0, 0, 0}, TileKey{0, 170, 3}, TileKey{2, 40, 42}}) TESSERA_TRY((*created)->add_present(key, *payload));
+    return (*created)->finish();
+}
+
 StoreSpec make_spec(std::uint32_t w, std::uint32_t h, std::uint32_t payload, std::uint32_t border, std::uint32_t channels,
                SampleType st, Codec codec, bool alpha = false) {
     StoreSpec s;
@@ -142,6 +164,11 @@ int main(int argc, char** argv) {
     }
     if (Status st = write_layered_store(dir + "/layers-grey-rgba-u16-2levels.tsr"); !st) {
         std::fprintf(stderr, "make_fuzz_corpus: layered store: %s\n", st.error().message.c_str());
+        return 1;
+    }
+    ++n;
+    if (Status st = write_sparse_store(dir + "/sparse-index-rgba-u8.tsr"); !st) {
+        std::fprintf(stderr, "make_fuzz_corpus: sparse store: %s\n", st.error().message.c_str());
         return 1;
     }
     ++n;
