@@ -651,18 +651,7 @@ TEST(CliVerify, EveryFlippedByteIsDetected) {
 // ---- the command line as a new user meets it ----------------------------------------------------
 
 // `tessera-server ARGS`, as run_tessera runs `tessera ARGS`.
-RunResult run_server_binary(const std::string& args) {
-    RunResult r;
-    const std::string cmd = std::string(TESSERA_SERVER_EXE) + " " + args + " 2>&1";
-    FILE* p = ::popen(cmd.c_str(), "r");
-    if (!p) return r;
-    std::array<char, 4096> buf{};
-    std::size_t n;
-    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
-    const int status = ::pclose(p);
-    r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-    return r;
-}
+RunResult run_server_binary(const std::string& args) { return tessera::test::run_program(TESSERA_SERVER_EXE, args); }
 
 bool has(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
 

@@ -26,6 +26,7 @@
 
 #include "ground_ray.hpp"
 #include "render_util.hpp"
+#include "render_vt.hpp"
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "page_table.hpp"
@@ -96,36 +97,15 @@ void far_corner_end_to_end(std::uint32_t size, std::uint32_t tile, std::uint32_t
         const double height = scale * kH / (2.0 * std::tan(sc::Camera{}.fov_y / 2.0));
         const sc::Camera cam = straight_down(double(k) * scale, double(k) * scale, height);
 
-        // The render loop of a viewer, bounded: render, feed back, run the runtime.
-        std::uint64_t first = 0;
-        gl::FrameCounters latest{};
-        gl::FeedbackFrame fb;
-        std::vector<gl::FrameCounters> counters;
-        const auto deadline = t0 + 60s;
-        bool converged = false;
-        while (std::chrono::steady_clock::now() < deadline && !converged) {
-            const auto f = renderer.render(cam, rt.lod_bias());
-            if (first == 0) first = f;
-            ++run.frames;
-            if (renderer.poll_feedback(fb))
-                rt.frame(fb.ids, fb.width, fb.height, fb.bias);
-            else
-                rt.frame_without_feedback();
-            counters.clear();
-            renderer.poll_counters(counters);
-            for (const auto& c : counters)
-                if (c.frame >= first) latest = c;  // frames of the previous level do not count
-            converged = latest.frame != 0 && latest.textured_pixels > 0 && latest.fallback_unbiased == 0 &&
-                        latest.fallback_biased == 0 && rt.in_flight() == 0 && rt.lod_bias() == 0.0f;
-            if (!converged) std::this_thread::sleep_for(1ms);
-        }
-        ASSERT_TRUE(converged) << "level " << level << ": after " << run.frames << " frames, " << latest.fallback_unbiased
-                               << " of " << latest.textured_pixels << " pixels fall back, " << rt.in_flight()
-                               << " pages in flight, bias " << rt.lod_bias();
+        const auto converge = tessera::test::render_until_resident(renderer, rt, cam);
+        run.frames = converge.frames;
+        ASSERT_TRUE(converge.converged) << "level " << level << ": after " << run.frames << " frames, " << converge.latest.fallback_unbiased
+                                        << " of " << converge.latest.textured_pixels << " pixels fall back, " << rt.in_flight()
+                                        << " pages in flight, bias " << rt.lod_bias();
 
         // The checked frame.
         const auto frame = renderer.render(cam, 0.0f);
-        counters.clear();
+        std::vector<gl::FrameCounters> counters;
         renderer.finish(&counters, nullptr);
         const auto rgba = renderer.read_color();
         EXPECT_EQ(renderer.stats().gl_errors, 0u);

@@ -32,6 +32,7 @@ namespace gl = tessera::client::gl;
 namespace sc = tessera::scene;
 namespace st = tessera::storage;
 using tessera::test::ScratchDir;
+using tessera::test::looking;
 
 // An opaque RGBA8 texture, rows top to bottom.
 struct Texture {
@@ -237,15 +238,6 @@ std::vector<std::uint8_t> seam_pixels(const sc::Camera& cam, std::uint32_t w, st
     return seam;
 }
 
-sc::Camera looking(double x, double y, double z, double yaw, double pitch) {
-    sc::Camera c;
-    c.position = {x, y, z};
-    c.yaw = yaw;
-    c.pitch = pitch;
-    c.near_plane = 0.5;
-    c.far_plane = 1e4;
-    return c;
-}
 
 struct ErrorStats {
     double psnr = 0;  // dB over RGB

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "render_util.hpp"
+#include "render_vt.hpp"
 #include "server_process.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/runtime.hpp"
@@ -101,30 +102,10 @@ TEST(SparseStore, TwoToTheTwentyFourServedAndViewedAtItsCornersAndCentre) {
             const double height = scale * kH / (2.0 * std::tan(sc::Camera{}.fov_y / 2.0));
             const sc::Camera cam = tessera::test::straight_down(double(cx) * scale, double(cy) * scale, height);
 
-            std::uint64_t first = 0;
-            gl::FrameCounters latest{};
-            gl::FeedbackFrame fb;
+            const auto run = tessera::test::render_until_resident(renderer, rt, cam);
+            ASSERT_TRUE(run.converged) << "after " << run.frames << " frames, " << run.latest.fallback_unbiased << " of "
+                                       << run.latest.textured_pixels << " pixels fall back, " << rt.in_flight() << " pages in flight";
             std::vector<gl::FrameCounters> counters;
-            bool converged = false;
-            int frames = 0;
-            while (std::chrono::steady_clock::now() < t0 + 60s && !converged) {
-                const auto f = renderer.render(cam, rt.lod_bias());
-                if (first == 0) first = f;
-                ++frames;
-                if (renderer.poll_feedback(fb))
-                    rt.frame(fb.ids, fb.width, fb.height, fb.bias);
-                else
-                    rt.frame_without_feedback();
-                counters.clear();
-                renderer.poll_counters(counters);
-                for (const auto& c : counters)
-                    if (c.frame >= first) latest = c;  // the previous view's frames do not count
-                converged = latest.frame != 0 && latest.textured_pixels > 0 && latest.fallback_unbiased == 0 && rt.in_flight() == 0 &&
-                            rt.lod_bias() == 0.0f;
-                if (!converged) std::this_thread::sleep_for(1ms);
-            }
-            ASSERT_TRUE(converged) << "after " << frames << " frames, " << latest.fallback_unbiased << " of " << latest.textured_pixels
-                                   << " pixels fall back, " << rt.in_flight() << " pages in flight";
             const auto frame = renderer.render(cam, 0.0f);
             counters.clear();
             renderer.finish(&counters, nullptr);
@@ -142,7 +123,7 @@ TEST(SparseStore, TwoToTheTwentyFourServedAndViewedAtItsCornersAndCentre) {
             EXPECT_EQ(check.wrong, 0u) << "of " << check.checked;
             EXPECT_GE(check.checked, std::size_t(kW * kH / 4));
             std::printf("  level %u at (%lld, %lld): %d frames, %.2f s, %zu texel centres, %zu wrong\n", level, static_cast<long long>(cx),
-                        static_cast<long long>(cy), frames, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+                        static_cast<long long>(cy), run.frames, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
                         check.checked, check.wrong);
         }
     }

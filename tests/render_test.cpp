@@ -67,6 +67,7 @@ using tessera::client::kNoPage;
 using tessera::client::PageKey;
 using tessera::client::PageTable;
 using tessera::test::ScratchDir;
+using tessera::test::looking;
 using tessera::test::encode_texel;
 using tessera::test::store_geometry;
 using tessera::test::Vt;
@@ -95,15 +96,6 @@ double height_for(double texels_per_pixel, const sc::Camera& c, std::uint32_t he
     return texels_per_pixel * height_px / (2.0 * std::tan(c.fov_y / 2.0));
 }
 
-sc::Camera looking(double x, double y, double z, double yaw, double pitch) {
-    sc::Camera c;
-    c.position = {x, y, z};
-    c.yaw = yaw;
-    c.pitch = pitch;
-    c.near_plane = 0.5;
-    c.far_plane = 1e6;
-    return c;
-}
 
 using tessera::test::pixel_to_ground;
 

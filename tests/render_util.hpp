@@ -66,6 +66,18 @@ inline client::gl::RendererConfig exact_config(std::uint32_t w, std::uint32_t h,
     return c;
 }
 
+// At (x, y, z) looking along heading `yaw` (0 = +x, counter-clockwise) and `pitch` (negative:
+// down); near 0.5, far `far_plane`.
+inline scene::Camera looking(double x, double y, double z, double yaw, double pitch, double far_plane = 1e6) {
+    scene::Camera c;
+    c.position = {x, y, z};
+    c.yaw = yaw;
+    c.pitch = pitch;
+    c.near_plane = 0.5;
+    c.far_plane = far_plane;
+    return c;
+}
+
 // Looking straight down from `height` over (x, y), screen up = +y; near and far bracket the ground.
 inline scene::Camera straight_down(double x, double y, double height) {
     scene::Camera c;

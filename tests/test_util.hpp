@@ -48,10 +48,10 @@ struct RunResult {
     std::string out;  // stdout and stderr together
 };
 
-// Runs `tessera ARGS` through the shell, capturing output.
-inline RunResult run_tessera(const std::string& args) {
+// Runs `PROGRAM ARGS` through the shell, capturing output.
+inline RunResult run_program(const std::string& program, const std::string& args) {
     RunResult r;
-    const std::string cmd = std::string(TESSERA_BINARY) + " " + args + " 2>&1";
+    const std::string cmd = program + " " + args + " 2>&1";
     FILE* p = ::popen(cmd.c_str(), "r");
     if (!p) return r;
     std::array<char, 4096> buf{};
@@ -61,6 +61,9 @@ inline RunResult run_tessera(const std::string& args) {
     r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
     return r;
 }
+
+// Runs `tessera ARGS` through the shell, capturing output.
+inline RunResult run_tessera(const std::string& args) { return run_program(TESSERA_BINARY, args); }
 
 // A store built once per build tree and shared by every test process that asks for the same
 // build arguments: ctest runs each test in a process of its own, and a large store costs seconds
