@@ -119,7 +119,7 @@ TEST(Loadtest, ServerCpuGivesViewersPerCoreAndReplicas) {
     const std::string json = s.file("cpu.json");
     auto r = run_tessera("loadtest --server " + s.address() + " --server-pid " + std::to_string(s.pid()) +
                          " --store terrain --viewers 2 --duration 1.5 --warmup 0.3 --fps 30 --plan-viewers 10000 "
-                         "--replica-cores 4 --json " + json + " --quiet");
+                         "--replica-cores 4 --ramp-p99-ms 60000 --ramp-fallback 1 --json " + json + " --quiet");
     ASSERT_EQ(r.exit_code, 0) << r.out;
     EXPECT_NE(r.out.find("srv-ms/vs"), std::string::npos) << r.out;
     const auto j = load(json);
@@ -129,10 +129,12 @@ TEST(Loadtest, ServerCpuGivesViewersPerCoreAndReplicas) {
     EXPECT_GT(run["generator_cpu_s"].get<double>(), 0.0);
     const double per_vs = run["server_cpu_s_per_viewer_s"].get<double>();
     EXPECT_NEAR(per_vs, run["server_cpu_s"].get<double>() / (2 * 1.5), 1e-9);
-    // Capacity comes only from a run that held its targets, refused nothing and was not limited by
-    // the generator (a loaded machine can miss the targets: then it must say so, not plan).
+    // Capacity comes only from a run that held its targets (loose here, so that a loaded machine
+    // cannot miss them) and was not limited by the generator; a generator-bound run plans nothing
+    // and says so.
+    EXPECT_TRUE(run["pass"].get<bool>()) << run.dump();
     const auto& cap = j["capacity"];
-    if (run["pass"].get<bool>() && run["refused"].get<std::uint64_t>() == 0 && !run["generator_bound"].get<bool>()) {
+    if (!run["generator_bound"].get<bool>()) {
         ASSERT_TRUE(cap["viewers_per_core"].is_number()) << cap.dump();
         EXPECT_NEAR(cap["viewers_per_core"].get<double>(), 1.0 / per_vs, 1e-6);
         EXPECT_EQ(cap["replica_cores"].get<unsigned>(), 4u);

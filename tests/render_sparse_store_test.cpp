@@ -60,6 +60,12 @@ TEST(SparseStore, TwoToTheTwentyFourServedAndViewedAtItsCornersAndCentre) {
     std::printf("  opened in %.2f ms (best of 3); %llu present tiles\n", open_ms, static_cast<unsigned long long>(present));
     EXPECT_LT(open_ms, 100.0);
     EXPECT_LT(present, 1000u) << "only the regions' tiles are present";
+    {
+        auto r = st::StoreReader::open(store);
+        ASSERT_TRUE(r.ok());
+        EXPECT_EQ((*r)->info().version_minor, 2u) << "a sparse index";
+        EXPECT_LT((*r)->info().file_size, std::uint64_t(64) << 20) << "the index follows the present tiles";
+    }
 
     ServerProcess srv({"--store", store}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();

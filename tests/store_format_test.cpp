@@ -303,7 +303,8 @@ void reseal(std::vector<std::uint8_t>& b, std::uint32_t l, std::uint64_t table_b
 
 TEST(StoreFormat, SparseIndexReadsBackAndRefusesBadTables) {
     ScratchDir d;
-    const StoreSpec spec = raw_spec(16384, 16384, 12, 2);  // 1366 x 1366 tiles, 22 x 22 blocks at level 0
+    StoreSpec spec = raw_spec(16384, 16384, 12, 2);  // 1366 x 1366 tiles, 22 x 22 blocks at level 0
+    spec.sparse_index = true;
     const std::size_t n = 16 * 16;
     const TileKey keys[] = {{0, 0, 0}, {0, 1365, 7}, {0, 700, 1365}, {3, 20, 20}};
     {
@@ -316,6 +317,17 @@ TEST(StoreFormat, SparseIndexReadsBackAndRefusesBadTables) {
     auto r = StoreReader::open_memory(good);
     ASSERT_TRUE(r.ok()) << r.error().message;
     EXPECT_EQ((*r)->info().version_minor, 2u);
+    {
+        // The same tiles without asking for a sparse index: format 1.0, readable by older readers.
+        auto w = StoreWriter::create(d.file("dense.tsr"), raw_spec(16384, 16384, 12, 2));
+        ASSERT_TRUE(w.ok());
+        for (std::size_t i = 0; i < std::size(keys); ++i) ASSERT_TRUE((*w)->add_present(keys[i], tile_bytes(n, std::uint32_t(i))).ok());
+        ASSERT_TRUE((*w)->finish().ok());
+        auto dense = StoreReader::open(d.file("dense.tsr"));
+        ASSERT_TRUE(dense.ok()) << dense.error().message;
+        EXPECT_EQ((*dense)->info().version_minor, 0u);
+        EXPECT_EQ((*dense)->read_tile(keys[1])->bytes, tile_bytes(n, 1));
+    }
     EXPECT_LT(good.size(), std::size_t(1) << 20) << "the index follows the present tiles";
     for (std::size_t i = 0; i < std::size(keys); ++i) {
         auto t = (*r)->read_tile(keys[i]);
@@ -333,37 +345,39 @@ TEST(StoreFormat, SparseIndexReadsBackAndRefusesBadTables) {
     const std::size_t bt = std::size_t(load_at<std::uint64_t>(good, std::size_t(rec0) + 24));
     ASSERT_EQ(load_at<std::uint64_t>(good, std::size_t(rec0) + 88), 3u);
     ASSERT_EQ(load_at<std::uint32_t>(good, bt + 24), 21u);
-    const auto refused = [&](std::vector<std::uint8_t> bad, std::uint64_t table_bytes, const char* what) {
+    // Each case must be refused by its own rule (the message says which), not by a checksum.
+    const auto refused = [&](std::vector<std::uint8_t> bad, std::uint64_t table_bytes, const char* what, const char* rule) {
         reseal(bad, 0, table_bytes);
         auto o = StoreReader::open_memory(std::move(bad));
         ASSERT_FALSE(o.ok()) << what;
         EXPECT_EQ(o.error().code, Errc::corrupt) << what;
+        EXPECT_NE(o.error().message.find(rule), std::string::npos) << what << ": " << o.error().message;
         std::printf("  %s: %s\n", what, o.error().message.c_str());
     };
     {
         auto bad = good;  // records 0 and 1 swapped
         std::swap_ranges(bad.begin() + std::ptrdiff_t(bt), bad.begin() + std::ptrdiff_t(bt + 24), bad.begin() + std::ptrdiff_t(bt + 24));
-        refused(bad, 72, "out of order");
+        refused(bad, 72, "out of order", "not in order");
     }
     {
         auto bad = good;
         store_at<std::uint32_t>(bad, bt + 24, 22);  // bx past the level
-        refused(bad, 72, "outside the level");
+        refused(bad, 72, "outside the level", "outside the level");
     }
     {
         auto bad = good;
         std::copy_n(good.begin() + std::ptrdiff_t(bt), 24, bad.begin() + std::ptrdiff_t(bt + 24));  // block (0, 0) twice
-        refused(bad, 72, "repeated");
+        refused(bad, 72, "repeated", "not in order");
     }
     {
         auto bad = good;
         store_at<std::uint64_t>(bad, bt + 8, 0);  // an empty block listed
-        refused(bad, 72, "empty block listed");
+        refused(bad, 72, "empty block listed", "lists an empty block");
     }
     {
         auto bad = good;
         store_at<std::uint64_t>(bad, std::size_t(rec0) + 88, 22u * 22u + 1);  // more records than blocks
-        refused(bad, 72, "too many records");
+        refused(bad, 72, "too many records", "more blocks than it has");
     }
     // Every flipped byte of the header, level table and block tables is refused at open or by verify.
     std::size_t first_entry_block = good.size();

@@ -197,7 +197,9 @@ Command add_build(CLI::App& app) {
             if (!a->visibility.empty()) throw Failure("--visibility does not apply to a sparse source (its absent tiles are its own)", 2);
             auto result = storage::build_sparse_store(a->input, a->output, opt, on_progress);
             bar.finish();
-            if (!result) throw Failure(result.error().message);
+            const std::string messages = library_messages.release();
+            if (!result) throw Failure(result.error().message, result.error().code == Errc::invalid_argument ? 2 : 1);
+            std::fputs(messages.c_str(), stderr);
             if (!a->quiet) {
                 std::uint64_t present = 0, total = 0;
                 for (const auto& l : result->info.levels) {

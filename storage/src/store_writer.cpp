@@ -229,41 +229,33 @@ Status Writer::finish(const Progress& progress) {
     const std::uint64_t palette_offset = pos;
     pos += palette.size() * kPaletteValueBytes;
     const std::uint64_t index_offset = pos;
+    // Per level, the non-empty blocks (key by * bx + bx, sorted) and their entry blocks' offsets:
+    // memory follows the present tiles, not the level's area.
     struct LevelBlocks {
         std::uint32_t bx = 0, by = 0;
         std::uint64_t table_offset = 0;
-        std::vector<std::uint64_t> block_offset;  // 0 = all absent
-        std::uint64_t records = 0;                // non-empty blocks
+        std::vector<std::uint64_t> keys;     // non-empty blocks, increasing
+        std::vector<std::uint64_t> offsets;  // their entry blocks
+        std::uint64_t entries_offset(std::uint64_t key) const {
+            return offsets[std::size_t(std::lower_bound(keys.begin(), keys.end(), key) - keys.begin())];
+        }
     };
+    const bool sparse_index = spec_.sparse_index && spec_.layers.empty();
     std::vector<LevelBlocks> lb(nlevels);
-    std::uint64_t dense_table_bytes = 0, sparse_table_bytes = 0;
     for (std::uint32_t l = 0; l < nlevels; ++l) {
         LevelBlocks& L = lb[l];
         L.bx = ceil_div(levels_[l].tiles_x, kBlockSide);
         L.by = ceil_div(levels_[l].tiles_y, kBlockSide);
-        L.block_offset.assign(std::size_t(L.bx) * L.by, 0);
-        for (const Record& r : records_[l]) {
-            auto& off = L.block_offset[std::size_t(r.y >> kBlockShift) * L.bx + (r.x >> kBlockShift)];
-            if (off == 0) {
-                off = 1;  // marked non-empty; placed below in block order
-                ++L.records;
-            }
-        }
-        dense_table_bytes += std::uint64_t(L.bx) * L.by * kBlockRecordBytes;
-        sparse_table_bytes += L.records * kSparseBlockRecordBytes;
-    }
-    // A sparse index (format 1.2) where the dense block tables would be mostly empty records: the
-    // index then follows the present tiles, not the texture's area (docs/store-format.md).
-    const bool sparse_index = spec_.layers.empty() && sparse_table_bytes * 4 < dense_table_bytes;
-    for (std::uint32_t l = 0; l < nlevels; ++l) {
-        LevelBlocks& L = lb[l];
+        for (const Record& r : records_[l]) L.keys.push_back(std::uint64_t(r.y >> kBlockShift) * L.bx + (r.x >> kBlockShift));
+        std::sort(L.keys.begin(), L.keys.end());
+        L.keys.erase(std::unique(L.keys.begin(), L.keys.end()), L.keys.end());
         L.table_offset = pos;
-        pos += sparse_index ? L.records * kSparseBlockRecordBytes : std::uint64_t(L.bx) * L.by * kBlockRecordBytes;
-        for (auto& off : L.block_offset)
-            if (off != 0) {
-                off = pos;
-                pos += kEntryBlockBytes;
-            }
+        pos += sparse_index ? L.keys.size() * kSparseBlockRecordBytes : std::uint64_t(L.bx) * L.by * kBlockRecordBytes;
+        L.offsets.resize(L.keys.size());
+        for (auto& off : L.offsets) {  // entry blocks in block order, after the level's table
+            off = pos;
+            pos += kEntryBlockBytes;
+        }
     }
     const std::uint64_t data_offset = pos;
     const std::uint64_t file_size = data_offset + data_cursor;
@@ -278,7 +270,7 @@ Status Writer::finish(const Progress& progress) {
         info.present = info.uniform = info.deduplicated = 0;
         for (std::size_t i = 0; i < records_[l].size(); ++i) {
             const Record& r = records_[l][i];
-            const std::uint64_t eo = L.block_offset[std::size_t(r.y >> kBlockShift) * L.bx + (r.x >> kBlockShift)];
+            const std::uint64_t eo = L.entries_offset(std::uint64_t(r.y >> kBlockShift) * L.bx + (r.x >> kBlockShift));
             std::uint8_t* e = base + eo + (((std::size_t(r.y) & (kBlockSide - 1)) << kBlockShift) + (r.x & (kBlockSide - 1))) * kEntryBytes;
             e[entry::kind] = static_cast<std::uint8_t>(r.kind);
             store<std::uint64_t>(e, entry::checksum, r.checksum);
@@ -295,17 +287,24 @@ Status Writer::finish(const Progress& progress) {
         }
         info.absent = std::uint64_t(info.tiles_x) * info.tiles_y - info.present - info.uniform;
         std::uint8_t* rec = base + L.table_offset;
-        for (std::size_t blk = 0; blk < L.block_offset.size(); ++blk) {
-            const std::uint64_t eo = L.block_offset[blk];
-            if (sparse_index) {
-                if (eo == 0) continue;
-                store<std::uint32_t>(rec, 0, std::uint32_t(blk % L.bx));
-                store<std::uint32_t>(rec, 4, std::uint32_t(blk / L.bx));
-                rec += 8;
-            }
+        const auto put = [&](std::uint64_t eo) {
             store<std::uint64_t>(rec, 0, eo);
             store<std::uint64_t>(rec, 8, eo ? XXH3_64bits(base + eo, kEntryBlockBytes) : 0);
             rec += kBlockRecordBytes;
+        };
+        if (sparse_index) {
+            for (std::size_t k = 0; k < L.keys.size(); ++k) {
+                store<std::uint32_t>(rec, 0, std::uint32_t(L.keys[k] % L.bx));
+                store<std::uint32_t>(rec, 4, std::uint32_t(L.keys[k] / L.bx));
+                rec += 8;
+                put(L.offsets[k]);
+            }
+        } else {
+            std::size_t k = 0;  // the next non-empty block
+            for (std::uint64_t key = 0; key < std::uint64_t(L.bx) * L.by; ++key) {
+                const bool full = k < L.keys.size() && L.keys[k] == key;
+                put(full ? L.offsets[k++] : 0);
+            }
         }
         const std::uint64_t table_bytes = std::uint64_t(rec - (base + L.table_offset));
         std::uint8_t* r = base + level_table_offset + std::size_t(l) * kLevelRecordBytes;
@@ -317,7 +316,7 @@ Status Writer::finish(const Progress& progress) {
         store<std::uint32_t>(r, level::blocks_y, L.by);
         store<std::uint64_t>(r, level::block_table_offset, L.table_offset);
         store<std::uint64_t>(r, level::block_table_checksum, XXH3_64bits(base + L.table_offset, table_bytes));
-        if (sparse_index) store<std::uint64_t>(r, level::block_records, L.records);
+        if (sparse_index) store<std::uint64_t>(r, level::block_records, L.keys.size());
         store<std::uint64_t>(r, level::data_offset, data_offset + level_data_start[l]);
         store<std::uint64_t>(r, level::data_bytes, level_data_bytes[l]);
         store<std::uint64_t>(r, level::present, info.present);

@@ -104,6 +104,7 @@ Status write_sparse_store(const std::string& path) {
     spec.sample_type = SampleType::u8;
     spec.colour_space = ColourSpace::srgb;
     spec.codec = Codec::zstd;
+    spec.sparse_index = true;
     auto created = StoreWriter::create(path, spec);
     if (!created) return created.error();
     const StoreInfo info = store_info(spec);

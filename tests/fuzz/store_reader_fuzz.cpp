@@ -64,10 +64,15 @@ void fix_checksums(std::vector<std::uint8_t>& b) {
         for (std::uint64_t l = 0; l < levels; ++l) {
             std::uint8_t* r = h + lt_off + l * kLevelRecordBytes;
             const std::uint64_t bt = load<std::uint64_t>(r, level::block_table_offset);
-            const std::uint64_t nb = std::uint64_t(load<std::uint32_t>(r, level::blocks_x)) * load<std::uint32_t>(r, level::blocks_y);
-            if (nb > size / kBlockRecordBytes || !in_bounds(size, bt, nb * kBlockRecordBytes)) continue;
+            // A sparse index (flags bit 1) lists block_records records of 24 bytes: (bx, by), then
+            // the block record; a dense one every block's 16.
+            const bool sparse = (h[header::flags] & kHeaderFlagSparseIndex) != 0;
+            const std::size_t rec_bytes = sparse ? kSparseBlockRecordBytes : kBlockRecordBytes;
+            const std::uint64_t nb = sparse ? load<std::uint64_t>(r, level::block_records)
+                                            : std::uint64_t(load<std::uint32_t>(r, level::blocks_x)) * load<std::uint32_t>(r, level::blocks_y);
+            if (nb > size / rec_bytes || !in_bounds(size, bt, nb * rec_bytes)) continue;
             for (std::uint64_t i = 0; i < nb; ++i) {
-                std::uint8_t* rec = h + bt + i * kBlockRecordBytes;
+                std::uint8_t* rec = h + bt + i * rec_bytes + (sparse ? 8 : 0);
                 const std::uint64_t eo = load<std::uint64_t>(rec, 0);
                 if (eo == 0 || !in_bounds(size, eo, kEntryBlockBytes) || hash_budget < kEntryBlockBytes) continue;
                 hash_budget -= kEntryBlockBytes;
@@ -85,7 +90,7 @@ void fix_checksums(std::vector<std::uint8_t>& b) {
                 }
                 store<std::uint64_t>(rec, 8, XXH3_64bits(blk, kEntryBlockBytes));
             }
-            store<std::uint64_t>(r, level::block_table_checksum, XXH3_64bits(h + bt, nb * kBlockRecordBytes));
+            store<std::uint64_t>(r, level::block_table_checksum, XXH3_64bits(h + bt, nb * rec_bytes));
         }
         store<std::uint64_t>(h, header::level_table_checksum, XXH3_64bits(h + lt_off, levels * kLevelRecordBytes));
         // A layered store's layer table follows the level table.

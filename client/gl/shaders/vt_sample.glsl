@@ -366,7 +366,7 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
             for (int i = 0; i < VT_FADE_CHAIN; ++i) {
                 vec4 s = vt_sample_entry_once(q, up, ea, 0.0);
 #ifdef VT_LIT
-                if (i == 0) second_before = vt_second_texel;  // the normals: the first ancestor's
+                vec4 second_s = vt_second_texel;  // the normals, blended with the same weights
 #endif
                 float wa = vt_fade_weight(ea);
                 int ua = max(int((ea >> 24) & 31u), up) + 1;
@@ -378,9 +378,15 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
                 }
                 if ((next >> 31) == 0u) {
                     before += rest * s;
+#ifdef VT_LIT
+                    second_before += rest * second_s;
+#endif
                     break;
                 }
                 before += rest * wa * s;
+#ifdef VT_LIT
+                second_before += rest * wa * second_s;
+#endif
                 rest *= 1.0 - wa;
                 q = qn;
                 up = ua;

@@ -85,7 +85,7 @@ public:
     void insert();  // after the commands issued so far
     // Signalled? Never waits (timeout 0; flushes so that the fence can signal at all).
     bool poll();
-    void wait();    // blocks: end of a run and tests only
+    void wait();    // blocks: the frame latency bound, the end of a run and tests
     bool pending() const { return sync_ != nullptr; }
     void reset();
 

@@ -70,6 +70,7 @@ Result<BuildSummary> build_sparse_store(const std::string& input, const std::str
     spec.sample_type = SampleType::u8;
     spec.colour_space = opt.colour_space.value_or(ColourSpace::linear);
     spec.codec = opt.codec.value_or(Codec::zstd);
+    spec.sparse_index = true;  // block tables of the few non-empty blocks: the index follows the present tiles
     if (const std::string misfit = codec_misfit(spec.codec, spec.sample_type, spec.channels, opt.tile_size, opt.border); !misfit.empty())
         return make_error(Errc::invalid_argument, "--codec " + std::string(to_string(spec.codec)) + ": " + misfit +
                                                       "; the coords pattern is 4 channels of u8 (use --codec zstd)");
@@ -99,8 +100,8 @@ Result<BuildSummary> build_sparse_store(const std::string& input, const std::str
                     if (!st) error.set(st.error());
                     done.fetch_add(1, std::memory_order_relaxed);
                 });
-                if (progress && (done.load(std::memory_order_relaxed) & 63) == 0) {
-                    prog.tiles_done = done.load(std::memory_order_relaxed);
+                if (const std::uint64_t now = done.load(std::memory_order_relaxed); progress && now >= prog.tiles_done + 64) {
+                    prog.tiles_done = now;
                     progress(prog);
                 }
             }

@@ -57,8 +57,8 @@ using BuildProgressFn = std::function<void(const BuildProgress&)>;
 // with data in a few regions only, too large to stream row by row. Only the present tiles are
 // made and written; every other tile is absent, and build time and memory follow the present
 // tiles. The one sparse source so far: "procedural:coords-sparse:SIZE", the coords pattern
-// (tessera/storage/coords_pattern.hpp) at every level, in windows of 512 level texels around
-// each level's four corners and its centre (RGBA8, linear, zstd unless --codec says otherwise).
+// (tessera/storage/coords_pattern.hpp) at every level, in windows reaching 256 level texels to
+// each side of each level's four corners and its centre (RGBA8, linear, zstd unless --codec says otherwise).
 bool is_sparse_input(const std::string& input);
 // Errors: not a sparse source, a bad size, --visibility or --sparse (BuildOptions::keep, sparse),
 // a codec that does not fit RGBA8, those of validate() and of writing.

@@ -31,6 +31,10 @@ struct StoreSpec {
     // A multi-layer store (docs/store-format.md, "Layers"): 2 to 16 layers, codec Codec::layers,
     // and channels .. has_alpha repeating layer 0's, as in StoreInfo. Empty: a single-layer store.
     std::vector<LayerInfo> layers;
+    // A sparse index (format 1.2, docs/store-format.md "Sparse stores"): block tables list only
+    // the non-empty blocks. For stores whose tiles are mostly absent (sparse sources); a reader
+    // older than format 1.2 cannot read it. Single-layer stores only.
+    bool sparse_index = false;
 };
 
 // Checks a spec against the format's limits; the message names the offending field.
