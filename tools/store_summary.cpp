@@ -21,16 +21,18 @@ void print_store_summary(const std::string& name, const storage::StoreInfo& info
                    tessera::to_string(info.codec));
     fmt::print("tiles      {} texels ({} payload + 2 x {} border), {} levels\n", info.tile_size(), info.tile_payload, info.border,
                info.level_count());
-    fmt::print("{:>5} {:>13} {:>11} {:>9} {:>8} {:>8} {:>7} {:>11} {:>10}\n", "level", "texels", "tiles", "present", "uniform",
-               "absent", "dedup", "bytes", "bits/texel");
+    // "index": the level's block table and entry blocks; an "s" marks a sparse block table.
+    fmt::print("{:>5} {:>13} {:>11} {:>9} {:>8} {:>8} {:>7} {:>11} {:>10} {:>12}\n", "level", "texels", "tiles", "present", "uniform",
+               "absent", "dedup", "bytes", "bits/texel", "index");
     for (std::size_t i = 0; i < info.levels.size(); ++i) {
         const auto& l = info.levels[i];
-        fmt::print("{:>5} {:>13} {:>11} {:>9} {:>8} {:>8} {:>7} {:>11} {:>10.2f}\n", i, fmt::format("{}x{}", l.width, l.height),
+        fmt::print("{:>5} {:>13} {:>11} {:>9} {:>8} {:>8} {:>7} {:>11} {:>10.2f} {:>12}\n", i, fmt::format("{}x{}", l.width, l.height),
                    fmt::format("{}x{}", l.tiles_x, l.tiles_y), l.present, l.uniform, l.absent, l.deduplicated,
-                   human_bytes(l.payload_bytes), bits_per_texel(l.payload_bytes, std::uint64_t(l.width) * l.height));
+                   human_bytes(l.payload_bytes), bits_per_texel(l.payload_bytes, std::uint64_t(l.width) * l.height),
+                   human_bytes(l.index_bytes) + (l.sparse_block_table ? " s" : "  "));
     }
-    fmt::print("{:>5} {:>13} {:>11} {:>9} {:>8} {:>8} {:>7} {:>11} {:>10.2f}\n", "all", "", t.tiles, t.present, t.uniform, t.absent,
-               t.deduplicated, human_bytes(t.payload_bytes), bits_per_texel(t.payload_bytes, t.texels));
+    fmt::print("{:>5} {:>13} {:>11} {:>9} {:>8} {:>8} {:>7} {:>11} {:>10.2f} {:>12}\n", "all", "", t.tiles, t.present, t.uniform, t.absent,
+               t.deduplicated, human_bytes(t.payload_bytes), bits_per_texel(t.payload_bytes, t.texels), human_bytes(t.index_bytes) + "  ");
     if (info.layered()) {
         // Each layer's bytes come from the layer table (no tile is read); the rest of the payload is
         // the bundles' tables.

@@ -22,6 +22,7 @@ StoreTotals store_totals(const StoreInfo& info) {
         t.absent += l.absent;
         t.deduplicated += l.deduplicated;
         t.payload_bytes += l.payload_bytes;
+        t.index_bytes += l.index_bytes;
         t.texels += texels;
         t.raw_bytes += texels * texel_bytes;
     }
@@ -49,7 +50,9 @@ nlohmann::json store_json(std::string_view name, const StoreInfo& info) {
                           {"absent", l.absent},
                           {"deduplicated", l.deduplicated},
                           {"payload_bytes", l.payload_bytes},
-                          {"bits_per_texel", bits_per_texel(l.payload_bytes, std::uint64_t(l.width) * l.height)}});
+                          {"bits_per_texel", bits_per_texel(l.payload_bytes, std::uint64_t(l.width) * l.height)},
+                          {"index_bytes", l.index_bytes},
+                          {"block_table", l.sparse_block_table ? "sparse" : "dense"}});
     }
     const StoreTotals t = store_totals(info);
     nlohmann::json layers = nlohmann::json::array();
@@ -87,6 +90,7 @@ nlohmann::json store_json(std::string_view name, const StoreInfo& info) {
           {"absent", t.absent},
           {"deduplicated", t.deduplicated},
           {"payload_bytes", t.payload_bytes},
+          {"index_bytes", t.index_bytes},
           {"raw_bytes", t.raw_bytes},
           {"bits_per_texel", bits_per_texel(t.payload_bytes, t.texels)},
           {"compression_ratio", t.compression_ratio}}},

@@ -179,6 +179,8 @@ public:
             if (XXH3_64bits(table.data(), bt_bytes) != load<std::uint64_t>(r, level::block_table_checksum))
                 return corrupt("level " + std::to_string(l) + " block table checksum mismatch");
             ix.sparse = sparse_index;
+            li.sparse_block_table = sparse_index;
+            li.index_bytes = bt_bytes;  // and the entry blocks, below
             ix.offsets.resize(records);
             ix.checksums.resize(records);
             if (sparse_index) ix.keys.resize(records);
@@ -221,6 +223,7 @@ public:
                 const std::uint64_t eo = ix.offsets[b];
                 if (eo != 0 && !inside_index(eo, kEntryBlockBytes))
                     return corrupt("level " + std::to_string(l) + " index block " + std::to_string(b) + " outside the index");
+                if (eo != 0) li.index_bytes += kEntryBlockBytes;
             }
         }
         info_.levels = std::move(levels);

@@ -15,6 +15,7 @@ namespace tessera::storage {
 struct StoreTotals {
     std::uint64_t tiles = 0, present = 0, uniform = 0, absent = 0, deduplicated = 0;
     std::uint64_t payload_bytes = 0;
+    std::uint64_t index_bytes = 0;   // block tables and entry blocks (as a reader reports them)
     std::uint64_t texels = 0;
     std::uint64_t raw_bytes = 0;     // the texels uncompressed, borders left out
     double compression_ratio = 0.0;  // raw_bytes / the file's size; 0 for an empty file

@@ -29,6 +29,10 @@ struct LevelInfo {
     std::uint64_t absent = 0;        // tiles with no data
     std::uint64_t deduplicated = 0;  // present tiles whose payload is shared with an earlier tile
     std::uint64_t payload_bytes = 0; // bytes of distinct payloads first stored in this level
+    // The level's index as stored (a reader fills these; a spec leaves them 0): its block table's
+    // bytes plus its entry blocks' (docs/store-format.md), and whether the block table is sparse.
+    std::uint64_t index_bytes = 0;
+    bool sparse_block_table = false;
 };
 
 // One layer of a multi-layer store (docs/store-format.md, "Layers"): every layer has the store's
