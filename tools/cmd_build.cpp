@@ -56,7 +56,7 @@ Command add_build(CLI::App& app) {
     auto a = std::make_shared<Args>();
     CLI::App* c = app.add_subcommand("build", "Build a tile store from an image or a procedural source");
     c->add_option("input", a->input,
-                  "Image file (anything OpenImageIO reads), procedural:terrain[-height|-normal]:SIZE (not with --atlas or --layer) or the sparse test pattern procedural:coords-sparse:SIZE (up to 16777216; docs/store-format.md, \"Sparse stores\")");
+                  "Image file (anything OpenImageIO reads), procedural:terrain[-height|-normal]:SIZE (not with --atlas or --layer), or a sparse source (docs/store-format.md, \"Sparse stores\"): a mosaic manifest FILE.json (images placed on a canvas of up to 2^32-1 texels per side) or the test pattern procedural:coords-sparse:SIZE (up to 16777216)");
     c->add_option("-o,--output", a->output, "Store file to write (.tsr)")->required();
     c->add_option("--layer", a->layers,
                   "A layer of a multi-layer store, NAME[:CODEC]=INPUT (instead of INPUT; 2 to 16 of them, all of one size): "

@@ -138,14 +138,18 @@ void PyramidBuilder::finish_tile(const TileKey& key, const std::vector<std::uint
     tiles_done_.fetch_add(1, std::memory_order_relaxed);
 }
 
-bool PyramidBuilder::all_equal(const std::vector<std::uint8_t>& t, std::size_t tb) {
+bool PyramidBuilder::all_equal(const std::vector<std::uint8_t>& t, std::size_t tb) { return tile_all_equal(t, tb); }
+
+bool PyramidBuilder::alpha_all_zero(const std::vector<std::uint8_t>& t) const { return tile_alpha_all_zero(store_, t); }
+
+bool tile_all_equal(std::span<const std::uint8_t> t, std::size_t tb) {
     for (std::size_t i = tb; i < t.size(); i += tb)
         if (std::memcmp(t.data(), t.data() + i, tb) != 0) return false;
     return true;
 }
 
-bool PyramidBuilder::alpha_all_zero(const std::vector<std::uint8_t>& t) const {
-    const std::size_t sb = sample_bytes(store_.sample_type), tb = store_.texel_bytes();
+bool tile_alpha_all_zero(const StoreInfo& store, std::span<const std::uint8_t> t) {
+    const std::size_t sb = sample_bytes(store.sample_type), tb = store.texel_bytes();
     for (std::size_t i = tb - sb; i < t.size(); i += tb)
         for (std::size_t k = 0; k < sb; ++k)
             if (t[i + k] != 0) return false;  // +0 only; any other bits mean coverage

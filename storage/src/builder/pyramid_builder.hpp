@@ -98,6 +98,11 @@ private:
     std::atomic<std::uint64_t> bytes_dropped_{0};
 };
 
+// How every builder classifies a cut tile (tile_size()^2 texels): absent when a store with alpha
+// has alpha 0 (+0) in every texel and the build is sparse; uniform when every texel is the same.
+bool tile_alpha_all_zero(const StoreInfo& store, std::span<const std::uint8_t> tile);
+bool tile_all_equal(std::span<const std::uint8_t> tile, std::size_t texel_bytes);
+
 // The encoder settings a build's options ask for.
 EncodeOptions encode_options(const BuildOptions& opt);
 

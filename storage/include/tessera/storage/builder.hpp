@@ -12,6 +12,7 @@
 #include "tessera/result.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/image_source.hpp"
+#include "tessera/storage/sparse_source.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace tessera::storage {
@@ -53,16 +54,23 @@ struct BuildSummary {
 
 using BuildProgressFn = std::function<void(const BuildProgress&)>;
 
-// Sparse sources (docs/store-format.md, "Sparse stores"): a texture of up to 2^24 texels per side
-// with data in a few regions only, too large to stream row by row. Only the present tiles are
-// made and written; every other tile is absent, and build time and memory follow the present
-// tiles. The one sparse source so far: "procedural:coords-sparse:SIZE", the coords pattern
-// (tessera/storage/coords_pattern.hpp) at every level, in windows reaching 256 level texels to
-// each side of each level's four corners and its centre (RGBA8, linear, zstd unless --codec says otherwise).
+// Sparse sources (docs/store-format.md, "Sparse stores"): a texture with data in a few regions
+// only, too large to stream row by row. Only the tiles that meet the data are made and written;
+// every other tile is absent, and build time, memory and the store's index follow the data.
+//  - A SparseSource (tessera/storage/sparse_source.hpp), such as a mosaic manifest "FILE.json":
+//    level 0 from the source, region by region, each coarser level reduced from the one below as
+//    the dense builder reduces; the tiles are those a dense build with `sparse` would make.
+//  - "procedural:coords-sparse:SIZE" (SIZE up to 2^24): the coords pattern
+//    (tessera/storage/coords_pattern.hpp) at every level, in windows reaching 256 level texels
+//    to each side of each level's four corners and its centre (RGBA8, linear, zstd unless --codec
+//    says otherwise).
 bool is_sparse_input(const std::string& input);
-// Errors: not a sparse source, a bad size, --visibility or --sparse (BuildOptions::keep, sparse),
-// a codec that does not fit RGBA8, those of validate() and of writing.
+// Errors: not a sparse source, a bad size or manifest, --visibility or --sparse
+// (BuildOptions::keep, sparse), a codec that does not fit the samples, those of validate(), of
+// the source and of writing.
 Result<BuildSummary> build_sparse_store(const std::string& input, const std::string& output, const BuildOptions& options,
+                                        const BuildProgressFn& progress = {});
+Result<BuildSummary> build_sparse_store(const SparseSource& source, const std::string& output, const BuildOptions& options,
                                         const BuildProgressFn& progress = {});
 
 // Checks options on their own (before any input is opened): the message names the flag.
