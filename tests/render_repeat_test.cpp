@@ -68,7 +68,9 @@ void write_png(const std::string& path, const Texture& t) {
 // The scene (Z up, all on z = 0, materials side by side so that no material hides another): a
 // brick floor repeating ten times each way around u = 1000, v = -1000; a striped metal floor
 // repeating 4 x 3 times across the origin (its texels are 3x longer one way than the other:
-// anisotropic); a colour-only pentagon and a colour-only quad in their own object and groups.
+// anisotropic); a terrace of 80x48 tiles (not a power of two either way) repeating 5 x 3.5 times
+// around u = -1000, v = 1000, one quad; a colour-only pentagon and a colour-only quad in their
+// own object and groups.
 constexpr const char* kObj = R"(# repeating textures, colour-only materials, several objects and groups
 mtllib scene.mtl
 v 0 0 0
@@ -88,6 +90,10 @@ v 90 25 0
 v 100 25 0
 v 100 35 0
 v 90 35 0
+v 0 45 0
+v 40 45 0
+v 40 85 0
+v 0 85 0
 vt 990 -1000
 vt 1000 -1000
 vt 1000 -990
@@ -97,6 +103,10 @@ vt 0.75 0.5
 vt 0.75 3.5
 vt -3.25 3.5
 vt 0 0
+vt -1000 996.5
+vt -995 996.5
+vt -995 1000
+vt -1000 1000
 o floor
 g bricks
 usemtl brick
@@ -106,6 +116,10 @@ o metal_floor
 g metal
 usemtl metal
 f 5/5 6/6 7/7 8/8
+o terrace
+g tiles
+usemtl tiles
+f 18/10 19/11 20/12 21/13
 o plaques
 g pentagon
 usemtl red
@@ -121,6 +135,9 @@ map_Kd brick.png
 newmtl metal
 Kd 1 1 1
 map_Kd metal.png
+newmtl tiles
+Kd 1 1 1
+map_Kd tiles.png
 newmtl red
 Kd 0.8 0.2 0.1
 newmtl blue
@@ -135,11 +152,17 @@ struct Material {
     sc::Scene scene;
 };
 
+// The texture's levels as 2x2 means in linear light (the store's rule, from an implementation
+// independent of the builder's). A non-power-of-two chain stops at the first level with an odd
+// side: halving it is no longer a 2x2 mean of whole texels, and GL sizes the next level rounding
+// down while the store rounds up. The views below stay finer than that level.
 std::vector<gl::ReferenceRenderer::Level> mip_chain(const Texture& t) {
     tessera::test::RefImage base{t.width, t.height, 4, st::SampleType::u8, t.rgba};
     std::vector<gl::ReferenceRenderer::Level> levels;
-    for (const auto& l : tessera::test::reference_pyramid(base, st::ColourSpace::srgb, /*has_alpha=*/false, 1))
+    for (const auto& l : tessera::test::reference_pyramid(base, st::ColourSpace::srgb, /*has_alpha=*/false, 1)) {
         levels.push_back({l.width, l.height, l.bytes});
+        if ((l.width > 1 && l.width % 2) || (l.height > 1 && l.height % 2)) break;
+    }
     return levels;
 }
 
@@ -209,7 +232,8 @@ struct RepeatingRect {
     double x0, y0, x1, y1;  // world
     double u0, v0, u1, v1;  // at (x0, y0) and (x1, y1)
 };
-constexpr RepeatingRect kRepeating[] = {{0, 0, 40, 40, 990, -1000, 1000, -990}, {45, 0, 85, 40, -3.25, 0.5, 0.75, 3.5}};
+constexpr RepeatingRect kRepeating[] = {
+    {0, 0, 40, 40, 990, -1000, 1000, -990}, {45, 0, 85, 40, -3.25, 0.5, 0.75, 3.5}, {0, 45, 40, 85, -1000, 996.5, -995, 1000}};
 
 bool uv_at(double x, double y, double& u, double& v) {
     for (const auto& r : kRepeating)
@@ -287,7 +311,8 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     REQUIRE_GL(ctx);
     const gl::Filter filter = GetParam();
     ScratchDir dir;
-    const std::map<std::string, Texture> textures = {{"brick.png", pattern(64, 64, 1)}, {"metal.png", pattern(32, 128, 2)}};
+    const std::map<std::string, Texture> textures = {
+        {"brick.png", pattern(64, 64, 1)}, {"metal.png", pattern(32, 128, 2)}, {"tiles.png", pattern(80, 48, 3)}};
     for (const auto& [name, t] : textures) write_png(dir.file(name), t);
     std::ofstream(dir.file("scene.obj")) << kObj;
     std::ofstream(dir.file("scene.mtl")) << kMtl;
@@ -299,6 +324,7 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     auto reader = st::StoreReader::open(store);
     ASSERT_TRUE(reader.ok()) << reader.error().message;
     const st::StoreInfo info = (*reader)->info();
+    std::printf("  atlas %ux%u texels, %u levels\n", info.width, info.height, info.level_count());
     auto scene = sc::load_obj_scene(atlas_obj, info.width, info.height);
     ASSERT_TRUE(scene.ok()) << scene.error().message;
 
@@ -318,7 +344,7 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     ASSERT_TRUE(tessera::test::load_everything(*vt));
 
     auto materials = original_materials(dir.file("scene.obj"), textures);
-    ASSERT_EQ(materials.size(), 4u);
+    ASSERT_EQ(materials.size(), 5u);
     std::vector<std::unique_ptr<gl::ReferenceRenderer>> refs;
     for (auto& [name, m] : materials) {
         auto r = gl::ReferenceRenderer::create(cfg, m.levels);
@@ -329,16 +355,23 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     }
 
     // Close over the bricks (magnified: bilinear taps across the wrap), a mid view of both
-    // floors, and a low grazing view down their length (minified, anisotropic). The views stay
-    // within the store's levels: an atlas store's mip chain ends where one tile holds the level
-    // (here level 3 of 192x256 texels), while each texture's own chain goes on to 1x1, so a
-    // farther view would compare the last atlas level with coarser texture mips.
+    // floors, a low grazing view down their length and one over the tiles (minified,
+    // anisotropic), and the whole scene from afar. The views stay within the store's levels: an
+    // atlas store's mip chain ends where one tile holds the level (here level 3), while each
+    // texture's own chain goes on, so a farther view would compare the last atlas level with
+    // coarser texture mips. The far view looks down obliquely: seen straight down, the bricks'
+    // footprint is square, and whether the anisotropic filter takes one tap or two (and along
+    // which axis) turns on rounding, differently in the two renderers.
     sc::Camera grazing = looking(42, -2, 2.5, std::numbers::pi / 2, -0.22);
     grazing.far_plane = 14;  // the distance where the metal's texels reach the store's last level
+    sc::Camera terrace = looking(20, 43, 2.5, std::numbers::pi / 2, -0.22);
+    terrace.far_plane = 24;  // the tiles reach level 3 there, the store's last
     const sc::Camera cameras[] = {
         tessera::test::straight_down(20.3, 20.2, 6.0),
         looking(42, -6, 21, std::numbers::pi / 2, -0.95),
         grazing,
+        terrace,                                       // the non-power-of-two tiles, grazing
+        looking(50, 20, 60, std::numbers::pi / 2, -1.2),  // everything from afar: bricks at level 2.6 to 3
     };
     for (std::size_t k = 0; k < std::size(cameras); ++k) {
         SCOPED_TRACE(std::string(filter_name(filter)) + " view " + std::to_string(k));
