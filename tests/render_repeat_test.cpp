@@ -4,6 +4,7 @@
 // one material at a time, from each original texture with GL_REPEAT and its own mip chain, with
 // the same LoD rule and filter. Every view: PSNR over the scene, and the error on the pixels that
 // a repeat line crosses (where a wrong padding would show as a seam) no worse than elsewhere.
+// Also cut-outs (docs/atlas.md, "Alpha"): a texture's alpha kept by the atlas and tested by the VT.
 #include <gtest/gtest.h>
 #include <tiny_obj_loader.h>
 
@@ -33,7 +34,7 @@ namespace sc = tessera::scene;
 namespace st = tessera::storage;
 using tessera::test::ScratchDir;
 
-// An opaque RGBA8 texture, rows top to bottom.
+// An RGBA8 texture, rows top to bottom.
 struct Texture {
     std::uint32_t width = 0, height = 0;
     std::vector<std::uint8_t> rgba;
@@ -158,15 +159,18 @@ struct Material {
 // down while the store rounds up. The views below stay finer than that level.
 std::vector<gl::ReferenceRenderer::Level> mip_chain(const Texture& t) {
     tessera::test::RefImage base{t.width, t.height, 4, st::SampleType::u8, t.rgba};
+    bool alpha = false;
+    for (std::size_t i = 3; i < t.rgba.size(); i += 4) alpha = alpha || t.rgba[i] != 255;
     std::vector<gl::ReferenceRenderer::Level> levels;
-    for (const auto& l : tessera::test::reference_pyramid(base, st::ColourSpace::srgb, /*has_alpha=*/false, 1)) {
+    for (const auto& l : tessera::test::reference_pyramid(base, st::ColourSpace::srgb, alpha, 1)) {
         levels.push_back({l.width, l.height, l.bytes});
         if ((l.width > 1 && l.width % 2) || (l.height > 1 && l.height % 2)) break;
     }
     return levels;
 }
 
-std::map<std::string, Material> original_materials(const std::string& obj, const std::map<std::string, Texture>& textures) {
+std::map<std::string, Material> original_materials(const std::string& obj, const std::map<std::string, Texture>& textures,
+                                                   double repeats = 4096) {
     tinyobj::ObjReader reader;
     tinyobj::ObjReaderConfig rc;
     rc.triangulate = true;
@@ -197,8 +201,8 @@ std::map<std::string, Material> original_materials(const std::string& obj, const
                 for (int d = 0; d < 3; ++d) pos[c][d] = attrib.vertices[3 * std::size_t(idx.vertex_index) + std::size_t(d)];
                 const double u = attrib.texcoords[2 * std::size_t(idx.texcoord_index)];
                 const double v = attrib.texcoords[2 * std::size_t(idx.texcoord_index) + 1];
-                texel[c][0] = (u + 4096) * w;          // OBJ's v runs up the image; texel rows run down
-                texel[c][1] = (4096 + 1 - v) * h;
+                texel[c][0] = (u + repeats) * w;          // OBJ's v runs up the image; texel rows run down
+                texel[c][1] = (repeats + 1 - v) * h;
             }
             sc::Chunk chunk;
             chunk.origin = {pos[0][0], pos[0][1], pos[0][2]};
@@ -417,6 +421,194 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Filters, RenderRepeats, ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
+                         [](const auto& p) { return std::string(filter_name(p.param)); });
+
+// Cut-outs (docs/atlas.md, "Alpha"; docs/renderer.md, "Cut-outs"): a leaf, an RGBA texture whose
+// background is transparent magenta, floats 5 units over a floor. The atlas keeps the alpha, and
+// the VT discards where it is below one half in every pass: the floor shows through the
+// background, with its own depth, and the feedback pass asks for the floor's pages there. Against
+// the reference drawing each original material with the same alpha test.
+constexpr const char* kCutoutObj = R"(# a floor and a cut-out leaf over it
+mtllib cutout.mtl
+v 0 0 0
+v 40 0 0
+v 40 40 0
+v 0 40 0
+v 8 8 5
+v 32 8 5
+v 32 32 5
+v 8 32 5
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+o ground
+usemtl floor
+f 1/1 2/2 3/3 4/4
+o leaf
+usemtl leaf
+f 5/1 6/2 7/3 8/4
+)";
+
+constexpr const char* kCutoutMtl = R"(newmtl floor
+Kd 1 1 1
+map_Kd floor.png
+newmtl leaf
+Kd 1 1 1
+map_Kd leaf.png
+)";
+
+// A leaf: an opaque dark red disc with a ring of round holes, on a transparent magenta background
+// (the colour a cut-out's background has when alpha is lost).
+Texture leaf(std::uint32_t size) {
+    Texture t{size, size, std::vector<std::uint8_t>(std::size_t(size) * size * 4)};
+    const double c = (size - 1) / 2.0;
+    for (std::uint32_t y = 0; y < size; ++y)
+        for (std::uint32_t x = 0; x < size; ++x) {
+            std::uint8_t* p = &t.rgba[(std::size_t(y) * size + x) * 4];
+            const double r = std::hypot(x - c, y - c) / c, a = std::atan2(y - c, x - c);
+            const bool hole = std::abs(r - 0.55) < 0.15 && std::cos(6 * a) > 0.3;
+            const bool in = r < 0.9 && !hole;
+            p[0] = in ? 150 : 255;
+            p[1] = in ? std::uint8_t(30 + (x * 40) / size) : 0;
+            p[2] = in ? 40 : 255;
+            p[3] = in ? 255 : 0;
+        }
+    return t;
+}
+
+bool magenta(const std::uint8_t* p) { return p[0] > 200 && p[1] < 60 && p[2] > 200; }
+
+class RenderCutouts : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderCutouts, AtlasKeepsAlphaAndTheVtDiscardsTheBackground) {
+    REQUIRE_GL(ctx);
+    const gl::Filter filter = GetParam();
+    ScratchDir dir;
+    const std::map<std::string, Texture> textures = {{"floor.png", pattern(128, 128, 4)}, {"leaf.png", leaf(64)}};
+    for (const auto& [name, t] : textures) write_png(dir.file(name), t);
+    std::ofstream(dir.file("scene.obj")) << kCutoutObj;
+    std::ofstream(dir.file("cutout.mtl")) << kCutoutMtl;
+    const std::string store = dir.file("scene.tsr"), atlas_obj = dir.file("atlas.obj");
+    const auto built = tessera::test::run_tessera("build --atlas " + dir.file("scene.obj") + " -o " + store + " --obj-out " + atlas_obj +
+                                                  " --up z --codec zstd --tile-size 64 --quiet");
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    auto reader = st::StoreReader::open(store);
+    ASSERT_TRUE(reader.ok()) << reader.error().message;
+    const st::StoreInfo info = (*reader)->info();
+    EXPECT_EQ(info.channels, 4u) << "the atlas dropped the leaf's alpha";
+    EXPECT_TRUE(info.has_alpha);
+    auto scene = sc::load_obj_scene(atlas_obj, info.width, info.height);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    ASSERT_EQ(scene->chunks.size(), 2u);
+
+    gl::RendererConfig cfg;
+    cfg.width = 256;
+    cfg.height = 192;
+    cfg.filter = filter;
+    cfg.max_anisotropy = 8;
+    cfg.tile_size = info.tile_size();
+    cfg.border = info.border;
+    cfg.pool_slots = std::uint32_t(tessera::test::page_count(info)) + 8;
+    cfg.srgb = true;
+    cfg.staging_bytes = 8u << 20;
+    cfg.feedback_jitter = false;
+    cfg.alpha_test = true;
+    auto vt = tessera::test::make_vt(cfg, store, *scene);
+    ASSERT_TRUE(vt);
+    ASSERT_TRUE(tessera::test::load_everything(*vt));
+
+    // In [0, 1]: no shift, and the reference clamps at the edges as the atlas's padding does.
+    auto materials = original_materials(dir.file("scene.obj"), textures, 0);
+    ASSERT_EQ(materials.size(), 2u);
+    std::map<std::string, std::unique_ptr<gl::ReferenceRenderer>> refs;
+    for (auto& [name, m] : materials) {
+        auto r = gl::ReferenceRenderer::create(cfg, m.levels);
+        ASSERT_TRUE(r.ok()) << name << ": " << r.error().message;
+        ASSERT_TRUE((*r)->set_scene(m.scene).ok());
+        refs[name] = std::move(*r);
+    }
+
+    // The floor's texels in the atlas (the chunk whose corners lie lowest): a feedback pixel that
+    // sees the floor through a hole must name a page over them.
+    const sc::Chunk& floor_chunk = scene->chunks[0].bounds_max[2] < scene->chunks[1].bounds_max[2] ? scene->chunks[0] : scene->chunks[1];
+    double floor_texels[4] = {1e30, 1e30, -1e30, -1e30};
+    for (const auto& v : floor_chunk.vertices)
+        for (int d = 0; d < 2; ++d) {
+            floor_texels[d] = std::min(floor_texels[d], double(floor_chunk.texel_origin[d]) + v.texel[d]);
+            floor_texels[d + 2] = std::max(floor_texels[d + 2], double(floor_chunk.texel_origin[d]) + v.texel[d]);
+        }
+
+    const sc::Camera cameras[] = {tessera::test::straight_down(20, 20, 30), looking(20, -8, 22, std::numbers::pi / 2, -0.9)};
+    for (std::size_t k = 0; k < std::size(cameras); ++k) {
+        SCOPED_TRACE(std::string(filter_name(filter)) + " view " + std::to_string(k));
+        const auto n = vt->renderer->render(cameras[k], 0);
+        std::vector<gl::FrameCounters> counters;
+        gl::FeedbackFrame feedback;
+        vt->renderer->finish(&counters, &feedback);
+        const auto have = vt->renderer->read_color();
+        ASSERT_EQ(feedback.frame, n);
+        // The composite: the leaf where its reference keeps a pixel, the floor elsewhere.
+        refs.at("floor")->render(cameras[k]);
+        refs.at("leaf")->render(cameras[k]);
+        const auto floor_img = refs.at("floor")->read_color(), leaf_img = refs.at("leaf")->read_color();
+        std::vector<std::uint8_t> want = floor_img, mask(have.size() / 4), through(mask.size());
+        std::size_t leaf_pixels = 0, magenta_pixels = 0;
+        for (std::size_t i = 0; i < mask.size(); ++i) {
+            if (leaf_img[i * 4 + 3]) {
+                std::copy_n(&leaf_img[i * 4], 4, &want[i * 4]);
+                ++leaf_pixels;
+            }
+            mask[i] = want[i * 4 + 3] != 0;
+            magenta_pixels += have[i * 4 + 3] && magenta(&have[i * 4]);
+        }
+        // Pixels inside the leaf's square that show the floor: its holes and background.
+        sc::Camera lifted = cameras[k];
+        lifted.position[2] -= 5;  // the ray's meeting with z = 5
+        for (std::uint32_t j = 0; j < cfg.height; ++j)
+            for (std::uint32_t i = 0; i < cfg.width; ++i) {
+                double x, y;
+                const std::size_t p = std::size_t(j) * cfg.width + i;
+                through[p] = tessera::test::pixel_to_ground(lifted, cfg.width, cfg.height, i, j, x, y) && x > 8.5 && x < 31.5 &&
+                             y > 8.5 && y < 31.5 && !leaf_img[p * 4 + 3] && floor_img[p * 4 + 3];
+            }
+        const auto e = errors(have, want, mask);
+        // Feedback pixels (at their centres: no jitter) that see the floor through the leaf.
+        std::size_t fb_through = 0, fb_wrong = 0;
+        const std::uint32_t scale = cfg.feedback_scale;
+        for (std::uint32_t fy = 0; fy < feedback.height; ++fy)
+            for (std::uint32_t fx = 0; fx < feedback.width; ++fx) {
+                const std::uint32_t i = std::min(fx * scale + scale / 2, cfg.width - 1), j = std::min(fy * scale + scale / 2, cfg.height - 1);
+                // Two pixels clear of the leaf's rim, where the alpha of the page the feedback
+                // asks for and the filtered alpha the VT pass tests may decide differently.
+                bool clear = i >= 2 && j >= 2 && i + 2 < cfg.width && j + 2 < cfg.height;
+                for (std::uint32_t dj = 0; clear && dj < 5; ++dj)
+                    for (std::uint32_t di = 0; clear && di < 5; ++di) clear = through[std::size_t(j + dj - 2) * cfg.width + i + di - 2];
+                if (!clear) continue;
+                ++fb_through;
+                const tessera::client::FeedbackId id = feedback.ids[std::size_t(fy) * feedback.width + fx];
+                const tessera::client::PageKey page = tessera::client::unpack_feedback(id);
+                const double span = double(info.tile_payload) * double(1u << page.level);
+                const bool over_floor = id != tessera::client::kNoPage && (page.x + 1) * span > floor_texels[0] &&
+                                        page.x * span < floor_texels[2] && (page.y + 1) * span > floor_texels[1] && page.y * span < floor_texels[3];
+                fb_wrong += !over_floor;
+            }
+        std::printf("  cut-outs %s view %zu: %zu pixels, PSNR %.2f dB, %zu off by > 16; leaf %zu pixels, floor through it %zu; magenta %zu; "
+                    "feedback through the leaf %zu, naming no floor page %zu\n",
+                    filter_name(filter), k, e.pixels, e.psnr, e.over_16, leaf_pixels, tessera::test::count(through), magenta_pixels, fb_through,
+                    fb_wrong);
+        EXPECT_EQ(magenta_pixels, 0u) << "the leaf's background shows";
+        EXPECT_GT(tessera::test::count(through), std::size_t(cfg.width * cfg.height / 20)) << "the view must see through the leaf";
+        EXPECT_GT(leaf_pixels, std::size_t(cfg.width * cfg.height / 20));
+        EXPECT_GE(e.psnr, 30.0);
+        // The alpha test may decide a pixel on the leaf's rim either way.
+        EXPECT_LE(double(e.over_16), 0.02 * double(leaf_pixels)) << "pixels off by more than 16";
+        EXPECT_GT(fb_through, 20u);
+        EXPECT_EQ(fb_wrong, 0u) << "the feedback pass asks for the leaf's pages where the leaf is discarded";
+    }
+}
+
+INSTANTIATE_TEST_SUITE_P(Filters, RenderCutouts, ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
                          [](const auto& p) { return std::string(filter_name(p.param)); });
 
 }  // namespace
