@@ -375,7 +375,7 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
         looking(42, -6, 21, std::numbers::pi / 2, -0.95),
         grazing,
         terrace,                                       // the non-power-of-two tiles, grazing
-        looking(50, 20, 60, std::numbers::pi / 2, -1.2),  // everything from afar: bricks at level 2.6 to 3
+        looking(50, 20, 60, std::numbers::pi / 2, -1.2),  // everything from afar, obliquely
     };
     for (std::size_t k = 0; k < std::size(cameras); ++k) {
         SCOPED_TRACE(std::string(filter_name(filter)) + " view " + std::to_string(k));
