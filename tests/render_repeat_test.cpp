@@ -4,6 +4,7 @@
 // one material at a time, from each original texture with GL_REPEAT and its own mip chain, with
 // the same LoD rule and filter. Every view: PSNR over the scene, and the error on the pixels that
 // a repeat line crosses (where a wrong padding would show as a seam) no worse than elsewhere.
+// Also cut-outs (docs/atlas.md, "Alpha"): a texture's alpha kept by the atlas and tested by the VT.
 #include <gtest/gtest.h>
 #include <tiny_obj_loader.h>
 
@@ -34,7 +35,7 @@ namespace st = tessera::storage;
 using tessera::test::ScratchDir;
 using tessera::test::looking;
 
-// An opaque RGBA8 texture, rows top to bottom.
+// An RGBA8 texture, rows top to bottom.
 struct Texture {
     std::uint32_t width = 0, height = 0;
     std::vector<std::uint8_t> rgba;
@@ -69,7 +70,9 @@ void write_png(const std::string& path, const Texture& t) {
 // The scene (Z up, all on z = 0, materials side by side so that no material hides another): a
 // brick floor repeating ten times each way around u = 1000, v = -1000; a striped metal floor
 // repeating 4 x 3 times across the origin (its texels are 3x longer one way than the other:
-// anisotropic); a colour-only pentagon and a colour-only quad in their own object and groups.
+// anisotropic); a terrace of 80x48 tiles (not a power of two either way) repeating 5 x 3.5 times
+// around u = -1000, v = 1000, one quad; a colour-only pentagon and a colour-only quad in their
+// own object and groups.
 constexpr const char* kObj = R"(# repeating textures, colour-only materials, several objects and groups
 mtllib scene.mtl
 v 0 0 0
@@ -89,6 +92,10 @@ v 90 25 0
 v 100 25 0
 v 100 35 0
 v 90 35 0
+v 0 45 0
+v 40 45 0
+v 40 85 0
+v 0 85 0
 vt 990 -1000
 vt 1000 -1000
 vt 1000 -990
@@ -98,6 +105,10 @@ vt 0.75 0.5
 vt 0.75 3.5
 vt -3.25 3.5
 vt 0 0
+vt -1000 996.5
+vt -995 996.5
+vt -995 1000
+vt -1000 1000
 o floor
 g bricks
 usemtl brick
@@ -107,6 +118,10 @@ o metal_floor
 g metal
 usemtl metal
 f 5/5 6/6 7/7 8/8
+o terrace
+g tiles
+usemtl tiles
+f 18/10 19/11 20/12 21/13
 o plaques
 g pentagon
 usemtl red
@@ -122,6 +137,9 @@ map_Kd brick.png
 newmtl metal
 Kd 1 1 1
 map_Kd metal.png
+newmtl tiles
+Kd 1 1 1
+map_Kd tiles.png
 newmtl red
 Kd 0.8 0.2 0.1
 newmtl blue
@@ -136,15 +154,24 @@ struct Material {
     sc::Scene scene;
 };
 
+// The texture's levels as 2x2 means in linear light (the store's rule, from an implementation
+// independent of the builder's). A non-power-of-two chain stops at the first level with an odd
+// side: halving it is no longer a 2x2 mean of whole texels, and GL sizes the next level rounding
+// down while the store rounds up. The views below stay finer than that level.
 std::vector<gl::ReferenceRenderer::Level> mip_chain(const Texture& t) {
     tessera::test::RefImage base{t.width, t.height, 4, st::SampleType::u8, t.rgba};
+    bool alpha = false;
+    for (std::size_t i = 3; i < t.rgba.size(); i += 4) alpha = alpha || t.rgba[i] != 255;
     std::vector<gl::ReferenceRenderer::Level> levels;
-    for (const auto& l : tessera::test::reference_pyramid(base, st::ColourSpace::srgb, /*has_alpha=*/false, 1))
+    for (const auto& l : tessera::test::reference_pyramid(base, st::ColourSpace::srgb, alpha, 1)) {
         levels.push_back({l.width, l.height, l.bytes});
+        if ((l.width > 1 && l.width % 2) || (l.height > 1 && l.height % 2)) break;
+    }
     return levels;
 }
 
-std::map<std::string, Material> original_materials(const std::string& obj, const std::map<std::string, Texture>& textures) {
+std::map<std::string, Material> original_materials(const std::string& obj, const std::map<std::string, Texture>& textures,
+                                                   double repeats = 4096) {
     tinyobj::ObjReader reader;
     tinyobj::ObjReaderConfig rc;
     rc.triangulate = true;
@@ -175,8 +202,8 @@ std::map<std::string, Material> original_materials(const std::string& obj, const
                 for (int d = 0; d < 3; ++d) pos[c][d] = attrib.vertices[3 * std::size_t(idx.vertex_index) + std::size_t(d)];
                 const double u = attrib.texcoords[2 * std::size_t(idx.texcoord_index)];
                 const double v = attrib.texcoords[2 * std::size_t(idx.texcoord_index) + 1];
-                texel[c][0] = (u + 4096) * w;          // OBJ's v runs up the image; texel rows run down
-                texel[c][1] = (4096 + 1 - v) * h;
+                texel[c][0] = (u + repeats) * w;          // OBJ's v runs up the image; texel rows run down
+                texel[c][1] = (repeats + 1 - v) * h;
             }
             sc::Chunk chunk;
             chunk.origin = {pos[0][0], pos[0][1], pos[0][2]};
@@ -210,7 +237,8 @@ struct RepeatingRect {
     double x0, y0, x1, y1;  // world
     double u0, v0, u1, v1;  // at (x0, y0) and (x1, y1)
 };
-constexpr RepeatingRect kRepeating[] = {{0, 0, 40, 40, 990, -1000, 1000, -990}, {45, 0, 85, 40, -3.25, 0.5, 0.75, 3.5}};
+constexpr RepeatingRect kRepeating[] = {
+    {0, 0, 40, 40, 990, -1000, 1000, -990}, {45, 0, 85, 40, -3.25, 0.5, 0.75, 3.5}, {0, 45, 40, 85, -1000, 996.5, -995, 1000}};
 
 bool uv_at(double x, double y, double& u, double& v) {
     for (const auto& r : kRepeating)
@@ -279,7 +307,8 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     REQUIRE_GL(ctx);
     const gl::Filter filter = GetParam();
     ScratchDir dir;
-    const std::map<std::string, Texture> textures = {{"brick.png", pattern(64, 64, 1)}, {"metal.png", pattern(32, 128, 2)}};
+    const std::map<std::string, Texture> textures = {
+        {"brick.png", pattern(64, 64, 1)}, {"metal.png", pattern(32, 128, 2)}, {"tiles.png", pattern(80, 48, 3)}};
     for (const auto& [name, t] : textures) write_png(dir.file(name), t);
     std::ofstream(dir.file("scene.obj")) << kObj;
     std::ofstream(dir.file("scene.mtl")) << kMtl;
@@ -291,6 +320,7 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     auto reader = st::StoreReader::open(store);
     ASSERT_TRUE(reader.ok()) << reader.error().message;
     const st::StoreInfo info = (*reader)->info();
+    std::printf("  atlas %ux%u texels, %u levels\n", info.width, info.height, info.level_count());
     auto scene = sc::load_obj_scene(atlas_obj, info.width, info.height);
     ASSERT_TRUE(scene.ok()) << scene.error().message;
 
@@ -310,7 +340,7 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     ASSERT_TRUE(tessera::test::load_everything(*vt));
 
     auto materials = original_materials(dir.file("scene.obj"), textures);
-    ASSERT_EQ(materials.size(), 4u);
+    ASSERT_EQ(materials.size(), 5u);
     std::vector<std::unique_ptr<gl::ReferenceRenderer>> refs;
     for (auto& [name, m] : materials) {
         auto r = gl::ReferenceRenderer::create(cfg, m.levels);
@@ -321,16 +351,23 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     }
 
     // Close over the bricks (magnified: bilinear taps across the wrap), a mid view of both
-    // floors, and a low grazing view down their length (minified, anisotropic). The views stay
-    // within the store's levels: an atlas store's mip chain ends where one tile holds the level
-    // (here level 3 of 192x256 texels), while each texture's own chain goes on to 1x1, so a
-    // farther view would compare the last atlas level with coarser texture mips.
+    // floors, a low grazing view down their length and one over the tiles (minified,
+    // anisotropic), and the whole scene from afar. The views stay within the store's levels: an
+    // atlas store's mip chain ends where one tile holds the level (here level 3), while each
+    // texture's own chain goes on, so a farther view would compare the last atlas level with
+    // coarser texture mips. The far view looks down obliquely: seen straight down, the bricks'
+    // footprint is square, and whether the anisotropic filter takes one tap or two (and along
+    // which axis) turns on rounding, differently in the two renderers.
     sc::Camera grazing = looking(42, -2, 2.5, std::numbers::pi / 2, -0.22);
     grazing.far_plane = 14;  // the distance where the metal's texels reach the store's last level
+    sc::Camera terrace = looking(20, 43, 2.5, std::numbers::pi / 2, -0.22);
+    terrace.far_plane = 24;  // the tiles reach level 3 there, the store's last
     const sc::Camera cameras[] = {
         tessera::test::straight_down(20.3, 20.2, 6.0),
         looking(42, -6, 21, std::numbers::pi / 2, -0.95),
         grazing,
+        terrace,                                       // the non-power-of-two tiles, grazing
+        looking(50, 20, 60, std::numbers::pi / 2, -1.2),  // everything from afar, obliquely
     };
     for (std::size_t k = 0; k < std::size(cameras); ++k) {
         SCOPED_TRACE(std::string(filter_name(filter)) + " view " + std::to_string(k));
@@ -376,6 +413,194 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Filters, RenderRepeats, ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
+                         [](const auto& p) { return std::string(filter_name(p.param)); });
+
+// Cut-outs (docs/atlas.md, "Alpha"; docs/renderer.md, "Cut-outs"): a leaf, an RGBA texture whose
+// background is transparent magenta, floats 5 units over a floor. The atlas keeps the alpha, and
+// the VT discards where it is below one half in every pass: the floor shows through the
+// background, with its own depth, and the feedback pass asks for the floor's pages there. Against
+// the reference drawing each original material with the same alpha test.
+constexpr const char* kCutoutObj = R"(# a floor and a cut-out leaf over it
+mtllib cutout.mtl
+v 0 0 0
+v 40 0 0
+v 40 40 0
+v 0 40 0
+v 8 8 5
+v 32 8 5
+v 32 32 5
+v 8 32 5
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+o ground
+usemtl floor
+f 1/1 2/2 3/3 4/4
+o leaf
+usemtl leaf
+f 5/1 6/2 7/3 8/4
+)";
+
+constexpr const char* kCutoutMtl = R"(newmtl floor
+Kd 1 1 1
+map_Kd floor.png
+newmtl leaf
+Kd 1 1 1
+map_Kd leaf.png
+)";
+
+// A leaf: an opaque dark red disc with a ring of round holes, on a transparent magenta background
+// (the colour a cut-out's background has when alpha is lost).
+Texture leaf(std::uint32_t size) {
+    Texture t{size, size, std::vector<std::uint8_t>(std::size_t(size) * size * 4)};
+    const double c = (size - 1) / 2.0;
+    for (std::uint32_t y = 0; y < size; ++y)
+        for (std::uint32_t x = 0; x < size; ++x) {
+            std::uint8_t* p = &t.rgba[(std::size_t(y) * size + x) * 4];
+            const double r = std::hypot(x - c, y - c) / c, a = std::atan2(y - c, x - c);
+            const bool hole = std::abs(r - 0.55) < 0.15 && std::cos(6 * a) > 0.3;
+            const bool in = r < 0.9 && !hole;
+            p[0] = in ? 150 : 255;
+            p[1] = in ? std::uint8_t(30 + (x * 40) / size) : 0;
+            p[2] = in ? 40 : 255;
+            p[3] = in ? 255 : 0;
+        }
+    return t;
+}
+
+bool magenta(const std::uint8_t* p) { return p[0] > 200 && p[1] < 60 && p[2] > 200; }
+
+class RenderCutouts : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderCutouts, AtlasKeepsAlphaAndTheVtDiscardsTheBackground) {
+    REQUIRE_GL(ctx);
+    const gl::Filter filter = GetParam();
+    ScratchDir dir;
+    const std::map<std::string, Texture> textures = {{"floor.png", pattern(128, 128, 4)}, {"leaf.png", leaf(64)}};
+    for (const auto& [name, t] : textures) write_png(dir.file(name), t);
+    std::ofstream(dir.file("scene.obj")) << kCutoutObj;
+    std::ofstream(dir.file("cutout.mtl")) << kCutoutMtl;
+    const std::string store = dir.file("scene.tsr"), atlas_obj = dir.file("atlas.obj");
+    const auto built = tessera::test::run_tessera("build --atlas " + dir.file("scene.obj") + " -o " + store + " --obj-out " + atlas_obj +
+                                                  " --up z --codec zstd --tile-size 64 --quiet");
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    auto reader = st::StoreReader::open(store);
+    ASSERT_TRUE(reader.ok()) << reader.error().message;
+    const st::StoreInfo info = (*reader)->info();
+    EXPECT_EQ(info.channels, 4u) << "the atlas dropped the leaf's alpha";
+    EXPECT_TRUE(info.has_alpha);
+    auto scene = sc::load_obj_scene(atlas_obj, info.width, info.height);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    ASSERT_EQ(scene->chunks.size(), 2u);
+
+    gl::RendererConfig cfg;
+    cfg.width = 256;
+    cfg.height = 192;
+    cfg.filter = filter;
+    cfg.max_anisotropy = 8;
+    cfg.tile_size = info.tile_size();
+    cfg.border = info.border;
+    cfg.pool_slots = std::uint32_t(tessera::test::page_count(info)) + 8;
+    cfg.srgb = true;
+    cfg.staging_bytes = 8u << 20;
+    cfg.feedback_jitter = false;
+    cfg.alpha_test = true;
+    auto vt = tessera::test::make_vt(cfg, store, *scene);
+    ASSERT_TRUE(vt);
+    ASSERT_TRUE(tessera::test::load_everything(*vt));
+
+    // In [0, 1]: no shift, and the reference clamps at the edges as the atlas's padding does.
+    auto materials = original_materials(dir.file("scene.obj"), textures, 0);
+    ASSERT_EQ(materials.size(), 2u);
+    std::map<std::string, std::unique_ptr<gl::ReferenceRenderer>> refs;
+    for (auto& [name, m] : materials) {
+        auto r = gl::ReferenceRenderer::create(cfg, m.levels);
+        ASSERT_TRUE(r.ok()) << name << ": " << r.error().message;
+        ASSERT_TRUE((*r)->set_scene(m.scene).ok());
+        refs[name] = std::move(*r);
+    }
+
+    // The floor's texels in the atlas (the chunk whose corners lie lowest): a feedback pixel that
+    // sees the floor through a hole must name a page over them.
+    const sc::Chunk& floor_chunk = scene->chunks[0].bounds_max[2] < scene->chunks[1].bounds_max[2] ? scene->chunks[0] : scene->chunks[1];
+    double floor_texels[4] = {1e30, 1e30, -1e30, -1e30};
+    for (const auto& v : floor_chunk.vertices)
+        for (int d = 0; d < 2; ++d) {
+            floor_texels[d] = std::min(floor_texels[d], double(floor_chunk.texel_origin[d]) + v.texel[d]);
+            floor_texels[d + 2] = std::max(floor_texels[d + 2], double(floor_chunk.texel_origin[d]) + v.texel[d]);
+        }
+
+    const sc::Camera cameras[] = {tessera::test::straight_down(20, 20, 30), looking(20, -8, 22, std::numbers::pi / 2, -0.9)};
+    for (std::size_t k = 0; k < std::size(cameras); ++k) {
+        SCOPED_TRACE(std::string(filter_name(filter)) + " view " + std::to_string(k));
+        const auto n = vt->renderer->render(cameras[k], 0);
+        std::vector<gl::FrameCounters> counters;
+        gl::FeedbackFrame feedback;
+        vt->renderer->finish(&counters, &feedback);
+        const auto have = vt->renderer->read_color();
+        ASSERT_EQ(feedback.frame, n);
+        // The composite: the leaf where its reference keeps a pixel, the floor elsewhere.
+        refs.at("floor")->render(cameras[k]);
+        refs.at("leaf")->render(cameras[k]);
+        const auto floor_img = refs.at("floor")->read_color(), leaf_img = refs.at("leaf")->read_color();
+        std::vector<std::uint8_t> want = floor_img, mask(have.size() / 4), through(mask.size());
+        std::size_t leaf_pixels = 0, magenta_pixels = 0;
+        for (std::size_t i = 0; i < mask.size(); ++i) {
+            if (leaf_img[i * 4 + 3]) {
+                std::copy_n(&leaf_img[i * 4], 4, &want[i * 4]);
+                ++leaf_pixels;
+            }
+            mask[i] = want[i * 4 + 3] != 0;
+            magenta_pixels += have[i * 4 + 3] && magenta(&have[i * 4]);
+        }
+        // Pixels inside the leaf's square that show the floor: its holes and background.
+        sc::Camera lifted = cameras[k];
+        lifted.position[2] -= 5;  // the ray's meeting with z = 5
+        for (std::uint32_t j = 0; j < cfg.height; ++j)
+            for (std::uint32_t i = 0; i < cfg.width; ++i) {
+                double x, y;
+                const std::size_t p = std::size_t(j) * cfg.width + i;
+                through[p] = tessera::test::pixel_to_ground(lifted, cfg.width, cfg.height, i, j, x, y) && x > 8.5 && x < 31.5 &&
+                             y > 8.5 && y < 31.5 && !leaf_img[p * 4 + 3] && floor_img[p * 4 + 3];
+            }
+        const auto e = errors(have, want, mask);
+        // Feedback pixels (at their centres: no jitter) that see the floor through the leaf.
+        std::size_t fb_through = 0, fb_wrong = 0;
+        const std::uint32_t scale = cfg.feedback_scale;
+        for (std::uint32_t fy = 0; fy < feedback.height; ++fy)
+            for (std::uint32_t fx = 0; fx < feedback.width; ++fx) {
+                const std::uint32_t i = std::min(fx * scale + scale / 2, cfg.width - 1), j = std::min(fy * scale + scale / 2, cfg.height - 1);
+                // Two pixels clear of the leaf's rim, where the alpha of the page the feedback
+                // asks for and the filtered alpha the VT pass tests may decide differently.
+                bool clear = i >= 2 && j >= 2 && i + 2 < cfg.width && j + 2 < cfg.height;
+                for (std::uint32_t dj = 0; clear && dj < 5; ++dj)
+                    for (std::uint32_t di = 0; clear && di < 5; ++di) clear = through[std::size_t(j + dj - 2) * cfg.width + i + di - 2];
+                if (!clear) continue;
+                ++fb_through;
+                const tessera::client::FeedbackId id = feedback.ids[std::size_t(fy) * feedback.width + fx];
+                const tessera::client::PageKey page = tessera::client::unpack_feedback(id);
+                const double span = double(info.tile_payload) * double(1u << page.level);
+                const bool over_floor = id != tessera::client::kNoPage && (page.x + 1) * span > floor_texels[0] &&
+                                        page.x * span < floor_texels[2] && (page.y + 1) * span > floor_texels[1] && page.y * span < floor_texels[3];
+                fb_wrong += !over_floor;
+            }
+        std::printf("  cut-outs %s view %zu: %zu pixels, PSNR %.2f dB, %zu off by > 16; leaf %zu pixels, floor through it %zu; magenta %zu; "
+                    "feedback through the leaf %zu, naming no floor page %zu\n",
+                    filter_name(filter), k, e.pixels, e.psnr, e.over_16, leaf_pixels, tessera::test::count(through), magenta_pixels, fb_through,
+                    fb_wrong);
+        EXPECT_EQ(magenta_pixels, 0u) << "the leaf's background shows";
+        EXPECT_GT(tessera::test::count(through), std::size_t(cfg.width * cfg.height / 20)) << "the view must see through the leaf";
+        EXPECT_GT(leaf_pixels, std::size_t(cfg.width * cfg.height / 20));
+        EXPECT_GE(e.psnr, 30.0);
+        // The alpha test may decide a pixel on the leaf's rim either way.
+        EXPECT_LE(double(e.over_16), 0.02 * double(leaf_pixels)) << "pixels off by more than 16";
+        EXPECT_GT(fb_through, 20u);
+        EXPECT_EQ(fb_wrong, 0u) << "the feedback pass asks for the leaf's pages where the leaf is discarded";
+    }
+}
+
+INSTANTIATE_TEST_SUITE_P(Filters, RenderCutouts, ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear, gl::Filter::anisotropic),
                          [](const auto& p) { return std::string(filter_name(p.param)); });
 
 }  // namespace

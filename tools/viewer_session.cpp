@@ -309,6 +309,9 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rc.tile_size = info->tile_size();
     rc.border = info->border;
     rc.srgb = info->colour_space == storage::ColourSpace::srgb;
+    // An OBJ scene's store with alpha holds cut-outs (an atlas of leaves, fences): discard their
+    // backgrounds. A terrain's alpha stays what the image shows.
+    rc.alpha_test = o.scene != "terrain" && info->has_alpha;
     if (o.page_format == "auto") {
         // A block-codec store's own blocks go to the GPU as they are; anything else as RGBA8.
         rc.page_format = client::page_format_of(info->codec).value_or(client::PageFormat::rgba8);

@@ -23,5 +23,12 @@ void main() {
     vec3 right = p + px * vt_main_pixel.x, down = p - py * vt_main_pixel.y;
     vec2 dx = right.xy / right.z - centre;
     vec2 dy = down.xy / down.z - centre;
+#ifdef VT_ALPHA_TEST
+    // Cut-outs: a pixel the main pass discards asks for nothing; what lies behind it (drawn with
+    // its own depth, the discarded fragment having written none) asks for its pages. The alpha is
+    // that of the wanted level's page (or the resident ancestor the main pass would sample).
+    uint resident;
+    if (vt_lookup(v_local, vt_wanted_level(vt_lod(dx, dy) + vt_bias), resident).a < vt_alpha_cutoff) discard;
+#endif
     o_id = vt_feedback(v_local, dx, dy);
 }

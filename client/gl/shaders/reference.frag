@@ -64,4 +64,8 @@ void main() {
     o_colour.rgb = vt_lit(o_colour.rgb, nsum / count);
 #endif
 #endif
+#ifdef VT_ALPHA_TEST
+    if (o_colour.a < vt_alpha_cutoff) discard;  // cut-outs, as the VT pass
+    o_colour.a = 1.0;
+#endif
 }

@@ -25,6 +25,12 @@ layout(location = 0) out vec4 o_colour;
 void main() {
     VtSample s = vt_sample(v_local);
     o_colour = s.colour;
+#ifdef VT_ALPHA_TEST
+    // Cut-outs: the pre-pass discarded this pixel too, and left the depth of what lies behind,
+    // which draws here at GL_LEQUAL; what is kept is opaque.
+    if (s.colour.a < vt_alpha_cutoff) discard;
+    o_colour.a = 1.0;
+#endif
 #ifdef VT_LIT
     o_colour.rgb = vt_lit(s.colour.rgb, s.second);
 #endif

@@ -106,6 +106,12 @@ vec3 vt_lit(vec3 colour, vec4 normal_texel) {
 }
 #endif
 uniform uint vt_texture_id;         // for the feedback id (feedback.frag: 1/N of the pixels)
+#ifdef VT_ALPHA_TEST
+// Cut-outs (RendererConfig::alpha_test): a pixel whose filtered alpha is below this is discarded
+// by the depth pre-pass, the VT pass and the feedback pass (what real-time VT renderers do for
+// foliage: no sorting, and the depth is that of what shows).
+const float vt_alpha_cutoff = 0.5;
+#endif
 #ifdef VT_FADE
 // Blending in (docs/renderer.md, "Blending in"): one weight per atlas cell (R8, the atlas's grid),
 // 0 in the first frame that draws the cell's page, 1 once it has faded in. Bilinear and trilinear

@@ -32,7 +32,9 @@ std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width
            // Lighting by a normal layer: vt_sample also samples that layer's atlas (docs/renderer.md, "Layers").
            (c.normal_layer && c.show_layer == 0 ? "#define VT_LIT 1\n" : "") +
            // Block atlases' second levels have their own border blocks at the texture's edges.
-           (c.has_second_level() && any_block_layer(c) ? "#define VT_BLOCK_EDGES 1\n" : "");
+           (c.has_second_level() && any_block_layer(c) ? "#define VT_BLOCK_EDGES 1\n" : "") +
+           // Cut-outs: every pass discards where the texture's alpha is below vt_alpha_cutoff.
+           (c.alpha_test ? "#define VT_ALPHA_TEST 1\n" : "");
 }
 
 SceneGeometry::SceneGeometry() : vao_(make_vertex_array()) {}

@@ -118,24 +118,28 @@ public:
 
         // Programs.
         const std::string defines = vt_shader_defines(c, atlas_.width(), atlas_.height());
-        auto depth = build_program("scene.vert", "depth.frag", defines);
-        if (!depth) return depth.error();
         // The VT pass: per page-table layout (dense, two-level) and, with blending in, a variant
-        // that reads the cells' weights, drawn only in frames where some cell is fading.
+        // that reads the cells' weights, drawn only in frames where some cell is fading. With
+        // cut-outs the depth pre-pass samples as the VT pass does, so it has the same variants,
+        // and the feedback pass one per layout; otherwise they never read the page table.
         for (int sparse = 0; sparse < 2; ++sparse)
             for (int fading = 0; fading < (c.fade_ms > 0 ? 2 : 1); ++fading) {
-                auto vt = build_program("scene.vert", "vt.frag",
-                                        defines + (sparse ? "#define VT_SPARSE_TABLE 1\n" : "") + (fading ? "#define VT_FADE 1\n" : ""));
+                const std::string variant = defines + (sparse ? "#define VT_SPARSE_TABLE 1\n" : "") + (fading ? "#define VT_FADE 1\n" : "");
+                auto vt = build_program("scene.vert", "vt.frag", variant);
                 if (!vt) return vt.error();
                 vt_programs_[sparse][fading] = std::move(*vt);
                 vt_us_[sparse][fading] = VtUniforms(vt_programs_[sparse][fading]);
+                if (!c.alpha_test && (sparse || fading)) continue;
+                auto depth = build_program("scene.vert", "depth.frag", variant);
+                if (!depth) return depth.error();
+                depth_programs_[sparse][fading] = std::move(*depth);
+                depth_us_[sparse][fading] = VtUniforms(depth_programs_[sparse][fading]);
+                if (fading) continue;
+                auto fb = build_program("scene.vert", "feedback.frag", variant);
+                if (!fb) return fb.error();
+                feedback_programs_[sparse] = std::move(*fb);
+                feedback_us_[sparse] = VtUniforms(feedback_programs_[sparse]);
             }
-        auto fb = build_program("scene.vert", "feedback.frag", defines);
-        if (!fb) return fb.error();
-        depth_program_ = std::move(*depth);
-        feedback_program_ = std::move(*fb);
-        depth_u_ = VtUniforms(depth_program_);
-        feedback_u_ = VtUniforms(feedback_program_);
         const auto set_units = [](const Program& p, const VtUniforms& u) {
             if (!p) return;
             glProgramUniform1i(p.get(), u.page_table, 0);
@@ -143,9 +147,13 @@ public:
             if (u.second_atlas >= 0) glProgramUniform1i(p.get(), u.second_atlas, 2);
             if (u.fade >= 0) glProgramUniform1i(p.get(), u.fade, 3);
         };
-        set_units(feedback_program_, feedback_u_);
-        for (int sparse = 0; sparse < 2; ++sparse)
-            for (int fading = 0; fading < 2; ++fading) set_units(vt_programs_[sparse][fading], vt_us_[sparse][fading]);
+        for (int sparse = 0; sparse < 2; ++sparse) {
+            set_units(feedback_programs_[sparse], feedback_us_[sparse]);
+            for (int fading = 0; fading < 2; ++fading) {
+                set_units(vt_programs_[sparse][fading], vt_us_[sparse][fading]);
+                set_units(depth_programs_[sparse][fading], depth_us_[sparse][fading]);
+            }
+        }
         TESSERA_TRY(fade_.init(atlas_.columns(), atlas_.rows(), c.fade_ms));
 
         fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
@@ -153,8 +161,10 @@ public:
         // Derivatives per main-target pixel: a main pixel is fb_width / width feedback pixels (of a
         // feedback image widened by the guard band: 1 + g times fewer).
         const float widen = 1.0f + c.feedback_guard_band;
-        glProgramUniform2f(feedback_program_.get(), feedback_u_.main_pixel, float(fb_width_) / float(c.width) / widen,
-                           float(fb_height_) / float(c.height) / widen);
+        for (int sparse = 0; sparse < 2; ++sparse)
+            if (feedback_programs_[sparse])
+                glProgramUniform2f(feedback_programs_[sparse].get(), feedback_us_[sparse].main_pixel, float(fb_width_) / float(c.width) / widen,
+                                   float(fb_height_) / float(c.height) / widen);
 
         // Targets.
         auto main = make_colour_target(c.width, c.height, c.srgb);
@@ -267,16 +277,17 @@ public:
         if (tex) {
             geometry_.cull(camera, aspect);
             // A heightfield drawn front to back shades each visible pixel once without the pre-pass.
-            front_to_back = depth_prepass_ && geometry_.order_front_to_back(camera);
+            front_to_back = depth_prepass_ && !cfg_.alpha_test && geometry_.order_front_to_back(camera);
             use_page_table(*tex);
             set_texture_uniforms(vt_program(), vt_u(), *tex);
-            set_texture_uniforms(feedback_program_, feedback_u_, *tex);
+            set_texture_uniforms(depth_program(), depth_u(), *tex);
+            set_texture_uniforms(feedback_program(), feedback_u(), *tex);
             bind_atlases();
         }
         last_bias_ = lod_bias;
         stats_.visible_chunks = tex ? geometry_.visible_chunks() : 0;
-        for (auto* p : {&depth_program_, &vt_program(), &feedback_program_}) {
-            const VtUniforms& u = p == &depth_program_ ? depth_u_ : p == &vt_program() ? vt_u() : feedback_u_;
+        for (auto* p : {&depth_program(), &vt_program(), &feedback_program()}) {
+            const VtUniforms& u = p == &depth_program() ? depth_u() : p == &vt_program() ? vt_u() : feedback_u();
             glProgramUniformMatrix4fv(p->get(), u.view_projection, 1, GL_FALSE, vp.data());
             glProgramUniform1f(p->get(), u.bias, lod_bias);
         }
@@ -319,8 +330,8 @@ public:
                     fvp[std::size_t(c * 4 + 1)] *= k;
                 }
             }
-            glProgramUniformMatrix4fv(feedback_program_.get(), feedback_u_.view_projection, 1, GL_FALSE, fvp.data());
-            glProgramUniform1f(feedback_program_.get(), feedback_u_.bias, lod_bias - cfg_.feedback_prefetch_lod);
+            glProgramUniformMatrix4fv(feedback_program().get(), feedback_u().view_projection, 1, GL_FALSE, fvp.data());
+            glProgramUniform1f(feedback_program().get(), feedback_u().bias, lod_bias - cfg_.feedback_prefetch_lod);
             glBindFramebuffer(GL_FRAMEBUFFER, fb_fbo_.get());
             glViewport(0, 0, GLsizei(fb_width_), GLsizei(fb_height_));
             glDisable(GL_FRAMEBUFFER_SRGB);
@@ -332,8 +343,8 @@ public:
             const GLfloat far_depth = 1.0f;
             glClearBufferfv(GL_DEPTH, 0, &far_depth);
             if (tex) {
-                glUseProgram(feedback_program_.get());
-                geometry_.draw(feedback_program_, feedback_u_.chunk, fcam);
+                glUseProgram(feedback_program().get());
+                geometry_.draw(feedback_program(), feedback_u().chunk, fcam);
                 if (&fcam != &camera) {  // the frame's culling and order again
                     geometry_.cull(camera, aspect);
                     if (front_to_back) front_to_back = geometry_.order_front_to_back(camera);
@@ -385,12 +396,13 @@ public:
         if (tex) {
             const auto vp = view_projection(camera, double(cfg_.width) / double(cfg_.height));
             geometry_.cull(camera, double(cfg_.width) / double(cfg_.height));
-            const bool front_to_back = depth_prepass_ && geometry_.order_front_to_back(camera);
+            const bool front_to_back = depth_prepass_ && !cfg_.alpha_test && geometry_.order_front_to_back(camera);
             use_page_table(*tex);
             set_texture_uniforms(vt_program(), vt_u(), *tex);
+            set_texture_uniforms(depth_program(), depth_u(), *tex);
             bind_atlases();
-            for (auto* p : {&depth_program_, &vt_program()}) {
-                const VtUniforms& u = p == &depth_program_ ? depth_u_ : vt_u();
+            for (auto* p : {&depth_program(), &vt_program()}) {
+                const VtUniforms& u = p == &depth_program() ? depth_u() : vt_u();
                 glProgramUniformMatrix4fv(p->get(), u.view_projection, 1, GL_FALSE, vp.data());
                 glProgramUniform1f(p->get(), u.bias, last_bias_);
             }
@@ -492,8 +504,8 @@ private:
         if (prepass) {
             glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
             glDepthFunc(GL_LESS);
-            glUseProgram(depth_program_.get());
-            geometry_.draw(depth_program_, depth_u_.chunk, camera);
+            glUseProgram(depth_program().get());
+            geometry_.draw(depth_program(), depth_u().chunk, camera);
             glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
             glDepthMask(GL_FALSE);
         }
@@ -512,6 +524,12 @@ private:
     }
     Program& vt_program() { return vt_programs_[vt_sparse_][vt_fading_]; }
     const VtUniforms& vt_u() const { return vt_us_[vt_sparse_][vt_fading_]; }
+    // The depth pre-pass and feedback programs: one each, or with cut-outs per layout (and, for
+    // the pre-pass, blending), as the VT pass's.
+    Program& depth_program() { return cfg_.alpha_test ? depth_programs_[vt_sparse_][vt_fading_] : depth_programs_[0][0]; }
+    const VtUniforms& depth_u() const { return cfg_.alpha_test ? depth_us_[vt_sparse_][vt_fading_] : depth_us_[0][0]; }
+    Program& feedback_program() { return feedback_programs_[cfg_.alpha_test ? vt_sparse_ : 0]; }
+    const VtUniforms& feedback_u() const { return feedback_us_[cfg_.alpha_test ? vt_sparse_ : 0]; }
 
     void set_texture_uniforms(const Program& p, const VtUniforms& u, const VirtualTexture& t) {
         const GLuint id = p.get();
@@ -541,8 +559,8 @@ private:
     bool has_scene_ = false;
     bool depth_prepass_ = true;  // false for scenes where no triangle can hide another
 
-    Program depth_program_, feedback_program_;
-    VtUniforms depth_u_, feedback_u_;
+    Program depth_programs_[2][2], feedback_programs_[2];
+    VtUniforms depth_us_[2][2], feedback_us_[2];
     // The VT programs: [two-level page table][reads the blending weights]; vt_program() is the
     // frame's (use_page_table, and render() by whether any cell is fading).
     Program vt_programs_[2][2];

@@ -34,19 +34,24 @@ std::uint64_t shelf_pack(const std::vector<AtlasCell>& cells, const std::vector<
     return shelf_y + shelf_h;
 }
 
-// One image's rows, converted to RGB8, read a strip at a time as the atlas rows move down.
+// One image's rows, converted to RGB8 or RGBA8 (`channels`, the atlas's), read a strip at a time
+// as the atlas rows move down.
 class ItemReader {
 public:
-    ItemReader(AtlasItem item, const AtlasCell& cell) : item_(std::move(item)), cell_(cell) {}
+    ItemReader(AtlasItem item, const AtlasCell& cell, std::uint32_t channels) : item_(std::move(item)), cell_(cell), channels_(channels) {}
 
-    // Row r (0 <= r < height) as RGB8; rows are asked for in non-decreasing order, except for a
-    // wrapping item, which is read whole on first use (its padding needs rows from both ends).
+    // Row r (0 <= r < height) as the atlas's texels; rows are asked for in non-decreasing order,
+    // except for a wrapping item, which is read whole on first use (its padding needs rows from
+    // both ends).
     Result<const std::uint8_t*> row(std::uint32_t r, const ParallelFor& parallel) {
-        const std::size_t out_row = std::size_t(cell_.width) * 3;
+        const std::size_t out_row = std::size_t(cell_.width) * channels_;
         if (!item_.source) {
             if (strip_.empty()) {
                 strip_.resize(out_row);
-                for (std::size_t i = 0; i < out_row; i += 3) std::memcpy(strip_.data() + i, item_.colour.data(), 3);
+                for (std::size_t i = 0; i < out_row; i += channels_) {
+                    std::memcpy(strip_.data() + i, item_.colour.data(), 3);
+                    if (channels_ == 4) strip_[i + 3] = 255;
+                }
             }
             return strip_.data();
         }
@@ -76,6 +81,8 @@ public:
     }
     const AtlasCell& cell() const { return cell_; }
     bool wraps() const { return item_.wrap && item_.source; }
+    // Whether an image has alpha: its source says so, with 2 or 4 channels.
+    static bool has_alpha(const SourceInfo& si) { return si.has_alpha && (si.channels == 2 || si.channels == 4); }
 
 private:
     static constexpr std::uint32_t kStrip = 64;
@@ -106,7 +113,15 @@ private:
         const std::size_t sb = sample_bytes(si.sample_type), texel = si.channels * sb;
         const int colour_channels = si.channels >= 3 ? 3 : 1;  // grey (+ alpha) or RGB (+ alpha)
         const bool plain = si.sample_type == SampleType::u8 && si.colour_space == ColourSpace::srgb;
-        for (std::uint32_t x = 0; x < si.width; ++x, in += texel, out += 3) {
+        const bool alpha = has_alpha(si);
+        for (std::uint32_t x = 0; x < si.width; ++x, in += texel, out += channels_) {
+            if (channels_ == 4) {  // alpha is linear: scaled, never sRGB-encoded; opaque without one
+                const std::uint8_t* s = in + (si.channels - 1) * sb;
+                double a = alpha ? sample(s, si.sample_type) : 1.0;
+                if (!(a > 0)) a = 0;  // also NaN
+                if (a > 1) a = 1;
+                out[3] = alpha && si.sample_type == SampleType::u8 ? *s : static_cast<std::uint8_t>(std::lround(a * 255.0));
+            }
             for (int c = 0; c < 3; ++c) {
                 const std::uint8_t* s = in + (colour_channels == 3 ? c : 0) * sb;
                 if (plain) {
@@ -124,6 +139,7 @@ private:
 
     AtlasItem item_;
     AtlasCell cell_;
+    std::uint32_t channels_ = 3;
     std::vector<std::uint8_t> raw_, strip_;
     std::uint32_t first_ = 0, count_ = 0, next_ = 0;
     bool done_ = false;
@@ -131,10 +147,11 @@ private:
 
 class AtlasSource final : public ImageSource {
 public:
-    AtlasSource(std::vector<ItemReader> items, const AtlasLayout& layout) : items_(std::move(items)) {
+    AtlasSource(std::vector<ItemReader> items, const AtlasLayout& layout, std::uint32_t channels) : items_(std::move(items)) {
         info_.width = layout.width;
         info_.height = layout.height;
-        info_.channels = 3;
+        info_.channels = channels;
+        info_.has_alpha = channels == 4;
         info_.sample_type = SampleType::u8;
         info_.colour_space = ColourSpace::srgb;
         info_.description = "atlas of " + std::to_string(items_.size()) + " images (" + std::to_string(layout.width) + "x" +
@@ -147,8 +164,10 @@ public:
     const SourceInfo& info() const override { return info_; }
 
     Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor& parallel) override {
-        const std::size_t row_bytes = std::size_t(info_.width) * 3;
-        std::memset(dst, 0, row_bytes * count);
+        const std::size_t n = info_.channels, row_bytes = std::size_t(info_.width) * n;
+        std::memset(dst, 0, row_bytes * count);  // black where no cell is, and opaque
+        if (n == 4)
+            for (std::size_t i = 3; i < row_bytes * count; i += 4) dst[i] = 255;
         for (std::uint32_t k = 0; k < count; ++k) {
             const std::uint32_t y = y0 + k;
             std::uint8_t* out = dst + k * row_bytes;
@@ -175,17 +194,17 @@ public:
                 auto src = item.row(r, parallel);
                 if (!src) return src.error();
                 const std::uint8_t* s = *src;
-                std::uint8_t* d = out + std::size_t(c.cell_x) * 3;
+                std::uint8_t* d = out + std::size_t(c.cell_x) * n;
                 const std::uint32_t left = c.x - c.cell_x, right = c.cell_x + c.cell_width - (c.x + c.width);
-                for (std::uint32_t i = 0; i < left; ++i, d += 3) {
+                for (std::uint32_t i = 0; i < left; ++i, d += n) {
                     const std::int64_t sx = wrap ? (((std::int64_t(i) - left) % w) + w) % w : 0;
-                    std::memcpy(d, s + sx * 3, 3);
+                    std::memcpy(d, s + sx * n, n);
                 }
-                std::memcpy(d, s, std::size_t(c.width) * 3);
-                d += std::size_t(c.width) * 3;
-                for (std::uint32_t i = 0; i < right; ++i, d += 3) {
+                std::memcpy(d, s, std::size_t(c.width) * n);
+                d += std::size_t(c.width) * n;
+                for (std::uint32_t i = 0; i < right; ++i, d += n) {
                     const std::int64_t sx = wrap ? std::int64_t(i) % w : w - 1;
-                    std::memcpy(d, s + sx * 3, 3);
+                    std::memcpy(d, s + sx * n, n);
                 }
             }
         }
@@ -267,6 +286,10 @@ Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> it
     if (items.size() != layout.cells.size())
         return make_error(Errc::invalid_argument, "atlas: " + std::to_string(items.size()) + " images for " +
                                                       std::to_string(layout.cells.size()) + " cells");
+    // RGBA when any image has alpha (cut-outs), RGB otherwise.
+    std::uint32_t channels = 3;
+    for (const auto& item : items)
+        if (item.source && ItemReader::has_alpha(item.source->info())) channels = 4;
     std::vector<ItemReader> readers;
     readers.reserve(items.size());
     for (std::size_t i = 0; i < items.size(); ++i) {
@@ -284,9 +307,9 @@ Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> it
             c.x < c.cell_x || c.y < c.cell_y || std::uint64_t(c.x) + c.width > std::uint64_t(c.cell_x) + c.cell_width ||
             std::uint64_t(c.y) + c.height > std::uint64_t(c.cell_y) + c.cell_height || c.width == 0 || c.height == 0)
             return make_error(Errc::invalid_argument, "atlas: cell " + std::to_string(i) + " is inconsistent");
-        readers.emplace_back(std::move(items[i]), c);
+        readers.emplace_back(std::move(items[i]), c, channels);
     }
-    return std::unique_ptr<ImageSource>(new AtlasSource(std::move(readers), layout));
+    return std::unique_ptr<ImageSource>(new AtlasSource(std::move(readers), layout, channels));
 }
 
 }  // namespace tessera::storage

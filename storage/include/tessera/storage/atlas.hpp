@@ -47,9 +47,9 @@ inline constexpr std::uint32_t kMaxAtlasSide = std::uint32_t(1) << 24;
 // Errors: no images, an image of zero size, bad options, an atlas beyond kMaxAtlasSide.
 Result<AtlasLayout> pack_atlas(std::span<const AtlasImageSize> sizes, const AtlasPackOptions& options = {});
 
-// One image of the atlas: a source (any sample type and 1..4 channels; grey is replicated, alpha
-// is dropped, 16-bit and float samples are scaled to 8 bits, linear ones encoded as sRGB), or a
-// solid colour when `source` is null. `wrap`: a repeating texture, whose padding continues the
+// One image of the atlas: a source (any sample type and 1..4 channels; grey is replicated, 16-bit
+// and float samples are scaled to 8 bits, linear colour encoded as sRGB, alpha kept as it is,
+// straight), or a solid colour when `source` is null. `wrap`: a repeating texture, whose padding continues the
 // image around its edges (toroidally) instead of repeating its edge texels; it is read whole when
 // the atlas rows reach its cell, not strip by strip.
 struct AtlasItem {
@@ -58,8 +58,9 @@ struct AtlasItem {
     bool wrap = false;
 };
 
-// The atlas as an 8-bit sRGB RGB source: items[i] fills layout.cells[i] (a source must have that
-// cell's image size). Each item's source is read once, top to bottom, as the atlas rows reach it.
+// The atlas as an 8-bit sRGB source, RGB, or RGBA with straight alpha when any item's source has
+// alpha (cut-outs; the other images and the texels no cell covers are opaque): items[i] fills
+// layout.cells[i] (a source must have that cell's image size). Each item's source is read once, top to bottom, as the atlas rows reach it.
 Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> items, AtlasLayout layout);
 
 }  // namespace tessera::storage

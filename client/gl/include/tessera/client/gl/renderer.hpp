@@ -89,6 +89,11 @@ struct RendererConfig {
     // format; LoD-bias changes are spread over the same time (at most one level per fade_ms). 0:
     // off, pages show at full weight the frame they arrive (the exactness tests' behaviour).
     float fade_ms = 0.0f;  // 0..10000
+    // Cut-outs (docs/renderer.md, "Cut-outs"): pixels whose filtered texel has alpha below 0.5
+    // are discarded, in the depth pre-pass, the VT pass and the feedback pass alike, so what lies
+    // behind shows, keeps its depth and has its pages requested. For stores with alpha (straight,
+    // as docs/store-format.md's "Alpha"); the frame is drawn opaque. Off: alpha is ignored.
+    bool alpha_test = false;
     // Whether the atlas holds each page's next coarser level under it: the trilinear and
     // anisotropic filters read it.
     bool has_second_level() const { return filter != Filter::bilinear; }
