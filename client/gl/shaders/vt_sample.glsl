@@ -8,6 +8,7 @@
 //     [#define VT_SPARSE_TABLE 1]   (vt.frag for two-level page tables: see vt_entry)
 //     [#define VT_ATLAS_RECT 1]     (RGBA8 pages, one level: a rectangle atlas in texel coordinates)
 //     [#define VT_FADE 1]           (blending in: each atlas cell's weight, see vt_fade_weight)
+//     [#define VT_FADE_ENCODED 1]   (with VT_FADE on an sRGB target: blends mix encoded colours)
 //     <this file> <the shader>
 // (detail::vt_shader_defines). It is drawn with scene.vert, which forwards the per-draw,
 // per-texture and per-frame values as flat varyings (see "Inputs").
@@ -122,6 +123,25 @@ uniform sampler2D vt_fade;
 #define VT_FADE_CHAIN 4  // fading ancestors a blend follows (vt_sample_entry)
 
 float vt_fade_weight(uint e) { return texelFetch(vt_fade, ivec2(int(e & 0xFFFu), int((e >> 12) & 0xFFFu)), 0).r; }
+
+// The space the bilinear and trilinear blends mix in. A target with the sRGB curve shows the
+// encoded value: a blend in linear light would move it unevenly (a fade towards a dark texel keeps
+// most of its visible change for its last steps: 0.11 of the way in linear light is 0.37 of it
+// encoded), so with VT_FADE_ENCODED (set for sRGB targets) the blend mixes encoded colours and
+// each step of the fade moves what is seen by the same amount. Alpha mixes as it is.
+#ifdef VT_FADE_ENCODED
+vec4 vt_fade_space(vec4 c) {
+    vec3 x = max(c.rgb, vec3(0.0));
+    return vec4(mix(x * 12.92, 1.055 * pow(x, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x)), c.a);
+}
+vec4 vt_from_fade_space(vec4 c) {
+    vec3 x = max(c.rgb, vec3(0.0));
+    return vec4(mix(x / 12.92, pow((x + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), x)), c.a);
+}
+#else
+vec4 vt_fade_space(vec4 c) { return c; }
+vec4 vt_from_fade_space(vec4 c) { return c; }
+#endif
 
 // The second level's weight in an anisotropic tap of entry e's cell whose filter blends with
 // `fraction`: all of it when the page arrives, the filter's own blend once it has faded in.
@@ -370,7 +390,7 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
             vec4 before = vec4(0.0);
             float rest = 1.0;  // the weight of the chain not yet accounted for
             for (int i = 0; i < VT_FADE_CHAIN; ++i) {
-                vec4 s = vt_sample_entry_once(q, up, ea, 0.0);
+                vec4 s = vt_fade_space(vt_sample_entry_once(q, up, ea, 0.0));
 #ifdef VT_LIT
                 vec4 second_s = vt_second_texel;  // the normals, blended with the same weights
 #endif
@@ -398,7 +418,7 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
                 up = ua;
                 ea = next;
             }
-            c = mix(before, c, w);
+            c = vt_from_fade_space(mix(before, vt_fade_space(c), w));
 #ifdef VT_LIT
             vt_second_texel = mix(second_before, second_now, w);
 #endif

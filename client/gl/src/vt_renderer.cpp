@@ -124,7 +124,8 @@ public:
         // and the feedback pass one per layout; otherwise they never read the page table.
         for (int sparse = 0; sparse < 2; ++sparse)
             for (int fading = 0; fading < (c.fade_ms > 0 ? 2 : 1); ++fading) {
-                const std::string variant = defines + (sparse ? "#define VT_SPARSE_TABLE 1\n" : "") + (fading ? "#define VT_FADE 1\n" : "");
+                const std::string variant = defines + (sparse ? "#define VT_SPARSE_TABLE 1\n" : "") + (fading ? "#define VT_FADE 1\n" : "") +
+                                            (fading && c.srgb ? "#define VT_FADE_ENCODED 1\n" : "");
                 auto vt = build_program("scene.vert", "vt.frag", variant);
                 if (!vt) return vt.error();
                 vt_programs_[sparse][fading] = std::move(*vt);
