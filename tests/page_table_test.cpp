@@ -638,6 +638,124 @@ TEST(Residency, PagesSeenThisFrameAreNotEvicted) {
     EXPECT_EQ(r.resident_level(page(0, 0, 0)), 3);
 }
 
+// Motion prefetch: every other feedback sees the view ahead. With kept_frames 2 a page the view
+// itself saw one feedback ago is not evicted for one the view ahead wants; with 1 it would be.
+TEST(Residency, KeptFramesKeepThePagesOfTheLastFeedbacks) {
+    for (const std::uint32_t bad : {0u, 65u}) {
+        ResidencyConfig c;
+        c.pool_slots = 4;
+        c.kept_frames = bad;
+        auto made = Residency::create(c);
+        ASSERT_FALSE(made.ok()) << bad;
+        EXPECT_NE(made.error().message.find("kept_frames must be 1..64"), std::string::npos) << made.error().message;
+    }
+    for (const std::uint32_t kept : {1u, 2u}) {
+        ResidencyConfig c;
+        c.pool_slots = 3;
+        c.pinned_levels = 1;
+        c.kept_frames = kept;
+        auto made = Residency::create(c);
+        ASSERT_TRUE(made.ok());
+        Residency& r = *made;
+        ASSERT_TRUE(r.add_texture(1, 8, 8, 4).ok());
+        const PageKey on_screen = page(0, 0, 0), ahead = page(0, 7, 7), next = page(0, 6, 7);
+        // The page acquire_slot(next) evicts now (a default PageKey: none); the slot is given back.
+        const auto victim = [&]() -> PageKey {
+            auto g = r.acquire_slot(next);
+            EXPECT_TRUE(g.ok());
+            if (!g.ok() || g->slot == kNoSlot) return PageKey{};
+            EXPECT_TRUE(g->evicted);
+            EXPECT_TRUE(r.cancel(g->slot).ok());
+            return g->victim;
+        };
+        ASSERT_TRUE(r.begin_frame(1).ok());  // the view itself
+        load(r, page(3, 0, 0));
+        load(r, on_screen);
+        ASSERT_TRUE(r.begin_frame(2).ok());  // the view ahead: on_screen not in it
+        load(r, ahead);
+        if (kept == 1) {
+            EXPECT_EQ(victim(), on_screen) << "seen one feedback ago, evicted for a page of the view ahead";
+            continue;
+        }
+        EXPECT_EQ(victim(), PageKey{}) << "seen one feedback ago: kept";
+        ASSERT_TRUE(r.begin_frame(3).ok());  // the view itself
+        r.touch(on_screen);
+        EXPECT_EQ(victim(), PageKey{});
+        ASSERT_TRUE(r.begin_frame(4).ok());  // the view ahead
+        r.touch(ahead);
+        EXPECT_EQ(victim(), PageKey{});
+        ASSERT_TRUE(r.begin_frame(5).ok());  // neither: on_screen (frame 3) is older than ahead (4)
+        EXPECT_EQ(victim(), on_screen);
+        EXPECT_EQ(r.stats().evictions, 1u);
+    }
+}
+
+// Leaving (fade out): a victim seen in the last fade_out_frames frames is not taken at once; it
+// stays mapped until finish_leaving (or the deadline), at most max_leaving at once; older victims
+// and pinned loads evict at once as before.
+TEST(Residency, RecentlySeenVictimsLeaveBeforeTheirSlotIsFree) {
+    ResidencyConfig c;
+    c.pool_slots = 3;
+    c.pinned_levels = 1;
+    c.fade_out_frames = 4;
+    c.max_leaving = 1;
+    auto made = Residency::create(c);
+    ASSERT_TRUE(made.ok());
+    Residency& r = *made;
+    ASSERT_TRUE(r.add_texture(1, 8, 8, 4).ok());
+    const PageKey a = page(0, 0, 0), b = page(0, 1, 0), n1 = page(0, 5, 5), n2 = page(0, 6, 6);
+    ASSERT_TRUE(r.begin_frame(1).ok());
+    load(r, page(3, 0, 0));
+    load(r, a);
+    load(r, b);
+    ASSERT_TRUE(r.begin_frame(2).ok());  // a and b seen 1 frame ago: they leave, one at a time
+    auto g = r.acquire_slot(n1);
+    ASSERT_TRUE(g.ok());
+    EXPECT_EQ(g->slot, kNoSlot);
+    EXPECT_FALSE(g->evicted);
+    ASSERT_NE(g->leaving, kNoSlot);
+    EXPECT_EQ(g->victim, a);
+    EXPECT_TRUE(r.is_resident(a)) << "a leaving page stays mapped (drawn, fading out)";
+    EXPECT_EQ(r.stats().leaving, 1u);
+    auto g2 = r.acquire_slot(n2);
+    ASSERT_TRUE(g2.ok());
+    EXPECT_EQ(g2->slot, kNoSlot);
+    EXPECT_EQ(g2->leaving, kNoSlot) << "max_leaving 1";
+    EXPECT_TRUE(r.is_resident(b));
+    EXPECT_FALSE(r.finish_leaving(g->leaving + 1).ok()) << "not leaving";
+    auto gone = r.finish_leaving(g->leaving);
+    ASSERT_TRUE(gone.ok());
+    EXPECT_EQ(*gone, a);
+    EXPECT_FALSE(r.is_resident(a));
+    EXPECT_EQ(r.resident_level(a), 3) << "unmapped: falls back to the pinned root";
+    EXPECT_EQ(r.stats().evictions, 1u);
+    EXPECT_FALSE(r.finish_leaving(g->leaving).ok()) << "finished once";
+    auto g3 = r.acquire_slot(n1);  // the freed slot
+    ASSERT_TRUE(g3.ok());
+    EXPECT_EQ(g3->slot, g->leaving);
+    EXPECT_FALSE(g3->evicted);
+    ASSERT_TRUE(r.complete(n1, g3->slot).ok());
+    // b, unseen for fade_out_frames frames, is evicted at once.
+    ASSERT_TRUE(r.begin_frame(5).ok());
+    r.touch(n1);
+    EXPECT_EQ(evict_for(r, n2), b);
+    // The deadline: a leaving page the uploader never reports leaves anyway.
+    ASSERT_TRUE(r.begin_frame(6).ok());
+    auto g4 = r.acquire_slot(a);  // n1 (frame 5) and n2 (frame 5) seen within 4 frames
+    ASSERT_TRUE(g4.ok());
+    ASSERT_NE(g4->leaving, kNoSlot);
+    ASSERT_TRUE(r.begin_frame(6 + Residency::kLeaveDeadlineFrames - 1).ok());
+    EXPECT_EQ(r.stats().leaving, 1u);
+    ASSERT_TRUE(r.begin_frame(6 + Residency::kLeaveDeadlineFrames).ok());
+    EXPECT_EQ(r.stats().leaving, 0u);
+    EXPECT_EQ(r.stats().free_slots, 1u);
+    {
+        ResidencyConfig bad = c;
+        bad.max_leaving = 0;
+        EXPECT_FALSE(Residency::create(bad).ok());
+    }
+}
+
 TEST(Residency, SeveralTexturesShareOnePool) {
     Residency r = make_residency(4);
     ASSERT_TRUE(r.add_texture(1, 8, 8, 4).ok());

@@ -1191,6 +1191,140 @@ TEST_P(RenderFadeEncoded, EveryPixelMovesByAnEighthOfItsOwnChangePerStep) {
 INSTANTIATE_TEST_SUITE_P(Filters, RenderFadeEncoded, ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear),
                          [](const auto& p) { return std::string(filter_name(p.param)); });
 
+// Fading out (docs/client.md, "Replacement"; docs/renderer.md, "Blending in"): level `fine` and
+// its parent level resident and faded in, at a static camera; then every page of level `fine`
+// leaves (fade_out). Each frame moves by at most an eighth of the whole change (+2), the slots come
+// back from take_faded_out only once the pages have faded out, and unmapping them then changes
+// nothing (max difference <= 1): the frame is the parent level's, as a renderer without blending
+// draws it with level `fine` absent.
+void expect_fades_out(gl::Filter filter) {
+    ScratchDir dir;
+    auto pattern = pattern_source(1024, 1024);
+    const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);
+    auto levels = gl::decode_store_levels(store);
+    ASSERT_TRUE(levels.ok()) << levels.error().message;
+    const auto info = store_geometry(1024, 1024, 64);
+    const std::uint32_t ts = info.tile_size(), P = info.tile_payload, B = info.border, fine = 2;
+    for (std::size_t i = 0; i < (*levels)[fine + 1].rgba8.size(); ++i)  // a change no fade could hide
+        if (i % 4 != 3) (*levels)[fine + 1].rgba8[i] = std::uint8_t(255 - (*levels)[fine + 1].rgba8[i]);
+    auto cfg = config(filter, ts, 64, /*srgb=*/true, 192, 144);
+    const double fade_s = 0.2;
+    cfg.fade_ms = float(fade_s * 1000);
+    auto plain_cfg = cfg;
+    plain_cfg.fade_ms = 0;
+    auto made = gl::VtRenderer::create(cfg);
+    ASSERT_TRUE(made.ok()) << made.error().message;
+    auto plain_made = gl::VtRenderer::create(plain_cfg);
+    ASSERT_TRUE(plain_made.ok()) << plain_made.error().message;
+    gl::VtRenderer& fading = **made;
+    gl::VtRenderer& plain = **plain_made;
+    EXPECT_TRUE(fading.fades_out());
+    EXPECT_FALSE(plain.fades_out());
+    const auto scene = terrain(1024, 1024, 256);
+    for (gl::VtRenderer* r : {&fading, &plain}) {
+        ASSERT_TRUE(r->add_texture(0, info).ok());
+        ASSERT_TRUE(r->set_scene(scene, 0).ok());
+    }
+    auto table = PageTable::create(0, info.levels[0].tiles_x, info.levels[0].tiles_y, info.level_count());
+    ASSERT_TRUE(table.ok()) << table.error().message;
+    std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
+    tessera::client::SlotId next = 0;
+    std::vector<std::pair<PageKey, tessera::client::SlotId>> fine_pages;
+    const auto upload_tables = [&] {
+        upload_dirty(*table, fading);
+        table->mark_all_dirty();
+        upload_dirty(*table, plain);
+    };
+    for (const std::uint32_t l : {info.level_count() - 1, fine + 1, fine}) {
+        for (std::uint32_t py = 0; py < info.levels[l].tiles_y; ++py)
+            for (std::uint32_t px = 0; px < info.levels[l].tiles_x; ++px) {
+                cut_page((*levels)[l], px, py, ts, P, B, page);
+                const PageKey key{0, std::uint8_t(l), px, py};
+                fading.upload_page(next, key, page, ts);
+                plain.upload_page(next, key, page, ts);
+                ASSERT_TRUE(table->map(l, px, py, next).ok());
+                if (l == fine) fine_pages.emplace_back(key, next);
+                ++next;
+            }
+    }
+    upload_tables();
+    const double lod = fine + (filter == gl::Filter::bilinear ? 0.0 : 0.5);
+    const auto cam = straight_down(512, 512, height_for(std::exp2(lod), straight_down(0, 0, 1), cfg.height));
+    const auto frame_at = [&](double t) {
+        fading.set_time(t);
+        return render_vt(fading, cam);
+    };
+    double t = 0;
+    for (; t <= fade_s + 1e-9; t += fade_s / 4) frame_at(t);
+    ASSERT_EQ(fading.stats().fading_pages, 0u) << "everything has faded in";
+    const Frame before = frame_at(t);
+    EXPECT_EQ(before.counters.fallback_unbiased, 0u);
+
+    std::vector<tessera::client::SlotId> gone;
+    for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
+    fading.take_faded_out(gone);
+    EXPECT_TRUE(gone.empty()) << "nothing has faded out before a frame is drawn";
+    // Where it ends: level `fine` absent, drawn without blending.
+    for (const auto& [key, slot] : fine_pages) ASSERT_TRUE(table->unmap(key.level, key.x, key.y).ok());
+    table->mark_all_dirty();
+    upload_dirty(*table, plain);
+    const Frame after = render_vt(plain, cam);
+    EXPECT_GT(after.counters.fallback_unbiased, 0u);
+    const auto mask = coverage(after.rgba);
+    ASSERT_GT(count(mask), std::size_t(cfg.width * cfg.height / 2));
+    const auto max_diff = [&](const std::vector<std::uint8_t>& a, const std::vector<std::uint8_t>& b) {
+        int m = 0;
+        for (std::size_t i = 0; i < mask.size(); ++i)
+            for (std::size_t ch = 0; mask[i] && ch < 3; ++ch) m = std::max(m, std::abs(int(a[i * 4 + ch]) - int(b[i * 4 + ch])));
+        return m;
+    };
+    const int whole = max_diff(before.rgba, after.rgba);
+    EXPECT_GE(whole, 64) << "the levels must differ for the test to see a fade";
+    const int step_bound = (whole + 7) / 8 + 2;
+    std::vector<std::uint8_t> last = before.rgba;
+    int largest_step = 0;
+    for (int k = 0; k <= 8; ++k) {
+        const Frame f = frame_at(t + k * fade_s / 8);
+        const int step = max_diff(last, f.rgba);
+        if (k == 0) {
+            EXPECT_LE(step, 2) << "the leaving pages first show as they were";
+        } else {
+            EXPECT_LE(step, step_bound) << "frame " << k << " of the fade out changes by more than an eighth of " << whole;
+        }
+        fading.take_faded_out(gone);
+        if (k < 8) {
+            EXPECT_TRUE(gone.empty()) << "frame " << k << ": a slot came back before its page faded out";
+        }
+        largest_step = std::max(largest_step, step);
+        last = f.rgba;
+    }
+    EXPECT_GT(largest_step, 0);
+    EXPECT_EQ(gone.size(), fine_pages.size()) << "every leaving page has faded out";
+    EXPECT_EQ(fading.stats().fading_pages, fine_pages.size()) << "drawn at weight 0 until their slots are taken";
+    const int at_weight_zero = max_diff(last, after.rgba);
+    EXPECT_LE(at_weight_zero, 1) << "faded out, the pages draw what is above them";
+    // Unmapped now (what the runtime does with the slots it gets back): nothing changes.
+    table->mark_all_dirty();
+    upload_dirty(*table, fading);
+    const Frame unmapped = frame_at(t + 2 * fade_s);
+    const int at_unmap = max_diff(last, unmapped.rgba);
+    EXPECT_LE(at_unmap, 1) << "unmapping a page that has faded out is not seen";
+    EXPECT_EQ(fading.stats().fading_pages, 0u);
+    std::printf("  %s: the whole change %d, largest step %d (bound %d), at weight 0 max error %d against level %u absent, "
+                "then at the unmap %d\n",
+                filter_name(filter), whole, largest_step, step_bound, at_weight_zero, fine, at_unmap);
+}
+
+class RenderFadeOut : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderFadeOut, ALeavingPageFadesToItsAncestorBeforeItsSlotComesBack) {
+    REQUIRE_GL(ctx);
+    expect_fades_out(GetParam());
+}
+
+INSTANTIATE_TEST_SUITE_P(Filters, RenderFadeOut, ::testing::Values(gl::Filter::bilinear, gl::Filter::trilinear),
+                         [](const auto& p) { return std::string(filter_name(p.param)); });
+
 TEST(RenderCounters, FallbackPixelsAgainstTheUnbiasedAndTheBiasedLevel) {
     REQUIRE_GL(ctx);
     const auto info = store_geometry(2048, 2048, 128);

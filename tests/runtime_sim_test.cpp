@@ -4,7 +4,9 @@
 // small, churn bounded, and the bias returning to 0 when the pressure goes away.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <deque>
 #include <map>
 #include <set>
@@ -227,6 +229,53 @@ TEST_F(RuntimeSim, MovingCameraKeepsUpAndTheBiasReturnsWhenPressureGoes) {
     for (std::size_t f = 0; f < r.evicted.size(); ++f) EXPECT_LE(r.evicted[f], 8u) << "frame " << f;
     // Detail comes back: the still view ends fully resident.
     EXPECT_EQ(r.fallback.back(), 0.0f);
+}
+
+// Fading out (docs/client.md, "Replacement"): with an uploader that fades pages out, a victim the
+// feedback saw in the last fade_out_frames frames leaves over the fade: it stays mapped until its
+// slot comes back from take_faded_out, nothing is written into a leaving slot, and detail still
+// comes back. Without it (the default uploader) victims go at once.
+TEST_F(RuntimeSim, RecentlySeenVictimsFadeOutBeforeTheirSlotsAreReused) {
+    for (const std::uint32_t fade_frames : {0u, 9u}) {
+        FakeUploader up;
+        up.set_fade_out_frames(fade_frames);
+        DelayedSource src(path_, 2);
+        auto rt = make(40, up, src);
+        const auto& info = *rt->texture_info(0);
+        std::size_t most_leaving = 0, leaving_but_unmapped = 0;
+        float last_fallback = 1, peak_bias = 0;
+        for (unsigned f = 0; f < 700; ++f) {
+            // As MovingCameraKeepsUpAndTheBiasReturnsWhenPressureGoes: a sweep too wide for the
+            // pool, then a still view from far.
+            const double cx = f < 300 ? 1500 + 8.0 * f : 4000, tpp = f < 300 ? 0.75 : 24;
+            const float b = rt->lod_bias();
+            src.tick();
+            const auto& st = rt->frame(feedback(info, 160, 90, cx, 4000, tpp, b), 160, 90, b);
+            last_fallback = st.fallback_estimate;
+            peak_bias = std::max(peak_bias, st.lod_bias);
+            const auto leaving = up.leaving();
+            most_leaving = std::max(most_leaving, leaving.size());
+            EXPECT_EQ(rt->residency().stats().leaving, leaving.size()) << "frame " << f;
+            // A leaving slot's page (the last one written into it) is still mapped there.
+            for (const SlotId slot : leaving) {
+                const auto& calls = up.pages();
+                const auto last = std::find_if(calls.rbegin(), calls.rend(), [&](const auto& c) { return c.slot == slot; });
+                if (last == calls.rend() || !rt->residency().is_resident(last->page)) ++leaving_but_unmapped;
+            }
+        }
+        EXPECT_EQ(up.written_while_leaving(), 0u);
+        EXPECT_EQ(leaving_but_unmapped, 0u);
+        EXPECT_GT(peak_bias, 0.0f) << "the sweep must put the pool under pressure";
+        EXPECT_EQ(last_fallback, 0.0f) << "detail comes back";
+        if (fade_frames == 0) {
+            EXPECT_EQ(up.fade_out_calls(), 0u);
+        } else {
+            EXPECT_GT(up.fade_out_calls(), 0u) << "the sweep evicts pages it has just seen";
+            EXPECT_LE(most_leaving, 32u) << "ResidencyConfig::max_leaving";
+        }
+        std::printf("  fade out over %u frames: %zu pages faded out, at most %zu at once, %llu evictions\n", fade_frames,
+                    up.fade_out_calls(), most_leaving, static_cast<unsigned long long>(rt->residency().stats().evictions));
+    }
 }
 
 TEST_F(RuntimeSim, StaleRequestsAreCancelledAtTheSource) {

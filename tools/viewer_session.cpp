@@ -327,6 +327,8 @@ ViewerReport run_viewer(const ViewerOptions& o) {
 
     client::RuntimeConfig cfg;
     cfg.residency.pool_slots = o.pool;
+    // Motion prefetch: one feedback in motion_prefetch_every sees the view itself; its pages stay.
+    if (o.motion_prefetch_ms > 0) cfg.residency.kept_frames = std::clamp<std::uint32_t>(o.motion_prefetch_every, 1, 64);
     cfg.bias = o.bias;
     cfg.ram_cache_bytes = o.ram_cache_bytes;
     cfg.disk_cache_dir = o.disk_cache_dir;

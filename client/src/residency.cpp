@@ -20,6 +20,11 @@ Result<Residency> Residency::create(const ResidencyConfig& config) {
         return make_error(Errc::invalid_argument, "residency: pool_slots must be 1.." +
                                                       std::to_string(PageTable::kMaxSlots) + ", got " +
                                                       std::to_string(config.pool_slots));
+    if (config.fade_out_frames > 0 && config.max_leaving == 0)
+        return make_error(Errc::invalid_argument, "residency: max_leaving must be >= 1 when fade_out_frames > 0");
+    if (config.kept_frames == 0 || config.kept_frames > 64)
+        return make_error(Errc::invalid_argument,
+                          "residency: kept_frames must be 1..64, got " + std::to_string(config.kept_frames));
     return Residency(config);
 }
 
@@ -93,6 +98,15 @@ Status Residency::begin_frame(std::uint64_t frame) {
         return make_error(Errc::invalid_argument, "residency: frame " + std::to_string(frame) +
                                                       " is older than the current frame " + std::to_string(frame_));
     frame_ = frame;
+    // A leaving page whose uploader never said it has gone (a stalled renderer) leaves anyway.
+    for (std::size_t i = 0; i < leaving_.size();) {
+        const SlotId s = leaving_[i];
+        if (slots_[s].leave_start + kLeaveDeadlineFrames <= frame_) {
+            (void)finish_leaving(s);  // removes it from leaving_
+        } else {
+            ++i;
+        }
+    }
     return {};
 }
 
@@ -144,7 +158,7 @@ SlotId Residency::pick_victim(bool allow_current_frame) const {
     for (const List& list : lru_) {
         if (list.head == kNoSlot) continue;
         const Slot& s = slots_[list.head];
-        if (!allow_current_frame && s.last_seen >= frame_) continue;
+        if (!allow_current_frame && s.last_seen + config_.kept_frames > frame_) continue;
         if (best == kNoSlot || s.last_seen < slots_[best].last_seen) best = list.head;
     }
     return best;
@@ -165,9 +179,21 @@ Result<SlotGrant> Residency::acquire_slot(const PageKey& page) {
         grant.slot = free_.back();
         free_.pop_back();
     } else {
-        const SlotId victim = pick_victim(pinned_in(*t, page.level));
+        const bool pinned_page = pinned_in(*t, page.level);
+        const SlotId victim = pick_victim(pinned_page);
         if (victim == kNoSlot) return grant;  // everything evictable was seen this frame
         Slot& v = slots_[victim];
+        if (config_.fade_out_frames > 0 && !pinned_page && v.last_seen + config_.fade_out_frames > frame_) {
+            // Seen recently, maybe on screen: it fades out first (see "Leaving").
+            if (leaving_.size() >= config_.max_leaving) return grant;
+            unlink(victim);
+            v.state = SlotState::leaving;
+            v.leave_start = frame_;
+            leaving_.push_back(victim);
+            grant.leaving = victim;
+            grant.victim = v.page;
+            return grant;
+        }
         unlink(victim);
         // Unmap before overwrite: the victim's table region falls back to its nearest resident
         // ancestor now, before any byte of the new page reaches the slot.
@@ -221,6 +247,24 @@ Status Residency::cancel(SlotId slot) {
     return {};
 }
 
+Result<PageKey> Residency::finish_leaving(SlotId slot) {
+    const auto it = std::find(leaving_.begin(), leaving_.end(), slot);
+    if (slot >= slots_.size() || slots_[slot].state != SlotState::leaving || it == leaving_.end())
+        return make_error(Errc::invalid_argument, "finish_leaving: slot " + std::to_string(slot) + " is not leaving");
+    *it = leaving_.back();
+    leaving_.pop_back();
+    Slot& v = slots_[slot];
+    Texture* vt = find(v.page.texture);
+    const Status st = vt->table.unmap(v.page.level, v.page.x, v.page.y);
+    assert(st.ok());  // cannot fail: a leaving page stays mapped to its slot until here
+    (void)st;
+    --resident_;
+    ++evictions_;
+    v.state = SlotState::free;
+    free_.push_back(slot);
+    return v.page;
+}
+
 std::uint8_t Residency::resident_level(const PageKey& page) const {
     const Texture* t = find(page.texture);
     return t ? t->table.resident_level(page.level, page.x, page.y) : PageTable::kNotResident;
@@ -238,6 +282,7 @@ ResidencyStats Residency::stats() const {
     s.resident_pages = resident_;
     s.pinned_pages = pinned_resident_;
     s.in_flight = static_cast<std::uint32_t>(in_flight_.size());
+    s.leaving = static_cast<std::uint32_t>(leaving_.size());
     s.evictions = evictions_;
     return s;
 }

@@ -14,15 +14,23 @@
 //   ... upload into the slot ...
 //   complete(page, slot)           maps the page ("map after complete"); last seen = f
 //   cancel(slot)                   instead of complete: the upload was abandoned, the slot is free
+//   finish_leaving(slot)           a page that acquire_slot set leaving has faded out: unmapped,
+//                                  its slot free (pages left over kLeaveDeadlineFrames frames are
+//                                  finished by begin_frame, whatever the uploader says)
 //
+// Leaving (fade out): with fade_out_frames > 0 (set_fades_out), a victim seen in the last
+// fade_out_frames frames is not taken at once: acquire_slot answers kNoSlot and names it in
+// SlotGrant::leaving; it stays mapped (drawn, fading out) but is no longer a candidate, and its
+// slot is free once finish_leaving(slot) is called. At most max_leaving pages leave at once.
 // Replacement order (not seen recently first, finer levels before coarser, LRU among equals;
 // docs/client.md, "Replacement"), read as one sort key, smallest evicted first:
 //   1. last-seen frame, older first (exact frame numbers, not buckets);
 //   2. among pages last seen in the same frame: finer level first (level 0 before level 1);
 //   3. among those: least recently touched (or completed) first.
-// Pages last seen in the current frame are never evicted for an ordinary page: when only those
-// (and pinned or in-flight pages) are left, acquire_slot answers kNoSlot and the request waits for
-// a later frame; evicting a page the view is using right now to load another one would thrash.
+// Pages last seen in the current frame (or the last ResidencyConfig::kept_frames frames) are never
+// evicted for an ordinary page: when only those (and pinned or in-flight pages) are left,
+// acquire_slot answers kNoSlot and the request waits for a later frame; evicting a page the view
+// is using right now to load another one would thrash.
 // The one exception is a page of a pinned level (below): it may evict a page seen this frame,
 // since the pinned levels are what every fallback ends at.
 //
@@ -55,7 +63,8 @@ struct ResidencyStats {
     std::uint32_t resident_pages = 0;  // mapped, all textures, pinned included
     std::uint32_t pinned_pages = 0;    // resident pages of pinned levels
     std::uint32_t in_flight = 0;       // acquired, not yet completed or cancelled
-    std::uint64_t evictions = 0;       // since creation
+    std::uint32_t leaving = 0;         // resident, fading out (see "Leaving")
+    std::uint64_t evictions = 0;       // since creation, leaving pages once they have left
 };
 
 // What acquire_slot() gives.
@@ -63,11 +72,14 @@ struct SlotGrant {
     SlotId slot = kNoSlot;  // kNoSlot: nothing may be evicted now (see above); try a later frame
     bool evicted = false;   // the slot was taken from `victim` (already unmapped)
     PageKey victim{};
+    // kNoSlot now, but this slot's page (seen recently: maybe on screen) starts leaving; the slot
+    // is free once finish_leaving(leaving) is called.
+    SlotId leaving = kNoSlot;
 };
 
 class Residency {
 public:
-    // Errors (invalid_argument): pool_slots 0 or over PageTable::kMaxSlots.
+    // Errors (invalid_argument): pool_slots 0 or over PageTable::kMaxSlots, kept_frames not 1..64.
     static Result<Residency> create(const ResidencyConfig& config);
 
     // Registers a texture and creates its page table (level-0 page counts and level count as in
@@ -97,6 +109,12 @@ public:
     Status complete(const PageKey& page, SlotId slot);
     // Frees a slot that acquire_slot gave and that was never completed. Errors: not in flight.
     Status cancel(SlotId slot);
+    // Turns leaving on or off (fade_out_frames 0: off), e.g. when the uploader cannot fade out.
+    void set_fade_out(std::uint32_t fade_out_frames) { config_.fade_out_frames = fade_out_frames; }
+    // The page leaving `slot` has faded out: unmaps it and frees the slot; returns the page.
+    // Errors (invalid_argument): the slot is not leaving.
+    Result<PageKey> finish_leaving(SlotId slot);
+    static constexpr std::uint64_t kLeaveDeadlineFrames = 240;
 
     // Nearest resident level of `page` (itself or an ancestor), PageTable::kNotResident (255) when
     // none or when the page is unknown. (The ResidencyView query.)
@@ -106,10 +124,11 @@ public:
     ResidencyStats stats() const;
 
 private:
-    enum class SlotState : std::uint8_t { free, in_flight, resident, pinned };
+    enum class SlotState : std::uint8_t { free, in_flight, resident, pinned, leaving };
     struct Slot {
         PageKey page{};
         std::uint64_t last_seen = 0;
+        std::uint64_t leave_start = 0;  // leaving: the frame it started leaving
         SlotId prev = kNoSlot;
         SlotId next = kNoSlot;
         SlotState state = SlotState::free;
@@ -138,6 +157,7 @@ private:
     std::array<List, kMaxLevels> lru_{};
     std::unordered_map<TextureId, Texture> textures_;
     std::unordered_map<PageKey, SlotId, PageKeyHash> in_flight_;
+    std::vector<SlotId> leaving_;  // at most config_.max_leaving
     std::uint64_t frame_ = 0;
     std::uint64_t pinned_pages_total_ = 0;  // pinned pages of all registered textures
     std::uint32_t resident_ = 0;

@@ -522,6 +522,15 @@ private:
 
     void upload(Clock::time_point now) {
         evicted_wanted_ = 0;
+        // Pages that have faded out: gone now, their slots free for this frame's uploads.
+        faded_out_.clear();
+        uploader_.take_faded_out(faded_out_);
+        for (const SlotId slot : faded_out_) {
+            const auto gone = residency_.finish_leaving(slot);
+            if (!gone) continue;  // the deadline finished it already (Residency::begin_frame)
+            ++stats_.pages_evicted;
+            if (desired_.contains(*gone)) ++evicted_wanted_;
+        }
         ready_.clear();
         uploads_.take_frame(ready_);
         for (auto& p : ready_) {
@@ -530,9 +539,10 @@ private:
             tickets_.erase(p.ticket);
             if (it == work_.end()) continue;
             auto grant = residency_.acquire_slot(key);
+            if (grant && grant->leaving != kNoSlot) uploader_.fade_out(grant->leaving);  // its slot frees later
             if (!grant || grant->slot == kNoSlot) {
-                // No slot may be evicted this frame (everything resident is in view): drop it;
-                // the bias controller sees the pressure.
+                // No slot now (everything resident is in view, or the victim fades out first):
+                // drop it; the feedback asks again, and the bias controller sees the pressure.
                 free_staging_.push_back(it->second.staging);
                 work_.erase(it);
                 continue;
@@ -623,6 +633,7 @@ private:
     std::vector<std::vector<std::uint8_t>> staging_;
     std::vector<int> free_staging_;
     std::uint32_t evicted_wanted_ = 0;
+    std::vector<SlotId> faded_out_;  // upload()'s scratch
 
     // Per-frame scratch (kept to avoid reallocating).
     std::vector<std::pair<float, PageKey>> order_;
@@ -644,7 +655,9 @@ private:
 Result<std::unique_ptr<Runtime>> Runtime::create(const RuntimeConfig& config, PageUploader& uploader) {
     if (config.residency.pool_slots == 0) return Error{Errc::invalid_argument, "the page pool needs at least one slot"};
     if (config.max_requests_in_flight == 0) return Error{Errc::invalid_argument, "max_requests_in_flight must be >= 1"};
-    auto residency = Residency::create(config.residency);
+    ResidencyConfig rc = config.residency;
+    rc.fade_out_frames = uploader.fades_out() ? config.fade_out_frames : 0;  // fading out is the uploader's to do
+    auto residency = Residency::create(rc);
     if (!residency) return residency.error();
     auto rt = std::make_unique<RuntimeImpl>(config, uploader, std::move(*residency));
     TESSERA_TRY(rt->open_disk_cache());

@@ -6,6 +6,8 @@ namespace tessera::client {
 
 void FakeUploader::upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) {
     if (page_data.size() != format_.upload_bytes(tile_size)) ++malformed_;
+    for (const auto& l : leaving_)
+        if (l.first == slot) ++written_while_leaving_;
     pages_.push_back(PageCall{seq_++, slot, page, tile_size, std::vector<std::uint8_t>(page_data.begin(), page_data.end())});
 }
 
@@ -20,6 +22,28 @@ void FakeUploader::upload_page_table_block(TextureId texture, std::uint8_t level
                                            std::span<const std::uint32_t> entries) {
     if (!entries.empty() && entries.size() != PageTable::kBlockEntries) ++malformed_;
     blocks_.push_back(BlockCall{seq_++, texture, level, bx, by, std::vector<std::uint32_t>(entries.begin(), entries.end())});
+}
+
+void FakeUploader::fade_out(SlotId slot) {
+    ++fade_out_calls_;
+    leaving_.emplace_back(slot, fade_out_frames_);
+}
+
+void FakeUploader::take_faded_out(std::vector<SlotId>& out) {
+    for (auto it = leaving_.begin(); it != leaving_.end();) {
+        if (--it->second == 0) {
+            out.push_back(it->first);
+            it = leaving_.erase(it);
+        } else {
+            ++it;
+        }
+    }
+}
+
+std::vector<SlotId> FakeUploader::leaving() const {
+    std::vector<SlotId> s;
+    for (const auto& l : leaving_) s.push_back(l.first);
+    return s;
 }
 
 void FakeUploader::clear() {

@@ -28,11 +28,30 @@ Status PageFade::init(std::uint32_t columns, std::uint32_t rows, float fade_ms) 
 void PageFade::arrived(SlotId slot) {
     if (!enabled() || std::size_t(slot) >= weights_.size()) return;
     if (const std::uint32_t i = fading_index_[slot]; i != 0) {
-        fading_[i - 1].start = -1;  // overwritten while fading: the new page starts over
+        fading_[i - 1] = {slot, -1, 0.0, false};  // overwritten while fading: the new page starts over
         return;
     }
-    fading_.push_back({slot, -1});
+    fading_.push_back({slot, -1, 0.0, false});
     fading_index_[slot] = std::uint32_t(fading_.size());
+}
+
+void PageFade::leaving(SlotId slot) {
+    if (!enabled() || std::size_t(slot) >= weights_.size()) {
+        gone_.push_back(slot);  // nothing to fade: gone at once
+        return;
+    }
+    const Fading f{slot, -1, weights_[slot] / 255.0, true};  // from where it is, fading in or not
+    if (const std::uint32_t i = fading_index_[slot]; i != 0) {
+        fading_[i - 1] = f;
+        return;
+    }
+    fading_.push_back(f);
+    fading_index_[slot] = std::uint32_t(fading_.size());
+}
+
+void PageFade::take_gone(std::vector<SlotId>& out) {
+    out.insert(out.end(), gone_.begin(), gone_.end());
+    gone_.clear();
 }
 
 float PageFade::frame(double now, float requested_bias) {
@@ -50,14 +69,16 @@ float PageFade::frame(double now, float requested_bias) {
     for (std::size_t i = 0; i < fading_.size();) {
         Fading& f = fading_[i];
         if (f.start < 0) f.start = now;
-        const double w = std::clamp((now - f.start) / fade_s_, 0.0, 1.0);
+        const double moved = (now - f.start) / fade_s_;
+        const double w = std::clamp(f.out ? f.from - moved : f.from + moved, 0.0, 1.0);
         const auto weight = std::uint8_t(std::lround(w * 255.0));
         if (weights_[f.slot] != weight) {
             weights_[f.slot] = weight;
             first_row = std::min(first_row, f.slot / columns_);
             last_row = std::max(last_row, f.slot / columns_);
         }
-        if (weight == 255) {  // faded in: swap with the last
+        if (weight == (f.out ? 0 : 255)) {  // faded in or out: swap with the last
+            if (f.out) gone_.push_back(f.slot);
             fading_index_[f.slot] = 0;
             if (i + 1 != fading_.size()) {
                 f = fading_.back();

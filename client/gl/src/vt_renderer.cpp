@@ -215,6 +215,10 @@ public:
         ++stats_.pages_uploaded;
     }
 
+    bool fades_out() const override { return fade_.enabled(); }
+    void fade_out(SlotId slot) override { fade_.leaving(slot); }
+    void take_faded_out(std::vector<SlotId>& out) override { fade_.take_gone(out); }
+
     void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
                            std::uint32_t h, std::span<const std::uint32_t> entries) override {
         count(tables_.upload_rect(texture, level, x0, y0, w, h, entries));

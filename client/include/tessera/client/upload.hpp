@@ -67,6 +67,14 @@ public:
     // ignore page tables (benchmarks, load tests).
     virtual void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
                                          std::span<const std::uint32_t> entries);
+    // Fading out (docs/client.md, "Replacement"). Whether this uploader fades pages out; the
+    // default does not, and then evictions are at once.
+    virtual bool fades_out() const { return false; }
+    // The page in `slot` leaves: it stays mapped, and is drawn fading out to what is above it.
+    // The slot is not written until take_faded_out() has given it back.
+    virtual void fade_out(SlotId /*slot*/) {}
+    // Appends the slots whose page has faded out since the last call.
+    virtual void take_faded_out(std::vector<SlotId>& /*out*/) {}
 };
 
 // A page ready to upload.

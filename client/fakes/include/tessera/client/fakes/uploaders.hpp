@@ -5,6 +5,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "tessera/client/upload.hpp"
@@ -45,6 +46,17 @@ public:
     void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
                                  std::span<const std::uint32_t> entries) override;
 
+    // Fading out like a renderer that takes `frames` calls of take_faded_out (one per runtime
+    // frame) to fade a page out; 0 (the default): does not fade out.
+    void set_fade_out_frames(std::uint32_t frames) { fade_out_frames_ = frames; }
+    bool fades_out() const override { return fade_out_frames_ > 0; }
+    void fade_out(SlotId slot) override;
+    void take_faded_out(std::vector<SlotId>& out) override;
+    std::size_t fade_out_calls() const { return fade_out_calls_; }
+    // Slots leaving now, and pages written into a slot while it was leaving (a runtime bug).
+    std::vector<SlotId> leaving() const;
+    std::size_t written_while_leaving() const { return written_while_leaving_; }
+
     const std::vector<PageCall>& pages() const { return pages_; }
     const std::vector<TableCall>& tables() const { return tables_; }
     const std::vector<BlockCall>& blocks() const { return blocks_; }
@@ -60,6 +72,9 @@ private:
     std::vector<TableCall> tables_;
     std::vector<BlockCall> blocks_;
     std::size_t malformed_ = 0;
+    std::uint32_t fade_out_frames_ = 0;
+    std::vector<std::pair<SlotId, std::uint32_t>> leaving_;  // slot, take_faded_out calls left
+    std::size_t fade_out_calls_ = 0, written_while_leaving_ = 0;
 };
 
 // Discards every call: a viewer with no GPU (load tests, benchmarks).
