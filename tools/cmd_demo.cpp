@@ -56,7 +56,7 @@ Command add_demo(CLI::App& app) {
     c->add_option("--page-format", a->page_format, "auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f (tessera view --help)")->capture_default_str();
     c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
     c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
-    c->add_option("--fade-ms", a->fade_ms, "arriving pages blend in over this many milliseconds (0: off)")->capture_default_str();
+    c->add_option("--fade-ms", a->fade_ms, "arriving pages blend in, and evicted pages in view fade out, over this many milliseconds (0: off)")->capture_default_str();
     c->add_option("--motion-prefetch-ms", a->motion_prefetch_ms,
                   "every other frame's feedback sees the view this far ahead, from the camera's motion (0: off)")
         ->capture_default_str();

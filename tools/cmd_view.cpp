@@ -60,8 +60,8 @@ Command add_view(CLI::App& app) {
     c->add_option("--guard-band", o->guard_band, "feedback sees this fraction more of the scene on each side (0..1)")
         ->capture_default_str();
     c->add_option("--fade-ms", o->fade_ms,
-                  "arriving pages blend in from their parent level over this many milliseconds, and LoD-bias changes "
-                  "spread over as long (0: off, pages show at once)")
+                  "arriving pages blend in from what was drawn before them over this many milliseconds, evicted pages "
+                  "still in view fade out, and LoD-bias changes spread over as long (0: off, pages show and go at once)")
         ->capture_default_str();
     c->add_option("--motion-prefetch-ms", o->motion_prefetch_ms,
                   "motion prefetch: the feedback of every --motion-prefetch-every-th frame sees the view this many "

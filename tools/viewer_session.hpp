@@ -15,7 +15,7 @@ namespace tessera::tools {
 
 // Blending in: how long an arriving page takes to reach full weight, by default (docs/benchmarks.md,
 // "Popping": the pop rate against the fade time).
-constexpr float kDefaultFadeMs = 150.0f;
+constexpr float kDefaultFadeMs = 250.0f;
 // Motion prefetch: how far ahead the predicted view is, by default (docs/benchmarks.md, "Motion
 // prefetch").
 constexpr double kDefaultMotionPrefetchMs = 200.0;
