@@ -59,22 +59,9 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
     if (opt.sparse && !si.has_alpha)
         return make_error(Errc::invalid_argument, "--sparse needs a source with an alpha channel; " + si.description + " has none");
 
-    StoreSpec spec;
-    spec.width = si.width;
-    spec.height = si.height;
-    spec.tile_payload = opt.tile_size - 2 * opt.border;
-    spec.border = opt.border;
-    spec.channels = si.channels;
-    spec.sample_type = si.sample_type;
-    spec.colour_space = opt.colour_space.value_or(si.colour_space);
-    spec.has_alpha = si.has_alpha;
-    spec.codec = opt.codec.value_or(build::default_codec(si));
-    if (const std::string misfit = codec_misfit(spec.codec, si.sample_type, si.channels, opt.tile_size, opt.border);
-        !misfit.empty())
-        return make_error(Errc::invalid_argument, "--codec " + std::string(to_string(spec.codec)) + ": " + misfit + "; " +
-                                                      si.description + " has " + std::to_string(si.channels) + " channels of " +
-                                                      std::string(to_string(si.sample_type)) + " (use --codec zstd)");
-    TESSERA_TRY(validate(spec));
+    auto made_spec = build::store_spec(si, opt);
+    if (!made_spec) return made_spec.error();
+    const StoreSpec spec = *made_spec;
 
     const StoreInfo store = store_info(spec);
 

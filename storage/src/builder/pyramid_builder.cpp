@@ -169,6 +169,26 @@ Codec default_codec(const SourceInfo& si) {
     return si.sample_type == SampleType::u8 && (si.channels == 1 || si.channels == 3) ? Codec::jpeg : Codec::zstd;
 }
 
+Result<StoreSpec> store_spec(const SourceInfo& si, const BuildOptions& opt) {
+    StoreSpec spec;
+    spec.width = si.width;
+    spec.height = si.height;
+    spec.tile_payload = opt.tile_size - 2 * opt.border;
+    spec.border = opt.border;
+    spec.channels = si.channels;
+    spec.sample_type = si.sample_type;
+    spec.colour_space = opt.colour_space.value_or(si.colour_space);
+    spec.has_alpha = si.has_alpha;
+    spec.codec = opt.codec.value_or(default_codec(si));
+    if (const std::string misfit = codec_misfit(spec.codec, si.sample_type, si.channels, opt.tile_size, opt.border);
+        !misfit.empty())
+        return make_error(Errc::invalid_argument, "--codec " + std::string(to_string(spec.codec)) + ": " + misfit + "; " +
+                                                      si.description + " has " + std::to_string(si.channels) + " channels of " +
+                                                      std::string(to_string(si.sample_type)) + " (use --codec zstd)");
+    TESSERA_TRY(validate(spec));
+    return spec;
+}
+
 void stream_sources(std::span<ImageSource* const> sources, std::span<PyramidBuilder* const> pyramids, ThreadPool& pool,
                     FirstError& error, const std::function<void(std::uint64_t rows_done)>& on_strip) {
     const ParallelFor parallel = [&pool](std::size_t n, const std::function<void(std::size_t, std::size_t)>& fn) {

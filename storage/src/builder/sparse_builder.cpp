@@ -213,21 +213,10 @@ Result<BuildSummary> build_sparse_store(const SparseSource& source, const std::s
         if (std::uint64_t(r.x) + r.width > si.width || std::uint64_t(r.y) + r.height > si.height)
             return make_error(Errc::invalid_argument, si.description + ": a present rectangle lies outside the canvas");
 
-    StoreSpec spec;
-    spec.width = si.width;
-    spec.height = si.height;
-    spec.tile_payload = opt.tile_size - 2 * opt.border;
-    spec.border = opt.border;
-    spec.channels = si.channels;
-    spec.sample_type = si.sample_type;
-    spec.colour_space = opt.colour_space.value_or(si.colour_space);
-    spec.has_alpha = true;
+    auto made_spec = build::store_spec(si, opt);  // has_alpha: checked above
+    if (!made_spec) return made_spec.error();
+    StoreSpec spec = *made_spec;
     spec.sparse_index = true;  // block tables of the non-empty blocks: the index follows the data
-    spec.codec = opt.codec.value_or(build::default_codec(si));
-    if (const std::string misfit = codec_misfit(spec.codec, si.sample_type, si.channels, opt.tile_size, opt.border); !misfit.empty())
-        return make_error(Errc::invalid_argument, "--codec " + std::string(to_string(spec.codec)) + ": " + misfit + "; " + si.description +
-                                                      " has " + std::to_string(si.channels) + " channels of " +
-                                                      std::string(to_string(si.sample_type)) + " (use --codec zstd)");
     TESSERA_TRY(validate(spec));
     const StoreInfo store = store_info(spec);
     const std::uint32_t P = store.tile_payload, B = store.border, T = store.tile_size();
