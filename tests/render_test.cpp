@@ -997,6 +997,86 @@ TEST(RenderTrilinear, CoarserLevelIsTheStoredParentWhenItIsResident) {
 // through its own fade, or only the root.
 enum class FadeFrom { parent, fading_parent, root };
 
+// What the blending tests draw: the 1024² pattern at 64-texel tiles with level fine + 1 inverted (a
+// change no fade could hide; in the pages and the reference alike), two renderers on it, one
+// blending over fade_s and one not, and a page table both follow (upload() maps a level in both).
+struct FadeRig {
+    static constexpr std::uint32_t fine = 2;
+    static constexpr double fade_s = 0.2;
+    ScratchDir dir;
+    st::StoreInfo info = store_geometry(1024, 1024, 64);
+    std::vector<gl::ReferenceRenderer::Level> levels;
+    gl::RendererConfig cfg;
+    std::unique_ptr<gl::VtRenderer> fading, plain;
+    std::optional<PageTable> table;
+    tessera::client::SlotId next = 0;
+    sc::Camera cam;
+
+    // Empty when made; else what failed.
+    std::string make(gl::Filter filter, bool srgb) {
+        auto pattern = pattern_source(1024, 1024);
+        const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);
+        auto decoded = gl::decode_store_levels(store);
+        if (!decoded.ok()) return decoded.error().message;
+        levels = std::move(*decoded);
+        for (std::size_t i = 0; i < levels[fine + 1].rgba8.size(); ++i)
+            if (i % 4 != 3) levels[fine + 1].rgba8[i] = std::uint8_t(255 - levels[fine + 1].rgba8[i]);
+        cfg = config(filter, info.tile_size(), 64, srgb, 192, 144);
+        cfg.fade_ms = float(fade_s * 1000);
+        auto plain_cfg = cfg;
+        plain_cfg.fade_ms = 0;
+        auto f = gl::VtRenderer::create(cfg);
+        if (!f.ok()) return f.error().message;
+        auto p = gl::VtRenderer::create(plain_cfg);
+        if (!p.ok()) return p.error().message;
+        fading = std::move(*f);
+        plain = std::move(*p);
+        const auto scene = terrain(1024, 1024, 256);
+        for (gl::VtRenderer* r : {fading.get(), plain.get()}) {
+            if (!r->add_texture(0, info).ok() || !r->set_scene(scene, 0).ok()) return "renderer setup";
+        }
+        auto t = PageTable::create(0, info.levels[0].tiles_x, info.levels[0].tiles_y, info.level_count());
+        if (!t.ok()) return t.error().message;
+        table = std::move(*t);
+        const double lod = fine + (filter == gl::Filter::bilinear ? 0.0 : 0.5);
+        cam = straight_down(512, 512, height_for(std::exp2(lod), straight_down(0, 0, 1), cfg.height));
+        return {};
+    }
+    // Uploads every page of level l into both renderers and maps it; `slots` gets (page, slot).
+    void upload(std::uint32_t l, std::vector<std::pair<PageKey, tessera::client::SlotId>>* slots = nullptr) {
+        const std::uint32_t ts = info.tile_size();
+        std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
+        for (std::uint32_t py = 0; py < info.levels[l].tiles_y; ++py)
+            for (std::uint32_t px = 0; px < info.levels[l].tiles_x; ++px) {
+                cut_page(levels[l], px, py, ts, info.tile_payload, info.border, page);
+                const PageKey key{0, std::uint8_t(l), px, py};
+                fading->upload_page(next, key, page, ts);
+                plain->upload_page(next, key, page, ts);
+                ASSERT_TRUE(table->map(l, px, py, next).ok());
+                if (slots) slots->emplace_back(key, next);
+                ++next;
+            }
+        upload_tables();
+    }
+    void upload_tables() {
+        table->mark_all_dirty();
+        upload_dirty(*table, *fading);
+        table->mark_all_dirty();
+        upload_dirty(*table, *plain);
+    }
+    Frame frame_at(double t) {
+        fading->set_time(t);
+        return render_vt(*fading, cam);
+    }
+    // The largest difference in R, G or B over the pixels of `mask`.
+    static int max_diff(const std::vector<std::uint8_t>& a, const std::vector<std::uint8_t>& b, const std::vector<std::uint8_t>& mask) {
+        int m = 0;
+        for (std::size_t i = 0; i < mask.size(); ++i)
+            for (std::size_t ch = 0; mask[i] && ch < 3; ++ch) m = std::max(m, std::abs(int(a[i * 4 + ch]) - int(b[i * 4 + ch])));
+        return m;
+    }
+};
+
 // Blending in (docs/renderer.md, "Blending in"). A static camera at lod `fine` (trilinear and
 // anisotropic: fine + 0.5) over the whole pattern, level fine + 1 (FadeFrom::parent; else only the
 // root: the pixels draw the root until level `fine` arrives) and the root resident and faded in;
@@ -1011,65 +1091,28 @@ enum class FadeFrom { parent, fading_parent, root };
 // most an eighth of its own change per frame: what is seen fades evenly, dark texels included).
 void expect_fades_in(gl::Filter filter, FadeFrom from, bool srgb = false) {
     const bool parent_resident = from != FadeFrom::root;
-    ScratchDir dir;
-    auto pattern = pattern_source(1024, 1024);
-    const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56
-    auto levels = gl::decode_store_levels(store);
-    ASSERT_TRUE(levels.ok()) << levels.error().message;
-    const auto info = store_geometry(1024, 1024, 64);
-    const std::uint32_t ts = info.tile_size(), P = info.tile_payload, B = info.border, fine = 2;
-    // Level fine + 1 inverted (in the pages and the reference alike): a change no fade could hide.
-    if (parent_resident)
-        for (std::size_t i = 0; i < (*levels)[fine + 1].rgba8.size(); ++i)
-            if (i % 4 != 3) (*levels)[fine + 1].rgba8[i] = std::uint8_t(255 - (*levels)[fine + 1].rgba8[i]);
-    auto cfg = config(filter, ts, 64, srgb, 192, 144);
-    const double fade_s = 0.2;
-    cfg.fade_ms = float(fade_s * 1000);
-    auto plain_cfg = cfg;
-    plain_cfg.fade_ms = 0;
-    auto made = gl::VtRenderer::create(cfg);
-    ASSERT_TRUE(made.ok()) << made.error().message;
-    auto plain_made = gl::VtRenderer::create(plain_cfg);
-    ASSERT_TRUE(plain_made.ok()) << plain_made.error().message;
-    gl::VtRenderer& fading = **made;
-    gl::VtRenderer& plain = **plain_made;
-    const auto scene = terrain(1024, 1024, 256);
-    for (gl::VtRenderer* r : {&fading, &plain}) {
-        ASSERT_TRUE(r->add_texture(0, info).ok());
-        ASSERT_TRUE(r->set_scene(scene, 0).ok());
-    }
-    auto table = PageTable::create(0, info.levels[0].tiles_x, info.levels[0].tiles_y, info.level_count());
-    ASSERT_TRUE(table.ok()) << table.error().message;
-    std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
-    tessera::client::SlotId next = 0;
-    const auto upload_level = [&](std::uint32_t l) {
-        for (std::uint32_t py = 0; py < info.levels[l].tiles_y; ++py)
-            for (std::uint32_t px = 0; px < info.levels[l].tiles_x; ++px) {
-                cut_page((*levels)[l], px, py, ts, P, B, page);
-                fading.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
-                plain.upload_page(next, {0, std::uint8_t(l), px, py}, page, ts);
-                ASSERT_TRUE(table->map(l, px, py, next++).ok());
-            }
-        upload_dirty(*table, fading);
-        table->mark_all_dirty();
-        upload_dirty(*table, plain);
-    };
-    const double lod = fine + (filter == gl::Filter::bilinear ? 0.0 : 0.5);
-    const auto cam = straight_down(512, 512, height_for(std::exp2(lod), straight_down(0, 0, 1), cfg.height));
-    const auto frame_at = [&](double t) {
-        fading.set_time(t);
-        return render_vt(fading, cam);
-    };
-    if (from == FadeFrom::parent) upload_level(fine + 1);
-    upload_level(info.level_count() - 1);
+    FadeRig rig;
+    const std::string failed = rig.make(filter, srgb);
+    ASSERT_TRUE(failed.empty()) << failed;
+    if (!parent_resident)  // only the root before level `fine`: its parent level as stored
+        for (std::size_t i = 0; i < rig.levels[FadeRig::fine + 1].rgba8.size(); ++i)
+            if (i % 4 != 3) rig.levels[FadeRig::fine + 1].rgba8[i] = std::uint8_t(255 - rig.levels[FadeRig::fine + 1].rgba8[i]);
+    const std::uint32_t fine = FadeRig::fine;
+    const double fade_s = FadeRig::fade_s;
+    const auto& cfg = rig.cfg;
+    gl::VtRenderer& fading = *rig.fading;
+    gl::VtRenderer& plain = *rig.plain;
+    const auto frame_at = [&](double t) { return rig.frame_at(t); };
+    if (from == FadeFrom::parent) rig.upload(fine + 1);
+    rig.upload(rig.info.level_count() - 1);
     double t = 0;
     for (; t <= fade_s + 1e-9; t += fade_s / 4) frame_at(t);
     EXPECT_EQ(fading.stats().fading_pages, 0u) << "the coarse levels have faded in";
     int parent_change = 0;  // FadeFrom::fading_parent: how far the parent's own fade moves the image
     if (from == FadeFrom::fading_parent) {
         const Frame root_only = frame_at(t);
-        upload_level(fine + 1);
-        const Frame parent_full = render_vt(plain, cam);
+        rig.upload(fine + 1);
+        const Frame parent_full = render_vt(plain, rig.cam);
         for (std::size_t i = 0; i < root_only.rgba.size(); ++i)
             if (i % 4 != 3 && parent_full.rgba[i / 4 * 4 + 3])
                 parent_change = std::max(parent_change, std::abs(int(root_only.rgba[i]) - int(parent_full.rgba[i])));
@@ -1080,16 +1123,13 @@ void expect_fades_in(gl::Filter filter, FadeFrom from, bool srgb = false) {
     const Frame before = frame_at(t);
     EXPECT_GT(before.counters.fallback_unbiased, 0u) << "level " << fine << " is not resident yet";
 
-    upload_level(fine);
-    const Frame after = render_vt(plain, cam);  // the pages at full weight, at once
+    rig.upload(fine);
+    const Frame after = render_vt(plain, rig.cam);  // the pages at full weight, at once
     EXPECT_EQ(after.counters.fallback_unbiased, 0u);
     const auto mask = coverage(after.rgba);
     ASSERT_GT(count(mask), std::size_t(cfg.width * cfg.height / 2));
-    const auto max_diff = [&](const std::vector<std::uint8_t>& a, const std::vector<std::uint8_t>& b) {
-        int m = 0;
-        for (std::size_t i = 0; i < mask.size(); ++i)
-            for (std::size_t ch = 0; mask[i] && ch < 3; ++ch) m = std::max(m, std::abs(int(a[i * 4 + ch]) - int(b[i * 4 + ch])));
-        return m;
+    const auto max_diff = [&](const std::vector<std::uint8_t>& x, const std::vector<std::uint8_t>& y) {
+        return FadeRig::max_diff(x, y, mask);
     };
     const int whole = max_diff(before.rgba, after.rgba);
     EXPECT_GE(whole + parent_change, 64) << "the levels must differ for the test to see a fade";
@@ -1130,10 +1170,10 @@ void expect_fades_in(gl::Filter filter, FadeFrom from, bool srgb = false) {
     const auto e = gl::compare_images(last, after.rgba, cfg.width, cfg.height, mask);
     EXPECT_LE(e.max_error, 1) << "after the fade, the frame is the one drawn without blending";
 
-    auto ref = gl::ReferenceRenderer::create(cfg, *levels);
+    auto ref = gl::ReferenceRenderer::create(cfg, rig.levels);
     ASSERT_TRUE(ref.ok()) << ref.error().message;
-    ASSERT_TRUE((*ref)->set_scene(scene).ok());
-    (*ref)->render(cam);
+    ASSERT_TRUE((*ref)->set_scene(terrain(1024, 1024, 256)).ok());
+    (*ref)->render(rig.cam);
     const auto want = (*ref)->read_color();
     const auto r = gl::compare_images(last, want, cfg.width, cfg.height, coverage(want));
     EXPECT_GE(r.psnr, 50.0) << "max error " << r.max_error;
@@ -1198,62 +1238,21 @@ INSTANTIATE_TEST_SUITE_P(Filters, RenderFadeEncoded, ::testing::Values(gl::Filte
 // nothing (max difference <= 1): the frame is the parent level's, as a renderer without blending
 // draws it with level `fine` absent.
 void expect_fades_out(gl::Filter filter) {
-    ScratchDir dir;
-    auto pattern = pattern_source(1024, 1024);
-    const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);
-    auto levels = gl::decode_store_levels(store);
-    ASSERT_TRUE(levels.ok()) << levels.error().message;
-    const auto info = store_geometry(1024, 1024, 64);
-    const std::uint32_t ts = info.tile_size(), P = info.tile_payload, B = info.border, fine = 2;
-    for (std::size_t i = 0; i < (*levels)[fine + 1].rgba8.size(); ++i)  // a change no fade could hide
-        if (i % 4 != 3) (*levels)[fine + 1].rgba8[i] = std::uint8_t(255 - (*levels)[fine + 1].rgba8[i]);
-    auto cfg = config(filter, ts, 64, /*srgb=*/true, 192, 144);
-    const double fade_s = 0.2;
-    cfg.fade_ms = float(fade_s * 1000);
-    auto plain_cfg = cfg;
-    plain_cfg.fade_ms = 0;
-    auto made = gl::VtRenderer::create(cfg);
-    ASSERT_TRUE(made.ok()) << made.error().message;
-    auto plain_made = gl::VtRenderer::create(plain_cfg);
-    ASSERT_TRUE(plain_made.ok()) << plain_made.error().message;
-    gl::VtRenderer& fading = **made;
-    gl::VtRenderer& plain = **plain_made;
+    FadeRig rig;
+    const std::string failed = rig.make(filter, /*srgb=*/true);
+    ASSERT_TRUE(failed.empty()) << failed;
+    const std::uint32_t fine = FadeRig::fine;
+    const double fade_s = FadeRig::fade_s;
+    const auto& cfg = rig.cfg;
+    gl::VtRenderer& fading = *rig.fading;
+    gl::VtRenderer& plain = *rig.plain;
     EXPECT_TRUE(fading.fades_out());
     EXPECT_FALSE(plain.fades_out());
-    const auto scene = terrain(1024, 1024, 256);
-    for (gl::VtRenderer* r : {&fading, &plain}) {
-        ASSERT_TRUE(r->add_texture(0, info).ok());
-        ASSERT_TRUE(r->set_scene(scene, 0).ok());
-    }
-    auto table = PageTable::create(0, info.levels[0].tiles_x, info.levels[0].tiles_y, info.level_count());
-    ASSERT_TRUE(table.ok()) << table.error().message;
-    std::vector<std::uint8_t> page(std::size_t(ts) * ts * 4);
-    tessera::client::SlotId next = 0;
+    const auto frame_at = [&](double t) { return rig.frame_at(t); };
     std::vector<std::pair<PageKey, tessera::client::SlotId>> fine_pages;
-    const auto upload_tables = [&] {
-        upload_dirty(*table, fading);
-        table->mark_all_dirty();
-        upload_dirty(*table, plain);
-    };
-    for (const std::uint32_t l : {info.level_count() - 1, fine + 1, fine}) {
-        for (std::uint32_t py = 0; py < info.levels[l].tiles_y; ++py)
-            for (std::uint32_t px = 0; px < info.levels[l].tiles_x; ++px) {
-                cut_page((*levels)[l], px, py, ts, P, B, page);
-                const PageKey key{0, std::uint8_t(l), px, py};
-                fading.upload_page(next, key, page, ts);
-                plain.upload_page(next, key, page, ts);
-                ASSERT_TRUE(table->map(l, px, py, next).ok());
-                if (l == fine) fine_pages.emplace_back(key, next);
-                ++next;
-            }
-    }
-    upload_tables();
-    const double lod = fine + (filter == gl::Filter::bilinear ? 0.0 : 0.5);
-    const auto cam = straight_down(512, 512, height_for(std::exp2(lod), straight_down(0, 0, 1), cfg.height));
-    const auto frame_at = [&](double t) {
-        fading.set_time(t);
-        return render_vt(fading, cam);
-    };
+    rig.upload(rig.info.level_count() - 1);
+    rig.upload(fine + 1);
+    rig.upload(fine, &fine_pages);
     double t = 0;
     for (; t <= fade_s + 1e-9; t += fade_s / 4) frame_at(t);
     ASSERT_EQ(fading.stats().fading_pages, 0u) << "everything has faded in";
@@ -1264,19 +1263,16 @@ void expect_fades_out(gl::Filter filter) {
     for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
     fading.take_faded_out(gone);
     EXPECT_TRUE(gone.empty()) << "nothing has faded out before a frame is drawn";
-    // Where it ends: level `fine` absent, drawn without blending.
-    for (const auto& [key, slot] : fine_pages) ASSERT_TRUE(table->unmap(key.level, key.x, key.y).ok());
-    table->mark_all_dirty();
-    upload_dirty(*table, plain);
-    const Frame after = render_vt(plain, cam);
+    // Where it ends: level `fine` absent, drawn without blending (the plain renderer only, for now).
+    for (const auto& [key, slot] : fine_pages) ASSERT_TRUE(rig.table->unmap(key.level, key.x, key.y).ok());
+    rig.table->mark_all_dirty();
+    upload_dirty(*rig.table, plain);
+    const Frame after = render_vt(plain, rig.cam);
     EXPECT_GT(after.counters.fallback_unbiased, 0u);
     const auto mask = coverage(after.rgba);
     ASSERT_GT(count(mask), std::size_t(cfg.width * cfg.height / 2));
-    const auto max_diff = [&](const std::vector<std::uint8_t>& a, const std::vector<std::uint8_t>& b) {
-        int m = 0;
-        for (std::size_t i = 0; i < mask.size(); ++i)
-            for (std::size_t ch = 0; mask[i] && ch < 3; ++ch) m = std::max(m, std::abs(int(a[i * 4 + ch]) - int(b[i * 4 + ch])));
-        return m;
+    const auto max_diff = [&](const std::vector<std::uint8_t>& x, const std::vector<std::uint8_t>& y) {
+        return FadeRig::max_diff(x, y, mask);
     };
     const int whole = max_diff(before.rgba, after.rgba);
     EXPECT_GE(whole, 64) << "the levels must differ for the test to see a fade";
@@ -1304,8 +1300,7 @@ void expect_fades_out(gl::Filter filter) {
     const int at_weight_zero = max_diff(last, after.rgba);
     EXPECT_LE(at_weight_zero, 1) << "faded out, the pages draw what is above them";
     // Unmapped now (what the runtime does with the slots it gets back): nothing changes.
-    table->mark_all_dirty();
-    upload_dirty(*table, fading);
+    rig.upload_tables();
     const Frame unmapped = frame_at(t + 2 * fade_s);
     const int at_unmap = max_diff(last, unmapped.rgba);
     EXPECT_LE(at_unmap, 1) << "unmapping a page that has faded out is not seen";
