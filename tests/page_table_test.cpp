@@ -690,25 +690,27 @@ TEST(Residency, KeptFramesKeepThePagesOfTheLastFeedbacks) {
     }
 }
 
-// Leaving (fade out): a victim seen in the last fade_out_frames frames is not taken at once; it
-// stays mapped until finish_leaving (or the deadline), at most max_leaving at once; older victims
-// and pinned loads evict at once as before.
+// Leaving (fade out): a victim seen within fade_out_frames frames before the kept ones is not
+// taken at once; it stays mapped until finish_leaving (or the deadline); past max_leaving leaving
+// pages, and for victims unseen for longer, evictions are at once as before.
 TEST(Residency, RecentlySeenVictimsLeaveBeforeTheirSlotIsFree) {
     ResidencyConfig c;
-    c.pool_slots = 3;
+    c.pool_slots = 4;
     c.pinned_levels = 1;
-    c.fade_out_frames = 4;
+    c.fade_out_frames = 4;  // with kept_frames 1: last seen after frame - 5
     c.max_leaving = 1;
     auto made = Residency::create(c);
     ASSERT_TRUE(made.ok());
     Residency& r = *made;
     ASSERT_TRUE(r.add_texture(1, 8, 8, 4).ok());
-    const PageKey a = page(0, 0, 0), b = page(0, 1, 0), n1 = page(0, 5, 5), n2 = page(0, 6, 6);
+    const PageKey a = page(0, 0, 0), b = page(0, 1, 0), d = page(0, 2, 0), n1 = page(0, 5, 5), n2 = page(0, 6, 6);
     ASSERT_TRUE(r.begin_frame(1).ok());
     load(r, page(3, 0, 0));
     load(r, a);
     load(r, b);
-    ASSERT_TRUE(r.begin_frame(2).ok());  // a and b seen 1 frame ago: they leave, one at a time
+    load(r, d);
+    ASSERT_TRUE(r.begin_frame(2).ok());  // a, b, d seen 1 frame ago
+    r.touch(d);
     auto g = r.acquire_slot(n1);
     ASSERT_TRUE(g.ok());
     EXPECT_EQ(g->slot, kNoSlot);
@@ -717,38 +719,46 @@ TEST(Residency, RecentlySeenVictimsLeaveBeforeTheirSlotIsFree) {
     EXPECT_EQ(g->victim, a);
     EXPECT_TRUE(r.is_resident(a)) << "a leaving page stays mapped (drawn, fading out)";
     EXPECT_EQ(r.stats().leaving, 1u);
-    auto g2 = r.acquire_slot(n2);
-    ASSERT_TRUE(g2.ok());
-    EXPECT_EQ(g2->slot, kNoSlot);
-    EXPECT_EQ(g2->leaving, kNoSlot) << "max_leaving 1";
-    EXPECT_TRUE(r.is_resident(b));
+    // max_leaving 1 reached: the next recent victim goes at once.
+    EXPECT_EQ(evict_for(r, n2), b);
     EXPECT_FALSE(r.finish_leaving(g->leaving + 1).ok()) << "not leaving";
+    ASSERT_TRUE(r.begin_frame(3).ok());
+    r.touch(a);  // the view still wants it while it leaves
     auto gone = r.finish_leaving(g->leaving);
     ASSERT_TRUE(gone.ok());
-    EXPECT_EQ(*gone, a);
+    EXPECT_EQ(gone->page, a);
+    EXPECT_TRUE(gone->seen_while_leaving);
     EXPECT_FALSE(r.is_resident(a));
     EXPECT_EQ(r.resident_level(a), 3) << "unmapped: falls back to the pinned root";
-    EXPECT_EQ(r.stats().evictions, 1u);
+    EXPECT_EQ(r.stats().evictions, 2u);
     EXPECT_FALSE(r.finish_leaving(g->leaving).ok()) << "finished once";
     auto g3 = r.acquire_slot(n1);  // the freed slot
     ASSERT_TRUE(g3.ok());
     EXPECT_EQ(g3->slot, g->leaving);
     EXPECT_FALSE(g3->evicted);
     ASSERT_TRUE(r.complete(n1, g3->slot).ok());
-    // b, unseen for fade_out_frames frames, is evicted at once.
-    ASSERT_TRUE(r.begin_frame(5).ok());
+    // d, last seen in frame 2, unseen for the kept frame and fade_out_frames more: at once.
+    ASSERT_TRUE(r.begin_frame(7).ok());
     r.touch(n1);
-    EXPECT_EQ(evict_for(r, n2), b);
-    // The deadline: a leaving page the uploader never reports leaves anyway.
-    ASSERT_TRUE(r.begin_frame(6).ok());
-    auto g4 = r.acquire_slot(a);  // n1 (frame 5) and n2 (frame 5) seen within 4 frames
+    r.touch(n2);
+    EXPECT_EQ(evict_for(r, a), d);
+    // The deadline: a leaving page the uploader never reports leaves anyway, and is counted.
+    ASSERT_TRUE(r.begin_frame(8).ok());
+    auto g4 = r.acquire_slot(b);  // n1, n2 and a seen in frame 7
     ASSERT_TRUE(g4.ok());
     ASSERT_NE(g4->leaving, kNoSlot);
-    ASSERT_TRUE(r.begin_frame(6 + Residency::kLeaveDeadlineFrames - 1).ok());
+    const PageKey leaving_page = g4->victim;
+    ASSERT_TRUE(r.begin_frame(8 + Residency::kLeaveDeadlineFrames - 1).ok());
     EXPECT_EQ(r.stats().leaving, 1u);
-    ASSERT_TRUE(r.begin_frame(6 + Residency::kLeaveDeadlineFrames).ok());
+    EXPECT_EQ(r.take_expired(), 0u);
+    ASSERT_TRUE(r.begin_frame(8 + Residency::kLeaveDeadlineFrames).ok());
     EXPECT_EQ(r.stats().leaving, 0u);
+    EXPECT_EQ(r.take_expired(), 1u);
+    EXPECT_EQ(r.take_expired(), 0u) << "taken once";
+    EXPECT_FALSE(r.is_resident(leaving_page));
+    EXPECT_FALSE(r.finish_leaving(g4->leaving).ok()) << "the deadline finished it";
     EXPECT_EQ(r.stats().free_slots, 1u);
+    EXPECT_EQ(r.stats().evictions, 4u);
     {
         ResidencyConfig bad = c;
         bad.max_leaving = 0;

@@ -103,6 +103,7 @@ Status Residency::begin_frame(std::uint64_t frame) {
         const SlotId s = leaving_[i];
         if (slots_[s].leave_start + kLeaveDeadlineFrames <= frame_) {
             (void)finish_leaving(s);  // removes it from leaving_
+            ++expired_;
         } else {
             ++i;
         }
@@ -183,9 +184,9 @@ Result<SlotGrant> Residency::acquire_slot(const PageKey& page) {
         const SlotId victim = pick_victim(pinned_page);
         if (victim == kNoSlot) return grant;  // everything evictable was seen this frame
         Slot& v = slots_[victim];
-        if (config_.fade_out_frames > 0 && !pinned_page && v.last_seen + config_.fade_out_frames > frame_) {
+        if (config_.fade_out_frames > 0 && !pinned_page && leaving_.size() < config_.max_leaving &&
+            v.last_seen + config_.kept_frames + config_.fade_out_frames > frame_) {
             // Seen recently, maybe on screen: it fades out first (see "Leaving").
-            if (leaving_.size() >= config_.max_leaving) return grant;
             unlink(victim);
             v.state = SlotState::leaving;
             v.leave_start = frame_;
@@ -247,7 +248,7 @@ Status Residency::cancel(SlotId slot) {
     return {};
 }
 
-Result<PageKey> Residency::finish_leaving(SlotId slot) {
+Result<Residency::Left> Residency::finish_leaving(SlotId slot) {
     const auto it = std::find(leaving_.begin(), leaving_.end(), slot);
     if (slot >= slots_.size() || slots_[slot].state != SlotState::leaving || it == leaving_.end())
         return make_error(Errc::invalid_argument, "finish_leaving: slot " + std::to_string(slot) + " is not leaving");
@@ -262,7 +263,7 @@ Result<PageKey> Residency::finish_leaving(SlotId slot) {
     ++evictions_;
     v.state = SlotState::free;
     free_.push_back(slot);
-    return v.page;
+    return Left{v.page, v.last_seen >= v.leave_start};
 }
 
 std::uint8_t Residency::resident_level(const PageKey& page) const {

@@ -16,12 +16,14 @@
 //   cancel(slot)                   instead of complete: the upload was abandoned, the slot is free
 //   finish_leaving(slot)           a page that acquire_slot set leaving has faded out: unmapped,
 //                                  its slot free (pages left over kLeaveDeadlineFrames frames are
-//                                  finished by begin_frame, whatever the uploader says)
+//                                  finished by begin_frame, whatever the uploader says: a renderer
+//                                  whose clock stands still; take_expired() counts them)
 //
-// Leaving (fade out): with fade_out_frames > 0 (set_fades_out), a victim seen in the last
-// fade_out_frames frames is not taken at once: acquire_slot answers kNoSlot and names it in
-// SlotGrant::leaving; it stays mapped (drawn, fading out) but is no longer a candidate, and its
-// slot is free once finish_leaving(slot) is called. At most max_leaving pages leave at once.
+// Leaving (fade out): with fade_out_frames > 0, a victim seen within fade_out_frames frames
+// before the kept ones (last seen after frame - kept_frames - fade_out_frames) is not taken at
+// once: acquire_slot answers kNoSlot and names it in SlotGrant::leaving; it stays mapped (drawn,
+// fading out) but is no longer a candidate, and its slot is free once finish_leaving(slot) is
+// called. At most max_leaving pages leave at once; past that, victims go at once as without.
 // Replacement order (not seen recently first, finer levels before coarser, LRU among equals;
 // docs/client.md, "Replacement"), read as one sort key, smallest evicted first:
 //   1. last-seen frame, older first (exact frame numbers, not buckets);
@@ -48,6 +50,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "tessera/client/page.hpp"
@@ -109,12 +112,18 @@ public:
     Status complete(const PageKey& page, SlotId slot);
     // Frees a slot that acquire_slot gave and that was never completed. Errors: not in flight.
     Status cancel(SlotId slot);
-    // Turns leaving on or off (fade_out_frames 0: off), e.g. when the uploader cannot fade out.
-    void set_fade_out(std::uint32_t fade_out_frames) { config_.fade_out_frames = fade_out_frames; }
-    // The page leaving `slot` has faded out: unmaps it and frees the slot; returns the page.
-    // Errors (invalid_argument): the slot is not leaving.
-    Result<PageKey> finish_leaving(SlotId slot);
-    static constexpr std::uint64_t kLeaveDeadlineFrames = 240;
+    // The page leaving `slot` has faded out: unmaps it and frees the slot. Errors
+    // (invalid_argument): the slot is not leaving.
+    struct Left {
+        PageKey page;
+        bool seen_while_leaving = false;  // the feedback saw it after it started leaving
+    };
+    Result<Left> finish_leaving(SlotId slot);
+    // Pages begin_frame finished at the deadline since the last call (their uploader never said).
+    std::uint32_t take_expired() { return std::exchange(expired_, 0u); }
+    // Frames a page may leave for before begin_frame finishes it: far longer than any fade
+    // (10 s at 240 frames a second), so only a renderer whose clock stands still meets it.
+    static constexpr std::uint64_t kLeaveDeadlineFrames = 2400;
 
     // Nearest resident level of `page` (itself or an ancestor), PageTable::kNotResident (255) when
     // none or when the page is unknown. (The ResidencyView query.)
@@ -158,6 +167,7 @@ private:
     std::unordered_map<TextureId, Texture> textures_;
     std::unordered_map<PageKey, SlotId, PageKeyHash> in_flight_;
     std::vector<SlotId> leaving_;  // at most config_.max_leaving
+    std::uint32_t expired_ = 0;    // finished at the deadline, not yet taken
     std::uint64_t frame_ = 0;
     std::uint64_t pinned_pages_total_ = 0;  // pinned pages of all registered textures
     std::uint32_t resident_ = 0;

@@ -529,8 +529,9 @@ private:
             const auto gone = residency_.finish_leaving(slot);
             if (!gone) continue;  // the deadline finished it already (Residency::begin_frame)
             ++stats_.pages_evicted;
-            if (desired_.contains(*gone)) ++evicted_wanted_;
+            if (gone->seen_while_leaving) ++evicted_wanted_;  // the view still wanted it
         }
+        stats_.pages_evicted += residency_.take_expired();
         ready_.clear();
         uploads_.take_frame(ready_);
         for (auto& p : ready_) {

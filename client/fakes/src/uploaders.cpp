@@ -1,13 +1,15 @@
 #include "tessera/client/fakes/uploaders.hpp"
 
+#include <algorithm>
+
 #include "page_table.hpp"
 
 namespace tessera::client {
 
 void FakeUploader::upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) {
     if (page_data.size() != format_.upload_bytes(tile_size)) ++malformed_;
-    for (const auto& l : leaving_)
-        if (l.first == slot) ++written_while_leaving_;
+    // A write ends a fade (the runtime's deadline); counted: a runtime that waits never does it.
+    if (std::erase_if(leaving_, [&](const auto& l) { return l.first == slot; }) > 0) ++written_while_leaving_;
     pages_.push_back(PageCall{seq_++, slot, page, tile_size, std::vector<std::uint8_t>(page_data.begin(), page_data.end())});
 }
 
@@ -26,7 +28,7 @@ void FakeUploader::upload_page_table_block(TextureId texture, std::uint8_t level
 
 void FakeUploader::fade_out(SlotId slot) {
     ++fade_out_calls_;
-    leaving_.emplace_back(slot, fade_out_frames_);
+    leaving_.emplace_back(slot, std::max<std::uint32_t>(fade_out_frames_, 1));
 }
 
 void FakeUploader::take_faded_out(std::vector<SlotId>& out) {
@@ -52,6 +54,8 @@ void FakeUploader::clear() {
     tables_.clear();
     blocks_.clear();
     malformed_ = 0;
+    leaving_.clear();
+    fade_out_calls_ = written_while_leaving_ = 0;
 }
 
 }  // namespace tessera::client

@@ -27,6 +27,7 @@ Status PageFade::init(std::uint32_t columns, std::uint32_t rows, float fade_ms) 
 
 void PageFade::arrived(SlotId slot) {
     if (!enabled() || std::size_t(slot) >= weights_.size()) return;
+    std::erase(gone_, slot);  // a faded-out cell written before it was taken back: not gone any more
     if (const std::uint32_t i = fading_index_[slot]; i != 0) {
         fading_[i - 1] = {slot, -1, 0.0, false};  // overwritten while fading: the new page starts over
         return;
@@ -40,8 +41,10 @@ void PageFade::leaving(SlotId slot) {
         gone_.push_back(slot);  // nothing to fade: gone at once
         return;
     }
-    const Fading f{slot, -1, weights_[slot] / 255.0, true};  // from where it is, fading in or not
+    if (std::find(gone_.begin(), gone_.end(), slot) != gone_.end()) return;  // gone already
+    Fading f{slot, -1, weights_[slot] / 255.0, true};  // from where it is, fading in or not
     if (const std::uint32_t i = fading_index_[slot]; i != 0) {
+        if (fading_[i - 1].start < 0 && !fading_[i - 1].out) f.from = 0;  // arrived, never drawn
         fading_[i - 1] = f;
         return;
     }

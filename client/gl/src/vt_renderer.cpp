@@ -273,7 +273,7 @@ public:
         for (std::size_t i = 0; i <= more_atlases_.size(); ++i) atlas(i).make_page_mips();  // after the frame's page uploads, in stream order
         const float lod_bias = fade_.frame(time_, requested_bias);  // the weights of this frame's cells
         stats_.fading_pages = fade_.fading();
-        vt_fading_ = fade_.fading() > 0 ? 1 : 0;  // at full weight everywhere, the lookups need no weights
+        vt_fading_ = fade_.enabled() && fade_.fading() > 0 ? 1 : 0;  // at full weight everywhere, the lookups need no weights
 
         const double aspect = double(cfg_.width) / double(cfg_.height);
         const auto vp = view_projection(camera, aspect);

@@ -41,16 +41,16 @@ struct ResidencyConfig {
     // A texture whose dense table is over the bound (or over the renderer's dense packing) gets a
     // sparse (two-level) table instead of an error.
     bool sparse_tables = true;
-    // Pages seen in the last `kept_frames` feedback frames (1: the current one) are never evicted
+    // Pages seen in the last `kept_frames` runtime frames (1: the current one) are never evicted
     // for an ordinary page. When every N-th feedback sees a view ahead (motion prefetch), N keeps
     // the pages of the last feedback of the view itself, so a page on screen is not evicted for
     // one the view ahead wants. 1 .. 64.
     std::uint32_t kept_frames = 1;
-    // Fading out (docs/client.md, "Replacement"): a victim seen in the last `fade_out_frames`
-    // feedback frames may still be on screen, so it leaves over a fade instead of at once: it
-    // stays mapped and drawn while its weight falls, and its slot is reused once the uploader says
-    // it has gone. At most `max_leaving` pages leave at once (further victims wait). 0: evict at
-    // once. The runtime sets it from RuntimeConfig::fade_out_frames when its uploader fades pages
+    // Fading out (docs/client.md, "Replacement"): a victim seen within `fade_out_frames` runtime
+    // frames before the kept ones may still be on screen, so it leaves over a fade instead of at
+    // once: it stays mapped and drawn while its weight falls, and its slot is reused once the
+    // uploader says it has gone. At most `max_leaving` pages leave at once (further victims go at
+    // once). 0: evict at once. The runtime sets it from RuntimeConfig::fade_out_frames when its uploader fades pages
     // out (PageUploader::fades_out), and to 0 otherwise.
     std::uint32_t fade_out_frames = 0;
     std::uint32_t max_leaving = 32;
@@ -74,7 +74,8 @@ struct RuntimeConfig {
     // (docs/client.md, "Cancellation"). Counted in frames, not time: an unpaced run moves its
     // camera per frame, however fast the frames come.
     std::uint32_t keep_unwanted_frames = 8;
-    // Victims seen in the last this many feedback frames fade out before their slot is reused,
+    // Victims seen within this many frames before the kept ones (ResidencyConfig::kept_frames)
+    // fade out before their slot is reused,
     // when the uploader fades pages out (ResidencyConfig::fade_out_frames). 0: never.
     std::uint32_t fade_out_frames = 8;
 };

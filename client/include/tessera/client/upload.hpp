@@ -71,7 +71,9 @@ public:
     // default does not, and then evictions are at once.
     virtual bool fades_out() const { return false; }
     // The page in `slot` leaves: it stays mapped, and is drawn fading out to what is above it.
-    // The slot is not written until take_faded_out() has given it back.
+    // The slot is not written until take_faded_out() has given it back, or until the runtime has
+    // given up waiting (Residency::kLeaveDeadlineFrames: a renderer whose clock stands still); an
+    // upload_page into a leaving slot ends its fade.
     virtual void fade_out(SlotId /*slot*/) {}
     // Appends the slots whose page has faded out since the last call.
     virtual void take_faded_out(std::vector<SlotId>& /*out*/) {}

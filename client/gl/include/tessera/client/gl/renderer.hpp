@@ -126,7 +126,8 @@ struct RendererStats {
     std::uint64_t depth_prepasses = 0;        // frames drawn with a depth pre-pass (scenes that need one
                                               // and cannot be drawn front to back)
     std::size_t visible_chunks = 0;           // last frame
-    std::size_t fading_pages = 0;             // last frame: pages blending in (RendererConfig::fade_ms)
+    std::size_t fading_pages = 0;             // last frame: cells below full weight: blending in, fading out, or
+                                              // faded out and not yet taken back (RendererConfig::fade_ms)
     std::uint64_t predicted_feedback = 0;     // feedback passes drawn from set_feedback_camera's camera
     std::uint64_t gpu_waits = 0;              // frames whose render() waited for the GPU to finish the
                                               // frame RendererConfig::frames_in_flight back
