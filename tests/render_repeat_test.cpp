@@ -297,6 +297,22 @@ ErrorStats errors(const std::vector<std::uint8_t>& a, const std::vector<std::uin
     return e;
 }
 
+// The renderer both tests draw an atlas store with: 256x192, sRGB, every page fits the pool.
+gl::RendererConfig atlas_view_config(gl::Filter filter, const st::StoreInfo& info) {
+    gl::RendererConfig cfg;
+    cfg.width = 256;
+    cfg.height = 192;
+    cfg.filter = filter;
+    cfg.max_anisotropy = 8;
+    cfg.tile_size = info.tile_size();
+    cfg.border = info.border;
+    cfg.pool_slots = std::uint32_t(tessera::test::page_count(info)) + 8;
+    cfg.srgb = true;
+    cfg.staging_bytes = 8u << 20;
+    cfg.feedback_jitter = false;
+    return cfg;
+}
+
 const char* filter_name(gl::Filter f) {
     return f == gl::Filter::bilinear ? "bilinear" : f == gl::Filter::trilinear ? "trilinear" : "anisotropic";
 }
@@ -324,17 +340,7 @@ TEST_P(RenderRepeats, AtlasMatchesTheOriginalTexturesRepeatedWithoutSeams) {
     auto scene = sc::load_obj_scene(atlas_obj, info.width, info.height);
     ASSERT_TRUE(scene.ok()) << scene.error().message;
 
-    gl::RendererConfig cfg;
-    cfg.width = 256;
-    cfg.height = 192;
-    cfg.filter = filter;
-    cfg.max_anisotropy = 8;
-    cfg.tile_size = info.tile_size();
-    cfg.border = info.border;
-    cfg.pool_slots = std::uint32_t(tessera::test::page_count(info)) + 8;
-    cfg.srgb = true;
-    cfg.staging_bytes = 8u << 20;
-    cfg.feedback_jitter = false;
+    gl::RendererConfig cfg = atlas_view_config(filter, info);
     auto vt = tessera::test::make_vt(cfg, store, *scene);
     ASSERT_TRUE(vt);
     ASSERT_TRUE(tessera::test::load_everything(*vt));
@@ -494,17 +500,7 @@ TEST_P(RenderCutouts, AtlasKeepsAlphaAndTheVtDiscardsTheBackground) {
     ASSERT_TRUE(scene.ok()) << scene.error().message;
     ASSERT_EQ(scene->chunks.size(), 2u);
 
-    gl::RendererConfig cfg;
-    cfg.width = 256;
-    cfg.height = 192;
-    cfg.filter = filter;
-    cfg.max_anisotropy = 8;
-    cfg.tile_size = info.tile_size();
-    cfg.border = info.border;
-    cfg.pool_slots = std::uint32_t(tessera::test::page_count(info)) + 8;
-    cfg.srgb = true;
-    cfg.staging_bytes = 8u << 20;
-    cfg.feedback_jitter = false;
+    gl::RendererConfig cfg = atlas_view_config(filter, info);
     cfg.alpha_test = true;
     auto vt = tessera::test::make_vt(cfg, store, *scene);
     ASSERT_TRUE(vt);
