@@ -36,10 +36,32 @@ def get(port, path):
 
 
 def wait_listening(p, what):
-    ports = serve_util.wait_listening(p)
+    lines = []
+    ports = serve_util.wait_listening(p, lines)
     if not ports:
-        fail(f"{what} exited {p.wait()} before listening")
+        fail(f"{what} exited {p.wait()} before listening; its stderr:\n" + "".join(lines[-20:]))
     return ports[1]
+
+
+def sanitizer_files_into(rootfs, env):
+    """A sanitizer build's options name files on this machine (suppressions) that the image's root
+    lacks, and the sanitizer stops the server when it cannot read them. Returns the shell commands
+    that copy them onto a tmpfs over the image's /tmp (in the private mount namespace, so the
+    image itself is untouched) and points `env`'s options there."""
+    commands = []
+    for key in sorted(k for k in env if k.endswith("SAN_OPTIONS")):
+        options = []
+        for option in env[key].split(":"):
+            name, _, value = option.partition("=")
+            if name == "suppressions" and value:
+                inside = f"/tmp/{key.lower()}.supp"
+                commands.append(f'cp "{value}" "{rootfs}{inside}"')
+                option = f"{name}={inside}"
+            options.append(option)
+        env[key] = ":".join(options)
+    if not commands:
+        return ""
+    return f'mount -t tmpfs tmpfs "{rootfs}/tmp" && ' + " && ".join(commands) + " && "
 
 
 def check_archive(path):
@@ -127,11 +149,12 @@ def main():
         ns = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         ns.bind("\0" + notify_name)  # abstract: reachable from inside the chroot
         ns.settimeout(60)
+        env = dict(os.environ, NOTIFY_SOCKET="@" + notify_name)
+        copies = sanitizer_files_into(rootfs, env)
         script = (f'mount --bind -o ro "{stores}" "{rootfs}/srv/tessera" && mount -o remount,bind,ro "{rootfs}/srv/tessera" && '
-                  f'mount -t proc proc "{rootfs}/proc" && '
+                  f'mount -t proc proc "{rootfs}/proc" && {copies}'
                   f'exec chroot --userspec=10001:10001 "{rootfs}" /usr/local/bin/tessera-server serve '
                   f'--store-dir /srv/tessera --grpc 127.0.0.1:0 --http 127.0.0.1:0')
-        env = dict(os.environ, NOTIFY_SOCKET="@" + notify_name)
         p = subprocess.Popen(["unshare", "--mount", "--pid", "--fork", "--kill-child", "sh", "-c", script],
                              stderr=subprocess.PIPE, text=True, env=env)
         try:
