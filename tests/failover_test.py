@@ -3,7 +3,12 @@
 three servers given as one list; the server it streams from is killed with SIGKILL mid-run. The
 viewer finishes with exit 0 and no failed tiles, its stream resumes on another server within 1 s,
 and fallback over the run stays <= 1%. Then the same with a single server killed and restarted on
-its port. Prints the figures docs/benchmarks.md quotes."""
+its port. Prints the figures docs/benchmarks.md quotes.
+
+Under a sanitizer (its options in the environment, tests/CMakeLists.txt) the bound on fallback is
+5%: a server restarted under ThreadSanitizer, beside other sanitized tests on two cores, was
+measured at 2.4% with 0.5 s unserved, as without a sanitizer. The bounds on time without a
+server, which a failover that does not work breaks, are the same."""
 import argparse
 import json
 import os
@@ -64,6 +69,10 @@ def view(tessera, target, stats, outage_at, action):
     return v.returncode, out, float(fb.group(1)), float(unserved.group(1)), frames
 
 
+SANITIZED = any(v in os.environ for v in ("ASAN_OPTIONS", "LSAN_OPTIONS", "TSAN_OPTIONS", "UBSAN_OPTIONS"))
+FALLBACK_BOUND = 5.0 if SANITIZED else 1.0  # percent
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--tessera", required=True)
@@ -107,8 +116,8 @@ def main():
             fail("no other server sent tiles after the kill")
         if unserved > 1.0:
             fail(f"{unserved} s without a server (bound 1 s)")
-        if fallback > 1.0:
-            fail(f"fallback {fallback}% over the run (bound 1%)")
+        if fallback > FALLBACK_BOUND:
+            fail(f"fallback {fallback}% over the run (bound {FALLBACK_BOUND:g}%)")
 
         # One server, killed and restarted on its port.
         p, grpc, _ = start_server(a.server, store)
@@ -132,8 +141,8 @@ def main():
             fail(f"the viewer exited {rc}:\n{out}")
         if unserved > 1.3:
             fail(f"{unserved} s without a server (bound 1 s after the restart)")
-        if fallback > 1.0:
-            fail(f"fallback {fallback}% over the run (bound 1%)")
+        if fallback > FALLBACK_BOUND:
+            fail(f"fallback {fallback}% over the run (bound {FALLBACK_BOUND:g}%)")
     print("PASS")
 
 

@@ -723,11 +723,9 @@ TEST(Residency, RecentlySeenVictimsLeaveBeforeTheirSlotIsFree) {
     EXPECT_EQ(evict_for(r, n2), b);
     EXPECT_FALSE(r.finish_leaving(g->leaving + 1).ok()) << "not leaving";
     ASSERT_TRUE(r.begin_frame(3).ok());
-    r.touch(a);  // the view still wants it while it leaves
     auto gone = r.finish_leaving(g->leaving);
     ASSERT_TRUE(gone.ok());
-    EXPECT_EQ(gone->page, a);
-    EXPECT_TRUE(gone->seen_while_leaving);
+    EXPECT_EQ(*gone, a);
     EXPECT_FALSE(r.is_resident(a));
     EXPECT_EQ(r.resident_level(a), 3) << "unmapped: falls back to the pinned root";
     EXPECT_EQ(r.stats().evictions, 2u);
@@ -764,6 +762,55 @@ TEST(Residency, RecentlySeenVictimsLeaveBeforeTheirSlotIsFree) {
         bad.max_leaving = 0;
         EXPECT_FALSE(Residency::create(bad).ok());
     }
+}
+
+TEST(Residency, ALeavingPageSeenAgainIsRescued) {
+    ResidencyConfig c;
+    c.pool_slots = 4;
+    c.pinned_levels = 1;
+    c.fade_out_frames = 4;
+    auto made = Residency::create(c);
+    ASSERT_TRUE(made.ok());
+    Residency& r = *made;
+    ASSERT_TRUE(r.add_texture(1, 8, 8, 4).ok());
+    const PageKey a = page(0, 0, 0), b = page(0, 1, 0), d = page(0, 2, 0), n1 = page(0, 5, 5);
+    ASSERT_TRUE(r.begin_frame(1).ok());
+    load(r, page(3, 0, 0));
+    const SlotId slot_a = load(r, a);
+    load(r, b);
+    load(r, d);
+    ASSERT_TRUE(r.begin_frame(2).ok());
+    auto g = r.acquire_slot(n1);
+    ASSERT_TRUE(g.ok());
+    ASSERT_EQ(g->leaving, slot_a);
+    std::vector<SlotId> rescued;
+    r.take_rescued(rescued);
+    EXPECT_TRUE(rescued.empty());
+    // The view wants it again while it fades out: it stays, and the slot is not freed.
+    ASSERT_TRUE(r.begin_frame(3).ok());
+    EXPECT_TRUE(r.touch(a));
+    EXPECT_EQ(r.stats().leaving, 0u);
+    EXPECT_EQ(r.stats().rescued, 1u);
+    EXPECT_EQ(r.stats().evictions, 0u);
+    r.take_rescued(rescued);
+    EXPECT_EQ(rescued, std::vector<SlotId>{slot_a});
+    rescued.clear();
+    r.take_rescued(rescued);
+    EXPECT_TRUE(rescued.empty()) << "taken once";
+    EXPECT_FALSE(r.finish_leaving(slot_a).ok()) << "rescued: not leaving any more";
+    EXPECT_TRUE(r.is_resident(a));
+    EXPECT_TRUE(r.touch(a)) << "touched again as an ordinary resident page";
+    EXPECT_EQ(r.stats().rescued, 1u);
+    // A candidate again, ordered by its new last-seen frame: b (seen in frame 1) leaves first.
+    auto g2 = r.acquire_slot(n1);
+    ASSERT_TRUE(g2.ok());
+    EXPECT_EQ(g2->victim, b);
+    // Once unseen long enough it goes like any other page.
+    ASSERT_TRUE(r.begin_frame(20).ok());
+    std::vector<PageKey> victims;
+    for (std::uint32_t i = 0; i < 2; ++i) victims.push_back(evict_for(r, page(0, 6, i)));
+    EXPECT_NE(std::find(victims.begin(), victims.end(), a), victims.end()) << "a, unseen since frame 3, is evicted at once";
+    EXPECT_EQ(r.stats().free_slots, 0u);
 }
 
 TEST(Residency, SeveralTexturesShareOnePool) {

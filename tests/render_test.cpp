@@ -1310,7 +1310,72 @@ void expect_fades_out(gl::Filter filter) {
                 filter_name(filter), whole, largest_step, step_bound, at_weight_zero, fine, at_unmap);
 }
 
+// A leaving page the view wants again (cancel_fade_out, what the runtime calls for a page the
+// residency rescued): one that had faded out completely but was not yet taken fades in from
+// weight 0, one stopped half-way from where it is; each frame moves by at most an eighth of the
+// whole change (+2) per eighth of the fade, and ends as it was before it left. Neither slot is
+// ever given back by take_faded_out.
+void expect_fade_out_cancelled(gl::Filter filter) {
+    FadeRig rig;
+    const std::string failed = rig.make(filter, /*srgb=*/true);
+    ASSERT_TRUE(failed.empty()) << failed;
+    const double fade_s = FadeRig::fade_s;
+    gl::VtRenderer& fading = *rig.fading;
+    std::vector<std::pair<PageKey, tessera::client::SlotId>> fine_pages;
+    rig.upload(rig.info.level_count() - 1);
+    rig.upload(FadeRig::fine + 1);
+    rig.upload(FadeRig::fine, &fine_pages);
+    double t = 0;
+    for (; t <= fade_s + 1e-9; t += fade_s / 4) rig.frame_at(t);
+    ASSERT_EQ(fading.stats().fading_pages, 0u);
+    const Frame before = rig.frame_at(t);
+    const auto mask = coverage(before.rgba);
+    ASSERT_GT(count(mask), std::size_t(rig.cfg.width * rig.cfg.height / 2));
+    std::vector<tessera::client::SlotId> gone;
+    int whole = 0;
+    for (const int out_eighths : {8, 4}) {  // faded out completely (the whole change), then half-way
+        for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
+        std::vector<std::uint8_t> last = rig.frame_at(t).rgba;
+        for (int k = 1; k <= out_eighths; ++k) last = rig.frame_at(t + k * fade_s / 8).rgba;
+        t += out_eighths * fade_s / 8;
+        const int away = FadeRig::max_diff(before.rgba, last, mask);
+        if (out_eighths == 8) {
+            whole = away;
+        } else {
+            EXPECT_NEAR(away, whole / 2, whole / 8 + 2) << "half-way out";
+        }
+        if (out_eighths == 8) {
+            EXPECT_EQ(fading.stats().fading_pages, fine_pages.size()) << "faded out, not yet taken";
+        }
+        for (const auto& [key, slot] : fine_pages) fading.cancel_fade_out(slot);
+        const int step_bound = (whole + 7) / 8 + 2;
+        int largest_step = 0;
+        for (int k = 0; k <= 8; ++k) {
+            const Frame f = rig.frame_at(t + k * fade_s / 8);
+            const int step = FadeRig::max_diff(last, f.rgba, mask);
+            EXPECT_LE(step, k == 0 ? 2 : step_bound) << "frame " << k << " back from " << out_eighths << "/8 out";
+            largest_step = std::max(largest_step, step);
+            last = f.rgba;
+        }
+        t += fade_s;
+        fading.take_faded_out(gone);
+        EXPECT_TRUE(gone.empty()) << "a kept page's slot came back";
+        EXPECT_EQ(fading.stats().fading_pages, 0u) << "faded back in";
+        const int back = FadeRig::max_diff(before.rgba, last, mask);
+        EXPECT_LE(back, 1) << "after the fade the frame is the one before the page left";
+        EXPECT_GE(whole, 64) << "the levels must differ for the test to see a return";
+        std::printf("  %s, kept %d/8 of the way out: %d away from the full frame, largest step back %d (bound %d), "
+                    "then max error %d\n",
+                    filter_name(filter), out_eighths, away, largest_step, step_bound, back);
+    }
+}
+
 class RenderFadeOut : public ::testing::TestWithParam<gl::Filter> {};
+
+TEST_P(RenderFadeOut, ALeavingPageWantedAgainFadesBackIn) {
+    REQUIRE_GL(ctx);
+    expect_fade_out_cancelled(GetParam());
+}
 
 TEST_P(RenderFadeOut, ALeavingPageFadesToItsAncestorBeforeItsSlotComesBack) {
     REQUIRE_GL(ctx);

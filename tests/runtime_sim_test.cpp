@@ -278,6 +278,34 @@ TEST_F(RuntimeSim, RecentlySeenVictimsFadeOutBeforeTheirSlotsAreReused) {
     }
 }
 
+TEST_F(RuntimeSim, PagesFadingOutThatTheViewWantsAgainAreKept) {
+    // The camera swings back and forth over more than the pool holds: pages behind it start
+    // leaving, and the swing back wants them again before they have gone.
+    FakeUploader up;
+    up.set_fade_out_frames(9);
+    DelayedSource src(path_, 2);
+    auto rt = make(40, up, src);
+    const auto& info = *rt->texture_info(0);
+    std::uint64_t rescued = 0;
+    for (unsigned f = 0; f < 400; ++f) {
+        const double cx = 2500 + 700 * std::sin(f * 0.15);
+        const float b = rt->lod_bias();
+        src.tick();
+        const auto& st = rt->frame(feedback(info, 160, 90, cx, 4000, 0.75, b), 160, 90, b);
+        rescued += st.pages_rescued;
+        EXPECT_EQ(rt->residency().stats().leaving, up.leaving().size()) << "frame " << f;
+    }
+    EXPECT_GT(up.fade_out_calls(), 0u) << "the swings must evict pages just seen";
+    EXPECT_GT(up.fade_out_cancels(), 0u) << "the swing back wants leaving pages again";
+    EXPECT_EQ(up.stray_cancels(), 0u) << "a cancel for a slot that was not leaving";
+    EXPECT_EQ(up.written_while_leaving(), 0u);
+    EXPECT_EQ(rescued, up.fade_out_cancels());
+    EXPECT_EQ(rt->residency().stats().rescued, rescued);
+    EXPECT_EQ(rt->summary().pages_rescued(), rescued);
+    std::printf("  %zu pages started fading out, %llu were wanted again and kept, %llu evictions\n", up.fade_out_calls(),
+                static_cast<unsigned long long>(rescued), static_cast<unsigned long long>(rt->residency().stats().evictions));
+}
+
 TEST_F(RuntimeSim, StaleRequestsAreCancelledAtTheSource) {
     // Frame 1 looks at one corner, then the camera cuts to the opposite corner for good: the first
     // corner's requests are cancelled at the source before they are served, and never uploaded.

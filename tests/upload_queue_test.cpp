@@ -287,6 +287,7 @@ TEST(Stats, FrameJsonAndCsv) {
     f.pages_arrived = 30;
     f.pages_uploaded = 16;
     f.pages_evicted = 16;
+    f.pages_rescued = 2;
     f.ram_hits[0] = 5;
     f.disk_hits[2] = 3;
     f.network[1] = 22;
@@ -296,7 +297,7 @@ TEST(Stats, FrameJsonAndCsv) {
     f.fallback_estimate = 0.5f;
     EXPECT_EQ(f.to_json(),
               "{\"frame\":12,\"pages\":{\"wanted\":300,\"resident\":250,\"requested\":40,\"arrived\":30,"
-              "\"uploaded\":16,\"evicted\":16},\"hits\":{\"ram\":[5,0,0],\"disk\":[0,0,3],\"network\":[0,22,0]},"
+              "\"uploaded\":16,\"evicted\":16,\"rescued\":2},\"hits\":{\"ram\":[5,0,0],\"disk\":[0,0,3],\"network\":[0,22,0]},"
               "\"bytes\":{\"received\":123456,\"uploaded\":1048576},\"lod_bias\":0.25,\"fallback_estimate\":0.5}");
     const std::string header = tc::FrameStats::csv_header();
     const std::string row = f.csv_row();
@@ -313,6 +314,7 @@ TEST(Stats, SummaryAcrossFrames) {
         tc::FrameStats f;
         f.pages_wanted = 100 * (i + 1);
         f.pages_requested = 10;
+        f.pages_rescued = std::uint32_t(i);
         f.network[3] = 2;
         f.bytes_received = 1000;
         f.lod_bias = 0.25f * i;
@@ -321,6 +323,7 @@ TEST(Stats, SummaryAcrossFrames) {
     for (int i = 1; i <= 100; ++i) s.record_latency(std::chrono::milliseconds(i));
     EXPECT_EQ(s.frames(), 4u);
     EXPECT_EQ(s.pages_requested(), 40u);
+    EXPECT_EQ(s.pages_rescued(), 6u);
     EXPECT_EQ(s.network()[3], 8u);
     EXPECT_EQ(s.bytes_received(), 4000u);
     EXPECT_DOUBLE_EQ(s.mean_pages_wanted(), 250.0);
@@ -333,6 +336,7 @@ TEST(Stats, SummaryAcrossFrames) {
     EXPECT_EQ(j.back(), '}');
     EXPECT_NE(j.find("\"frames\":4"), std::string::npos);
     EXPECT_NE(j.find("\"network\":[0,0,0,8]"), std::string::npos);
+    EXPECT_NE(j.find("\"rescued\":6"), std::string::npos);
     EXPECT_NE(j.find("\"latency_ms\":{\"count\":100,\"mean\":50.5,"), std::string::npos);
     EXPECT_NE(j.find("\"max\":100}"), std::string::npos);
     s.reset();

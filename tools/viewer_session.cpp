@@ -918,8 +918,11 @@ std::string summary_text(const ViewerReport& rep) {
         s += fmt::format("prefetch      {} frames' feedback saw the view ahead (motion prefetch)\n", rep.predicted_feedback_frames);
     s += fmt::format("bytes         {} received, {} uploaded\n", human_bytes(rep.summary.bytes_received()),
                      human_bytes(rep.summary.bytes_uploaded()));
-    s += fmt::format("pages         {} requested, {} uploaded, {} evicted; cache hit ratio {}\n",
+    s += fmt::format("pages         {} requested, {} uploaded, {} evicted{}; cache hit ratio {}\n",
                      rep.summary.pages_requested(), rep.summary.pages_uploaded(), rep.summary.pages_evicted(),
+                     rep.summary.pages_rescued() ? fmt::format(" ({} more fading out were wanted again and kept)",
+                                                               rep.summary.pages_rescued())
+                                                 : "",
                      pct(rep.cache_hit_ratio()));
     if (rep.remote) {
         if (rep.unserved_s == 0 && rep.outages == 0)

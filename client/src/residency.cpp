@@ -121,6 +121,13 @@ bool Residency::touch(const PageKey& page) {
     if (slot.state == SlotState::resident) {
         unlink(s);
         link_tail(s);
+    } else if (slot.state == SlotState::leaving) {
+        // Still wanted: it stays (see "Leaving"); its slot was promised to no one.
+        std::erase(leaving_, s);
+        slot.state = SlotState::resident;
+        link_tail(s);
+        rescued_.push_back(s);
+        ++rescues_;
     }
     return true;
 }
@@ -248,7 +255,7 @@ Status Residency::cancel(SlotId slot) {
     return {};
 }
 
-Result<Residency::Left> Residency::finish_leaving(SlotId slot) {
+Result<PageKey> Residency::finish_leaving(SlotId slot) {
     const auto it = std::find(leaving_.begin(), leaving_.end(), slot);
     if (slot >= slots_.size() || slots_[slot].state != SlotState::leaving || it == leaving_.end())
         return make_error(Errc::invalid_argument, "finish_leaving: slot " + std::to_string(slot) + " is not leaving");
@@ -263,7 +270,7 @@ Result<Residency::Left> Residency::finish_leaving(SlotId slot) {
     ++evictions_;
     v.state = SlotState::free;
     free_.push_back(slot);
-    return Left{v.page, v.last_seen >= v.leave_start};
+    return v.page;
 }
 
 std::uint8_t Residency::resident_level(const PageKey& page) const {
@@ -285,6 +292,7 @@ ResidencyStats Residency::stats() const {
     s.in_flight = static_cast<std::uint32_t>(in_flight_.size());
     s.leaving = static_cast<std::uint32_t>(leaving_.size());
     s.evictions = evictions_;
+    s.rescued = rescues_;
     return s;
 }
 

@@ -6,7 +6,8 @@
 // Protocol (render thread):
 //   begin_frame(f)                 once per frame, f never decreasing
 //   touch(page)                    for every page the feedback saw this frame (ancestors included);
-//                                  a resident page's last-seen frame becomes f
+//                                  a resident page's last-seen frame becomes f; a leaving one stays
+//                                  (take_rescued)
 //   acquire_slot(page)             a slot to upload `page` into: a free one, else the victim's,
 //                                  which is unmapped from its table right away ("unmap before
 //                                  overwrite": from here on the shader never samples that slot
@@ -24,6 +25,9 @@
 // once: acquire_slot answers kNoSlot and names it in SlotGrant::leaving; it stays mapped (drawn,
 // fading out) but is no longer a candidate, and its slot is free once finish_leaving(slot) is
 // called. At most max_leaving pages leave at once; past that, victims go at once as without.
+// A leaving page the feedback sees again (touch) is rescued: resident again, a candidate like any
+// page last seen now, its slot never freed; take_rescued() names it, so that the uploader fades it
+// back in (PageUploader::cancel_fade_out) instead of the runtime loading it again once it has gone.
 // Replacement order (not seen recently first, finer levels before coarser, LRU among equals;
 // docs/client.md, "Replacement"), read as one sort key, smallest evicted first:
 //   1. last-seen frame, older first (exact frame numbers, not buckets);
@@ -68,6 +72,7 @@ struct ResidencyStats {
     std::uint32_t in_flight = 0;       // acquired, not yet completed or cancelled
     std::uint32_t leaving = 0;         // resident, fading out (see "Leaving")
     std::uint64_t evictions = 0;       // since creation, leaving pages once they have left
+    std::uint64_t rescued = 0;         // since creation, leaving pages seen again and kept
 };
 
 // What acquire_slot() gives.
@@ -100,7 +105,7 @@ public:
     Status begin_frame(std::uint64_t frame);
     std::uint64_t frame() const { return frame_; }
     // Marks `page` seen this frame. Returns whether it is resident (mapped). Unknown textures and
-    // pages outside the geometry are not resident.
+    // pages outside the geometry are not resident. A leaving page is rescued (see "Leaving").
     bool touch(const PageKey& page);
 
     // See the protocol above. Errors (invalid_argument): unknown texture, page outside the
@@ -112,13 +117,15 @@ public:
     Status complete(const PageKey& page, SlotId slot);
     // Frees a slot that acquire_slot gave and that was never completed. Errors: not in flight.
     Status cancel(SlotId slot);
-    // The page leaving `slot` has faded out: unmaps it and frees the slot. Errors
-    // (invalid_argument): the slot is not leaving.
-    struct Left {
-        PageKey page;
-        bool seen_while_leaving = false;  // the feedback saw it after it started leaving
-    };
-    Result<Left> finish_leaving(SlotId slot);
+    // The page leaving `slot` has faded out: unmaps it, frees the slot and returns the page.
+    // Errors (invalid_argument): the slot is not leaving (never was, finished at the deadline, or
+    // rescued since).
+    Result<PageKey> finish_leaving(SlotId slot);
+    // Appends the slots whose leaving page touch() rescued since the last call.
+    void take_rescued(std::vector<SlotId>& out) {
+        out.insert(out.end(), rescued_.begin(), rescued_.end());
+        rescued_.clear();
+    }
     // Pages begin_frame finished at the deadline since the last call (their uploader never said).
     std::uint32_t take_expired() { return std::exchange(expired_, 0u); }
     // Frames a page may leave for before begin_frame finishes it: far longer than any fade
@@ -167,12 +174,14 @@ private:
     std::unordered_map<TextureId, Texture> textures_;
     std::unordered_map<PageKey, SlotId, PageKeyHash> in_flight_;
     std::vector<SlotId> leaving_;  // at most config_.max_leaving
+    std::vector<SlotId> rescued_;  // rescued, not yet taken; at most max_leaving per frame
     std::uint32_t expired_ = 0;    // finished at the deadline, not yet taken
     std::uint64_t frame_ = 0;
     std::uint64_t pinned_pages_total_ = 0;  // pinned pages of all registered textures
     std::uint32_t resident_ = 0;
     std::uint32_t pinned_resident_ = 0;
     std::uint64_t evictions_ = 0;
+    std::uint64_t rescues_ = 0;
 };
 
 }  // namespace tessera::client

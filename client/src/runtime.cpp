@@ -522,14 +522,19 @@ private:
 
     void upload(Clock::time_point now) {
         evicted_wanted_ = 0;
+        // Leaving pages this frame's feedback saw again stay, fading back in. Each was a victim the
+        // view still wanted: the bias controller counts it as it counts such an eviction.
+        slots_.clear();
+        residency_.take_rescued(slots_);
+        for (const SlotId slot : slots_) uploader_.cancel_fade_out(slot);
+        stats_.pages_rescued = static_cast<std::uint32_t>(slots_.size());
+        evicted_wanted_ += stats_.pages_rescued;
         // Pages that have faded out: gone now, their slots free for this frame's uploads.
-        faded_out_.clear();
-        uploader_.take_faded_out(faded_out_);
-        for (const SlotId slot : faded_out_) {
-            const auto gone = residency_.finish_leaving(slot);
-            if (!gone) continue;  // the deadline finished it already (Residency::begin_frame)
-            ++stats_.pages_evicted;
-            if (gone->seen_while_leaving) ++evicted_wanted_;  // the view still wanted it
+        slots_.clear();
+        uploader_.take_faded_out(slots_);
+        for (const SlotId slot : slots_) {
+            // Fails for a page the deadline finished already (Residency::begin_frame).
+            if (residency_.finish_leaving(slot)) ++stats_.pages_evicted;
         }
         stats_.pages_evicted += residency_.take_expired();
         ready_.clear();
@@ -634,7 +639,7 @@ private:
     std::vector<std::vector<std::uint8_t>> staging_;
     std::vector<int> free_staging_;
     std::uint32_t evicted_wanted_ = 0;
-    std::vector<SlotId> faded_out_;  // upload()'s scratch
+    std::vector<SlotId> slots_;  // upload()'s scratch: rescued, then faded-out slots
 
     // Per-frame scratch (kept to avoid reallocating).
     std::vector<std::pair<float, PageKey>> order_;

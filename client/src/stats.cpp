@@ -111,7 +111,8 @@ std::string FrameStats::to_json() const {
     Json j;
     j["frame"] = frame;
     j["pages"] = Json{{"wanted", pages_wanted},     {"resident", pages_resident}, {"requested", pages_requested},
-                      {"arrived", pages_arrived},   {"uploaded", pages_uploaded}, {"evicted", pages_evicted}};
+                      {"arrived", pages_arrived},   {"uploaded", pages_uploaded}, {"evicted", pages_evicted},
+                      {"rescued", pages_rescued}};
     j["hits"] = hits_json(ram_hits, disk_hits, network);
     j["bytes"] = Json{{"received", bytes_received}, {"uploaded", bytes_uploaded}};
     j["lod_bias"] = json_num(lod_bias);
@@ -149,6 +150,7 @@ void StatsSummary::add_frame(const FrameStats& f) {
     arrived_ += f.pages_arrived;
     uploaded_ += f.pages_uploaded;
     evicted_ += f.pages_evicted;
+    rescued_ += f.pages_rescued;
     for (std::size_t i = 0; i < kMaxLevels; ++i) {
         ram_hits_[i] += f.ram_hits[i];
         disk_hits_[i] += f.disk_hits[i];
@@ -187,7 +189,8 @@ std::string StatsSummary::to_json() const {
                       {"requested", requested_},
                       {"arrived", arrived_},
                       {"uploaded", uploaded_},
-                      {"evicted", evicted_}};
+                      {"evicted", evicted_},
+                      {"rescued", rescued_}};
     j["hits"] = hits_json(ram_hits_, disk_hits_, network_);
     j["bytes"] = Json{{"received", bytes_received_}, {"uploaded", bytes_uploaded_}};
     j["latency_ms"] = Json{{"count", latency_.count()},

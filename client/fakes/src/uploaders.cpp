@@ -31,6 +31,13 @@ void FakeUploader::fade_out(SlotId slot) {
     leaving_.emplace_back(slot, std::max<std::uint32_t>(fade_out_frames_, 1));
 }
 
+void FakeUploader::cancel_fade_out(SlotId slot) {
+    if (std::erase_if(leaving_, [&](const auto& l) { return l.first == slot; }) > 0)
+        ++fade_out_cancels_;
+    else
+        ++stray_cancels_;
+}
+
 void FakeUploader::take_faded_out(std::vector<SlotId>& out) {
     for (auto it = leaving_.begin(); it != leaving_.end();) {
         if (--it->second == 0) {
@@ -55,7 +62,7 @@ void FakeUploader::clear() {
     blocks_.clear();
     malformed_ = 0;
     leaving_.clear();
-    fade_out_calls_ = written_while_leaving_ = 0;
+    fade_out_calls_ = written_while_leaving_ = fade_out_cancels_ = stray_cancels_ = 0;
 }
 
 }  // namespace tessera::client

@@ -52,6 +52,23 @@ void PageFade::leaving(SlotId slot) {
     fading_index_[slot] = std::uint32_t(fading_.size());
 }
 
+void PageFade::kept(SlotId slot) {
+    if (!enabled() || std::size_t(slot) >= weights_.size()) {
+        std::erase(gone_, slot);  // given to gone_ at once by leaving(): not any more
+        return;
+    }
+    std::erase(gone_, slot);  // faded out, not yet taken: weight 0, fades in from there
+    Fading f{slot, -1, weights_[slot] / 255.0, false};
+    if (const std::uint32_t i = fading_index_[slot]; i != 0) {
+        if (fading_[i - 1].start < 0) f.from = fading_[i - 1].from;  // not drawn since: where it would have started
+        fading_[i - 1] = f;
+        return;
+    }
+    if (weights_[slot] == 255) return;  // at full weight: nothing to do
+    fading_.push_back(f);
+    fading_index_[slot] = std::uint32_t(fading_.size());
+}
+
 void PageFade::take_gone(std::vector<SlotId>& out) {
     out.insert(out.end(), gone_.begin(), gone_.end());
     gone_.clear();

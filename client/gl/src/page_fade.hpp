@@ -25,6 +25,10 @@ public:
     // The page in `slot` leaves: from the next frame its weight falls from where it is to 0 over
     // the fade time; then the slot is given back by take_gone().
     void leaving(SlotId slot);
+    // The page leaving `slot` stays after all: from the next frame its weight rises from where it
+    // is to 1 over the fade time (from 0 when it had faded out and was not yet taken), and the
+    // slot is not given back.
+    void kept(SlotId slot);
     // Appends the slots whose page has faded out since the last call.
     void take_gone(std::vector<SlotId>& out);
     // The next frame is drawn at `now` (seconds, never decreasing) with `requested_bias`: brings

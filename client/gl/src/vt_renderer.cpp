@@ -217,6 +217,7 @@ public:
 
     bool fades_out() const override { return fade_.enabled(); }
     void fade_out(SlotId slot) override { fade_.leaving(slot); }
+    void cancel_fade_out(SlotId slot) override { fade_.kept(slot); }
     void take_faded_out(std::vector<SlotId>& out) override { fade_.take_gone(out); }
 
     void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,

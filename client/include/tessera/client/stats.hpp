@@ -57,6 +57,7 @@ struct FrameStats {
     std::uint32_t pages_arrived = 0;    // pages whose data arrived (RAM, disk or network)
     std::uint32_t pages_uploaded = 0;   // pages uploaded and mapped
     std::uint32_t pages_evicted = 0;    // pages unmapped to make room
+    std::uint32_t pages_rescued = 0;    // pages fading out that the view wanted again: kept
     // Where requested pages were found, per level: RAM cache, disk cache, the network (a fetch
     // from the server; a "hit" of the last tier).
     LevelCounts ram_hits{};
@@ -119,6 +120,7 @@ public:
     std::uint64_t pages_arrived() const { return arrived_; }
     std::uint64_t pages_uploaded() const { return uploaded_; }
     std::uint64_t pages_evicted() const { return evicted_; }
+    std::uint64_t pages_rescued() const { return rescued_; }
     std::uint64_t bytes_received() const { return bytes_received_; }
     std::uint64_t bytes_uploaded() const { return bytes_uploaded_; }
     double mean_pages_wanted() const;
@@ -144,7 +146,7 @@ public:
 private:
     std::uint64_t frames_ = 0;
     std::uint64_t wanted_sum_ = 0, resident_sum_ = 0;
-    std::uint64_t requested_ = 0, arrived_ = 0, uploaded_ = 0, evicted_ = 0;
+    std::uint64_t requested_ = 0, arrived_ = 0, uploaded_ = 0, evicted_ = 0, rescued_ = 0;
     std::array<std::uint64_t, kMaxLevels> ram_hits_{}, disk_hits_{}, network_{};
     std::uint64_t bytes_received_ = 0, bytes_uploaded_ = 0;
     double bias_sum_ = 0.0;

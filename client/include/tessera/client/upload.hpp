@@ -75,6 +75,9 @@ public:
     // given up waiting (Residency::kLeaveDeadlineFrames: a renderer whose clock stands still); an
     // upload_page into a leaving slot ends its fade.
     virtual void fade_out(SlotId /*slot*/) {}
+    // The page leaving `slot` is wanted again: it fades back in from where it is, and its slot is
+    // not given back by take_faded_out() (not even when it had faded out but was not yet taken).
+    virtual void cancel_fade_out(SlotId /*slot*/) {}
     // Appends the slots whose page has faded out since the last call.
     virtual void take_faded_out(std::vector<SlotId>& /*out*/) {}
 };
