@@ -1368,6 +1368,28 @@ void expect_fade_out_cancelled(gl::Filter filter) {
                     "then max error %d\n",
                     filter_name(filter), out_eighths, away, largest_step, step_bound, back);
     }
+    // Made to leave, kept and made to leave again, each before a frame was drawn: every call
+    // takes the weight where it is, so nothing jumps; then half-way out, kept and leaving again
+    // at once: the fade goes on from half-way and ends in the half fade left.
+    for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
+    for (const auto& [key, slot] : fine_pages) fading.cancel_fade_out(slot);
+    std::vector<std::uint8_t> last = rig.frame_at(t).rgba;
+    EXPECT_LE(FadeRig::max_diff(before.rgba, last, mask), 1) << "fade_out, cancel_fade_out, then a frame";
+    EXPECT_EQ(fading.stats().fading_pages, 0u);
+    for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
+    for (int k = 0; k <= 4; ++k) last = rig.frame_at(t + k * fade_s / 8).rgba;  // starts at t
+    t += 4 * fade_s / 8;
+    for (const auto& [key, slot] : fine_pages) fading.cancel_fade_out(slot);
+    for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
+    const int jump = FadeRig::max_diff(last, rig.frame_at(t).rgba, mask);
+    EXPECT_LE(jump, 2) << "leaving again right after being kept: the fade goes on from where it was";
+    for (int k = 1; k <= 3; ++k) rig.frame_at(t + k * fade_s / 8);
+    fading.take_faded_out(gone);
+    EXPECT_TRUE(gone.empty()) << "out before the half fade left has passed";
+    rig.frame_at(t + 4 * fade_s / 8 + 1e-6);
+    fading.take_faded_out(gone);
+    EXPECT_EQ(gone.size(), fine_pages.size()) << "out once the half fade left has passed";
+    std::printf("  %s, kept and leaving again before a frame: largest jump %d\n", filter_name(filter), jump);
 }
 
 class RenderFadeOut : public ::testing::TestWithParam<gl::Filter> {};

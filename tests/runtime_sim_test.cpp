@@ -286,13 +286,21 @@ TEST_F(RuntimeSim, PagesFadingOutThatTheViewWantsAgainAreKept) {
     DelayedSource src(path_, 2);
     auto rt = make(40, up, src);
     const auto& info = *rt->texture_info(0);
-    std::uint64_t rescued = 0;
+    std::uint64_t rescued = 0, rescued_but_unmapped = 0;
     for (unsigned f = 0; f < 400; ++f) {
         const double cx = 2500 + 700 * std::sin(f * 0.15);
         const float b = rt->lod_bias();
         src.tick();
+        const std::size_t cancels_before = up.cancelled().size();
         const auto& st = rt->frame(feedback(info, 160, 90, cx, 4000, 0.75, b), 160, 90, b);
         rescued += st.pages_rescued;
+        // A kept page (the last one written into its slot) is still mapped after the frame.
+        for (std::size_t i = cancels_before; i < up.cancelled().size(); ++i) {
+            const SlotId slot = up.cancelled()[i];
+            const auto& calls = up.pages();
+            const auto last = std::find_if(calls.rbegin(), calls.rend(), [&](const auto& c) { return c.slot == slot; });
+            if (last == calls.rend() || !rt->residency().is_resident(last->page)) ++rescued_but_unmapped;
+        }
         EXPECT_EQ(rt->residency().stats().leaving, up.leaving().size()) << "frame " << f;
     }
     EXPECT_GT(up.fade_out_calls(), 0u) << "the swings must evict pages just seen";
@@ -302,6 +310,7 @@ TEST_F(RuntimeSim, PagesFadingOutThatTheViewWantsAgainAreKept) {
     EXPECT_EQ(rescued, up.fade_out_cancels());
     EXPECT_EQ(rt->residency().stats().rescued, rescued);
     EXPECT_EQ(rt->summary().pages_rescued(), rescued);
+    EXPECT_EQ(rescued_but_unmapped, 0u);
     std::printf("  %zu pages started fading out, %llu were wanted again and kept, %llu evictions\n", up.fade_out_calls(),
                 static_cast<unsigned long long>(rescued), static_cast<unsigned long long>(rt->residency().stats().evictions));
 }

@@ -524,15 +524,15 @@ private:
         evicted_wanted_ = 0;
         // Leaving pages this frame's feedback saw again stay, fading back in. Each was a victim the
         // view still wanted: the bias controller counts it as it counts such an eviction.
-        slots_.clear();
-        residency_.take_rescued(slots_);
-        for (const SlotId slot : slots_) uploader_.cancel_fade_out(slot);
-        stats_.pages_rescued = static_cast<std::uint32_t>(slots_.size());
+        scratch_slots_.clear();
+        residency_.take_rescued(scratch_slots_);
+        for (const SlotId slot : scratch_slots_) uploader_.cancel_fade_out(slot);
+        stats_.pages_rescued = static_cast<std::uint32_t>(scratch_slots_.size());
         evicted_wanted_ += stats_.pages_rescued;
         // Pages that have faded out: gone now, their slots free for this frame's uploads.
-        slots_.clear();
-        uploader_.take_faded_out(slots_);
-        for (const SlotId slot : slots_) {
+        scratch_slots_.clear();
+        uploader_.take_faded_out(scratch_slots_);
+        for (const SlotId slot : scratch_slots_) {
             // Fails for a page the deadline finished already (Residency::begin_frame).
             if (residency_.finish_leaving(slot)) ++stats_.pages_evicted;
         }
@@ -639,7 +639,7 @@ private:
     std::vector<std::vector<std::uint8_t>> staging_;
     std::vector<int> free_staging_;
     std::uint32_t evicted_wanted_ = 0;
-    std::vector<SlotId> slots_;  // upload()'s scratch: rescued, then faded-out slots
+    std::vector<SlotId> scratch_slots_;  // upload()'s: rescued, then faded-out slots
 
     // Per-frame scratch (kept to avoid reallocating).
     std::vector<std::pair<float, PageKey>> order_;

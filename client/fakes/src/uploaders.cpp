@@ -32,6 +32,7 @@ void FakeUploader::fade_out(SlotId slot) {
 }
 
 void FakeUploader::cancel_fade_out(SlotId slot) {
+    cancelled_.push_back(slot);
     if (std::erase_if(leaving_, [&](const auto& l) { return l.first == slot; }) > 0)
         ++fade_out_cancels_;
     else
@@ -62,6 +63,7 @@ void FakeUploader::clear() {
     blocks_.clear();
     malformed_ = 0;
     leaving_.clear();
+    cancelled_.clear();
     fade_out_calls_ = written_while_leaving_ = fade_out_cancels_ = stray_cancels_ = 0;
 }
 

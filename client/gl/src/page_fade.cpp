@@ -44,7 +44,7 @@ void PageFade::leaving(SlotId slot) {
     if (std::find(gone_.begin(), gone_.end(), slot) != gone_.end()) return;  // gone already
     Fading f{slot, -1, weights_[slot] / 255.0, true};  // from where it is, fading in or not
     if (const std::uint32_t i = fading_index_[slot]; i != 0) {
-        if (fading_[i - 1].start < 0 && !fading_[i - 1].out) f.from = 0;  // arrived, never drawn
+        if (fading_[i - 1].start < 0) f.from = fading_[i - 1].from;  // not drawn since (arrived: 0; kept: where it was)
         fading_[i - 1] = f;
         return;
     }

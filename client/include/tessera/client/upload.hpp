@@ -68,7 +68,9 @@ public:
     virtual void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
                                          std::span<const std::uint32_t> entries);
     // Fading out (docs/client.md, "Replacement"). Whether this uploader fades pages out; the
-    // default does not, and then evictions are at once.
+    // default does not, and then evictions are at once. One that does implements all three calls
+    // below: a page whose fade-out is cancelled but whose slot still comes back from
+    // take_faded_out would stay mapped, drawn at weight 0.
     virtual bool fades_out() const { return false; }
     // The page in `slot` leaves: it stays mapped, and is drawn fading out to what is above it.
     // The slot is not written until take_faded_out() has given it back, or until the runtime has

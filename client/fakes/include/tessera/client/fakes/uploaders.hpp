@@ -57,6 +57,7 @@ public:
     // cancel_fade_out calls for a slot that was leaving, and for one that was not (a runtime bug).
     std::size_t fade_out_cancels() const { return fade_out_cancels_; }
     std::size_t stray_cancels() const { return stray_cancels_; }
+    const std::vector<SlotId>& cancelled() const { return cancelled_; }  // every cancel_fade_out, in order
     // Slots leaving now, and pages written into a slot while it was leaving (a runtime bug).
     std::vector<SlotId> leaving() const;
     std::size_t written_while_leaving() const { return written_while_leaving_; }
@@ -78,6 +79,7 @@ private:
     std::size_t malformed_ = 0;
     std::uint32_t fade_out_frames_ = 0;
     std::vector<std::pair<SlotId, std::uint32_t>> leaving_;  // slot, take_faded_out calls left
+    std::vector<SlotId> cancelled_;
     std::size_t fade_out_calls_ = 0, written_while_leaving_ = 0, fade_out_cancels_ = 0, stray_cancels_ = 0;
 };
 
