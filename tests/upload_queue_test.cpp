@@ -302,7 +302,7 @@ TEST(Stats, FrameJsonAndCsv) {
     const std::string header = tc::FrameStats::csv_header();
     const std::string row = f.csv_row();
     EXPECT_EQ(std::count(header.begin(), header.end(), ','), std::count(row.begin(), row.end(), ','));
-    EXPECT_EQ(row, "12,300,250,40,30,16,16,5,3,22,123456,1048576,0.25,0.5");
+    EXPECT_EQ(row, "12,300,250,40,30,16,16,5,3,22,123456,1048576,0.25,0.5,2");
     f.fallback_estimate = std::numeric_limits<float>::quiet_NaN();
     EXPECT_NE(f.to_json().find("\"fallback_estimate\":null"), std::string::npos);
     EXPECT_NE(tc::FrameStats{}.to_json().find("\"ram\":[]"), std::string::npos);

@@ -591,6 +591,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         rec.pages_requested = s->pages_requested;
         rec.pages_uploaded = s->pages_uploaded;
         rec.pages_evicted = s->pages_evicted;
+        rec.pages_rescued = s->pages_rescued;
         rec.bias = bias;
         rec.bytes_received = s->bytes_received;
         rec.connected = link_monitor.connected();
@@ -794,7 +795,7 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
         else
             out << "frame,time_s,frame_ms,pages_wanted,pages_resident,pages_requested,pages_uploaded,pages_evicted,"
                    "lod_bias,textured_pixels,fallback_pixels,fallback_pixels_biased,fallback_rate,fallback_rate_biased,"
-                   "tile_latency_ms,bytes_received,psnr_db,max_error,connected,unserved_s,pop_rate,pop_largest\n";
+                   "tile_latency_ms,bytes_received,psnr_db,max_error,connected,unserved_s,pop_rate,pop_largest,pages_rescued\n";
         for (std::size_t i = 0; i < rep.frames.size(); ++i) {
             const auto& f = rep.frames[i];
             if (json)
@@ -804,22 +805,22 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
                     "\"textured_pixels\": {}, \"fallback_pixels\": {}, \"fallback_pixels_biased\": {}, "
                     "\"fallback_rate\": {}, \"fallback_rate_biased\": {}, \"tile_latency_ms\": {}, "
                     "\"bytes_received\": {}, \"psnr_db\": {}, \"max_error\": {}, \"connected\": {}, \"unserved_s\": {}, "
-                    "\"pop_rate\": {}, \"pop_largest\": {}}}{}\n",
+                    "\"pop_rate\": {}, \"pop_largest\": {}, \"pages_rescued\": {}}}{}\n",
                     f.frame, jnum(f.time_s), jnum(f.frame_ms), f.pages_wanted, f.pages_resident, f.pages_requested,
                     f.pages_uploaded, f.pages_evicted, jnum(f.bias), f.textured_pixels, f.fallback_unbiased,
                     f.fallback_biased, jnum(f.fallback_rate()), jnum(f.fallback_rate_biased()), jnum(f.tile_latency_ms),
                     f.bytes_received, jnum(std::min(f.psnr, 999.0)), f.max_error < 0 ? "null" : std::to_string(f.max_error),
                     f.connected, jnum(f.unserved_s), jnum(f.pop_rate), f.pop_largest < 0 ? "null" : std::to_string(f.pop_largest),
-                    i + 1 < rep.frames.size() ? "," : "");
+                    f.pages_rescued, i + 1 < rep.frames.size() ? "," : "");
             else
-                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.time_s),
+                out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", f.frame, num(f.time_s),
                                    num(f.frame_ms), f.pages_wanted, f.pages_resident, f.pages_requested,
                                    f.pages_uploaded, f.pages_evicted, num(f.bias), f.textured_pixels,
                                    f.fallback_unbiased, f.fallback_biased, num(f.fallback_rate()),
                                    num(f.fallback_rate_biased()), num(f.tile_latency_ms), f.bytes_received,
                                    num(std::min(f.psnr, 999.0)), f.max_error < 0 ? "" : std::to_string(f.max_error),
                                    f.connected ? 1 : 0, num(f.unserved_s), num(f.pop_rate),
-                                   f.pop_largest < 0 ? "" : std::to_string(f.pop_largest));
+                                   f.pop_largest < 0 ? "" : std::to_string(f.pop_largest), f.pages_rescued);
         }
         if (json)
             out << "], "

@@ -104,6 +104,7 @@ struct FrameRecord {
     double time_s = 0;   // path time
     double frame_ms = 0;  // wall time of the frame on the render thread
     std::uint32_t pages_wanted = 0, pages_resident = 0, pages_requested = 0, pages_uploaded = 0, pages_evicted = 0;
+    std::uint32_t pages_rescued = 0;  // pages fading out that the view wanted again: kept
     float bias = 0;
     bool counted = false;  // the GPU's fallback counters arrived for this frame
     std::uint64_t textured_pixels = 0, fallback_unbiased = 0, fallback_biased = 0;

@@ -122,7 +122,7 @@ std::string FrameStats::to_json() const {
 
 std::string FrameStats::csv_header() {
     return "frame,pages_wanted,pages_resident,pages_requested,pages_arrived,pages_uploaded,pages_evicted,"
-           "ram_hits,disk_hits,network,bytes_received,bytes_uploaded,lod_bias,fallback_estimate";
+           "ram_hits,disk_hits,network,bytes_received,bytes_uploaded,lod_bias,fallback_estimate,pages_rescued";
 }
 
 std::string FrameStats::csv_row() const {
@@ -137,6 +137,8 @@ std::string FrameStats::csv_row() const {
     put_num(s, lod_bias);
     s += ',';
     put_num(s, fallback_estimate);
+    s += ',';
+    put_uint(s, pages_rescued);
     return s;
 }
 
