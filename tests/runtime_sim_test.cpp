@@ -311,8 +311,10 @@ TEST_F(RuntimeSim, PagesFadingOutThatTheViewWantsAgainAreKept) {
     EXPECT_EQ(rt->residency().stats().rescued, rescued);
     EXPECT_EQ(rt->summary().pages_rescued(), rescued);
     EXPECT_EQ(rescued_but_unmapped, 0u);
-    std::printf("  %zu pages started fading out, %llu were wanted again and kept, %llu evictions\n", up.fade_out_calls(),
-                static_cast<unsigned long long>(rescued), static_cast<unsigned long long>(rt->residency().stats().evictions));
+    std::printf("  %zu pages started fading out, %llu were wanted again and kept (%zu of them had faded out, their slots "
+                "not yet given back), %llu evictions\n",
+                up.fade_out_calls(), static_cast<unsigned long long>(rescued), up.cancelled_after_fading_out(),
+                static_cast<unsigned long long>(rt->residency().stats().evictions));
 }
 
 TEST_F(RuntimeSim, StaleRequestsAreCancelledAtTheSource) {

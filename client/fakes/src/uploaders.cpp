@@ -9,7 +9,8 @@ namespace tessera::client {
 void FakeUploader::upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) {
     if (page_data.size() != format_.upload_bytes(tile_size)) ++malformed_;
     // A write ends a fade (the runtime's deadline); counted: a runtime that waits never does it.
-    if (std::erase_if(leaving_, [&](const auto& l) { return l.first == slot; }) > 0) ++written_while_leaving_;
+    if (std::erase_if(leaving_, [&](const auto& l) { return l.first == slot; }) + std::erase(gone_, slot) > 0)
+        ++written_while_leaving_;
     pages_.push_back(PageCall{seq_++, slot, page, tile_size, std::vector<std::uint8_t>(page_data.begin(), page_data.end())});
 }
 
@@ -33,16 +34,22 @@ void FakeUploader::fade_out(SlotId slot) {
 
 void FakeUploader::cancel_fade_out(SlotId slot) {
     cancelled_.push_back(slot);
-    if (std::erase_if(leaving_, [&](const auto& l) { return l.first == slot; }) > 0)
+    if (std::erase_if(leaving_, [&](const auto& l) { return l.first == slot; }) > 0) {
         ++fade_out_cancels_;
-    else
+    } else if (std::erase(gone_, slot) > 0) {
+        ++fade_out_cancels_;
+        ++cancelled_gone_;
+    } else {
         ++stray_cancels_;
+    }
 }
 
 void FakeUploader::take_faded_out(std::vector<SlotId>& out) {
+    out.insert(out.end(), gone_.begin(), gone_.end());
+    gone_.clear();
     for (auto it = leaving_.begin(); it != leaving_.end();) {
         if (--it->second == 0) {
-            out.push_back(it->first);
+            gone_.push_back(it->first);
             it = leaving_.erase(it);
         } else {
             ++it;
@@ -53,6 +60,7 @@ void FakeUploader::take_faded_out(std::vector<SlotId>& out) {
 std::vector<SlotId> FakeUploader::leaving() const {
     std::vector<SlotId> s;
     for (const auto& l : leaving_) s.push_back(l.first);
+    s.insert(s.end(), gone_.begin(), gone_.end());
     return s;
 }
 
@@ -64,6 +72,8 @@ void FakeUploader::clear() {
     malformed_ = 0;
     leaving_.clear();
     cancelled_.clear();
+    gone_.clear();
+    cancelled_gone_ = 0;
     fade_out_calls_ = written_while_leaving_ = fade_out_cancels_ = stray_cancels_ = 0;
 }
 

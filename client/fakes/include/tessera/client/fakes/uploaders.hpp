@@ -47,7 +47,9 @@ public:
                                  std::span<const std::uint32_t> entries) override;
 
     // Fading out like a renderer that takes `frames` calls of take_faded_out (one per runtime
-    // frame) to fade a page out; 0 (the default): does not fade out.
+    // frame) to fade a page out, and, as the renderer, gives the slot back one call after its
+    // weight reached 0 (a frame in which the feedback may still see it and cancel); 0 (the
+    // default): does not fade out.
     void set_fade_out_frames(std::uint32_t frames) { fade_out_frames_ = frames; }
     bool fades_out() const override { return fade_out_frames_ > 0; }
     void fade_out(SlotId slot) override;
@@ -57,8 +59,11 @@ public:
     // cancel_fade_out calls for a slot that was leaving, and for one that was not (a runtime bug).
     std::size_t fade_out_cancels() const { return fade_out_cancels_; }
     std::size_t stray_cancels() const { return stray_cancels_; }
+    // Of fade_out_cancels(), those of a page that had faded out but was not yet given back.
+    std::size_t cancelled_after_fading_out() const { return cancelled_gone_; }
     const std::vector<SlotId>& cancelled() const { return cancelled_; }  // every cancel_fade_out, in order
-    // Slots leaving now, and pages written into a slot while it was leaving (a runtime bug).
+    // Slots leaving now (faded out and not yet given back included), and pages written into a
+    // slot while it was leaving (a runtime bug).
     std::vector<SlotId> leaving() const;
     std::size_t written_while_leaving() const { return written_while_leaving_; }
 
@@ -80,6 +85,8 @@ private:
     std::uint32_t fade_out_frames_ = 0;
     std::vector<std::pair<SlotId, std::uint32_t>> leaving_;  // slot, take_faded_out calls left
     std::vector<SlotId> cancelled_;
+    std::vector<SlotId> gone_;     // faded out, given back by the next take_faded_out
+    std::size_t cancelled_gone_ = 0;
     std::size_t fade_out_calls_ = 0, written_while_leaving_ = 0, fade_out_cancels_ = 0, stray_cancels_ = 0;
 };
 
