@@ -42,29 +42,25 @@ void PageFade::leaving(SlotId slot) {
         return;
     }
     if (std::find(gone_.begin(), gone_.end(), slot) != gone_.end()) return;  // gone already
-    Fading f{slot, -1, weights_[slot] / 255.0, true};  // from where it is, fading in or not
-    if (const std::uint32_t i = fading_index_[slot]; i != 0) {
-        if (fading_[i - 1].start < 0) f.from = fading_[i - 1].from;  // not drawn since (arrived: 0; kept: where it was)
-        fading_[i - 1] = f;
-        return;
-    }
-    fading_.push_back(f);
-    fading_index_[slot] = std::uint32_t(fading_.size());
+    start(slot, /*out=*/true);
 }
 
 void PageFade::kept(SlotId slot) {
-    if (!enabled() || std::size_t(slot) >= weights_.size()) {
-        std::erase(gone_, slot);  // given to gone_ at once by leaving(): not any more
-        return;
-    }
-    std::erase(gone_, slot);  // faded out, not yet taken: weight 0, fades in from there
-    Fading f{slot, -1, weights_[slot] / 255.0, false};
+    std::erase(gone_, slot);  // faded out (or gone at once), not yet taken: stays, from weight 0
+    if (!enabled() || std::size_t(slot) >= weights_.size()) return;
+    start(slot, /*out=*/false);
+}
+
+// From the next frame, `slot`'s weight moves from where it is (or, for an entry not drawn since
+// it was set, from where that entry would have started: 0 for an arrival) towards 0 or 1.
+void PageFade::start(SlotId slot, bool out) {
+    Fading f{slot, -1, weights_[slot] / 255.0, out};
     if (const std::uint32_t i = fading_index_[slot]; i != 0) {
-        if (fading_[i - 1].start < 0) f.from = fading_[i - 1].from;  // not drawn since: where it would have started
+        if (fading_[i - 1].start < 0) f.from = fading_[i - 1].from;
         fading_[i - 1] = f;
         return;
     }
-    if (weights_[slot] == 255) return;  // at full weight: nothing to do
+    if (!out && weights_[slot] == 255) return;  // at full weight: nothing to fade in
     fading_.push_back(f);
     fading_index_[slot] = std::uint32_t(fading_.size());
 }

@@ -42,6 +42,8 @@ public:
     std::size_t fading() const { return fading_.size() + gone_.size(); }
 
 private:
+    void start(SlotId slot, bool out);
+
     struct Fading {
         SlotId slot;
         double start;      // seconds; < 0: starts in the next frame
