@@ -167,8 +167,22 @@ Command add_serve(CLI::App& app) {
         ->capture_default_str();
     add_bytes_option(*s, "--viewer-buffer", a->viewer_buffer, "Replies read but unsent, per viewer (flow control), e.g. 4MiB");
     add_bytes_option(*s, "--total-buffer", a->total_buffer, "The same over all viewers, e.g. 512MiB");
-    s->add_option("--request-timeout", a->timeout_ms, "Default deadline of a tile request, ms")->capture_default_str()
-        ->check(CLI::Range(1LL, 3600000LL));
+    s->add_option("--request-timeout", a->timeout_ms,
+                  "Deadline of a request, ms: a gRPC batch's default, and every HTTP request that needs a read or a render "
+                  "(past it: 504)")
+        ->capture_default_str()->check(CLI::Range(1LL, 3600000LL));
+    s->add_option("--work-threads", c.work_threads, "HTTP workers for tile reads and web renders (off the event loops)")
+        ->capture_default_str()->check(CLI::Range(1u, 1024u));
+    s->add_option("--store-inflight", c.store_inflight, "HTTP reads and renders of one store running at once")
+        ->capture_default_str()->check(CLI::Range(std::size_t(1), std::size_t(1024)));
+    s->add_option("--store-queue", c.store_queue, "HTTP reads and renders of one store waiting; beyond: 503")
+        ->capture_default_str()->check(CLI::Range(std::size_t(0), std::size_t(1) << 20));
+    s->add_option("--render-concurrency", c.render_concurrency, "Web renders (DZI/IIIF/XYZ, PNG tiles) at once (0: hardware threads)")
+        ->capture_default_str()->check(CLI::Range(0u, 1024u));
+    s->add_option("--render-queue", c.render_queue, "Web renders waiting; beyond: 503")
+        ->capture_default_str()->check(CLI::Range(std::size_t(0), std::size_t(1) << 16));
+    add_bytes_option(*s, "--render-memory", c.render_memory_bytes,
+                     "Estimated peak memory of the web renders admitted, e.g. 160MiB; beyond: 503");
     s->add_option("--watch-interval", a->watch_ms, "Rescan stores this often, ms (0: only on SIGHUP)")
         ->capture_default_str()->check(CLI::Range(0LL, 86400000LL));
     s->add_option("--idle-timeout", a->idle_ms, "Close idle HTTP keep-alive connections after this many ms")

@@ -135,6 +135,20 @@ std::string loggable_target(std::string_view target) {
 }  // namespace
 
 HttpResponse HttpHandler::handle_http_request(const HttpRequestView& req, bool borrow_payload) {
+    HttpResponse res = start(req, borrow_payload);
+    if (!res.deferred) return res;
+    const std::shared_ptr<DeferredAnswer> d = std::move(res.deferred);
+    HttpResponse answered;
+    try {
+        answered = d->answer();
+    } catch (const std::exception& e) {
+        ctx_.log.error("http handler failed", {{"target", d->target}, {"error", e.what()}});
+        answered = httpapi::error(500, "internal error", d->target.starts_with("/v1/"));
+    }
+    return complete(*d, std::move(answered));
+}
+
+HttpResponse HttpHandler::start(const HttpRequestView& req, bool borrow_payload) {
     const auto t0 = std::chrono::steady_clock::now();
     HttpRoute route_label = HttpRoute::other;
     HttpResponse res;
@@ -144,15 +158,52 @@ HttpResponse HttpHandler::handle_http_request(const HttpRequestView& req, bool b
         ctx_.log.error("http handler failed", {{"target", loggable_target(req.target)}, {"error", e.what()}});
         res = httpapi::error(500, "internal error", req.target.starts_with("/v1/"));
     }
+    if (res.deferred) {
+        DeferredAnswer& d = *res.deferred;
+        d.route = route_label;
+        d.started = t0;
+        d.origin = std::string(req.origin);
+        d.target = loggable_target(req.target);
+        d.head = req.method == "HEAD";
+        return res;
+    }
+    return finish(std::move(res), route_label, req.origin, req.target, req.method == "HEAD", t0);
+}
+
+HttpResponse HttpHandler::complete(const DeferredAnswer& d, HttpResponse r) {
+    return finish(std::move(r), d.route, d.origin, d.target, d.head, d.started);
+}
+
+HttpResponse HttpHandler::refused(const DeferredAnswer& d, Admission why) {
+    std::string message;
+    switch (why) {
+        case Admission::store_full: message = "too many requests for this store are waiting; retry"; break;
+        case Admission::render_busy: message = "too many images are being rendered; retry"; break;
+        case Admission::render_memory: message = "the memory for rendering images is in use; retry"; break;
+        case Admission::render_too_large: message = "this image needs more memory than --render-memory allows"; break;
+        default: message = "the server is stopping"; break;
+    }
+    HttpResponse r = httpapi::retry_later(message, d.target.starts_with("/v1/"));
+    return complete(d, std::move(r));
+}
+
+HttpResponse HttpHandler::expired(const DeferredAnswer& d) {
+    HttpResponse r = httpapi::error(504, "the request's deadline passed before it could be answered",
+                                    d.target.starts_with("/v1/"));
+    return complete(d, std::move(r));
+}
+
+HttpResponse HttpHandler::finish(HttpResponse res, HttpRoute route_label, std::string_view origin, std::string_view target,
+                                 bool head, std::chrono::steady_clock::time_point t0) {
     res.route = route_label;
-    if (route_label != HttpRoute::preflight) httpapi::add_cors_headers(res, ctx_.config, req.origin);
+    if (route_label != HttpRoute::preflight) httpapi::add_cors_headers(res, ctx_.config, origin);
     res.headers.emplace_back("Server", std::string(httpapi::kServer));
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    record(route_label, res.status, req.method == "HEAD" ? 0 : res.body_size(), seconds);
-    if (res.status >= 500 && res.status != 503)
-        ctx_.log.warn("http request failed", {{"target", loggable_target(req.target)}, {"status", res.status}, {"body", res.body}});
+    record(route_label, res.status, head ? 0 : res.body_size(), seconds);
+    if (res.status >= 500 && res.status != 503 && res.status != 504)
+        ctx_.log.warn("http request failed", {{"target", loggable_target(target)}, {"status", res.status}, {"body", res.body}});
     else if (ctx_.log.enabled(LogLevel::debug))
-        ctx_.log.debug("http request", {{"method", req.method}, {"target", loggable_target(req.target)}, {"status", res.status},
+        ctx_.log.debug("http request", {{"target", loggable_target(target)}, {"status", res.status},
                                         {"bytes", static_cast<std::uint64_t>(res.body_size())}, {"seconds", seconds}});
     return res;
 }

@@ -15,6 +15,7 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -27,8 +28,11 @@
 #include "metrics.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "server_context.hpp"
+#include "work_executor.hpp"
 
 namespace tessera::server {
+
+struct HttpResponse;
 
 struct HttpRequestView {
     std::string_view method;         // "GET", "HEAD", ...
@@ -51,6 +55,25 @@ enum class HttpRoute : std::uint8_t {
 inline constexpr std::size_t kHttpRouteCount = 15;
 std::string_view to_string(HttpRoute r);
 
+// Work a request needs off the event loop: a tile read that missed the RAM cache (a pread, or
+// a remote store's origin) or a web image render. An API returns it (HttpResponse::deferred)
+// instead of doing it; the transport runs `answer` on its WorkExecutor (docs/server.md,
+// "Isolation") and hands the result to HttpHandler::complete. Tests and tools that call
+// handle_http_request get it run in place.
+struct DeferredAnswer {
+    WorkKind kind = WorkKind::read;
+    std::shared_ptr<const StoreHandle> store;  // its lane (per-store bound)
+    std::size_t memory = 0;                    // renders: estimated peak bytes
+    std::function<HttpResponse()> answer;      // owns what it uses; runs on any thread
+
+    // Of the request, for complete(): set by the handler.
+    HttpRoute route = HttpRoute::other;
+    std::chrono::steady_clock::time_point started{};
+    std::string origin;  // CORS
+    std::string target;  // logs
+    bool head = false;
+};
+
 struct HttpResponse {
     unsigned status = 200;
     std::string content_type;  // empty: no Content-Type (304)
@@ -62,6 +85,8 @@ struct HttpResponse {
     // Set instead of body when the caller asked to borrow payloads: the stored tile is the body
     // (the transport writes its bytes from the cache; nothing is copied).
     std::shared_ptr<const storage::Tile> payload;
+    // Set instead of everything else when the answer needs work off the event loop.
+    std::shared_ptr<DeferredAnswer> deferred;
 
     std::size_t body_size() const { return payload ? payload->bytes.size() : body.size(); }
 
@@ -99,9 +124,20 @@ public:
     HttpHandler(const HttpHandler&) = delete;
     HttpHandler& operator=(const HttpHandler&) = delete;
 
-    // Thread-safe; blocking only for the tile read (TileFetcher: RAM cache, else one pread).
-    // borrow_payload: a stored tile's payload comes as HttpResponse::payload, not copied into body.
+    // Thread-safe. Runs any deferred work in place (blocking for its reads and renders): for
+    // tests and tools. borrow_payload: a stored tile's payload comes as HttpResponse::payload,
+    // not copied into body.
     HttpResponse handle_http_request(const HttpRequestView& req, bool borrow_payload = false);
+
+    // For a transport with an executor: the response, or one whose `deferred` is set (nothing
+    // of it waited for I/O or heavy work). The transport then runs deferred->answer() off its
+    // loop and sends complete(*deferred, result), or sends refused() / expired().
+    HttpResponse start(const HttpRequestView& req, bool borrow_payload);
+    HttpResponse complete(const DeferredAnswer& d, HttpResponse r);
+    // 503 + Retry-After: the executor refused the work (a store's lane or the render budget full).
+    HttpResponse refused(const DeferredAnswer& d, Admission why);
+    // 504: the request's deadline (--request-timeout) passed before its work could finish.
+    HttpResponse expired(const DeferredAnswer& d);
 
     // Counts a response the transport produced on its own (route "other").
     void record_transport_response(unsigned status, std::size_t body_bytes);
@@ -120,6 +156,9 @@ public:
 
 private:
     HttpResponse route(const HttpRequestView& req, HttpRoute& route, bool borrow_payload);
+    // CORS, Server header, metrics and logs: what every answer gets once it is made.
+    HttpResponse finish(HttpResponse res, HttpRoute route, std::string_view origin, std::string_view target, bool head,
+                        std::chrono::steady_clock::time_point started);
     void record(HttpRoute route, unsigned status, std::size_t body_bytes, double seconds);
     Counter& requests_counter(HttpRoute route, unsigned status);
     Counter& tiles_served_counter(const std::string& store);

@@ -51,6 +51,7 @@
 
 #include "http_handler.hpp"
 #include "http_response_head.hpp"
+#include "work_executor.hpp"
 
 namespace tessera::server {
 
@@ -105,7 +106,22 @@ struct Shared {
     std::condition_variable sessions_cv;
     std::unordered_map<const SessionBase*, std::weak_ptr<SessionBase>> sessions;
 
-    explicit Shared(ServerContext& c) : ctx(c), handler(c) {}
+    // Reads and renders, off the loops. After the handler: destroyed (stopped) before it.
+    WorkExecutor executor;
+
+    explicit Shared(ServerContext& c) : ctx(c), handler(c), executor(work_limits(c.config), c.metrics) {}
+
+    static WorkLimits work_limits(const ServerConfig& config) {
+        WorkLimits l;
+        l.threads = std::max(1u, config.work_threads);
+        l.store_inflight = std::max<std::size_t>(1, config.store_inflight);
+        l.store_queue = config.store_queue;
+        l.render_concurrency =
+            config.render_concurrency ? config.render_concurrency : std::max(1u, std::thread::hardware_concurrency());
+        l.render_queue = config.render_queue;
+        l.render_memory = config.render_memory_bytes;
+        return l;
+    }
 
     bool closing_connections() const { return draining.load() || stopped.load() || ctx.draining.load(); }
     void request_begin() {
@@ -237,14 +253,55 @@ private:
                                    sv(req[http::field::origin]), sv(req[http::field::host]), Tls};
         HttpResponse r;
         try {
-            r = shared_.handler.handle_http_request(view, /*borrow_payload=*/true);
+            r = shared_.handler.start(view, /*borrow_payload=*/true);
         } catch (const std::exception& e) {
             // The handler catches its own errors; this is only allocation failure and the like.
             shared_.ctx.log.error("http handler threw", {{"error", e.what()}});
             r = http_error_response(500, "internal error");
         }
+        const unsigned version = req.version();
+        const bool head = req.method() == http::verb::head;
         const bool keep_alive = req.keep_alive() && !shared_.closing_connections();
-        send(std::move(r), req.version(), req.method() == http::verb::head, keep_alive);
+        if (r.deferred) return run_deferred(std::move(r.deferred), version, head, keep_alive);
+        send(std::move(r), version, head, keep_alive);
+    }
+
+    // The answer needs a read or a render: it runs on the executor, and its response comes back
+    // to this connection's loop. The loop goes on serving other connections meanwhile; this one
+    // waits (it reads its next request only after this answer is written).
+    void run_deferred(std::shared_ptr<DeferredAnswer> d, unsigned version, bool head, bool keep_alive) {
+        const auto deadline = std::chrono::steady_clock::now() + shared_.ctx.config.request_timeout;
+        WorkJob job;
+        job.kind = d->kind;
+        job.store = d->store ? d->store->name : std::string();
+        job.memory = d->memory;
+        job.deadline = deadline;
+        job.run = [self = self(), d, deadline, version, head, keep_alive](bool started) {
+            HttpHandler& handler = self->shared_.handler;
+            HttpResponse r;
+            if (!started) {
+                r = handler.expired(*d);
+            } else {
+                try {
+                    r = handler.complete(*d, d->answer());
+                } catch (const std::exception& e) {
+                    self->shared_.ctx.log.error("http work failed", {{"target", d->target}, {"error", e.what()}});
+                    r = handler.complete(*d, http_error_response(500, "internal error"));
+                }
+                // A failure that came because the deadline passed (a remote read cut short) says so.
+                if (r.status >= 500 && r.status != 504 && std::chrono::steady_clock::now() >= deadline)
+                    r = handler.expired(*d);
+            }
+            try {
+                net::post(self->stream_.get_executor(), [self, r = std::move(r), version, head, keep_alive]() mutable {
+                    self->send(std::move(r), version, head, keep_alive);
+                });
+            } catch (...) {
+                // Posting failed (no memory): the session ends with its loop.
+            }
+        };
+        const Admission a = shared_.executor.submit(std::move(job));
+        if (a != Admission::admitted) send(shared_.handler.refused(*d, a), version, head, keep_alive);
     }
 
     // RFC 9112 6.1 and 6.3: a request's Transfer-Encoding must end in chunked (else its length
@@ -510,6 +567,9 @@ public:
             std::unique_lock lock(shared_.sessions_mutex);
             shared_.sessions_cv.wait_for(lock, std::chrono::seconds(2), [&] { return shared_.sessions.empty(); });
         }
+        // Waiting work is answered (its sessions are closed: nothing is written); running work
+        // ends by its deadline at the latest.
+        shared_.executor.stop();
         work_.clear();
         for (auto& ioc : iocs_) ioc->stop();
         for (auto& t : threads_)

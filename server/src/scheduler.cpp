@@ -9,6 +9,7 @@
 #include <map>
 
 #include "tessera/protocol/wire.hpp"
+#include "tessera/storage/byte_source.hpp"
 
 namespace tessera::server {
 
@@ -454,6 +455,7 @@ void Scheduler::worker() {
         replies.clear();
         replies.resize(chunk.size());
         std::map<const StoreHandle*, std::vector<std::size_t>> by_store;
+        std::vector<std::size_t> expired;
         for (std::size_t i = 0; i < chunk.size(); ++i) {
             auto& r = replies[i];
             r.is_tile = true;
@@ -466,14 +468,53 @@ void Scheduler::worker() {
                 r.status = TileStatus::deadline_exceeded;
                 r.error = "not started before its deadline";
                 deadline_exceeded_->inc();
+                expired.push_back(i);
             } else {
                 by_store[chunk[i].store.get()].push_back(i);
             }
         }
-        for (auto& [store, members] : by_store) {
+        // Local stores first, and each store's replies handed over as soon as they are read: a
+        // viewer's tiles of a fast store never wait for a slow origin's in the same chunk.
+        std::vector<std::pair<const StoreHandle*, std::vector<std::size_t>>> groups(by_store.begin(), by_store.end());
+        std::stable_partition(groups.begin(), groups.end(),
+                              [](const auto& g) { return !g.first->remote(); });
+        std::size_t handed = 0;
+        // Hand over, unless the viewer left or no longer wants the tile; the chunk ends with its last group.
+        auto hand_over = [&](const std::vector<std::size_t>& members) {
+            handed += members.size();
+            const bool last = handed == chunk.size();
+            std::lock_guard lock(mu_);
+            total_in_flight_ -= members.size();
+            auto it = viewers_.find(vid);
+            if (it == viewers_.end()) return;
+            Viewer& v = *it->second;
+            if (last) --v.chunks_in_flight;
+            std::uint64_t dropped = 0;
+            for (std::size_t i : members) {
+                const FullKey fk{chunk[i].store.get(), chunk[i].packed};
+                if (chunk[i].generation != v.generation && !v.wanted.contains(fk)) {
+                    v.in_flight.erase(fk);
+                    ++dropped;  // superseded while it was being read
+                    continue;
+                }
+                push_locked(v, std::move(replies[i]));
+            }
+            cancelled_->inc(dropped);
+            if (!members.empty() && (wake.empty() || wake.back() != v.sink)) wake.push_back(v.sink);
+        };
+        if (!expired.empty() || groups.empty()) hand_over(expired);
+        for (auto& [store, members] : groups) {
             keys.clear();
-            for (std::size_t i : members) keys.push_back(chunk[i].key);
-            ctx_.fetcher.fetch(*store, keys, fetched);
+            Clock::time_point deadline = Clock::time_point::max();
+            for (std::size_t i : members) {
+                keys.push_back(chunk[i].key);
+                deadline = std::min(deadline, chunk[i].deadline);
+            }
+            {
+                // A remote store's reads end at the requests' deadline, not the origin's pace.
+                const storage::ReadDeadlineScope scope(deadline);
+                ctx_.fetcher.fetch(*store, keys, fetched);
+            }
             for (std::size_t j = 0; j < members.size(); ++j) {
                 auto& f = fetched[j];
                 auto& r = replies[members[j]];
@@ -487,29 +528,8 @@ void Scheduler::worker() {
                 r.codec = store->info().codec;
                 r.tile = std::move(f.tile);
             }
-        }
-
-        // Hand over, unless the viewer left or no longer wants the tile.
-        {
-            std::lock_guard lock(mu_);
-            total_in_flight_ -= chunk.size();
-            auto it = viewers_.find(vid);
-            if (it != viewers_.end()) {
-                Viewer& v = *it->second;
-                --v.chunks_in_flight;
-                std::uint64_t dropped = 0;
-                for (std::size_t i = 0; i < chunk.size(); ++i) {
-                    const FullKey fk{chunk[i].store.get(), chunk[i].packed};
-                    if (chunk[i].generation != v.generation && !v.wanted.contains(fk)) {
-                        v.in_flight.erase(fk);
-                        ++dropped;  // superseded while it was being read
-                        continue;
-                    }
-                    push_locked(v, std::move(replies[i]));
-                }
-                cancelled_->inc(dropped);
-                wake.push_back(v.sink);
-            }
+            hand_over(members);
+            if (handed < chunk.size()) notify(wake);
         }
         work_cv_.notify_one();  // this viewer may be eligible again (chunks in flight went down)
         notify(wake);

@@ -47,6 +47,7 @@ struct StoreHandle {
     // The file changed in place under this version: nothing more is read from it.
     mutable std::atomic<bool> stale{false};
     const storage::StoreInfo& info() const { return reader->info(); }
+    bool remote() const { return !remote_version.empty(); }  // read over the network
 };
 
 struct ReloadReport {

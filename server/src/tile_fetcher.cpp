@@ -5,6 +5,8 @@
 #include <cstdio>
 #include <functional>
 
+#include "tessera/storage/byte_source.hpp"
+
 namespace tessera::server {
 
 TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log)
@@ -161,9 +163,18 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
     if (!lead_keys.empty()) read_misses(store, lead_keys, lead_index, out);
     publish(true);
     // Then the reads other requests lead (each of ours is done, so no two fetches wait on each other).
+    // A request with a deadline (storage::read_deadline) stops waiting at it: the read it joined
+    // may be a slow origin's, and a waiter must not outlive its request.
+    const auto deadline = storage::read_deadline();
     for (auto& [i, flight] : joined) {
         std::unique_lock lock(flight->m);
-        flight->cv.wait(lock, [&f = *flight] { return f.done; });
+        const auto done = [&f = *flight] { return f.done; };
+        if (deadline == std::chrono::steady_clock::time_point::max()) {
+            flight->cv.wait(lock, done);
+        } else if (!flight->cv.wait_until(lock, deadline, done)) {
+            out[i] = error_tile(TileStatus::deadline_exceeded, "the request's deadline passed waiting for a read in flight");
+            continue;
+        }
         out[i] = flight->result;
         reads_saved_->inc();
     }
@@ -214,6 +225,13 @@ FetchedTile TileFetcher::fetch_one(const StoreHandle& store, const TileKey& key)
     std::vector<FetchedTile> out;
     fetch(store, std::span<const TileKey>(&key, 1), out);
     return std::move(out[0]);
+}
+
+std::shared_ptr<const storage::Tile> TileFetcher::cached(const StoreHandle& store, const TileKey& key) {
+    if (store.stale.load(std::memory_order_relaxed) || !store.info().contains(key)) return nullptr;
+    auto hit = cache_.get(CacheKey{store.version, key});
+    if (hit) cache_hits_->inc();
+    return hit;
 }
 
 }  // namespace tessera::server

@@ -34,6 +34,9 @@ public:
     // Tiles of one store, results in the order of keys (out is resized to keys.size()).
     void fetch(const StoreHandle& store, std::span<const TileKey> keys, std::vector<FetchedTile>& out);
     FetchedTile fetch_one(const StoreHandle& store, const TileKey& key);
+    // The tile when the RAM cache holds it (counted as a hit), else null and nothing counted:
+    // what an event loop may answer at once, without waiting for a read.
+    std::shared_ptr<const storage::Tile> cached(const StoreHandle& store, const TileKey& key);
 
     TileCache& cache() { return cache_; }
     std::uint64_t reads() const { return reads_->value(); }

@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 
@@ -82,5 +83,17 @@ Result<std::unique_ptr<ByteSource>> open_file_source(const std::string& path) {
 std::unique_ptr<ByteSource> memory_source(std::vector<std::uint8_t> bytes) {
     return std::make_unique<MemorySource>(std::move(bytes));
 }
+
+namespace {
+thread_local std::chrono::steady_clock::time_point t_read_deadline = std::chrono::steady_clock::time_point::max();
+}
+
+std::chrono::steady_clock::time_point read_deadline() { return t_read_deadline; }
+
+ReadDeadlineScope::ReadDeadlineScope(std::chrono::steady_clock::time_point deadline) : outer_(t_read_deadline) {
+    t_read_deadline = std::min(outer_, deadline);
+}
+
+ReadDeadlineScope::~ReadDeadlineScope() { t_read_deadline = outer_; }
 
 }  // namespace tessera::storage

@@ -96,32 +96,58 @@ HttpResponse api_dzi(HttpHandler& handler, const ParsedRequest& req, HttpRoute& 
     span(*x, w, x0, x1);
     span(*y, hgt, y0, y1);
 
+    const WebAnswer answer{"dzi-" + std::to_string(*level) + "-" + std::to_string(*x) + "_" + std::to_string(*y) + "." + format,
+                           format, version.has_value()};
+    const std::shared_ptr<const StoreHandle> hs = store->handle;
+    TileFetcher* fetcher = &handler.context().fetcher;
+    const WebLook look = store->look;
+    const std::uint32_t rw = x1 - x0, rh = y1 - y0;
+    auto render = [fetcher, hs, look, k, x0, y0, rw, rh](WebFailure& failure) {
+        return render_scaled(*fetcher, *hs, look, k, x0, y0, rw, rh, failure);
+    };
+    const std::size_t memory = render_memory(info, look, rw, rw, rh);
+
     // Away from the edges, the stored tile is the answer: as stored when the codec is the format.
     const bool whole = *x > 0 && *y > 0 && x1 - x0 == info.tile_size() && y1 - y0 == info.tile_size() &&
                        k < info.level_count();
     if (whole && format == "jpg" && info.codec == Codec::jpeg) {
-        const TileSlot slot = handler.tile_slot();
-        if (!slot.ok()) return retry_later("too many tile requests in flight; retry", false);
-        const FetchedTile f = handler.context().fetcher.fetch_one(h, TileKey{k, *x, *y});
-        if (f.status == TileStatus::ok && f.tile && f.tile->kind == TileKind::present) {
-            const WebAnswer answer{"s" + hex16(f.tile->checksum) + ".jpg", "jpg", version.has_value()};
-            if (!req.raw->if_none_match.empty() && if_none_match_matches(req.raw->if_none_match, web_etag(h, answer)))
-                return web_body_response(handler, *req.raw, h, answer, nullptr);
-            HttpResponse r = web_body_response(handler, *req.raw, h, answer, nullptr);  // its headers, as a 304
+        HttpHandler* hp = &handler;
+        const bool head = req.raw->method == "HEAD";
+        const bool pinned = version.has_value();
+        const std::string if_none_match(req.raw->if_none_match);
+        const TileKey key{k, *x, *y};
+        // The stored tile's answer, or nullopt when it has to be rendered (uniform, absent, unreadable).
+        auto stored = [hp, hs, head, pinned, if_none_match, borrow_payload](const FetchedTile& f) -> std::optional<HttpResponse> {
+            if (f.status != TileStatus::ok || !f.tile || f.tile->kind != TileKind::present) return std::nullopt;
+            const WebAnswer as_stored{"s" + hex16(f.tile->checksum) + ".jpg", "jpg", pinned};
+            if (!if_none_match.empty() && if_none_match_matches(if_none_match, web_etag(*hs, as_stored)))
+                return web_body_response(*hp, head, *hs, as_stored, nullptr);
+            HttpResponse r = web_body_response(*hp, head, *hs, as_stored, nullptr);  // its headers, as a 304
             r.status = 200;
             r.content_type = "image/jpeg";
             if (borrow_payload) r.payload = f.tile;
             else r.body.assign(reinterpret_cast<const char*>(f.tile->bytes.data()), f.tile->bytes.size());
-            if (req.raw->method != "HEAD") handler.count_served(h, r.body_size());
+            if (!head) hp->count_served(*hs, r.body_size());
             return r;
+        };
+        if (auto hit = fetcher->cached(*hs, key)) {
+            FetchedTile f;
+            f.tile = std::move(hit);
+            if (auto r = stored(f)) return std::move(*r);
+        } else {
+            // Not in RAM: the read (and, rarely, a render after it) off the loop.
+            return defer(WorkKind::read, hs, 0, [hp, fetcher, hs, key, stored, answer, memory, render, head, if_none_match]() {
+                const TileSlot slot = hp->tile_slot();
+                if (!slot.ok()) return retry_later("too many tile requests in flight; retry", false);
+                if (auto r = stored(fetcher->fetch_one(*hs, key))) return std::move(*r);
+                HttpRequestView plain;
+                plain.method = head ? "HEAD" : "GET";
+                plain.if_none_match = if_none_match;
+                return answer_in_place(web_image_response(*hp, plain, hs, answer, memory, render));
+            });
         }
-        // Uniform, absent or unreadable: rendered below (which reports a failed read).
     }
-    const WebAnswer answer{"dzi-" + std::to_string(*level) + "-" + std::to_string(*x) + "_" + std::to_string(*y) + "." + format,
-                           format, version.has_value()};
-    return web_image_response(handler, *req.raw, h, answer, [&](WebFailure& failure) {
-        return render_scaled(handler.context().fetcher, h, store->look, k, x0, y0, x1 - x0, y1 - y0, failure);
-    });
+    return web_image_response(handler, *req.raw, hs, answer, memory, render);
 }
 
 }  // namespace tessera::server::httpapi

@@ -242,36 +242,44 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
                                "," + std::to_string(oh) + "-" + (mirrored ? "!" : "") + std::to_string(int(*degrees)) +
                                "-" + quality + "." + format,
                            format, false};
-    return web_image_response(handler, *req.raw, h, answer, [&](WebFailure& failure) -> std::optional<WebImage> {
+    const std::shared_ptr<const StoreHandle> hs = store->handle;
+    TileFetcher* fetcher = &handler.context().fetcher;
+    const WebLook look = store->look;
+    const auto reg = *region;
+    const double deg = *degrees;
+    const std::size_t memory = render_memory(info, look, std::min<std::uint32_t>(reg.w, 4 * ow + 2), ow, oh);
+    auto render = [fetcher, hs, look, reg, ow, oh, deg, mirrored, quality](WebFailure& failure) -> std::optional<WebImage> {
+        const storage::StoreInfo& si = hs->info();
         // The coarsest level that still has the output's resolution along both axes' larger
         // reduction: the texels read stay within about 4x the output's (a stretched size is
         // upsampled along its other axis), whatever region and size are asked for.
-        const double scale = std::max(double(region->w) / ow, double(region->h) / oh);
+        const double scale = std::max(double(reg.w) / ow, double(reg.h) / oh);
         std::uint32_t k = 0;
-        while (k + 1 < info.level_count() && double(std::uint64_t(2) << k) <= scale + 1e-9) ++k;
-        const auto& lk = info.levels[k];
+        while (k + 1 < si.level_count() && double(std::uint64_t(2) << k) <= scale + 1e-9) ++k;
+        const auto& lk = si.levels[k];
         const double f = double(std::uint64_t(1) << k);
         // The level-k texels the region touches, and where in them it starts and ends.
-        const double fx0 = region->x / f, fy0 = region->y / f;
+        const double fx0 = reg.x / f, fy0 = reg.y / f;
         // A region to the image's edge ends at the level's edge (levels round their size up).
-        const double fx1 = region->x + region->w == info.width ? double(lk.width)
-                                                                : std::min((double(region->x) + region->w) / f, double(lk.width));
-        const double fy1 = region->y + region->h == info.height
+        const double fx1 = reg.x + reg.w == si.width ? double(lk.width)
+                                                                : std::min((double(reg.x) + reg.w) / f, double(lk.width));
+        const double fy1 = reg.y + reg.h == si.height
                                ? double(lk.height)
-                               : std::min((double(region->y) + region->h) / f, double(lk.height));
+                               : std::min((double(reg.y) + reg.h) / f, double(lk.height));
         const auto x0 = std::uint32_t(fx0), y0 = std::uint32_t(fy0);
         const std::uint32_t x1 = std::max(x0 + 1, std::uint32_t(std::ceil(fx1 - 1e-9)));
         const std::uint32_t y1 = std::max(y0 + 1, std::uint32_t(std::ceil(fy1 - 1e-9)));
         const bool aligned = fx0 == x0 && fy0 == y0 && fx1 == x1 && fy1 == y1;
-        auto image = render_region(handler.context().fetcher, h, store->look, Region{k, x0, y0, x1 - x0, y1 - y0}, ow, oh,
+        auto image = render_region(*fetcher, *hs, look, Region{k, x0, y0, x1 - x0, y1 - y0}, ow, oh,
                                    failure,
                                    aligned ? std::nullopt
                                            : std::optional(SourceWindow{fx0 - x0, fy0 - y0, fx1 - fx0, fy1 - fy0}));
         if (!image) return image;
         if (quality == "gray") *image = to_grey(*image);
         if (mirrored) *image = mirror(*image);
-        return rotate_quarters(*image, unsigned(*degrees / 90));
-    });
+        return rotate_quarters(*image, unsigned(deg / 90));
+    };
+    return web_image_response(handler, *req.raw, hs, answer, memory, render);
 }
 
 }  // namespace tessera::server::httpapi

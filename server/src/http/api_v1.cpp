@@ -37,6 +37,126 @@ nlohmann::json store_entry(const StoreHandle& h) {
     return j;
 }
 
+// A tile's answer once the request is validated: everything it needs held by value, so that it
+// can run on the event loop (a RAM cache hit) or on the executor (a read, a PNG).
+struct TileAnswer {
+    HttpHandler* handler = nullptr;
+    std::shared_ptr<const StoreHandle> h;
+    std::string name;
+    TileKey key;
+    bool png = false;
+    std::size_t layer = 0;
+    std::string version_hex, png_tag, cache, if_none_match;
+    bool head = false, borrow_payload = false;
+
+    std::string etag_of(std::uint64_t checksum) const { return "\"" + version_hex + "-" + hex16(checksum) + png_tag + "\""; }
+    void common_headers(HttpResponse& r, TileKind kind, std::string_view codec) const {
+        r.headers.emplace_back("Cache-Control", cache);
+        r.headers.emplace_back("X-Tessera-Store-Version", version_hex);
+        r.headers.emplace_back("X-Tessera-Kind", std::string(tessera::to_string(kind)));
+        if (!codec.empty()) r.headers.emplace_back("X-Tessera-Codec", std::string(codec));
+    }
+    HttpResponse not_modified(TileKind kind, const std::string& etag) const {
+        HttpResponse r;
+        r.status = 304;
+        r.headers.emplace_back("ETag", etag);
+        common_headers(r, kind, {});
+        return r;
+    }
+
+    // Off the loop: a 304 from the index alone, else the tile read (cache, then the store).
+    HttpResponse read() const {
+        constexpr bool api = true;
+        // Bound the tile requests served at once (config.max_http_inflight).
+        const TileSlot slot = handler->tile_slot();
+        if (!slot.ok()) return retry_later("too many tile requests in flight; retry", api);
+        // Revalidation from the index alone (the entry holds the payload's checksum): a 304 costs
+        // no payload read. An entry that locates but whose payload is corrupt still answers 304
+        // here; the client holds bytes that passed the checksum when they were served.
+        if (!if_none_match.empty()) {
+            const auto loc = h->reader->locate(key);
+            if (loc.ok() && loc->kind != TileKind::absent) {
+                const std::string etag = etag_of(loc->checksum);
+                if (if_none_match_matches(if_none_match, etag)) return not_modified(loc->kind, etag);
+            }
+        }
+        return with(handler->context().fetcher.fetch_one(*h, key));
+    }
+
+    HttpResponse with(const FetchedTile& fetched) const {
+        constexpr bool api = true;
+        const storage::StoreInfo& info = h->info();
+        switch (fetched.status) {
+            case TileStatus::ok: break;
+            case TileStatus::data_loss: return error(500, "tile failed its checksum", api);
+            case TileStatus::not_found: return error(404, "unknown store '" + name + "'", api);
+            case TileStatus::out_of_range: return error(404, "tile out of range: " + fetched.message, api);
+            case TileStatus::deadline_exceeded: return error(504, "tile unavailable: " + fetched.message, api);
+            case TileStatus::resource_exhausted:
+            case TileStatus::unavailable: return retry_later("tile unavailable: " + fetched.message, api);
+            default: return error(500, "tile read failed: " + fetched.message, api);
+        }
+        if (!fetched.tile) return error(500, "tile read failed: no tile returned", api);
+        const storage::Tile& t = *fetched.tile;
+        if (t.kind == TileKind::absent) {
+            // A definite answer for this store version, so it is cacheable like a tile.
+            HttpResponse r = error(404, "tile absent in a sparse store", api);
+            r.headers.clear();
+            common_headers(r, TileKind::absent, {});
+            return r;
+        }
+
+        const std::string etag = etag_of(t.checksum);
+        if (!if_none_match.empty() && if_none_match_matches(if_none_match, etag)) return not_modified(t.kind, etag);
+
+        HttpResponse r;
+        r.status = 200;
+        r.headers.emplace_back("ETag", etag);
+        if (png) {
+            const storage::StoreInfo shown = info.layered() ? storage::layer_store_info(info, layer) : storage::StoreInfo{};
+            const storage::StoreInfo& png_info = info.layered() ? shown : info;
+            // A bundle's part of the shown layer, as a tile of that layer.
+            storage::Tile part;
+            const storage::Tile* decoded = &t;
+            TileKind kind = t.kind;
+            if (info.layered()) {
+                auto parts = storage::split_layers(info, t.bytes);
+                if (!parts) return error(500, "tile bundle does not split into the store's layers: " + parts.error().message, api);
+                const storage::LayerPart& p = (*parts)[layer];
+                if (p.kind == TileKind::absent) {
+                    // As definite (and as cacheable) as an absent tile.
+                    HttpResponse a = error(404, "layer '" + info.layers[layer].name + "' of this tile is absent", api);
+                    a.headers.clear();
+                    common_headers(a, TileKind::absent, {});
+                    a.headers.emplace_back("X-Tessera-Layer", info.layers[layer].name);
+                    return a;
+                }
+                part = storage::layer_tile(t.key, p);
+                decoded = &part;
+                kind = p.kind;
+                r.headers.emplace_back("X-Tessera-Layer", info.layers[layer].name);
+            }
+            std::vector<std::uint8_t> texels;
+            if (const Status s = storage::decode_tile(png_info, *decoded, texels); !s.ok())
+                return error(500, "tile does not decode: " + s.error().message, api);
+            auto encoded = storage::encode_tile_png(png_info, texels);
+            if (!encoded.ok())
+                return error(encoded.error().code == Errc::unsupported ? 406 : 500, encoded.error().message, api);
+            r.content_type = "image/png";
+            r.body.assign(reinterpret_cast<const char*>(encoded->data()), encoded->size());
+            common_headers(r, kind, "png");
+        } else {
+            r.content_type = t.kind == TileKind::uniform ? "application/octet-stream" : std::string(content_type_of(info.codec));
+            if (borrow_payload) r.payload = fetched.tile;
+            else r.body.assign(reinterpret_cast<const char*>(t.bytes.data()), t.bytes.size());
+            common_headers(r, t.kind, t.kind == TileKind::uniform ? "uniform" : tessera::to_string(info.codec));
+            r.headers.emplace_back("X-Tessera-Checksum", hex16(t.checksum));
+        }
+        if (!head) handler->count_served(*h, r.body_size());
+        return r;
+    }
+};
+
 HttpResponse tile(HttpHandler& handler, const HttpRequestView& req, std::string_view name, std::string_view level_s,
                   std::string_view x_s, std::string_view y_s, bool png, const std::optional<std::string>& layer_name,
                   bool has_version, std::uint64_t want_version, bool borrow_payload) {
@@ -48,10 +168,6 @@ HttpResponse tile(HttpHandler& handler, const HttpRequestView& req, std::string_
     const auto level = parse_u32(level_s), x = parse_u32(x_s), y = parse_u32(y_s);
     if (!level || !x || !y)
         return error(400, "level, x and y must be decimal integers below 2^32 (digits only, no leading zeros)", api);
-
-    // Bound the tile requests served at once (config.max_http_inflight).
-    const TileSlot slot = handler.tile_slot();
-    if (!slot.ok()) return retry_later("too many tile requests in flight; retry", api);
 
     const std::shared_ptr<const StoreHandle> h = ctx_.stores.find(name);
     if (!h) return error(404, "unknown store '" + std::string(name) + "'", api);
@@ -91,111 +207,38 @@ HttpResponse tile(HttpHandler& handler, const HttpRequestView& req, std::string_
         return error(406, "format=png is not available for " + std::string(storage::to_string(png_info.sample_type)) +
                               (info.layered() ? " layers" : " stores") + " (PNG has no float samples); fetch the stored payload",
                      api);
-    const std::string png_tag = !png ? "" : info.layered() ? "-png-" + info.layers[layer].name : "-png";
 
-    const std::string cache = cache_control(ctx_, has_version);
-    const TileKey key{*level, *x, *y};
-    auto etag_of = [&](std::uint64_t checksum) {
-        return "\"" + version_hex + "-" + hex16(checksum) + png_tag + "\"";
-    };
-    auto common_headers = [&](HttpResponse& r, TileKind kind, std::string_view codec) {
-        r.headers.emplace_back("Cache-Control", cache);
-        r.headers.emplace_back("X-Tessera-Store-Version", version_hex);
-        r.headers.emplace_back("X-Tessera-Kind", std::string(tessera::to_string(kind)));
-        if (!codec.empty()) r.headers.emplace_back("X-Tessera-Codec", std::string(codec));
-    };
-    auto not_modified = [&](TileKind kind, const std::string& etag) {
-        HttpResponse r;
-        r.status = 304;
-        r.headers.emplace_back("ETag", etag);
-        common_headers(r, kind, {});
-        return r;
-    };
+    auto a = std::make_shared<TileAnswer>();
+    a->handler = &handler;
+    a->h = h;
+    a->name = std::string(name);
+    a->key = TileKey{*level, *x, *y};
+    a->png = png;
+    a->layer = layer;
+    a->version_hex = version_hex;
+    a->png_tag = !png ? "" : info.layered() ? "-png-" + info.layers[layer].name : "-png";
+    a->cache = cache_control(ctx_, has_version);
+    a->if_none_match = std::string(req.if_none_match);
+    a->head = req.method == "HEAD";
+    a->borrow_payload = borrow_payload;
 
-    // Revalidation from the index alone (the entry holds the payload's checksum): a 304 costs
-    // no payload read. An entry that locates but whose payload is corrupt still answers 304 here;
-    // the client holds bytes that passed the checksum when they were served.
-    if (!req.if_none_match.empty()) {
-        const auto loc = h->reader->locate(key);
-        if (loc.ok() && loc->kind != TileKind::absent) {
-            const std::string etag = etag_of(loc->checksum);
-            if (if_none_match_matches(req.if_none_match, etag)) return not_modified(loc->kind, etag);
+    // A stored payload the RAM cache holds is answered on the loop; anything else (a read, a
+    // PNG to encode) goes to the executor.
+    if (!png) {
+        if (auto hit = ctx_.fetcher.cached(*h, a->key)) {
+            const TileSlot slot = handler.tile_slot();
+            if (!slot.ok()) return retry_later("too many tile requests in flight; retry", api);
+            FetchedTile f;
+            f.tile = std::move(hit);
+            return a->with(f);
         }
+        return defer(WorkKind::read, h, 0, [a] { return a->read(); });
     }
-
-    const FetchedTile fetched = ctx_.fetcher.fetch_one(*h, key);
-    switch (fetched.status) {
-        case TileStatus::ok: break;
-        case TileStatus::data_loss: return error(500, "tile failed its checksum", api);
-        case TileStatus::not_found: return error(404, "unknown store '" + std::string(name) + "'", api);
-        case TileStatus::out_of_range: return error(404, "tile out of range: " + fetched.message, api);
-        case TileStatus::resource_exhausted:
-        case TileStatus::unavailable:
-        case TileStatus::deadline_exceeded: {
-            HttpResponse r = error(503, "tile unavailable: " + fetched.message, api);
-            r.headers.emplace_back("Retry-After", "1");
-            return r;
-        }
-        default: return error(500, "tile read failed: " + fetched.message, api);
-    }
-    if (!fetched.tile) return error(500, "tile read failed: no tile returned", api);
-    const storage::Tile& t = *fetched.tile;
-    if (t.kind == TileKind::absent) {
-        // A definite answer for this store version, so it is cacheable like a tile.
-        HttpResponse r = error(404, "tile absent in a sparse store", api);
-        r.headers.clear();
-        common_headers(r, TileKind::absent, {});
-        return r;
-    }
-
-    const std::string etag = etag_of(t.checksum);
-    if (!req.if_none_match.empty() && if_none_match_matches(req.if_none_match, etag)) return not_modified(t.kind, etag);
-
-    HttpResponse r;
-    r.status = 200;
-    r.headers.emplace_back("ETag", etag);
-    if (png) {
-        // A bundle's part of the shown layer, as a tile of that layer.
-        storage::Tile part;
-        const storage::Tile* decoded = &t;
-        TileKind kind = t.kind;
-        if (info.layered()) {
-            auto parts = storage::split_layers(info, t.bytes);
-            if (!parts) return error(500, "tile bundle does not split into the store's layers: " + parts.error().message, api);
-            const storage::LayerPart& p = (*parts)[layer];
-            if (p.kind == TileKind::absent) {
-                // As definite (and as cacheable) as an absent tile.
-                HttpResponse a = error(404, "layer '" + info.layers[layer].name + "' of this tile is absent", api);
-                a.headers.clear();
-                common_headers(a, TileKind::absent, {});
-                a.headers.emplace_back("X-Tessera-Layer", info.layers[layer].name);
-                return a;
-            }
-            part = storage::layer_tile(t.key, p);
-            decoded = &part;
-            kind = p.kind;
-            r.headers.emplace_back("X-Tessera-Layer", info.layers[layer].name);
-        }
-        std::vector<std::uint8_t> texels;
-        if (const Status s = storage::decode_tile(png_info, *decoded, texels); !s.ok())
-            return error(500, "tile does not decode: " + s.error().message, api);
-        auto encoded = storage::encode_tile_png(png_info, texels);
-        if (!encoded.ok())
-            return error(encoded.error().code == Errc::unsupported ? 406 : 500, encoded.error().message, api);
-        r.content_type = "image/png";
-        r.body.assign(reinterpret_cast<const char*>(encoded->data()), encoded->size());
-        common_headers(r, kind, "png");
-    } else {
-        r.content_type = t.kind == TileKind::uniform ? "application/octet-stream" : std::string(content_type_of(info.codec));
-        if (borrow_payload) r.payload = fetched.tile;
-        else r.body.assign(reinterpret_cast<const char*>(t.bytes.data()), t.bytes.size());
-        common_headers(r, t.kind, t.kind == TileKind::uniform ? "uniform" : tessera::to_string(info.codec));
-        r.headers.emplace_back("X-Tessera-Checksum", hex16(t.checksum));
-    }
-    if (req.method != "HEAD") handler.count_served(*h, r.body_size());
-    return r;
+    // A PNG: one tile decoded (samples) and encoded (about as large again), twice for a bundle.
+    const std::size_t T = info.tile_size();
+    const std::size_t memory = T * T * std::max<std::size_t>(1, png_info.channels) * 4 * 3;
+    return defer(WorkKind::render, h, memory, [a] { return a->read(); });
 }
-
 
 }  // namespace
 

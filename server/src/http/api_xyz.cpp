@@ -40,12 +40,17 @@ HttpResponse api_xyz(HttpHandler& handler, const ParsedRequest& req, HttpRoute& 
     const std::uint32_t w = std::min(P, l.width - x0), hgt = std::min(P, l.height - y0);
     const WebAnswer answer{"xyz-" + std::to_string(*z) + "-" + std::to_string(*x) + "-" + std::to_string(*y) + "." + format,
                            format, version.has_value()};
-    return web_image_response(handler, *req.raw, h, answer, [&](WebFailure& failure) -> std::optional<WebImage> {
-        auto image = render_region(handler.context().fetcher, h, store->look, Region{k, x0, y0, w, hgt}, w, hgt, failure);
+    const std::shared_ptr<const StoreHandle> hs = store->handle;
+    TileFetcher* fetcher = &handler.context().fetcher;
+    const WebLook look = store->look;
+    const bool png = format == "png";
+    auto render = [fetcher, hs, look, k, x0, y0, w, hgt, P, png](WebFailure& failure) -> std::optional<WebImage> {
+        auto image = render_region(*fetcher, *hs, look, Region{k, x0, y0, w, hgt}, w, hgt, failure);
         if (!image) return image;
-        if (format == "png" && (w < P || hgt < P)) *image = with_alpha(*image);  // transparent past the edges
+        if (png && (w < P || hgt < P)) *image = with_alpha(*image);  // transparent past the edges
         return pad_to(*image, P, P);
-    });
+    };
+    return web_image_response(handler, *req.raw, hs, answer, render_memory(info, look, w, P, P), render);
 }
 
 }  // namespace tessera::server::httpapi

@@ -35,9 +35,14 @@ struct WebAnswer {
     std::string format;      // "jpg" or "png"
     bool immutable = false;  // the URL pins the store version
 };
+// `render` runs off the event loop (a deferred answer, charged `memory` bytes), so it must own
+// what it uses: capture by value.
 template <class Render>
-HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
-                                 const WebAnswer& answer, Render&& render);
+HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req, std::shared_ptr<const StoreHandle> store,
+                                 const WebAnswer& answer, std::size_t memory, Render render);
+
+// The response itself when `r` is deferred (in work already running off the loop).
+HttpResponse answer_in_place(HttpResponse r);
 
 // The store a web route names, or the error to answer: 400 for an invalid name, 404 unknown,
 // 406 for samples a browser cannot show.
@@ -52,35 +57,38 @@ std::optional<WebStore> find_web_store(HttpHandler& handler, const std::string& 
 bool pinned_version(const ParsedRequest& req, std::optional<std::uint64_t>& version, HttpResponse& failed);
 
 // The encoded body behind an ETag: what web_image_response serves once it has the bytes.
-HttpResponse web_body_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
-                               const WebAnswer& answer, std::shared_ptr<const std::string> body);
+HttpResponse web_body_response(HttpHandler& handler, bool head, const StoreHandle& store, const WebAnswer& answer,
+                               std::shared_ptr<const std::string> body);
 std::string web_etag(const StoreHandle& store, const WebAnswer& answer);
 std::string web_cache_key(const StoreHandle& store, const WebAnswer& answer);
 
 template <class Render>
-HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
-                                const WebAnswer& answer, Render&& render) {
-    const std::string etag = web_etag(store, answer);
+HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req, std::shared_ptr<const StoreHandle> store,
+                                const WebAnswer& answer, std::size_t memory, Render render) {
+    const bool head = req.method == "HEAD";
+    const std::string etag = web_etag(*store, answer);
     if (!req.if_none_match.empty() && if_none_match_matches(req.if_none_match, etag))
-        return web_body_response(handler, req, store, answer, nullptr);
-    const std::string key = web_cache_key(store, answer);
-    std::shared_ptr<const std::string> body = handler.web_cache().find(key);
-    if (!body) {
-        TileSlot slot = handler.tile_slot();
+        return web_body_response(handler, head, *store, answer, nullptr);
+    const std::string key = web_cache_key(*store, answer);
+    if (std::shared_ptr<const std::string> body = handler.web_cache().find(key))
+        return web_body_response(handler, head, *store, answer, std::move(body));
+    HttpHandler* hp = &handler;
+    return defer(WorkKind::render, store, memory, [hp, store, answer, key, head, render]() -> HttpResponse {
+        TileSlot slot = hp->tile_slot();
         if (!slot.ok()) return retry_later("too many tile requests in flight; retry", false);
         WebFailure failure;
         std::optional<WebImage> image = render(failure);
         if (!image) {
-            HttpResponse r = error(failure.status, failure.message, false);
-            if (failure.status == 503) r.headers.emplace_back("Retry-After", "1");
-            return r;
+            if (failure.status == 503) return retry_later(failure.message, false);
+            return error(failure.status, failure.message, false);
         }
         std::optional<std::string> encoded = encode_web(*image, answer.format, failure);
+        image.reset();
         if (!encoded) return error(failure.status, failure.message, false);
-        body = std::make_shared<const std::string>(std::move(*encoded));
-        handler.web_cache().insert(key, body);
-    }
-    return web_body_response(handler, req, store, answer, std::move(body));
+        auto body = std::make_shared<const std::string>(std::move(*encoded));
+        hp->web_cache().insert(key, body);
+        return web_body_response(*hp, head, *store, answer, std::move(body));
+    });
 }
 
 }  // namespace tessera::server::httpapi

@@ -205,6 +205,17 @@ HttpResponse retry_later(std::string_view message, bool json) {
     return r;
 }
 
+HttpResponse defer(WorkKind kind, std::shared_ptr<const StoreHandle> store, std::size_t memory,
+                   std::function<HttpResponse()> answer) {
+    HttpResponse r;
+    r.deferred = std::make_shared<DeferredAnswer>();
+    r.deferred->kind = kind;
+    r.deferred->store = std::move(store);
+    r.deferred->memory = memory;
+    r.deferred->answer = std::move(answer);
+    return r;
+}
+
 std::string cache_control(const ServerContext& ctx, bool immutable) {
     const std::string scope = ctx.auth_token()->empty() ? "public" : "private";
     return immutable ? scope + ", max-age=" + std::to_string(kImmutableMaxAge) + ", immutable"

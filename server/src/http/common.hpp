@@ -3,6 +3,8 @@
 // response builders (errors, JSON, text) and the conditional-request and CORS rules. The router
 // (http_handler.cpp) parses once; each API (api_*.cpp, viewer.cpp) answers its own paths.
 #include <cstdint>
+#include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -48,6 +50,10 @@ HttpResponse text(unsigned status, std::string body);
 HttpResponse json_response(const nlohmann::json& j, std::string_view content_type = kJson);
 // A 503 that asks the client to come back (Retry-After: 1).
 HttpResponse retry_later(std::string_view message, bool json);
+// An answer made off the event loop (HttpResponse::deferred): `answer` runs on the executor as
+// work of `kind` in `store`'s lane, charged `memory` bytes when it is a render.
+HttpResponse defer(WorkKind kind, std::shared_ptr<const StoreHandle> store, std::size_t memory,
+                   std::function<HttpResponse()> answer);
 
 // Cache-Control for a cacheable answer: public, or private when the server requires a token (a
 // shared cache must not hand a token's answer to someone without it). immutable: the URL pins a

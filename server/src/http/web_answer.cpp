@@ -50,8 +50,8 @@ std::string web_cache_key(const StoreHandle& store, const WebAnswer& answer) {
     return store.name + "/" + hex16(store.version) + "/" + answer.variant;
 }
 
-HttpResponse web_body_response(HttpHandler& handler, const HttpRequestView& req, const StoreHandle& store,
-                               const WebAnswer& answer, std::shared_ptr<const std::string> body) {
+HttpResponse web_body_response(HttpHandler& handler, bool head, const StoreHandle& store, const WebAnswer& answer,
+                               std::shared_ptr<const std::string> body) {
     HttpResponse r;
     r.headers.emplace_back("ETag", web_etag(store, answer));
     r.headers.emplace_back("Cache-Control", cache_control(handler.context(), answer.immutable));
@@ -63,8 +63,13 @@ HttpResponse web_body_response(HttpHandler& handler, const HttpRequestView& req,
     r.status = 200;
     r.content_type = answer.format == "png" ? "image/png" : "image/jpeg";
     r.body = *body;
-    if (req.method != "HEAD") handler.count_served(store, r.body.size());
+    if (!head) handler.count_served(store, r.body.size());
     return r;
+}
+
+HttpResponse answer_in_place(HttpResponse r) {
+    if (!r.deferred) return r;
+    return r.deferred->answer();
 }
 
 }  // namespace tessera::server::httpapi

@@ -183,6 +183,16 @@ WebLook web_look(const storage::StoreInfo& info) {
     return look;
 }
 
+std::size_t render_memory(const storage::StoreInfo& info, const WebLook& look, std::uint32_t region_w,
+                          std::uint32_t out_w, std::uint32_t out_h) {
+    const std::size_t T = info.tile_size(), P = std::max<std::uint32_t>(1, info.tile_payload);
+    const std::size_t tiles_in_a_row = region_w / P + 2;
+    const std::size_t source = tiles_in_a_row * T * T * (look.channels + look.info.texel_bytes());
+    const std::size_t out = std::size_t(out_w) * out_h * 4;  // RGBA at most, alpha added for padding
+    const std::size_t rows = std::size_t(out_w) * 4 * sizeof(float) * 8;
+    return source + rows + 3 * out + (64 << 10);
+}
+
 std::uint32_t scaled_size(std::uint32_t size, std::uint32_t k) {
     for (std::uint32_t i = 0; i < k && size > 1; ++i) size = (size + 1) / 2;
     return size;

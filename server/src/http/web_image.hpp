@@ -67,6 +67,12 @@ std::optional<WebImage> render_scaled(TileFetcher& fetcher, const StoreHandle& s
                                       std::uint32_t k, std::uint32_t x, std::uint32_t y, std::uint32_t w,
                                       std::uint32_t h, WebFailure& failure);
 
+// About the peak bytes a render holds: one row of source tiles decoded (texels and samples),
+// the resampler's rows, the output image and the two copies post-processing and encoding make.
+// What admission charges a render against --render-memory.
+std::size_t render_memory(const storage::StoreInfo& info, const WebLook& look, std::uint32_t region_w,
+                          std::uint32_t out_w, std::uint32_t out_h);
+
 // Width or height of the image at scale 1/2^k, as the store's levels round: ceil(size / 2^k).
 std::uint32_t scaled_size(std::uint32_t size, std::uint32_t k);
 

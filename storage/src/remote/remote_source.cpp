@@ -264,7 +264,8 @@ private:
                               std::uint64_t max_body) const {
         thread_local std::mt19937_64 rng{std::random_device{}()};
         Result<HttpResponse> last = make_error(Errc::io_error, location_ + ": no attempt made");
-        const auto deadline = std::chrono::steady_clock::now() + options_.deadline;
+        // The read's own deadline, or the request's it is made for when that comes first.
+        const auto deadline = std::min(std::chrono::steady_clock::now() + options_.deadline, read_deadline());
         unsigned tries = 0;
         for (unsigned attempt = 0; attempt < std::max(1u, options_.attempts); ++attempt) {
             if (attempt > 0) {

@@ -47,7 +47,21 @@ struct ServerConfig {
     std::size_t viewer_buffer_bytes = std::size_t(4) << 20;  // replies read but not yet sent, per viewer
     std::size_t total_buffer_bytes = std::size_t(512) << 20; // the same over all viewers
 
-    std::chrono::milliseconds request_timeout{5000};  // default deadline of a tile request
+    // HTTP isolation (docs/server.md, "Isolation"): the event loops only parse, route and write;
+    // tile reads that miss the RAM cache and web renders run on `work_threads` workers. Each
+    // store has its own lane (`store_inflight` running, `store_queue` waiting: beyond, 503), reads
+    // go before renders, and renders are admitted against `render_concurrency` (0: hardware
+    // threads), `render_queue` and `render_memory` (their estimated peak bytes): beyond, 503.
+    unsigned work_threads = 16;
+    std::size_t store_inflight = 4;
+    std::size_t store_queue = 64;
+    unsigned render_concurrency = 0;
+    std::size_t render_queue = 4;
+    std::size_t render_memory_bytes = std::size_t(160) << 20;
+
+    // Default deadline of a request: a gRPC tile request (a batch may set its own) and every
+    // HTTP request whose answer needs work off the loop (504 when it passes).
+    std::chrono::milliseconds request_timeout{5000};
     // A tile sent to a viewer and listed by every batch since is not sent again for this long
     // (it is still on its way); see docs/protocol.md, "Re-listed tiles".
     std::chrono::milliseconds resend_after{2000};

@@ -4,6 +4,7 @@
 // application's own source (object storage, an HTTP range reader, a test's slow disk), opened with
 // StoreReader::open_source. Stores are meant to be replaced by rename; a file changed in place
 // anyway is noticed by changed(). read() may be called from several threads at once.
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -24,6 +25,23 @@ public:
     virtual bool changed() const { return false; }
     // The version of the bytes where the source knows one (a remote object's ETag); "" otherwise.
     virtual std::string version() const { return {}; }
+};
+
+// The deadline of the request this thread is reading for (a server's HTTP request or gRPC
+// batch): sources that wait on a network (remote stores) end their requests, retries and
+// waits for a connection by then, so work past its deadline is cancelled, not waited on.
+// Local files ignore it (a pread is not interrupted). time_point::max() when none is set.
+std::chrono::steady_clock::time_point read_deadline();
+// Sets read_deadline() for this thread while it lives (the earlier of it and any outer one).
+class ReadDeadlineScope {
+public:
+    explicit ReadDeadlineScope(std::chrono::steady_clock::time_point deadline);
+    ~ReadDeadlineScope();
+    ReadDeadlineScope(const ReadDeadlineScope&) = delete;
+    ReadDeadlineScope& operator=(const ReadDeadlineScope&) = delete;
+
+private:
+    std::chrono::steady_clock::time_point outer_;
 };
 
 Result<std::unique_ptr<ByteSource>> open_file_source(const std::string& path);

@@ -1,0 +1,263 @@
+#include "work_executor.hpp"
+
+#include <algorithm>
+
+#include "tessera/storage/byte_source.hpp"
+
+namespace tessera::server {
+
+using Clock = std::chrono::steady_clock;
+
+std::string_view to_string(WorkKind k) { return k == WorkKind::read ? "read" : "render"; }
+
+std::string_view to_string(Admission a) {
+    switch (a) {
+        case Admission::admitted: return "admitted";
+        case Admission::store_full: return "store_full";
+        case Admission::render_busy: return "render_busy";
+        case Admission::render_memory: return "render_memory";
+        case Admission::render_too_large: return "render_too_large";
+        case Admission::stopped: return "stopped";
+    }
+    return "stopped";
+}
+
+namespace {
+constexpr std::size_t kAdmissions = 6;
+constexpr const char* kQueuedName = "tessera_work_queued";
+constexpr const char* kRunningName = "tessera_work_running";
+constexpr const char* kMemoryName = "tessera_work_render_memory_bytes";
+constexpr const char* kStoreQueuedName = "tessera_store_work_queued";
+constexpr const char* kStoreRunningName = "tessera_store_work_running";
+}  // namespace
+
+struct WorkExecutor::Lane {
+    std::string store;
+    std::deque<WorkJob> reads, renders;
+    std::size_t running = 0;
+    Counter* rejected = nullptr;
+    Counter* expired = nullptr;
+    Histogram* wait = nullptr;
+    std::size_t queued() const { return reads.size() + renders.size(); }
+};
+
+WorkExecutor::WorkExecutor(const WorkLimits& limits, MetricsRegistry& metrics) : limits_(limits), metrics_(metrics) {
+    for (WorkKind k : {WorkKind::read, WorkKind::render}) {
+        KindMetrics& km = kind_metrics_[static_cast<int>(k)];
+        const std::string kind(to_string(k));
+        km.wait = &metrics.histogram("tessera_work_wait_seconds", "Time HTTP work waited for a worker, by kind",
+                                     {{"kind", kind}}, latency_buckets_seconds());
+        km.expired = &metrics.counter("tessera_work_expired_total",
+                                      "HTTP work whose request deadline passed before it started (answered 504)",
+                                      {{"kind", kind}});
+        for (std::size_t a = 1; a < kAdmissions; ++a)
+            km.rejected[a] = &metrics.counter("tessera_work_rejected_total",
+                                              "HTTP work refused at admission (answered 503), by kind and reason",
+                                              {{"kind", kind}, {"reason", std::string(to_string(static_cast<Admission>(a)))}});
+        metrics.gauge_callback(kQueuedName, "HTTP work waiting for a worker, by kind", {{"kind", kind}}, [this, k] {
+            std::lock_guard lock(mu_);
+            return double(k == WorkKind::read ? stats_.queued_reads : stats_.queued_renders);
+        });
+        metrics.gauge_callback(kRunningName, "HTTP work running on a worker, by kind", {{"kind", kind}}, [this, k] {
+            std::lock_guard lock(mu_);
+            return double(k == WorkKind::read ? stats_.running_reads : stats_.running_renders);
+        });
+    }
+    metrics.gauge_callback(kMemoryName, "Estimated bytes of the web renders admitted (running or waiting)", {}, [this] {
+        std::lock_guard lock(mu_);
+        return double(stats_.render_memory);
+    });
+    const unsigned n = std::max(1u, limits_.threads);
+    for (unsigned i = 0; i < n; ++i) workers_.emplace_back([this] { worker(); });
+    expiry_thread_ = std::thread([this] { expiry(); });
+}
+
+WorkExecutor::~WorkExecutor() {
+    stop();
+    for (const char* name : {kQueuedName, kRunningName, kMemoryName, kStoreQueuedName, kStoreRunningName})
+        metrics_.remove_callbacks(name);
+}
+
+WorkExecutor::Lane& WorkExecutor::lane_locked(const std::string& store) {
+    auto it = lanes_.find(store);
+    if (it != lanes_.end()) return *it->second;
+    auto lane = std::make_unique<Lane>();
+    lane->store = store;
+    Lane* l = lane.get();
+    const Labels labels{{"store", store}};
+    l->rejected = &metrics_.counter("tessera_store_work_rejected_total",
+                                    "HTTP work of a store refused because its lane was full (503)", labels);
+    l->expired = &metrics_.counter("tessera_store_work_expired_total",
+                                   "HTTP work of a store whose deadline passed before it started (504)", labels);
+    l->wait = &metrics_.histogram("tessera_store_work_wait_seconds", "Time a store's HTTP work waited for a worker",
+                                  labels, latency_buckets_seconds());
+    // Read under mu_, which the render of /metrics does not hold: no lock order to keep.
+    metrics_.gauge_callback(kStoreQueuedName, "HTTP work of a store waiting for a worker", labels, [this, l] {
+        std::lock_guard lock(mu_);
+        return double(l->queued());
+    });
+    metrics_.gauge_callback(kStoreRunningName, "HTTP work of a store running", labels, [this, l] {
+        std::lock_guard lock(mu_);
+        return double(l->running);
+    });
+    order_.push_back(l);
+    lanes_.emplace(store, std::move(lane));
+    return *l;
+}
+
+Admission WorkExecutor::submit(WorkJob job) {
+    Admission verdict = Admission::admitted;
+    {
+        std::lock_guard lock(mu_);
+        if (stopping_) {
+            verdict = Admission::stopped;
+        } else {
+            Lane& lane = lane_locked(job.store);
+            if (lane.queued() >= limits_.store_queue) {
+                verdict = Admission::store_full;
+                lane.rejected->inc();
+            } else if (job.kind == WorkKind::render) {
+                if (job.memory > limits_.render_memory) verdict = Admission::render_too_large;
+                else if (stats_.queued_renders >= limits_.render_queue) verdict = Admission::render_busy;
+                else if (stats_.render_memory + job.memory > limits_.render_memory) verdict = Admission::render_memory;
+            }
+            if (verdict == Admission::admitted) {
+                job.admitted_at = Clock::now();
+                if (job.kind == WorkKind::render) {
+                    stats_.render_memory += job.memory;
+                    ++stats_.queued_renders;
+                    lane.renders.push_back(std::move(job));
+                } else {
+                    ++stats_.queued_reads;
+                    lane.reads.push_back(std::move(job));
+                }
+            }
+        }
+        if (verdict != Admission::admitted)
+            kind_metrics_[static_cast<int>(job.kind)].rejected[static_cast<std::size_t>(verdict)]->inc();
+    }
+    if (verdict == Admission::admitted) work_cv_.notify_one();
+    return verdict;
+}
+
+// The next job a worker may start: reads first, lanes in turn, each within its own bound.
+bool WorkExecutor::pick_locked(WorkJob& job, Lane*& picked) {
+    const std::size_t n = order_.size();
+    for (int pass = 0; pass < 2; ++pass) {
+        const bool reads = pass == 0;
+        if (!reads && stats_.running_renders >= limits_.render_concurrency) break;
+        for (std::size_t i = 0; i < n; ++i) {
+            Lane& lane = *order_[(next_lane_ + i) % n];
+            auto& q = reads ? lane.reads : lane.renders;
+            if (q.empty() || lane.running >= limits_.store_inflight) continue;
+            job = std::move(q.front());
+            q.pop_front();
+            ++lane.running;
+            if (reads) --stats_.queued_reads, ++stats_.running_reads;
+            else --stats_.queued_renders, ++stats_.running_renders;
+            next_lane_ = (next_lane_ + i + 1) % n;
+            picked = &lane;
+            return true;
+        }
+    }
+    return false;
+}
+
+void WorkExecutor::account_done_locked(Lane& lane, const WorkJob& job) {
+    --lane.running;
+    if (job.kind == WorkKind::render) {
+        --stats_.running_renders;
+        stats_.render_memory -= job.memory;
+    } else {
+        --stats_.running_reads;
+    }
+}
+
+void WorkExecutor::worker() {
+    for (;;) {
+        WorkJob job;
+        Lane* lane = nullptr;
+        {
+            std::unique_lock lock(mu_);
+            work_cv_.wait(lock, [&] { return stopping_ || pick_locked(job, lane); });
+            if (!lane) return;  // stopping, nothing picked
+        }
+        const double waited = std::chrono::duration<double>(Clock::now() - job.admitted_at).count();
+        kind_metrics_[static_cast<int>(job.kind)].wait->observe(waited);
+        lane->wait->observe(waited);
+        {
+            const storage::ReadDeadlineScope scope(job.deadline);
+            job.run(true);
+        }
+        bool more;
+        {
+            std::lock_guard lock(mu_);
+            account_done_locked(*lane, job);
+            more = stats_.queued_reads + stats_.queued_renders > 0;
+        }
+        // This worker picks again before it sleeps; a render's end frees two places (its lane's
+        // and a render's), so one more worker may find something to start.
+        if (more) work_cv_.notify_one();
+    }
+}
+
+void WorkExecutor::expiry() {
+    std::vector<WorkJob> expired;
+    for (;;) {
+        {
+            std::unique_lock lock(mu_);
+            expiry_cv_.wait_for(lock, kExpiryTick, [&] { return stopping_; });
+            if (stopping_) return;
+            const auto now = Clock::now();
+            for (Lane* lane : order_)
+                for (auto* q : {&lane->reads, &lane->renders}) {
+                    const bool render = q == &lane->renders;
+                    for (auto it = q->begin(); it != q->end();) {
+                        if (it->deadline > now) {
+                            ++it;
+                            continue;
+                        }
+                        lane->expired->inc();
+                        kind_metrics_[render ? 1 : 0].expired->inc();
+                        if (render) --stats_.queued_renders, stats_.render_memory -= it->memory;
+                        else --stats_.queued_reads;
+                        expired.push_back(std::move(*it));
+                        it = q->erase(it);
+                    }
+                }
+        }
+        for (auto& job : expired) job.run(false);
+        expired.clear();
+    }
+}
+
+void WorkExecutor::stop() {
+    std::vector<WorkJob> left;
+    {
+        std::lock_guard lock(mu_);
+        if (stopping_) return;
+        stopping_ = true;
+        for (Lane* lane : order_) {
+            for (auto* q : {&lane->reads, &lane->renders})
+                for (auto& job : *q) left.push_back(std::move(job));
+            lane->reads.clear();
+            lane->renders.clear();
+        }
+        stats_.queued_reads = stats_.queued_renders = 0;
+    }
+    work_cv_.notify_all();
+    expiry_cv_.notify_all();
+    for (auto& job : left) job.run(false);
+    for (auto& t : workers_)
+        if (t.joinable()) t.join();
+    if (expiry_thread_.joinable()) expiry_thread_.join();
+    std::lock_guard lock(mu_);
+    stats_.render_memory = 0;
+}
+
+WorkExecutor::Stats WorkExecutor::stats() const {
+    std::lock_guard lock(mu_);
+    return stats_;
+}
+
+}  // namespace tessera::server
