@@ -1,4 +1,5 @@
 // tessera serve: host .tsr stores over gRPC (viewers) and HTTP (everything else).
+#include <malloc.h>
 #include <signal.h>
 
 #include <chrono>
@@ -73,6 +74,11 @@ int run_serve(ServeArgs& a) {
     pthread_sigmask(SIG_BLOCK, &signals, nullptr);
     signal(SIGPIPE, SIG_IGN);
 
+    // Renders allocate and free buffers of megabytes. glibc's default raises its mmap threshold
+    // to the largest block freed (up to 32 MiB), after which such buffers come from the arenas
+    // and their pages stay with the process; a fixed threshold gives them back on free, so the
+    // server's RSS follows the renders running, not the largest seen.
+    mallopt(M_MMAP_THRESHOLD, 1 << 20);
     auto started = server::Server::start(c);
     if (!started) throw Failure(started.error().message);
     std::unique_ptr<server::Server> srv = std::move(*started);
@@ -150,7 +156,7 @@ Command add_serve(CLI::App& app) {
                   "Require \"authorization: Bearer <token>\" with the token in this file (not /healthz, /readyz)");
     add_bytes_option(*s, "--cache-size", a->cache_bytes, "RAM tile cache budget, e.g. 256MiB (0: off)");
     s->add_option("--io-threads", c.io_threads, "Tile reader threads (0: all cores; at least 16 with a remote store)")->capture_default_str();
-    s->add_option("--http-threads", c.http_threads, "HTTP event-loop threads (0: all cores; at least 16 with a remote store)")->capture_default_str();
+    s->add_option("--http-threads", c.http_threads, "HTTP event-loop threads (0: all cores); they never read or render (--work-threads do)")->capture_default_str();
     s->add_option("--max-viewers", c.max_viewers, "Concurrent StreamTiles calls; beyond: RESOURCE_EXHAUSTED")
         ->capture_default_str();
     s->add_option("--max-batch", c.max_batch, "Requests in one batch; a larger batch is refused whole")

@@ -473,14 +473,17 @@ void Scheduler::worker() {
                 by_store[chunk[i].store.get()].push_back(i);
             }
         }
-        // Local stores first, and each store's replies handed over as soon as they are read: a
-        // viewer's tiles of a fast store never wait for a slow origin's in the same chunk.
+        // Replies go to the viewer in the chunk's order (priority), except that a remote store's
+        // are read last and handed over on their own: a viewer's tiles of local stores never wait
+        // for a slow origin's in the same chunk.
         std::vector<std::pair<const StoreHandle*, std::vector<std::size_t>>> groups(by_store.begin(), by_store.end());
-        std::stable_partition(groups.begin(), groups.end(),
-                              [](const auto& g) { return !g.first->remote(); });
+        const auto first_remote = std::stable_partition(groups.begin(), groups.end(),
+                                                        [](const auto& g) { return !g.first->remote(); });
+        const std::size_t local_groups = static_cast<std::size_t>(first_remote - groups.begin());
         std::size_t handed = 0;
-        // Hand over, unless the viewer left or no longer wants the tile; the chunk ends with its last group.
-        auto hand_over = [&](const std::vector<std::size_t>& members) {
+        // Hand over, unless the viewer left or no longer wants the tile; the chunk ends with its last part.
+        auto hand_over = [&](std::vector<std::size_t>& members) {
+            std::sort(members.begin(), members.end());
             handed += members.size();
             const bool last = handed == chunk.size();
             std::lock_guard lock(mu_);
@@ -502,8 +505,9 @@ void Scheduler::worker() {
             cancelled_->inc(dropped);
             if (!members.empty() && (wake.empty() || wake.back() != v.sink)) wake.push_back(v.sink);
         };
-        if (!expired.empty() || groups.empty()) hand_over(expired);
-        for (auto& [store, members] : groups) {
+        std::vector<std::size_t> part = std::move(expired);  // the first hand-over: expired and local replies
+        for (std::size_t g = 0; g < groups.size(); ++g) {
+            auto& [store, members] = groups[g];
             keys.clear();
             Clock::time_point deadline = Clock::time_point::max();
             for (std::size_t i : members) {
@@ -528,9 +532,14 @@ void Scheduler::worker() {
                 r.codec = store->info().codec;
                 r.tile = std::move(f.tile);
             }
-            hand_over(members);
-            if (handed < chunk.size()) notify(wake);
+            part.insert(part.end(), members.begin(), members.end());
+            if (g + 1 >= local_groups) {  // the local part once all of it is read; then each remote store
+                hand_over(part);
+                part.clear();
+                if (handed < chunk.size()) notify(wake);
+            }
         }
+        if (!part.empty() || handed < chunk.size()) hand_over(part);
         work_cv_.notify_one();  // this viewer may be eligible again (chunks in flight went down)
         notify(wake);
     }

@@ -44,9 +44,10 @@ RemoteStores remote_stores(const ServerConfig& config) {
                         [o](const std::string& location) { return storage::remote_version(location, o); }};
 }
 
-// Remote reads wait on the network, not the CPU: with a remote store, readers and HTTP loops left
-// at "all cores" become at least kRemoteThreads, so a 50 ms round trip does not cap the server at
-// cores / 50 ms reads. (HTTP loops read tiles themselves; docs/server.md, "Remote stores".)
+// Remote reads wait on the network, not the CPU: with a remote store, gRPC readers left at "all
+// cores" become at least kRemoteThreads, so a 50 ms round trip does not cap the server at
+// cores / 50 ms reads. HTTP loops never read (their reads run on the executor's workers:
+// docs/server.md, "Isolation").
 constexpr unsigned kRemoteThreads = 16;
 // How often gRPC's TLS credentials look at the certificate and key files for a renewal.
 constexpr unsigned kTlsRefreshSeconds = 2;
@@ -57,7 +58,6 @@ ServerConfig effective(ServerConfig c) {
     if (remote) {
         const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
         if (c.io_threads == 0) c.io_threads = std::max(cores, kRemoteThreads);
-        if (c.http_threads == 0) c.http_threads = std::max(cores, kRemoteThreads);
     }
     return c;
 }

@@ -1,5 +1,8 @@
 #include "work_executor.hpp"
 
+#include <sys/resource.h>
+#include <unistd.h>
+
 #include <algorithm>
 
 #include "tessera/storage/byte_source.hpp"
@@ -24,6 +27,7 @@ std::string_view to_string(Admission a) {
 
 namespace {
 constexpr std::size_t kAdmissions = 6;
+constexpr int kRenderNice = 5;
 constexpr const char* kQueuedName = "tessera_work_queued";
 constexpr const char* kRunningName = "tessera_work_running";
 constexpr const char* kMemoryName = "tessera_work_render_memory_bytes";
@@ -34,7 +38,8 @@ constexpr const char* kStoreRunningName = "tessera_store_work_running";
 struct WorkExecutor::Lane {
     std::string store;
     std::deque<WorkJob> reads, renders;
-    std::size_t running = 0;
+    std::size_t running = 0;          // reads and renders
+    std::size_t running_renders = 0;
     Counter* rejected = nullptr;
     Counter* expired = nullptr;
     Histogram* wait = nullptr;
@@ -67,8 +72,9 @@ WorkExecutor::WorkExecutor(const WorkLimits& limits, MetricsRegistry& metrics) :
         std::lock_guard lock(mu_);
         return double(stats_.render_memory);
     });
-    const unsigned n = std::max(1u, limits_.threads);
-    for (unsigned i = 0; i < n; ++i) workers_.emplace_back([this] { worker(); });
+    for (unsigned i = 0; i < std::max(1u, limits_.threads); ++i) workers_.emplace_back([this] { worker(WorkKind::read); });
+    for (unsigned i = 0; i < std::max(1u, limits_.render_concurrency); ++i)
+        workers_.emplace_back([this] { worker(WorkKind::render); });
     expiry_thread_ = std::thread([this] { expiry(); });
 }
 
@@ -107,6 +113,7 @@ WorkExecutor::Lane& WorkExecutor::lane_locked(const std::string& store) {
 
 Admission WorkExecutor::submit(WorkJob job) {
     Admission verdict = Admission::admitted;
+    const WorkKind job_kind = job.kind;
     {
         std::lock_guard lock(mu_);
         if (stopping_) {
@@ -136,29 +143,30 @@ Admission WorkExecutor::submit(WorkJob job) {
         if (verdict != Admission::admitted)
             kind_metrics_[static_cast<int>(job.kind)].rejected[static_cast<std::size_t>(verdict)]->inc();
     }
-    if (verdict == Admission::admitted) work_cv_.notify_one();
+    if (verdict == Admission::admitted) (job_kind == WorkKind::read ? work_cv_ : render_cv_).notify_one();
     return verdict;
 }
 
-// The next job a worker may start: reads first, lanes in turn, each within its own bound.
-bool WorkExecutor::pick_locked(WorkJob& job, Lane*& picked) {
+// The next job a worker of its kind may start: lanes in turn, each within its own bound.
+bool WorkExecutor::pick_locked(WorkKind kind, WorkJob& job, Lane*& picked) {
     const std::size_t n = order_.size();
-    for (int pass = 0; pass < 2; ++pass) {
-        const bool reads = pass == 0;
-        if (!reads && stats_.running_renders >= limits_.render_concurrency) break;
-        for (std::size_t i = 0; i < n; ++i) {
-            Lane& lane = *order_[(next_lane_ + i) % n];
-            auto& q = reads ? lane.reads : lane.renders;
-            if (q.empty() || lane.running >= limits_.store_inflight) continue;
-            job = std::move(q.front());
-            q.pop_front();
-            ++lane.running;
-            if (reads) --stats_.queued_reads, ++stats_.running_reads;
-            else --stats_.queued_renders, ++stats_.running_renders;
-            next_lane_ = (next_lane_ + i + 1) % n;
-            picked = &lane;
-            return true;
-        }
+    const bool reads = kind == WorkKind::read;
+    // One store's renders never take every render worker: a store whose reads are slow would
+    // hold them all until the deadline.
+    const std::size_t lane_renders = std::max<std::size_t>(1, limits_.render_concurrency / 2);
+    for (std::size_t i = 0; i < n; ++i) {
+        Lane& lane = *order_[(next_lane_ + i) % n];
+        auto& q = reads ? lane.reads : lane.renders;
+        if (q.empty() || lane.running >= limits_.store_inflight) continue;
+        if (!reads && lane.running_renders >= lane_renders) continue;
+        job = std::move(q.front());
+        q.pop_front();
+        ++lane.running;
+        if (reads) --stats_.queued_reads, ++stats_.running_reads;
+        else --stats_.queued_renders, ++stats_.running_renders, ++lane.running_renders;
+        next_lane_ = (next_lane_ + i + 1) % n;
+        picked = &lane;
+        return true;
     }
     return false;
 }
@@ -167,19 +175,27 @@ void WorkExecutor::account_done_locked(Lane& lane, const WorkJob& job) {
     --lane.running;
     if (job.kind == WorkKind::render) {
         --stats_.running_renders;
+        --lane.running_renders;
         stats_.render_memory -= job.memory;
     } else {
         --stats_.running_reads;
     }
 }
 
-void WorkExecutor::worker() {
+void WorkExecutor::worker(WorkKind kind) {
+    if (kind == WorkKind::render) {
+        // Renders are CPU work that can wait; the event loops and reads cannot. A lower priority
+        // (nice 5: a third of a default thread's CPU share under contention) keeps the loops'
+        // latency when renders fill every core.
+        setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), kRenderNice);
+    }
     for (;;) {
         WorkJob job;
         Lane* lane = nullptr;
         {
             std::unique_lock lock(mu_);
-            work_cv_.wait(lock, [&] { return stopping_ || pick_locked(job, lane); });
+            auto& cv = kind == WorkKind::read ? work_cv_ : render_cv_;
+            cv.wait(lock, [&] { return stopping_ || pick_locked(kind, job, lane); });
             if (!lane) return;  // stopping, nothing picked
         }
         const double waited = std::chrono::duration<double>(Clock::now() - job.admitted_at).count();
@@ -189,15 +205,17 @@ void WorkExecutor::worker() {
             const storage::ReadDeadlineScope scope(job.deadline);
             job.run(true);
         }
-        bool more;
+        bool reads_waiting, renders_waiting;
         {
             std::lock_guard lock(mu_);
             account_done_locked(*lane, job);
-            more = stats_.queued_reads + stats_.queued_renders > 0;
+            reads_waiting = stats_.queued_reads > 0;
+            renders_waiting = stats_.queued_renders > 0;
         }
-        // This worker picks again before it sleeps; a render's end frees two places (its lane's
-        // and a render's), so one more worker may find something to start.
-        if (more) work_cv_.notify_one();
+        // This worker picks again before it sleeps; a place freed in the lane may also let a
+        // worker of the other kind start.
+        if (kind == WorkKind::render && reads_waiting) work_cv_.notify_one();
+        if (kind == WorkKind::read && renders_waiting) render_cv_.notify_one();
     }
 }
 
@@ -246,6 +264,7 @@ void WorkExecutor::stop() {
         stats_.queued_reads = stats_.queued_renders = 0;
     }
     work_cv_.notify_all();
+    render_cv_.notify_all();
     expiry_cv_.notify_all();
     for (auto& job : left) job.run(false);
     for (auto& t : workers_)

@@ -8,14 +8,16 @@
 // - Each store has a lane: at most `store_inflight` of its jobs run at once and `store_queue`
 //   wait. A store whose origin is slow fills its own lane and is refused (503) when the lane is
 //   full; it never holds the workers or the queue places that other stores' jobs need.
-// - Reads go ahead of renders: a free worker takes the oldest read of the next lane in turn, and
-//   a render only when no read can start.
-// - A render is admitted against `render_concurrency` (running), `render_queue` (waiting) and
-//   `render_memory`, the bytes its estimate says the renders running and waiting may hold.
+// - Reads go ahead of renders: they have their own `threads` workers, each taking the oldest read
+//   of the next lane in turn; renders run on `render_concurrency` workers of their own, at a
+//   lower CPU priority (nice 5), so a flood of renders never holds a read or an event loop.
+// - A render is admitted against `render_queue` (waiting) and `render_memory`, the bytes its
+//   estimate says the renders running and waiting may hold.
 // - A job whose deadline passes while it waits is taken out and answered (expired) within
 //   kExpiryTick; a running job's remote reads end at its deadline (storage::ReadDeadlineScope).
 //
-// Owner: the HTTP server. Threads: `threads` workers and one expiry thread, owned here; nothing
+// Owner: the HTTP server. Threads: `threads` read workers, `render_concurrency` render workers
+// and one expiry thread, owned here; nothing
 // grows with the number of requests beyond the bounds above.
 #include <chrono>
 #include <condition_variable>
@@ -39,11 +41,11 @@ enum class WorkKind : std::uint8_t { read, render };
 std::string_view to_string(WorkKind k);
 
 struct WorkLimits {
-    unsigned threads = 16;             // workers (reads wait on I/O, so more than cores)
-    std::size_t store_inflight = 4;    // one store's jobs running at once
+    unsigned threads = 32;             // read workers (reads wait on I/O, so more than cores)
+    std::size_t store_inflight = 8;    // one store's jobs running at once
     std::size_t store_queue = 64;      // one store's jobs waiting
-    unsigned render_concurrency = 2;   // renders running at once
-    std::size_t render_queue = 4;      // renders waiting
+    unsigned render_concurrency = 2;   // render workers: renders running at once
+    std::size_t render_queue = 64;      // renders waiting
     std::size_t render_memory = std::size_t(160) << 20;  // estimated bytes of renders admitted
 };
 
@@ -94,8 +96,8 @@ private:
     };
 
     Lane& lane_locked(const std::string& store);
-    bool pick_locked(WorkJob& job, Lane*& lane);
-    void worker();
+    bool pick_locked(WorkKind kind, WorkJob& job, Lane*& lane);
+    void worker(WorkKind kind);
     void expiry();
     void account_done_locked(Lane& lane, const WorkJob& job);
 
@@ -104,7 +106,8 @@ private:
     KindMetrics kind_metrics_[2];
 
     mutable std::mutex mu_;
-    std::condition_variable work_cv_;
+    std::condition_variable work_cv_;    // read workers
+    std::condition_variable render_cv_;  // render workers
     std::condition_variable expiry_cv_;
     bool stopping_ = false;
     std::map<std::string, std::unique_ptr<Lane>> lanes_;  // one per store ever asked for

@@ -52,11 +52,11 @@ struct ServerConfig {
     // store has its own lane (`store_inflight` running, `store_queue` waiting: beyond, 503), reads
     // go before renders, and renders are admitted against `render_concurrency` (0: hardware
     // threads), `render_queue` and `render_memory` (their estimated peak bytes): beyond, 503.
-    unsigned work_threads = 16;
-    std::size_t store_inflight = 4;
+    unsigned work_threads = 32;
+    std::size_t store_inflight = 8;
     std::size_t store_queue = 64;
     unsigned render_concurrency = 0;
-    std::size_t render_queue = 4;
+    std::size_t render_queue = 64;
     std::size_t render_memory_bytes = std::size_t(160) << 20;
 
     // Default deadline of a request: a gRPC tile request (a batch may set its own) and every
