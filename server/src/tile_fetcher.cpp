@@ -208,6 +208,11 @@ void TileFetcher::read_misses(const StoreHandle& store, const std::vector<TileKe
                 out[i] = error_tile(TileStatus::data_loss, "tile " + key_text(store, misses[j]) + " failed its checksum");
             } else if (e.code == Errc::out_of_range) {
                 out[i] = error_tile(TileStatus::out_of_range, e.message);
+            } else if (std::chrono::steady_clock::now() >= storage::read_deadline()) {
+                // Cut short by the request's deadline (a slow origin), not a fault of the store;
+                // requests that joined this read get the same answer.
+                out[i] = error_tile(TileStatus::deadline_exceeded, "the read of tile " + key_text(store, misses[j]) +
+                                                                       " did not finish before the request's deadline");
             } else {
                 log_.error("tile read failed", {{"store", store.name}, {"tile", key_text(store, misses[j])},
                                                 {"error", e.message}});

@@ -23,9 +23,9 @@ WebFailure fetch_failure(const FetchedTile& f) {
         case TileStatus::data_loss: return {500, "tile failed its checksum"};
         case TileStatus::not_found: return {404, "store not found"};
         case TileStatus::out_of_range: return {404, "tile out of range: " + f.message};
+        case TileStatus::deadline_exceeded: return {504, "tile unavailable: " + f.message};
         case TileStatus::resource_exhausted:
-        case TileStatus::unavailable:
-        case TileStatus::deadline_exceeded: return {503, "tile unavailable: " + f.message};
+        case TileStatus::unavailable: return {503, "tile unavailable: " + f.message};
         default: return {500, "tile read failed: " + f.message};
     }
 }
