@@ -104,7 +104,12 @@ Counter& HttpHandler::tiles_served_counter(const std::string& store) {
 }
 
 void HttpHandler::count_served(const StoreHandle& store, std::size_t bytes) {
-    tiles_served_counter(store.name).inc();
+    Counter* served = store.http_tiles_served.load(std::memory_order_acquire);
+    if (!served) {
+        served = &tiles_served_counter(store.name);
+        store.http_tiles_served.store(served, std::memory_order_release);
+    }
+    served->inc();
     if (store.metrics.tiles_sent) store.metrics.tiles_sent->inc();
     if (store.metrics.bytes_sent) store.metrics.bytes_sent->inc(bytes);
 }

@@ -26,20 +26,19 @@ struct ServerContext {
     std::atomic<bool> draining{false};  // SIGTERM received: refuse new work (/readyz fails)
 
     // The bearer token every request needs ("" none): config.auth_token until replaced by a
-    // reload (Server::set_auth_token), read per request.
+    // reload (Server::set_auth_token), read per request without a lock.
     std::shared_ptr<const std::string> auth_token() const {
-        std::lock_guard lock(token_mutex_);
-        return token_ ? token_ : std::make_shared<const std::string>(config.auth_token);
+        if (auto t = token_.load(std::memory_order_acquire)) return t;
+        std::shared_ptr<const std::string> expected;
+        auto initial = std::make_shared<const std::string>(config.auth_token);
+        // Only the first reader's copy is kept; a reload's token is never overwritten by it.
+        token_.compare_exchange_strong(expected, initial, std::memory_order_acq_rel);
+        return token_.load(std::memory_order_acquire);
     }
-    void set_auth_token(std::string token) {
-        auto t = std::make_shared<const std::string>(std::move(token));
-        std::lock_guard lock(token_mutex_);
-        token_ = std::move(t);
-    }
+    void set_auth_token(std::string token) { token_.store(std::make_shared<const std::string>(std::move(token))); }
 
     // (Public so that the context stays an aggregate; use the two functions above.)
-    mutable std::mutex token_mutex_{};
-    std::shared_ptr<const std::string> token_{};
+    mutable std::atomic<std::shared_ptr<const std::string>> token_{};
 };
 
 }  // namespace tessera::server

@@ -46,6 +46,9 @@ struct StoreHandle {
     std::string remote_version;  // a remote store's ETag at open ("" for files)
     // The file changed in place under this version: nothing more is read from it.
     mutable std::atomic<bool> stale{false};
+    // tessera_tiles_served_total{store, protocol="http"}, registered on the first HTTP tile and
+    // kept here so that later ones take no lock.
+    mutable std::atomic<Counter*> http_tiles_served{nullptr};
     const storage::StoreInfo& info() const { return reader->info(); }
     bool remote() const { return !remote_version.empty(); }  // read over the network
 };
