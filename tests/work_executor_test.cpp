@@ -44,6 +44,13 @@ struct Gate {
     }
 };
 
+// Opens the gate when the test ends, even on a failed assertion (the executor's workers must
+// finish before it is destroyed).
+struct Release {
+    Gate& gate;
+    ~Release() { gate.release(); }
+};
+
 WorkJob job(WorkKind kind, const std::string& store, std::function<void(bool)> run,
             Clock::time_point deadline = Clock::now() + 10s, std::size_t memory = 0) {
     WorkJob j;
@@ -63,16 +70,19 @@ TEST(WorkExecutor, ASlowStoreFillsOnlyItsOwnLane) {
     limits.threads = 4;
     limits.store_inflight = 2;
     limits.store_queue = 3;
-    WorkExecutor ex(limits, metrics);
     Gate slow;
+    WorkExecutor ex(limits, metrics);
     std::atomic<int> slow_started{0};
+    const Release release{slow};
     // 2 run (the lane's bound), 3 wait, the 6th is refused at once.
-    for (int i = 0; i < 5; ++i)
-        ASSERT_EQ(ex.submit(job(WorkKind::read, "slow", [&](bool started) {
-                      if (started) ++slow_started, slow.wait();
-                  })),
-                  Admission::admitted);
+    auto slow_job = [&] {
+        return job(WorkKind::read, "slow", [&](bool started) {
+            if (started) ++slow_started, slow.wait();
+        });
+    };
+    for (int i = 0; i < 2; ++i) ASSERT_EQ(ex.submit(slow_job()), Admission::admitted);
     ASSERT_TRUE(slow.wait_for_waiting(2, 5s));
+    for (int i = 0; i < 3; ++i) ASSERT_EQ(ex.submit(slow_job()), Admission::admitted);
     EXPECT_EQ(ex.submit(job(WorkKind::read, "slow", [](bool) { ADD_FAILURE() << "a refused job ran"; })),
               Admission::store_full);
     EXPECT_EQ(slow_started.load(), 2);
@@ -80,10 +90,11 @@ TEST(WorkExecutor, ASlowStoreFillsOnlyItsOwnLane) {
     // Another store's jobs run at once on the workers the slow lane does not hold.
     std::atomic<int> fast_done{0};
     const auto t0 = Clock::now();
-    for (int i = 0; i < 20; ++i)
+    for (int i = 0; i < 20; ++i) {  // one after another (the fast lane has its own bound of 3 waiting)
         ASSERT_EQ(ex.submit(job(WorkKind::read, "fast", [&](bool started) { fast_done += started ? 1 : 0; })),
                   Admission::admitted);
-    while (fast_done.load() < 20 && Clock::now() - t0 < 5s) std::this_thread::sleep_for(1ms);
+        while (fast_done.load() < i + 1 && Clock::now() - t0 < 5s) std::this_thread::sleep_for(100us);
+    }
     EXPECT_EQ(fast_done.load(), 20);
     EXPECT_LT(Clock::now() - t0, 1s);
     EXPECT_EQ(slow_started.load(), 2);  // the slow lane still at its bound
@@ -100,8 +111,9 @@ TEST(WorkExecutor, WaitingJobsExpireAtTheirDeadlineAndRunningOnesSeeIt) {
     WorkLimits limits;
     limits.threads = 1;
     limits.store_inflight = 1;
-    WorkExecutor ex(limits, metrics);
     Gate gate;
+    WorkExecutor ex(limits, metrics);
+    const Release release{gate};
     Clock::time_point seen_deadline{};
     const auto deadline = Clock::now() + 200ms;
     ASSERT_EQ(ex.submit(job(WorkKind::read, "s", [&](bool) {
@@ -139,8 +151,9 @@ TEST(WorkExecutor, RendersAreAdmittedAgainstMemoryAndQueue) {
     limits.render_memory = 100;
     limits.store_inflight = 8;
     limits.store_queue = 64;
-    WorkExecutor ex(limits, metrics);
     Gate gate;
+    WorkExecutor ex(limits, metrics);
+    const Release release{gate};
     EXPECT_EQ(ex.submit(job(WorkKind::render, "a", [&](bool) { gate.wait(); }, Clock::now() + 10s, 101)),
               Admission::render_too_large);
     ASSERT_EQ(ex.submit(job(WorkKind::render, "a", [&](bool) { gate.wait(); }, Clock::now() + 10s, 60)),
@@ -169,8 +182,9 @@ TEST(WorkExecutor, StopAnswersEveryWaitingJob) {
     WorkLimits limits;
     limits.threads = 1;
     limits.store_inflight = 1;
-    auto ex = std::make_unique<WorkExecutor>(limits, metrics);
     Gate gate;
+    auto ex = std::make_unique<WorkExecutor>(limits, metrics);
+    const Release release{gate};
     ASSERT_EQ(ex->submit(job(WorkKind::read, "s", [&](bool) { gate.wait(); })), Admission::admitted);
     ASSERT_TRUE(gate.wait_for_waiting(1, 5s));
     std::atomic<int> not_started{0};

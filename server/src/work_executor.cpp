@@ -84,42 +84,53 @@ WorkExecutor::~WorkExecutor() {
         metrics_.remove_callbacks(name);
 }
 
-WorkExecutor::Lane& WorkExecutor::lane_locked(const std::string& store) {
-    auto it = lanes_.find(store);
-    if (it != lanes_.end()) return *it->second;
-    auto lane = std::make_unique<Lane>();
-    lane->store = store;
-    Lane* l = lane.get();
+// The registry's render() runs gauge callbacks (which take mu_) under its own lock, so metrics
+// are registered here without mu_ held: no lock order to invert.
+WorkExecutor::Lane& WorkExecutor::lane(const std::string& store) {
+    {
+        std::lock_guard lock(mu_);
+        if (auto it = lanes_.find(store); it != lanes_.end()) return *it->second;
+    }
+    auto fresh = std::make_unique<Lane>();
+    fresh->store = store;
     const Labels labels{{"store", store}};
-    l->rejected = &metrics_.counter("tessera_store_work_rejected_total",
-                                    "HTTP work of a store refused because its lane was full (503)", labels);
-    l->expired = &metrics_.counter("tessera_store_work_expired_total",
-                                   "HTTP work of a store whose deadline passed before it started (504)", labels);
-    l->wait = &metrics_.histogram("tessera_store_work_wait_seconds", "Time a store's HTTP work waited for a worker",
-                                  labels, latency_buckets_seconds());
-    // Read under mu_, which the render of /metrics does not hold: no lock order to keep.
-    metrics_.gauge_callback(kStoreQueuedName, "HTTP work of a store waiting for a worker", labels, [this, l] {
+    fresh->rejected = &metrics_.counter("tessera_store_work_rejected_total",
+                                        "HTTP work of a store refused because its lane was full (503)", labels);
+    fresh->expired = &metrics_.counter("tessera_store_work_expired_total",
+                                       "HTTP work of a store whose deadline passed before it started (504)", labels);
+    fresh->wait = &metrics_.histogram("tessera_store_work_wait_seconds", "Time a store's HTTP work waited for a worker",
+                                      labels, latency_buckets_seconds());
+    Lane* l = nullptr;
+    bool inserted = false;
+    {
         std::lock_guard lock(mu_);
-        return double(l->queued());
-    });
-    metrics_.gauge_callback(kStoreRunningName, "HTTP work of a store running", labels, [this, l] {
-        std::lock_guard lock(mu_);
-        return double(l->running);
-    });
-    order_.push_back(l);
-    lanes_.emplace(store, std::move(lane));
+        auto [it, added] = lanes_.try_emplace(store, std::move(fresh));
+        l = it->second.get();
+        inserted = added;
+        if (added) order_.push_back(l);
+    }
+    if (inserted) {  // lanes live as long as the executor
+        metrics_.gauge_callback(kStoreQueuedName, "HTTP work of a store waiting for a worker", labels, [this, l] {
+            std::lock_guard lock(mu_);
+            return double(l->queued());
+        });
+        metrics_.gauge_callback(kStoreRunningName, "HTTP work of a store running", labels, [this, l] {
+            std::lock_guard lock(mu_);
+            return double(l->running);
+        });
+    }
     return *l;
 }
 
 Admission WorkExecutor::submit(WorkJob job) {
     Admission verdict = Admission::admitted;
     const WorkKind job_kind = job.kind;
+    Lane& lane = this->lane(job.store);
     {
         std::lock_guard lock(mu_);
         if (stopping_) {
             verdict = Admission::stopped;
         } else {
-            Lane& lane = lane_locked(job.store);
             if (lane.queued() >= limits_.store_queue) {
                 verdict = Admission::store_full;
                 lane.rejected->inc();

@@ -95,7 +95,7 @@ private:
         Counter* rejected[6] = {};
     };
 
-    Lane& lane_locked(const std::string& store);
+    Lane& lane(const std::string& store);  // made on first use; takes mu_ itself
     bool pick_locked(WorkKind kind, WorkJob& job, Lane*& lane);
     void worker(WorkKind kind);
     void expiry();
