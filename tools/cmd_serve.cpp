@@ -182,11 +182,11 @@ Command add_serve(CLI::App& app) {
     s->add_option("--store-inflight", c.store_inflight, "HTTP reads and renders of one store running at once")
         ->capture_default_str()->check(CLI::Range(std::size_t(1), std::size_t(1024)));
     s->add_option("--store-queue", c.store_queue, "HTTP reads and renders of one store waiting; beyond: 503")
-        ->capture_default_str()->check(CLI::Range(std::size_t(0), std::size_t(1) << 20));
+        ->capture_default_str()->check(CLI::Range(std::size_t(1), std::size_t(1) << 20));
     s->add_option("--render-concurrency", c.render_concurrency, "Web renders (DZI/IIIF/XYZ, PNG tiles) at once (0: hardware threads)")
         ->capture_default_str()->check(CLI::Range(0u, 1024u));
     s->add_option("--render-queue", c.render_queue, "Web renders waiting; beyond: 503")
-        ->capture_default_str()->check(CLI::Range(std::size_t(0), std::size_t(1) << 16));
+        ->capture_default_str()->check(CLI::Range(std::size_t(1), std::size_t(1) << 16));
     add_bytes_option(*s, "--render-memory", c.render_memory_bytes,
                      "Estimated peak memory of the web renders admitted, e.g. 160MiB; beyond: 503");
     s->add_option("--watch-interval", a->watch_ms, "Rescan stores this often, ms (0: only on SIGHUP)")

@@ -115,10 +115,10 @@ struct Shared {
         WorkLimits l;
         l.threads = std::max(1u, config.work_threads);
         l.store_inflight = std::max<std::size_t>(1, config.store_inflight);
-        l.store_queue = config.store_queue;
+        l.store_queue = std::max<std::size_t>(1, config.store_queue);
         l.render_concurrency =
             config.render_concurrency ? config.render_concurrency : std::max(1u, std::thread::hardware_concurrency());
-        l.render_queue = config.render_queue;
+        l.render_queue = std::max<std::size_t>(1, config.render_queue);
         l.render_memory = config.render_memory_bytes;
         return l;
     }
@@ -276,28 +276,34 @@ private:
         job.store = d->store ? d->store->name : std::string();
         job.memory = d->memory;
         job.deadline = deadline;
-        job.run = [self = self(), d, deadline, version, head, keep_alive](bool started) {
+        job.run = [self = self(), d, version, head, keep_alive](bool started) mutable {
             HttpHandler& handler = self->shared_.handler;
             HttpResponse r;
-            if (!started) {
-                r = handler.expired(*d);
-            } else {
-                try {
-                    r = handler.complete(*d, d->answer());
-                } catch (const std::exception& e) {
-                    self->shared_.ctx.log.error("http work failed", {{"target", d->target}, {"error", e.what()}});
-                    r = handler.complete(*d, http_error_response(500, "internal error"));
-                }
-                // A failure that came because the deadline passed (a remote read cut short) says so.
-                if (r.status >= 500 && r.status != 504 && std::chrono::steady_clock::now() >= deadline)
-                    r = handler.expired(*d);
-            }
             try {
-                net::post(self->stream_.get_executor(), [self, r = std::move(r), version, head, keep_alive]() mutable {
+                if (!started) {
+                    r = handler.expired(*d);
+                } else {
+                    HttpResponse answered;
+                    try {
+                        answered = d->answer();
+                    } catch (const std::exception& e) {
+                        self->shared_.ctx.log.error("http work failed", {{"target", d->target}, {"error", e.what()}});
+                        answered = HttpResponse{};
+                        answered.status = 500;
+                        answered.content_type = "text/plain; charset=utf-8";
+                        answered.body = "internal error\n";
+                        answered.headers.emplace_back("Cache-Control", "no-store");
+                    }
+                    r = handler.complete(*d, std::move(answered));
+                }
+                // The session goes with the response to its own loop: this job keeps no reference,
+                // so a session never ends on a worker thread.
+                auto executor = self->stream_.get_executor();
+                net::post(executor, [self = std::move(self), r = std::move(r), version, head, keep_alive]() mutable {
                     self->send(std::move(r), version, head, keep_alive);
                 });
             } catch (...) {
-                // Posting failed (no memory): the session ends with its loop.
+                // No memory for the answer or the post: the session ends with its loop.
             }
         };
         const Admission a = shared_.executor.submit(std::move(job));

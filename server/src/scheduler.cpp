@@ -480,6 +480,8 @@ void Scheduler::worker() {
         const auto first_remote = std::stable_partition(groups.begin(), groups.end(),
                                                         [](const auto& g) { return !g.first->remote(); });
         const std::size_t local_groups = static_cast<std::size_t>(first_remote - groups.begin());
+        // Remote stores in the chunk's order (the first request of each), not the map's.
+        std::sort(first_remote, groups.end(), [](const auto& a, const auto& b) { return a.second.front() < b.second.front(); });
         std::size_t handed = 0;
         // Hand over, unless the viewer left or no longer wants the tile; the chunk ends with its last part.
         auto hand_over = [&](std::vector<std::size_t>& members) {
@@ -506,16 +508,22 @@ void Scheduler::worker() {
             if (!members.empty() && (wake.empty() || wake.back() != v.sink)) wake.push_back(v.sink);
         };
         std::vector<std::size_t> part = std::move(expired);  // the first hand-over: expired and local replies
+        if (local_groups == 0 && !part.empty()) {  // expired replies never wait for an origin
+            hand_over(part);
+            part.clear();
+        }
         for (std::size_t g = 0; g < groups.size(); ++g) {
             auto& [store, members] = groups[g];
             keys.clear();
-            Clock::time_point deadline = Clock::time_point::max();
+            Clock::time_point deadline{};
             for (std::size_t i : members) {
                 keys.push_back(chunk[i].key);
-                deadline = std::min(deadline, chunk[i].deadline);
+                deadline = std::max(deadline, chunk[i].deadline);
             }
             {
-                // A remote store's reads end at the requests' deadline, not the origin's pace.
+                // A remote store's reads end at the latest deadline of the requests they serve
+                // (worth finishing while any of them wants it; a tile read in time for that one
+                // goes to the others too), not at the origin's pace.
                 const storage::ReadDeadlineScope scope(deadline);
                 ctx_.fetcher.fetch(*store, keys, fetched);
             }

@@ -28,17 +28,23 @@ struct ServerContext {
     // The bearer token every request needs ("" none): config.auth_token until replaced by a
     // reload (Server::set_auth_token), read per request without a lock.
     std::shared_ptr<const std::string> auth_token() const {
-        if (auto t = token_.load(std::memory_order_acquire)) return t;
-        std::shared_ptr<const std::string> expected;
-        auto initial = std::make_shared<const std::string>(config.auth_token);
-        // Only the first reader's copy is kept; a reload's token is never overwritten by it.
-        token_.compare_exchange_strong(expected, initial, std::memory_order_acq_rel);
-        return token_.load(std::memory_order_acquire);
+        auto t = token_.load(std::memory_order_acquire);
+        if (t && (token_set_.load(std::memory_order_acquire) || *t == config.auth_token)) return t;
+        // config.auth_token, kept as a shared copy (made again if the config changed under it).
+        auto fresh = std::make_shared<const std::string>(config.auth_token);
+        token_.compare_exchange_strong(t, fresh, std::memory_order_acq_rel);
+        return token_set_.load(std::memory_order_acquire) ? token_.load(std::memory_order_acquire) : fresh;
     }
-    void set_auth_token(std::string token) { token_.store(std::make_shared<const std::string>(std::move(token))); }
+    void set_auth_token(std::string token) {
+        // The flag first: a reader that sees the new token also sees that it was set, so it
+        // never swaps it back for the config's.
+        token_set_.store(true, std::memory_order_release);
+        token_.store(std::make_shared<const std::string>(std::move(token)), std::memory_order_release);
+    }
 
     // (Public so that the context stays an aggregate; use the two functions above.)
     mutable std::atomic<std::shared_ptr<const std::string>> token_{};
+    std::atomic<bool> token_set_{false};  // set_auth_token was called: token_ wins over the config
 };
 
 }  // namespace tessera::server

@@ -166,6 +166,7 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
     // A request with a deadline (storage::read_deadline) stops waiting at it: the read it joined
     // may be a slow origin's, and a waiter must not outlive its request.
     const auto deadline = storage::read_deadline();
+    std::vector<std::size_t> again;  // joined a read that the leader's own deadline cut short
     for (auto& [i, flight] : joined) {
         std::unique_lock lock(flight->m);
         const auto done = [&f = *flight] { return f.done; };
@@ -175,9 +176,15 @@ void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,
             out[i] = error_tile(TileStatus::deadline_exceeded, "the request's deadline passed waiting for a read in flight");
             continue;
         }
+        if (flight->result.status == TileStatus::deadline_exceeded && std::chrono::steady_clock::now() < deadline) {
+            again.push_back(i);
+            continue;
+        }
         out[i] = flight->result;
         reads_saved_->inc();
     }
+    // Each try ends by this request's deadline, so this ends too.
+    for (std::size_t i : again) out[i] = fetch_one(store, keys[i]);
 }
 
 void TileFetcher::read_misses(const StoreHandle& store, const std::vector<TileKey>& misses,

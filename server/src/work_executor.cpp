@@ -164,7 +164,9 @@ bool WorkExecutor::pick_locked(WorkKind kind, WorkJob& job, Lane*& picked) {
     const bool reads = kind == WorkKind::read;
     // One store's renders never take every render worker: a store whose reads are slow would
     // hold them all until the deadline.
-    const std::size_t lane_renders = std::max<std::size_t>(1, limits_.render_concurrency / 2);
+    // Nor its lane's every place: its reads go on beside its renders.
+    const std::size_t lane_renders = std::max<std::size_t>(
+        1, std::min<std::size_t>(limits_.render_concurrency / 2, limits_.store_inflight > 1 ? limits_.store_inflight - 1 : 1));
     for (std::size_t i = 0; i < n; ++i) {
         Lane& lane = *order_[(next_lane_ + i) % n];
         auto& q = reads ? lane.reads : lane.renders;

@@ -137,9 +137,11 @@ HttpResponse api_dzi(HttpHandler& handler, const ParsedRequest& req, HttpRoute& 
         } else {
             // Not in RAM: the read (and, rarely, a render after it) off the loop.
             return defer(WorkKind::read, hs, 0, [hp, fetcher, hs, key, stored, answer, memory, render, head, if_none_match]() {
-                const TileSlot slot = hp->tile_slot();
-                if (!slot.ok()) return retry_later("too many tile requests in flight; retry", false);
-                if (auto r = stored(fetcher->fetch_one(*hs, key))) return std::move(*r);
+                {
+                    const TileSlot slot = hp->tile_slot();  // the render below takes its own
+                    if (!slot.ok()) return retry_later("too many tile requests in flight; retry", false);
+                    if (auto r = stored(fetcher->fetch_one(*hs, key))) return std::move(*r);
+                }
                 HttpRequestView plain;
                 plain.method = head ? "HEAD" : "GET";
                 plain.if_none_match = if_none_match;
