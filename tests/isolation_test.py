@@ -162,6 +162,30 @@ def timed_get(conn, path):
     return r.status, headers, (time.perf_counter() - t0) * 1000
 
 
+def client_loop(port, next_path, stop, results, lock, backoff_s, odd=None):
+    """Asks next_path(rng) again and again on one kept-alive connection until `stop`; each answer
+    as (status, ms, Retry-After) into `results` (0 and the error for a broken connection), the
+    bodies of answers other than 200, 503 and 504 into `odd`; waits `backoff_s` after a 503."""
+    def run(seed):
+        rng = random.Random(seed)
+        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=120)
+        while not stop.is_set():
+            try:
+                status, headers, ms = timed_get(conn, next_path(rng))
+            except (OSError, http.client.HTTPException) as e:
+                with lock:
+                    results.append((0, 0.0, str(e)))
+                conn = http.client.HTTPConnection("127.0.0.1", port, timeout=120)
+                continue
+            with lock:
+                results.append((status, ms, headers.get("Retry-After")))
+                if odd is not None and status not in (200, 503, 504):
+                    odd.append(headers.get("body"))
+            if status == 503:
+                time.sleep(backoff_s)
+    return run
+
+
 def probe(port, store, keys, seconds, out, errors):
     """GETs of `keys` in turn for `seconds`, latencies (ms) into `out`; non-200s into `errors`."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
@@ -253,24 +277,11 @@ def slow_origin(tessera, tmp):
         odd = []  # bodies of unexpected answers
         slow_lock = threading.Lock()
 
-        def slow_client(seed):
-            rng = random.Random(seed)
-            conn = http.client.HTTPConnection("127.0.0.1", http_port, timeout=60)
-            while not stop.is_set():
-                level, x, y = slow_keys[rng.randrange(len(slow_keys))]
-                try:
-                    status, headers, ms = timed_get(conn, f"/v1/stores/slow/tiles/{level}/{x}/{y}")
-                except (OSError, http.client.HTTPException) as e:
-                    with slow_lock:
-                        slow_results.append((0, 0.0, str(e)))
-                    conn = http.client.HTTPConnection("127.0.0.1", http_port, timeout=60)
-                    continue
-                with slow_lock:
-                    slow_results.append((status, ms, headers.get("Retry-After")))
-                    if status not in (200, 503, 504):
-                        odd.append(headers.get("body"))
-                if status == 503:
-                    time.sleep(0.05)
+        def slow_path(rng):
+            level, x, y = slow_keys[rng.randrange(len(slow_keys))]
+            return f"/v1/stores/slow/tiles/{level}/{x}/{y}"
+
+        slow_client = client_loop(http_port, slow_path, stop, slow_results, slow_lock, 0.05, odd)
 
         clients = [threading.Thread(target=slow_client, args=(i,), daemon=True) for i in range(64)]
         for c in clients:
@@ -355,26 +366,13 @@ def heavy_renders(tessera, tmp):
         asks = ["full/max/0/default.jpg", "full/max/90/default.png", "full/pct:50/0/default.jpg",
                 "pct:25,25,50,50/max/0/default.jpg", "full/pct:12.5/180/gray.png"]
 
-        def render_client(seed):
-            rng = random.Random(seed)
-            conn = http.client.HTTPConnection("127.0.0.1", http_port, timeout=120)
-            while not stop.is_set():
-                if rng.random() < 0.5:
-                    x, y = rng.randrange(0, 16384 - 2000), rng.randrange(0, 16384 - 2000)
-                    ask = f"{x},{y},2000,2000/max/{rng.choice([90, 180, 270])}/default.{rng.choice(['png', 'jpg'])}"
-                else:
-                    ask = rng.choice(asks)
-                try:
-                    status, headers, ms = timed_get(conn, f"/iiif/big/{ask}")
-                except (OSError, http.client.HTTPException) as e:
-                    with lock:
-                        results.append((0, 0.0, str(e)))
-                    conn = http.client.HTTPConnection("127.0.0.1", http_port, timeout=120)
-                    continue
-                with lock:
-                    results.append((status, ms, headers.get("Retry-After")))
-                if status == 503:
-                    time.sleep(0.2)
+        def render_path(rng):
+            if rng.random() < 0.5:
+                x, y = rng.randrange(0, 16384 - 2000), rng.randrange(0, 16384 - 2000)
+                return f"/iiif/big/{x},{y},2000,2000/max/{rng.choice([90, 180, 270])}/default.{rng.choice(['png', 'jpg'])}"
+            return "/iiif/big/" + rng.choice(asks)
+
+        render_client = client_loop(http_port, render_path, stop, results, lock, 0.2)
 
         clients = [threading.Thread(target=render_client, args=(i,), daemon=True) for i in range(24)]
         for c in clients:
