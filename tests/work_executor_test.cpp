@@ -51,6 +51,13 @@ struct Release {
     ~Release() { gate.release(); }
 };
 
+// Waits (5 s at most) until `done` holds; the assertions after it say whether it did.
+template <class Pred>
+void eventually(Pred done) {
+    const auto t0 = Clock::now();
+    while (!done() && Clock::now() - t0 < 5s) std::this_thread::sleep_for(100us);
+}
+
 WorkJob job(WorkKind kind, const std::string& store, std::function<void(bool)> run,
             Clock::time_point deadline = Clock::now() + 10s, std::size_t memory = 0) {
     WorkJob j;
@@ -93,13 +100,13 @@ TEST(WorkExecutor, ASlowStoreFillsOnlyItsOwnLane) {
     for (int i = 0; i < 20; ++i) {  // one after another (the fast lane has its own bound of 3 waiting)
         ASSERT_EQ(ex.submit(job(WorkKind::read, "fast", [&](bool started) { fast_done += started ? 1 : 0; })),
                   Admission::admitted);
-        while (fast_done.load() < i + 1 && Clock::now() - t0 < 5s) std::this_thread::sleep_for(100us);
+        eventually([&] { return fast_done.load() >= i + 1; });
     }
     EXPECT_EQ(fast_done.load(), 20);
     EXPECT_LT(Clock::now() - t0, 1s);
     EXPECT_EQ(slow_started.load(), 2);  // the slow lane still at its bound
     slow.release();
-    while (slow_started.load() < 5 && Clock::now() - t0 < 5s) std::this_thread::sleep_for(1ms);
+    eventually([&] { return slow_started.load() >= 5; });
     EXPECT_EQ(slow_started.load(), 5);
     const std::string text = metrics.render();
     EXPECT_NE(text.find("tessera_store_work_rejected_total{store=\"slow\"} 1"), std::string::npos) << text;
@@ -133,8 +140,7 @@ TEST(WorkExecutor, WaitingJobsExpireAtTheirDeadlineAndRunningOnesSeeIt) {
                   }
               }, d2)),
               Admission::admitted);
-    const auto t0 = Clock::now();
-    while (expired.load() == 0 && Clock::now() - t0 < 5s) std::this_thread::sleep_for(5ms);
+    eventually([&] { return expired.load() > 0; });
     EXPECT_EQ(expired.load(), 1);
     EXPECT_GE(expired_late_ms.load(), 0);
     EXPECT_LE(expired_late_ms.load(), 500);  // within the expiry tick, with room for a loaded machine
@@ -169,11 +175,10 @@ TEST(WorkExecutor, RendersAreAdmittedAgainstMemoryAndQueue) {
     // Reads do not wait for renders: they have their own workers.
     std::atomic<bool> read_ran{false};
     ASSERT_EQ(ex.submit(job(WorkKind::read, "a", [&](bool started) { read_ran = started; })), Admission::admitted);
-    const auto t0 = Clock::now();
-    while (!read_ran.load() && Clock::now() - t0 < 5s) std::this_thread::sleep_for(1ms);
+    eventually([&] { return read_ran.load(); });
     EXPECT_TRUE(read_ran.load());
     gate.release();
-    while (ex.stats().render_memory != 0 && Clock::now() - t0 < 5s) std::this_thread::sleep_for(1ms);
+    eventually([&] { return ex.stats().render_memory == 0; });
     EXPECT_EQ(ex.stats().render_memory, 0u);
 }
 
