@@ -1,5 +1,4 @@
 // tessera serve: host .tsr stores over gRPC (viewers) and HTTP (everything else).
-#include <malloc.h>
 #include <signal.h>
 
 #include <chrono>
@@ -74,11 +73,6 @@ int run_serve(ServeArgs& a) {
     pthread_sigmask(SIG_BLOCK, &signals, nullptr);
     signal(SIGPIPE, SIG_IGN);
 
-    // Renders allocate and free buffers of megabytes. glibc's default raises its mmap threshold
-    // to the largest block freed (up to 32 MiB), after which such buffers come from the arenas
-    // and their pages stay with the process; a fixed threshold gives them back on free, so the
-    // server's RSS follows the renders running, not the largest seen.
-    mallopt(M_MMAP_THRESHOLD, 1 << 20);
     auto started = server::Server::start(c);
     if (!started) throw Failure(started.error().message);
     std::unique_ptr<server::Server> srv = std::move(*started);

@@ -37,6 +37,14 @@ struct WebAnswer {
 };
 // `render` runs off the event loop (a deferred answer, charged `memory` bytes), so it must own
 // what it uses: capture by value.
+// A web image cut from a few stored tiles (a DZI, IIIF or XYZ tile: estimated at most
+// kWebTileWorkBytes) is read work, bounded like a tile read and not held behind renders; anything
+// bigger is a render, admitted against the render budget (docs/server.md, "Isolation").
+inline constexpr std::size_t kWebTileWorkBytes = std::size_t(4) << 20;
+inline WorkKind web_work_kind(std::size_t memory) {
+    return memory <= kWebTileWorkBytes ? WorkKind::read : WorkKind::render;
+}
+
 template <class Render>
 HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req, std::shared_ptr<const StoreHandle> store,
                                  const WebAnswer& answer, std::size_t memory, Render render);
@@ -73,7 +81,7 @@ HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req
     if (std::shared_ptr<const std::string> body = handler.web_cache().find(key))
         return web_body_response(handler, head, *store, answer, std::move(body));
     HttpHandler* hp = &handler;
-    return defer(WorkKind::render, store, memory, [hp, store, answer, key, head, render]() -> HttpResponse {
+    return defer(web_work_kind(memory), store, memory, [hp, store, answer, key, head, render]() -> HttpResponse {
         TileSlot slot = hp->tile_slot();
         if (!slot.ok()) return retry_later("too many tile requests in flight; retry", false);
         WebFailure failure;

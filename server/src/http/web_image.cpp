@@ -31,12 +31,17 @@ WebFailure fetch_failure(const FetchedTile& f) {
 }
 
 // One stored tile as web texels (T x T x look.channels); an absent tile (or layer) is zeros.
+// 8-bit samples shown as they are decode straight into `out`; others go through `samples`.
 bool decode_web_tile(const StoreHandle& store, const WebLook& look, const storage::Tile& t, std::vector<std::uint8_t>& out,
                      std::vector<std::uint8_t>& samples, WebFailure& failure) {
     const storage::StoreInfo& info = store.info();
     const std::uint32_t T = info.tile_size();
-    out.assign(std::size_t(T) * T * look.channels, 0);
-    if (t.kind == TileKind::absent) return true;
+    const std::size_t n = std::size_t(T) * T;
+    const auto zeros = [&] {
+        out.assign(n * look.channels, 0);
+        return true;
+    };
+    if (t.kind == TileKind::absent) return zeros();
     storage::Tile part_tile;
     const storage::Tile* tile = &t;
     if (info.layered()) {
@@ -46,17 +51,21 @@ bool decode_web_tile(const StoreHandle& store, const WebLook& look, const storag
             return false;
         }
         const storage::LayerPart& p = (*parts)[look.layer];
-        if (p.kind == TileKind::absent) return true;
+        if (p.kind == TileKind::absent) return zeros();
         part_tile = storage::layer_tile(t.key, p);
         tile = &part_tile;
     }
-    if (const Status s = storage::decode_tile(look.info, *tile, samples); !s.ok()) {
+    const std::uint32_t c = look.info.channels;
+    const bool wide = look.info.sample_type == SampleType::u16;
+    const bool direct = !wide && c == look.channels;
+    if (const Status s = storage::decode_tile(look.info, *tile, direct ? out : samples); !s.ok()) {
         failure = {500, "tile does not decode: " + s.error().message};
         return false;
     }
-    const std::uint32_t c = look.info.channels;
-    const std::size_t n = std::size_t(T) * T;
-    const bool wide = look.info.sample_type == SampleType::u16;
+    if (direct) return true;
+    // 16-bit samples scaled to 8 bits; two channels without alpha (normals, say) show as red
+    // and green, blue 0.
+    out.assign(n * look.channels, 0);
     for (std::size_t i = 0; i < n; ++i) {
         for (std::uint32_t k = 0; k < c; ++k) {
             std::uint8_t v;
@@ -69,10 +78,36 @@ bool decode_web_tile(const StoreHandle& store, const WebLook& look, const storag
             }
             out[i * look.channels + k] = v;
         }
-        // Two channels without alpha (normals, say) show as red and green; blue stays 0.
     }
     return true;
 }
+
+// Decode buffers a render reuses: a worker thread keeps those of renders a few tiles wide, so a
+// web tile allocates (and the kernel zeroes) no tile-sized buffer per request; a wider render's
+// are its own and freed with it, so no thread holds a big render's memory after it.
+class TileScratch {
+public:
+    explicit TileScratch(std::size_t tiles) : own_(tiles > kKept) {
+        if (own_) tiles_.resize(tiles);
+        else if (kept().tiles.size() < tiles) kept().tiles.resize(tiles);
+    }
+    std::vector<std::uint8_t>& tile(std::size_t i) { return own_ ? tiles_[i] : kept().tiles[i]; }
+    std::vector<std::uint8_t>& samples() { return own_ ? samples_ : kept().samples; }
+
+private:
+    static constexpr std::size_t kKept = 4;
+    struct Kept {
+        std::vector<std::vector<std::uint8_t>> tiles;
+        std::vector<std::uint8_t> samples;
+    };
+    static Kept& kept() {
+        thread_local Kept k;
+        return k;
+    }
+    bool own_;
+    std::vector<std::vector<std::uint8_t>> tiles_;
+    std::vector<std::uint8_t> samples_;
+};
 
 // Which source texels (and how much of each) make one output texel along one axis.
 struct Tap {
@@ -221,8 +256,8 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
     const std::uint32_t tx0 = r.x / P, tx1 = (r.x + r.w - 1) / P, ty0 = r.y / P, ty1 = (r.y + r.h - 1) / P;
     std::vector<TileKey> keys;
     std::vector<FetchedTile> fetched;
-    std::vector<std::vector<std::uint8_t>> tiles(tx1 - tx0 + 1);
-    std::vector<std::uint8_t> samples, row(std::size_t(r.w) * c);
+    TileScratch tiles(tx1 - tx0 + 1);
+    std::vector<std::uint8_t> row(copy ? 0 : std::size_t(r.w) * c);
     for (std::uint32_t ty = ty0; ty <= ty1; ++ty) {
         keys.clear();
         for (std::uint32_t tx = tx0; tx <= tx1; ++tx) keys.push_back(TileKey{r.level, tx, ty});
@@ -233,7 +268,7 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
                 failure = fetch_failure(fetched[i]);
                 return std::nullopt;
             }
-            if (!decode_web_tile(store, look, *fetched[i].tile, tiles[i], samples, failure)) return std::nullopt;
+            if (!decode_web_tile(store, look, *fetched[i].tile, tiles.tile(i), tiles.samples(), failure)) return std::nullopt;
         }
         const std::uint32_t y0 = std::max(r.y, ty * P), y1 = std::min(r.y + r.h, (ty + 1) * P);
         for (std::uint32_t y = y0; y < y1; ++y) {
@@ -241,7 +276,7 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
             for (std::uint32_t tx = tx0; tx <= tx1; ++tx) {
                 const std::uint32_t x0 = std::max(r.x, tx * P), x1 = std::min(r.x + r.w, (tx + 1) * P);
                 const std::uint8_t* src =
-                    &tiles[tx - tx0][(std::size_t(y - ty * P + B) * T + (x0 - tx * P + B)) * c];
+                    &tiles.tile(tx - tx0)[(std::size_t(y - ty * P + B) * T + (x0 - tx * P + B)) * c];
                 std::memcpy(dst + std::size_t(x0 - r.x) * c, src, std::size_t(x1 - x0) * c);
             }
             if (!copy) resampler->push(y - r.y, row.data());
@@ -360,20 +395,39 @@ std::optional<std::string> encode_web(const WebImage& image, std::string_view fo
         for (std::size_t i = 0; i < n; ++i) std::memcpy(&packed[i * keep], &image.texels[i * c], keep);
         src = packed.data();
     }
-    tjhandle tj = tjInitCompress();
-    if (!tj) {
+    // One encoder per thread, and for images up to a web tile's size its output buffer too: a
+    // tile's encode then allocates only the string it returns.
+    struct Encoder {
+        tjhandle tj = tjInitCompress();
+        unsigned char* buf = nullptr;
+        unsigned long capacity = 0;
+        ~Encoder() {
+            tjFree(buf);
+            if (tj) tjDestroy(tj);
+        }
+    };
+    thread_local Encoder enc;
+    if (!enc.tj) {
         failure = {500, "JPEG encoder could not start"};
         return std::nullopt;
     }
-    unsigned char* buf = nullptr;
-    unsigned long size = 0;
-    const int rc = tjCompress2(tj, src, int(image.width), 0, int(image.height), grey ? TJPF_GRAY : TJPF_RGB, &buf, &size,
-                               grey ? TJSAMP_GRAY : TJSAMP_444, 90, TJFLAG_FASTDCT);
+    const int samp = grey ? TJSAMP_GRAY : TJSAMP_444;
+    const unsigned long bound = tjBufSize(int(image.width), int(image.height), samp);
+    constexpr unsigned long kKeptBuffer = 1 << 20;
+    const bool kept = bound <= kKeptBuffer;
+    if (kept && enc.capacity < kKeptBuffer) {
+        tjFree(enc.buf);
+        enc.buf = tjAlloc(int(kKeptBuffer));
+        enc.capacity = enc.buf ? kKeptBuffer : 0;
+    }
+    unsigned char* buf = kept ? enc.buf : nullptr;
+    unsigned long size = kept ? enc.capacity : 0;
+    const int rc = tjCompress2(enc.tj, src, int(image.width), 0, int(image.height), grey ? TJPF_GRAY : TJPF_RGB, &buf, &size,
+                               samp, 90, TJFLAG_FASTDCT | (kept && buf ? TJFLAG_NOREALLOC : 0));
     std::optional<std::string> out;
     if (rc == 0) out.emplace(reinterpret_cast<const char*>(buf), size);
-    else failure = {500, std::string("JPEG encoding failed: ") + tjGetErrorStr2(tj)};
-    tjFree(buf);
-    tjDestroy(tj);
+    else failure = {500, std::string("JPEG encoding failed: ") + tjGetErrorStr2(enc.tj)};
+    if (buf != enc.buf) tjFree(buf);
     return out;
 }
 
