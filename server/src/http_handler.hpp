@@ -80,7 +80,9 @@ struct HttpResponse {
     // The full representation, also for HEAD: the transport sends only the headers then, with
     // this body's length as Content-Length.
     std::string body;
-    std::vector<std::pair<std::string, std::string>> headers;  // besides Content-Type/-Length
+    // Besides Content-Type/-Length. Names are string literals (a fixed set), so only values
+    // are allocated per response.
+    std::vector<std::pair<std::string_view, std::string>> headers;
     HttpRoute route = HttpRoute::other;
     // Set instead of body when the caller asked to borrow payloads: the stored tile is the body
     // (the transport writes its bytes from the cache; nothing is copied).

@@ -111,6 +111,7 @@ struct TileAnswer {
 
         HttpResponse r;
         r.status = 200;
+        r.headers.reserve(8);  // these, CORS and Server: one allocation
         r.headers.emplace_back("ETag", etag);
         if (png) {
             const storage::StoreInfo shown = info.layered() ? storage::layer_store_info(info, layer) : storage::StoreInfo{};
@@ -208,36 +209,36 @@ HttpResponse tile(HttpHandler& handler, const HttpRequestView& req, std::string_
                               (info.layered() ? " layers" : " stores") + " (PNG has no float samples); fetch the stored payload",
                      api);
 
-    auto a = std::make_shared<TileAnswer>();
-    a->handler = &handler;
-    a->h = h;
-    a->name = std::string(name);
-    a->key = TileKey{*level, *x, *y};
-    a->png = png;
-    a->layer = layer;
-    a->version_hex = version_hex;
-    a->png_tag = !png ? "" : info.layered() ? "-png-" + info.layers[layer].name : "-png";
-    a->cache = cache_control(ctx_, has_version);
-    a->if_none_match = std::string(req.if_none_match);
-    a->head = req.method == "HEAD";
-    a->borrow_payload = borrow_payload;
+    TileAnswer a;  // on the stack: a RAM cache hit is answered here without allocating it
+    a.handler = &handler;
+    a.h = h;
+    a.name = std::string(name);
+    a.key = TileKey{*level, *x, *y};
+    a.png = png;
+    a.layer = layer;
+    a.version_hex = version_hex;
+    a.png_tag = !png ? "" : info.layered() ? "-png-" + info.layers[layer].name : "-png";
+    a.cache = cache_control(ctx_, has_version);
+    a.if_none_match = std::string(req.if_none_match);
+    a.head = req.method == "HEAD";
+    a.borrow_payload = borrow_payload;
 
     // A stored payload the RAM cache holds is answered on the loop; anything else (a read, a
     // PNG to encode) goes to the executor.
     if (!png) {
-        if (auto hit = ctx_.fetcher.cached(*h, a->key)) {
+        if (auto hit = ctx_.fetcher.cached(*h, a.key)) {
             const TileSlot slot = handler.tile_slot();
             if (!slot.ok()) return retry_later("too many tile requests in flight; retry", api);
             FetchedTile f;
             f.tile = std::move(hit);
-            return a->with(f);
+            return a.with(f);
         }
-        return defer(WorkKind::read, h, 0, [a] { return a->read(); });
+        return defer(WorkKind::read, h, 0, [a = std::make_shared<const TileAnswer>(std::move(a))] { return a->read(); });
     }
     // A PNG: one tile decoded (samples) and encoded (about as large again), twice for a bundle.
     const std::size_t T = info.tile_size();
     const std::size_t memory = T * T * std::max<std::size_t>(1, png_info.channels) * 4 * 3;
-    return defer(WorkKind::render, h, memory, [a] { return a->read(); });
+    return defer(WorkKind::render, h, memory, [a = std::make_shared<const TileAnswer>(std::move(a))] { return a->read(); });
 }
 
 }  // namespace

@@ -113,6 +113,7 @@ bool parse_request(const HttpRequestView& req, ParsedRequest& out, std::string& 
             return false;
         }
     std::string why;
+    out.segments.reserve(8);  // /v1/stores/{name}/tiles/{level}/{x}/{y}: one allocation
     if (raw_path != "/") {
         std::size_t start = 1;
         while (true) {
