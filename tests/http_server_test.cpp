@@ -726,7 +726,14 @@ TEST_F(HttpServerTest, BadAddressesFailStart) {
 TEST_F(HttpServerTest, Ipv6LiteralInBrackets) {
     config_.http_address = "[::1]:0";
     auto s = start_server();
-    if (!s.ok()) GTEST_SKIP() << "no IPv6 loopback here: " << s.error().message;
+    if (!s.ok()) {
+        // A host without IPv6 (a container with it disabled): the literal must still have been
+        // parsed, so what fails is the bind (io_error), not the address (invalid_argument).
+        // That is checked, not skipped; connecting over ::1 is checked where IPv6 exists.
+        EXPECT_EQ(s.error().code, Errc::io_error) << s.error().message;
+        EXPECT_NE(s.error().message.find("[::1]:0"), std::string::npos) << s.error().message;
+        return;
+    }
     server_ = std::move(s.value());
     net::io_context ioc;
     tcp::socket sock(ioc);
