@@ -588,7 +588,10 @@ TEST_P(RenderCutouts, AtlasKeepsAlphaAndTheVtDiscardsTheBackground) {
         EXPECT_EQ(magenta_pixels, 0u) << "the leaf's background shows";
         EXPECT_GT(tessera::test::count(through), std::size_t(cfg.width * cfg.height / 20)) << "the view must see through the leaf";
         EXPECT_GT(leaf_pixels, std::size_t(cfg.width * cfg.height / 20));
-        EXPECT_GE(e.psnr, 30.0);
+        // Near the measured values: view 0 82.9-85.6 dB with every filter; view 1, whose leaf is
+        // small and seen at a slant, 48.3-48.5 dB bilinear and trilinear (rim pixels the alpha
+        // test decides differently), 82.0 dB anisotropic.
+        EXPECT_GE(e.psnr, k == 0 || filter == gl::Filter::anisotropic ? 78.0 : 45.0) << "view " << k;
         // The alpha test may decide a pixel on the leaf's rim either way.
         EXPECT_LE(double(e.over_16), 0.02 * double(leaf_pixels)) << "pixels off by more than 16";
         EXPECT_GT(fb_through, 20u);
