@@ -793,7 +793,8 @@ TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
         ASSERT_TRUE(w.read_until([&] { return w.tiles.size() == 1; }));
         EXPECT_TRUE(w.finish().ok());
     }
-    const long rss_start = srv.rss_kib();
+    const long rss_start = srv.rss_kib(), peak_start = srv.peak_rss_kib();
+    const std::uint64_t batches_start = stats(srv.grpc_address()).batches();
     auto huge_name = [](std::uint64_t frame) {
         v1::TileBatch b;
         b.set_frame(frame);
@@ -838,8 +839,14 @@ TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
             for (std::uint64_t round = 0; round < kRounds; ++round)
                 if (!vp->send(huge_name(round)) || !vp->send(bad_indices(round)) || !vp->send(many_stores(round))) return;
         });
-    std::this_thread::sleep_for(3s);
-    const long rss_flood = srv.rss_kib();
+    // Growth is read once the server has counted every batch (each one parsed and answered),
+    // as the peak since the start (VmHWM), not what is resident at one moment.
+    const std::uint64_t batches_all = batches_start + std::uint64_t(kViewers) * kRounds * 3;
+    std::uint64_t batches_seen = 0;
+    for (int i = 0; i < 6000 && (batches_seen = stats(srv.grpc_address()).batches()) < batches_all; ++i)
+        std::this_thread::sleep_for(10ms);
+    ASSERT_EQ(batches_seen, batches_all) << "the server did not count every batch within 60 s";
+    const long peak_flood = srv.peak_rss_kib();
     // ThreadSanitizer keeps shadow memory and access history for what the server touched (in its
     // RSS, several times the memory itself): the bounds hold for other builds (ASan's quarantine
     // is kept small by the tessera binary).
@@ -848,7 +855,10 @@ TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
 #else
     constexpr long kGrowthKiB = 64 * 1024, kAfterKiB = 32 * 1024;
 #endif
-    EXPECT_LT(rss_flood - rss_start, kGrowthKiB) << "RSS grew from " << rss_start << " to " << rss_flood << " KiB";
+    EXPECT_GT(peak_start, 0) << "no VmHWM for the server";
+    EXPECT_LT(peak_flood - peak_start, kGrowthKiB) << "peak RSS grew from " << peak_start << " to " << peak_flood << " KiB";
+    std::printf("  peak RSS %ld -> %ld KiB (+%ld) over %llu batches\n", peak_start, peak_flood, peak_flood - peak_start,
+                static_cast<unsigned long long>(batches_all - batches_start));
 
     // What the first viewer is told: the long name and the long store list once each per batch,
     // and no more error replies than the bound (the rest counted in the ack).
@@ -915,8 +925,21 @@ TEST_F(ServerGrpc, SigtermEndsWithinTheDrainTimeoutWhateverTheStreamsDo) {
     for (auto& v : viewers) v->ctx.TryCancel();
     sender.join();
     ASSERT_TRUE(code.has_value()) << "still running 3 s after SIGTERM with --drain-timeout 1000\n" << srv.log();
-    EXPECT_GE(*code, 0) << "died of a signal";
-    EXPECT_LT(took.count(), 3000);
+    // A clean drain: exit 0 and "stopped" logged. The watchdog's forced exit (1, "stop overran
+    // the drain timeout") bounds a stop that hangs; it is a failure here, not a pass.
+    const std::string log = srv.log();
+    EXPECT_EQ(*code, 0) << log;
+    EXPECT_NE(log.find("\"msg\":\"stopped\""), std::string::npos) << log;
+    EXPECT_EQ(log.find("stop overran the drain timeout"), std::string::npos) << log;
+    // Within the drain timeout and a margin for the stop itself (measured 1 223-1 231 ms); sanitizer
+    // builds run several times slower.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+    constexpr long kMarginMs = 2000;
+#else
+    constexpr long kMarginMs = 800;
+#endif
+    EXPECT_LE(took.count(), 1000 + kMarginMs) << log;
+    std::printf("  SIGTERM to exit: %lld ms (drain timeout 1000 ms)\n", static_cast<long long>(took.count()));
 }
 
 // A store file changed under the server (truncated into its index, index bytes flipped,

@@ -123,15 +123,18 @@ public:
     }
 
     // Resident memory in KiB (VmRSS), 0 when unknown.
-    long rss_kib() const {
+    long rss_kib() const { return status_kib("VmRSS:"); }
+    // The most resident memory the process has had so far (VmHWM), in KiB; 0 when unknown.
+    long peak_rss_kib() const { return status_kib("VmHWM:"); }
+
+private:
+    long status_kib(const std::string& field) const {
         std::ifstream in("/proc/" + std::to_string(pid_) + "/status");
         std::string line;
         while (std::getline(in, line))
-            if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
+            if (line.rfind(field, 0) == 0) return std::stol(line.substr(field.size()));
         return 0;
     }
-
-private:
     static int port_of(const std::string& hostport) {
         const auto c = hostport.rfind(':');
         return c == std::string::npos ? 0 : std::stoi(hostport.substr(c + 1));
