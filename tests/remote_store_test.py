@@ -3,7 +3,8 @@
 S3 implementation (s3rver, from npm: path-style addressing, access keys, ranges, ETags, If-Match;
 it does not check V4 signatures, so remote_source_test checks the signer against AWS's published
 example) and http://HOST/PATH.tsr from nginx, tile for tile as it serves the same file from disk;
-a replaced object is served as a new version after a rescan, never mixed with the old one; an
+a replaced object is served as a new version after a rescan, never mixed with the old one (four
+clients read while it is replaced; the RAM cache is off so every read reaches the object); an
 unknown access key and a missing object are clear errors at start; the remote counters move."""
 import argparse
 import datetime
@@ -77,8 +78,9 @@ def sigv4_put(endpoint, bucket, key, body):
             fail(f"PUT {path}: {r.status}")
 
 
-def serve(binary, stores, env=None, expect_fail=False):
-    args = [binary, "serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0", "--watch-interval", "0", "--log-format", "json"]
+def serve(binary, stores, env=None, expect_fail=False, extra=()):
+    args = [binary, "serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0", "--watch-interval", "0", "--log-format", "json",
+            *extra]
     for s in stores:
         args += ["--store", s]
     p = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, env=env)
@@ -202,7 +204,8 @@ def main():
             sigv4_put(endpoint, "tiles", "maps/terrain.tsr", open(one, "rb").read())
             env = dict(os.environ, AWS_ACCESS_KEY_ID=KEY, AWS_SECRET_ACCESS_KEY=SECRET, AWS_ENDPOINT_URL=endpoint,
                        AWS_REGION="us-east-1")
-            p, port = serve(a.server, ["s3://tiles/maps/terrain.tsr"], env)
+            # No RAM cache: every tile read below goes to the object, also while it is replaced.
+            p, port = serve(a.server, ["s3://tiles/maps/terrain.tsr"], env, extra=["--cache-size", "0"])
             try:
                 info = json.loads(get(port, "/v1/stores/terrain")[2])
                 if info.get("width") != want_info["width"] or info.get("levels") != want_info["levels"]:
@@ -216,16 +219,53 @@ def main():
                 if not requests or not read:
                     fail("remote counters did not move")
 
-                # Replace the object: the next rescan opens the new version; tiles are the new store's.
+                # Replace the object while four clients read tiles of both versions' shape: every
+                # answer is exactly the old store's tile under the old version or the new store's
+                # under the new one (never mixed), or a 503/504 to retry; the next rescan then
+                # opens the new version.
                 status, headers, _ = get(port, "/v1/stores/terrain/tiles/0/0/0")
                 old_version = headers.get("ETag")
+                old_store_version = headers.get("X-Tessera-Store-Version")
+                both = [(0, 0, 0), (3, 0, 0)]
+                reading, seen, mixed = True, {}, []
+                seen_lock = threading.Lock()
+
+                def reader():
+                    while reading:
+                        for k in both:
+                            st, hd, body = get(port, f"/v1/stores/terrain/tiles/{k[0]}/{k[1]}/{k[2]}")
+                            version = hd.get("X-Tessera-Store-Version")
+                            if st == 200:
+                                kind = "old" if body == want[k] else "new" if body == want_two[k] else "neither"
+                                if kind == "neither" or (kind == "old") != (version == old_store_version):
+                                    mixed.append((k, kind, version))
+                            label = "-" if st != 200 else "old" if version == old_store_version else "new"
+                            with seen_lock:
+                                seen[(st, label)] = seen.get((st, label), 0) + 1
+
+                readers = [threading.Thread(target=reader) for _ in range(4)]
+                for t in readers:
+                    t.start()
+                time.sleep(0.3)
                 sigv4_put(endpoint, "tiles", "maps/terrain.tsr", open(two, "rb").read())
+                time.sleep(0.5)  # reads of the replaced object under the old version's ETag
                 p.send_signal(signal.SIGHUP)
                 for _ in range(100):
                     time.sleep(0.1)
                     status, headers, body = get(port, "/v1/stores/terrain/tiles/0/0/0")
                     if headers.get("ETag") != old_version:
                         break
+                time.sleep(0.3)
+                reading = False
+                for t in readers:
+                    t.join()
+                print(f"S3: reads while the object was replaced (status, version): {sorted(seen.items())}")
+                if mixed:
+                    fail(f"{len(mixed)} answers mixed the two versions, first {mixed[0]}")
+                if seen.get((200, "old"), 0) == 0 or seen.get((200, "new"), 0) == 0:
+                    fail(f"the readers did not see both versions served: {seen}")
+                if any(st not in (200, 503, 504) for st, _ in seen):
+                    fail(f"answers other than 200, 503 and 504 while the object was replaced: {seen}")
                 if body != want_two[(0, 0, 0)]:
                     fail(f"after replacing the object: status {status}, the tile is not the new store's")
                 for k, v in want_two.items():
