@@ -15,6 +15,8 @@
 #include <sstream>
 #include <vector>
 
+#include <unistd.h>
+
 #include "server_process.hpp"
 #include "test_util.hpp"
 
@@ -136,34 +138,53 @@ TEST(Loadtest, EmulatedLinkAddsLatency) {
 TEST(Loadtest, ServerCpuGivesViewersPerCoreAndReplicas) {
     auto& s = Server::get();
     const std::string json = s.file("cpu.json");
+    // The server's CPU time (user + system) as the kernel counts it, read here independently of
+    // the load tester: the whole invocation (connect, warm-up, run) bounds what it reports.
+    const auto cpu_s = [&] {
+        std::ifstream in("/proc/" + std::to_string(s.pid()) + "/stat");
+        std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+        std::istringstream fields(stat.substr(stat.rfind(')') + 2));  // after "pid (comm) "
+        std::vector<std::string> f((std::istream_iterator<std::string>(fields)), std::istream_iterator<std::string>());
+        return f.size() > 12 ? (std::stod(f[11]) + std::stod(f[12])) / double(::sysconf(_SC_CLK_TCK)) : -1.0;
+    };
+    const double cpu_before = cpu_s();
+    ASSERT_GE(cpu_before, 0.0);
+    // Targets a working server holds with room (measured: p99 about 2 ms, fallback 0.2-0.4%), and a
+    // load (4 viewers at 30 Hz, about 4% of a core for the generator) far from generator-bound.
     auto r = run_tessera("loadtest --server " + s.address() + " --server-pid " + std::to_string(s.pid()) +
                          " --store terrain --viewers 4 --duration 3 --warmup 0.3 --fps 30 --path whip --plan-viewers 10000 "
-                         "--replica-cores 4 --ramp-p99-ms 60000 --ramp-fallback 1 --json " + json + " --quiet");
+                         "--replica-cores 4 --ramp-p99-ms 100 --ramp-fallback 0.05 --json " + json + " --quiet");
+    const double cpu_whole = cpu_s() - cpu_before;
     ASSERT_EQ(r.exit_code, 0) << r.out;
     EXPECT_NE(r.out.find("srv-ms/vs"), std::string::npos) << r.out;
     const auto j = load(json);
     const auto& run = j["runs"][0];
+    ASSERT_FALSE(run["generator_bound"].get<bool>()) << "the test's load must measure the server, not the generator: "
+                                                      << run.dump();
     ASSERT_TRUE(run["server_cpu_s"].is_number()) << run.dump();
-    EXPECT_GT(run["server_cpu_s"].get<double>(), 0.0);  // the server did work for four viewers on a fast path
+    const double server_cpu = run["server_cpu_s"].get<double>();
+    EXPECT_GT(server_cpu, 0.0);  // the server did work for four viewers on a fast path
+    // What it reports for the run is part of what the kernel counted for the whole invocation
+    // (one clock tick of rounding allowed).
+    EXPECT_LE(server_cpu, cpu_whole + 1.0 / double(::sysconf(_SC_CLK_TCK)) + 1e-9)
+        << "reported " << server_cpu << " s, /proc counted " << cpu_whole << " s for the whole invocation";
     EXPECT_GT(run["generator_cpu_s"].get<double>(), 0.0);
     const double per_vs = run["server_cpu_s_per_viewer_s"].get<double>();
-    EXPECT_NEAR(per_vs, run["server_cpu_s"].get<double>() / (4 * 3.0), 1e-9);
-    // Capacity comes only from a run that held its targets (loose here, so that a loaded machine
-    // cannot miss them) and was not limited by the generator; a generator-bound run plans nothing
-    // and says so.
+    EXPECT_NEAR(per_vs, server_cpu / (4 * 3.0), 1e-9);
     EXPECT_TRUE(run["pass"].get<bool>()) << run.dump();
+    // The plan: viewers per core from the run, at least what /proc's whole-invocation figure gives.
     const auto& cap = j["capacity"];
-    if (!run["generator_bound"].get<bool>()) {
-        ASSERT_TRUE(cap["viewers_per_core"].is_number()) << cap.dump();
-        EXPECT_NEAR(cap["viewers_per_core"].get<double>(), 1.0 / per_vs, 1e-6);
-        EXPECT_EQ(cap["replica_cores"].get<unsigned>(), 4u);
-        EXPECT_DOUBLE_EQ(cap["replicas"].get<double>(), std::ceil(10000.0 / (cap["viewers_per_core"].get<double>() * 4)));
-        EXPECT_NE(r.out.find("capacity:"), std::string::npos) << r.out;
-    } else {
-        EXPECT_TRUE(cap["viewers_per_core"].is_null()) << cap.dump();
-        EXPECT_TRUE(cap["replicas"].is_null()) << cap.dump();
-        EXPECT_NE(r.out.find("capacity: no step measured the server"), std::string::npos) << r.out;
+    ASSERT_TRUE(cap["viewers_per_core"].is_number()) << cap.dump();
+    const double per_core = cap["viewers_per_core"].get<double>();
+    EXPECT_NEAR(per_core, 1.0 / per_vs, 1e-6);
+    if (cpu_whole > 0) {
+        EXPECT_GE(per_core, 0.99 * (4 * 3.0) / cpu_whole) << cap.dump();
     }
+    EXPECT_EQ(cap["replica_cores"].get<unsigned>(), 4u);
+    EXPECT_DOUBLE_EQ(cap["replicas"].get<double>(), std::ceil(10000.0 / (per_core * 4)));
+    EXPECT_NE(r.out.find("capacity:"), std::string::npos) << r.out;
+    std::printf("  server CPU %.3f s reported for the run, %.3f s by /proc for the whole invocation; %.0f viewers per core\n",
+                server_cpu, cpu_whole, per_core);
     // A process that is not there is a usage error, before any viewer starts.
     auto bad = run_tessera("loadtest --server " + s.address() + " --server-pid 999999999 --store terrain --duration 0.5");
     EXPECT_EQ(bad.exit_code, 2) << bad.out;
