@@ -293,12 +293,14 @@ std::unique_ptr<Vt> expect_store_matches_reference(const gl::RendererConfig& cfg
             return nullptr;
         }
         // The same bounds as against the GL reference below (measured: 52.1-63.4 dB, max error 2,
-        // no pixel off by more than 3, against the same texels).
+        // no pixel off by more than 3, against the same texels). Lit, 52.5 dB (measured 53.9-55.1):
+        // the terrain's normals lean little, so a wrong lighting formula moves pixels by a few
+        // steps only (an ambient of 0.30 instead of 0.35: 49.0-50.0 dB).
         const auto vs_cpu = cpu::compare(f.rgba, *independent);
         std::printf("  %s\n", cpu::describe(vs_cpu).c_str());
         EXPECT_EQ(vs_cpu.coverage_differs, 0u) << cpu::describe(vs_cpu);
         EXPECT_GT(vs_cpu.compared, cfg.width * cfg.height / 3);
-        EXPECT_GE(vs_cpu.psnr, min_psnr) << filter_name(cfg.filter) << " " << cpu::describe(vs_cpu);
+        EXPECT_GE(vs_cpu.psnr, lit ? std::max(min_psnr, 52.5) : min_psnr) << filter_name(cfg.filter) << " " << cpu::describe(vs_cpu);
         EXPECT_LE(vs_cpu.max_error, max_error) << filter_name(cfg.filter) << " " << cpu::describe(vs_cpu);
         EXPECT_LE(double(vs_cpu.over_3), max_off_fraction * double(vs_cpu.compared)) << cpu::describe(vs_cpu);
         (*ref)->render(cam);

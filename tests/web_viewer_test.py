@@ -21,9 +21,12 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from serve_util import wait_listening  # noqa: E402
 
 failures = []
+JPEG_TILE_DB = 43.0  # measured 44.6 (edge) and 46.2 dB
 
 
-def check(cond, what):
+def check(cond, what, show=False):
+    if show and cond:
+        print("ok:", what, flush=True)
     if not cond:
         failures.append(what)
         print("FAIL:", what, flush=True)
@@ -172,9 +175,26 @@ def spec_checks(port, name, width, height, tile, overlap):
                        ("full/max/0", 400)]:
         st, _, data = get(port, f"/iiif/{name}/{path}")
         check(st == want, f"IIIF {path}: {st}, expected {want} ({data[:100]})")
-    st, _, data = get(port, f"/iiif/{name}/full/!200,200/90/default.png")
-    fw, fh = size_of(get(port, f"/iiif/{name}/full/!200,200/0/default.png")[2])
-    check(size_of(data) == (fh, fw), "IIIF rotation by 90 swaps width and height")
+    # Rotation and mirroring: the unrotated image turned by ImageMagick, texel for texel (PNG is
+    # lossless, so any wrong direction or flip shows); gray: ImageMagick's Rec. 709 luma of the
+    # colour image (IIIF leaves the weights to the server; these are the ones Tessera documents).
+    upright = get(port, f"/iiif/{name}/full/!200,200/0/default.png")[2]
+    fw, fh = size_of(upright)
+    for rotation, im_ops in [("90", ["-rotate", "90"]), ("180", ["-rotate", "180"]), ("270", ["-rotate", "270"]),
+                             ("!0", ["-flop"]), ("!90", ["-flop", "-rotate", "90"])]:
+        st, _, data = get(port, f"/iiif/{name}/full/!200,200/{rotation}/default.png")
+        turned = subprocess.run(["convert", "-", "-background", "black", "-alpha", "remove"] + im_ops + ["-depth", "8", "rgb:-"],
+                                input=upright, capture_output=True, check=True).stdout
+        want_size = (fh, fw) if rotation.lstrip("!") in ("90", "270") else (fw, fh)
+        check(st == 200 and size_of(data) == want_size, f"IIIF rotation {rotation}: {st}, {size_of(data)} for {want_size}")
+        check(rgb(data) == turned, f"IIIF rotation {rotation} is ImageMagick's turn of the upright image, texel for texel")
+    st, _, data = get(port, f"/iiif/{name}/full/!200,200/0/gray.png")
+    grey = subprocess.run(["convert", "-", "-background", "black", "-alpha", "remove", "-grayscale", "Rec709Luma", "-depth", "8",
+                           "rgb:-"], input=upright, capture_output=True, check=True).stdout
+    have = rgb(data)
+    worst = max(abs(x - y) for x, y in zip(have, grey)) if len(have) == len(grey) else 255
+    check(st == 200 and size_of(data) == (fw, fh) and worst <= 1,
+          f"IIIF gray is ImageMagick's Rec. 709 luma of the colour image within 1 (max difference {worst})", True)
     st, _, data = get(port, f"/iiif/{name}/full/!{width * 3},{height * 3}/0/default.png")
     check(st == 200 and size_of(data) == (width, height), "IIIF !w,h larger than the image gives the image's size")
     st, _, data = get(port, f"/iiif/{name}/0,0,{width},8/1,8/0/default.png")
@@ -237,18 +257,21 @@ def main():
         _, _, dzi = get(port, f"/dzi/pic_files/{level}/1/1.jpg".replace("/1/1.jpg", "/1_1.jpg"))
         check(stored == dzi, "an interior DZI tile is the stored JPEG, byte for byte")
         ref = rgb(src, crop=(256, 256, 248 * 2 - 4, 248 - 4))
-        check(psnr(rgb(get(port, f"/dzi/pic_files/{level}/2_1.jpg")[2]), ref) >= 35, "DZI tile matches the source")
+        value = psnr(rgb(get(port, f"/dzi/pic_files/{level}/2_1.jpg")[2]), ref)
+        check(value >= JPEG_TILE_DB, f"DZI tile matches the source ({value:.2f} dB)", True)
         edge = get(port, f"/dzi/pic_files/{level}/0_0.jpg")[2]
-        check(psnr(rgb(edge), rgb(src, crop=(252, 252, 0, 0))) >= 35, "DZI edge tile is the source's corner")
+        value = psnr(rgb(edge), rgb(src, crop=(252, 252, 0, 0)))
+        check(value >= JPEG_TILE_DB, f"DZI edge tile is the source's corner ({value:.2f} dB)", True)
         # A crop that starts and ends between the texels of the level it is made from.
         st, _, data = get(port, "/iiif/pic/101,103,401,299/133,99/0/default.png")
         want = subprocess.run(["convert", src, "-crop", "401x299+101+103", "+repage", "-resize", "133x99!", "-depth", "8",
                                "rgb:-"], capture_output=True, check=True).stdout
         value = psnr(rgb(data), want)
-        check(st == 200 and value >= 35, f"IIIF crop between texels matches ImageMagick's ({value:.2f} dB)")
+        check(st == 200 and value >= 41, f"IIIF crop between texels matches ImageMagick's ({value:.2f} dB)", True)
         # 16-bit: shown at 8 bits; float: no web view, said so.
         st, _, data = get(port, "/iiif/deep/full/max/0/default.png")
-        check(st == 200 and psnr(rgb(data), rgb(deep_src)) >= 40, "16-bit store shown at 8 bits")
+        value = psnr(rgb(data), rgb(deep_src))
+        check(st == 200 and value >= 49, f"16-bit store shown at 8 bits ({value:.2f} dB)", True)
         st, _, body = get(port, "/view/float")
         check(st == 415 and b"f32" in body, f"float store: no viewer, and why ({st} {body[:100]})")
         check(get(port, "/dzi/float.dzi")[0] == 406, "float store: no DZI")
@@ -278,9 +301,21 @@ def main():
         check(result["problems"] == [], f"the page loaded cleanly: {result['problems']}")
         for i, (v, placed) in enumerate(zip(views, result["views"])):
             shot = os.path.join(tmp, f"view_{i}.png")
-            W, H = 960, 640
-            x0, y0 = placed["x0"], placed["y0"]
-            scale = (placed["x1"] - x0) / 1900.0
+            W, H = size_of(open(shot, "rb").read())
+            # Where the request puts the image: the zoom's scale with (cx, cy) at the viewer's
+            # centre, or home, the whole image fitted and centred. OpenSeadragon's own account of
+            # the placement must agree, and the reference is cut out where the request says.
+            if v["zoom"] == "home":
+                scale = min(W / 1900.0, H / 1300.0)
+                x0, y0 = (W - 1900 * scale) / 2, (H - 1300 * scale) / 2
+            else:
+                scale = float(v["zoom"])
+                x0, y0 = W / 2 - v["cx"] * scale, H / 2 - v["cy"] * scale
+            osd_scale = (placed["x1"] - placed["x0"]) / 1900.0
+            check(abs(osd_scale - scale) <= 1e-3 * scale and abs(placed["x0"] - x0) <= 0.5 and abs(placed["y0"] - y0) <= 0.5,
+                  f"view {i}: the image is at ({placed['x0']:.2f}, {placed['y0']:.2f}) scale {osd_scale:.4f}, "
+                  f"the request puts it at ({x0:.2f}, {y0:.2f}) scale {scale:.4f}")
+            placed = dict(placed, x1=x0 + 1900 * scale, y1=y0 + 1300 * scale)
             # The part of the screenshot the image covers, in whole pixels, and the source there.
             sx0, sy0 = max(0, math.ceil(x0 - 1e-6)), max(0, math.ceil(y0 - 1e-6))
             sx1, sy1 = min(W, math.floor(placed["x1"] + 1e-6)), min(H, math.floor(placed["y1"] + 1e-6))
@@ -293,7 +328,9 @@ def main():
             value = psnr(got, want)
             print(f"view {i} ({v['zoom']}): image at ({x0:.2f}, {y0:.2f}) scale {scale:.4f}, {w}x{h} compared, "
                   f"PSNR {value:.2f} dB, drawer {placed['drawer']}", flush=True)
-            check(value >= 35, f"view {i}: PSNR {value:.2f} dB against ImageMagick's resampling (needs 35)")
+            # Measured 46.2, 41.2 and 40.4 dB (1:1, 1:2, home; Chromium's WebGL drawer).
+            need = {1: 44.0, 0.5: 39.5, "home": 38.5}[v["zoom"]]
+            check(value >= need, f"view {i}: PSNR {value:.2f} dB against ImageMagick's resampling (needs {need})")
             if v["zoom"] == 1:
                 # Seams: the columns and rows at tile joins are no worse than the rest.
                 cols, rows = column_errors(got, want, w, h)
