@@ -37,6 +37,7 @@
 
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/measures.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/client/scene/path.hpp"
@@ -111,7 +112,7 @@ int main(int argc, char** argv) {
     auto ctx = client::gl::GlContext::create_headless();
     if (!ctx) return fail(ctx.error().message);
     (*ctx)->make_current();
-    auto levels = client::gl::decode_store_levels(store);
+    auto levels = client::decode_store_levels(store);
     if (!levels) return fail(levels.error().message);
 
     std::string out_json = "{\"store\": \"" + store + "\", \"size\": \"" + std::to_string(w) + "x" + std::to_string(h) +

@@ -8,10 +8,9 @@
 #include <vector>
 
 #include "server_process.hpp"  // slurp
-#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/measures.hpp"
 #include "test_util.hpp"
 
-namespace gl = tessera::client::gl;
 
 namespace {
 
@@ -35,7 +34,7 @@ TEST(PopMeasure, AChangeTheReferenceAlsoMakesIsNotAPop) {
     const std::uint32_t w = 8, h = 4;
     // The camera moved: every pixel brightened by 40 in both renderers.
     const auto before = solid(w, h, 100), after = solid(w, h, 140);
-    const auto c = gl::count_pops(before, after, before, after, w, h);
+    const auto c = tessera::client::count_pops(before, after, before, after, w, h);
     EXPECT_EQ(c.pixels, 32u);
     EXPECT_EQ(c.popped, 0u);
     EXPECT_EQ(c.largest, 0);
@@ -47,7 +46,7 @@ TEST(PopMeasure, AChangeOnlyTheVtMakesIsAPopBeyondTheThreshold) {
     auto before = ref, after = ref;
     set(after, w, 2, 1, 100, 130, 100);  // a finer page arrived: one pixel's green jumps by 30
     set(after, w, 5, 3, 110, 100, 100);  // and another's red by 10: under the threshold
-    const auto c = gl::count_pops(before, after, ref, ref, w, h, 16);
+    const auto c = tessera::client::count_pops(before, after, ref, ref, w, h, 16);
     EXPECT_EQ(c.pixels, 32u);
     EXPECT_EQ(c.popped, 1u);
     EXPECT_EQ(c.largest, 30);
@@ -55,7 +54,7 @@ TEST(PopMeasure, AChangeOnlyTheVtMakesIsAPopBeyondTheThreshold) {
     // The reference changing the other way doubles the difference.
     auto ref_after = ref;
     set(ref_after, w, 5, 3, 90, 100, 100);
-    const auto d = gl::count_pops(before, after, ref, ref_after, w, h, 16);
+    const auto d = tessera::client::count_pops(before, after, ref, ref_after, w, h, 16);
     EXPECT_EQ(d.popped, 2u);
     EXPECT_EQ(d.largest, 30);
 }
@@ -65,12 +64,12 @@ TEST(PopMeasure, OnlyPixelsTheReferenceCoversInBothFramesCount) {
     auto ref_before = solid(w, h, 0), ref_after = solid(w, h, 0);
     for (std::size_t i = 3; i < ref_before.size(); i += 16) ref_before[i] = 0;  // pixels 0 and 4: sky before
     const auto before = solid(w, h, 0), after = solid(w, h, 200);
-    const auto c = gl::count_pops(before, after, ref_before, ref_after, w, h);
+    const auto c = tessera::client::count_pops(before, after, ref_before, ref_after, w, h);
     EXPECT_EQ(c.pixels, 6u);
     EXPECT_EQ(c.popped, 6u);
     EXPECT_EQ(c.largest, 200);
     // Wrong sizes count nothing.
-    const auto bad = gl::count_pops(before, Image(4), ref_before, ref_after, w, h);
+    const auto bad = tessera::client::count_pops(before, Image(4), ref_before, ref_after, w, h);
     EXPECT_EQ(bad.pixels, 0u);
     EXPECT_EQ(bad.rate(), 0.0);
 }

@@ -23,6 +23,7 @@
 #include "render_util.hpp"
 #include "render_vt.hpp"
 #include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/measures.hpp"
 #include "tessera/client/scene/scene.hpp"
 #include "tessera/storage/png_encode.hpp"
 #include "tessera/storage/store_reader.hpp"
@@ -321,7 +322,7 @@ gl::RendererConfig atlas_view_config(gl::Filter filter, const st::StoreInfo& inf
 cpu::Material atlas_material(const std::string& store, const sc::Scene& scene, const gl::RendererConfig& cfg) {
     cpu::Material m;
     m.scene = &scene;
-    auto levels = gl::decode_store_levels(store, 16384);
+    auto levels = tessera::client::decode_store_levels(store, 16384);
     EXPECT_TRUE(levels.ok()) << levels.error().message;
     if (levels) m.colour = cpu::make_texture(*levels, cfg.srgb);
     return m;

@@ -34,6 +34,7 @@
 #include "cpu_reference.hpp"
 #include "render_vt.hpp"
 #include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/measures.hpp"
 #include "page_table.hpp"
 #include "tessera/client/runtime.hpp"
 #include "residency.hpp"
@@ -238,14 +239,14 @@ std::unique_ptr<Vt> expect_store_matches_reference(const gl::RendererConfig& cfg
         ADD_FAILURE() << "resident " << vt->runtime->residency().stats().resident_pages << " of " << page_count(vt->info);
         return nullptr;
     }
-    auto levels = gl::decode_store_levels(store, 16384, reference_format(cfg, cfg.show_layer, lossless_reference), cfg.show_layer);
+    auto levels = tessera::client::decode_store_levels(store, 16384, reference_format(cfg, cfg.show_layer, lossless_reference), cfg.show_layer);
     if (!levels) {
         ADD_FAILURE() << levels.error().message;
         return nullptr;
     }
     std::vector<gl::ReferenceRenderer::Level> normals;
     if (cfg.normal_layer && cfg.show_layer == 0) {
-        auto n = gl::decode_store_levels(store, 16384, reference_format(cfg, *cfg.normal_layer, lossless_reference), *cfg.normal_layer);
+        auto n = tessera::client::decode_store_levels(store, 16384, reference_format(cfg, *cfg.normal_layer, lossless_reference), *cfg.normal_layer);
         if (!n) {
             ADD_FAILURE() << n.error().message;
             return nullptr;
@@ -263,7 +264,7 @@ std::unique_ptr<Vt> expect_store_matches_reference(const gl::RendererConfig& cfg
     Levels second, normal_second;
     const auto second_of = [&](std::uint32_t layer, const Levels& own) {
         if (!block(layer)) return Levels(own.begin() + 1, own.end());
-        auto s = gl::decode_store_second_levels(store, 16384, reference_format(cfg, layer, lossless_reference), layer);
+        auto s = tessera::client::decode_store_second_levels(store, 16384, reference_format(cfg, layer, lossless_reference), layer);
         if (!s) ADD_FAILURE() << s.error().message;
         return s ? std::move(*s) : Levels();
     };
@@ -307,7 +308,7 @@ std::unique_ptr<Vt> expect_store_matches_reference(const gl::RendererConfig& cfg
         const auto want = (*ref)->read_color();
         const auto mask = coverage(want);
         EXPECT_EQ(coverage(f.rgba), mask) << "the VT and the reference cover different pixels";
-        const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
+        const auto e = tessera::client::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
         EXPECT_GT(e.pixels, cfg.width * cfg.height / 3);
         EXPECT_GE(e.psnr, min_psnr) << filter_name(cfg.filter) << ": max error " << e.max_error << " over " << e.pixels << " pixels";
         EXPECT_LE(e.max_error, max_error) << filter_name(cfg.filter) << ": a seam or a wrong texel somewhere";
@@ -649,7 +650,7 @@ TEST(RenderVsReferenceSmallRing, UploadsStillLandWhenTheStagingRingIsFull) {
     ASSERT_TRUE(load_everything(*vt));
     EXPECT_GT(vt->renderer->stats().direct_uploads, 0u);
     EXPECT_EQ(vt->renderer->stats().malformed_uploads, 0u);
-    auto levels = gl::decode_store_levels(store);
+    auto levels = tessera::client::decode_store_levels(store);
     ASSERT_TRUE(levels.ok()) << levels.error().message;
     auto ref = gl::ReferenceRenderer::create(cfg, *levels);
     ASSERT_TRUE(ref.ok()) << ref.error().message;
@@ -658,7 +659,7 @@ TEST(RenderVsReferenceSmallRing, UploadsStillLandWhenTheStagingRingIsFull) {
     const Frame f = render_vt(*vt->renderer, cam);
     (*ref)->render(cam);
     const auto want = (*ref)->read_color();
-    const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, coverage(want));
+    const auto e = tessera::client::compare_images(f.rgba, want, cfg.width, cfg.height, coverage(want));
     EXPECT_GE(e.psnr, 50.0) << "max error " << e.max_error;
     EXPECT_EQ(f.counters.fallback_unbiased, 0u);
 }
@@ -691,11 +692,11 @@ TEST_P(RenderSeams, NoDiscontinuitiesAtPageBordersAtAnyLevel) {
     auto vt = make_vt(cfg, store, scene);
     ASSERT_TRUE(vt);
     ASSERT_TRUE(load_everything(*vt));
-    auto levels = gl::decode_store_levels(store, 16384, c.format);
+    auto levels = tessera::client::decode_store_levels(store, 16384, c.format);
     ASSERT_TRUE(levels.ok()) << levels.error().message;
     std::vector<gl::ReferenceRenderer::Level> second;
     if (tessera::client::is_block_compressed(c.format) && c.filter != gl::Filter::bilinear) {
-        auto s = gl::decode_store_second_levels(store, 16384, c.format);
+        auto s = tessera::client::decode_store_second_levels(store, 16384, c.format);
         ASSERT_TRUE(s.ok()) << s.error().message;
         second = std::move(*s);
     }
@@ -740,7 +741,7 @@ TEST_P(RenderSeams, NoDiscontinuitiesAtPageBordersAtAnyLevel) {
         (*ref)->render(v.camera);
         const auto want = (*ref)->read_color();
         const auto mask = coverage(want);
-        const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
+        const auto e = tessera::client::compare_images(f.rgba, want, cfg.width, cfg.height, mask);
         const auto lv = levels_in_view(v.camera, vt->info, cfg);
         EXPECT_GE(e.psnr, 50.0) << v.what << " at z " << v.camera.position[2] << ": max error " << e.max_error;
         EXPECT_LE(e.max_error, 3) << v.what << " at z " << v.camera.position[2];
@@ -977,7 +978,7 @@ void expect_trilinear_matches(bool parents, bool inverted_parents) {
     ScratchDir dir;
     auto pattern = pattern_source(1024, 1024);
     const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);  // P = 56
-    auto levels = gl::decode_store_levels(store);
+    auto levels = tessera::client::decode_store_levels(store);
     ASSERT_TRUE(levels.ok()) << levels.error().message;
     const auto info = store_geometry(1024, 1024, 64);
     const std::uint32_t ts = info.tile_size(), P = info.tile_payload, B = info.border, fine = 2;
@@ -1016,7 +1017,7 @@ void expect_trilinear_matches(bool parents, bool inverted_parents) {
     const Frame f = render_vt(renderer, cam);
     (*ref)->render(cam);
     const auto want = (*ref)->read_color();
-    const auto e = gl::compare_images(f.rgba, want, cfg.width, cfg.height, coverage(want));
+    const auto e = tessera::client::compare_images(f.rgba, want, cfg.width, cfg.height, coverage(want));
     EXPECT_GT(e.pixels, 1000u);
     EXPECT_GE(e.psnr, 50.0) << "max error " << e.max_error;
     EXPECT_LE(e.max_error, 3);
@@ -1059,7 +1060,7 @@ struct FadeRig {
     std::string make(gl::Filter filter, bool srgb) {
         auto pattern = pattern_source(1024, 1024);
         const std::string store = build_store(dir.file("pattern.tsr"), "", 64, &pattern);
-        auto decoded = gl::decode_store_levels(store);
+        auto decoded = tessera::client::decode_store_levels(store);
         if (!decoded.ok()) return decoded.error().message;
         levels = std::move(*decoded);
         for (std::size_t i = 0; i < levels[fine + 1].rgba8.size(); ++i)
@@ -1210,7 +1211,7 @@ void expect_fades_in(gl::Filter filter, FadeFrom from, bool srgb = false) {
     }
     EXPECT_GT(largest_step, 0);
     EXPECT_EQ(fading.stats().fading_pages, 0u);
-    const auto e = gl::compare_images(last, after.rgba, cfg.width, cfg.height, mask);
+    const auto e = tessera::client::compare_images(last, after.rgba, cfg.width, cfg.height, mask);
     EXPECT_LE(e.max_error, 1) << "after the fade, the frame is the one drawn without blending";
 
     auto ref = gl::ReferenceRenderer::create(cfg, rig.levels);
@@ -1218,7 +1219,7 @@ void expect_fades_in(gl::Filter filter, FadeFrom from, bool srgb = false) {
     ASSERT_TRUE((*ref)->set_scene(terrain(1024, 1024, 256)).ok());
     (*ref)->render(rig.cam);
     const auto want = (*ref)->read_color();
-    const auto r = gl::compare_images(last, want, cfg.width, cfg.height, coverage(want));
+    const auto r = tessera::client::compare_images(last, want, cfg.width, cfg.height, coverage(want));
     EXPECT_GE(r.psnr, 50.0) << "max error " << r.max_error;
     EXPECT_LE(r.max_error, 3);
     if (srgb) std::printf("  sRGB, pixel by pixel: the largest step %d over the pixel's own eighth\n", most_uneven);

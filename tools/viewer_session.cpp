@@ -27,6 +27,7 @@
 #include "tessera/client/feedback_trace.hpp"
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/gl/hud.hpp"
+#include "tessera/client/measures.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/client/scene/path.hpp"
@@ -386,11 +387,11 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             throw Failure("PSNR needs a local copy of the store: --reference-store FILE (the store is remote)");
         if (o.progress) fmt::print("reference: decoding {} ...\n", ref_store);
         std::fflush(stdout);
-        auto levels = client::gl::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, rc.show_layer);
+        auto levels = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, rc.show_layer);
         if (!levels) throw Failure(fmt::format("reference: {}", levels.error().message));
         std::vector<client::gl::ReferenceRenderer::Level> normals;
         if (rc.normal_layer && rc.show_layer == 0) {
-            auto n = client::gl::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, *rc.normal_layer);
+            auto n = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, *rc.normal_layer);
             if (!n) throw Failure(fmt::format("reference: {}", n.error().message));
             normals = std::move(*n);
         }
@@ -618,12 +619,12 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             if (psnr) {
                 reference->render(cam);
                 const auto ref = reference->read_color();
-                const auto err = client::gl::compare_images(color, ref, o.width, o.height);
+                const auto err = client::compare_images(color, ref, o.width, o.height);
                 rec.psnr = err.psnr;
                 rec.max_error = err.max_error;
                 if (preview_frame == f) {
                     // The same camera before and after: the reference's change is none.
-                    const auto pops = client::gl::count_pops(preview, color, ref, ref, o.width, o.height);
+                    const auto pops = client::count_pops(preview, color, ref, ref, o.width, o.height);
                     if (pops.pixels > 0) {
                         rec.pop_rate = pops.rate();
                         rec.pop_largest = pops.largest;
@@ -696,7 +697,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         rep.settled_complete = settle(last, rep.settled_frames);
         const auto color = r.read_color();
         reference->render(last);
-        const auto err = client::gl::compare_images(color, reference->read_color(), o.width, o.height);
+        const auto err = client::compare_images(color, reference->read_color(), o.width, o.height);
         rep.settled_psnr = err.psnr;
         rep.settled_max_error = err.max_error;
     }

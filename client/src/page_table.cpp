@@ -31,7 +31,7 @@ std::string page_name(std::uint32_t level, std::uint32_t x, std::uint32_t y) {
 
 }  // namespace
 
-std::uint32_t PageTable::levels_for(std::uint32_t pages_x, std::uint32_t pages_y) {
+std::uint32_t PageTableLayout::levels_for(std::uint32_t pages_x, std::uint32_t pages_y) {
     if (pages_x == 0 || pages_y == 0) return 0;
     std::uint32_t levels = 1;
     while (shrink(pages_x, levels - 1) > 1 || shrink(pages_y, levels - 1) > 1) ++levels;
@@ -44,14 +44,14 @@ std::uint64_t PageTable::table_bytes(std::uint32_t pages_x, std::uint32_t pages_
     return entries * sizeof(PageEntry);
 }
 
-std::pair<std::uint32_t, std::uint32_t> PageTable::dense_level_origin(std::uint32_t pages_x, std::uint32_t pages_y,
+std::pair<std::uint32_t, std::uint32_t> PageTableLayout::dense_level_origin(std::uint32_t pages_x, std::uint32_t pages_y,
                                                                        std::uint32_t level) {
     if (level == 0 || pages_y == 0) return {0, 0};
     const std::uint32_t u = pages_y - 1, up = std::min(level - 1, 31u);
     return {pages_x, up + u - (u >> up)};
 }
 
-std::pair<std::uint64_t, std::uint64_t> PageTable::dense_packed_size(std::uint32_t pages_x, std::uint32_t pages_y) {
+std::pair<std::uint64_t, std::uint64_t> PageTableLayout::dense_packed_size(std::uint32_t pages_x, std::uint32_t pages_y) {
     const std::uint32_t levels = levels_for(pages_x, pages_y);
     std::uint64_t width = pages_x, height = pages_y;
     for (std::uint32_t l = 1; l < levels; ++l) {
@@ -62,7 +62,7 @@ std::pair<std::uint64_t, std::uint64_t> PageTable::dense_packed_size(std::uint32
     return {width, height};
 }
 
-bool PageTable::dense_packing_fits(std::uint32_t pages_x, std::uint32_t pages_y) {
+bool PageTableLayout::dense_packing_fits(std::uint32_t pages_x, std::uint32_t pages_y) {
     const auto [width, height] = dense_packed_size(pages_x, pages_y);
     return width <= kMaxDenseSide && height <= kMaxDenseSide;
 }

@@ -69,6 +69,7 @@
 #include <vector>
 
 #include "tessera/client/page.hpp"
+#include "tessera/client/page_table_layout.hpp"
 #include "tessera/result.hpp"
 
 namespace tessera::client {
@@ -90,54 +91,16 @@ struct DirtyBlock {
     friend bool operator==(const DirtyBlock&, const DirtyBlock&) = default;
 };
 
-using PageEntry = std::uint32_t;
-
-class PageTable {
+class PageTable : public PageTableLayout {
 public:
-    // Entry encoding (see above).
-    static constexpr PageEntry kValidBit = 1u << 31;
-    static constexpr unsigned kLevelShift = 24;
-    static constexpr PageEntry kLevelMask = 0x1Fu;       // after shifting
-    static constexpr PageEntry kSlotMask = 0xFFFFFFu;
-    static constexpr SlotId kMaxSlots = kSlotMask + 1;  // slots 0 .. 2^24-1 fit an entry
-    static constexpr PageEntry kEmptyEntry = 0;         // nothing resident on the path
+    // The entry encoding, block and packing constants and the dense packing: PageTableLayout
+    // (tessera/client/page_table_layout.hpp), shared with the renderer.
     static constexpr std::uint8_t kNotResident = 255;   // resident_level() when nothing is
     static constexpr std::size_t kDefaultMaxBytes = kDefaultPageTableBytes;
     static constexpr std::size_t kMaxDirtyRectsPerLevel = 8;
-    // Sparse tables: blocks of kBlockSide × kBlockSide entries.
-    static constexpr unsigned kBlockShift = 5;
-    static constexpr std::uint32_t kBlockSide = 1u << kBlockShift;
-    static constexpr std::uint32_t kBlockEntries = kBlockSide * kBlockSide;
-    // A dense table is at most this many entries per side in the renderer's packing (level 0 and
-    // a column of levels 1..: dense_packed_size): GL 4.5's smallest allowed
-    // GL_MAX_TEXTURE_SIZE, so a dense table always fits the renderer's dense path.
-    static constexpr std::uint32_t kMaxDenseSide = 16384;
 
-    static constexpr PageEntry make_entry(SlotId slot, std::uint32_t level) {
-        return kValidBit | ((level & kLevelMask) << kLevelShift) | (slot & kSlotMask);
-    }
-    static constexpr bool entry_valid(PageEntry e) { return (e & kValidBit) != 0; }
-    static constexpr std::uint32_t entry_level(PageEntry e) { return (e >> kLevelShift) & kLevelMask; }
-    static constexpr SlotId entry_slot(PageEntry e) { return e & kSlotMask; }
-
-    // The level count of a pyramid whose level 0 has pages_x × pages_y pages (last level 1×1);
-    // 0 when either is 0.
-    static std::uint32_t levels_for(std::uint32_t pages_x, std::uint32_t pages_y);
     // Bytes of the entries of such a table (all levels).
     static std::uint64_t table_bytes(std::uint32_t pages_x, std::uint32_t pages_y, std::uint32_t levels);
-
-    // The renderer's packing of a dense table into one 2D texture: level 0 at (0, 0), levels 1..
-    // in a column to its right at x = pages_x, level L >= 1 from row (L - 1) + U - (U >> (L - 1)),
-    // U = pages_y - 1. That leaves level L 1 + (U >> L) + bit L-1 of U >= ceil(pages_y / 2^L)
-    // rows, and it is closed-form, so the shader computes a level's origin with a shift and two
-    // adds instead of indexing a per-level uniform array per pixel (which a software
-    // rasterizer gathers lane by lane). A few rows over the tight packing (at most levels - 1).
-    static std::pair<std::uint32_t, std::uint32_t> dense_level_origin(std::uint32_t pages_x, std::uint32_t pages_y,
-                                                                      std::uint32_t level);
-    // The texture size of that packing (width, height), entries.
-    static std::pair<std::uint64_t, std::uint64_t> dense_packed_size(std::uint32_t pages_x, std::uint32_t pages_y);
-    // Whether a dense table of this geometry fits the renderer's packing (kMaxDenseSide).
-    static bool dense_packing_fits(std::uint32_t pages_x, std::uint32_t pages_y);
 
     // Dense when its table fits `max_bytes` (and, with allow_sparse, dense_packing_fits), else
     // sparse when allow_sparse. Errors (invalid_argument): a page count of 0 or over

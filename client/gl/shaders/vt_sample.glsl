@@ -21,7 +21,7 @@
 // - Level L has ceil(size / 2^L) texels per side; the continuous level-L coordinate of level-0
 //   coordinate t is t / 2^L (texel i of level L covers [i, i + 1), centre i + 0.5), as GL mips.
 // - The LoD rule is tessera/client/scene/lod.hpp, line for line (vt_lod, vt_wanted_level).
-// - Page-table entry as the renderer uploads it (client/src/page_table.hpp's, with the slot
+// - Page-table entry as the renderer uploads it (tessera/client/page_table_layout.hpp's, with the slot
 //   replaced by its atlas cell): bit 31 valid, bits 24..28 resident level R, bits 0..11 atlas
 //   column, bits 12..23 atlas row; R > L: fallback to the ancestor at level R. 0: nothing resident.
 // - The physical atlas is a grid of tile_size squares; a page's texel (i, j) (border included,

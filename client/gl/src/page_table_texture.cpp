@@ -4,14 +4,14 @@
 
 #include <algorithm>
 
-#include "page_table.hpp"
+#include "tessera/client/page_table_layout.hpp"
 
 namespace tessera::client::gl::detail {
 
 namespace {
 
 std::uint64_t dir_level_blocks(const VirtualTexture& t, std::uint32_t level) {
-    const std::uint32_t rows = (t.pages[2 * level + 1] + PageTable::kBlockSide - 1) >> PageTable::kBlockShift;
+    const std::uint32_t rows = (t.pages[2 * level + 1] + PageTableLayout::kBlockSide - 1) >> PageTableLayout::kBlockShift;
     return std::uint64_t(t.dir_width[level]) * rows;
 }
 
@@ -66,14 +66,14 @@ Status PageTableTextures::add(TextureId texture, const storage::StoreInfo& info)
             return Error{Errc::invalid_argument, fmt::format("texture {}: level {} has {}x{} pages", texture, l, li.tiles_x, li.tiles_y)};
         t.pages.insert(t.pages.end(), {li.tiles_x, li.tiles_y});
         t.texels.insert(t.texels.end(), {li.width, li.height});
-        const auto [x, y] = PageTable::dense_level_origin(info.levels[0].tiles_x, info.levels[0].tiles_y, l);
+        const auto [x, y] = PageTableLayout::dense_level_origin(info.levels[0].tiles_x, info.levels[0].tiles_y, l);
         t.origin.insert(t.origin.end(), {std::int32_t(x), std::int32_t(y)});
     }
-    const auto [table_width, table_height] = PageTable::dense_packed_size(info.levels[0].tiles_x, info.levels[0].tiles_y);
+    const auto [table_width, table_height] = PageTableLayout::dense_packed_size(info.levels[0].tiles_x, info.levels[0].tiles_y);
     t.table_width = std::uint32_t(std::min<std::uint64_t>(table_width, UINT32_MAX));
     t.table_height = std::uint32_t(std::min<std::uint64_t>(table_height, UINT32_MAX));
     // Too large for the dense packing (what PageTable makes sparse): a two-level table.
-    if (!PageTable::dense_packing_fits(info.levels[0].tiles_x, info.levels[0].tiles_y)) {
+    if (!PageTableLayout::dense_packing_fits(info.levels[0].tiles_x, info.levels[0].tiles_y)) {
         TESSERA_TRY(make_two_level(t));
         textures_[texture] = std::move(t);
         return Status();
@@ -106,12 +106,12 @@ Status PageTableTextures::make_two_level(VirtualTexture& t) {
     for (std::uint32_t l = 0; l < t.levels; ++l) {
         const std::uint32_t w = t.pages[2 * l], h = t.pages[2 * l + 1];
         offset.push_back(std::uint32_t(std::min<std::uint64_t>(total, ~0u)));
-        width.push_back((w + PageTable::kBlockSide - 1) >> PageTable::kBlockShift);
-        total += std::uint64_t(width.back()) * ((h + PageTable::kBlockSide - 1) >> PageTable::kBlockShift);
-        coarse += w <= PageTable::kBlockSide && h <= PageTable::kBlockSide;
+        width.push_back((w + PageTableLayout::kBlockSide - 1) >> PageTableLayout::kBlockShift);
+        total += std::uint64_t(width.back()) * ((h + PageTableLayout::kBlockSide - 1) >> PageTableLayout::kBlockShift);
+        coarse += w <= PageTableLayout::kBlockSide && h <= PageTableLayout::kBlockSide;
     }
     const std::uint64_t pool = std::min<std::uint64_t>(total, 5 * std::uint64_t(pool_slots_) + coarse);
-    const std::uint64_t dir_bytes = total * 4, pool_bytes = pool * PageTable::kBlockEntries * 4;
+    const std::uint64_t dir_bytes = total * 4, pool_bytes = pool * PageTableLayout::kBlockEntries * 4;
     const auto mib = [](std::uint64_t b) { return double(b) / double(1u << 20); };
     if (std::int64_t(dir_bytes) > max_ssbo_ || std::int64_t(pool_bytes) > max_ssbo_)
         return Error{Errc::resource_exhausted,
@@ -162,7 +162,7 @@ TableUpload PageTableTextures::upload_rect(TextureId texture, std::uint8_t level
 TableUpload PageTableTextures::upload_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
                                             std::span<const std::uint32_t> entries) {
     auto it = textures_.find(texture);
-    if (it == textures_.end() || level >= it->second.levels || (!entries.empty() && entries.size() != PageTable::kBlockEntries))
+    if (it == textures_.end() || level >= it->second.levels || (!entries.empty() && entries.size() != PageTableLayout::kBlockEntries))
         return TableUpload::malformed;
     VirtualTexture& t = it->second;
     if (!t.sparse && !make_two_level(t).ok()) return TableUpload::malformed;
@@ -187,7 +187,7 @@ TableUpload PageTableTextures::upload_block(TextureId texture, std::uint8_t leve
     }
     // The block's entries land before its directory entry names it (both in stream order).
     const auto gpu = gpu_entries(entries);
-    const std::size_t block_at = std::size_t(slot->second) * PageTable::kBlockEntries * 4;
+    const std::size_t block_at = std::size_t(slot->second) * PageTableLayout::kBlockEntries * 4;
     staging_.upload_buffer(t.blocks.get(), block_at, gpu.data(), gpu.size_bytes());
     if (allocate) {
         const std::uint32_t named = slot->second + 1;
@@ -202,8 +202,8 @@ std::span<const std::uint32_t> PageTableTextures::gpu_entries(std::span<const st
     gpu_entries_.resize(entries.size());
     for (std::size_t i = 0; i < entries.size(); ++i) {
         const PageEntry e = entries[i];
-        gpu_entries_[i] = PageTable::entry_valid(e)
-                              ? PageTable::make_entry(atlas_.cell_code(PageTable::entry_slot(e)), PageTable::entry_level(e))
+        gpu_entries_[i] = PageTableLayout::entry_valid(e)
+                              ? PageTableLayout::make_entry(atlas_.cell_code(PageTableLayout::entry_slot(e)), PageTableLayout::entry_level(e))
                               : e;
     }
     return gpu_entries_;

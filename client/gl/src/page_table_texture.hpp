@@ -1,9 +1,9 @@
 #pragma once
 // The virtual textures' page tables on the GPU, mirroring the runtime's PageTables
-// (client/src/page_table.hpp) with each entry's slot replaced by its atlas cell.
+// (tessera/client/page_table_layout.hpp) with each entry's slot replaced by its atlas cell.
 //
 // Dense: every level in one R32UI texture, level 0 at (0, 0), levels 1.. stacked in a column to
-// its right (PageTable::dense_level_origin: closed-form, so the shader computes it; level sizes
+// its right (PageTableLayout::dense_level_origin: closed-form, so the shader computes it; level sizes
 // round up, so they are no mip chain), updated by rectangles. Two-level (sparse CPU tables;
 // vt_sample.glsl's VT_SPARSE_TABLE), for tables too large for that packing: a directory per level
 // (block slot + 1, 0: unallocated) and a pool of 32x32-entry blocks, both SSBOs, updated by blocks.
@@ -51,7 +51,7 @@ public:
               GLint64 max_ssbo);
 
     // Creates (or replaces) `texture`'s table for the geometry of `info`: dense when
-    // PageTable::dense_packing_fits, else two-level. On error the old one stays.
+    // PageTableLayout::dense_packing_fits, else two-level. On error the old one stays.
     Status add(TextureId texture, const storage::StoreInfo& info);
     const VirtualTexture* find(TextureId texture) const;
     // Where `page` lies in its texture; nothing for an unknown texture or level.

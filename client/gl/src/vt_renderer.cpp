@@ -13,7 +13,7 @@
 #include "gl_util.hpp"
 #include "page_atlas.hpp"
 #include "page_fade.hpp"
-#include "page_table.hpp"
+#include "tessera/client/page_table_layout.hpp"
 #include "page_table_texture.hpp"
 #include "readback_ring.hpp"
 #include "scene_draw.hpp"
@@ -67,8 +67,8 @@ public:
         if (c.width == 0 || c.height == 0) return Error{Errc::invalid_argument, "renderer: zero width or height"};
         if (c.feedback_scale == 0) return Error{Errc::invalid_argument, "renderer: feedback_scale must be >= 1"};
         if (c.max_anisotropy < 1 || c.max_anisotropy > 8) return Error{Errc::invalid_argument, "renderer: max_anisotropy must be 1..8"};
-        if (c.pool_slots == 0 || c.pool_slots > PageTable::kMaxSlots)
-            return Error{Errc::invalid_argument, fmt::format("renderer: pool_slots must be 1..{}", PageTable::kMaxSlots)};
+        if (c.pool_slots == 0 || c.pool_slots > PageTableLayout::kMaxSlots)
+            return Error{Errc::invalid_argument, fmt::format("renderer: pool_slots must be 1..{}", PageTableLayout::kMaxSlots)};
         if (c.tile_size <= 2 * c.border || c.border == 0)
             return Error{Errc::invalid_argument, fmt::format("renderer: tile_size {} and border {} leave no payload (border >= 1)", c.tile_size, c.border)};
         if (!(c.fade_ms >= 0 && c.fade_ms <= 10000)) return Error{Errc::invalid_argument, "renderer: fade_ms must be 0..10000"};

@@ -26,6 +26,7 @@
 #include <span>
 #include <vector>
 
+#include "tessera/client/measures.hpp"
 #include "tessera/client/upload.hpp"
 #include "tessera/result.hpp"
 #include "tessera/client/scene/camera.hpp"
@@ -202,17 +203,14 @@ public:
 // config's width, height, filter, max_anisotropy and srgb.
 class ReferenceRenderer {
 public:
-    struct Level {
-        std::uint32_t width = 0, height = 0;
-        std::vector<std::uint8_t> rgba8;
-    };
+    using Level = ImageLevel;  // tessera/client/measures.hpp
     // Errors: a level 0 larger than GL_MAX_TEXTURE_SIZE ("does not fit": use the VT with every page
     // resident instead), levels not halving: each level must be max(1, previous / 2) per side (GL's
     // mip chain rounds down, the store's rounds up: they agree for power-of-two sides).
     // `normals`: the normal layer's levels, needed when config lights the scene (normal_layer set
     // and show_layer 0): the reference lights its colour as the VT pass does.
     // `second_levels` (optional; and `normal_second_levels` when lit): what a block-format atlas
-    // holds under each page of level L as its coarser level (decode_store_second_levels), one per
+    // holds under each page of level L as its coarser level (client::decode_store_second_levels), one per
     // level but the last, the size of level L + 1. Given, trilinear and anisotropic lookups blend
     // level L with it, as the VT does, instead of with level L + 1.
     static Result<std::unique_ptr<ReferenceRenderer>> create(const RendererConfig& config, std::span<const Level> levels,
@@ -228,47 +226,5 @@ public:
     virtual void render(const scene::Camera& camera) = 0;
     virtual std::vector<std::uint8_t> read_color() = 0;  // as VtRenderer::read_color
 };
-
-// Decodes every tile interior of a store into RGBA8 levels (for ReferenceRenderer). Errors: a
-// store too large (level 0 over max_side texels per side), unreadable or undecodable tiles.
-// Absent tiles (sparse stores) decode as transparent black. `format` (rgba8 or a block format):
-// each tile as a page of that format holds it, block formats decoded back as a GPU samples them
-// (the same texels as a VtRenderer atlas of that format, which reads bc4 as (r, r, r, 1) and bc5
-// as (r, r, r, g)). `layer`: which layer of a multi-layer store (0 for any other store).
-Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side = 16384,
-                                                                  PageFormat format = PageFormat::rgba8, std::uint32_t layer = 0);
-// The second level a block-format atlas holds under each page (the page's 2x2 means encoded
-// again, or a block-codec store's stored blocks of it), decoded as a GPU samples them and laid out
-// as a level: one per store level but the last, each the size of the next level. Errors: those of
-// decode_store_levels; a format that is not a block format, tiles not a multiple of 8 texels.
-Result<std::vector<ReferenceRenderer::Level>> decode_store_second_levels(const std::string& store_path, std::uint32_t max_side,
-                                                                         PageFormat format, std::uint32_t layer = 0);
-
-// PSNR (dB, over RGB, 8-bit) and max absolute error of two RGBA8 images of equal size, over the
-// pixels where `mask` (optional: width*height bytes, one per pixel, non-zero = count) is set.
-// PSNR is +inf when equal (MSE over the counted pixels' R, G and B).
-struct ImageError {
-    double psnr = 0;
-    int max_error = 0;
-    std::uint64_t pixels = 0;
-};
-// Images of the wrong size compare as maximally different (psnr 0, max_error 255, pixels 0).
-ImageError compare_images(std::span<const std::uint8_t> a, std::span<const std::uint8_t> b, std::uint32_t width,
-                          std::uint32_t height, std::span<const std::uint8_t> mask = {});
-
-// Popping between two consecutive frames (docs/viewer.md, "Measures"): a pixel pops when its change
-// from `before` to `after` differs from the reference renderer's change over the same two camera
-// poses (`ref_before`, `ref_after`) by more than `threshold` in R, G or B, i.e. a change that the
-// camera's motion does not explain (a page arriving or leaving, a LoD bias step). Counted over the
-// pixels the reference covers in both frames (alpha non-zero); `largest`: the largest such
-// difference among them, popping or not. Images of the wrong size count nothing.
-struct PopCount {
-    std::uint64_t pixels = 0;  // covered in both reference frames
-    std::uint64_t popped = 0;
-    int largest = 0;
-    double rate() const { return pixels ? double(popped) / double(pixels) : 0.0; }
-};
-PopCount count_pops(std::span<const std::uint8_t> before, std::span<const std::uint8_t> after, std::span<const std::uint8_t> ref_before,
-                    std::span<const std::uint8_t> ref_after, std::uint32_t width, std::uint32_t height, int threshold = 16);
 
 }  // namespace tessera::client::gl

@@ -1,4 +1,4 @@
-// decode_store_levels and compare_images (renderer.hpp): GL-free helpers for reference frames.
+// decode_store_levels, compare_images and count_pops (tessera/client/measures.hpp).
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -6,19 +6,19 @@
 #include <cstring>
 #include <limits>
 
-#include "tessera/client/gl/renderer.hpp"
+#include "tessera/client/measures.hpp"
 #include "block_decode.hpp"
 #include "transcode.hpp"
 #include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_reader.hpp"
 
-namespace tessera::client::gl {
+namespace tessera::client {
 
 namespace {
 
 // Both public functions: `second` selects each page's first level (every level of the store) or
 // the second level an atlas of `format` holds under it (levels 0 .. count - 2, half their size).
-Result<std::vector<ReferenceRenderer::Level>> decode_levels(const std::string& store_path, std::uint32_t max_side, PageFormat format,
+Result<std::vector<ImageLevel>> decode_levels(const std::string& store_path, std::uint32_t max_side, PageFormat format,
                                                            std::uint32_t layer, bool second) {
     auto opened = storage::StoreReader::open(store_path);
     if (!opened) return opened.error();
@@ -43,11 +43,11 @@ Result<std::vector<ReferenceRenderer::Level>> decode_levels(const std::string& s
     const std::uint32_t side = second ? ts / 2 : ts, payload = second ? P / 2 : P, border = second ? B / 2 : B;
     std::vector<std::uint8_t> page(std::size_t(side) * side * 4), blocks(page_upload_bytes(format, ts, second));
     Scratch scratch;
-    std::vector<ReferenceRenderer::Level> out;
+    std::vector<ImageLevel> out;
     for (std::uint32_t l = 0; l + (second ? 1 : 0) < info.level_count(); ++l) {
         const auto& li = info.levels[l];
         const std::uint32_t level_w = second ? (li.width + 1) / 2 : li.width, level_h = second ? (li.height + 1) / 2 : li.height;
-        ReferenceRenderer::Level level;
+        ImageLevel level;
         level.width = level_w;
         level.height = level_h;
         level.rgba8.assign(std::size_t(level_w) * level_h * 4, 0);
@@ -97,12 +97,12 @@ Result<std::vector<ReferenceRenderer::Level>> decode_levels(const std::string& s
 
 }  // namespace
 
-Result<std::vector<ReferenceRenderer::Level>> decode_store_levels(const std::string& store_path, std::uint32_t max_side,
+Result<std::vector<ImageLevel>> decode_store_levels(const std::string& store_path, std::uint32_t max_side,
                                                                   PageFormat format, std::uint32_t layer) {
     return decode_levels(store_path, max_side, format, layer, false);
 }
 
-Result<std::vector<ReferenceRenderer::Level>> decode_store_second_levels(const std::string& store_path, std::uint32_t max_side,
+Result<std::vector<ImageLevel>> decode_store_second_levels(const std::string& store_path, std::uint32_t max_side,
                                                                          PageFormat format, std::uint32_t layer) {
     return decode_levels(store_path, max_side, format, layer, true);
 }
@@ -155,4 +155,4 @@ PopCount count_pops(std::span<const std::uint8_t> before, std::span<const std::u
     return c;
 }
 
-}  // namespace tessera::client::gl
+}  // namespace tessera::client
