@@ -129,6 +129,7 @@ class FlakyOrigin(http.server.BaseHTTPRequestHandler):
     fail_first = 2
     delay = 0.0
     etag = '"v1"'
+    if_match = []  # the If-Match header of each range GET (None when absent)
 
     def log_message(self, *args):
         pass
@@ -143,6 +144,9 @@ class FlakyOrigin(http.server.BaseHTTPRequestHandler):
             self.end_headers()
             return
         rng = self.headers.get("Range")
+        if rng and self.command == "GET":
+            with self.lock:
+                self.if_match.append(self.headers.get("If-Match"))
         status, part = 200, self.data
         if rng and self.delay:
             time.sleep(self.delay)
@@ -338,6 +342,11 @@ http {{ access_log {d}/nginx-access.log; client_body_temp_path {d}/body; proxy_t
                 print(f"flaky origin: 5 tiles intact; {requests:.0f} requests of which {retries:.0f} retries for {distinct} distinct requests")
                 if retries < 2 * distinct:
                     fail(f"expected at least {2 * distinct} retries, counted {retries}")
+                # Every range read is pinned to the version opened: If-Match with its strong ETag.
+                unpinned = [v for v in FlakyOrigin.if_match if v != '"v1"']
+                if not FlakyOrigin.if_match or unpinned:
+                    fail(f"{len(unpinned)} of {len(FlakyOrigin.if_match)} range reads without If-Match \"v1\": {unpinned[:3]}")
+                print(f"flaky origin: all {len(FlakyOrigin.if_match)} range reads carried If-Match \"v1\"")
             finally:
                 stop(p)
         finally:

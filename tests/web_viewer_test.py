@@ -195,6 +195,11 @@ def spec_checks(port, name, width, height, tile, overlap):
     worst = max(abs(x - y) for x, y in zip(have, grey)) if len(have) == len(grey) else 255
     check(st == 200 and size_of(data) == (fw, fh) and worst <= 1,
           f"IIIF gray is ImageMagick's Rec. 709 luma of the colour image within 1 (max difference {worst})", True)
+    # pct: regions are the image's percentages: the same texels as the pixel region they name.
+    px = (round(width * 0.1), round(height * 0.2), round(width * 0.5), round(height * 0.4))
+    st, _, by_pct = get(port, f"/iiif/{name}/pct:10,20,50,40/!256,256/0/default.png")
+    st2, _, by_px = get(port, f"/iiif/{name}/{px[0]},{px[1]},{px[2]},{px[3]}/!256,256/0/default.png")
+    check(st == 200 and st2 == 200 and rgb(by_pct) == rgb(by_px), f"IIIF pct:10,20,50,40 is the region {px}")
     st, _, data = get(port, f"/iiif/{name}/full/!{width * 3},{height * 3}/0/default.png")
     check(st == 200 and size_of(data) == (width, height), "IIIF !w,h larger than the image gives the image's size")
     st, _, data = get(port, f"/iiif/{name}/0,0,{width},8/1,8/0/default.png")
@@ -231,7 +236,8 @@ def main():
     subprocess.run(["convert", "-seed", "5", "-size", "777x555", "plasma:", "(", "-size", "777x555", "gradient:white-black",
                     ")", "-alpha", "off", "-compose", "CopyOpacity", "-composite", "-depth", "8", alpha_src], check=True)
     deep_src = os.path.join(tmp, "deep.png")
-    subprocess.run(["convert", "-size", "600x400", "gradient:black-white", "-depth", "16", deep_src], check=True)
+    # 1024 wide: a power-of-two side, where DZI's level count ceil(log2(side)) is easiest to get wrong.
+    subprocess.run(["convert", "-size", "1024x400", "gradient:black-white", "-depth", "16", deep_src], check=True)
     float_src = os.path.join(tmp, "float.exr")
     subprocess.run(["oiiotool", "--pattern", "fill:topleft=0,0,0:topright=1,0,0:bottomleft=0,1,0:bottomright=1,1,1",
                     "300x200", "3", "-d", "float", "-o", float_src], check=True)
@@ -248,6 +254,7 @@ def main():
         port = ports[1]
         spec_checks(port, "pic", 1900, 1300, 248, 4)
         spec_checks(port, "alpha", 777, 555, 248, 4)
+        spec_checks(port, "deep", 1024, 400, 248, 4)
         check(re.search(r'Format="png"', get(port, "/dzi/alpha.dzi")[2].decode()) is not None, "alpha store: PNG tiles")
         check(re.search(r'Format="jpg"', get(port, "/dzi/pic.dzi")[2].decode()) is not None, "JPEG store: JPEG tiles")
 
