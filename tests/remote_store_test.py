@@ -254,7 +254,7 @@ def main():
                 sigv4_put(endpoint, "tiles", "maps/terrain.tsr", open(two, "rb").read())
                 time.sleep(0.5)  # reads of the replaced object under the old version's ETag
                 p.send_signal(signal.SIGHUP)
-                for _ in range(100):
+                for _ in range(300):  # the rescan: up to 30 s on a loaded machine (seen over 10 s with -j2)
                     time.sleep(0.1)
                     status, headers, body = get(port, "/v1/stores/terrain/tiles/0/0/0")
                     if headers.get("ETag") != old_version:
