@@ -48,8 +48,7 @@ struct Material {
     Texture normals;
 };
 
-// Knobs taken from the renderer's configuration: filter, max anisotropy, sRGB target, alpha test,
-// frame size.
+// One outcome of a pixel: its RGBA8 colour, or nothing drawn.
 struct Outcome {
     std::array<std::uint8_t, 4> rgba{};
     bool covered = false;
@@ -62,12 +61,13 @@ struct Frame {
     std::size_t layers_peeled = 0;      // depth layers the coordinate pass needed
 };
 
-// Renders `materials` seen by `camera`, each pixel showing the nearest surface that survives the
+// Renders `materials` seen by `camera` with the renderer configuration's filter, max anisotropy,
+// sRGB target, alpha test and frame size, each pixel showing the nearest surface that survives the
 // alpha test. Needs the current GL context (the coordinate pass). Errors: GL failures.
 Result<Frame> render(const client::gl::RendererConfig& config, std::span<const Material> materials, const scene::Camera& camera);
 
 // The per-pixel comparison the tests make, over the pixels both cover (on a knife edge: against
-// the nearer of the two outcomes).
+// the nearest of its outcomes).
 struct Comparison {
     std::size_t compared = 0, knife = 0, alternative = 0, coverage_differs = 0;
     double psnr = 0;       // over RGB, dB (99 when equal)
