@@ -19,7 +19,10 @@
 //          set, so resending everything cancels nothing still wanted). A tile's latency runs from
 //          the tick that first asked for it to its arrival. The set is bounded (--max-outstanding);
 //          tiles that do not fit are dropped and counted. Closed: the set is topped up to --window
-//          whenever half of it has arrived (and at least every tick). Batches ask for protocol
+//          whenever half of it has arrived (and at least every tick). A batch due while the
+//          previous one is still being written goes out when that write completes, built from the
+//          set as it is then. The streams are driven asynchronously: --client-threads (1)
+//          completion-queue threads and one tick thread. Batches ask for protocol
 //          revision --protocol-revision (default 1: several tiles per message; 0: one per message);
 //          replies are decoded straight from gRPC's receive slices (tessera/protocol/stream_codec.hpp),
 //          payloads counted, not copied.
@@ -36,11 +39,13 @@
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <sys/epoll.h>
+#include <sys/prctl.h>
 #include <sys/socket.h>
 #include <sys/timerfd.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cctype>
 #include <cerrno>
@@ -64,6 +69,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include <grpcpp/generic/generic_stub.h>
 #include <grpcpp/grpcpp.h>
 
 #include "tessera.grpc.pb.h"
@@ -108,6 +114,7 @@ struct Options {
     double drain = 5;         // open model: wait this long for late replies after the end
     unsigned connections = 64;
     unsigned viewers = 4;
+    unsigned client_threads = 1;         // gRPC: completion-queue threads driving the viewers
     double tick_hz = 60;
     std::size_t window = 512;            // gRPC closed loop: outstanding tiles per viewer
     std::size_t max_outstanding = 4096;  // gRPC open model: bound of a viewer's outstanding set
@@ -119,7 +126,8 @@ void usage() {
     std::fprintf(stderr,
                  "usage: serve_load (--http HOST:PORT --url-file FILE [--prefix P] [--connections C]\n"
                  "                  | --grpc HOST:PORT --store NAME (--url-file FILE | --store-file S.tsr) [--viewers V]\n"
-                 "                    [--tick-hz HZ] [--window W] [--max-outstanding N] [--protocol-revision R])\n"
+                 "                    [--tick-hz HZ] [--window W] [--max-outstanding N] [--protocol-revision R]\n"
+                 "                    [--client-threads T])\n"
                  "                  [--rate TILES_PER_S (0: closed loop)] [--duration S] [--warmup S] [--drain S]\n"
                  "                  [--seed N] [--json FILE]\n");
 }
@@ -152,6 +160,7 @@ Options parse(int argc, char** argv) {
         else if (a == "--drain") o.drain = number();
         else if (a == "--connections") o.connections = unsigned(number());
         else if (a == "--viewers") o.viewers = unsigned(number());
+        else if (a == "--client-threads") o.client_threads = unsigned(number());
         else if (a == "--tick-hz") o.tick_hz = number();
         else if (a == "--window") o.window = std::size_t(number());
         else if (a == "--max-outstanding") o.max_outstanding = std::size_t(number());
@@ -165,8 +174,8 @@ Options parse(int argc, char** argv) {
     if (!o.grpc.empty() && o.store.empty()) die("--grpc needs --store NAME");
     if (!o.grpc.empty() && o.url_file.empty() && o.store_file.empty()) die("--grpc needs --url-file or --store-file");
     if (o.duration <= 0) die("--duration must be > 0");
-    if (o.connections == 0 || o.viewers == 0 || o.tick_hz <= 0 || o.window == 0 || o.max_outstanding == 0)
-        die("--connections, --viewers, --tick-hz, --window and --max-outstanding must be > 0");
+    if (o.connections == 0 || o.viewers == 0 || o.client_threads == 0 || o.tick_hz <= 0 || o.window == 0 || o.max_outstanding == 0)
+        die("--connections, --viewers, --client-threads, --tick-hz, --window and --max-outstanding must be > 0");
     return o;
 }
 
@@ -186,6 +195,7 @@ struct Results {
     double seconds = 0;            // the window achieved rates are over
     LatencyHistogram latency;
     LatencyHistogram server_latency;  // gRPC: TileReply.server_micros (latest batch listing it -> transport)
+    LatencyHistogram tick_late;       // gRPC: how late the generator ran each tick (its own share of latency)
 };
 
 std::string json_escape(const std::string& s) {
@@ -218,6 +228,8 @@ void report(const Options& o, const Results& r) {
         std::printf(" (dropped %" PRIu64 ", duplicates %" PRIu64 ", %.0f requests/batch; server_micros p50 %.3f p99 %.3f ms)",
                     r.dropped, r.duplicates, r.batches ? double(r.batch_requests) / double(r.batches) : 0.0,
                     ms(r.server_latency.percentile(0.5)), ms(r.server_latency.percentile(0.99)));
+    if (grpc)
+        std::printf(" (ticks late p50 %.3f p99 %.3f ms)", ms(r.tick_late.percentile(0.5)), ms(r.tick_late.percentile(0.99)));
     std::printf("\n");
 
     std::string kinds;
@@ -234,13 +246,15 @@ void report(const Options& o, const Results& r) {
         ",\"error_kinds\":{%s},\"latency_ms\":{\"count\":%" PRIu64
         ",\"mean\":%.4f,\"p50\":%.4f,\"p90\":%.4f,\"p99\":%.4f,\"p99_9\":%.4f,\"max\":%.4f},"
         "\"server_latency_ms\":{\"count\":%" PRIu64 ",\"p50\":%.4f,\"p90\":%.4f,\"p99\":%.4f,\"p99_9\":%.4f,\"max\":%.4f},"
+        "\"tick_late_ms\":{\"p50\":%.4f,\"p99\":%.4f,\"max\":%.4f},"
         "\"histogram\":\"log-linear, 64 buckets per power of two; percentiles are bucket upper bounds (<= 1.6%% high)\"}",
         grpc ? "grpc" : "http", json_escape(grpc ? o.grpc : o.http).c_str(), o.rate > 0 ? "open" : "closed", o.rate,
         grpc ? 0u : o.connections, grpc ? o.viewers : 0u, grpc ? o.tick_hz : 0.0, grpc ? o.window : std::size_t(0),
         o.duration, o.warmup, r.seconds, r.sent, r.ok, r.bytes, tps, mbps, r.errors, r.lost, r.dropped, r.duplicates,
         r.batches, r.batch_requests, kinds.c_str(), h.count(), ms(std::uint64_t(h.mean())), ms(h.percentile(0.5)),
         ms(h.percentile(0.9)), ms(h.percentile(0.99)), ms(h.percentile(0.999)), ms(h.max()), sh.count(),
-        ms(sh.percentile(0.5)), ms(sh.percentile(0.9)), ms(sh.percentile(0.99)), ms(sh.percentile(0.999)), ms(sh.max()));
+        ms(sh.percentile(0.5)), ms(sh.percentile(0.9)), ms(sh.percentile(0.99)), ms(sh.percentile(0.999)), ms(sh.max()),
+        ms(r.tick_late.percentile(0.5)), ms(r.tick_late.percentile(0.99)), ms(r.tick_late.max()));
     if (o.json_path.empty()) {
         std::printf("%s\n", buf);
     } else {
@@ -690,6 +704,13 @@ private:
 };
 
 // ---- gRPC: V viewers, each a StreamTiles stream on its own connection ---------------------------
+//
+// Asynchronous: --client-threads threads (default 1), each owning one completion queue and the
+// completions of its share of the viewers, and one tick thread that sleeps to each tick's time
+// and sends that tick's batches. No thread per stream: a generator with two threads per viewer
+// spent the two cores' time switching between them, and that showed up as the server's tail.
+// Ticks are not a completion queue's timeouts: those are in whole milliseconds (epoll), which
+// would add up to a millisecond to every latency measured from a tick.
 
 class GrpcLoad {
 public:
@@ -697,6 +718,9 @@ public:
 
     Results run() {
         const bool open = o_.rate > 0;
+        const unsigned threads = std::max(1u, std::min(o_.client_threads, o_.viewers));
+        queues_.resize(threads);
+        for (auto& q : queues_) q = std::make_unique<grpc::CompletionQueue>();
         viewers_.reserve(o_.viewers);
         for (unsigned i = 0; i < o_.viewers; ++i) {
             auto v = std::make_unique<Viewer>();
@@ -708,24 +732,38 @@ public:
             v->channel = grpc::CreateCustomChannel(o_.grpc, grpc::InsecureChannelCredentials(), args);
             if (!v->channel->WaitForConnected(std::chrono::system_clock::now() + std::chrono::seconds(5)))
                 die("cannot connect to " + o_.grpc);
-            const grpc::internal::RpcMethod method("/tessera.v1.TileService/StreamTiles",
-                                                   grpc::internal::RpcMethod::BIDI_STREAMING, v->channel);
-            v->stream.reset(grpc::internal::ClientReaderWriterFactory<v1::TileBatch, grpc::ByteBuffer>::Create(
-                v->channel.get(), method, &v->context));
-            if (!v->stream) die("StreamTiles failed to start");
+            v->stub = std::make_unique<grpc::GenericStub>(v->channel);
+            v->cq = queues_[i % threads].get();
+            v->call = v->stub->PrepareCall(&v->context, "/tessera.v1.TileService/StreamTiles", v->cq);
+            if (!v->call) die("StreamTiles failed to start");
+            v->ops = {Op{v.get(), Op::start}, Op{v.get(), Op::read}, Op{v.get(), Op::write},
+                      Op{v.get(), Op::writes_done}, Op{v.get(), Op::finish}};
             viewers_.push_back(std::move(v));
         }
         start_ = Clock::now() + std::chrono::milliseconds(100);
         measure_start_ = start_ + Nanos(std::int64_t(o_.warmup * 1e9));
         end_ = measure_start_ + Nanos(std::int64_t(o_.duration * 1e9));
         drain_deadline_ = end_ + Nanos(std::int64_t(o_.drain * 1e9));
-
-        std::vector<std::thread> threads;
+        period_ = 1e9 / o_.tick_hz;
         for (auto& v : viewers_) {
-            threads.emplace_back([this, p = v.get()] { reader(*p); });
-            threads.emplace_back([this, p = v.get(), open] { open ? open_sender(*p) : closed_sender(*p); });
+            v->phase = open ? double(v->id) / double(o_.viewers) : 0.0;
+            v->next_tick = tick_time(*v, 0);
+            v->call->StartCall(&v->ops[Op::start]);
         }
-        for (auto& t : threads) t.join();
+
+        std::vector<std::thread> pool;
+        for (unsigned t = 0; t < threads; ++t) pool.emplace_back([this, t, threads] { loop(t, threads); });
+        std::thread ticker([this, open] { tick_clock(open); });
+        for (auto& t : pool) t.join();
+        stop_.store(true);
+        ticker.join();
+        for (auto& q : queues_) {  // every Finish has completed: drain what is left (failed writes, an alarm)
+            q->Shutdown();
+            void* tag = nullptr;
+            bool ok = false;
+            while (q->Next(&tag, &ok)) {
+            }
+        }
 
         Results r;
         Clock::time_point last = end_;
@@ -745,10 +783,17 @@ public:
             last = std::max(last, v->last_completion);
         }
         r.seconds = open ? std::chrono::duration<double>(last - measure_start_).count() : o_.duration;
+        r.tick_late = tick_late_;
         return r;
     }
 
 private:
+    struct Viewer;
+    struct Op {  // a completion queue tag: which viewer, which operation
+        enum Kind { start, read, write, writes_done, finish };
+        Viewer* viewer;
+        Kind kind;
+    };
     struct Wanted {
         Clock::time_point asked;  // the tick that first asked for it: the latency origin
         std::uint64_t seq;        // matches the order_ entry that is current for this key
@@ -757,22 +802,181 @@ private:
         unsigned id = 0;
         std::mt19937_64 rng;
         std::shared_ptr<grpc::Channel> channel;
+        std::unique_ptr<grpc::GenericStub> stub;
         grpc::ClientContext context;
-        std::unique_ptr<grpc::ClientReaderWriter<v1::TileBatch, grpc::ByteBuffer>> stream;  // raw replies
+        grpc::CompletionQueue* cq = nullptr;
+        std::unique_ptr<grpc::GenericClientAsyncReaderWriter> call;
+        std::mutex mu;  // the tick thread and the viewer's queue thread
+        std::array<Op, 5> ops{};
+        grpc::ByteBuffer read_buf, write_buf;
+        grpc::Status status;
+        v1::TileBatch batch;
 
-        std::mutex mu;
-        std::condition_variable cv;  // closed loop: half the window has arrived
         std::unordered_map<std::uint64_t, Wanted> outstanding;
         std::deque<std::pair<std::uint64_t, std::uint64_t>> order;  // (key, seq), oldest first
         std::uint64_t next_seq = 0;
         std::uint64_t replies_read = 0;  // tile replies read so far (TileBatch.replies_received)
-        bool stream_done = false;
-        bool leaving = false;  // the empty batch is out: late tiles are neither counted nor duplicates
+        std::uint64_t tick = 0, frame = 0, asked_so_far = 0;
+        double phase = 0;
+        Clock::time_point next_tick{};
+        Clock::time_point cancel_at = Clock::time_point::max();  // leaving: cancel if not done by then
+        bool started = false, writing = false, want_send = false;
+        bool ticking = true;        // false once the viewer has begun to leave
+        bool leaving = false;       // the empty batch is due or out: late tiles are neither counted nor duplicates
+        bool goodbye_sent = false;  // the empty batch is written (WritesDone follows)
+        bool finishing = false;     // Finish is issued
+        bool done = false;          // Finish completed
         Clock::time_point last_completion{};
         Results r;
     };
 
     static std::uint64_t pack(const Key& k) { return tessera::pack_key(k); }
+
+    Clock::time_point tick_time(const Viewer& v, std::uint64_t tick) const {
+        return start_ + Nanos(std::int64_t((double(tick) + v.phase) * period_));
+    }
+
+    // Every viewer's ticks, on time: viewers are phase-shifted by period/V (open model), or tick
+    // all at once (closed loop). Also cancels a leaving viewer's call the server did not end.
+    void tick_clock(bool open) {
+        const double step = open ? period_ / double(o_.viewers) : period_;
+        prctl(PR_SET_TIMERSLACK, 1UL);  // wake at the tick, not up to 50 us after it
+        for (std::uint64_t k = 0; !stop_.load(); ++k) {
+            std::this_thread::sleep_until(start_ + Nanos(std::int64_t(double(k) * step)));
+            const auto now = Clock::now();
+            for (auto& p : viewers_) {
+                Viewer& v = *p;
+                std::lock_guard lock(v.mu);
+                if (v.done) continue;
+                while (v.ticking && v.next_tick <= now) on_tick(v, now);
+                if (!v.finishing && now >= v.cancel_at) {
+                    v.context.TryCancel();  // the server did not end the stream in time
+                    v.cancel_at = Clock::time_point::max();
+                }
+            }
+        }
+    }
+
+    // One thread: every completion of the viewers on queue `index`, until all of them are done.
+    void loop(unsigned index, unsigned threads) {
+        grpc::CompletionQueue& cq = *queues_[index];
+        std::size_t live = 0;
+        for (auto& v : viewers_) live += v->id % threads == index;
+        while (live > 0) {
+            void* tag = nullptr;
+            bool ok = false;
+            const auto status =
+                cq.AsyncNext(&tag, &ok, std::chrono::system_clock::now() + std::chrono::milliseconds(100));
+            if (status == grpc::CompletionQueue::SHUTDOWN) break;
+            if (status == grpc::CompletionQueue::TIMEOUT) continue;
+            auto* op = static_cast<Op*>(tag);
+            Viewer& v = *op->viewer;
+            std::lock_guard lock(v.mu);
+            const bool was_done = v.done;
+            on_event(v, op->kind, ok);
+            if (v.done && !was_done) --live;
+        }
+    }
+
+    void on_event(Viewer& v, Op::Kind kind, bool ok) {
+        switch (kind) {
+        case Op::start:
+            if (!ok) {
+                ++v.r.errors;
+                ++v.r.error_kinds["stream_start_failed"];
+                begin_finish(v);
+                return;
+            }
+            v.started = true;
+            v.call->Read(&v.read_buf, &v.ops[Op::read]);
+            send(v);
+            return;
+        case Op::read:
+            if (!ok) {  // the server ended the stream (or it broke): collect its status
+                begin_finish(v);
+                return;
+            }
+            on_message(v);
+            v.call->Read(&v.read_buf, &v.ops[Op::read]);
+            return;
+        case Op::write:
+            v.writing = false;
+            if (!ok) {
+                if (!v.leaving) {
+                    ++v.r.errors;
+                    ++v.r.error_kinds["stream_write_failed"];
+                }
+                v.ticking = false;
+                return;  // the read side sees the stream end and finishes it
+            }
+            if (v.goodbye_sent) {
+                v.call->WritesDone(&v.ops[Op::writes_done]);
+                return;
+            }
+            send(v);
+            return;
+        case Op::writes_done:
+            return;
+        case Op::finish:
+            v.done = true;
+            v.ticking = false;
+            if (!v.status.ok() && v.status.error_code() != grpc::StatusCode::CANCELLED) {
+                ++v.r.errors;
+                ++v.r.error_kinds["stream_" + std::to_string(int(v.status.error_code())) + ": " +
+                                  v.status.error_message()];
+            }
+            return;
+        }
+    }
+
+    void begin_finish(Viewer& v) {
+        if (v.finishing) return;
+        v.finishing = true;
+        v.ticking = false;
+        v.call->Finish(&v.status, &v.ops[Op::finish]);
+    }
+
+    // Open model: the tiles scheduled up to this tick join the outstanding set, which is sent
+    // whole; after the measured ticks, resend what is still outstanding until the drain deadline.
+    // Closed loop: top the set up to the window, every tick.
+    void on_tick(Viewer& v, Clock::time_point now) {
+        const Clock::time_point t = v.next_tick;
+        if (t >= measure_start_) tick_late_.record(std::uint64_t(std::chrono::duration_cast<Nanos>(now - t).count()));
+        if (o_.rate > 0) {
+            const auto total_ticks = std::uint64_t(std::floor((o_.warmup + o_.duration) * o_.tick_hz));
+            const auto warm_ticks = std::uint64_t(std::ceil(o_.warmup * o_.tick_hz));
+            const double per_viewer = o_.rate / double(o_.viewers);
+            if (v.tick < total_ticks) {
+                const auto due = std::uint64_t(std::floor(double(v.tick + 1) * per_viewer / o_.tick_hz));
+                const bool measured = v.tick >= warm_ticks;
+                for (; v.asked_so_far < due; ++v.asked_so_far) {
+                    if (v.outstanding.size() >= o_.max_outstanding) {
+                        if (measured) ++v.r.dropped;
+                        continue;
+                    }
+                    add_random(v, t, measured);
+                }
+            } else if (v.outstanding.empty() || now >= drain_deadline_) {
+                leave(v);
+                return;
+            }
+        } else {
+            if (now >= end_) {
+                leave(v);
+                return;
+            }
+            top_up(v, now);
+        }
+        v.frame = v.tick;
+        ++v.tick;
+        v.next_tick = tick_time(v, v.tick);
+        v.want_send = true;
+        send(v);
+    }
+
+    void top_up(Viewer& v, Clock::time_point now) {
+        while (v.outstanding.size() < o_.window) add_random(v, now, now >= measure_start_);
+    }
 
     // Adds one new random tile (not already outstanding, if a few draws can find one).
     void add_random(Viewer& v, Clock::time_point asked, bool measured) {
@@ -793,10 +997,32 @@ private:
         }
     }
 
-    // The whole outstanding set, oldest first, as one batch. Under the viewer's lock.
-    void build_batch(Viewer& v, v1::TileBatch& batch, std::uint64_t frame) {
+    // Writes the whole outstanding set, oldest first, as one batch, if no write is in flight (a
+    // batch due meanwhile goes out when the write completes, built from the set as it is then).
+    void send(Viewer& v) {
+        if (!v.started || v.writing || v.finishing) return;
+        if (v.leaving && !v.goodbye_sent) {  // the way a viewer leaves: an empty batch, then a half-close
+            v.batch.Clear();
+            v.batch.set_frame(~std::uint64_t(0));
+            v.goodbye_sent = true;
+        } else if (v.want_send && !v.leaving) {
+            build_batch(v);
+        } else {
+            return;
+        }
+        v.want_send = false;
+        bool own = false;
+        v.write_buf.Clear();
+        if (!grpc::SerializationTraits<v1::TileBatch>::Serialize(v.batch, &v.write_buf, &own).ok())
+            die("cannot serialize a TileBatch");
+        v.writing = true;
+        v.call->Write(v.write_buf, &v.ops[Op::write]);
+    }
+
+    void build_batch(Viewer& v) {
+        v1::TileBatch& batch = v.batch;
         batch.Clear();
-        batch.set_frame(frame);
+        batch.set_frame(v.frame);
         batch.set_protocol_revision(o_.protocol_revision);
         batch.set_replies_received(v.replies_read);
         batch.add_stores(o_.store);
@@ -817,166 +1043,81 @@ private:
         v.r.batch_requests += std::uint64_t(batch.requests_size());
     }
 
-    bool write(Viewer& v, const v1::TileBatch& batch) {
-        if (!v.stream->Write(batch)) {
-            std::lock_guard lock(v.mu);
-            ++v.r.errors;
-            ++v.r.error_kinds["stream_write_failed"];
-            return false;
-        }
-        return true;
-    }
-
-    // Open model: tick at tick_hz from start_ (viewers phase-shifted), asking for the tiles
-    // scheduled so far, then resending what is still outstanding until the drain deadline.
-    void open_sender(Viewer& v) {
-        const double per_viewer = o_.rate / double(o_.viewers);
-        const double period_ns = 1e9 / o_.tick_hz;
-        const double phase = double(v.id) / double(o_.viewers);
-        const auto total_ticks = std::uint64_t(std::floor((o_.warmup + o_.duration) * o_.tick_hz));
-        const auto warm_ticks = std::uint64_t(std::ceil(o_.warmup * o_.tick_hz));
-        std::uint64_t asked_so_far = 0;
-        v1::TileBatch batch;
-        for (std::uint64_t tick = 0;; ++tick) {
-            const auto t = start_ + Nanos(std::int64_t((double(tick) + phase) * period_ns));
-            std::this_thread::sleep_until(t);
-            {
-                std::lock_guard lock(v.mu);
-                if (v.stream_done) break;
-                if (tick < total_ticks) {
-                    const auto due = std::uint64_t(std::floor(double(tick + 1) * per_viewer / o_.tick_hz));
-                    const bool measured = tick >= warm_ticks;
-                    for (; asked_so_far < due; ++asked_so_far) {
-                        if (v.outstanding.size() >= o_.max_outstanding) {
-                            if (measured) ++v.r.dropped;
-                            continue;
-                        }
-                        add_random(v, t, measured);
-                    }
-                } else if (v.outstanding.empty() || Clock::now() >= drain_deadline_) {
-                    break;
-                }
-                build_batch(v, batch, tick);
-            }
-            if (!write(v, batch)) break;
-        }
-        finish(v);
-    }
-
-    // Closed loop: keep the outstanding set at the window; resend when half of it has arrived,
-    // and at least every tick.
-    void closed_sender(Viewer& v) {
-        const auto period = Nanos(std::int64_t(1e9 / o_.tick_hz));
-        v1::TileBatch batch;
-        std::this_thread::sleep_until(start_);
-        for (std::uint64_t frame = 0;; ++frame) {
-            {
-                std::unique_lock lock(v.mu);
-                if (v.stream_done) break;
-                const auto now = Clock::now();
-                if (now >= end_) break;
-                while (v.outstanding.size() < o_.window) add_random(v, now, now >= measure_start_);
-                build_batch(v, batch, frame);
-            }
-            if (!write(v, batch)) break;
-            std::unique_lock lock(v.mu);
-            v.cv.wait_until(lock, std::min(Clock::now() + period, end_), [&] {
-                return v.stream_done || v.outstanding.size() <= o_.window / 2 || Clock::now() >= end_;
-            });
-        }
-        finish(v);
-    }
-
     // Ends the stream the way a viewer leaves: an empty batch (cancels whatever is still pending
     // or queued for it), then a half-close; the server finishes the call once it is idle. Only
     // if that takes over two seconds is the call cancelled.
-    void finish(Viewer& v) {
-        {
-            std::lock_guard lock(v.mu);
-            // Open model: what never came is lost. Closed loop: the window's leftovers were not
-            // measured anyway.
-            for (const auto& [packed, w] : v.outstanding)
-                if (o_.rate > 0 && w.asked >= measure_start_) ++v.r.lost;
-            v.outstanding.clear();
-            v.order.clear();
-            v.leaving = true;
-        }
-        v1::TileBatch empty;
-        empty.set_frame(~std::uint64_t(0));
-        if (v.stream->Write(empty)) v.stream->WritesDone();
-        std::unique_lock lock(v.mu);
-        if (!v.cv.wait_until(lock, Clock::now() + std::chrono::seconds(2), [&] { return v.stream_done; })) {
-            lock.unlock();
-            v.context.TryCancel();
-        }
+    void leave(Viewer& v) {
+        // Open model: what never came is lost. Closed loop: the window's leftovers were not measured.
+        for (const auto& [packed, w] : v.outstanding)
+            if (o_.rate > 0 && w.asked >= measure_start_) ++v.r.lost;
+        v.outstanding.clear();
+        v.order.clear();
+        v.leaving = true;
+        v.ticking = false;
+        v.cancel_at = Clock::now() + std::chrono::seconds(2);
+        send(v);
     }
 
-    void reader(Viewer& v) {
-        grpc::ByteBuffer m;
-        tessera::protocol::ServerMessageDecoder d;
+    void on_message(Viewer& v) {
         using Kind = tessera::protocol::ServerMessageDecoder::Kind;
-        while (v.stream->Read(&m)) {
-            if (!d.decode(m)) {
-                std::lock_guard lock(v.mu);
-                ++v.r.errors;
-                ++v.r.error_kinds["malformed_message"];
-                continue;
-            }
-            if (d.kind() == Kind::ack) {
-                // Refused and invalid requests also come back one by one as tiles with an error
-                // status (counted there); a batch refused whole only shows here.
-                if (d.ack().status() != v1::TILE_OK) {
-                    std::lock_guard lock(v.mu);
-                    ++v.r.errors;
-                    ++v.r.error_kinds["batch_" + std::string(to_string(tessera::protocol::from_proto(d.ack().status())))];
-                }
-                continue;
-            }
-            if (d.kind() != Kind::tiles) continue;
-            std::lock_guard lock(v.mu);
-            const auto now = Clock::now();  // under the lock: never before the tick that asked
-            const bool open = o_.rate > 0;
-            v.replies_read += d.tile_count();
-            for (std::size_t i = 0; i < d.tile_count(); ++i) {
-                const auto& t = d.tile(i);
-                const std::uint64_t packed = tessera::pack_key(t.key);
-                auto it = v.outstanding.find(packed);
-                if (it == v.outstanding.end()) {
-                    if (t.status == v1::TILE_OK && !v.leaving) ++v.r.duplicates;
-                    continue;
-                }
-                const auto asked = it->second.asked;
-                v.outstanding.erase(it);
-                const bool counted = open ? asked >= measure_start_ : (now >= measure_start_ && now <= end_);
-                if (counted) {
-                    if (t.status == v1::TILE_OK && t.kind != v1::KIND_ABSENT) {
-                        ++v.r.ok;
-                        v.r.bytes += t.payload_size;
-                        v.r.latency.record(std::uint64_t(std::chrono::duration_cast<Nanos>(now - asked).count()));
-                        v.r.server_latency.record(std::uint64_t(t.server_micros) * 1000);
-                        v.last_completion = std::max(v.last_completion, now);
-                    } else {
-                        ++v.r.errors;
-                        ++v.r.error_kinds[std::string(to_string(tessera::protocol::from_proto(t.status)))];
-                    }
-                }
-            }
-            if (!open && v.outstanding.size() <= o_.window / 2) v.cv.notify_all();
-        }
-        const grpc::Status status = v.stream->Finish();
-        std::lock_guard lock(v.mu);
-        v.stream_done = true;
-        if (!status.ok() && status.error_code() != grpc::StatusCode::CANCELLED) {
+        thread_local tessera::protocol::ServerMessageDecoder d;  // keeps its buffers between messages
+        if (!d.decode(v.read_buf)) {
             ++v.r.errors;
-            ++v.r.error_kinds["stream_" + std::to_string(int(status.error_code())) + ": " + status.error_message()];
+            ++v.r.error_kinds["malformed_message"];
+            return;
         }
-        v.cv.notify_all();
+        if (d.kind() == Kind::ack) {
+            // Refused and invalid requests also come back one by one as tiles with an error
+            // status (counted there); a batch refused whole only shows here.
+            if (d.ack().status() != v1::TILE_OK) {
+                ++v.r.errors;
+                ++v.r.error_kinds["batch_" + std::string(to_string(tessera::protocol::from_proto(d.ack().status())))];
+            }
+            return;
+        }
+        if (d.kind() != Kind::tiles) return;
+        const auto now = Clock::now();
+        const bool open = o_.rate > 0;
+        v.replies_read += d.tile_count();
+        for (std::size_t i = 0; i < d.tile_count(); ++i) {
+            const auto& t = d.tile(i);
+            const std::uint64_t packed = tessera::pack_key(t.key);
+            auto it = v.outstanding.find(packed);
+            if (it == v.outstanding.end()) {
+                if (t.status == v1::TILE_OK && !v.leaving) ++v.r.duplicates;
+                continue;
+            }
+            const auto asked = it->second.asked;
+            v.outstanding.erase(it);
+            const bool counted = open ? asked >= measure_start_ : (now >= measure_start_ && now <= end_);
+            if (!counted) continue;
+            if (t.status == v1::TILE_OK && t.kind != v1::KIND_ABSENT) {
+                ++v.r.ok;
+                v.r.bytes += t.payload_size;
+                v.r.latency.record(std::uint64_t(std::chrono::duration_cast<Nanos>(now - asked).count()));
+                v.r.server_latency.record(std::uint64_t(t.server_micros) * 1000);
+                v.last_completion = std::max(v.last_completion, now);
+            } else {
+                ++v.r.errors;
+                ++v.r.error_kinds[std::string(to_string(tessera::protocol::from_proto(t.status)))];
+            }
+        }
+        // Closed loop: half the window has arrived, so top it up now rather than at the next tick.
+        if (!open && !v.leaving && v.outstanding.size() <= o_.window / 2) {
+            top_up(v, now);
+            v.want_send = true;
+            send(v);
+        }
     }
 
     const Options& o_;
     std::vector<Key> keys_;
+    std::vector<std::unique_ptr<grpc::CompletionQueue>> queues_;
+    std::atomic<bool> stop_{false};
+    LatencyHistogram tick_late_;  // only the tick thread records
     std::vector<std::unique_ptr<Viewer>> viewers_;
     Clock::time_point start_{}, measure_start_{}, end_{}, drain_deadline_{};
+    double period_ = 0;
 };
 
 }  // namespace
