@@ -20,8 +20,9 @@ INCLUDE_DIRS = ("storage/include", "client/include", "client/net/include", "clie
 HEADER_ROOTS = ("client/include", "client/net/include", "client/scene/include", "client/gl/include")
 
 
-def dependencies(cxx: str, src: pathlib.Path, header: pathlib.Path) -> list[str]:
-    flags = [f"-I{src / d}" for d in INCLUDE_DIRS]
+def dependencies(cxx: str, src: pathlib.Path, header: pathlib.Path, include_dirs=None) -> list[str]:
+    """The files `header` pulls in; include_dirs (absolute) replaces the source tree's folders."""
+    flags = [f"-I{d}" for d in include_dirs] if include_dirs else [f"-I{src / d}" for d in INCLUDE_DIRS]
     p = subprocess.run([cxx, "-std=c++20", "-x", "c++", "-M", *flags, str(header)],
                        capture_output=True, text=True)
     if p.returncode != 0:
