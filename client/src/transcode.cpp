@@ -1,8 +1,5 @@
 #include "transcode.hpp"
 
-#include <turbojpeg.h>
-#include <zstd.h>
-
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -30,8 +27,6 @@ using storage::StoreInfo;
 // ------------------------------------------------------------------------------------ Scratch
 
 struct Scratch::Impl {
-    tjhandle jpeg = nullptr;
-    ZSTD_DCtx* zstd = nullptr;
     std::unique_ptr<std::uint8_t[]> samples;  // decompressed zstd tile (never zero-filled)
     std::unique_ptr<std::uint8_t[]> rgba;     // RGBA8 page before block encoding, or decoded blocks
     std::vector<std::uint8_t> blocks;          // a block tile unpacked
@@ -41,25 +36,6 @@ struct Scratch::Impl {
     Impl() = default;
     Impl(const Impl&) = delete;
     Impl& operator=(const Impl&) = delete;
-    ~Impl() {
-        if (jpeg) tjDestroy(jpeg);
-        if (zstd) ZSTD_freeDCtx(zstd);
-    }
-    tjhandle jpeg_handle() {
-        if (!jpeg) jpeg = tjInitDecompress();
-        return jpeg;
-    }
-    // libjpeg-turbo 2.1 leaves a handle whose tjDecompressHeader3() failed unusable: every later
-    // header read on it fails too ("Bogus marker length", "Bogus Huffman table definition"). So a
-    // handle that reported any error is thrown away and the next tile gets a fresh one.
-    void discard_jpeg_handle() {
-        if (jpeg) tjDestroy(jpeg);
-        jpeg = nullptr;
-    }
-    ZSTD_DCtx* zstd_context() {
-        if (!zstd) zstd = ZSTD_createDCtx();
-        return zstd;
-    }
     std::uint8_t* rgba_buffer(std::size_t n) {  // a decoded RGBA8 page waiting for block encoding
         if (rgba_size < n) {
             rgba = std::make_unique_for_overwrite<std::uint8_t[]>(n);
@@ -199,45 +175,6 @@ bool known_sample_type(SampleType t) {
 
 // --------------------------------------------------------------------------- transcode_to_rgba8
 
-namespace {
-
-// `d` must be discarded when this fails (see Scratch::Impl::discard_jpeg_handle).
-Status decode_jpeg(const StoreInfo& info, std::span<const std::uint8_t> payload, std::span<std::uint8_t> out,
-                   tjhandle d) {
-    int w = 0, h = 0, samp = 0, cs = 0;
-    if (tjDecompressHeader3(d, payload.data(), static_cast<unsigned long>(payload.size()), &w, &h, &samp, &cs) != 0)
-        return make_error(Errc::corrupt, std::string("JPEG tile header: ") + tjGetErrorStr2(d));
-    const int side = static_cast<int>(info.tile_size());
-    if (w != side || h != side) return make_error(Errc::corrupt, "JPEG tile has the wrong dimensions");
-    if ((info.channels == 1) != (samp == TJSAMP_GRAY))
-        return make_error(Errc::corrupt, "JPEG tile has the wrong channel count");
-    // Straight into the destination as RGBA: libjpeg-turbo expands grey to (v, v, v) itself and
-    // writes alpha 255, with the same IDCT (accurate, as storage::decode_tile) and upsampling, so
-    // the colour channels are the ones decode_tile produces.
-    if (tjDecompress2(d, payload.data(), static_cast<unsigned long>(payload.size()), out.data(), side,
-                      side * static_cast<int>(kRgba8TexelBytes), side, TJPF_RGBA, TJFLAG_ACCURATEDCT) != 0)
-        return make_error(Errc::corrupt, std::string("JPEG tile does not decode: ") + tjGetErrorStr2(d));
-    return {};
-}
-
-}  // namespace
-
-namespace {
-
-// A zstd tile decompressed into `dst` (scratch, never the destination: zstd reads back what it
-// wrote (matches), which would crawl on write-combined staging memory).
-Status decompress_zstd_tile(ZSTD_DCtx* ctx, std::span<const std::uint8_t> payload, std::uint8_t* dst,
-                            std::size_t tile_bytes) {
-    if (ZSTD_getFrameContentSize(payload.data(), payload.size()) != tile_bytes)
-        return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
-    if (!ctx) return make_error(Errc::resource_exhausted, "cannot create a zstd context");
-    const std::size_t r = ZSTD_decompressDCtx(ctx, dst, tile_bytes, payload.data(), payload.size());
-    if (ZSTD_isError(r) || r != tile_bytes) return make_error(Errc::corrupt, "zstd tile does not decode");
-    return {};
-}
-
-}  // namespace
-
 Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
                           std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch) {
     if (info.channels < 1 || info.channels > 4) return make_error(Errc::invalid_argument, "store has 1..4 channels");
@@ -272,21 +209,15 @@ Status transcode_to_rgba8(const StoreInfo& info, TileKind kind, Codec codec,
             convert_samples(info, payload.data(), out.data(), texels);
             return {};
         case Codec::zstd: {
+            // Into scratch, never the destination: zstd reads back what it wrote (matches), which
+            // would crawl on write-combined staging memory.
             std::uint8_t* buf = s.sample_buffer(tile_bytes);
-            if (Status st = decompress_zstd_tile(s.zstd_context(), payload, buf, tile_bytes); !st) return st;
+            if (Status st = storage::decompress_zstd_tile(info, payload, {buf, tile_bytes}); !st) return st;
             convert_samples(info, buf, out.data(), texels);
             return {};
         }
-        case Codec::jpeg: {
-            if (info.sample_type != SampleType::u8 || (info.channels != 1 && info.channels != 3))
-                return make_error(Errc::corrupt, "JPEG tiles need 8-bit samples with 1 or 3 channels");
-            if (payload.empty()) return make_error(Errc::corrupt, "JPEG tile is empty");
-            tjhandle d = s.jpeg_handle();
-            if (!d) return make_error(Errc::resource_exhausted, "cannot create a JPEG decompressor");
-            Status st = decode_jpeg(info, payload, out, d);
-            if (!st.ok()) s.discard_jpeg_handle();
-            return st;
-        }
+        case Codec::jpeg:  // straight into the destination as RGBA8
+            return storage::decode_jpeg_tile(info, payload, out, /*rgba=*/true);
         case Codec::bc1:
         case Codec::bc4:
         case Codec::bc5:
@@ -478,7 +409,7 @@ Status transcode_page(const StoreInfo& info, TileKind kind, Codec codec, std::sp
             return {};
         case Codec::zstd: {
             std::uint8_t* buf = s.sample_buffer(tile_bytes);
-            if (Status st = decompress_zstd_tile(s.zstd_context(), payload, buf, tile_bytes); !st) return st;
+            if (Status st = storage::decompress_zstd_tile(info, payload, {buf, tile_bytes}); !st) return st;
             std::memcpy(out.data(), buf, tile_bytes);
             return {};
         }

@@ -58,8 +58,9 @@ class Scratch;
 Status transcode_to_rgba8(const storage::StoreInfo& info, TileKind kind, Codec codec,
                           std::span<const std::uint8_t> payload, std::span<std::uint8_t> out, Scratch& scratch);
 
-// Per-thread decoder state: a libjpeg-turbo handle, a zstd context and a sample buffer, all
-// created on first use and reused, so a warmed-up Scratch decodes without allocating.
+// Per-thread decoder state: the sample and page buffers, created on first use and reused, so a
+// warmed-up Scratch decodes without allocating (the JPEG handle and zstd context are the store
+// decoder's own, one per thread: tessera/storage/codec.hpp).
 // Not thread-safe: one per thread.
 class Scratch {
 public:

@@ -34,8 +34,9 @@ TjHandle& decompressor_handle() {
     return t;
 }
 tjhandle decompressor() { return decompressor_handle().h; }
-// libjpeg-turbo 2.1 leaves a decompressor unusable after some header errors ("Bogus marker
-// length" on every later tile): a failed decode gets this thread a fresh handle.
+// libjpeg-turbo 2.1 leaves a handle whose tjDecompressHeader3() failed unusable: every later
+// header read on it fails too ("Bogus marker length", "Bogus Huffman table definition"). So a
+// failed decode gets this thread a fresh handle.
 void reset_decompressor() {
     auto& t = decompressor_handle();
     if (t.h) tjDestroy(t.h);
@@ -199,6 +200,50 @@ Result<std::vector<std::uint8_t>> encode_tile(const StoreInfo& info, std::span<c
     return make_error(Errc::unsupported, "unknown codec");
 }
 
+Status decompress_zstd_tile(const StoreInfo& info, std::span<const std::uint8_t> payload, std::span<std::uint8_t> out) {
+    const std::size_t n = info.tile_bytes();
+    if (out.size() != n) return make_error(Errc::invalid_argument, "destination is not one tile of this store");
+    if (ZSTD_getFrameContentSize(payload.data(), payload.size()) != n)
+        return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
+    thread_local ZstdDCtx ctx;
+    if (!ctx.d) return make_error(Errc::resource_exhausted, "cannot create a zstd context");
+    const std::size_t r = ZSTD_decompressDCtx(ctx.d, out.data(), n, payload.data(), payload.size());
+    if (ZSTD_isError(r) || r != n) return make_error(Errc::corrupt, "zstd tile does not decode");
+    return {};
+}
+
+Status decode_jpeg_tile(const StoreInfo& info, std::span<const std::uint8_t> payload, std::span<std::uint8_t> out,
+                        bool rgba) {
+    if (info.sample_type != SampleType::u8 || (info.channels != 1 && info.channels != 3))
+        return make_error(Errc::corrupt, "JPEG tiles need 8-bit samples with 1 or 3 channels");
+    const int side = static_cast<int>(info.tile_size());
+    const std::size_t texels = std::size_t(info.tile_size()) * info.tile_size();
+    if (out.size() != (rgba ? texels * 4 : info.tile_bytes()))
+        return make_error(Errc::invalid_argument, "destination is not one tile of this store");
+    if (payload.empty()) return make_error(Errc::corrupt, "JPEG tile is empty");
+    tjhandle d = decompressor();
+    if (!d) return make_error(Errc::resource_exhausted, "cannot create a JPEG decompressor");
+    int w = 0, h = 0, samp = 0, cs = 0;
+    if (tjDecompressHeader3(d, payload.data(), static_cast<unsigned long>(payload.size()), &w, &h, &samp, &cs) != 0) {
+        auto e = make_error(Errc::corrupt, std::string("JPEG tile header: ") + tjGetErrorStr2(d));
+        reset_decompressor();
+        return e;
+    }
+    if (w != side || h != side) return make_error(Errc::corrupt, "JPEG tile has the wrong dimensions");
+    if ((info.channels == 1) != (samp == TJSAMP_GRAY)) return make_error(Errc::corrupt, "JPEG tile has the wrong channel count");
+    // RGBA: libjpeg-turbo expands grey to (v, v, v) and writes alpha 255 itself, with the same
+    // IDCT and upsampling, so the colour channels are those of the store's own layout.
+    const int pf = rgba ? TJPF_RGBA : info.channels == 1 ? TJPF_GRAY : TJPF_RGB;
+    const int pitch = side * (rgba ? 4 : static_cast<int>(info.channels));
+    if (tjDecompress2(d, payload.data(), static_cast<unsigned long>(payload.size()), out.data(), side, pitch, side, pf,
+                      TJFLAG_ACCURATEDCT) != 0) {
+        auto e = make_error(Errc::corrupt, std::string("JPEG tile does not decode: ") + tjGetErrorStr2(d));
+        reset_decompressor();
+        return e;
+    }
+    return {};
+}
+
 Status decode_tile(const StoreInfo& info, const Tile& tile, std::vector<std::uint8_t>& out) {
     const std::size_t n = info.tile_bytes();
     const std::size_t texel = info.texel_bytes();
@@ -214,37 +259,12 @@ Status decode_tile(const StoreInfo& info, const Tile& tile, std::vector<std::uin
             if (tile.bytes.size() != n) return make_error(Errc::corrupt, "raw tile has the wrong size");
             out = tile.bytes;
             return {};
-        case Codec::zstd: {
-            const unsigned long long content = ZSTD_getFrameContentSize(tile.bytes.data(), tile.bytes.size());
-            if (content != n) return make_error(Errc::corrupt, "zstd tile does not hold exactly one tile");
-            thread_local ZstdDCtx ctx;
+        case Codec::zstd:
             out.resize(n);
-            const std::size_t r = ZSTD_decompressDCtx(ctx.d, out.data(), n, tile.bytes.data(), tile.bytes.size());
-            if (ZSTD_isError(r) || r != n) return make_error(Errc::corrupt, "zstd tile does not decode");
-            return {};
-        }
-        case Codec::jpeg: {
-            if (info.sample_type != SampleType::u8 || (info.channels != 1 && info.channels != 3))
-                return make_error(Errc::corrupt, "JPEG tiles need 8-bit samples with 1 or 3 channels");
-            int w = 0, h = 0, samp = 0, cs = 0;
-            tjhandle d = decompressor();
-            if (tjDecompressHeader3(d, tile.bytes.data(), tile.bytes.size(), &w, &h, &samp, &cs) != 0) {
-                auto e = make_error(Errc::corrupt, std::string("JPEG tile header: ") + tjGetErrorStr2(d));
-                reset_decompressor();
-                return e;
-            }
-            const int side = static_cast<int>(info.tile_size());
-            if (w != side || h != side) return make_error(Errc::corrupt, "JPEG tile has the wrong dimensions");
-            if ((info.channels == 1) != (samp == TJSAMP_GRAY)) return make_error(Errc::corrupt, "JPEG tile has the wrong channel count");
+            return decompress_zstd_tile(info, tile.bytes, out);
+        case Codec::jpeg:
             out.resize(n);
-            const int pf = info.channels == 1 ? TJPF_GRAY : TJPF_RGB;
-            if (tjDecompress2(d, tile.bytes.data(), tile.bytes.size(), out.data(), side, 0, side, pf, TJFLAG_ACCURATEDCT) != 0) {
-                auto e = make_error(Errc::corrupt, std::string("JPEG tile does not decode: ") + tjGetErrorStr2(d));
-                reset_decompressor();
-                return e;
-            }
-            return {};
-        }
+            return decode_jpeg_tile(info, tile.bytes, out);
         case Codec::bc1:
         case Codec::bc4:
         case Codec::bc5:

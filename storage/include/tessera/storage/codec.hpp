@@ -28,6 +28,18 @@ Result<std::vector<std::uint8_t>> encode_tile(const StoreInfo& info, std::span<c
 // half-size level's blocks, as a GPU takes them (tessera/blocks/blocks.hpp). Thread-safe.
 Status unpack_block_tile(const StoreInfo& info, std::span<const std::uint8_t> payload, std::vector<std::uint8_t>& out);
 
+// The one JPEG tile decoder (the server's web images, `verify --decode`, the client's transcode
+// threads): a JPEG tile of `info` (8-bit samples, 1 or 3 channels, tile_size() texels a side)
+// into `out`, which holds exactly one tile: in the store's own channels (tile_bytes()), or, with
+// `rgba`, as RGBA8 with alpha 255 and grey expanded to (v, v, v). Accurate IDCT. Each thread
+// keeps one libjpeg-turbo handle, renewed after any failure. Thread-safe.
+Status decode_jpeg_tile(const StoreInfo& info, std::span<const std::uint8_t> payload, std::span<std::uint8_t> out,
+                        bool rgba = false);
+
+// A zstd tile decompressed into `out` (exactly tile_bytes()), with one context per thread.
+// Thread-safe.
+Status decompress_zstd_tile(const StoreInfo& info, std::span<const std::uint8_t> payload, std::span<std::uint8_t> out);
+
 // Decodes a present or uniform tile into `out` (resized to tile_bytes()). An absent tile is an
 // error (not_found); a payload that does not decode to exactly one tile is corrupt. Thread-safe.
 Status decode_tile(const StoreInfo& info, const Tile& tile, std::vector<std::uint8_t>& out);
