@@ -221,7 +221,7 @@ def main():
     if os.geteuid() != 0:
         die("run as root (mmdebstrap unpacks packages as root to keep their owners)")
     if not shutil.which("mmdebstrap"):
-        die("mmdebstrap is missing (apt-get install mmdebstrap; tools/setup.sh installs it)")
+        die("mmdebstrap is missing (apt-get install mmdebstrap; tools/setup.sh --tests installs it)")
     binary = os.path.abspath(a.binary)
     if not os.access(binary, os.X_OK):
         die(f"{binary} is not an executable (build it: cmake --build build --target tessera-server)")

@@ -5,7 +5,7 @@
 
 Checks, each printed as ok / FAIL / SKIP lines under its heading. SKIP is only for what is optional:
 Docker Compose, promtool and kubectl (not installed by tools/setup.sh), and the checks that need a
-binary when none is given. A missing systemd-analyze (setup.sh installs systemd), a systemd too old
+binary when none is given. A missing systemd-analyze (setup.sh --tests installs systemd), a systemd too old
 for `security --offline`, or a --tessera binary that does not run is a FAIL: on a machine set up by
 setup.sh those checks must run, and a skip would let the ctest run pass without them.
 
@@ -382,7 +382,7 @@ def check_systemd(rep: Report, ctx: Context) -> None:
 def verify_with_systemd_analyze(rep: Report, ctx: Context, unit: Path, text: str) -> None:
     sa = shutil.which("systemd-analyze")
     if sa is None:
-        rep.fail("systemd-analyze not found: unit not verified by systemd (tools/setup.sh installs systemd)")
+        rep.fail("systemd-analyze not found: unit not verified by systemd (tools/setup.sh --tests installs systemd)")
         return
     with tempfile.TemporaryDirectory(prefix="tessera-unit-") as tmp:
         tmpdir = Path(tmp)

@@ -177,7 +177,7 @@ def main():
     a = ap.parse_args()
     for tool in (a.s3rver, shutil.which("nginx") or "/usr/sbin/nginx"):
         if not os.path.exists(tool):
-            fail(f"{tool} is missing (tools/setup.sh installs it)")
+            fail(f"{tool} is missing (tools/setup.sh --tests installs it)")
 
     with tempfile.TemporaryDirectory() as d:
         one, two = os.path.join(d, "one.tsr"), os.path.join(d, "two.tsr")

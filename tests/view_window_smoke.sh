@@ -1,10 +1,10 @@
 #!/bin/sh
 # `tessera view` in windowed mode (GLFW on an X server, the HUD drawn) end to end: Xvfb stands in
-# for a display. Fails when xvfb-run is missing: tools/setup.sh installs it, so a machine without it
+# for a display. Fails when xvfb-run is missing: tools/setup.sh --tests installs it, so a machine without it
 # is broken, and a skip would read as a pass. Usage: view_window_smoke.sh TESSERA
 set -eu
 tessera="$1"
-command -v xvfb-run >/dev/null 2>&1 || { echo "xvfb-run not found (tools/setup.sh installs xvfb and xauth)"; exit 1; }
+command -v xvfb-run >/dev/null 2>&1 || { echo "xvfb-run not found (tools/setup.sh --tests installs xvfb and xauth)"; exit 1; }
 dir=$(mktemp -d)
 trap 'rm -rf "$dir"' EXIT
 "$tessera" build procedural:terrain:2048 -o "$dir/t.tsr" -q

@@ -187,7 +187,7 @@ private:
 
 TEST(Window, PresentsTheFrameWithTheHudInAnXWindow) {
     XServer server;
-    ASSERT_TRUE(server.ok()) << "no display and Xvfb did not start (tools/setup.sh installs xvfb)";
+    ASSERT_TRUE(server.ok()) << "no display and Xvfb did not start (tools/setup.sh --tests installs xvfb)";
     const int w = 160, h = 96;
     auto ctx = gl::GlContext::create_window(w, h, "tessera window test");
     ASSERT_TRUE(ctx.ok()) << ctx.error().message;

@@ -1,12 +1,22 @@
 #!/usr/bin/env bash
 # Installs the Debian 12 packages Tessera needs (only those missing; apt-get update first),
 # then configures and builds into ./build. Run as root on a fresh machine; safe to re-run.
+#
+#   tools/setup.sh           what the demo needs: the build's packages, then the `tessera` program
+#   tools/setup.sh --tests   also what only the tests need (clang for the fuzz build, Chromium,
+#                            nginx, mmdebstrap, ImageMagick, Node and the npm test tools), then
+#                            everything: tests, benchmarks, the fuzz sub-build
 set -euo pipefail
 cd "$(dirname "$0")/.."
+tests=0
+case "${1:-}" in
+  "") ;;
+  --tests) tests=1 ;;
+  *) echo "usage: tools/setup.sh [--tests]" >&2; exit 2 ;;
+esac
 
 packages=(
   build-essential cmake ninja-build pkg-config git
-  clang libclang-rt-14-dev           # libFuzzer targets
   libzstd-dev libturbojpeg0-dev libxxhash-dev
   libstb-dev libsquish-dev            # BC page encoding (stb_dxt); an independent BC decoder for tests
   libopenimageio-dev libtiff-dev
@@ -14,20 +24,26 @@ packages=(
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libboost-dev libssl-dev zlib1g-dev openssl
   libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libtinyobjloader-dev  # GL client (llvmpipe headless)
-  libgtest-dev libgmock-dev libbenchmark-dev
+  libgtest-dev libgmock-dev libbenchmark-dev  # small; the build configures its tests even when it does not build them
+  python3
+)
+test_packages=(
+  clang libclang-rt-14-dev           # libFuzzer targets
   xvfb xauth                          # windowed-mode tests on an X server without a display
   imagemagick openimageio-tools       # tests read images other tools wrote (alpha conventions, formats)
-  python3 python3-yaml time systemd   # systemd: systemd-analyze lints deploy/tessera.service
+  python3-yaml time systemd           # systemd: systemd-analyze lints deploy/tessera.service
   mmdebstrap                          # deploy/build-image.py: the image's root filesystem
   nginx-light                         # remote stores over plain HTTP range requests (tests)
   chromium                            # the web viewer, tested in a real headless browser
 )
+((tests)) && packages+=("${test_packages[@]}")
 missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
-# Node and npm for the web-side test tools (an S3 server); any installed npm will do.
-command -v npm >/dev/null 2>&1 || missing+=(nodejs npm)
+# Node and npm for the web side: OpenSeadragon (built into the server's web viewer) and the test
+# tools (an S3 server, a headless-browser driver); any installed npm will do.
+((tests)) && { command -v npm >/dev/null 2>&1 || missing+=(nodejs npm); }
 if ((${#missing[@]})); then
   echo "setup: installing ${missing[*]}"
   export DEBIAN_FRONTEND=noninteractive
@@ -37,13 +53,27 @@ fi
 
 # The npm packages (each package-lock.json pins them), when a lock changed: server/web holds
 # OpenSeadragon, which the build puts into the server's web viewer; tests/npm what the tests drive.
-for dir in server/web tests/npm; do
-  if [[ ! -f $dir/node_modules/.package-lock.json || $dir/package-lock.json -nt $dir/node_modules/.package-lock.json ]]; then
-    echo "setup: installing $dir's packages from npm"
-    (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
-  fi
-done
+# Without npm (the demo's setup on a fresh machine) the web viewer is built without OpenSeadragon
+# and its page says so; `--tests` installs both.
+if command -v npm >/dev/null 2>&1; then
+  for dir in server/web tests/npm; do
+    ((tests)) || [[ $dir == server/web ]] || continue
+    if [[ ! -f $dir/node_modules/.package-lock.json || $dir/package-lock.json -nt $dir/node_modules/.package-lock.json ]]; then
+      echo "setup: installing $dir's packages from npm"
+      (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
+    fi
+  done
+fi
 
 build_type=${TESSERA_BUILD_TYPE:-RelWithDebInfo}
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE="$build_type" ${TESSERA_CMAKE_ARGS:-} >/dev/null
-cmake --build build --parallel "$(nproc)"
+if ((tests)); then
+  cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE="$build_type" -DTESSERA_FUZZ=ON ${TESSERA_CMAKE_ARGS:-} >/dev/null
+  cmake --build build --parallel "$(nproc)"
+else
+  # The fuzz sub-build needs clang, a test package: off until `--tests` turns it on (a build that
+  # has it on already keeps it).
+  fuzz=OFF
+  grep -q '^TESSERA_FUZZ:BOOL=ON' build/CMakeCache.txt 2>/dev/null && fuzz=ON
+  cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE="$build_type" -DTESSERA_FUZZ=$fuzz ${TESSERA_CMAKE_ARGS:-} >/dev/null
+  cmake --build build --parallel "$(nproc)" --target tessera
+fi
