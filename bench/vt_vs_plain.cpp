@@ -36,6 +36,7 @@
 #include <vector>
 
 #include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/measures.hpp"
 #include "tessera/client/runtime.hpp"

@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/scene/camera.hpp"
 #include "tessera/client/scene/scene.hpp"

@@ -22,6 +22,7 @@
 #include "reference_pyramid.hpp"
 #include "render_util.hpp"
 #include "render_vt.hpp"
+#include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/measures.hpp"
 #include "tessera/client/scene/scene.hpp"

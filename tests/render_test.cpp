@@ -33,6 +33,7 @@
 #include "render_util.hpp"
 #include "cpu_reference.hpp"
 #include "render_vt.hpp"
+#include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/measures.hpp"
 #include "page_table.hpp"

@@ -27,6 +27,7 @@
 #include "tessera/client/feedback_trace.hpp"
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/gl/hud.hpp"
+#include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/measures.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"

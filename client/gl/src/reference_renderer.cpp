@@ -4,6 +4,7 @@
 
 #include "gl_util.hpp"
 #include "scene_draw.hpp"
+#include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 
 namespace tessera::client::gl {

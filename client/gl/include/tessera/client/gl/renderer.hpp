@@ -20,13 +20,14 @@
 // floor(lod) and floor(lod) + 1 of the lod clamped to [0, levels - 1], blended by its fraction.
 // The feedback requests the page of that level (bilinear) or of floor(lod) (the finer one).
 // An empty page-table entry (nothing resident) samples kNoDataColour. See docs/renderer.md.
+// The reference renderer, which draws the same scene from a plain mipmapped texture, is in
+// reference_renderer.hpp; the measures that compare the two in tessera/client/measures.hpp.
 #include <cstdint>
 #include <memory>
 #include <optional>
 #include <span>
 #include <vector>
 
-#include "tessera/client/measures.hpp"
 #include "tessera/client/upload.hpp"
 #include "tessera/result.hpp"
 #include "tessera/client/scene/camera.hpp"
@@ -194,37 +195,6 @@ public:
 
     virtual const RendererConfig& config() const = 0;
     virtual RendererStats stats() const = 0;
-};
-
-// The reference renderer (docs/viewer.md, "Measures"): the same scene and camera drawn from an
-// ordinary mipmapped GL texture with the same filter and LoD rule, no bias, for PSNR and max error.
-// Levels: RGBA8 texels of each level of the virtual texture, level 0 first, rows top to bottom,
-// e.g. decoded from a store's tile interiors; as many levels as the store has (the LoD clamp). Uses
-// config's width, height, filter, max_anisotropy and srgb.
-class ReferenceRenderer {
-public:
-    using Level = ImageLevel;  // tessera/client/measures.hpp
-    // Errors: a level 0 larger than GL_MAX_TEXTURE_SIZE ("does not fit": use the VT with every page
-    // resident instead), levels not halving: each level must be max(1, previous / 2) per side (GL's
-    // mip chain rounds down, the store's rounds up: they agree for power-of-two sides).
-    // `normals`: the normal layer's levels, needed when config lights the scene (normal_layer set
-    // and show_layer 0): the reference lights its colour as the VT pass does.
-    // `second_levels` (optional; and `normal_second_levels` when lit): what a block-format atlas
-    // holds under each page of level L as its coarser level (client::decode_store_second_levels), one per
-    // level but the last, the size of level L + 1. Given, trilinear and anisotropic lookups blend
-    // level L with it, as the VT does, instead of with level L + 1.
-    static Result<std::unique_ptr<ReferenceRenderer>> create(const RendererConfig& config, std::span<const Level> levels,
-                                                             std::span<const Level> normals = {},
-                                                             std::span<const Level> second_levels = {},
-                                                             std::span<const Level> normal_second_levels = {});
-    virtual ~ReferenceRenderer() = default;
-    virtual Status set_scene(const scene::Scene& scene) = 0;
-    // The texture repeats past its edges (GL_REPEAT) instead of clamping (the default): one
-    // repeating texture of an OBJ scene, sampled as a GPU samples it, against which the atlas's
-    // cut and wrapped copy is checked.
-    virtual void set_repeat(bool repeat) = 0;
-    virtual void render(const scene::Camera& camera) = 0;
-    virtual std::vector<std::uint8_t> read_color() = 0;  // as VtRenderer::read_color
 };
 
 }  // namespace tessera::client::gl
