@@ -257,8 +257,17 @@ def main():
                 for _ in range(300):  # the rescan: up to 30 s on a loaded machine (seen over 10 s with -j2)
                     time.sleep(0.1)
                     status, headers, body = get(port, "/v1/stores/terrain/tiles/0/0/0")
-                    if headers.get("ETag") != old_version:
+                    # Only a tile served under another version ends the wait: a 503 or 504 (the
+                    # replaced object's reads failing until the rescan) carries no ETag either.
+                    if status == 200 and headers.get("ETag") != old_version:
                         break
+                # Let the readers reach the new version too: one may still be waiting out a read of
+                # the replaced object (answered 504 at the request deadline) when the rescan lands.
+                for _ in range(300):
+                    with seen_lock:
+                        if seen.get((200, "new"), 0) > 0:
+                            break
+                    time.sleep(0.1)
                 time.sleep(0.3)
                 reading = False
                 for t in readers:
