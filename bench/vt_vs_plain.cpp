@@ -14,7 +14,7 @@
 // frame draws a heightfield where hills hide hills (front to back, so still without a depth
 // pre-pass: docs/renderer.md).
 // --filter: only that filter (bilinear, trilinear or anisotropic) instead of all three.
-// --fade-ms: also two VT renderers with blending in (RendererConfig::fade_ms), drawn on the same
+// --fade-ms: also two VT renderers with blending in (RuntimeConfig::fade_ms), drawn on the same
 // camera, their pages loaded the same way: one whose pages have faded in (what blending costs a
 // frame where nothing fades), and one whose clock stands still halfway through the fade of every
 // page (what it costs while every pixel fades, both levels of every lookup read: the worst case).
@@ -163,14 +163,13 @@ int main(int argc, char** argv) {
             std::unique_ptr<client::Runtime> runtime;
         };
         const auto make_vt = [&](float fade, bool frozen) -> tessera::Result<Vt> {
-            client::gl::RendererConfig c = rc;
-            c.fade_ms = fade;
-            auto vt = client::gl::VtRenderer::create(c);
+            auto vt = client::gl::VtRenderer::create(rc);
             if (!vt) return vt.error();
             client::RuntimeConfig cfg;
             cfg.residency.pool_slots = rc.pool_slots;
             cfg.upload_pages_per_frame = 256;
             cfg.upload_bytes_per_frame = 256u << 20;
+            cfg.fade_ms = fade;
             auto rt = client::Runtime::create(cfg, **vt);
             if (!rt) return rt.error();
             auto tex = (*rt)->add_texture(*source, store);
@@ -180,15 +179,20 @@ int main(int argc, char** argv) {
             client::gl::FeedbackFrame fb;
             for (unsigned f = 0; f < frames; ++f)
                 for (int k = 0; k < 40; ++k) {
-                    if (frozen) (*vt)->set_time(0);
+                    if (frozen) (*rt)->set_time(0);
                     (*vt)->render(cam_at(f), 0);
                     if ((*vt)->poll_feedback(fb)) (*rt)->frame(fb.ids, fb.width, fb.height, 0);
                     else (*rt)->frame_without_feedback();
                     if ((*rt)->in_flight() == 0 && k > 3) break;
                 }
             if (fade > 0 && !frozen) {  // every page at full weight: one frame past the longest fade
-                (*vt)->set_time(1e6);
+                (*rt)->set_time(1e6);
+                (*rt)->frame_without_feedback();
                 (*vt)->render(cam_at(frames - 1), 0);
+            }
+            if (frozen) {  // every page at half weight: the clock half a fade after their arrival
+                (*rt)->set_time(fade / 2000.0);
+                (*rt)->frame_without_feedback();
             }
             std::vector<client::gl::FrameCounters> counters;
             (*vt)->finish(&counters, nullptr);
@@ -226,7 +230,6 @@ int main(int argc, char** argv) {
             (*rt)->frame_without_feedback();  // keeps the readback rings moving, uploads nothing
             for (int k = 0; k < 2 && fade_ms > 0; ++k) {
                 Vt& v = k == 0 ? *faded_vt : *fading_vt;
-                if (k == 1) v.renderer->set_time(fade_ms / 2000.0);  // every page at half weight
                 const double c3 = cpu_ms();
                 const auto t3 = Clock::now();
                 gpu_timer.begin();
@@ -235,6 +238,7 @@ int main(int argc, char** argv) {
                 glFinish();
                 fade_ms_frames[k].push_back(std::chrono::duration<double, std::milli>(Clock::now() - t3).count());
                 fade_cpu[k].push_back(cpu_ms() - c3);
+                if (k == 1) v.runtime->set_time(fade_ms / 2000.0);  // the clock stands still: every page at half weight
                 v.runtime->frame_without_feedback();
                 counters.clear();
                 v.renderer->poll_counters(counters);

@@ -691,113 +691,148 @@ TEST(Residency, KeptFramesKeepThePagesOfTheLastFeedbacks) {
 }
 
 // Leaving (fade out): a victim seen within fade_out_frames frames before the kept ones is not
-// taken at once; it stays mapped until finish_leaving (or the deadline); past max_leaving leaving
-// pages, and for victims unseen for longer, evictions are at once as before.
+// taken at once; it stays mapped while its weight falls, and its slot is free in the first frame
+// whose clock is a fade time after it started leaving (or at the deadline); past max_leaving
+// leaving pages, and for victims unseen for longer, evictions are at once as before.
 TEST(Residency, RecentlySeenVictimsLeaveBeforeTheirSlotIsFree) {
     ResidencyConfig c;
     c.pool_slots = 4;
     c.pinned_levels = 1;
     c.fade_out_frames = 4;  // with kept_frames 1: last seen after frame - 5
     c.max_leaving = 1;
-    auto made = Residency::create(c);
+    constexpr double fade = 0.1;
+    auto made = Residency::create(c, fade);
     ASSERT_TRUE(made.ok());
     Residency& r = *made;
     ASSERT_TRUE(r.add_texture(1, 8, 8, 4).ok());
     const PageKey a = page(0, 0, 0), b = page(0, 1, 0), d = page(0, 2, 0), n1 = page(0, 5, 5), n2 = page(0, 6, 6);
-    ASSERT_TRUE(r.begin_frame(1).ok());
+    ASSERT_TRUE(r.begin_frame(1, 0.0).ok());
     load(r, page(3, 0, 0));
-    load(r, a);
+    const SlotId slot_a = load(r, a);
     load(r, b);
     load(r, d);
-    ASSERT_TRUE(r.begin_frame(2).ok());  // a, b, d seen 1 frame ago
+    EXPECT_EQ(r.weight(slot_a), 0) << "an arriving page starts at weight 0";
+    ASSERT_TRUE(r.begin_frame(2, fade).ok());  // a, b, d seen 1 frame ago, faded in
+    EXPECT_EQ(r.weight(slot_a), 255);
+    EXPECT_EQ(r.stats().fading, 0u);
     r.touch(d);
     auto g = r.acquire_slot(n1);
     ASSERT_TRUE(g.ok());
     EXPECT_EQ(g->slot, kNoSlot);
     EXPECT_FALSE(g->evicted);
-    ASSERT_NE(g->leaving, kNoSlot);
+    ASSERT_EQ(g->leaving, slot_a);
     EXPECT_EQ(g->victim, a);
     EXPECT_TRUE(r.is_resident(a)) << "a leaving page stays mapped (drawn, fading out)";
     EXPECT_EQ(r.stats().leaving, 1u);
     // max_leaving 1 reached: the next recent victim goes at once.
     EXPECT_EQ(evict_for(r, n2), b);
-    EXPECT_FALSE(r.finish_leaving(g->leaving + 1).ok()) << "not leaving";
-    ASSERT_TRUE(r.begin_frame(3).ok());
-    auto gone = r.finish_leaving(g->leaving);
-    ASSERT_TRUE(gone.ok());
-    EXPECT_EQ(*gone, a);
+    ASSERT_TRUE(r.begin_frame(3, fade * 1.5).ok());
+    EXPECT_NEAR(r.weight(slot_a), 128, 1) << "half-way out";
+    EXPECT_TRUE(r.is_resident(a));
+    EXPECT_EQ(r.take_left(), 0u);
+    ASSERT_TRUE(r.begin_frame(4, fade * 2).ok());
+    EXPECT_EQ(r.take_left(), 1u);
+    EXPECT_EQ(r.take_left(), 0u) << "taken once";
     EXPECT_FALSE(r.is_resident(a));
     EXPECT_EQ(r.resident_level(a), 3) << "unmapped: falls back to the pinned root";
+    EXPECT_EQ(r.weight(slot_a), 255) << "a free slot draws nothing: back at full weight";
     EXPECT_EQ(r.stats().evictions, 2u);
-    EXPECT_FALSE(r.finish_leaving(g->leaving).ok()) << "finished once";
+    EXPECT_EQ(r.stats().leaving, 0u);
     auto g3 = r.acquire_slot(n1);  // the freed slot
     ASSERT_TRUE(g3.ok());
-    EXPECT_EQ(g3->slot, g->leaving);
+    EXPECT_EQ(g3->slot, slot_a);
     EXPECT_FALSE(g3->evicted);
     ASSERT_TRUE(r.complete(n1, g3->slot).ok());
+    std::vector<SlotWeight> changes;
+    r.take_weight_changes(changes);
+    ASSERT_FALSE(changes.empty());
+    EXPECT_EQ(std::count_if(changes.begin(), changes.end(), [&](const SlotWeight& w) { return w.slot == slot_a; }), 1)
+        << "one change per slot";
+    changes.clear();
+    r.take_weight_changes(changes);
+    EXPECT_TRUE(changes.empty()) << "taken once";
     // d, last seen in frame 2, unseen for the kept frame and fade_out_frames more: at once.
-    ASSERT_TRUE(r.begin_frame(7).ok());
+    ASSERT_TRUE(r.begin_frame(8, fade * 3).ok());
     r.touch(n1);
     r.touch(n2);
     EXPECT_EQ(evict_for(r, a), d);
-    // The deadline: a leaving page the uploader never reports leaves anyway, and is counted.
-    ASSERT_TRUE(r.begin_frame(8).ok());
-    auto g4 = r.acquire_slot(b);  // n1, n2 and a seen in frame 7
+    // The deadline: a leaving page whose clock stands still leaves anyway, and is counted.
+    ASSERT_TRUE(r.begin_frame(9, fade * 3).ok());
+    auto g4 = r.acquire_slot(b);  // n1, n2 and a seen in frame 8
     ASSERT_TRUE(g4.ok());
     ASSERT_NE(g4->leaving, kNoSlot);
     const PageKey leaving_page = g4->victim;
-    ASSERT_TRUE(r.begin_frame(8 + Residency::kLeaveDeadlineFrames - 1).ok());
+    (void)r.take_left();
+    ASSERT_TRUE(r.begin_frame(9 + Residency::kLeaveDeadlineFrames - 1, fade * 3).ok());
     EXPECT_EQ(r.stats().leaving, 1u);
     EXPECT_EQ(r.take_expired(), 0u);
-    ASSERT_TRUE(r.begin_frame(8 + Residency::kLeaveDeadlineFrames).ok());
+    ASSERT_TRUE(r.begin_frame(9 + Residency::kLeaveDeadlineFrames, fade * 3).ok());
     EXPECT_EQ(r.stats().leaving, 0u);
     EXPECT_EQ(r.take_expired(), 1u);
-    EXPECT_EQ(r.take_expired(), 0u) << "taken once";
+    EXPECT_EQ(r.take_left(), 1u);
     EXPECT_FALSE(r.is_resident(leaving_page));
-    EXPECT_FALSE(r.finish_leaving(g4->leaving).ok()) << "the deadline finished it";
     EXPECT_EQ(r.stats().free_slots, 1u);
     EXPECT_EQ(r.stats().evictions, 4u);
     {
         ResidencyConfig bad = c;
         bad.max_leaving = 0;
         EXPECT_FALSE(Residency::create(bad).ok());
+        EXPECT_FALSE(Residency::create(c, -1).ok());
+        EXPECT_FALSE(Residency::create(c, 11).ok());
     }
+    // Without a fade time nothing leaves over one, whatever fade_out_frames says.
+    auto plain = Residency::create(c, 0);
+    ASSERT_TRUE(plain.ok());
+    ASSERT_TRUE(plain->add_texture(1, 8, 8, 4).ok());
+    ASSERT_TRUE(plain->begin_frame(1).ok());
+    load(*plain, page(3, 0, 0));
+    for (std::uint32_t i = 0; i < 3; ++i) load(*plain, page(0, i, 0));
+    ASSERT_TRUE(plain->begin_frame(2).ok());
+    EXPECT_EQ(evict_for(*plain, n1), a);
+    EXPECT_EQ(plain->stats().leaving, 0u);
+    plain->take_weight_changes(changes);
+    EXPECT_TRUE(changes.empty()) << "no fades: every weight stays full";
 }
 
-TEST(Residency, ALeavingPageSeenAgainIsRescued) {
+// A leaving page the feedback sees again is kept: it fades back in from where it is, its slot
+// is never freed; once at full weight it is an ordinary resident page.
+TEST(Residency, ALeavingPageSeenAgainIsKept) {
     ResidencyConfig c;
     c.pool_slots = 4;
     c.pinned_levels = 1;
     c.fade_out_frames = 4;
-    auto made = Residency::create(c);
+    constexpr double fade = 0.1;
+    auto made = Residency::create(c, fade);
     ASSERT_TRUE(made.ok());
     Residency& r = *made;
     ASSERT_TRUE(r.add_texture(1, 8, 8, 4).ok());
     const PageKey a = page(0, 0, 0), b = page(0, 1, 0), d = page(0, 2, 0), n1 = page(0, 5, 5);
-    ASSERT_TRUE(r.begin_frame(1).ok());
+    ASSERT_TRUE(r.begin_frame(1, 0.0).ok());
     load(r, page(3, 0, 0));
     const SlotId slot_a = load(r, a);
     load(r, b);
     load(r, d);
-    ASSERT_TRUE(r.begin_frame(2).ok());
+    ASSERT_TRUE(r.begin_frame(2, fade).ok());
     auto g = r.acquire_slot(n1);
     ASSERT_TRUE(g.ok());
     ASSERT_EQ(g->leaving, slot_a);
-    std::vector<SlotId> rescued;
-    r.take_rescued(rescued);
-    EXPECT_TRUE(rescued.empty());
-    // The view wants it again while it fades out: it stays, and the slot is not freed.
-    ASSERT_TRUE(r.begin_frame(3).ok());
+    EXPECT_EQ(r.take_kept(), 0u);
+    // A quarter of the way out, the view wants it again: it stays, and the slot is not freed.
+    ASSERT_TRUE(r.begin_frame(3, fade * 1.25).ok());
+    EXPECT_NEAR(r.weight(slot_a), 191, 1);
     EXPECT_TRUE(r.touch(a));
     EXPECT_EQ(r.stats().leaving, 0u);
     EXPECT_EQ(r.stats().rescued, 1u);
     EXPECT_EQ(r.stats().evictions, 0u);
-    r.take_rescued(rescued);
-    EXPECT_EQ(rescued, std::vector<SlotId>{slot_a});
-    rescued.clear();
-    r.take_rescued(rescued);
-    EXPECT_TRUE(rescued.empty()) << "taken once";
-    EXPECT_FALSE(r.finish_leaving(slot_a).ok()) << "rescued: not leaving any more";
+    EXPECT_EQ(r.take_kept(), 1u);
+    EXPECT_EQ(r.take_kept(), 0u) << "taken once";
+    // It rises from where it was: a quarter of a fade later it is back at full weight.
+    ASSERT_TRUE(r.begin_frame(4, fade * 1.375).ok());
+    EXPECT_NEAR(r.weight(slot_a), 223, 1);
+    ASSERT_TRUE(r.begin_frame(5, fade * 1.5).ok());
+    EXPECT_EQ(r.weight(slot_a), 255);
+    EXPECT_EQ(r.stats().fading, 0u);
+    EXPECT_EQ(r.take_left(), 0u) << "a kept page never leaves";
     EXPECT_TRUE(r.is_resident(a));
     EXPECT_TRUE(r.touch(a)) << "touched again as an ordinary resident page";
     EXPECT_EQ(r.stats().rescued, 1u);
@@ -805,11 +840,14 @@ TEST(Residency, ALeavingPageSeenAgainIsRescued) {
     auto g2 = r.acquire_slot(n1);
     ASSERT_TRUE(g2.ok());
     EXPECT_EQ(g2->victim, b);
+    EXPECT_NE(g2->leaving, kNoSlot) << "b, seen 4 frames ago, leaves over a fade";
     // Once unseen long enough it goes like any other page.
-    ASSERT_TRUE(r.begin_frame(20).ok());
+    ASSERT_TRUE(r.begin_frame(20, fade * 3).ok());
+    EXPECT_EQ(r.take_left(), 1u) << "b has faded out";
+    load(r, page(0, 7, 7));  // into b's slot
     std::vector<PageKey> victims;
     for (std::uint32_t i = 0; i < 2; ++i) victims.push_back(evict_for(r, page(0, 6, i)));
-    EXPECT_NE(std::find(victims.begin(), victims.end(), a), victims.end()) << "a, unseen since frame 3, is evicted at once";
+    EXPECT_NE(std::find(victims.begin(), victims.end(), a), victims.end()) << "a, unseen since frame 5, is evicted at once";
     EXPECT_EQ(r.stats().free_slots, 0u);
 }
 

@@ -38,6 +38,7 @@
 #include "tessera/client/measures.hpp"
 #include "page_table.hpp"
 #include "tessera/client/runtime.hpp"
+#include "fades.hpp"
 #include "residency.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/client/scene/camera.hpp"
@@ -1044,7 +1045,10 @@ enum class FadeFrom { parent, fading_parent, root };
 
 // What the blending tests draw: the 1024² pattern at 64-texel tiles with level fine + 1 inverted (a
 // change no fade could hide; in the pages and the reference alike), two renderers on it, one
-// blending over fade_s and one not, and a page table both follow (upload() maps a level in both).
+// given blend weights that move over fade_s and one not, and a page table both follow (upload()
+// maps a level in both). The weights come from the runtime's SlotFades, driven as the page cache
+// drives them (docs/client.md, "A slot's life"): arrive, leave, keep; a slot that has faded out
+// is given back by take_faded_out.
 struct FadeRig {
     static constexpr std::uint32_t fine = 2;
     static constexpr double fade_s = 0.2;
@@ -1053,6 +1057,8 @@ struct FadeRig {
     std::vector<gl::ReferenceRenderer::Level> levels;
     gl::RendererConfig cfg;
     std::unique_ptr<gl::VtRenderer> fading, plain;
+    std::optional<tessera::client::SlotFades> fades;
+    std::vector<tessera::client::SlotId> gone;  // faded out, not yet taken
     std::optional<PageTable> table;
     tessera::client::SlotId next = 0;
     sc::Camera cam;
@@ -1067,12 +1073,10 @@ struct FadeRig {
         for (std::size_t i = 0; i < levels[fine + 1].rgba8.size(); ++i)
             if (i % 4 != 3) levels[fine + 1].rgba8[i] = std::uint8_t(255 - levels[fine + 1].rgba8[i]);
         cfg = config(filter, info.tile_size(), 64, srgb, 192, 144);
-        cfg.fade_ms = float(fade_s * 1000);
-        auto plain_cfg = cfg;
-        plain_cfg.fade_ms = 0;
+        fades.emplace(cfg.pool_slots, fade_s);
         auto f = gl::VtRenderer::create(cfg);
         if (!f.ok()) return f.error().message;
-        auto p = gl::VtRenderer::create(plain_cfg);
+        auto p = gl::VtRenderer::create(cfg);
         if (!p.ok()) return p.error().message;
         fading = std::move(*f);
         plain = std::move(*p);
@@ -1096,6 +1100,7 @@ struct FadeRig {
                 cut_page(levels[l], px, py, ts, info.tile_payload, info.border, page);
                 const PageKey key{0, std::uint8_t(l), px, py};
                 fading->upload_page(next, key, page, ts);
+                fades->arrive(next);
                 plain->upload_page(next, key, page, ts);
                 ASSERT_TRUE(table->map(l, px, py, next).ok());
                 if (slots) slots->emplace_back(key, next);
@@ -1110,8 +1115,25 @@ struct FadeRig {
         upload_dirty(*table, *plain);
     }
     Frame frame_at(double t) {
-        fading->set_time(t);
+        fades->advance(t, gone);
+        std::vector<tessera::client::SlotWeight> changes;
+        fades->take_changes(changes);
+        fading->set_slot_weights(changes);
         return render_vt(*fading, cam);
+    }
+    void fade_out(tessera::client::SlotId slot) { fades->leave(slot); }
+    // A leaving page kept: from where it is, or from 0 when it has faded out and was not taken.
+    void cancel_fade_out(tessera::client::SlotId slot) {
+        std::erase(gone, slot);
+        fades->keep(slot);
+    }
+    void take_faded_out(std::vector<tessera::client::SlotId>& out) {
+        out.insert(out.end(), gone.begin(), gone.end());
+        gone.clear();
+    }
+    // Slots given back (unmapped): full weight again, as the page cache does.
+    void release(const std::vector<tessera::client::SlotId>& slots) {
+        for (const auto s : slots) fades->release(s);
     }
     // The largest difference in R, G or B over the pixels of `mask`.
     static int max_diff(const std::vector<std::uint8_t>& a, const std::vector<std::uint8_t>& b, const std::vector<std::uint8_t>& mask) {
@@ -1291,8 +1313,6 @@ void expect_fades_out(gl::Filter filter) {
     const auto& cfg = rig.cfg;
     gl::VtRenderer& fading = *rig.fading;
     gl::VtRenderer& plain = *rig.plain;
-    EXPECT_TRUE(fading.fades_out());
-    EXPECT_FALSE(plain.fades_out());
     const auto frame_at = [&](double t) { return rig.frame_at(t); };
     std::vector<std::pair<PageKey, tessera::client::SlotId>> fine_pages;
     rig.upload(rig.info.level_count() - 1);
@@ -1305,8 +1325,8 @@ void expect_fades_out(gl::Filter filter) {
     EXPECT_EQ(before.counters.fallback_unbiased, 0u);
 
     std::vector<tessera::client::SlotId> gone;
-    for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
-    fading.take_faded_out(gone);
+    for (const auto& [key, slot] : fine_pages) rig.fade_out(slot);
+    rig.take_faded_out(gone);
     EXPECT_TRUE(gone.empty()) << "nothing has faded out before a frame is drawn";
     // Where it ends: level `fine` absent, drawn without blending (the plain renderer only, for now).
     for (const auto& [key, slot] : fine_pages) ASSERT_TRUE(rig.table->unmap(key.level, key.x, key.y).ok());
@@ -1332,7 +1352,7 @@ void expect_fades_out(gl::Filter filter) {
         } else {
             EXPECT_LE(step, step_bound) << "frame " << k << " of the fade out changes by more than an eighth of " << whole;
         }
-        fading.take_faded_out(gone);
+        rig.take_faded_out(gone);
         if (k < 8) {
             EXPECT_TRUE(gone.empty()) << "frame " << k << ": a slot came back before its page faded out";
         }
@@ -1344,8 +1364,10 @@ void expect_fades_out(gl::Filter filter) {
     EXPECT_EQ(fading.stats().fading_pages, fine_pages.size()) << "drawn at weight 0 until their slots are taken";
     const int at_weight_zero = max_diff(last, after.rgba);
     EXPECT_LE(at_weight_zero, 1) << "faded out, the pages draw what is above them";
-    // Unmapped now (what the runtime does with the slots it gets back): nothing changes.
+    // Unmapped now, at full weight (what the page cache does with the slots that have faded
+    // out): nothing changes.
     rig.upload_tables();
+    rig.release(gone);
     const Frame unmapped = frame_at(t + 2 * fade_s);
     const int at_unmap = max_diff(last, unmapped.rgba);
     EXPECT_LE(at_unmap, 1) << "unmapping a page that has faded out is not seen";
@@ -1355,8 +1377,8 @@ void expect_fades_out(gl::Filter filter) {
                 filter_name(filter), whole, largest_step, step_bound, at_weight_zero, fine, at_unmap);
 }
 
-// A leaving page the view wants again (cancel_fade_out, what the runtime calls for a page the
-// residency rescued): one that had faded out completely but was not yet taken fades in from
+// A leaving page the view wants again (cancel_fade_out: SlotFades::keep, what the page cache does
+// for a leaving page the feedback sees): one that had faded out completely but was not yet taken fades in from
 // weight 0, one stopped half-way from where it is; each frame moves by at most an eighth of the
 // whole change (+2) per eighth of the fade, and ends as it was before it left. Neither slot is
 // ever given back by take_faded_out.
@@ -1379,7 +1401,7 @@ void expect_fade_out_cancelled(gl::Filter filter) {
     std::vector<tessera::client::SlotId> gone;
     int whole = 0;
     for (const int out_eighths : {8, 4}) {  // faded out completely (the whole change), then half-way
-        for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
+        for (const auto& [key, slot] : fine_pages) rig.fade_out(slot);
         std::vector<std::uint8_t> last = rig.frame_at(t).rgba;
         for (int k = 1; k <= out_eighths; ++k) last = rig.frame_at(t + k * fade_s / 8).rgba;
         t += out_eighths * fade_s / 8;
@@ -1392,7 +1414,7 @@ void expect_fade_out_cancelled(gl::Filter filter) {
         if (out_eighths == 8) {
             EXPECT_EQ(fading.stats().fading_pages, fine_pages.size()) << "faded out, not yet taken";
         }
-        for (const auto& [key, slot] : fine_pages) fading.cancel_fade_out(slot);
+        for (const auto& [key, slot] : fine_pages) rig.cancel_fade_out(slot);
         const int step_bound = (whole + 7) / 8 + 2;
         int largest_step = 0;
         for (int k = 0; k <= 8; ++k) {
@@ -1403,7 +1425,7 @@ void expect_fade_out_cancelled(gl::Filter filter) {
             last = f.rgba;
         }
         t += fade_s;
-        fading.take_faded_out(gone);
+        rig.take_faded_out(gone);
         EXPECT_TRUE(gone.empty()) << "a kept page's slot came back";
         EXPECT_EQ(fading.stats().fading_pages, 0u) << "faded back in";
         const int back = FadeRig::max_diff(before.rgba, last, mask);
@@ -1416,23 +1438,23 @@ void expect_fade_out_cancelled(gl::Filter filter) {
     // Made to leave, kept and made to leave again, each before a frame was drawn: every call
     // takes the weight where it is, so nothing jumps; then half-way out, kept and leaving again
     // at once: the fade goes on from half-way and ends in the half fade left.
-    for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
-    for (const auto& [key, slot] : fine_pages) fading.cancel_fade_out(slot);
+    for (const auto& [key, slot] : fine_pages) rig.fade_out(slot);
+    for (const auto& [key, slot] : fine_pages) rig.cancel_fade_out(slot);
     std::vector<std::uint8_t> last = rig.frame_at(t).rgba;
     EXPECT_LE(FadeRig::max_diff(before.rgba, last, mask), 1) << "fade_out, cancel_fade_out, then a frame";
     EXPECT_EQ(fading.stats().fading_pages, 0u);
-    for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
+    for (const auto& [key, slot] : fine_pages) rig.fade_out(slot);
     for (int k = 0; k <= 4; ++k) last = rig.frame_at(t + k * fade_s / 8).rgba;  // starts at t
     t += 4 * fade_s / 8;
-    for (const auto& [key, slot] : fine_pages) fading.cancel_fade_out(slot);
-    for (const auto& [key, slot] : fine_pages) fading.fade_out(slot);
+    for (const auto& [key, slot] : fine_pages) rig.cancel_fade_out(slot);
+    for (const auto& [key, slot] : fine_pages) rig.fade_out(slot);
     const int jump = FadeRig::max_diff(last, rig.frame_at(t).rgba, mask);
     EXPECT_LE(jump, 2) << "leaving again right after being kept: the fade goes on from where it was";
     for (int k = 1; k <= 3; ++k) rig.frame_at(t + k * fade_s / 8);
-    fading.take_faded_out(gone);
+    rig.take_faded_out(gone);
     EXPECT_TRUE(gone.empty()) << "out before the half fade left has passed";
     rig.frame_at(t + 4 * fade_s / 8 + 1e-6);
-    fading.take_faded_out(gone);
+    rig.take_faded_out(gone);
     EXPECT_EQ(gone.size(), fine_pages.size()) << "out once the half fade left has passed";
     std::printf("  %s, kept and leaving again before a frame: largest jump %d\n", filter_name(filter), jump);
 }

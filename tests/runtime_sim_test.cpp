@@ -145,8 +145,9 @@ protected:
     }
 
     static std::unique_ptr<Runtime> make(std::uint32_t pool, FakeUploader& up, DelayedSource& src,
-                                         std::uint32_t keep_unwanted_frames = 8) {
+                                         std::uint32_t keep_unwanted_frames = 8, float fade_ms = 0) {
         RuntimeConfig c;
+        c.fade_ms = fade_ms;
         c.residency.pool_slots = pool;
         c.transcode_threads = 0;  // deterministic
         c.ram_cache_bytes = 0;    // every page comes from the source
@@ -231,18 +232,36 @@ TEST_F(RuntimeSim, MovingCameraKeepsUpAndTheBiasReturnsWhenPressureGoes) {
     EXPECT_EQ(r.fallback.back(), 0.0f);
 }
 
-// Fading out (docs/client.md, "Replacement"): with an uploader that fades pages out, a victim the
-// feedback saw in the last fade_out_frames frames leaves over the fade: it stays mapped until its
-// slot comes back from take_faded_out, nothing is written into a leaving slot, and detail still
-// comes back. Without it (the default uploader) victims go at once.
+// The slots' blend weights as the uploader sees them (FakeUploader::weight), against the page
+// cache: every slot drawn below full weight holds a mapped page (the last written into it), and
+// no page is written into a slot whose page is still drawn fading out.
+struct WeightAudit {
+    std::size_t blended_but_unmapped = 0, most_fading_out = 0;
+    // kept: pages the frame kept (still drawn falling: their weight turns in the next frame).
+    void check(const FakeUploader& up, const Runtime& rt, std::uint32_t kept) {
+        for (const SlotId slot : up.below_full()) {
+            const auto& calls = up.pages();
+            const auto last = std::find_if(calls.rbegin(), calls.rend(), [&](const auto& c) { return c.slot == slot; });
+            if (last == calls.rend() || !rt.residency().is_resident(last->page)) ++blended_but_unmapped;
+        }
+        const std::size_t out = up.fading_out().size();
+        most_fading_out = std::max(most_fading_out, out);
+        EXPECT_LE(out, rt.residency().stats().leaving + kept) << "a slot fading out that the page cache does not call leaving";
+    }
+};
+
+// Fading out (docs/client.md, "A slot's life"): with a fade time, a victim the feedback saw in
+// the last fade_out_frames frames leaves over the fade: it stays mapped while its weight falls,
+// nothing is written into its slot before it has faded out, and detail still comes back.
+// Without a fade time victims go at once and no weight is ever sent.
 TEST_F(RuntimeSim, RecentlySeenVictimsFadeOutBeforeTheirSlotsAreReused) {
-    for (const std::uint32_t fade_frames : {0u, 9u}) {
+    for (const float fade_ms : {0.0f, 150.0f}) {  // 150 ms: 9 frames of the runtime's default 60 Hz clock
         FakeUploader up;
-        up.set_fade_out_frames(fade_frames);
         DelayedSource src(path_, 2);
-        auto rt = make(40, up, src);
+        auto rt = make(40, up, src, 8, fade_ms);
         const auto& info = *rt->texture_info(0);
-        std::size_t most_leaving = 0, leaving_but_unmapped = 0;
+        WeightAudit audit;
+        std::uint32_t most_leaving = 0;
         float last_fallback = 1, peak_bias = 0;
         for (unsigned f = 0; f < 700; ++f) {
             // As MovingCameraKeepsUpAndTheBiasReturnsWhenPressureGoes: a sweep too wide for the
@@ -253,28 +272,24 @@ TEST_F(RuntimeSim, RecentlySeenVictimsFadeOutBeforeTheirSlotsAreReused) {
             const auto& st = rt->frame(feedback(info, 160, 90, cx, 4000, tpp, b), 160, 90, b);
             last_fallback = st.fallback_estimate;
             peak_bias = std::max(peak_bias, st.lod_bias);
-            const auto leaving = up.leaving();
-            most_leaving = std::max(most_leaving, leaving.size());
-            EXPECT_EQ(rt->residency().stats().leaving, leaving.size()) << "frame " << f;
-            // A leaving slot's page (the last one written into it) is still mapped there.
-            for (const SlotId slot : leaving) {
-                const auto& calls = up.pages();
-                const auto last = std::find_if(calls.rbegin(), calls.rend(), [&](const auto& c) { return c.slot == slot; });
-                if (last == calls.rend() || !rt->residency().is_resident(last->page)) ++leaving_but_unmapped;
-            }
+            most_leaving = std::max(most_leaving, rt->residency().stats().leaving);
+            audit.check(up, *rt, st.pages_rescued);
         }
         EXPECT_EQ(up.written_while_leaving(), 0u);
-        EXPECT_EQ(leaving_but_unmapped, 0u);
+        EXPECT_EQ(audit.blended_but_unmapped, 0u);
         EXPECT_GT(peak_bias, 0.0f) << "the sweep must put the pool under pressure";
         EXPECT_EQ(last_fallback, 0.0f) << "detail comes back";
-        if (fade_frames == 0) {
-            EXPECT_EQ(up.fade_out_calls(), 0u);
+        if (fade_ms == 0) {
+            EXPECT_EQ(up.weight_calls(), 0u);
+            EXPECT_EQ(most_leaving, 0u);
         } else {
-            EXPECT_GT(up.fade_out_calls(), 0u) << "the sweep evicts pages it has just seen";
+            EXPECT_GT(up.fade_outs(), 0u) << "the sweep evicts pages it has just seen";
+            EXPECT_GT(audit.most_fading_out, 0u);
             EXPECT_LE(most_leaving, 32u) << "ResidencyConfig::max_leaving";
+            EXPECT_TRUE(up.below_full().empty()) << "the still view ends with every page at full weight";
         }
-        std::printf("  fade out over %u frames: %zu pages faded out, at most %zu at once, %llu evictions\n", fade_frames,
-                    up.fade_out_calls(), most_leaving, static_cast<unsigned long long>(rt->residency().stats().evictions));
+        std::printf("  fade %.0f ms: %zu pages faded out, at most %u leaving at once, %llu evictions\n", fade_ms, up.fade_outs(),
+                    most_leaving, static_cast<unsigned long long>(rt->residency().stats().evictions));
     }
 }
 
@@ -282,38 +297,31 @@ TEST_F(RuntimeSim, PagesFadingOutThatTheViewWantsAgainAreKept) {
     // The camera swings back and forth over more than the pool holds: pages behind it start
     // leaving, and the swing back wants them again before they have gone.
     FakeUploader up;
-    up.set_fade_out_frames(9);
     DelayedSource src(path_, 2);
-    auto rt = make(40, up, src);
+    auto rt = make(40, up, src, 8, 300.0f);  // 18 frames: the swing back comes within a fade
     const auto& info = *rt->texture_info(0);
-    std::uint64_t rescued = 0, rescued_but_unmapped = 0;
+    WeightAudit audit;
+    std::uint64_t rescued = 0;
     for (unsigned f = 0; f < 400; ++f) {
         const double cx = 2500 + 700 * std::sin(f * 0.15);
         const float b = rt->lod_bias();
         src.tick();
-        const std::size_t cancels_before = up.cancelled().size();
         const auto& st = rt->frame(feedback(info, 160, 90, cx, 4000, 0.75, b), 160, 90, b);
         rescued += st.pages_rescued;
-        // A kept page (the last one written into its slot) is still mapped after the frame.
-        for (std::size_t i = cancels_before; i < up.cancelled().size(); ++i) {
-            const SlotId slot = up.cancelled()[i];
-            const auto& calls = up.pages();
-            const auto last = std::find_if(calls.rbegin(), calls.rend(), [&](const auto& c) { return c.slot == slot; });
-            if (last == calls.rend() || !rt->residency().is_resident(last->page)) ++rescued_but_unmapped;
-        }
-        EXPECT_EQ(rt->residency().stats().leaving, up.leaving().size()) << "frame " << f;
+        audit.check(up, *rt, st.pages_rescued);
     }
-    EXPECT_GT(up.fade_out_calls(), 0u) << "the swings must evict pages just seen";
-    EXPECT_GT(up.fade_out_cancels(), 0u) << "the swing back wants leaving pages again";
-    EXPECT_EQ(up.stray_cancels(), 0u) << "a cancel for a slot that was not leaving";
+    EXPECT_GT(up.fade_outs(), 0u) << "the swings must evict pages just seen";
+    EXPECT_GT(rescued, 0u) << "the swing back wants leaving pages again";
+    // A kept page rises from where its weight was, without a page written: the uploader sees it.
+    EXPECT_GT(up.fade_backs(), 0u);
+    EXPECT_LE(up.fade_backs(), rescued);
     EXPECT_EQ(up.written_while_leaving(), 0u);
-    EXPECT_EQ(rescued, up.fade_out_cancels());
     EXPECT_EQ(rt->residency().stats().rescued, rescued);
     EXPECT_EQ(rt->summary().pages_rescued(), rescued);
-    EXPECT_EQ(rescued_but_unmapped, 0u);
-    std::printf("  %zu pages started fading out, %llu were wanted again and kept (%zu of them had faded out, their slots "
-                "not yet given back), %llu evictions\n",
-                up.fade_out_calls(), static_cast<unsigned long long>(rescued), up.cancelled_after_fading_out(),
+    EXPECT_EQ(audit.blended_but_unmapped, 0u);
+    std::printf("  %zu pages started fading out, %llu were wanted again and kept (%zu seen rising by the uploader), %llu "
+                "evictions\n",
+                up.fade_outs(), static_cast<unsigned long long>(rescued), up.fade_backs(),
                 static_cast<unsigned long long>(rt->residency().stats().evictions));
 }
 

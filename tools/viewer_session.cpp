@@ -306,7 +306,6 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rc.max_anisotropy = o.anisotropy;
     rc.feedback_prefetch_lod = o.prefetch_lod;
     rc.feedback_guard_band = o.guard_band;
-    rc.fade_ms = o.fade_ms;
     rc.pool_slots = o.pool;
     rc.tile_size = info->tile_size();
     rc.border = info->border;
@@ -332,6 +331,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     // Motion prefetch: one feedback in motion_prefetch_every sees the view itself; its pages stay.
     if (o.motion_prefetch_ms > 0) cfg.residency.kept_frames = std::clamp<std::uint32_t>(o.motion_prefetch_every, 1, 64);
     cfg.bias = o.bias;
+    cfg.fade_ms = o.fade_ms;
     cfg.ram_cache_bytes = o.ram_cache_bytes;
     cfg.disk_cache_dir = o.disk_cache_dir;
     cfg.disk_cache_bytes = o.disk_cache_bytes;
@@ -478,7 +478,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     // there; counts its frames in `settle_frames`. Counters come back frames late (more of them
     // the faster the GPU), so done means clean counters for a frame rendered after the pipeline
     // went idle, with every page at full weight.
-    double clock_s = 0;  // the renderer's clock: path time plus the settling frames before it
+    double clock_s = 0;  // the runtime's clock: path time plus the settling frames before it
     auto settle = [&](const scene::Camera& cam, std::uint32_t& settle_frames) {
         const auto w0 = Clock::now();
         std::vector<client::gl::FrameCounters> wc;
@@ -486,7 +486,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
         bool settled = false;
         for (;;) {
             watch_link(Clock::now());
-            r.set_time(clock_s);
+            rt.set_time(clock_s);
             clock_s += 1.0 / o.fps;
             const std::uint64_t rf = r.render(cam, rt.lod_bias());
             if (r.poll_feedback(fb)) rt.frame(fb.ids, fb.width, fb.height, fb.bias);
@@ -557,7 +557,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
             if (free_cam.active) cam = free_cam.camera;
         }
         const float bias = rt.lod_bias();
-        r.set_time(path_clock_start + t);  // after the warm-up's frames
+        rt.set_time(path_clock_start + t);  // after the warm-up's frames
         if (o.motion_prefetch_ms > 0 && f > 0 && f % std::max<std::uint32_t>(o.motion_prefetch_every, 1) == 0 && t > prev_t)
             if (const auto ahead = scene::extrapolate(prev_cam, prev_t, cam, t, o.motion_prefetch_ms / 1000.0))
                 r.set_feedback_camera(*ahead);

@@ -51,7 +51,7 @@ struct ViewerOptions {
     std::uint32_t feedback_scale = 8;
     float prefetch_lod = 0.3f;  // RendererConfig::feedback_prefetch_lod (docs/renderer.md, "Prefetch")
     float guard_band = 0.1f;    // RendererConfig::feedback_guard_band
-    // RendererConfig::fade_ms (docs/renderer.md, "Blending in"): arriving pages blend in, and
+    // RuntimeConfig::fade_ms (docs/renderer.md, "Blending in"): arriving pages blend in, and
     // evicted pages that may be in view fade out, over this long, on path time (headless) or wall
     // time (windowed); 0: off.
     float fade_ms = kDefaultFadeMs;

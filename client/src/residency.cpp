@@ -15,7 +15,7 @@ std::string page_name(const PageKey& p) {
 
 }  // namespace
 
-Result<Residency> Residency::create(const ResidencyConfig& config) {
+Result<Residency> Residency::create(const ResidencyConfig& config, double fade_s) {
     if (config.pool_slots == 0 || config.pool_slots > PageTable::kMaxSlots)
         return make_error(Errc::invalid_argument, "residency: pool_slots must be 1.." +
                                                       std::to_string(PageTable::kMaxSlots) + ", got " +
@@ -25,10 +25,15 @@ Result<Residency> Residency::create(const ResidencyConfig& config) {
     if (config.kept_frames == 0 || config.kept_frames > 64)
         return make_error(Errc::invalid_argument,
                           "residency: kept_frames must be 1..64, got " + std::to_string(config.kept_frames));
-    return Residency(config);
+    if (!(fade_s >= 0 && fade_s <= 10))
+        return make_error(Errc::invalid_argument, "residency: the fade time must be 0..10 s, got " + std::to_string(fade_s));
+    return Residency(config, fade_s);
 }
 
-Residency::Residency(const ResidencyConfig& config) : config_(config), slots_(config.pool_slots) {
+Residency::Residency(const ResidencyConfig& config, double fade_s)
+    : config_(config), slots_(config.pool_slots), fades_(config.pool_slots, fade_s) {
+    // Without fades nothing can leave over one.
+    if (!fades_.enabled()) config_.fade_out_frames = 0;
     free_.reserve(config.pool_slots);
     for (SlotId s = config.pool_slots; s-- > 0;) free_.push_back(s);
 }
@@ -93,16 +98,19 @@ bool Residency::is_pinned(const PageKey& page) const {
     return t && page.level < t->table.levels() && pinned_in(*t, page.level);
 }
 
-Status Residency::begin_frame(std::uint64_t frame) {
+Status Residency::begin_frame(std::uint64_t frame, double now) {
     if (frame < frame_)
         return make_error(Errc::invalid_argument, "residency: frame " + std::to_string(frame) +
                                                       " is older than the current frame " + std::to_string(frame_));
     frame_ = frame;
-    // A leaving page whose uploader never said it has gone (a stalled renderer) leaves anyway.
+    gone_.clear();
+    fades_.advance(now, gone_);
+    for (const SlotId s : gone_) finish_leaving(s);
+    // A leaving page whose fade never ends (a clock standing still) leaves anyway.
     for (std::size_t i = 0; i < leaving_.size();) {
         const SlotId s = leaving_[i];
         if (slots_[s].leave_start + kLeaveDeadlineFrames <= frame_) {
-            (void)finish_leaving(s);  // removes it from leaving_
+            finish_leaving(s);  // removes it from leaving_
             ++expired_;
         } else {
             ++i;
@@ -122,11 +130,12 @@ bool Residency::touch(const PageKey& page) {
         unlink(s);
         link_tail(s);
     } else if (slot.state == SlotState::leaving) {
-        // Still wanted: it stays (see "Leaving"); its slot was promised to no one.
+        // Still wanted: it stays, fading back in (see "Leaving"); its slot was promised to no one.
         std::erase(leaving_, s);
         slot.state = SlotState::resident;
         link_tail(s);
-        rescued_.push_back(s);
+        fades_.keep(s);
+        ++kept_;
         ++rescues_;
     }
     return true;
@@ -198,6 +207,7 @@ Result<SlotGrant> Residency::acquire_slot(const PageKey& page) {
             v.state = SlotState::leaving;
             v.leave_start = frame_;
             leaving_.push_back(victim);
+            fades_.leave(victim);
             grant.leaving = victim;
             grant.victim = v.page;
             return grant;
@@ -211,6 +221,7 @@ Result<SlotGrant> Residency::acquire_slot(const PageKey& page) {
         (void)st;
         --resident_;
         ++evictions_;
+        fades_.release(victim);
         grant.slot = victim;
         grant.evicted = true;
         grant.victim = v.page;
@@ -243,6 +254,7 @@ Status Residency::complete(const PageKey& page, SlotId slot) {
         s.state = SlotState::resident;
         link_tail(slot);
     }
+    fades_.arrive(slot);
     return {};
 }
 
@@ -255,10 +267,10 @@ Status Residency::cancel(SlotId slot) {
     return {};
 }
 
-Result<PageKey> Residency::finish_leaving(SlotId slot) {
+// The page leaving `slot` has gone (faded out, or at the deadline): unmapped, its slot free.
+void Residency::finish_leaving(SlotId slot) {
     const auto it = std::find(leaving_.begin(), leaving_.end(), slot);
-    if (slot >= slots_.size() || slots_[slot].state != SlotState::leaving || it == leaving_.end())
-        return make_error(Errc::invalid_argument, "finish_leaving: slot " + std::to_string(slot) + " is not leaving");
+    assert(it != leaving_.end() && slots_[slot].state == SlotState::leaving);
     *it = leaving_.back();
     leaving_.pop_back();
     Slot& v = slots_[slot];
@@ -268,9 +280,10 @@ Result<PageKey> Residency::finish_leaving(SlotId slot) {
     (void)st;
     --resident_;
     ++evictions_;
+    ++left_;
+    fades_.release(slot);
     v.state = SlotState::free;
     free_.push_back(slot);
-    return v.page;
 }
 
 std::uint8_t Residency::resident_level(const PageKey& page) const {
@@ -291,6 +304,7 @@ ResidencyStats Residency::stats() const {
     s.pinned_pages = pinned_resident_;
     s.in_flight = static_cast<std::uint32_t>(in_flight_.size());
     s.leaving = static_cast<std::uint32_t>(leaving_.size());
+    s.fading = static_cast<std::uint32_t>(fades_.fading());
     s.evictions = evictions_;
     s.rescued = rescues_;
     return s;

@@ -1,33 +1,33 @@
 #pragma once
-// Residency: the physical page pool (N slots of the GPU page atlas) shared by several virtual
-// textures, which pages live in it, which one to replace, and each texture's PageTable
-// (docs/client.md, "One frame, end to end", steps 4 and 7).
+// Residency: the page cache. It owns the physical page pool (N slots of the GPU page atlas)
+// shared by several virtual textures, every slot's state and every transition between states
+// (docs/client.md, "A slot's life"), which page to replace, each texture's PageTable, and each
+// slot's blend weight over the fade time. The uploader only writes what it decided.
 //
-// Protocol (render thread):
-//   begin_frame(f)                 once per frame, f never decreasing
+// Protocol (render thread, once per runtime frame):
+//   begin_frame(f, now)            f never decreasing; now: the runtime clock (seconds). Moves every
+//                                  fade to `now`: pages that have faded out leave (unmapped, slot
+//                                  free); pages leaving for kLeaveDeadlineFrames leave too
 //   touch(page)                    for every page the feedback saw this frame (ancestors included);
-//                                  a resident page's last-seen frame becomes f; a leaving one stays
-//                                  (take_rescued)
+//                                  a resident page's last-seen frame becomes f; a leaving one is
+//                                  kept (it fades back in)
 //   acquire_slot(page)             a slot to upload `page` into: a free one, else the victim's,
 //                                  which is unmapped from its table right away ("unmap before
 //                                  overwrite": from here on the shader never samples that slot
 //                                  for the victim, even while the upload overwrites it)
 //   ... upload into the slot ...
-//   complete(page, slot)           maps the page ("map after complete"); last seen = f
+//   complete(page, slot)           maps the page ("map after complete"); last seen = f; it fades in
 //   cancel(slot)                   instead of complete: the upload was abandoned, the slot is free
-//   finish_leaving(slot)           a page that acquire_slot set leaving has faded out: unmapped,
-//                                  its slot free (pages left over kLeaveDeadlineFrames frames are
-//                                  finished by begin_frame, whatever the uploader says: a renderer
-//                                  whose clock stands still; take_expired() counts them)
+//   take_weight_changes(out)       the slots whose blend weight changed, for the uploader
 //
-// Leaving (fade out): with fade_out_frames > 0, a victim seen within fade_out_frames frames
-// before the kept ones (last seen after frame - kept_frames - fade_out_frames) is not taken at
-// once: acquire_slot answers kNoSlot and names it in SlotGrant::leaving; it stays mapped (drawn,
-// fading out) but is no longer a candidate, and its slot is free once finish_leaving(slot) is
-// called. At most max_leaving pages leave at once; past that, victims go at once as without.
-// A leaving page the feedback sees again (touch) is rescued: resident again, a candidate like any
-// page last seen now, its slot never freed; take_rescued() names it, so that the uploader fades it
-// back in (PageUploader::cancel_fade_out) instead of the runtime loading it again once it has gone.
+// Leaving (fade out): with a fade time and fade_out_frames > 0, a victim seen within
+// fade_out_frames frames before the kept ones (last seen after frame - kept_frames -
+// fade_out_frames) is not taken at once: acquire_slot answers kNoSlot and names it in
+// SlotGrant::leaving; it stays mapped (drawn, its weight falling) but is no longer a candidate,
+// and its slot is free once its weight has reached 0 (a later begin_frame). At most max_leaving
+// pages leave at once; past that, victims go at once as without.
+// A leaving page the feedback sees again (touch) is kept: resident again, a candidate like any
+// page last seen now, its weight rising from where it is, its slot never freed.
 // Replacement order (not seen recently first, finer levels before coarser, LRU among equals;
 // docs/client.md, "Replacement"), read as one sort key, smallest evicted first:
 //   1. last-seen frame, older first (exact frame numbers, not buckets);
@@ -59,6 +59,7 @@
 
 #include "tessera/client/page.hpp"
 #include "tessera/client/runtime.hpp"  // ResidencyConfig
+#include "fades.hpp"
 #include "page_table.hpp"
 #include "tessera/result.hpp"
 
@@ -71,6 +72,7 @@ struct ResidencyStats {
     std::uint32_t pinned_pages = 0;    // resident pages of pinned levels
     std::uint32_t in_flight = 0;       // acquired, not yet completed or cancelled
     std::uint32_t leaving = 0;         // resident, fading out (see "Leaving")
+    std::uint32_t fading = 0;          // weights moving: pages fading in, leaving or kept
     std::uint64_t evictions = 0;       // since creation, leaving pages once they have left
     std::uint64_t rescued = 0;         // since creation, leaving pages seen again and kept
 };
@@ -81,14 +83,16 @@ struct SlotGrant {
     bool evicted = false;   // the slot was taken from `victim` (already unmapped)
     PageKey victim{};
     // kNoSlot now, but this slot's page (seen recently: maybe on screen) starts leaving; the slot
-    // is free once finish_leaving(leaving) is called.
+    // is free once it has faded out.
     SlotId leaving = kNoSlot;
 };
 
 class Residency {
 public:
-    // Errors (invalid_argument): pool_slots 0 or over PageTable::kMaxSlots, kept_frames not 1..64.
-    static Result<Residency> create(const ResidencyConfig& config);
+    // fade_s: the fade time, seconds (0: no fades; then nothing leaves over a fade either).
+    // Errors (invalid_argument): pool_slots 0 or over PageTable::kMaxSlots, kept_frames not 1..64,
+    // fade_s not 0..10.
+    static Result<Residency> create(const ResidencyConfig& config, double fade_s = 0);
 
     // Registers a texture and creates its page table (level-0 page counts and level count as in
     // PageTable::create). Errors: a texture id already registered, PageTable::create's errors,
@@ -101,11 +105,13 @@ public:
     std::uint32_t pinned_levels(TextureId texture) const;  // 0 when unknown
     bool is_pinned(const PageKey& page) const;              // the page is in a pinned level
 
-    // Starts frame `frame`. Errors (invalid_argument): frame older than the current one.
-    Status begin_frame(std::uint64_t frame);
+    // Starts frame `frame` at `now` (seconds; a clock older than the last is taken as the last:
+    // without `now`, the clock stands still). Errors (invalid_argument): frame older than the
+    // current one.
+    Status begin_frame(std::uint64_t frame, double now = 0);
     std::uint64_t frame() const { return frame_; }
     // Marks `page` seen this frame. Returns whether it is resident (mapped). Unknown textures and
-    // pages outside the geometry are not resident. A leaving page is rescued (see "Leaving").
+    // pages outside the geometry are not resident. A leaving page is kept (see "Leaving").
     bool touch(const PageKey& page);
 
     // See the protocol above. Errors (invalid_argument): unknown texture, page outside the
@@ -117,20 +123,17 @@ public:
     Status complete(const PageKey& page, SlotId slot);
     // Frees a slot that acquire_slot gave and that was never completed. Errors: not in flight.
     Status cancel(SlotId slot);
-    // The page leaving `slot` has faded out: unmaps it, frees the slot and returns the page.
-    // Errors (invalid_argument): the slot is not leaving (never was, finished at the deadline, or
-    // rescued since).
-    Result<PageKey> finish_leaving(SlotId slot);
-    // Appends the slots whose leaving page touch() rescued since the last call.
-    void take_rescued(std::vector<SlotId>& out) {
-        out.insert(out.end(), rescued_.begin(), rescued_.end());
-        rescued_.clear();
-    }
-    // Pages begin_frame finished at the deadline since the last call (their uploader never said).
+    // Appends the slots whose blend weight changed since the last call (SlotWeight: 255 full).
+    void take_weight_changes(std::vector<SlotWeight>& out) { fades_.take_changes(out); }
+    // Pages that left since the last call (faded out, or at the deadline), and leaving pages kept.
+    std::uint32_t take_left() { return std::exchange(left_, 0u); }
+    std::uint32_t take_kept() { return std::exchange(kept_, 0u); }
+    // Of take_left()'s, those the deadline finished (their fade never ended: a clock standing still).
     std::uint32_t take_expired() { return std::exchange(expired_, 0u); }
     // Frames a page may leave for before begin_frame finishes it: far longer than any fade
-    // (10 s at 240 frames a second), so only a renderer whose clock stands still meets it.
+    // (10 s at 240 frames a second), so only a clock that stands still meets it.
     static constexpr std::uint64_t kLeaveDeadlineFrames = 2400;
+    std::uint8_t weight(SlotId slot) const { return fades_.weight(slot); }
 
     // Nearest resident level of `page` (itself or an ancestor), PageTable::kNotResident (255) when
     // none or when the page is unknown. (The ResidencyView query.)
@@ -159,7 +162,8 @@ private:
         std::uint64_t pinned_pages = 0;   // pages in those levels
     };
 
-    explicit Residency(const ResidencyConfig& config);
+    Residency(const ResidencyConfig& config, double fade_s);
+    void finish_leaving(SlotId s);
     void link_tail(SlotId s);
     void unlink(SlotId s);
     SlotId pick_victim(bool allow_current_frame) const;
@@ -174,8 +178,9 @@ private:
     std::unordered_map<TextureId, Texture> textures_;
     std::unordered_map<PageKey, SlotId, PageKeyHash> in_flight_;
     std::vector<SlotId> leaving_;  // at most config_.max_leaving
-    std::vector<SlotId> rescued_;  // rescued, not yet taken; at most max_leaving per frame
-    std::uint32_t expired_ = 0;    // finished at the deadline, not yet taken
+    SlotFades fades_;
+    std::vector<SlotId> gone_;     // begin_frame's: faded out
+    std::uint32_t left_ = 0, kept_ = 0, expired_ = 0;  // since the last take
     std::uint64_t frame_ = 0;
     std::uint64_t pinned_pages_total_ = 0;  // pinned pages of all registered textures
     std::uint32_t resident_ = 0;

@@ -7,11 +7,6 @@
 
 namespace tessera::client {
 
-PageUploader::~PageUploader() = default;
-
-void PageUploader::upload_page_table_block(TextureId, std::uint8_t, std::uint32_t, std::uint32_t,
-                                           std::span<const std::uint32_t>) {}
-
 namespace {
 
 // Heap order for std::*_heap (a max-heap): `a` goes after `b`.

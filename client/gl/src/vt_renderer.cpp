@@ -12,7 +12,7 @@
 
 #include "gl_util.hpp"
 #include "page_atlas.hpp"
-#include "page_fade.hpp"
+#include "slot_weights.hpp"
 #include "tessera/client/page_table_layout.hpp"
 #include "page_table_texture.hpp"
 #include "readback_ring.hpp"
@@ -71,7 +71,6 @@ public:
             return Error{Errc::invalid_argument, fmt::format("renderer: pool_slots must be 1..{}", PageTableLayout::kMaxSlots)};
         if (c.tile_size <= 2 * c.border || c.border == 0)
             return Error{Errc::invalid_argument, fmt::format("renderer: tile_size {} and border {} leave no payload (border >= 1)", c.tile_size, c.border)};
-        if (!(c.fade_ms >= 0 && c.fade_ms <= 10000)) return Error{Errc::invalid_argument, "renderer: fade_ms must be 0..10000"};
         if (c.has_second_level() && (c.tile_size % 2 != 0 || c.border % 2 != 0))
             return Error{Errc::invalid_argument,
                          fmt::format("renderer: the trilinear and anisotropic filters need an even tile size and border "
@@ -116,46 +115,8 @@ public:
         }
         tables_.init(c.pool_slots, c.tile_size, c.border, max_texture, max_ssbo);
 
-        // Programs.
-        const std::string defines = vt_shader_defines(c, atlas_.width(), atlas_.height());
-        // The VT pass: per page-table layout (dense, two-level) and, with blending in, a variant
-        // that reads the cells' weights, drawn only in frames where some cell is fading. With
-        // cut-outs the depth pre-pass samples as the VT pass does, so it has the same variants,
-        // and the feedback pass one per layout; otherwise they never read the page table.
-        for (int sparse = 0; sparse < 2; ++sparse)
-            for (int fading = 0; fading < (c.fade_ms > 0 ? 2 : 1); ++fading) {
-                const std::string variant = defines + (sparse ? "#define VT_SPARSE_TABLE 1\n" : "") + (fading ? "#define VT_FADE 1\n" : "") +
-                                            (fading && c.srgb ? "#define VT_FADE_ENCODED 1\n" : "");
-                auto vt = build_program("scene.vert", "vt.frag", variant);
-                if (!vt) return vt.error();
-                vt_programs_[sparse][fading] = std::move(*vt);
-                vt_us_[sparse][fading] = VtUniforms(vt_programs_[sparse][fading]);
-                if (!c.alpha_test && (sparse || fading)) continue;
-                auto depth = build_program("scene.vert", "depth.frag", variant);
-                if (!depth) return depth.error();
-                depth_programs_[sparse][fading] = std::move(*depth);
-                depth_us_[sparse][fading] = VtUniforms(depth_programs_[sparse][fading]);
-                if (fading) continue;
-                auto fb = build_program("scene.vert", "feedback.frag", variant);
-                if (!fb) return fb.error();
-                feedback_programs_[sparse] = std::move(*fb);
-                feedback_us_[sparse] = VtUniforms(feedback_programs_[sparse]);
-            }
-        const auto set_units = [](const Program& p, const VtUniforms& u) {
-            if (!p) return;
-            glProgramUniform1i(p.get(), u.page_table, 0);
-            glProgramUniform1i(p.get(), u.atlas, 1);
-            if (u.second_atlas >= 0) glProgramUniform1i(p.get(), u.second_atlas, 2);
-            if (u.fade >= 0) glProgramUniform1i(p.get(), u.fade, 3);
-        };
-        for (int sparse = 0; sparse < 2; ++sparse) {
-            set_units(feedback_programs_[sparse], feedback_us_[sparse]);
-            for (int fading = 0; fading < 2; ++fading) {
-                set_units(vt_programs_[sparse][fading], vt_us_[sparse][fading]);
-                set_units(depth_programs_[sparse][fading], depth_us_[sparse][fading]);
-            }
-        }
-        TESSERA_TRY(fade_.init(atlas_.columns(), atlas_.rows(), c.fade_ms));
+        TESSERA_TRY(build_programs(/*fading=*/0));
+        TESSERA_TRY(weights_.init(atlas_.columns(), atlas_.rows()));
 
         fb_width_ = (c.width + c.feedback_scale - 1) / c.feedback_scale;
         fb_height_ = (c.height + c.feedback_scale - 1) / c.feedback_scale;
@@ -191,6 +152,44 @@ public:
         return Status();
     }
 
+    // The VT pass: per page-table layout (dense, two-level) and, for frames where some cell's
+    // blend weight is below full, a variant that reads the weights (built when first needed).
+    // With cut-outs the depth pre-pass samples as the VT pass does, so it has the same variants,
+    // and the feedback pass one per layout; otherwise they never read the page table.
+    Status build_programs(int fading) {
+        const auto& c = cfg_;
+        const std::string defines = vt_shader_defines(c, atlas_.width(), atlas_.height());
+        const auto set_units = [](const Program& p, const VtUniforms& u) {
+            if (!p) return;
+            glProgramUniform1i(p.get(), u.page_table, 0);
+            glProgramUniform1i(p.get(), u.atlas, 1);
+            if (u.second_atlas >= 0) glProgramUniform1i(p.get(), u.second_atlas, 2);
+            if (u.fade >= 0) glProgramUniform1i(p.get(), u.fade, 3);
+        };
+        for (int sparse = 0; sparse < 2; ++sparse) {
+            const std::string variant = defines + (sparse ? "#define VT_SPARSE_TABLE 1\n" : "") + (fading ? "#define VT_FADE 1\n" : "") +
+                                        (fading && c.srgb ? "#define VT_FADE_ENCODED 1\n" : "");
+            auto vt = build_program("scene.vert", "vt.frag", variant);
+            if (!vt) return vt.error();
+            vt_programs_[sparse][fading] = std::move(*vt);
+            vt_us_[sparse][fading] = VtUniforms(vt_programs_[sparse][fading]);
+            set_units(vt_programs_[sparse][fading], vt_us_[sparse][fading]);
+            if (!c.alpha_test && (sparse || fading)) continue;
+            auto depth = build_program("scene.vert", "depth.frag", variant);
+            if (!depth) return depth.error();
+            depth_programs_[sparse][fading] = std::move(*depth);
+            depth_us_[sparse][fading] = VtUniforms(depth_programs_[sparse][fading]);
+            set_units(depth_programs_[sparse][fading], depth_us_[sparse][fading]);
+            if (fading) continue;
+            auto fb = build_program("scene.vert", "feedback.frag", variant);
+            if (!fb) return fb.error();
+            feedback_programs_[sparse] = std::move(*fb);
+            feedback_us_[sparse] = VtUniforms(feedback_programs_[sparse]);
+            set_units(feedback_programs_[sparse], feedback_us_[sparse]);
+        }
+        return Status();
+    }
+
     // ---- PageUploader -----------------------------------------------------------------------
 
     PagePoolFormat pool_format() const override { return pool_; }
@@ -211,23 +210,24 @@ public:
                 return;
             }
         }
-        fade_.arrived(slot);
         ++stats_.pages_uploaded;
     }
 
-    bool fades_out() const override { return fade_.enabled(); }
-    void fade_out(SlotId slot) override { fade_.leaving(slot); }
-    void cancel_fade_out(SlotId slot) override { fade_.kept(slot); }
-    void take_faded_out(std::vector<SlotId>& out) override { fade_.take_gone(out); }
-
-    void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
-                           std::uint32_t h, std::span<const std::uint32_t> entries) override {
-        count(tables_.upload_rect(texture, level, x0, y0, w, h, entries));
+    void write_page_table(const PageTableWrite& w) override {
+        count(w.sparse_block ? tables_.upload_block(w.texture, w.level, w.x0, w.y0, w.entries)
+                             : tables_.upload_rect(w.texture, w.level, w.x0, w.y0, w.w, w.h, w.entries));
     }
 
-    void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
-                                 std::span<const std::uint32_t> entries) override {
-        count(tables_.upload_block(texture, level, bx, by, entries));
+    void set_slot_weights(std::span<const SlotWeight> weights) override {
+        stats_.malformed_uploads += weights_.set(weights);
+        if (weights_.below_full() > 0 && !vt_programs_[0][1] && !fading_build_failed_) {
+            // The first blend: its shader variants. Should they fail (they never have where the
+            // others built), pages are drawn at full weight.
+            if (auto st = build_programs(/*fading=*/1); !st.ok()) {
+                fading_build_failed_ = true;
+                ++stats_.gl_errors;
+            }
+        }
     }
 
     // ---- Setup ------------------------------------------------------------------------------
@@ -254,14 +254,7 @@ public:
 
     void set_feedback_camera(const scene::Camera& camera) override { feedback_camera_ = camera; }
 
-    void set_time(double seconds) override {
-        time_ = std::max(seconds, time_);
-        time_set_ = true;
-    }
-
-    std::uint64_t render(const scene::Camera& camera, float requested_bias) override {
-        if (!time_set_ && frame_ > 0) time_ += 1.0 / 60.0;
-        time_set_ = false;
+    std::uint64_t render(const scene::Camera& camera, float lod_bias) override {
         ++frame_;
         ++stats_.frames;
         // Frame latency: the fence in this frame's slot is the frame frames_in_flight back.
@@ -272,9 +265,10 @@ public:
         staging_.close_batch();  // the uploads since the last frame, fenced together
         staging_.retire();
         for (std::size_t i = 0; i <= more_atlases_.size(); ++i) atlas(i).make_page_mips();  // after the frame's page uploads, in stream order
-        const float lod_bias = fade_.frame(time_, requested_bias);  // the weights of this frame's cells
-        stats_.fading_pages = fade_.fading();
-        vt_fading_ = fade_.enabled() && fade_.fading() > 0 ? 1 : 0;  // at full weight everywhere, the lookups need no weights
+        weights_.upload();  // this frame's weights
+        stats_.fading_pages = weights_.below_full();
+        // At full weight everywhere, the lookups need no weights.
+        vt_fading_ = weights_.below_full() > 0 && vt_programs_[0][1] ? 1 : 0;
 
         const double aspect = double(cfg_.width) / double(cfg_.height);
         const auto vp = view_projection(camera, aspect);
@@ -487,7 +481,7 @@ private:
         glBindTextureUnit(1, atlas(cfg_.show_layer).texture());
 
         if (cfg_.normal_layer) glBindTextureUnit(2, atlas(*cfg_.normal_layer).texture());
-        if (fade_.enabled()) glBindTextureUnit(3, fade_.texture());
+        glBindTextureUnit(3, weights_.texture());
     }
 
     static void set_pass_state() {
@@ -556,10 +550,9 @@ private:
     std::vector<std::unique_ptr<PageAtlas>> more_atlases_;  // layers 1, 2, ...: the same grid
     PagePoolFormat pool_;                                   // every atlas's format, set by init
     PageTableTextures tables_;
-    PageFade fade_;
+    SlotWeights weights_;
+    bool fading_build_failed_ = false;
     std::optional<scene::Camera> feedback_camera_;  // set_feedback_camera, for the next frame
-    double time_ = 0;        // the renderer's clock, seconds (set_time)
-    bool time_set_ = false;  // set for the next frame
     SceneGeometry geometry_;
     TextureId scene_texture_ = 0;
     bool has_scene_ = false;

@@ -1,11 +1,13 @@
 #pragma once
 // The client runtime: one call per frame turns the renderer's feedback into resident pages.
 //
-//   frame(feedback) ──► analysis (unique pages + ancestors, by priority)
-//                  ──► resident: touch │ not: RAM cache ─► disk cache (loader thread) ─► source
-//                  ◄── arrivals ─► caches ─► transcode pool (RGBA8 into staging) ─► upload queue
-//                  ──► per-frame budget: acquire a slot (evicting), upload, map, page-table rects
-//                  ──► LoD-bias controller
+//   frame(feedback) ──► clock: every fade moves (page cache)
+//                  ──► analysis (unique pages + ancestors, by priority)
+//                  ──► resident: touch │ not, the loader: RAM cache ─► disk cache ─► source
+//                  ◄── arrivals ─► caches ─► transcode pool (pool format, into staging)
+//                  ──► per-frame budget: the page cache picks a slot (evicting, or a victim
+//                      fading out first), upload, map; weights and page-table changes
+//                  ──► LoD-bias controller (the bias drawn with moves over the fade time)
 //
 // frame() runs on the render thread and never waits on I/O, decoding or the network: everything
 // slow happens on threads owned here (disk loader, transcode pool) or by the sources, behind
@@ -25,7 +27,7 @@
 
 namespace tessera::client {
 
-class Residency;  // the pool's residency and page tables (internal: client/src/residency.hpp)
+class Residency;  // the page cache: slots, their states and page tables (internal: client/src/residency.hpp)
 
 struct ResidencyConfig {
     // Slots in the physical pool, 1 .. 2^24.
@@ -46,12 +48,12 @@ struct ResidencyConfig {
     // the pages of the last feedback of the view itself, so a page on screen is not evicted for
     // one the view ahead wants. 1 .. 64.
     std::uint32_t kept_frames = 1;
-    // Fading out (docs/client.md, "Replacement"): a victim seen within `fade_out_frames` runtime
+    // Fading out (docs/client.md, "A slot's life"): a victim seen within `fade_out_frames` runtime
     // frames before the kept ones may still be on screen, so it leaves over a fade instead of at
-    // once: it stays mapped and drawn while its weight falls, and its slot is reused once the
-    // uploader says it has gone. At most `max_leaving` pages leave at once (further victims go at
-    // once). 0: evict at once. The runtime sets it from RuntimeConfig::fade_out_frames when its uploader fades pages
-    // out (PageUploader::fades_out), and to 0 otherwise.
+    // once: it stays mapped and drawn while its weight falls, and its slot is reused once it has
+    // faded out. At most `max_leaving` pages leave at once (further victims go at once). 0: evict
+    // at once. The runtime sets it from RuntimeConfig::fade_out_frames when RuntimeConfig::fade_ms
+    // > 0, and to 0 otherwise.
     std::uint32_t fade_out_frames = 0;
     std::uint32_t max_leaving = 32;
 };
@@ -74,9 +76,14 @@ struct RuntimeConfig {
     // (docs/client.md, "Cancellation"). Counted in frames, not time: an unpaced run moves its
     // camera per frame, however fast the frames come.
     std::uint32_t keep_unwanted_frames = 8;
+    // Fades (docs/client.md, "A slot's life"; docs/renderer.md, "Blending in"), on the runtime's
+    // clock (set_time): an arriving page blends from what was drawn before it (its nearest
+    // resident ancestor) to itself over fade_ms, a page leaving while maybe in view blends back
+    // to its ancestor before its slot is reused, and the LoD bias drawn with (lod_bias()) moves
+    // by at most one level per fade_ms. The uploader gets the weights (set_slot_weights). 0: off.
+    float fade_ms = 0.0f;  // 0..10000
     // Victims seen within this many frames before the kept ones (ResidencyConfig::kept_frames)
-    // fade out before their slot is reused,
-    // when the uploader fades pages out (ResidencyConfig::fade_out_frames). 0: never.
+    // fade out before their slot is reused, when fade_ms > 0. 0: never.
     std::uint32_t fade_out_frames = 8;
 };
 
@@ -100,7 +107,14 @@ public:
     // decoding and uploads go on. The bias controller waits for real feedback.
     virtual const FrameStats& frame_without_feedback() = 0;
 
-    virtual float lod_bias() const = 0;  // for the next frame's feedback and sampling
+    // The runtime's clock: the time, in seconds, of the frame whose feedback the next frame() (or
+    // frame_without_feedback()) call gets; never decreasing. Fades move on it. Without a call
+    // before a frame, the clock moves by 1/60 s per frame.
+    virtual void set_time(double seconds) = 0;
+
+    // The LoD bias to draw the next frame (and its feedback) with: the controller's, moving by at
+    // most one level per fade time (RuntimeConfig::fade_ms).
+    virtual float lod_bias() const = 0;
     virtual const Residency& residency() const = 0;
     virtual const StatsSummary& summary() const = 0;
     virtual std::size_t in_flight() const = 0;  // pages requested and not yet mapped or dropped

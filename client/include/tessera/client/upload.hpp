@@ -45,43 +45,59 @@ struct PagePoolFormat {
     std::size_t upload_bytes(std::uint32_t tile_size) const { return layer_offset(layer_count(), tile_size); }
 };
 
-// What the renderer does with pages. Called on the render thread only.
+// One write of a texture's page table, in the renderer's page-table entry format.
+struct PageTableWrite {
+    TextureId texture = 0;
+    std::uint8_t level = 0;
+    // false: the w x h rectangle at (x0, y0) of a dense table, `entries` row-major (w*h of them).
+    // true: block (x0, y0) of a sparse table (PageTable::sparse()) now holds `entries`
+    // (PageTable::kBlockEntries, rows of kBlockSide), or is unallocated when `entries` is empty
+    // (its entries resolve through level + 5); w and h unused.
+    bool sparse_block = false;
+    std::uint32_t x0 = 0, y0 = 0, w = 0, h = 0;
+    std::span<const std::uint32_t> entries;
+};
+
+// A slot's blend weight (docs/client.md, "A slot's life"): 255 draws its page as it is, 0 as
+// what is above it (its nearest resident ancestor), between them a blend of the two.
+struct SlotWeight {
+    SlotId slot = kNoSlot;
+    std::uint8_t weight = 255;
+};
+
+// Where the runtime's pages go: a sink that writes what the runtime's page cache decided (which
+// page is in which slot, the page tables, the blend weights) into the renderer's memory. It
+// decides nothing itself. Called on the render thread only, from Runtime::frame().
 class PageUploader {
 public:
-    virtual ~PageUploader();
     // The format pages must come in (default: RGBA8, one level).
     virtual PagePoolFormat pool_format() const { return {}; }
     // Copy one page (tile_size x tile_size texels in pool_format(), rows top to bottom, border
-    // included; pool_format().upload_bytes of them: every layer's page, in layer order) into physical slot `slot`. `page` says which page it
-    // is (the GL renderer derives each page's next coarser level from it, clamped at the
-    // texture's edges). The span is valid only during the call.
+    // included; pool_format().upload_bytes of them: every layer's page, in layer order) into
+    // physical slot `slot`. `page` says which page it is (the GL renderer derives each page's
+    // next coarser level from it, clamped at the texture's edges). The span is valid only during
+    // the call.
     virtual void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data,
                              std::uint32_t tile_size) = 0;
-    // Write a w x h rectangle at (x0, y0) of texture `texture`'s page table for `level`; entries
-    // are row-major, w*h of them, in the renderer's page-table entry format.
-    virtual void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0,
-                                   std::uint32_t w, std::uint32_t h, std::span<const std::uint32_t> entries) = 0;
-    // Sparse page tables (PageTable::sparse()): block (bx, by) of `level` now holds `entries`
-    // (PageTable::kBlockEntries, rows of kBlockSide), or is unallocated when `entries` is empty
-    // (its entries resolve through level + 5). The default drops the call: for uploaders that
-    // ignore page tables (benchmarks, load tests).
-    virtual void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
-                                         std::span<const std::uint32_t> entries);
-    // Fading out (docs/client.md, "Replacement"). Whether this uploader fades pages out; the
-    // default does not, and then evictions are at once. One that does implements all three calls
-    // below: a page whose fade-out is cancelled but whose slot still comes back from
-    // take_faded_out would stay mapped, drawn at weight 0.
-    virtual bool fades_out() const { return false; }
-    // The page in `slot` leaves: it stays mapped, and is drawn fading out to what is above it.
-    // The slot is not written until take_faded_out() has given it back, or until the runtime has
-    // given up waiting (Residency::kLeaveDeadlineFrames: a renderer whose clock stands still); an
-    // upload_page into a leaving slot ends its fade.
-    virtual void fade_out(SlotId /*slot*/) {}
-    // The page leaving `slot` is wanted again: it fades back in from where it is, and its slot is
-    // not given back by take_faded_out() (not even when it had faded out but was not yet taken).
-    virtual void cancel_fade_out(SlotId /*slot*/) {}
-    // Appends the slots whose page has faded out since the last call.
-    virtual void take_faded_out(std::vector<SlotId>& /*out*/) {}
+    // Write part of a page table (see PageTableWrite).
+    virtual void write_page_table(const PageTableWrite& write) = 0;
+    // New blend weights of some slots (every slot starts at 255). The default ignores them: an
+    // uploader that draws nothing (benchmarks, load tests).
+    virtual void set_slot_weights(std::span<const SlotWeight> /*weights*/) {}
+
+    // Shorthands for write_page_table.
+    void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
+                           std::uint32_t h, std::span<const std::uint32_t> entries) {
+        write_page_table(PageTableWrite{texture, level, false, x0, y0, w, h, entries});
+    }
+    void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
+                                 std::span<const std::uint32_t> entries) {
+        write_page_table(PageTableWrite{texture, level, true, bx, by, 0, 0, entries});
+    }
+
+protected:
+    // Not deleted through this interface: the runtime only borrows its uploader.
+    ~PageUploader() = default;
 };
 
 // A page ready to upload.

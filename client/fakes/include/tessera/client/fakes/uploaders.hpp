@@ -41,30 +41,20 @@ public:
     };
 
     void upload_page(SlotId slot, const PageKey& page, std::span<const std::uint8_t> page_data, std::uint32_t tile_size) override;
-    void upload_page_table(TextureId texture, std::uint8_t level, std::uint32_t x0, std::uint32_t y0, std::uint32_t w,
-                           std::uint32_t h, std::span<const std::uint32_t> entries) override;
-    void upload_page_table_block(TextureId texture, std::uint8_t level, std::uint32_t bx, std::uint32_t by,
-                                 std::span<const std::uint32_t> entries) override;
+    void write_page_table(const PageTableWrite& write) override;
+    void set_slot_weights(std::span<const SlotWeight> weights) override;
 
-    // Fading out like a renderer that takes `frames` calls of take_faded_out (one per runtime
-    // frame) to fade a page out, and, as the renderer, gives the slot back one call after its
-    // weight reached 0 (a frame in which the feedback may still see it and cancel); 0 (the
-    // default): does not fade out.
-    void set_fade_out_frames(std::uint32_t frames) { fade_out_frames_ = frames; }
-    bool fades_out() const override { return fade_out_frames_ > 0; }
-    void fade_out(SlotId slot) override;
-    void cancel_fade_out(SlotId slot) override;
-    void take_faded_out(std::vector<SlotId>& out) override;
-    std::size_t fade_out_calls() const { return fade_out_calls_; }
-    // cancel_fade_out calls for a slot that was leaving, and for one that was not (a runtime bug).
-    std::size_t fade_out_cancels() const { return fade_out_cancels_; }
-    std::size_t stray_cancels() const { return stray_cancels_; }
-    // Of fade_out_cancels(), those of a page that had faded out but was not yet given back.
-    std::size_t cancelled_after_fading_out() const { return cancelled_gone_; }
-    const std::vector<SlotId>& cancelled() const { return cancelled_; }  // every cancel_fade_out, in order
-    // Slots leaving now (faded out and not yet given back included), and pages written into a
-    // slot while it was leaving (a runtime bug).
-    std::vector<SlotId> leaving() const;
+    // Blend weights as the runtime set them (255 until set), and what they show: a slot whose
+    // weight went down is fading out until a page is written into it or the weight rises again.
+    std::uint8_t weight(SlotId slot) const { return slot < weights_.size() ? weights_[slot] : 255; }
+    std::vector<SlotId> below_full() const;  // slots drawn blended: fading in, fading out or kept
+    std::vector<SlotId> fading_out() const;  // slots whose weight is falling and above 0
+    std::size_t weight_calls() const { return weight_calls_; }
+    std::size_t fade_outs() const { return fade_outs_; }  // times a slot's weight started falling
+    // Times a falling weight rose again to below 255 with no page written: a leaving page kept.
+    std::size_t fade_backs() const { return fade_backs_; }
+    // Pages written into a slot whose weight was falling and above 0: a page still drawn while
+    // it leaves was overwritten (a runtime bug).
     std::size_t written_while_leaving() const { return written_while_leaving_; }
 
     const std::vector<PageCall>& pages() const { return pages_; }
@@ -82,12 +72,10 @@ private:
     std::vector<TableCall> tables_;
     std::vector<BlockCall> blocks_;
     std::size_t malformed_ = 0;
-    std::uint32_t fade_out_frames_ = 0;
-    std::vector<std::pair<SlotId, std::uint32_t>> leaving_;  // slot, take_faded_out calls left
-    std::vector<SlotId> cancelled_;
-    std::vector<SlotId> gone_;     // faded out, given back by the next take_faded_out
-    std::size_t cancelled_gone_ = 0;
-    std::size_t fade_out_calls_ = 0, written_while_leaving_ = 0, fade_out_cancels_ = 0, stray_cancels_ = 0;
+    std::vector<std::uint8_t> weights_;
+    std::vector<std::uint8_t> falling_;
+    std::vector<SlotId> written_;  // slots written since the last set_slot_weights
+    std::size_t weight_calls_ = 0, fade_outs_ = 0, fade_backs_ = 0, written_while_leaving_ = 0;
 };
 
 // Discards every call: a viewer with no GPU (load tests, benchmarks).
@@ -96,8 +84,7 @@ public:
     explicit NullUploader(PagePoolFormat format = {}) : format_(format) {}
     PagePoolFormat pool_format() const override { return format_; }
     void upload_page(SlotId, const PageKey&, std::span<const std::uint8_t>, std::uint32_t) override {}
-    void upload_page_table(TextureId, std::uint8_t, std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t,
-                           std::span<const std::uint32_t>) override {}
+    void write_page_table(const PageTableWrite&) override {}
 
 private:
     PagePoolFormat format_;

@@ -5,8 +5,9 @@
 // read back through a PBO ring (polled, never waited on), and the per-frame fallback counters
 // reduced on the GPU.
 //
-// VtRenderer is the runtime's PageUploader: Runtime::frame() calls upload_page/upload_page_table
-// on the render thread; the renderer copies into its staging ring and issues the GL uploads.
+// VtRenderer is the runtime's PageUploader: Runtime::frame() calls upload_page, write_page_table
+// and set_slot_weights on the render thread; the renderer copies into its staging ring and issues
+// the GL uploads. Every decision about a page (which slot, when it fades) is the runtime's.
 //
 // Sampling (shaders/vt_sample.glsl, one include any shader can use): LoD from the virtual-texel
 // derivatives plus the bias; one page-table fetch per lookup (fallback entries point at the
@@ -85,12 +86,6 @@ struct RendererConfig {
     // (pages about to turn into view). Both 0: the feedback is exactly what the image samples.
     float feedback_prefetch_lod = 0.0f;  // 0..2
     float feedback_guard_band = 0.0f;    // 0..1
-    // Blending in (docs/renderer.md, "Blending in"): a page that becomes resident is blended from
-    // what was drawn before it (its nearest resident ancestor) to itself over `fade_ms`
-    // milliseconds of the renderer's clock (set_time), per atlas cell, with every filter and page
-    // format; LoD-bias changes are spread over the same time (at most one level per fade_ms). 0:
-    // off, pages show at full weight the frame they arrive (the exactness tests' behaviour).
-    float fade_ms = 0.0f;  // 0..10000
     // Cut-outs (docs/renderer.md, "Cut-outs"): pixels whose filtered texel has alpha below 0.5
     // are discarded, in the depth pre-pass, the VT pass and the feedback pass alike, so what lies
     // behind shows, keeps its depth and has its pages requested. For stores with alpha (straight,
@@ -128,8 +123,8 @@ struct RendererStats {
     std::uint64_t depth_prepasses = 0;        // frames drawn with a depth pre-pass (scenes that need one
                                               // and cannot be drawn front to back)
     std::size_t visible_chunks = 0;           // last frame
-    std::size_t fading_pages = 0;             // last frame: cells below full weight: blending in, fading out, or
-                                              // faded out and not yet taken back (RendererConfig::fade_ms)
+    std::size_t fading_pages = 0;             // last frame: cells below full weight (set_slot_weights):
+                                              // blending in, fading out or kept (RuntimeConfig::fade_ms)
     std::uint64_t predicted_feedback = 0;     // feedback passes drawn from set_feedback_camera's camera
     std::uint64_t gpu_waits = 0;              // frames whose render() waited for the GPU to finish the
                                               // frame RendererConfig::frames_in_flight back
@@ -148,7 +143,7 @@ public:
     // Needs a current GL 4.5 context. Errors: a pool that does not fit the GPU's largest texture,
     // bad sizes, shader compile/link errors (with the log).
     static Result<std::unique_ptr<VtRenderer>> create(const RendererConfig& config);
-    ~VtRenderer() override = default;
+    virtual ~VtRenderer() = default;
 
     // The virtual texture `texture` has the geometry of `info` (a store); one texture per scene
     // for now. Creates its page-table texture (all levels packed in one R32UI texture), or, when
@@ -166,10 +161,6 @@ public:
     // frames ahead, predicted from the camera's motion, so that its pages are requested before
     // they come into view (docs/renderer.md, "Motion prefetch"). Applies to one frame.
     virtual void set_feedback_camera(const scene::Camera& camera) = 0;
-    // The time of the next render(), seconds (any origin, never decreasing), the clock blending in
-    // runs on: a viewer's path time (headless, frame / fps) or wall time. Never set: each render()
-    // is 1/60 s after the one before.
-    virtual void set_time(double seconds) = 0;
     // What the next frame would show at `camera` if no page, page table, blending weight or bias
     // changed: the main pass drawn now, with the last frame's state, into a target of its own
     // (RGBA8 as read_color). No feedback, no counters, the frame number unchanged. Call it after

@@ -1,0 +1,380 @@
+#include "page_loader.hpp"
+
+#include <algorithm>
+#include <condition_variable>
+#include <deque>
+#include <mutex>
+#include <thread>
+
+namespace tessera::client {
+
+// Looks up tiles in the disk cache off the render thread. Owner: the loader. Queues: lookups
+// (bounded by the loader's in-flight bound) and results (drained every frame).
+class DiskLoader {
+public:
+    explicit DiskLoader(DiskTileCache& cache) : cache_(cache), thread_([this] { run(); }) {}
+    ~DiskLoader() {
+        {
+            std::lock_guard lock(mu_);
+            stop_ = true;
+        }
+        cv_.notify_all();
+        thread_.join();
+    }
+    void lookup(const PageKey& page, TileId id) {
+        std::lock_guard lock(mu_);
+        queue_.emplace_back(page, std::move(id));
+        cv_.notify_one();
+    }
+    // Lookups no longer wanted are skipped.
+    void retain_only(const std::function<bool(const PageKey&)>& wanted) {
+        std::lock_guard lock(mu_);
+        std::erase_if(queue_, [&](const auto& q) { return !wanted(q.first); });
+    }
+    struct Found {
+        PageKey page;
+        std::shared_ptr<const TileData> tile;  // null: miss
+    };
+    void poll(std::vector<Found>& out) {
+        std::lock_guard lock(mu_);
+        for (auto& f : done_) out.push_back(std::move(f));
+        done_.clear();
+    }
+
+private:
+    void run() {
+        for (;;) {
+            std::pair<PageKey, TileId> job;
+            {
+                std::unique_lock lock(mu_);
+                cv_.wait(lock, [&] { return stop_ || !queue_.empty(); });
+                if (stop_) return;
+                job = std::move(queue_.front());
+                queue_.pop_front();
+            }
+            auto got = cache_.get(job.second);
+            Found f{job.first, nullptr};
+            if (got && *got) f.tile = std::make_shared<const TileData>(std::move(**got));
+            std::lock_guard lock(mu_);
+            done_.push_back(std::move(f));
+        }
+    }
+    DiskTileCache& cache_;
+    std::mutex mu_;
+    std::condition_variable cv_;
+    bool stop_ = false;
+    std::deque<std::pair<PageKey, TileId>> queue_;
+    std::vector<Found> done_;
+    std::thread thread_;
+};
+
+PageLoader::PageLoader(const RuntimeConfig& config, PagePoolFormat pool)
+    : config_(config),
+      pool_format_(std::move(pool)),
+      ram_(config.ram_cache_bytes),
+      uploads_(config.upload_pages_per_frame, config.upload_bytes_per_frame, kStagingBuffers) {
+    if (config.transcode_threads > 0) {
+        TranscodePoolOptions o;
+        o.threads = config.transcode_threads;
+        o.capacity = kStagingBuffers;
+        pool_ = std::make_unique<TranscodePool>(o);
+    }
+}
+
+PageLoader::~PageLoader() {
+    if (pool_) pool_->shutdown();
+    disk_loader_.reset();
+}
+
+Status PageLoader::open_disk_cache() {
+    if (config_.disk_cache_dir.empty()) return Status();
+    auto d = DiskTileCache::open(config_.disk_cache_dir, config_.disk_cache_bytes);
+    if (!d) return d.error();
+    disk_ = std::move(*d);
+    disk_loader_ = std::make_unique<DiskLoader>(*disk_);
+    return Status();
+}
+
+Result<storage::StoreInfo> PageLoader::bind(TextureId id, TileSource& source, const std::string& store,
+                                            const PagePoolFormat& pool) {
+    auto info = source.bind(id, store);
+    if (!info) return info.error();
+    if (info->levels.empty()) return Error{Errc::invalid_argument, "store " + store + " has no levels"};
+    // Every page is transcoded to the pool's format: a store that cannot take it is refused
+    // here, with the reason, rather than failing page by page.
+    if (Status st = check_pool_format(*info, pool); !st)
+        return Error{st.error().code, "store " + store + ": " + st.error().message};
+    return info;
+}
+
+void PageLoader::add_texture(TileSource& source, const std::string& store, const storage::StoreInfo& info) {
+    Texture t;
+    t.source = &source;
+    t.store = store;
+    t.info = std::make_shared<const storage::StoreInfo>(info);
+    textures_.push_back(std::move(t));
+    if (disk_) disk_->drop_other_versions(store, info.store_id);
+    page_bytes_ = std::max(page_bytes_, pool_format_.upload_bytes(info.tile_size()));
+}
+
+TileId PageLoader::tile_id(const PageKey& p) const {
+    const auto& t = textures_[p.texture];
+    return TileId{t.store, t.info->store_id, p.tile()};
+}
+
+void PageLoader::arrived(const PageKey& page, Work& w, std::shared_ptr<const TileData> tile, FrameStats& stats) {
+    ++stats.pages_arrived;
+    if (tile->kind == TileKind::absent) {  // a sparse store: nothing to fetch, ever
+        absent_.insert(page);
+        work_.erase(page);
+        return;
+    }
+    w.stage = Stage::arrived;
+    w.tile = std::move(tile);
+}
+
+void PageLoader::request_and_decode(std::uint64_t frame, const WantedPages& wanted, Clock::time_point now, FrameStats& stats) {
+    issue_requests(wanted, now, stats);
+    send_request_sets(frame);
+    decode(wanted, stats);
+}
+
+void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(const PageKey&)>& resident) {
+    if (disk_loader_) {
+        std::vector<DiskLoader::Found> found;
+        disk_loader_->poll(found);
+        for (auto& f : found) {
+            auto it = work_.find(f.page);
+            if (it == work_.end() || it->second.stage != Stage::disk) continue;
+            if (f.tile) {
+                ++stats.disk_hits[f.page.level];
+                ram_.put(tile_id(f.page), f.tile);
+                arrived(f.page, it->second, std::move(f.tile), stats);
+            } else {
+                it->second.stage = Stage::source;  // miss: ask the source
+            }
+        }
+    }
+    for (auto* source : sources()) {
+        received_.clear();
+        source->poll(received_, 4096);
+        for (auto& r : received_) {
+            auto it = work_.find(r.page);
+            if (it == work_.end() || it->second.stage != Stage::source) {  // stale
+                // Withdrawn (I/O the cancellation came too late to save), or a second
+                // delivery of a page already arrived, resident or known absent.
+                if (r.status == TileStatus::ok) {
+                    if (it == work_.end() && !resident(r.page) && !absent_.contains(r.page))
+                        ++stats.stale_arrivals;
+                    else ++stats.duplicate_arrivals;
+                }
+                continue;
+            }
+            if (r.status != TileStatus::ok) {
+                work_.erase(it);  // asked again next frame if still wanted
+                continue;
+            }
+            if (r.page.texture >= textures_.size() || r.store_version != textures_[r.page.texture].info->store_id) {
+                work_.erase(it);  // another version of the store: never mixed in
+                continue;
+            }
+            ++stats.network[r.page.level];
+            stats.bytes_received += r.data.payload.size();
+            std::shared_ptr<const TileData> shared = std::make_shared<TileData>(std::move(r.data));
+            const TileId id = tile_id(r.page);
+            ram_.put(id, shared);
+            if (disk_) disk_->put(id, shared);
+            arrived(r.page, it->second, std::move(shared), stats);
+        }
+    }
+}
+
+void PageLoader::cancel_unwanted(const WantedPages& wanted, FrameStats& stats) {
+    for (auto it = work_.begin(); it != work_.end();) {
+        if (const auto w = wanted.find(it->first); w != wanted.end()) {
+            it->second.priority = w->second;
+            ++it;
+            continue;
+        }
+        switch (it->second.stage) {
+            case Stage::decoding: ++it; continue;  // the pool drops or finishes it
+            case Stage::disk:
+            case Stage::source: ++stats.cancelled_waiting; break;
+            case Stage::arrived: ++stats.cancelled_arrived; break;
+            case Stage::ready: ++stats.cancelled_decoded; break;
+        }
+        free_staging(it->second);
+        it = work_.erase(it);
+    }
+    const auto is_wanted = [&](const PageKey& k) { return wanted.contains(k); };
+    if (pool_) pool_->retain_only(is_wanted);
+    if (disk_loader_) disk_loader_->retain_only(is_wanted);
+    uploads_.drop_if([this](const ReadyPage& p) {
+        const auto it = work_.find(p.key);
+        return it == work_.end() || it->second.ticket != p.ticket;
+    });
+}
+
+void PageLoader::issue_requests(const WantedPages& wanted, Clock::time_point now, FrameStats& stats) {
+    // Highest priority first, within the in-flight bound.
+    order_.clear();
+    for (const auto& [k, p] : wanted)
+        if (!work_.contains(k) && !absent_.contains(k) && k.texture < textures_.size()) order_.emplace_back(p, k);
+    std::sort(order_.begin(), order_.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+    for (const auto& [priority, key] : order_) {
+        if (work_.size() >= config_.max_requests_in_flight) break;
+        Work w;
+        w.priority = priority;
+        w.requested = now;
+        w.ticket = next_ticket_++;
+        ++stats.pages_requested;
+        const TileId id = tile_id(key);
+        if (auto hit = ram_.get(id)) {
+            ++stats.ram_hits[key.level];
+            auto& slot = work_[key] = w;
+            arrived(key, slot, std::move(hit), stats);
+            continue;
+        }
+        w.stage = disk_loader_ ? Stage::disk : Stage::source;
+        work_[key] = w;
+        if (disk_loader_) disk_loader_->lookup(key, id);
+    }
+}
+
+std::vector<TileSource*> PageLoader::sources() const {
+    std::vector<TileSource*> out;
+    for (const auto& t : textures_)
+        if (std::find(out.begin(), out.end(), t.source) == out.end()) out.push_back(t.source);
+    return out;
+}
+
+void PageLoader::send_request_sets(std::uint64_t frame) {
+    for (auto* source : sources()) {
+        requests_.clear();
+        for (const auto& [k, w] : work_)
+            if (w.stage == Stage::source && textures_[k.texture].source == source) requests_.push_back(SourceRequest{k, w.priority});
+        std::sort(requests_.begin(), requests_.end(), [](const SourceRequest& a, const SourceRequest& b) {
+            return a.priority > b.priority || (a.priority == b.priority && page_hash_key(a.page) < page_hash_key(b.page));
+        });
+        auto& last = last_sent_[source];
+        const bool same = last.size() == requests_.size() &&
+                          std::equal(last.begin(), last.end(), requests_.begin(), [](const auto& a, const auto& b) {
+                              return a.page == b.page && a.priority == b.priority;
+                          });
+        // An unchanged set is sent again now and then: a source that reconnected or dropped a
+        // request gets it back.
+        if (same && frame % 30 != 0) continue;
+        source->set_requests(frame, requests_);
+        last = requests_;
+    }
+}
+
+int PageLoader::take_staging() {
+    if (staging_.empty()) {
+        staging_.resize(kStagingBuffers);
+        for (int i = kStagingBuffers - 1; i >= 0; --i) free_staging_.push_back(i);
+    }
+    if (free_staging_.empty()) return -1;
+    const int s = free_staging_.back();
+    free_staging_.pop_back();
+    if (staging_[static_cast<std::size_t>(s)].size() < page_bytes_) staging_[static_cast<std::size_t>(s)].resize(page_bytes_);
+    return s;
+}
+
+void PageLoader::free_staging(Work& w) {
+    if (w.staging >= 0) free_staging_.push_back(w.staging);
+    w.staging = -1;
+}
+
+void PageLoader::decode(const WantedPages& wanted, FrameStats& stats) {
+    order_.clear();
+    for (const auto& [k, w] : work_)
+        if (w.stage == Stage::arrived) order_.emplace_back(w.priority, k);
+    std::sort(order_.begin(), order_.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+    for (const auto& [priority, key] : order_) {
+        auto& w = work_.at(key);
+        const int s = take_staging();
+        if (s < 0) break;
+        const auto& info = textures_[key.texture].info;
+        std::span<std::uint8_t> dst(staging_[static_cast<std::size_t>(s)].data(), pool_format_.upload_bytes(info->tile_size()));
+        w.staging = s;
+        if (!pool_) {
+            const auto st = transcode_pool_page(*info, w.tile->kind, w.tile->codec, w.tile->payload, pool_format_, dst, scratch_);
+            finish_decode(key, st.ok(), wanted, stats);
+            continue;
+        }
+        TranscodeJob job;
+        job.key = key;
+        job.ticket = w.ticket;
+        job.info = info;
+        job.kind = w.tile->kind;
+        job.codec = w.tile->codec;
+        job.pool = pool_format_;
+        job.payload = std::shared_ptr<const std::vector<std::uint8_t>>(w.tile, &w.tile->payload);
+        job.destination = dst;
+        job.priority = static_cast<std::uint32_t>(std::max(0.0f, priority));
+        if (!pool_->submit(std::move(job))) {
+            free_staging(w);
+            break;
+        }
+        w.stage = Stage::decoding;
+    }
+    if (!pool_) return;
+    results_.clear();
+    pool_->poll(results_);
+    for (const auto& r : results_) {
+        auto it = work_.find(r.key);
+        if (it == work_.end() || it->second.ticket != r.ticket) continue;
+        if (r.dropped) {  // no longer wanted when its turn came
+            ++stats.decodes_dropped;
+            free_staging(it->second);
+            work_.erase(it);
+            continue;
+        }
+        finish_decode(r.key, r.status.ok(), wanted, stats);
+    }
+}
+
+void PageLoader::finish_decode(const PageKey& key, bool ok, const WantedPages& wanted, FrameStats& stats) {
+    auto& w = work_.at(key);
+    if (!ok || !wanted.contains(key)) {
+        if (ok) ++stats.cancelled_decoded;  // decoded, then found unwanted
+        free_staging(w);
+        work_.erase(key);
+        return;
+    }
+    const auto& info = textures_[key.texture].info;
+    ReadyPage p;
+    p.key = key;
+    p.priority = w.priority;
+    p.ticket = w.ticket;
+    p.data = std::span<const std::uint8_t>(staging_[static_cast<std::size_t>(w.staging)].data(),
+                                           pool_format_.upload_bytes(info->tile_size()));
+    p.bytes = static_cast<std::uint32_t>(p.data.size());
+    p.requested = w.requested;
+    w.stage = Stage::ready;
+    w.tile.reset();
+    if (!uploads_.push(std::move(p))) {
+        free_staging(w);
+        work_.erase(key);
+    }
+}
+
+void PageLoader::take_frame(std::vector<Loaded>& out) {
+    ready_.clear();
+    uploads_.take_frame(ready_);
+    for (const ReadyPage& p : ready_) {
+        const auto it = work_.find(p.key);
+        if (it == work_.end() || it->second.ticket != p.ticket) continue;  // dropped since
+        out.push_back(Loaded{p.key, p.data, p.bytes, p.requested});
+    }
+}
+
+void PageLoader::done(const PageKey& key) {
+    const auto it = work_.find(key);
+    if (it == work_.end()) return;
+    free_staging(it->second);
+    work_.erase(it);
+}
+
+}  // namespace tessera::client
