@@ -23,6 +23,7 @@
 #include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/measures.hpp"
+#include "tessera/client/open_source.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/scene/path.hpp"
 #include "tessera/client/scene/scene.hpp"
@@ -41,7 +42,7 @@ namespace {
 }
 
 struct Options {
-    std::string target, store, reference, save;
+    std::string url, reference, save;  // url: grpc://HOST:PORT/STORE
     int frames = 120;
     std::uint32_t width = 320, height = 180;
 };
@@ -67,16 +68,13 @@ Options parse(int argc, char** argv) {
             o.reference = value();
         } else if (a == "--save") {
             o.save = value();
-        } else if (a.rfind("grpc://", 0) == 0 && o.target.empty()) {
-            const auto slash = a.find('/', 7);
-            if (slash == std::string::npos || slash + 1 == a.size()) fail("expected grpc://HOST:PORT/STORE, got '" + a + "'");
-            o.target = a.substr(7, slash - 7);
-            o.store = a.substr(slash + 1);
+        } else if (a.rfind("grpc://", 0) == 0 && o.url.empty()) {
+            o.url = a;
         } else {
             fail(kUsage);
         }
     }
-    if (o.target.empty()) fail(kUsage);
+    if (o.url.empty()) fail(kUsage);
     if (o.frames < 1) fail("--frames must be >= 1");
     return o;
 }
@@ -94,10 +92,9 @@ int main(int argc, char** argv) {
 
     // 1. A GL context (EGL, no display needed) and the page source: the server's tile stream.
     auto context = take(gl::GlContext::create_headless(), "GL context");
-    client::TileStreamOptions stream;
-    stream.target = o.target;
-    auto source = client::make_grpc_source(stream);
-    const auto info = take(source->bind(0, o.store), "store");
+    auto opened = take(client::open_source(take(client::parse_source_url(o.url), "store"), {}), "source");
+    auto source = std::move(opened.source);
+    const auto info = take(source->bind(0, opened.store), "store");
 
     // 2. The renderer: the page pool, page tables and VT passes, sized for this store's pages.
     gl::RendererConfig rc;
@@ -115,7 +112,7 @@ int main(int argc, char** argv) {
     cfg.residency.pool_slots = rc.pool_slots;
     cfg.transcode_threads = 1;
     auto runtime = take(client::Runtime::create(cfg, *renderer), "runtime");
-    const auto texture = take(runtime->add_texture(*source, o.store), "texture");
+    const auto texture = take(runtime->add_texture(*source, opened.store), "texture");
     if (auto st = renderer->add_texture(texture, *runtime->texture_info(texture)); !st) fail(st.error().message);
 
     // 4. A scene: a flat terrain one world unit per texel, and a camera path over it.

@@ -29,6 +29,7 @@
 #include "tessera/client/gl/hud.hpp"
 #include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/measures.hpp"
+#include "tessera/client/open_source.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/client/scene/path.hpp"
@@ -39,45 +40,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
-
-// Where the tiles come from: a local store file or a server URL.
-struct StoreLocation {
-    bool remote = false;
-    std::string file;     // local
-    std::string address;  // remote HOST:PORT
-    std::string name;     // remote store name
-    bool tls = false;
-};
-
-StoreLocation parse_store(const std::string& spec) {
-    StoreLocation loc;
-    std::string rest = spec;
-    if (rest.rfind("grpc://", 0) == 0) {
-        rest = rest.substr(7);
-        loc.remote = true;
-    } else if (rest.rfind("grpcs://", 0) == 0) {
-        rest = rest.substr(8);
-        loc.remote = loc.tls = true;
-    } else if (!fs::exists(rest) && rest.find(':') != std::string::npos && rest.find('/') != std::string::npos &&
-               !rest.ends_with(".tsr")) {
-        loc.remote = true;  // HOST:PORT/NAME
-    }
-    if (!loc.remote) {
-        std::error_code ec;
-        if (!fs::is_regular_file(spec, ec))
-            throw Failure(fmt::format("--store '{}': no such store file (or use grpc://HOST:PORT/NAME)", spec));
-        loc.file = spec;
-        return loc;
-    }
-    const auto slash = rest.find('/');
-    if (slash == std::string::npos || slash == 0 || slash + 1 == rest.size())
-        throw Failure(fmt::format("--store '{}': a server store is HOST:PORT/NAME", spec));
-    loc.address = rest.substr(0, slash);
-    loc.name = rest.substr(slash + 1);
-    if (loc.address.find(':') == std::string::npos)
-        throw Failure(fmt::format("--store '{}': the server address needs a port (HOST:PORT/NAME)", spec));
-    return loc;
-}
 
 // Free-flying camera for the windowed viewer: WASD move, Q/E down/up, left-drag looks, scroll
 // changes speed, Space returns to the path, Esc quits.
@@ -261,30 +223,21 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     if (!(o.fps > 0) || o.fps > 1000) throw Failure("--fps must be in (0, 1000]");
     if (o.anisotropy < 1 || o.anisotropy > 8) throw Failure("--anisotropy must be 1..8");
 
-    // Where tiles come from.
-    const StoreLocation loc = parse_store(o.store);
-    std::unique_ptr<client::TileSource> source;
-    std::string store_name;
-    if (loc.remote) {
-        client::TileStreamOptions so;
-        so.target = loc.address;
-        so.auth_token = o.auth_token;
-        if (loc.tls) so.tls_root_certs_pem = tls_roots_pem(o.tls_ca_file);
-        source = client::make_grpc_source(so);
-        store_name = loc.name;
-    } else {
-        source = client::make_local_store_source(2);
-        store_name = loc.file;
-    }
-    if (o.link_latency_ms < 0 || o.link_jitter_ms < 0 || o.link_bandwidth_bits_per_s < 0)
-        throw Failure("the emulated link's latency, jitter and bandwidth must be >= 0");
-    if (o.link_latency_ms > 0 || o.link_jitter_ms > 0 || o.link_bandwidth_bits_per_s > 0) {
-        client::EmulatedLink link;
-        link.latency = std::chrono::microseconds(std::llround(o.link_latency_ms * 1000));
-        link.jitter = std::chrono::microseconds(std::llround(o.link_jitter_ms * 1000));
-        link.bandwidth_bits_per_s = o.link_bandwidth_bits_per_s;
-        source = client::make_emulated_source(std::move(source), link, o.link_seed);
-    }
+    // Where tiles come from (client::open_source: a store file, or grpc[s]://TARGET/NAME).
+    auto parsed = client::parse_source_url(o.store);
+    if (!parsed) throw Failure(fmt::format("--store {}", parsed.error().message));
+    const client::SourceUrl& loc = *parsed;
+    client::SourceOptions source_options;
+    source_options.auth_token = o.auth_token;
+    if (loc.tls) source_options.tls_roots_pem = tls_roots_pem(o.tls_ca_file);
+    source_options.link.latency = std::chrono::microseconds(std::llround(o.link_latency_ms * 1000));
+    source_options.link.jitter = std::chrono::microseconds(std::llround(o.link_jitter_ms * 1000));
+    source_options.link.bandwidth_bits_per_s = o.link_bandwidth_bits_per_s;
+    source_options.link_seed = o.link_seed;
+    auto opened = client::open_source(loc, source_options);
+    if (!opened) throw Failure(opened.error().message);
+    std::unique_ptr<client::TileSource> source = std::move(opened->source);
+    const std::string store_name = opened->store;
 
     // GL first: the renderer needs the store's geometry, the runtime needs the renderer.
     auto ctx = o.headless ? client::gl::GlContext::create_headless()
@@ -383,7 +336,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     // The reference renderer, for PSNR.
     std::unique_ptr<client::gl::ReferenceRenderer> reference;
     if (o.psnr_every > 0) {
-        const std::string ref_store = !o.reference_store.empty() ? o.reference_store : loc.file;
+        const std::string ref_store = !o.reference_store.empty() ? o.reference_store : loc.remote ? std::string() : loc.store;
         if (ref_store.empty())
             throw Failure("PSNR needs a local copy of the store: --reference-store FILE (the store is remote)");
         if (o.progress) fmt::print("reference: decoding {} ...\n", ref_store);
@@ -459,7 +412,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     while (!source->available() &&
            std::chrono::duration<double>(Clock::now() - link_start).count() < o.connect_wait_s)
         std::this_thread::sleep_for(std::chrono::milliseconds(5));
-    LinkMonitor link_monitor(*source, loc.remote ? loc.address : loc.file, link_start);
+    LinkMonitor link_monitor(*source, loc.remote ? loc.target : loc.store, link_start);
     rep.remote = loc.remote;
     ProgressBar* shown_bar = nullptr;  // cleared before a link line, redrawn by its next update
     auto watch_link = [&](Clock::time_point now) {

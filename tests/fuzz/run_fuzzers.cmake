@@ -68,7 +68,7 @@ if(NOT TESSERA_CLANGXX OR NOT TESSERA_CLANG)
                   "installs clang; -DTESSERA_FUZZ=OFF leaves them out)")
 else()
   include(ExternalProject)
-  set(TESSERA_FUZZ_FLAGS "-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer -O1 -g")
+  set(TESSERA_FUZZ_FLAGS "-fsanitize=fuzzer-no-link,address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer -O1 -gline-tables-only")
   ExternalProject_Add(tessera_fuzz
     SOURCE_DIR ${PROJECT_SOURCE_DIR}
     BINARY_DIR ${TESSERA_FUZZ_BUILD_DIR}

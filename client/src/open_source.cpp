@@ -1,0 +1,67 @@
+#include "tessera/client/open_source.hpp"
+
+#include <filesystem>
+
+namespace tessera::client {
+
+namespace {
+
+bool starts_with(std::string_view s, std::string_view prefix) { return s.substr(0, prefix.size()) == prefix; }
+
+}  // namespace
+
+Result<SourceUrl> parse_source_url(std::string_view spec) {
+    namespace fs = std::filesystem;
+    SourceUrl url;
+    std::string_view rest = spec;
+    std::error_code ec;
+    if (starts_with(rest, "grpc://")) {
+        rest.remove_prefix(7);
+        url.remote = true;
+    } else if (starts_with(rest, "grpcs://")) {
+        rest.remove_prefix(8);
+        url.remote = url.tls = true;
+    } else if (!fs::exists(fs::path(std::string(spec)), ec) && rest.find(':') != std::string_view::npos &&
+               rest.find('/') != std::string_view::npos && !rest.ends_with(".tsr")) {
+        url.remote = true;  // TARGET/NAME
+    }
+    const std::string quoted = "'" + std::string(spec) + "'";
+    if (!url.remote) {
+        if (!fs::is_regular_file(fs::path(std::string(spec)), ec))
+            return Error{Errc::invalid_argument, quoted + ": no such store file (or use grpc://HOST:PORT/NAME)"};
+        url.store = std::string(spec);
+        return url;
+    }
+    const auto slash = rest.find('/');
+    if (slash == std::string_view::npos || slash == 0 || slash + 1 == rest.size())
+        return Error{Errc::invalid_argument, quoted + ": a server store is HOST:PORT/NAME"};
+    url.target = std::string(rest.substr(0, slash));
+    url.store = std::string(rest.substr(slash + 1));
+    if (url.target.find(':') == std::string::npos)
+        return Error{Errc::invalid_argument, quoted + ": the server address needs a port (HOST:PORT/NAME)"};
+    return url;
+}
+
+Result<OpenedSource> open_source(const SourceUrl& url, const SourceOptions& options) {
+    const EmulatedLink& link = options.link;
+    if (link.latency.count() < 0 || link.jitter.count() < 0 || link.bandwidth_bits_per_s < 0)
+        return Error{Errc::invalid_argument, "the emulated link's latency, jitter and bandwidth must be >= 0"};
+    OpenedSource out;
+    out.store = url.store;
+    if (url.remote) {
+        if (url.tls && options.tls_roots_pem.empty())
+            return Error{Errc::invalid_argument, "grpcs://" + url.target + ": TLS needs the roots to verify the server against"};
+        TileStreamOptions so;
+        so.target = url.target;
+        so.auth_token = options.auth_token;
+        if (url.tls) so.tls_root_certs_pem = options.tls_roots_pem;
+        out.source = make_grpc_source(so);
+    } else {
+        out.source = make_local_store_source(options.local_threads);
+    }
+    if (link.latency.count() > 0 || link.jitter.count() > 0 || link.bandwidth_bits_per_s > 0)
+        out.source = make_emulated_source(std::move(out.source), link, options.link_seed);
+    return out;
+}
+
+}  // namespace tessera::client
