@@ -19,7 +19,7 @@ what to measure. Writes WORK/pool_floor.json and prints a Markdown table.
 
   bench/pool_floor.py [--tessera build/tessera] [--paths flyover,walk,whip]
                       [--sizes 1280x720,1920x1080] [--formats rgba8,bc1,bc7] [--tiles 128,256]
-                      [--texels 16384] [--lo 8] [--hi 2048] [--precision 0.05]
+                      [--texels 16384] [--lo 16] [--hi 2048] [--precision 0.05]
                       [--max-fallback 0.0001] [--work build/pool-floor]
 """
 import argparse
@@ -33,7 +33,8 @@ import sys
 import time
 
 SUMMARY = {
-    "pool": re.compile(r"^GPU pool\s+(\d+) pages of (\S+), ([\d.]+) KiB per page, ([\d.]+) MiB in all"),
+    # The viewer prints the pool in KiB below 1 MiB.
+    "pool": re.compile(r"^GPU pool\s+(\d+) pages of (\S+), ([\d.]+) KiB per page, ([\d.]+) (KiB|MiB) in all"),
     "frames": re.compile(r"^frames\s+(\d+) in ([\d.]+) s"),
     "warmup": re.compile(r"^first view\s+(full detail|NOT at full detail)"),
     "fallback": re.compile(r"^fallback\s+([\d.]+)% of textured pixels"),
@@ -66,7 +67,7 @@ def run_view(a, store, path, size, fmt, pool):
         raise RuntimeError(f"{' '.join(cmd)} exited {r.returncode}:\n{r.stderr[-3000:]}")
     s = parse_summary(r.stdout + "\n" + r.stderr)
     w, h = (int(v) for v in size.split("x"))
-    pool_mib = float(s["pool"][3])
+    pool_mib = float(s["pool"][3]) / (1024 if s["pool"][4] == "KiB" else 1)
     frames, seconds = int(s["frames"][0]), float(s["frames"][1])
     res = {
         "pool_pages": pool,
@@ -120,12 +121,15 @@ def main():
     ap.add_argument("--formats", default="rgba8,bc1,bc7")
     ap.add_argument("--tiles", default="128,256")
     ap.add_argument("--texels", type=int, default=16384)
-    ap.add_argument("--lo", type=int, default=8)
+    ap.add_argument("--lo", type=int, default=16, help="smallest pool tried (the viewer's minimum is 16)")
     ap.add_argument("--hi", type=int, default=2048)
     ap.add_argument("--precision", type=float, default=0.05, help="stop when within this fraction of the pool")
     ap.add_argument("--max-fallback", type=float, default=0.0001, help="fraction of textured pixels (0.0001 = 0.01%%)")
     ap.add_argument("--work", default="build/pool-floor")
     a = ap.parse_args()
+    if a.lo < 16:  # tessera view refuses pools under 16 pages
+        print(f"--lo {a.lo}: the viewer's smallest pool is 16 pages; bisecting from 16", file=sys.stderr)
+        a.lo = 16
     if not (1 <= a.lo < a.hi):
         sys.exit("pool_floor: need 1 <= --lo < --hi")
     if not os.access(a.tessera, os.X_OK):
