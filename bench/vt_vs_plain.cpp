@@ -170,7 +170,7 @@ int main(int argc, char** argv) {
             cfg.upload_pages_per_frame = 256;
             cfg.upload_bytes_per_frame = 256u << 20;
             cfg.fade_ms = fade;
-            auto rt = client::Runtime::create(cfg, **vt);
+            auto rt = client::Runtime::create(cfg, **vt, &(*vt)->page_staging());
             if (!rt) return rt.error();
             auto tex = (*rt)->add_texture(*source, store);
             if (!tex) return tex.error();

@@ -111,7 +111,7 @@ int main(int argc, char** argv) {
     client::RuntimeConfig cfg;
     cfg.residency.pool_slots = rc.pool_slots;
     cfg.transcode_threads = 1;
-    auto runtime = take(client::Runtime::create(cfg, *renderer), "runtime");
+    auto runtime = take(client::Runtime::create(cfg, *renderer, &renderer->page_staging()), "runtime");
     const auto texture = take(runtime->add_texture(*source, opened.store), "texture");
     if (auto st = renderer->add_texture(texture, *runtime->texture_info(texture)); !st) fail(st.error().message);
 

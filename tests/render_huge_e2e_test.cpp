@@ -69,7 +69,7 @@ void far_corner_end_to_end(std::uint32_t size, std::uint32_t tile, std::uint32_t
     rc.residency.pool_slots = pool;
     rc.transcode_threads = 1;
     rc.ram_cache_bytes = 32u << 20;  // a few 1024-texel raw tiles: CI memory
-    auto rt_made = tessera::client::Runtime::create(rc, renderer);
+    auto rt_made = tessera::client::Runtime::create(rc, renderer, &renderer.page_staging());
     ASSERT_TRUE(rt_made.ok()) << rt_made.error().message;
     tessera::client::Runtime& rt = **rt_made;
     const std::string spec = "procedural:coords:" + std::to_string(size) + ":" + std::to_string(tile) + ":4";

@@ -70,7 +70,7 @@ protected:
         cfg.residency.pool_slots = pool;
         cfg.transcode_threads = 0;
         cfg.upload_pages_per_frame = 16;
-        auto rt = client::Runtime::create(cfg, **renderer);
+        auto rt = client::Runtime::create(cfg, **renderer, &(*renderer)->page_staging());
         EXPECT_TRUE(rt.ok());
         auto tex = (*rt)->add_texture(*source, store_);
         EXPECT_TRUE(tex.ok());

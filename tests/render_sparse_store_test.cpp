@@ -98,7 +98,7 @@ TEST(SparseStore, TwoToTheTwentyFourServedAndViewedAtItsCornersAndCentre) {
     rc.residency.pool_slots = cfg.pool_slots;
     rc.transcode_threads = 1;
     rc.ram_cache_bytes = 16u << 20;
-    auto rt_made = tessera::client::Runtime::create(rc, renderer);
+    auto rt_made = tessera::client::Runtime::create(rc, renderer, &renderer.page_staging());
     ASSERT_TRUE(rt_made.ok()) << rt_made.error().message;
     tessera::client::Runtime& rt = **rt_made;
     auto tex = rt.add_texture(*source, "sparse");

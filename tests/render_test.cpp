@@ -646,6 +646,7 @@ TEST(RenderVsReferenceSmallRing, UploadsStillLandWhenTheStagingRingIsFull) {
     const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:1024", 128);
     auto cfg = config(gl::Filter::trilinear, 128, 128, /*srgb=*/false, 160, 120);
     cfg.staging_bytes = 48 * 1024;  // a page is 64 KiB
+    cfg.staging_pages = 0;          // and none is decoded into lent memory: every page takes the ring
     const auto scene = terrain(1024, 1024, 512);
     auto vt = make_vt(cfg, store, scene);
     ASSERT_TRUE(vt);
@@ -664,6 +665,39 @@ TEST(RenderVsReferenceSmallRing, UploadsStillLandWhenTheStagingRingIsFull) {
     const auto e = tessera::client::compare_images(f.rgba, want, cfg.width, cfg.height, coverage(want));
     EXPECT_GE(e.psnr, 50.0) << "max error " << e.max_error;
     EXPECT_EQ(f.counters.fallback_unbiased, 0u);
+}
+
+// Pages decoded into the renderer's lent staging memory (the default) are uploaded from where
+// the transcoder wrote them: none is copied on the CPU. Without it, every page is. The frames are
+// the same and right either way.
+TEST(RenderVsReferenceStaging, PagesDecodedIntoLentMemoryAreUploadedWithoutACopy) {
+    REQUIRE_GL(ctx);
+    ScratchDir dir;
+    const std::string store = build_store(dir.file("terrain.tsr"), "procedural:terrain:1024", 128);
+    const auto scene = terrain(1024, 1024, 512);
+    const auto cam = looking(512, -60, 90, kPi / 2, -0.4);
+    std::vector<std::uint8_t> frames[2];
+    for (const std::uint32_t lent : {192u, 0u}) {
+        auto cfg = config(gl::Filter::trilinear, 128, 128, /*srgb=*/false, 160, 120);
+        cfg.staging_pages = lent;
+        auto vt = make_vt(cfg, store, scene);
+        ASSERT_TRUE(vt);
+        ASSERT_TRUE(load_everything(*vt));
+        const auto stats = vt->renderer->stats();
+        ASSERT_GT(stats.pages_uploaded, 0u);
+        EXPECT_EQ(stats.malformed_uploads, 0u);
+        if (lent > 0) {
+            EXPECT_EQ(stats.pages_copied, 0u) << "of " << stats.pages_uploaded << " pages";
+            EXPECT_EQ(stats.page_bytes_copied, 0u);
+        } else {
+            EXPECT_EQ(stats.pages_copied, stats.pages_uploaded);
+            EXPECT_EQ(stats.page_bytes_copied, stats.pages_uploaded * 128u * 128u * 4u);
+        }
+        const Frame f = render_vt(*vt->renderer, cam);
+        EXPECT_EQ(f.counters.fallback_unbiased, 0u);
+        frames[lent > 0 ? 0 : 1] = f.rgba;
+    }
+    EXPECT_EQ(frames[0], frames[1]) << "the same pages drew a different frame";
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -53,7 +53,7 @@ inline std::unique_ptr<Vt> make_vt(const gl::RendererConfig& cfg, const std::str
     rc.transcode_threads = 1;
     rc.upload_pages_per_frame = 128;
     rc.upload_bytes_per_frame = 64u << 20;
-    auto rt = tessera::client::Runtime::create(rc, *vt->renderer);
+    auto rt = tessera::client::Runtime::create(rc, *vt->renderer, &vt->renderer->page_staging());
     EXPECT_TRUE(rt.ok()) << rt.error().message;
     if (!rt) return nullptr;
     vt->runtime = std::move(*rt);

@@ -293,7 +293,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     const client::PagePoolFormat pool_format = r.pool_format();
     cfg.upload_bytes_per_frame =
         std::size_t(o.upload_pages_per_frame) * pool_format.upload_bytes(info->tile_size());
-    auto runtime = client::Runtime::create(cfg, r);
+    auto runtime = client::Runtime::create(cfg, r, &r.page_staging());
     if (!runtime) throw Failure(runtime.error().message);
     auto& rt = **runtime;
     auto texture = rt.add_texture(*source, store_name);
@@ -644,6 +644,7 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rep.summary = rt.summary();
     rep.fade_frames = std::uint32_t(std::ceil(double(o.fade_ms) / 1000.0 * o.fps));
     rep.predicted_feedback_frames = r.stats().predicted_feedback;
+    rep.page_bytes_copied = r.stats().page_bytes_copied;
     // PSNR once settled: the path's last view held until it is resident and faded in.
     if (reference && !win && done == frames && done > 0) {
         const scene::Camera last = path->at(double(done - 1) / o.fps);
@@ -872,8 +873,9 @@ std::string summary_text(const ViewerReport& rep) {
                          rep.fade_frames ? fmt::format("; full weight {} frames later (the fade)", rep.fade_frames) : "");
     if (rep.predicted_feedback_frames > 0)
         s += fmt::format("prefetch      {} frames' feedback saw the view ahead (motion prefetch)\n", rep.predicted_feedback_frames);
-    s += fmt::format("bytes         {} received, {} uploaded\n", human_bytes(rep.summary.bytes_received()),
-                     human_bytes(rep.summary.bytes_uploaded()));
+    s += fmt::format("bytes         {} received, {} uploaded ({} of them copied after decoding)\n",
+                     human_bytes(rep.summary.bytes_received()), human_bytes(rep.summary.bytes_uploaded()),
+                     human_bytes(rep.page_bytes_copied));
     s += fmt::format("pages         {} requested, {} uploaded, {} evicted{}; cache hit ratio {}\n",
                      rep.summary.pages_requested(), rep.summary.pages_uploaded(), rep.summary.pages_evicted(),
                      rep.summary.pages_rescued() ? fmt::format(" ({} more fading out were wanted again and kept)",

@@ -151,6 +151,7 @@ struct ViewerReport {
     bool settled_complete = false;
     std::uint32_t fade_frames = 0;  // frames a page takes to reach full weight once drawn (0: no fade)
     std::uint64_t predicted_feedback_frames = 0;  // frames whose feedback saw a predicted view
+    std::uint64_t page_bytes_copied = 0;          // page bytes copied on the CPU after decoding (RendererStats)
     // The tile source's link over the whole run, warm-up included (a local store: always up).
     bool remote = false;            // tiles came from a server
     double run_s = 0;               // wall time the link was watched (warm-up and path)

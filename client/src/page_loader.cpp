@@ -35,10 +35,16 @@ public:
         PageKey page;
         std::shared_ptr<const TileData> tile;  // null: miss
     };
-    void poll(std::vector<Found>& out) {
-        std::lock_guard lock(mu_);
-        for (auto& f : done_) out.push_back(std::move(f));
-        done_.clear();
+    // Calls f(Found&) for every finished lookup, outside the lock. The two lists trade places,
+    // so neither allocates once both have grown to a frame's worth.
+    template <class F>
+    void drain(F&& f) {
+        {
+            std::lock_guard lock(mu_);
+            taken_.swap(done_);
+        }
+        for (auto& found : taken_) f(found);
+        taken_.clear();
     }
 
 private:
@@ -65,12 +71,14 @@ private:
     bool stop_ = false;
     std::deque<std::pair<PageKey, TileId>> queue_;
     std::vector<Found> done_;
+    std::vector<Found> taken_;  // render thread only
     std::thread thread_;
 };
 
-PageLoader::PageLoader(const RuntimeConfig& config, PagePoolFormat pool)
+PageLoader::PageLoader(const RuntimeConfig& config, PagePoolFormat pool, PageStaging* lender)
     : config_(config),
       pool_format_(std::move(pool)),
+      lender_(lender),
       ram_(config.ram_cache_bytes),
       uploads_(config.upload_pages_per_frame, config.upload_bytes_per_frame, kStagingBuffers) {
     if (config.transcode_threads > 0) {
@@ -82,8 +90,10 @@ PageLoader::PageLoader(const RuntimeConfig& config, PagePoolFormat pool)
 }
 
 PageLoader::~PageLoader() {
-    if (pool_) pool_->shutdown();
+    if (pool_) pool_->shutdown();  // no transcode thread writes into staging memory after this
     disk_loader_.reset();
+    for (auto& s : staging_)
+        if (s.lent) lender_->release(*s.lent);
 }
 
 Status PageLoader::open_disk_cache() {
@@ -113,6 +123,7 @@ void PageLoader::add_texture(TileSource& source, const std::string& store, const
     t.store = store;
     t.info = std::make_shared<const storage::StoreInfo>(info);
     textures_.push_back(std::move(t));
+    if (std::find(sources_.begin(), sources_.end(), &source) == sources_.end()) sources_.push_back(&source);
     if (disk_) disk_->drop_other_versions(store, info.store_id);
     page_bytes_ = std::max(page_bytes_, pool_format_.upload_bytes(info.tile_size()));
 }
@@ -141,11 +152,9 @@ void PageLoader::request_and_decode(std::uint64_t frame, const WantedPages& want
 
 void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(const PageKey&)>& resident) {
     if (disk_loader_) {
-        std::vector<DiskLoader::Found> found;
-        disk_loader_->poll(found);
-        for (auto& f : found) {
+        disk_loader_->drain([&](DiskLoader::Found& f) {
             auto it = work_.find(f.page);
-            if (it == work_.end() || it->second.stage != Stage::disk) continue;
+            if (it == work_.end() || it->second.stage != Stage::disk) return;
             if (f.tile) {
                 ++stats.disk_hits[f.page.level];
                 ram_.put(tile_id(f.page), f.tile);
@@ -153,9 +162,9 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
             } else {
                 it->second.stage = Stage::source;  // miss: ask the source
             }
-        }
+        });
     }
-    for (auto* source : sources()) {
+    for (auto* source : sources_) {
         received_.clear();
         source->poll(received_, 4096);
         for (auto& r : received_) {
@@ -241,15 +250,8 @@ void PageLoader::issue_requests(const WantedPages& wanted, Clock::time_point now
     }
 }
 
-std::vector<TileSource*> PageLoader::sources() const {
-    std::vector<TileSource*> out;
-    for (const auto& t : textures_)
-        if (std::find(out.begin(), out.end(), t.source) == out.end()) out.push_back(t.source);
-    return out;
-}
-
 void PageLoader::send_request_sets(std::uint64_t frame) {
-    for (auto* source : sources()) {
+    for (auto* source : sources_) {
         requests_.clear();
         for (const auto& [k, w] : work_)
             if (w.stage == Stage::source && textures_[k.texture].source == source) requests_.push_back(SourceRequest{k, w.priority});
@@ -275,14 +277,28 @@ int PageLoader::take_staging() {
         for (int i = kStagingBuffers - 1; i >= 0; --i) free_staging_.push_back(i);
     }
     if (free_staging_.empty()) return -1;
-    const int s = free_staging_.back();
+    const int i = free_staging_.back();
     free_staging_.pop_back();
-    if (staging_[static_cast<std::size_t>(s)].size() < page_bytes_) staging_[static_cast<std::size_t>(s)].resize(page_bytes_);
-    return s;
+    Staging& s = staging_[static_cast<std::size_t>(i)];
+    if (lender_) {
+        if (const StagingBuffer b = lender_->acquire(page_bytes_); b.bytes.size() >= page_bytes_) {
+            s.lent = b.id;
+            s.bytes = b.bytes;
+            return i;
+        }
+    }
+    if (s.own.size() < page_bytes_) s.own.resize(page_bytes_);
+    s.bytes = s.own;
+    return i;
 }
 
 void PageLoader::free_staging(Work& w) {
-    if (w.staging >= 0) free_staging_.push_back(w.staging);
+    if (w.staging < 0) return;
+    Staging& s = staging_[static_cast<std::size_t>(w.staging)];
+    if (s.lent) lender_->release(*s.lent);
+    s.lent.reset();
+    s.bytes = {};
+    free_staging_.push_back(w.staging);
     w.staging = -1;
 }
 
@@ -296,7 +312,7 @@ void PageLoader::decode(const WantedPages& wanted, FrameStats& stats) {
         const int s = take_staging();
         if (s < 0) break;
         const auto& info = textures_[key.texture].info;
-        std::span<std::uint8_t> dst(staging_[static_cast<std::size_t>(s)].data(), pool_format_.upload_bytes(info->tile_size()));
+        const std::span<std::uint8_t> dst = staging_[static_cast<std::size_t>(s)].bytes.first(pool_format_.upload_bytes(info->tile_size()));
         w.staging = s;
         if (!pool_) {
             const auto st = transcode_pool_page(*info, w.tile->kind, w.tile->codec, w.tile->payload, pool_format_, dst, scratch_);
@@ -348,8 +364,7 @@ void PageLoader::finish_decode(const PageKey& key, bool ok, const WantedPages& w
     p.key = key;
     p.priority = w.priority;
     p.ticket = w.ticket;
-    p.data = std::span<const std::uint8_t>(staging_[static_cast<std::size_t>(w.staging)].data(),
-                                           pool_format_.upload_bytes(info->tile_size()));
+    p.data = staging_[static_cast<std::size_t>(w.staging)].bytes.first(pool_format_.upload_bytes(info->tile_size()));
     p.bytes = static_cast<std::uint32_t>(p.data.size());
     p.requested = w.requested;
     w.stage = Stage::ready;

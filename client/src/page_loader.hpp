@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <unordered_map>
 #include <unordered_set>
@@ -37,8 +38,9 @@ public:
     using Clock = std::chrono::steady_clock;
     static constexpr std::size_t kStagingBuffers = 64;  // decoded pages waiting for upload, at most
 
-    // Uses config's request, cache, transcode and upload-budget settings.
-    PageLoader(const RuntimeConfig& config, PagePoolFormat pool);
+    // Uses config's request, cache, transcode and upload-budget settings. `lender`, when not
+    // null, lends the staging memory pages are decoded into (else the loader's own buffers).
+    PageLoader(const RuntimeConfig& config, PagePoolFormat pool, PageStaging* lender = nullptr);
     ~PageLoader();
     PageLoader(const PageLoader&) = delete;
     PageLoader& operator=(const PageLoader&) = delete;
@@ -105,10 +107,10 @@ private:
     void finish_decode(const PageKey& key, bool ok, const WantedPages& wanted, FrameStats& stats);
     int take_staging();
     void free_staging(Work& w);
-    std::vector<TileSource*> sources() const;
 
     RuntimeConfig config_;
     PagePoolFormat pool_format_;
+    PageStaging* lender_ = nullptr;  // null: decode into the loader's own buffers
     RamTileCache ram_;
     std::unique_ptr<DiskTileCache> disk_;
     std::unique_ptr<DiskLoader> disk_loader_;
@@ -116,12 +118,19 @@ private:
     Scratch scratch_;
     UploadQueue uploads_;
     std::vector<Texture> textures_;
+    std::vector<TileSource*> sources_;  // each texture's source, once
     std::size_t page_bytes_ = 0;  // staging buffer size: the largest upload of any texture
     std::uint64_t next_ticket_ = 1;
     std::unordered_map<PageKey, Work, PageKeyHash> work_;
     std::unordered_set<PageKey, PageKeyHash> absent_;
     std::unordered_map<TileSource*, std::vector<SourceRequest>> last_sent_;
-    std::vector<std::vector<std::uint8_t>> staging_;
+    // A decoded page's memory: lent by the uploader (one copy fewer) or the loader's own.
+    struct Staging {
+        std::span<std::uint8_t> bytes;     // while taken
+        std::optional<std::uint32_t> lent;  // the lender's id, while lent
+        std::vector<std::uint8_t> own;      // used when nothing is lent
+    };
+    std::vector<Staging> staging_;  // kStagingBuffers of them
     std::vector<int> free_staging_;
 
     // Per-frame scratch (kept to avoid reallocating).

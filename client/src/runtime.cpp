@@ -24,14 +24,14 @@ private:
 
 class RuntimeImpl final : public Runtime {
 public:
-    RuntimeImpl(const RuntimeConfig& config, PageUploader& uploader, Residency residency)
+    RuntimeImpl(const RuntimeConfig& config, PageUploader& uploader, PageStaging* staging, Residency residency)
         : config_(config),
           uploader_(uploader),
           residency_(std::move(residency)),
           view_(residency_),
           analyzer_(config.max_feedback_pages),
           pool_format_(uploader.pool_format()),
-          loader_(config, pool_format_),
+          loader_(config, pool_format_, staging),
           bias_(config.bias),
           glide_(double(config.fade_ms) / 1000.0) {}
 
@@ -277,7 +277,8 @@ private:
 
 }  // namespace
 
-Result<std::unique_ptr<Runtime>> Runtime::create(const RuntimeConfig& config, PageUploader& uploader) {
+Result<std::unique_ptr<Runtime>> Runtime::create(const RuntimeConfig& config, PageUploader& uploader,
+                                                 PageStaging* staging) {
     if (config.residency.pool_slots == 0) return Error{Errc::invalid_argument, "the page pool needs at least one slot"};
     if (config.max_requests_in_flight == 0) return Error{Errc::invalid_argument, "max_requests_in_flight must be >= 1"};
     if (!(config.fade_ms >= 0 && config.fade_ms <= 10000)) return Error{Errc::invalid_argument, "fade_ms must be 0..10000"};
@@ -285,7 +286,7 @@ Result<std::unique_ptr<Runtime>> Runtime::create(const RuntimeConfig& config, Pa
     rc.fade_out_frames = config.fade_ms > 0 ? config.fade_out_frames : 0;
     auto residency = Residency::create(rc, double(config.fade_ms) / 1000.0);
     if (!residency) return residency.error();
-    auto rt = std::make_unique<RuntimeImpl>(config, uploader, std::move(*residency));
+    auto rt = std::make_unique<RuntimeImpl>(config, uploader, staging, std::move(*residency));
     TESSERA_TRY(rt->open_disk_cache());
     return std::unique_ptr<Runtime>(std::move(rt));
 }

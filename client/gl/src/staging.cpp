@@ -79,6 +79,10 @@ void StagingRing::wait_all() {
 }
 
 const void* StagingRing::stage_pixels(const void* data, std::size_t bytes) {
+    if (const auto lent = pages_ ? pages_->locate(data, bytes) : std::nullopt) {
+        glBindBuffer(GL_PIXEL_UNPACK_BUFFER, lent->buffer);
+        return reinterpret_cast<const void*>(lent->offset);
+    }
     if (auto off = allocate(bytes)) {
         std::memcpy(map_ + *off, data, bytes);
         glBindBuffer(GL_PIXEL_UNPACK_BUFFER, buffer_.get());

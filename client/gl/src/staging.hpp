@@ -18,6 +18,7 @@
 #include <span>
 
 #include "gl_util.hpp"
+#include "page_staging.hpp"
 
 namespace tessera::client::gl::detail {
 
@@ -51,6 +52,9 @@ public:
     // `bytes` at `offset` of `buffer`, copied on the GPU in stream order with the draws:
     void upload_buffer(GLuint buffer, std::size_t offset, const void* data, std::size_t bytes);
     std::uint64_t direct_uploads() const { return direct_uploads_; }
+    // Pixels that already lie in `pages` (lent to the runtime, written there by a transcoder) are
+    // uploaded from where they are, not copied into the ring.
+    void set_page_staging(const MappedPageStaging* pages) { pages_ = pages; }
 
     std::size_t capacity() const { return bytes_; }
     std::size_t in_use() const;  // bytes between the oldest live region and the head
@@ -68,6 +72,7 @@ private:
     std::deque<Batch> batches_;  // oldest first; the last one may be open
     std::size_t head_ = 0;       // next free byte
     std::uint64_t direct_uploads_ = 0;
+    const MappedPageStaging* pages_ = nullptr;
 
     // Where a pixel upload of `data` reads from: its copy in the ring, with the ring bound as the
     // unpack buffer, or `data` itself with none bound.

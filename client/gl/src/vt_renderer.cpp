@@ -60,7 +60,9 @@ struct VtUniforms {
 class VtRendererImpl final : public VtRenderer {
 public:
     explicit VtRendererImpl(const RendererConfig& c)
-        : cfg_(c), staging_(c.staging_bytes), atlas_(staging_), tables_(staging_, atlas_) {}
+        : cfg_(c), page_staging_(c.staging_pages), staging_(c.staging_bytes), atlas_(staging_), tables_(staging_, atlas_) {
+        staging_.set_page_staging(&page_staging_);
+    }
 
     Status init() {
         const auto& c = cfg_;
@@ -201,6 +203,10 @@ public:
             ++stats_.malformed_uploads;
             return;
         }
+        if (!page_staging_.locate(page_data.data(), page_data.size())) {
+            ++stats_.pages_copied;
+            stats_.page_bytes_copied += page_data.size();
+        }
         const auto place = tables_.place(page);
         for (std::size_t i = 0; i < pool.layer_count(); ++i) {
             PageAtlas& a = atlas(i);
@@ -264,6 +270,7 @@ public:
         }
         staging_.close_batch();  // the uploads since the last frame, fenced together
         staging_.retire();
+        page_staging_.close_frame();  // likewise the lent page buffers given back since
         for (std::size_t i = 0; i <= more_atlases_.size(); ++i) atlas(i).make_page_mips();  // after the frame's page uploads, in stream order
         weights_.upload();  // this frame's weights
         stats_.fading_pages = weights_.below_full();
@@ -429,6 +436,7 @@ public:
         glFinish();
         while (glGetError() != GL_NO_ERROR) ++stats_.gl_errors;
         staging_.retire();
+        page_staging_.close_frame();
         feedback_.collect(true);
         counters_.collect(true);
         if (counters) counters_.take(*counters);
@@ -451,6 +459,7 @@ public:
                                window_height, GL_COLOR_BUFFER_BIT, GL_LINEAR);
     }
 
+    PageStaging& page_staging() override { return page_staging_; }
     const RendererConfig& config() const override { return cfg_; }
     RendererStats stats() const override {
         RendererStats s = stats_;
@@ -545,6 +554,7 @@ private:
     }
 
     RendererConfig cfg_;
+    MappedPageStaging page_staging_;
     StagingRing staging_;
     PageAtlas atlas_;                                     // layer 0
     std::vector<std::unique_ptr<PageAtlas>> more_atlases_;  // layers 1, 2, ...: the same grid

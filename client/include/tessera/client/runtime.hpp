@@ -89,7 +89,10 @@ struct RuntimeConfig {
 
 class Runtime {
 public:
-    static Result<std::unique_ptr<Runtime>> create(const RuntimeConfig& config, PageUploader& uploader);
+    // `staging`, when given, lends the memory pages are decoded into (PageStaging: the GL
+    // renderer's page_staging()); it must outlive the runtime, as the uploader must.
+    static Result<std::unique_ptr<Runtime>> create(const RuntimeConfig& config, PageUploader& uploader,
+                                                   PageStaging* staging = nullptr);
     virtual ~Runtime() = default;
 
     // A virtual texture: the store `store` of `source` (which must outlive the runtime).

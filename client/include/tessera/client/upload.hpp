@@ -100,6 +100,29 @@ protected:
     ~PageUploader() = default;
 };
 
+// Memory a page is decoded into, lent by the one who uploads it (docs/client.md, "One frame, end
+// to end", step 7). The runtime takes a buffer before a page is transcoded, a transcode thread
+// writes the page into it, upload_page reads it, and the runtime gives it back. An uploader whose
+// staging memory the GPU reads directly (the GL renderer's mapped pixel buffer) lends it, so a
+// page's texels are written once on the CPU, by the transcoder, and never copied again. Without a
+// lender (or when it has none free) the runtime decodes into its own memory and upload_page
+// copies. Called on the render thread only (the memory is written on the transcode threads).
+struct StagingBuffer {
+    std::uint32_t id = 0;
+    std::span<std::uint8_t> bytes;  // empty: none lent
+};
+
+class PageStaging {
+public:
+    // A buffer of at least `bytes` for one page, or an empty one when none is free now.
+    virtual StagingBuffer acquire(std::size_t bytes) = 0;
+    // Given back: uploaded (the lender reuses it once the GPU has read it) or never used.
+    virtual void release(std::uint32_t id) = 0;
+
+protected:
+    ~PageStaging() = default;  // the runtime only borrows its lender
+};
+
 // A page ready to upload.
 struct ReadyPage {
     PageKey key;

@@ -69,6 +69,11 @@ struct RendererConfig {
     std::optional<std::uint32_t> normal_layer;
     std::size_t staging_bytes = 32u << 20;  // page + page-table staging ring (bounded; when full, uploads go
                                             // straight from client memory: RendererStats::direct_uploads)
+    // Page-sized buffers of mapped GPU memory lent to the runtime to decode pages into
+    // (page_staging()), made 32 at a time as needed, at most this many: enough for every page
+    // the runtime stages (64) and two frames of uploads the GPU has not read yet. 0: none (pages
+    // are copied through the staging ring).
+    std::uint32_t staging_pages = 192;
     std::uint32_t readback_ring = 3;   // feedback readbacks in flight (counters: 4x as many; 1..64)
     // Frames the GPU may be behind: render() waits for the frame this many back to finish, as a
     // swap chain's frame latency does. Headless rendering has no swap to throttle it, and on a
@@ -116,6 +121,8 @@ struct RendererStats {
     std::uint64_t pages_uploaded = 0;
     std::uint64_t table_uploads = 0;          // page-table rectangles and blocks
     std::uint64_t direct_uploads = 0;         // uploads made from client memory: the staging ring was full
+    std::uint64_t pages_copied = 0;           // pages not in lent memory (page_staging()): copied on the CPU
+    std::uint64_t page_bytes_copied = 0;      // their bytes
     std::uint64_t malformed_uploads = 0;      // ignored: bad slot, size, texture, level or rectangle
     std::uint64_t feedback_skipped = 0;       // frames without a feedback readback: every ring slot in flight
     std::uint64_t counters_skipped = 0;       // frames without counters: every counter slot in flight
@@ -183,6 +190,10 @@ public:
     virtual std::vector<std::uint8_t> read_page(SlotId slot, std::uint32_t layer = 0) = 0;
     // Blits the last frame to the default framebuffer (windowed mode).
     virtual void present(int window_width, int window_height) = 0;
+
+    // The memory to decode pages into, for Runtime::create: pages decoded there are uploaded
+    // without another copy (docs/renderer.md, "Staging"). Lives as long as the renderer.
+    virtual PageStaging& page_staging() = 0;
 
     virtual const RendererConfig& config() const = 0;
     virtual RendererStats stats() const = 0;
