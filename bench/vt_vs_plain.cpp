@@ -36,6 +36,7 @@
 #include <vector>
 
 #include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/frame_loop.hpp"
 #include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/measures.hpp"
@@ -176,13 +177,11 @@ int main(int argc, char** argv) {
             if (!tex) return tex.error();
             if (auto st = (*vt)->add_texture(*tex, *info); !st.ok()) return st.error();
             if (auto st = (*vt)->set_scene(*sc, *tex); !st.ok()) return st.error();
-            client::gl::FeedbackFrame fb;
+            client::gl::FrameLoop loop(**vt, **rt);
             for (unsigned f = 0; f < frames; ++f)
                 for (int k = 0; k < 40; ++k) {
                     if (frozen) (*rt)->set_time(0);
-                    (*vt)->render(cam_at(f), 0);
-                    if ((*vt)->poll_feedback(fb)) (*rt)->frame(fb.ids, fb.width, fb.height, 0);
-                    else (*rt)->frame_without_feedback();
+                    loop.step(cam_at(f));
                     if ((*rt)->in_flight() == 0 && k > 3) break;
                 }
             if (fade > 0 && !frozen) {  // every page at full weight: one frame past the longest fade

@@ -16,10 +16,10 @@
 #include <cstdio>
 #include <cstdlib>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/frame_loop.hpp"
 #include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/measures.hpp"
@@ -123,43 +123,20 @@ int main(int argc, char** argv) {
     if (auto st = renderer->set_scene(world, texture); !st) fail(st.error().message);
     const auto path = take(scene::CameraPath::builtin("flyover", world), "camera path");
 
-    // 5. The frame loop. Feedback comes back some frames late; a frame without it still lets
-    //    arrivals be decoded and uploaded.
-    gl::FeedbackFrame feedback;
-    std::vector<gl::FrameCounters> counters;
-    gl::FrameCounters last{};
+    // 5. The frame loop (FrameLoop): render at the runtime's bias, hand the runtime the newest
+    //    feedback (it comes back some frames late; a frame without it still uploads arrivals).
+    gl::FrameLoop loop(*renderer, *runtime);
     std::uint32_t resident = 0;
-    auto frame = [&](const scene::Camera& camera) {
-        const std::uint64_t n = renderer->render(camera, runtime->lod_bias());
-        const client::FrameStats& stats = renderer->poll_feedback(feedback)
-                                              ? runtime->frame(feedback.ids, feedback.width, feedback.height, feedback.bias)
-                                              : runtime->frame_without_feedback();
-        resident = stats.pages_resident;
-        counters.clear();
-        renderer->poll_counters(counters);
-        for (const auto& c : counters)
-            if (c.frame > last.frame) last = c;
-        return n;
-    };
     const double step = path.duration() / double(o.frames);
-    for (int i = 0; i < o.frames; ++i) frame(path.at(step * i));
+    for (int i = 0; i < o.frames; ++i) resident = loop.step(path.at(step * i)).stats->pages_resident;
 
-    // 6. Hold the last view until what it needs is resident (at most 30 s): a fully converged
-    //    frame has no fallback, nothing in flight and no bias.
+    // 6. Hold the last view until what it needs is resident (at most 30 s): a settled frame has
+    //    no fallback, nothing in flight and no bias.
     const scene::Camera final_view = path.at(step * (o.frames - 1));
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
-    int extra = 0;
-    for (;;) {
-        const std::uint64_t n = frame(final_view);
-        ++extra;
-        renderer->finish(&counters, nullptr);
-        for (const auto& c : counters)
-            if (c.frame > last.frame) last = c;
-        const bool settled = last.frame == n && last.textured_pixels > 0 && last.fallback_unbiased == 0 &&
-                             runtime->in_flight() == 0 && runtime->lod_bias() == 0.0f;
-        if (settled || std::chrono::steady_clock::now() >= deadline) break;
-        std::this_thread::sleep_for(std::chrono::milliseconds(2));
-    }
+    const gl::Settled held = loop.settle(final_view, std::chrono::seconds(30));
+    resident = runtime->frame_without_feedback().pages_resident;
+    const gl::FrameCounters& last = held.counters;
+    const int extra = int(held.frames);
     const double fallback = last.textured_pixels ? double(last.fallback_unbiased) / double(last.textured_pixels) : 1.0;
     const auto image = renderer->read_color();
     if (!o.save.empty()) {  // the last frame as the renderer drew it (RGBA8, rows top to bottom)

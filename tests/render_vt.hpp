@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "residency.hpp"
+#include "tessera/client/gl/frame_loop.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/scene/camera.hpp"
@@ -127,9 +128,10 @@ inline std::vector<std::uint8_t> coverage(const std::vector<std::uint8_t>& rgba)
 
 inline std::size_t count(const std::vector<std::uint8_t>& mask) { return std::size_t(std::count(mask.begin(), mask.end(), 1)); }
 
-// The render loop of a viewer, bounded: render `cam`, feed the feedback to the runtime, read the
-// counters, until a frame of this view has textured pixels and none falling back (against either
-// level), nothing is in flight and the bias is 0; or until `timeout` has passed.
+// The render loop of a viewer, bounded (FrameLoop::settle): render `cam`, feed the feedback to the
+// runtime, read the counters, until a frame of this view rendered once nothing was in flight has
+// textured pixels and none falling back (against either level), no page is fading and the bias
+// is 0; or until `timeout` has passed.
 struct Convergence {
     bool converged = false;
     int frames = 0;
@@ -137,28 +139,9 @@ struct Convergence {
 };
 inline Convergence render_until_resident(gl::VtRenderer& renderer, tessera::client::Runtime& rt, const sc::Camera& cam,
                                          std::chrono::seconds timeout = 60s) {
-    Convergence c;
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    std::uint64_t first = 0;
-    gl::FeedbackFrame fb;
-    std::vector<gl::FrameCounters> counters;
-    while (std::chrono::steady_clock::now() < deadline && !c.converged) {
-        const auto f = renderer.render(cam, rt.lod_bias());
-        if (first == 0) first = f;
-        ++c.frames;
-        if (renderer.poll_feedback(fb))
-            rt.frame(fb.ids, fb.width, fb.height, fb.bias);
-        else
-            rt.frame_without_feedback();
-        counters.clear();
-        renderer.poll_counters(counters);
-        for (const auto& k : counters)
-            if (k.frame >= first) c.latest = k;  // an earlier view's frames do not count
-        c.converged = c.latest.frame != 0 && c.latest.textured_pixels > 0 && c.latest.fallback_unbiased == 0 &&
-                      c.latest.fallback_biased == 0 && rt.in_flight() == 0 && rt.lod_bias() == 0.0f;
-        if (!c.converged) std::this_thread::sleep_for(1ms);
-    }
-    return c;
+    gl::FrameLoop loop(renderer, rt);
+    const gl::Settled held = loop.settle(cam, timeout);
+    return Convergence{held.settled, int(held.frames), held.counters};
 }
 
 }  // namespace tessera::test

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <sstream>
 #include <thread>
 #include <utility>
@@ -26,6 +27,7 @@
 #include "tessera/client/emulated_source.hpp"
 #include "tessera/client/feedback_trace.hpp"
 #include "tessera/client/gl/context.hpp"
+#include "tessera/client/gl/frame_loop.hpp"
 #include "tessera/client/gl/hud.hpp"
 #include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/measures.hpp"
@@ -213,45 +215,137 @@ double quantile(std::vector<double> v, double q) {
     return v[std::min(i, v.size() - 1)];
 }
 
-}  // namespace
+// One run of the viewer: what run_viewer used to do in one function, by phase. Built in the
+// constructor (source, GL, renderer, runtime, scene, reference, outputs), then run(): the
+// loading screen, the path frame by frame, the settled view, the report.
+class ViewerRun {
+public:
+    explicit ViewerRun(const ViewerOptions& o) : o_(o) {
+        check_options();
+        open_store();
+        make_renderer();
+        make_runtime();
+        make_scene();
+        make_reference();
+        open_outputs();
+        start_report();
+    }
+    ViewerReport run();
 
-ViewerReport run_viewer(const ViewerOptions& o) {
+private:
+    void check_options() const;
+    void open_store();
+    void make_renderer();
+    void make_runtime();
+    void make_scene();
+    void make_reference();
+    void open_outputs();
+    void start_report();
+    void wait_for_link();
+    void watch_link(Clock::time_point now);
+    bool settle(const scene::Camera& cam, std::uint32_t& settle_frames);
+    void open_window();
+    void path_frame(std::uint32_t f, ProgressBar& bar);
+    FrameRecord& record(std::uint32_t f, double t, float bias, const client::FrameStats& s);
+    void measure(std::uint32_t f, const scene::Camera& cam, FrameRecord& rec);
+    void present(Clock::time_point t0, const FrameRecord& rec, float bias);
+    void take_counters();
+    void finish_report(std::uint32_t done);
+    bool compared(std::uint32_t i) const {
+        return reference_ && o_.psnr_every && (i % o_.psnr_every == o_.psnr_every - 1 || i + 1 == frames_);
+    }
+    client::gl::VtRenderer& r() { return *renderer_; }
+    client::Runtime& rt() { return *runtime_; }
+
+    const ViewerOptions& o_;
+    // Declared in the order they are made: destroyed in reverse (the runtime before the renderer it
+    // uploads into, GL objects before the context, the source last).
+    client::SourceUrl loc_;
+    std::unique_ptr<client::TileSource> source_;
+    std::string store_name_;
+    std::unique_ptr<client::gl::GlContext> ctx_;
+    GLFWwindow* win_ = nullptr;
+    storage::StoreInfo info_;
+    client::gl::RendererConfig rc_;
+    std::unique_ptr<client::gl::VtRenderer> renderer_;
+    std::unique_ptr<client::Runtime> runtime_;
+    client::TextureId texture_ = 0;
+    std::optional<client::gl::FrameLoop> loop_;
+    std::optional<scene::Scene> scene_;
+    std::optional<scene::CameraPath> path_;
+    std::string displaced_by_;  // the layer the terrain follows, for the summary
+    std::unique_ptr<client::gl::ReferenceRenderer> reference_;
+    std::unique_ptr<client::TraceWriter> trace_;
+    std::unique_ptr<client::gl::Hud> hud_;
+
+    std::uint32_t frames_ = 0;
+    std::vector<std::uint32_t> png_frames_;
+    ViewerReport rep_;
+    std::map<std::uint64_t, std::size_t> by_render_frame_;  // renderer frame number -> record
+    std::vector<client::gl::FrameCounters> counters_;
+    std::unique_ptr<LinkMonitor> link_monitor_;
+    ProgressBar* shown_bar_ = nullptr;  // cleared before a link line, redrawn by its next update
+    double clock_s_ = 0;                // the runtime's clock: path time plus the settling frames before it
+    double path_clock_start_ = 0;
+    FreeCamera free_cam_;
+    std::vector<std::string> hud_lines_;
+    Clock::time_point start_, last_title_;
+    double lat_count_ = 0, lat_sum_ms_ = 0;
+    scene::Camera prev_cam_;  // the last frame's camera and time, for motion prefetch
+    double prev_t_ = 0;
+    // Popping: before the runtime's uploads for a compared frame, what that frame would show
+    // without them (VtRenderer::render_preview); set for the next frame only.
+    std::vector<std::uint8_t> preview_, next_preview_;
+    std::uint32_t preview_frame_ = UINT32_MAX, next_preview_frame_ = UINT32_MAX;
+};
+
+void ViewerRun::check_options() const {
+    const ViewerOptions& o = o_;
     if (o.width < 16 || o.height < 16 || o.width > 8192 || o.height > 8192)
         throw Failure(fmt::format("--size {}x{}: each side must be 16..8192", o.width, o.height));
     if (o.feedback_scale < 1 || o.feedback_scale > 64) throw Failure("--feedback-scale must be 1..64");
     if (o.pool < 16) throw Failure("--pool must be at least 16 pages");
     if (!(o.fps > 0) || o.fps > 1000) throw Failure("--fps must be in (0, 1000]");
     if (o.anisotropy < 1 || o.anisotropy > 8) throw Failure("--anisotropy must be 1..8");
+}
 
+void ViewerRun::open_store() {
+    const ViewerOptions& o = o_;
     // Where tiles come from (client::open_source: a store file, or grpc[s]://TARGET/NAME).
     auto parsed = client::parse_source_url(o.store);
     if (!parsed) throw Failure(fmt::format("--store {}", parsed.error().message));
-    const client::SourceUrl& loc = *parsed;
+    loc_ = *parsed;
     client::SourceOptions source_options;
     source_options.auth_token = o.auth_token;
-    if (loc.tls) source_options.tls_roots_pem = tls_roots_pem(o.tls_ca_file);
+    if (loc_.tls) source_options.tls_roots_pem = tls_roots_pem(o.tls_ca_file);
     source_options.link.latency = std::chrono::microseconds(std::llround(o.link_latency_ms * 1000));
     source_options.link.jitter = std::chrono::microseconds(std::llround(o.link_jitter_ms * 1000));
     source_options.link.bandwidth_bits_per_s = o.link_bandwidth_bits_per_s;
     source_options.link_seed = o.link_seed;
-    auto opened = client::open_source(loc, source_options);
+    auto opened = client::open_source(loc_, source_options);
     if (!opened) throw Failure(opened.error().message);
-    std::unique_ptr<client::TileSource> source = std::move(opened->source);
-    const std::string store_name = opened->store;
+    source_ = std::move(opened->source);
+    store_name_ = opened->store;
 
     // GL first: the renderer needs the store's geometry, the runtime needs the renderer.
     auto ctx = o.headless ? client::gl::GlContext::create_headless()
                           : client::gl::GlContext::create_window(int(o.width), int(o.height), "tessera view");
     if (!ctx) throw Failure(ctx.error().message);
-    (*ctx)->make_current();
+    ctx_ = std::move(*ctx);
+    ctx_->make_current();
+    win_ = ctx_->window();
 
     // The store's geometry: bind through the source (a remote store is asked for its metadata;
     // a server that is down is an error here, before anything is drawn).
-    auto info = source->bind(0, store_name);
+    auto info = source_->bind(0, store_name_);
     if (!info) throw Failure(fmt::format("--store '{}': {}", o.store, info.error().message));
     if (info->channels < 1 || info->channels > 4) throw Failure("the store has an unsupported channel count");
+    info_ = *info;
+}
 
-    client::gl::RendererConfig rc;
+void ViewerRun::make_renderer() {
+    const ViewerOptions& o = o_;
+    client::gl::RendererConfig& rc = rc_;
     rc.width = o.width;
     rc.height = o.height;
     rc.feedback_scale = o.feedback_scale;
@@ -260,25 +354,28 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     rc.feedback_prefetch_lod = o.prefetch_lod;
     rc.feedback_guard_band = o.guard_band;
     rc.pool_slots = o.pool;
-    rc.tile_size = info->tile_size();
-    rc.border = info->border;
-    rc.srgb = info->colour_space == storage::ColourSpace::srgb;
+    rc.tile_size = info_.tile_size();
+    rc.border = info_.border;
+    rc.srgb = info_.colour_space == storage::ColourSpace::srgb;
     // An OBJ scene's store with alpha holds cut-outs (an atlas of leaves, fences): discard their
     // backgrounds. A terrain's alpha stays what the image shows.
-    rc.alpha_test = o.scene != "terrain" && info->has_alpha;
+    rc.alpha_test = o.scene != "terrain" && info_.has_alpha;
     if (o.page_format == "auto") {
         // A block-codec store's own blocks go to the GPU as they are; anything else as RGBA8.
-        rc.page_format = client::page_format_of(info->codec).value_or(client::PageFormat::rgba8);
+        rc.page_format = client::page_format_of(info_.codec).value_or(client::PageFormat::rgba8);
     } else {
         const auto f = client::parse_page_format(o.page_format);
         if (!f) throw Failure(fmt::format("--page-format '{}': expected auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f", o.page_format));
         rc.page_format = *f;
     }
-    configure_layers(*info, o, rc);
+    configure_layers(info_, o, rc);
     auto renderer = client::gl::VtRenderer::create(rc);
     if (!renderer) throw Failure(renderer.error().message);
-    auto& r = **renderer;
+    renderer_ = std::move(*renderer);
+}
 
+void ViewerRun::make_runtime() {
+    const ViewerOptions& o = o_;
     client::RuntimeConfig cfg;
     cfg.residency.pool_slots = o.pool;
     // Motion prefetch: one feedback in motion_prefetch_every sees the view itself; its pages stay.
@@ -290,376 +387,366 @@ ViewerReport run_viewer(const ViewerOptions& o) {
     cfg.disk_cache_bytes = o.disk_cache_bytes;
     cfg.transcode_threads = o.transcode_threads;
     cfg.upload_pages_per_frame = o.upload_pages_per_frame;
-    const client::PagePoolFormat pool_format = r.pool_format();
-    cfg.upload_bytes_per_frame =
-        std::size_t(o.upload_pages_per_frame) * pool_format.upload_bytes(info->tile_size());
-    auto runtime = client::Runtime::create(cfg, r, &r.page_staging());
+    cfg.upload_bytes_per_frame = std::size_t(o.upload_pages_per_frame) * r().pool_format().upload_bytes(info_.tile_size());
+    auto runtime = client::Runtime::create(cfg, r(), &r().page_staging());
     if (!runtime) throw Failure(runtime.error().message);
-    auto& rt = **runtime;
-    auto texture = rt.add_texture(*source, store_name);
+    runtime_ = std::move(*runtime);
+    auto texture = rt().add_texture(*source_, store_name_);
     if (!texture) throw Failure(fmt::format("--store '{}': {}", o.store, texture.error().message));
-    if (auto st = r.add_texture(*texture, *rt.texture_info(*texture)); !st.ok()) throw Failure(st.error().message);
+    texture_ = *texture;
+    if (auto st = r().add_texture(texture_, *rt().texture_info(texture_)); !st.ok()) throw Failure(st.error().message);
+    loop_.emplace(r(), rt());
+}
 
-    // Scene and path.
-    std::string displaced_by;  // the layer the terrain follows, for the summary
+void ViewerRun::make_scene() {
+    const ViewerOptions& o = o_;
+    const storage::StoreInfo& info = info_;
     Result<scene::Scene> sc = [&]() -> Result<scene::Scene> {
-        if (o.scene == "terrain") {
-            scene::TerrainOptions t;
-            t.vt_width = info->width;
-            t.vt_height = info->height;
-            t.displacement = o.displacement;
-            // Keep the vertex count sane for huge textures: at most 64 chunks per side.
-            while (std::max(info->width, info->height) / t.chunk_texels > 64) t.chunk_texels *= 2;
-            // A store with a height layer: the ground follows it, one quad per height sample up
-            // to 128 quads per chunk and about 4 M vertices (the normal layer lights the detail
-            // between them).
-            if (const auto layer = height_layer(*info); layer && o.displacement > 0) {
-                const std::uint64_t chunks = (std::max(info->width, info->height) + t.chunk_texels - 1) / t.chunk_texels;
-                // At most about 4 M vertices in all (64 chunks a side get 31 quads each).
-                t.quads_per_chunk = std::uint32_t(std::clamp<double>(std::floor(2048.0 / double(chunks)) - 1, 16, 128));
-                auto h = read_height_layer(*source, 0, *info, *layer,
-                                           std::uint32_t(std::min<std::uint64_t>(chunks * t.quads_per_chunk, 1u << 16)));
-                if (!h) return h.error();
-                t.heights = h->field;
-                displaced_by = fmt::format("layer {} (level {}, {}x{} samples, {} tiles)", info->layers[*layer].name, h->level,
-                                               h->field->width, h->field->height, h->tiles);
-            }
-            return scene::make_terrain(t);
+        if (o.scene != "terrain") return scene::load_obj_scene(o.scene, info.width, info.height);
+        scene::TerrainOptions t;
+        t.vt_width = info.width;
+        t.vt_height = info.height;
+        t.displacement = o.displacement;
+        // Keep the vertex count sane for huge textures: at most 64 chunks per side.
+        while (std::max(info.width, info.height) / t.chunk_texels > 64) t.chunk_texels *= 2;
+        // A store with a height layer: the ground follows it, one quad per height sample up to
+        // 128 quads per chunk and about 4 M vertices (the normal layer lights the detail between).
+        if (const auto layer = height_layer(info); layer && o.displacement > 0) {
+            const std::uint64_t chunks = (std::max(info.width, info.height) + t.chunk_texels - 1) / t.chunk_texels;
+            // At most about 4 M vertices in all (64 chunks a side get 31 quads each).
+            t.quads_per_chunk = std::uint32_t(std::clamp<double>(std::floor(2048.0 / double(chunks)) - 1, 16, 128));
+            auto h = read_height_layer(*source_, 0, info, *layer,
+                                       std::uint32_t(std::min<std::uint64_t>(chunks * t.quads_per_chunk, 1u << 16)));
+            if (!h) return h.error();
+            t.heights = h->field;
+            displaced_by_ = fmt::format("layer {} (level {}, {}x{} samples, {} tiles)", info.layers[*layer].name, h->level,
+                                        h->field->width, h->field->height, h->tiles);
         }
-        return scene::load_obj_scene(o.scene, info->width, info->height);
+        return scene::make_terrain(t);
     }();
     if (!sc) throw Failure(fmt::format("--scene '{}': {}", o.scene, sc.error().message));
-    if (auto st = r.set_scene(*sc, *texture); !st.ok()) throw Failure(st.error().message);
-    auto path = scene::CameraPath::builtin_or_file(o.path, *sc);
+    scene_.emplace(std::move(*sc));
+    if (auto st = r().set_scene(*scene_, texture_); !st.ok()) throw Failure(st.error().message);
+    auto path = scene::CameraPath::builtin_or_file(o.path, *scene_);
     if (!path) throw Failure(fmt::format("--path: {}", path.error().message));
+    path_.emplace(std::move(*path));
+}
 
-    // The reference renderer, for PSNR.
-    std::unique_ptr<client::gl::ReferenceRenderer> reference;
-    if (o.psnr_every > 0) {
-        const std::string ref_store = !o.reference_store.empty() ? o.reference_store : loc.remote ? std::string() : loc.store;
-        if (ref_store.empty())
-            throw Failure("PSNR needs a local copy of the store: --reference-store FILE (the store is remote)");
-        if (o.progress) fmt::print("reference: decoding {} ...\n", ref_store);
-        std::fflush(stdout);
-        auto levels = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, rc.show_layer);
-        if (!levels) throw Failure(fmt::format("reference: {}", levels.error().message));
-        std::vector<client::gl::ReferenceRenderer::Level> normals;
-        if (rc.normal_layer && rc.show_layer == 0) {
-            auto n = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, *rc.normal_layer);
-            if (!n) throw Failure(fmt::format("reference: {}", n.error().message));
-            normals = std::move(*n);
-        }
-        auto ref = client::gl::ReferenceRenderer::create(rc, *levels, normals);
-        if (!ref) throw Failure(fmt::format("reference: {}", ref.error().message));
-        reference = std::move(*ref);
-        if (auto st = reference->set_scene(*sc); !st.ok()) throw Failure(st.error().message);
+// The reference renderer, for PSNR.
+void ViewerRun::make_reference() {
+    const ViewerOptions& o = o_;
+    if (o.psnr_every == 0) return;
+    const std::string ref_store = !o.reference_store.empty() ? o.reference_store : loc_.remote ? std::string() : loc_.store;
+    if (ref_store.empty()) throw Failure("PSNR needs a local copy of the store: --reference-store FILE (the store is remote)");
+    if (o.progress) fmt::print("reference: decoding {} ...\n", ref_store);
+    std::fflush(stdout);
+    auto levels = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, rc_.show_layer);
+    if (!levels) throw Failure(fmt::format("reference: {}", levels.error().message));
+    std::vector<client::gl::ReferenceRenderer::Level> normals;
+    if (rc_.normal_layer && rc_.show_layer == 0) {
+        auto n = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, *rc_.normal_layer);
+        if (!n) throw Failure(fmt::format("reference: {}", n.error().message));
+        normals = std::move(*n);
     }
+    auto ref = client::gl::ReferenceRenderer::create(rc_, *levels, normals);
+    if (!ref) throw Failure(fmt::format("reference: {}", ref.error().message));
+    reference_ = std::move(*ref);
+    if (auto st = reference_->set_scene(*scene_); !st.ok()) throw Failure(st.error().message);
+}
 
-    // Outputs.
+void ViewerRun::open_outputs() {
+    const ViewerOptions& o = o_;
     std::error_code ec;
     if (!o.out_dir.empty()) {
         fs::create_directories(o.out_dir, ec);
         if (ec || !fs::is_directory(o.out_dir)) throw Failure(fmt::format("--out '{}': cannot create the directory", o.out_dir));
     }
-    std::unique_ptr<client::TraceWriter> trace;
     if (!o.trace_file.empty()) {
         auto t = client::TraceWriter::create(o.trace_file);
         if (!t) throw Failure(t.error().message);
-        trace = std::move(*t);
+        trace_ = std::move(*t);
     }
-
-    const std::uint32_t frames =
-        o.frames ? o.frames : static_cast<std::uint32_t>(std::ceil(path->duration() * o.fps)) + 1;
-    std::vector<std::uint32_t> png_frames;
+    frames_ = o.frames ? o.frames : static_cast<std::uint32_t>(std::ceil(path_->duration() * o.fps)) + 1;
     if (!o.out_dir.empty() && o.png_count > 0)
-        for (std::uint32_t i = 1; i <= o.png_count; ++i) png_frames.push_back(frames * i / (o.png_count + 1));
+        for (std::uint32_t i = 1; i <= o.png_count; ++i) png_frames_.push_back(frames_ * i / (o.png_count + 1));
+}
 
-    ViewerReport rep;
-    rep.displaced_by = displaced_by;
-    rep.renderer = (*ctx)->renderer();
-    rep.page_format = rc.page_format;
-    rep.pool_pages = rc.pool_slots;
+void ViewerRun::start_report() {
+    const client::gl::RendererConfig& rc = rc_;
+    rep_.displaced_by = displaced_by_;
+    rep_.renderer = ctx_->renderer();
+    rep_.page_format = rc.page_format;
+    rep_.pool_pages = rc.pool_slots;
     // Every layer's page, with its second level where the atlas has one.
-    rep.gpu_page_bytes = 0;
+    rep_.gpu_page_bytes = 0;
     for (std::size_t i = 0; i <= rc.more_layers.size(); ++i) {
         const client::PageFormat f = i == 0 ? rc.page_format : rc.more_layers[i - 1].page_format;
-        rep.gpu_page_bytes += client::page_bytes(f, rc.tile_size) +
-                              (rc.has_second_level() ? client::page_bytes(f, rc.tile_size / 2) : 0);
-        if (info->layered()) rep.layers.push_back(info->layers[i].name + " " + std::string(client::to_string(f)));
+        rep_.gpu_page_bytes +=
+            client::page_bytes(f, rc.tile_size) + (rc.has_second_level() ? client::page_bytes(f, rc.tile_size / 2) : 0);
+        if (info_.layered()) rep_.layers.push_back(info_.layers[i].name + " " + std::string(client::to_string(f)));
     }
-    rep.pool_texels = std::uint64_t(rc.pool_slots) * rc.tile_size * rc.tile_size;
-    rep.source = source->describe();
-    rep.frames.resize(frames);
-    std::map<std::uint64_t, std::size_t> by_render_frame;  // renderer frame number -> record
-    std::vector<client::gl::FrameCounters> counters;
-    auto take_counters = [&] {
-        for (const auto& c : counters) {
-            auto it = by_render_frame.find(c.frame);
-            if (it == by_render_frame.end()) continue;
-            auto& rec = rep.frames[it->second];
-            rec.counted = true;
-            rec.textured_pixels = c.textured_pixels;
-            rec.fallback_unbiased = c.fallback_unbiased;
-            rec.fallback_biased = c.fallback_biased;
-            by_render_frame.erase(it);
-        }
-        counters.clear();
-    };
+    rep_.pool_texels = std::uint64_t(rc.pool_slots) * rc.tile_size * rc.tile_size;
+    rep_.source = source_->describe();
+    rep_.frames.resize(frames_);
+    rep_.remote = loc_.remote;
+}
 
-    // The stream opens in the background once bind() has reached the server: start with it open,
-    // so that a healthy run has no unserved time. If it does not open, the wait counts as unserved.
+void ViewerRun::take_counters() {
+    for (const auto& c : counters_) {
+        auto it = by_render_frame_.find(c.frame);
+        if (it == by_render_frame_.end()) continue;
+        auto& rec = rep_.frames[it->second];
+        rec.counted = true;
+        rec.textured_pixels = c.textured_pixels;
+        rec.fallback_unbiased = c.fallback_unbiased;
+        rec.fallback_biased = c.fallback_biased;
+        by_render_frame_.erase(it);
+    }
+    counters_.clear();
+}
+
+// The stream opens in the background once bind() has reached the server: start with it open, so
+// that a healthy run has no unserved time. If it does not open, the wait counts as unserved.
+void ViewerRun::wait_for_link() {
     const auto link_start = Clock::now();
-    while (!source->available() &&
-           std::chrono::duration<double>(Clock::now() - link_start).count() < o.connect_wait_s)
+    while (!source_->available() && std::chrono::duration<double>(Clock::now() - link_start).count() < o_.connect_wait_s)
         std::this_thread::sleep_for(std::chrono::milliseconds(5));
-    LinkMonitor link_monitor(*source, loc.remote ? loc.target : loc.store, link_start);
-    rep.remote = loc.remote;
-    ProgressBar* shown_bar = nullptr;  // cleared before a link line, redrawn by its next update
-    auto watch_link = [&](Clock::time_point now) {
-        const std::string line = link_monitor.sample(now);
-        if (line.empty()) return;
-        if (shown_bar) shown_bar->finish();
-        std::fflush(stdout);
-        fmt::print(stderr, "{}\n", line);
-        std::fflush(stderr);
-    };
+    link_monitor_ = std::make_unique<LinkMonitor>(*source_, loc_.remote ? loc_.target : loc_.store, link_start);
+}
 
-    GLFWwindow* win = (*ctx)->window();
-    client::gl::FeedbackFrame fb;
-    // Renders `cam` until it is fully resident and faded in (or o.warmup_timeout_s passes): the
-    // loading screen before the path, and the settled view after it. Returns whether it got
-    // there; counts its frames in `settle_frames`. Counters come back frames late (more of them
-    // the faster the GPU), so done means clean counters for a frame rendered after the pipeline
-    // went idle, with every page at full weight.
-    double clock_s = 0;  // the runtime's clock: path time plus the settling frames before it
-    auto settle = [&](const scene::Camera& cam, std::uint32_t& settle_frames) {
-        const auto w0 = Clock::now();
-        std::vector<client::gl::FrameCounters> wc;
-        std::uint64_t idle_from = 0;  // first frame rendered with nothing in flight; 0: busy
-        bool settled = false;
-        for (;;) {
-            watch_link(Clock::now());
-            rt.set_time(clock_s);
-            clock_s += 1.0 / o.fps;
-            const std::uint64_t rf = r.render(cam, rt.lod_bias());
-            if (r.poll_feedback(fb)) rt.frame(fb.ids, fb.width, fb.height, fb.bias);
-            else rt.frame_without_feedback();
-            ++settle_frames;
-            if (rt.in_flight() > 0) idle_from = 0;
-            else if (idle_from == 0) idle_from = rf + 1;  // this frame's uploads show from the next one
-            wc.clear();
-            r.poll_counters(wc);
-            const bool clean_since_idle = idle_from > 0 && std::any_of(wc.begin(), wc.end(), [&](const auto& c) {
-                return c.frame >= idle_from && c.textured_pixels > 0 && c.fallback_unbiased == 0;
-            });
-            if (clean_since_idle && r.stats().fading_pages == 0) {
-                settled = true;
-                break;
-            }
-            if (std::chrono::duration<double>(Clock::now() - w0).count() > o.warmup_timeout_s) break;
-        }
-        r.finish(&wc, nullptr);  // drain the readbacks: what follows starts clean
-        rt.frame_without_feedback();
-        return settled;
-    };
-    if (o.warmup && !win) {
+void ViewerRun::watch_link(Clock::time_point now) {
+    const std::string line = link_monitor_->sample(now);
+    if (line.empty()) return;
+    if (shown_bar_) shown_bar_->finish();
+    std::fflush(stdout);
+    fmt::print(stderr, "{}\n", line);
+    std::fflush(stderr);
+}
+
+// Renders `cam` until it is fully resident and faded in (or o.warmup_timeout_s passes): the
+// loading screen before the path, and the settled view after it (FrameLoop::settle). Counts its
+// frames in `settle_frames`; the runtime's clock moves 1/fps a frame.
+bool ViewerRun::settle(const scene::Camera& cam, std::uint32_t& settle_frames) {
+    const auto held = loop_->settle(cam, std::chrono::duration<double>(o_.warmup_timeout_s), [&] {
+        watch_link(Clock::now());
+        rt().set_time(clock_s_);
+        clock_s_ += 1.0 / o_.fps;
+    });
+    settle_frames += held.frames;
+    rt().frame_without_feedback();
+    return held.settled;
+}
+
+void ViewerRun::open_window() {
+    glfwSetWindowUserPointer(win_, &free_cam_);
+    glfwSetScrollCallback(win_, scroll_callback);
+    auto made = client::gl::Hud::create();
+    if (!made) throw Failure(made.error().message);
+    hud_ = std::move(*made);
+}
+
+ViewerReport ViewerRun::run() {
+    wait_for_link();
+    if (o_.warmup && !win_) {
         // The loading screen: the path's first view until it is fully resident.
         const auto w0 = Clock::now();
-        rep.warmup_complete = settle(path->at(0), rep.warmup_frames);
-        rep.warmup_ms = std::chrono::duration<double, std::milli>(Clock::now() - w0).count();
+        rep_.warmup_complete = settle(path_->at(0), rep_.warmup_frames);
+        rep_.warmup_ms = std::chrono::duration<double, std::milli>(Clock::now() - w0).count();
     }
-    const double path_clock_start = clock_s;
-
-    FreeCamera free_cam;
-    std::unique_ptr<client::gl::Hud> hud;
-    std::vector<std::string> hud_lines;
-    if (win) {
-        glfwSetWindowUserPointer(win, &free_cam);
-        glfwSetScrollCallback(win, scroll_callback);
-        auto made = client::gl::Hud::create();
-        if (!made) throw Failure(made.error().message);
-        hud = std::move(*made);
-    }
-    ProgressBar bar("view", o.progress && o.headless);
-    shown_bar = &bar;
-    const auto start = Clock::now();
-    auto last_title = start;
-    double lat_count = 0, lat_sum_ms = 0;
+    path_clock_start_ = clock_s_;
+    if (win_) open_window();
+    ProgressBar bar("view", o_.progress && o_.headless);
+    shown_bar_ = &bar;
+    start_ = last_title_ = Clock::now();
     std::uint32_t done = 0;
-    scene::Camera prev_cam;  // the last frame's camera and time, for motion prefetch
-    double prev_t = 0;
-    // Popping: before the runtime's uploads for a compared frame, what that frame would show
-    // without them (VtRenderer::render_preview); set for the next frame only.
-    std::vector<std::uint8_t> preview, next_preview;
-    std::uint32_t preview_frame = UINT32_MAX, next_preview_frame = UINT32_MAX;
-    const auto compared = [&](std::uint32_t i) {
-        return reference && o.psnr_every && (i % o.psnr_every == o.psnr_every - 1 || i + 1 == frames);
-    };
-    for (std::uint32_t f = 0; f < frames || (win && o.frames == 0); ++f) {
-        const auto t0 = Clock::now();
-        watch_link(t0);
-        if (win) {
+    for (std::uint32_t f = 0; f < frames_ || (win_ && o_.frames == 0); ++f) {
+        if (win_) {
             glfwPollEvents();
-            if (glfwWindowShouldClose(win) || glfwGetKey(win, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
+            if (glfwWindowShouldClose(win_) || glfwGetKey(win_, GLFW_KEY_ESCAPE) == GLFW_PRESS) break;
         }
-        // Headless: path time advances 1/fps per frame. Windowed: wall time, looping the path.
-        const double t = win ? std::chrono::duration<double>(t0 - start).count() : double(f) / o.fps;
-        scene::Camera cam = win ? path->at(std::fmod(t, std::max(path->duration(), 1e-9))) : path->at(t);
-        if (win) {
-            update_free_camera(win, free_cam, cam, 1.0 / 60.0);
-            if (free_cam.active) cam = free_cam.camera;
-        }
-        const float bias = rt.lod_bias();
-        rt.set_time(path_clock_start + t);  // after the warm-up's frames
-        if (o.motion_prefetch_ms > 0 && f > 0 && f % std::max<std::uint32_t>(o.motion_prefetch_every, 1) == 0 && t > prev_t)
-            if (const auto ahead = scene::extrapolate(prev_cam, prev_t, cam, t, o.motion_prefetch_ms / 1000.0))
-                r.set_feedback_camera(*ahead);
-        prev_cam = cam;
-        prev_t = t;
-        const std::uint64_t render_frame = r.render(cam, bias);
-        // Measured, not timed: the next frame's camera drawn before this frame's uploads.
-        double preview_ms = 0;
-        if (!win && f + 1 < frames && compared(f + 1)) {
-            const auto p0 = Clock::now();
-            next_preview = r.render_preview(path->at(double(f + 1) / o.fps));
-            next_preview_frame = f + 1;
-            preview_ms = std::chrono::duration<double, std::milli>(Clock::now() - p0).count();
-        }
-        const client::FrameStats* s = nullptr;
-        if (r.poll_feedback(fb)) {
-            s = &rt.frame(fb.ids, fb.width, fb.height, fb.bias);
-            if (trace) {
-                client::TraceFrame tf{fb.frame, t, fb.bias, fb.width, fb.height, fb.ids};
-                if (auto st = trace->write(tf); !st.ok()) throw Failure(st.error().message);
-            }
-        } else {
-            s = &rt.frame_without_feedback();
-        }
-        r.poll_counters(counters);
-
-        if (f >= rep.frames.size()) rep.frames.emplace_back();  // windowed, unbounded
-        auto& rec = rep.frames[f];
-        rec.frame = f;
-        rec.time_s = t;
-        rec.pages_wanted = s->pages_wanted;
-        rec.pages_resident = s->pages_resident;
-        rec.pages_requested = s->pages_requested;
-        rec.pages_uploaded = s->pages_uploaded;
-        rec.pages_evicted = s->pages_evicted;
-        rec.pages_rescued = s->pages_rescued;
-        rec.bias = bias;
-        rec.bytes_received = s->bytes_received;
-        rec.connected = link_monitor.connected();
-        rec.unserved_s = link_monitor.unserved_s();
-        const auto& lat = rt.summary().latency();
-        const double n = double(lat.count()), sum = lat.mean_ms() * n;
-        if (n > lat_count) rec.tile_latency_ms = (sum - lat_sum_ms) / (n - lat_count);
-        lat_count = n;
-        lat_sum_ms = sum;
-        by_render_frame[render_frame] = f;
-        take_counters();
-        rec.frame_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count() - preview_ms;
-
-        // Measurements that wait for the GPU happen outside the timed part of the frame.
-        const bool png = std::find(png_frames.begin(), png_frames.end(), f) != png_frames.end();
-        const bool psnr = compared(f);
-        if (png || psnr) {
-            const auto color = r.read_color();
-            if (png) {
-                const std::string file = (fs::path(o.out_dir) / fmt::format("frame_{:05}.png", f)).string();
-                write_png(file, o.width, o.height, color);
-                rep.pngs.push_back(file);
-            }
-            if (psnr) {
-                reference->render(cam);
-                const auto ref = reference->read_color();
-                const auto err = client::compare_images(color, ref, o.width, o.height);
-                rec.psnr = err.psnr;
-                rec.max_error = err.max_error;
-                if (preview_frame == f) {
-                    // The same camera before and after: the reference's change is none.
-                    const auto pops = client::count_pops(preview, color, ref, ref, o.width, o.height);
-                    if (pops.pixels > 0) {
-                        rec.pop_rate = pops.rate();
-                        rec.pop_largest = pops.largest;
-                    }
-                }
-                if (png) {
-                    const std::string file = (fs::path(o.out_dir) / fmt::format("reference_{:05}.png", f)).string();
-                    write_png(file, o.width, o.height, ref);
-                    rep.pngs.push_back(file);
-                }
-            }
-        }
-        if (win) {
-            int ww = 0, wh = 0;
-            glfwGetFramebufferSize(win, &ww, &wh);
-            r.present(ww, wh);
-            if (o.hud) {
-                // Refreshed four times a second, like the title: readable, and no per-frame formatting.
-                if (hud_lines.empty() || t0 - last_title > std::chrono::milliseconds(250)) {
-                    std::string server;
-                    if (loc.remote)
-                        server = link_monitor.reported_down()
-                                     ? fmt::format("SERVER UNREACHABLE for {:.0f} s  (unserved {:.1f} s)",
-                                                   link_monitor.outage_s(t0), link_monitor.unserved_s())
-                                     : fmt::format("server connected  (unserved {:.1f} s)", link_monitor.unserved_s());
-                    hud_lines = hud_text(rec, bias, o.pool, lat, rt.in_flight(), free_cam.active, server,
-                                         link_monitor.reported_down());
-                }
-                hud->draw(hud_lines, ww, wh, ww >= 1800 ? 3 : 2);
-            }
-            (*ctx)->swap_buffers();
-            if (t0 - last_title > std::chrono::milliseconds(250)) {
-                last_title = t0;
-                const double fr = rec.fallback_rate();
-                glfwSetWindowTitle(win, fmt::format("tessera view{} | {:.1f} ms | bias {:.2f} | fallback {} | pages {}/{} | "
-                                                    "latency p50 {:.1f} ms | {}",
-                                                    link_monitor.reported_down() ? " | SERVER UNREACHABLE" : "", rec.frame_ms, bias,
-                                                    std::isnan(fr) ? std::string("-") : fmt::format("{:.2f}%", 100 * fr),
-                                                    rec.pages_resident, o.pool, lat.quantile(0.5),
-                                                    free_cam.active ? "free camera (Space: path)" : "path (WASD: fly)")
-                                            .c_str());
-            }
-        }
-        std::swap(preview, next_preview);
-        preview_frame = std::exchange(next_preview_frame, UINT32_MAX);
-        if (o.pace && !win) std::this_thread::sleep_until(t0 + std::chrono::duration<double>(1.0 / o.fps));
-        bar.update(double(f + 1) / frames, fmt::format("frame {}/{}", f + 1, frames));
+        path_frame(f, bar);
         done = f + 1;
     }
     bar.finish();
-    shown_bar = nullptr;
-    rep.frames.resize(done);
-    r.finish(&counters, nullptr);
+    shown_bar_ = nullptr;
+    finish_report(done);
+    return std::move(rep_);
+}
+
+// One frame of the path: draw, hand the runtime its feedback, record, measure, show.
+void ViewerRun::path_frame(std::uint32_t f, ProgressBar& bar) {
+    const ViewerOptions& o = o_;
+    const auto t0 = Clock::now();
+    watch_link(t0);
+    // Headless: path time advances 1/fps per frame. Windowed: wall time, looping the path.
+    const double t = win_ ? std::chrono::duration<double>(t0 - start_).count() : double(f) / o.fps;
+    scene::Camera cam = win_ ? path_->at(std::fmod(t, std::max(path_->duration(), 1e-9))) : path_->at(t);
+    if (win_) {
+        update_free_camera(win_, free_cam_, cam, 1.0 / 60.0);
+        if (free_cam_.active) cam = free_cam_.camera;
+    }
+    const float bias = rt().lod_bias();
+    rt().set_time(path_clock_start_ + t);  // after the warm-up's frames
+    if (o.motion_prefetch_ms > 0 && f > 0 && f % std::max<std::uint32_t>(o.motion_prefetch_every, 1) == 0 && t > prev_t_)
+        if (const auto ahead = scene::extrapolate(prev_cam_, prev_t_, cam, t, o.motion_prefetch_ms / 1000.0))
+            r().set_feedback_camera(*ahead);
+    prev_cam_ = cam;
+    prev_t_ = t;
+    // Measured, not timed: the next frame's camera drawn before this frame's uploads.
+    double preview_ms = 0;
+    const auto step = loop_->step(cam, [&](std::uint64_t) {
+        if (win_ || f + 1 >= frames_ || !compared(f + 1)) return;
+        const auto p0 = Clock::now();
+        next_preview_ = r().render_preview(path_->at(double(f + 1) / o.fps));
+        next_preview_frame_ = f + 1;
+        preview_ms = std::chrono::duration<double, std::milli>(Clock::now() - p0).count();
+    });
+    if (const auto* fb = step.feedback; fb && trace_) {
+        client::TraceFrame tf{fb->frame, t, fb->bias, fb->width, fb->height, fb->ids};
+        if (auto st = trace_->write(tf); !st.ok()) throw Failure(st.error().message);
+    }
+    counters_.assign(loop_->counters().begin(), loop_->counters().end());
+    FrameRecord& rec = record(f, t, bias, *step.stats);
+    by_render_frame_[step.frame] = f;
+    take_counters();
+    rec.frame_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count() - preview_ms;
+    measure(f, cam, rec);  // outside the timed part of the frame: it waits for the GPU
+    if (win_) present(t0, rec, bias);
+    std::swap(preview_, next_preview_);
+    preview_frame_ = std::exchange(next_preview_frame_, UINT32_MAX);
+    if (o.pace && !win_) std::this_thread::sleep_until(t0 + std::chrono::duration<double>(1.0 / o.fps));
+    bar.update(double(f + 1) / frames_, fmt::format("frame {}/{}", f + 1, frames_));
+}
+
+FrameRecord& ViewerRun::record(std::uint32_t f, double t, float bias, const client::FrameStats& s) {
+    if (f >= rep_.frames.size()) rep_.frames.emplace_back();  // windowed, unbounded
+    auto& rec = rep_.frames[f];
+    rec.frame = f;
+    rec.time_s = t;
+    rec.pages_wanted = s.pages_wanted;
+    rec.pages_resident = s.pages_resident;
+    rec.pages_requested = s.pages_requested;
+    rec.pages_uploaded = s.pages_uploaded;
+    rec.pages_evicted = s.pages_evicted;
+    rec.pages_rescued = s.pages_rescued;
+    rec.bias = bias;
+    rec.bytes_received = s.bytes_received;
+    rec.connected = link_monitor_->connected();
+    rec.unserved_s = link_monitor_->unserved_s();
+    const auto& lat = rt().summary().latency();
+    const double n = double(lat.count()), sum = lat.mean_ms() * n;
+    if (n > lat_count_) rec.tile_latency_ms = (sum - lat_sum_ms_) / (n - lat_count_);
+    lat_count_ = n;
+    lat_sum_ms_ = sum;
+    return rec;
+}
+
+// PNGs and PSNR/popping against the reference, for the frames asked for.
+void ViewerRun::measure(std::uint32_t f, const scene::Camera& cam, FrameRecord& rec) {
+    const ViewerOptions& o = o_;
+    const bool png = std::find(png_frames_.begin(), png_frames_.end(), f) != png_frames_.end();
+    const bool psnr = compared(f);
+    if (!png && !psnr) return;
+    const auto color = r().read_color();
+    if (png) {
+        const std::string file = (fs::path(o.out_dir) / fmt::format("frame_{:05}.png", f)).string();
+        write_png(file, o.width, o.height, color);
+        rep_.pngs.push_back(file);
+    }
+    if (!psnr) return;
+    reference_->render(cam);
+    const auto ref = reference_->read_color();
+    const auto err = client::compare_images(color, ref, o.width, o.height);
+    rec.psnr = err.psnr;
+    rec.max_error = err.max_error;
+    if (preview_frame_ == f) {
+        // The same camera before and after: the reference's change is none.
+        const auto pops = client::count_pops(preview_, color, ref, ref, o.width, o.height);
+        if (pops.pixels > 0) {
+            rec.pop_rate = pops.rate();
+            rec.pop_largest = pops.largest;
+        }
+    }
+    if (png) {
+        const std::string file = (fs::path(o.out_dir) / fmt::format("reference_{:05}.png", f)).string();
+        write_png(file, o.width, o.height, ref);
+        rep_.pngs.push_back(file);
+    }
+}
+
+// Windowed: the frame on screen, the HUD and the title.
+void ViewerRun::present(Clock::time_point t0, const FrameRecord& rec, float bias) {
+    const ViewerOptions& o = o_;
+    const auto& lat = rt().summary().latency();
+    LinkMonitor& link = *link_monitor_;
+    int ww = 0, wh = 0;
+    glfwGetFramebufferSize(win_, &ww, &wh);
+    r().present(ww, wh);
+    if (o.hud) {
+        // Refreshed four times a second, like the title: readable, and no per-frame formatting.
+        if (hud_lines_.empty() || t0 - last_title_ > std::chrono::milliseconds(250)) {
+            std::string server;
+            if (loc_.remote)
+                server = link.reported_down() ? fmt::format("SERVER UNREACHABLE for {:.0f} s  (unserved {:.1f} s)",
+                                                            link.outage_s(t0), link.unserved_s())
+                                              : fmt::format("server connected  (unserved {:.1f} s)", link.unserved_s());
+            hud_lines_ = hud_text(rec, bias, o.pool, lat, rt().in_flight(), free_cam_.active, server, link.reported_down());
+        }
+        hud_->draw(hud_lines_, ww, wh, ww >= 1800 ? 3 : 2);
+    }
+    ctx_->swap_buffers();
+    if (t0 - last_title_ > std::chrono::milliseconds(250)) {
+        last_title_ = t0;
+        const double fr = rec.fallback_rate();
+        glfwSetWindowTitle(win_, fmt::format("tessera view{} | {:.1f} ms | bias {:.2f} | fallback {} | pages {}/{} | "
+                                             "latency p50 {:.1f} ms | {}",
+                                             link.reported_down() ? " | SERVER UNREACHABLE" : "", rec.frame_ms, bias,
+                                             std::isnan(fr) ? std::string("-") : fmt::format("{:.2f}%", 100 * fr),
+                                             rec.pages_resident, o.pool, lat.quantile(0.5),
+                                             free_cam_.active ? "free camera (Space: path)" : "path (WASD: fly)")
+                                     .c_str());
+    }
+}
+
+// The run's totals, and the PSNR of the path's last view once it has settled.
+void ViewerRun::finish_report(std::uint32_t done) {
+    const ViewerOptions& o = o_;
+    rep_.frames.resize(done);
+    r().finish(&counters_, nullptr);
     take_counters();
     const auto end = Clock::now();
-    rep.wall_s = std::chrono::duration<double>(end - start).count();
+    rep_.wall_s = std::chrono::duration<double>(end - start_).count();
     watch_link(end);
-    rep.run_s = link_monitor.watched_s();
-    rep.unserved_s = link_monitor.unserved_s();
-    rep.outages = link_monitor.outages();
-    rep.down_at_end = !link_monitor.connected();
-    rep.last_link_error = link_monitor.last_error();
-    rep.summary = rt.summary();
-    rep.fade_frames = std::uint32_t(std::ceil(double(o.fade_ms) / 1000.0 * o.fps));
-    rep.predicted_feedback_frames = r.stats().predicted_feedback;
-    rep.page_bytes_copied = r.stats().page_bytes_copied;
+    rep_.run_s = link_monitor_->watched_s();
+    rep_.unserved_s = link_monitor_->unserved_s();
+    rep_.outages = link_monitor_->outages();
+    rep_.down_at_end = !link_monitor_->connected();
+    rep_.last_link_error = link_monitor_->last_error();
+    rep_.summary = rt().summary();
+    rep_.fade_frames = std::uint32_t(std::ceil(double(o.fade_ms) / 1000.0 * o.fps));
+    rep_.predicted_feedback_frames = r().stats().predicted_feedback;
+    rep_.page_bytes_copied = r().stats().page_bytes_copied;
     // PSNR once settled: the path's last view held until it is resident and faded in.
-    if (reference && !win && done == frames && done > 0) {
-        const scene::Camera last = path->at(double(done - 1) / o.fps);
-        clock_s = path_clock_start + double(done) / o.fps;  // the renderer's clock after the path
-        rep.settled_complete = settle(last, rep.settled_frames);
-        const auto color = r.read_color();
-        reference->render(last);
-        const auto err = client::compare_images(color, reference->read_color(), o.width, o.height);
-        rep.settled_psnr = err.psnr;
-        rep.settled_max_error = err.max_error;
+    if (reference_ && !win_ && done == frames_ && done > 0) {
+        const scene::Camera last = path_->at(double(done - 1) / o.fps);
+        clock_s_ = path_clock_start_ + double(done) / o.fps;  // the renderer's clock after the path
+        rep_.settled_complete = settle(last, rep_.settled_frames);
+        const auto color = r().read_color();
+        reference_->render(last);
+        const auto err = client::compare_images(color, reference_->read_color(), o.width, o.height);
+        rep_.settled_psnr = err.psnr;
+        rep_.settled_max_error = err.max_error;
     }
-    if (trace) {
-        if (auto st = trace->close(); !st.ok()) throw Failure(st.error().message);
+    if (trace_) {
+        if (auto st = trace_->close(); !st.ok()) throw Failure(st.error().message);
     }
-    return rep;
+}
+
+}  // namespace
+
+ViewerReport run_viewer(const ViewerOptions& o) {
+    ViewerRun run(o);
+    return run.run();
 }
 
 double ViewerReport::fallback_rate() const {

@@ -220,6 +220,15 @@ void TileFetcher::read_misses(const StoreHandle& store, const std::vector<TileKe
                 // requests that joined this read get the same answer.
                 out[i] = error_tile(TileStatus::deadline_exceeded, "the read of tile " + key_text(store, misses[j]) +
                                                                        " did not finish before the request's deadline");
+            } else if (store.remote()) {
+                // The origin failed this read (an error answer after the retries, a dropped
+                // connection, an object being replaced whose new version the probe has not seen
+                // yet): the origin's fault, not ours, and likely to pass. UNAVAILABLE, so the
+                // client retries (HTTP 503 with Retry-After), rather than INTERNAL (500).
+                log_.warn("remote tile read failed", {{"store", store.name}, {"tile", key_text(store, misses[j])},
+                                                      {"error", e.message}});
+                out[i] = error_tile(TileStatus::unavailable, "the origin failed the read of tile " + key_text(store, misses[j]) +
+                                                                 "; retry");
             } else {
                 log_.error("tile read failed", {{"store", store.name}, {"tile", key_text(store, misses[j])},
                                                 {"error", e.message}});
