@@ -41,19 +41,180 @@ storage::LayerInput parse_layer(const std::string& spec) {
     return layer;
 }
 
+// The build command's options, as read from its flags.
+struct BuildArgs {
+    std::string input, output, codec, chroma, colour_space = "auto", atlas, obj_out, up = "auto";
+    std::vector<std::string> layers;
+    std::string visibility, visibility_view = "1280x720";
+    double visibility_fps = 30;
+    storage::BuildOptions opt;
+    storage::AtlasPackOptions pack;
+    bool quiet = false;
+    bool visibility_options_given = false;  // --visibility-view or --visibility-fps
+};
+
+// Checks the options against each other and builds the store (or the atlas, or the layers).
+int run_build(BuildArgs& a) {
+    storage::BuildOptions& opt = a.opt;
+    if (!a.codec.empty()) opt.codec = parse_codec(a.codec);
+    if (!a.chroma.empty()) opt.chroma = a.chroma == "420" ? storage::Chroma::s420 : storage::Chroma::s444;
+    if (a.colour_space == "srgb") opt.colour_space = storage::ColourSpace::srgb;
+    if (a.colour_space == "linear") opt.colour_space = storage::ColourSpace::linear;
+    if (Status st = storage::validate(opt); !st) throw Failure(st.error().message, 2);
+    std::vector<storage::LayerInput> layers;
+    for (const std::string& spec : a.layers) layers.push_back(parse_layer(spec));
+    if (!layers.empty()) {
+        if (!a.input.empty()) throw Failure("give either an input image or --layer NAME=INPUT layers, not both", 2);
+        if (!a.atlas.empty()) throw Failure("--atlas builds a single-layer store; it does not take --layer", 2);
+        if (!a.codec.empty())
+            throw Failure("--codec applies to single-layer builds; give each layer's codec as --layer NAME:CODEC=INPUT", 2);
+        if (layers.size() < storage::kMinLayers || layers.size() > storage::kMaxLayers)
+            throw Failure(fmt::format("a multi-layer store has {} to {} layers; --layer was given {} time(s)",
+                                      storage::kMinLayers, storage::kMaxLayers, layers.size()), 2);
+        for (std::size_t i = 0; i < layers.size(); ++i)
+            for (std::size_t j = 0; j < i; ++j)
+                if (layers[i].name == layers[j].name) throw Failure(fmt::format("two layers are named '{}'", layers[i].name), 2);
+    }
+    if (a.atlas.empty() && a.input.empty() && layers.empty())
+        throw Failure("an input image, --layer NAME=INPUT layers or --atlas SCENE.obj is required", 2);
+    if (!a.atlas.empty() && !a.input.empty())
+        throw Failure("give either an input image or --atlas SCENE.obj, not both", 2);
+    if (a.atlas.empty() && !a.obj_out.empty()) throw Failure("--obj-out needs --atlas", 2);
+    if (!a.atlas.empty() && (a.pack.alignment == 0 || (a.pack.alignment & (a.pack.alignment - 1)) != 0 ||
+                              a.pack.alignment > 4096))
+        throw Failure(fmt::format("--atlas-align must be a power of two up to 4096, got {}", a.pack.alignment), 2);
+    if (!a.atlas.empty() && a.pack.padding > 4096)
+        throw Failure(fmt::format("--atlas-padding must be at most 4096, got {}", a.pack.padding), 2);
+    if (!a.atlas.empty() && a.obj_out.empty())
+        a.obj_out = std::filesystem::path(a.output).replace_extension(".obj").string();
+
+    const bool visibility_given =
+        a.visibility_options_given;
+    if (visibility_given && a.visibility.empty())
+        throw Failure("--visibility-view and --visibility-fps need --visibility PATHS", 2);
+    if (!a.visibility.empty() && !a.atlas.empty())
+        throw Failure("--visibility works on the terrain scene of an image source, not with --atlas", 2);
+    scene::VisibilityOptions vis;
+    if (!a.visibility.empty()) {
+        unsigned w = 0, h = 0;
+        char x = 0, extra = 0;
+        if (std::sscanf(a.visibility_view.c_str(), "%u%c%u%c", &w, &x, &h, &extra) != 3 || x != 'x' || w == 0 ||
+            h == 0 || w > 16384 || h > 16384)
+            throw Failure(fmt::format("--visibility-view must be WxH (1 to 16384 each), got '{}'", a.visibility_view), 2);
+        if (!(a.visibility_fps > 0) || a.visibility_fps > 1000)
+            throw Failure(fmt::format("--visibility-fps must be above 0 and at most 1000, got {}", a.visibility_fps), 2);
+        vis.view_width = w;
+        vis.view_height = h;
+        vis.fps = a.visibility_fps;
+    }
+
+    ProgressBar bar("build", !a.quiet);
+    StderrCapture library_messages;
+    const auto on_progress = [&](const storage::BuildProgress& p) {
+        if (p.writing) {
+            bar.set_label("write");
+            bar.update(p.bytes_total ? double(p.bytes_written) / double(p.bytes_total) : 1.0,
+                       human_bytes(p.bytes_written) + " / " + human_bytes(p.bytes_total));
+        } else if (p.rows_total == 0) {  // a sparse source: tiles, no rows
+            bar.update(p.tiles_total ? double(p.tiles_done) / double(p.tiles_total) : 0.0,
+                       fmt::format("tiles {}/{}", p.tiles_done, p.tiles_total));
+        } else {
+            bar.update(p.rows_total ? double(p.rows_done) / double(p.rows_total) : 0.0,
+                       fmt::format("rows {}/{}  tiles {}/{}", p.rows_done, p.rows_total, p.tiles_done, p.tiles_total));
+        }
+    };
+    if (!a.atlas.empty()) {
+        const scene::UpAxis up = a.up == "y" ? scene::UpAxis::y : a.up == "z" ? scene::UpAxis::z : scene::UpAxis::automatic;
+        auto result = build_atlas(a.atlas, a.output, a.obj_out, opt, a.pack, on_progress, up);
+        bar.finish();
+        const std::string messages = library_messages.release();
+        if (!result) throw Failure(result.error().message);
+        std::fputs(messages.c_str(), stderr);
+        if (!a.quiet) {
+            const auto& s = *result;
+            fmt::print("built {} from {} images of {} ({} triangles) in {}\n", a.output, s.images, a.atlas, s.triangles,
+                       human_seconds(s.build.seconds));
+            fmt::print("up axis {} ({}; the scene spans {:.4g} x {:.4g} x {:.4g} in x, y, z)\n", s.up == scene::UpAxis::z ? "z" : "y",
+                       a.up == "auto" ? "auto, --up to choose" : "--up", s.extent[0], s.extent[1], s.extent[2]);
+            if (s.repeating_images > 0)
+                fmt::print("{} repeating textures (padding wraps around); {} triangles are pieces cut at their repeats\n",
+                           s.repeating_images, s.repeat_pieces);
+            fmt::print("wrote {} (texture coordinates in the atlas, v down)\n", a.obj_out);
+            print_store_summary(a.output, s.build.info);
+        }
+        return 0;
+    }
+    if (layers.empty() && storage::is_sparse_input(a.input)) {
+        if (!a.visibility.empty()) throw Failure("--visibility does not apply to a sparse source (its absent tiles are its own)", 2);
+        auto result = storage::build_sparse_store(a.input, a.output, opt, on_progress);
+        bar.finish();
+        const std::string messages = library_messages.release();
+        if (!result) throw Failure(result.error().message, result.error().code == Errc::invalid_argument ? 2 : 1);
+        std::fputs(messages.c_str(), stderr);
+        if (!a.quiet) {
+            std::uint64_t present = 0, total = 0;
+            for (const auto& l : result->info.levels) {
+                present += l.present + l.uniform;
+                total += std::uint64_t(l.tiles_x) * l.tiles_y;
+            }
+            fmt::print("built {} in {}: {} present tiles of {} ({:.2g}%), the rest absent\n", a.output,
+                       human_seconds(result->seconds), present, total, 100.0 * double(present) / double(total));
+            print_store_summary(a.output, result->info);
+        }
+        return 0;
+    }
+    // A layered build opens its inputs itself; the first one is opened here too when its size
+    // is needed first (--visibility).
+    auto source = layers.empty() || !a.visibility.empty() ? storage::open_image_source(layers.empty() ? a.input : layers[0].input)
+                                                            : Result<std::unique_ptr<storage::ImageSource>>(nullptr);
+    if (!source) throw Failure((layers.empty() ? "" : "layer '" + layers[0].name + "': ") + source.error().message);
+    scene::PageSet mask;
+    if (!a.visibility.empty()) {
+        // The level-0 pages the paths want over the flat terrain of the source's size (plus
+        // their 8 neighbours); every other level-0 tile is written absent.
+        const auto& si = (*source)->info();
+        storage::StoreSpec spec;
+        spec.width = si.width;
+        spec.height = si.height;
+        spec.tile_payload = opt.tile_size - 2 * opt.border;
+        spec.border = opt.border;
+        const storage::StoreInfo geo = storage::store_info(spec);
+        auto terrain = scene::visibility_terrain(si.width, si.height);
+        if (!terrain) throw Failure(terrain.error().message);
+        auto paths = scene::parse_path_list(a.visibility, *terrain);
+        if (!paths) throw Failure("--visibility " + paths.error().message, 2);
+        mask = scene::level0_mask(*paths, scene::VtGeometry{si.width, si.height, spec.tile_payload, geo.level_count()}, vis);
+        opt.keep = [&mask](std::uint32_t level, std::uint32_t x, std::uint32_t y) {
+            return level != 0 || mask.contains(0, x, y);
+        };
+    }
+    if (!layers.empty()) source = Result<std::unique_ptr<storage::ImageSource>>(nullptr);
+    auto result = layers.empty() ? storage::build_store(**source, a.output, opt, on_progress)
+                                 : storage::build_layered_store(layers, a.output, opt, on_progress);
+    opt.keep = {};  // it refers to `mask`
+    bar.finish();
+    const std::string messages = library_messages.release();
+    if (!result) throw Failure(result.error().message);  // it already holds the libraries' own report
+    std::fputs(messages.c_str(), stderr);
+    if (!a.quiet) {
+        const auto& s = *result;
+        fmt::print("built {} in {} ({:.1f} MP/s)\n", a.output, human_seconds(s.seconds),
+                   double(s.source_texels) / 1e6 / std::max(s.seconds, 1e-9));
+        print_store_summary(a.output, s.info);
+        if (!s.tiles_dropped.empty()) {
+            const std::uint64_t total = mask.total(0), dropped = s.tiles_dropped[0];
+            fmt::print("visibility ({}, {}x{} at {} fps): level-0 tiles kept {} of {} ({:.1f}%), dropped {}; saved {}\n",
+                       a.visibility, vis.view_width, vis.view_height, vis.fps, total - dropped, total,
+                       total ? 100.0 * double(total - dropped) / double(total) : 0.0, dropped, human_bytes(s.bytes_dropped));
+        }
+    }
+    return 0;
+}
+
 }  // namespace
 
 Command add_build(CLI::App& app) {
-    struct Args {
-        std::string input, output, codec, chroma, colour_space = "auto", atlas, obj_out, up = "auto";
-        std::vector<std::string> layers;
-        std::string visibility, visibility_view = "1280x720";
-        double visibility_fps = 30;
-        storage::BuildOptions opt;
-        storage::AtlasPackOptions pack;
-        bool quiet = false;
-    };
-    auto a = std::make_shared<Args>();
+    auto a = std::make_shared<BuildArgs>();
     CLI::App* c = app.add_subcommand("build", "Build a tile store from an image or a procedural source");
     c->add_option("input", a->input,
                   "Image file (anything OpenImageIO reads), procedural:terrain[-height|-normal]:SIZE (not with --atlas or --layer), or a sparse source (docs/store-format.md, \"Sparse stores\"): a mosaic manifest FILE.json (images placed on a canvas of up to 2^32-1 texels per side) or the test pattern procedural:coords-sparse:SIZE (up to 16777216)");
@@ -104,160 +265,8 @@ Command add_build(CLI::App& app) {
         ->capture_default_str();
 
     return [a, c]() -> int {
-        storage::BuildOptions& opt = a->opt;
-        if (!a->codec.empty()) opt.codec = parse_codec(a->codec);
-        if (!a->chroma.empty()) opt.chroma = a->chroma == "420" ? storage::Chroma::s420 : storage::Chroma::s444;
-        if (a->colour_space == "srgb") opt.colour_space = storage::ColourSpace::srgb;
-        if (a->colour_space == "linear") opt.colour_space = storage::ColourSpace::linear;
-        if (Status st = storage::validate(opt); !st) throw Failure(st.error().message, 2);
-        std::vector<storage::LayerInput> layers;
-        for (const std::string& spec : a->layers) layers.push_back(parse_layer(spec));
-        if (!layers.empty()) {
-            if (!a->input.empty()) throw Failure("give either an input image or --layer NAME=INPUT layers, not both", 2);
-            if (!a->atlas.empty()) throw Failure("--atlas builds a single-layer store; it does not take --layer", 2);
-            if (!a->codec.empty())
-                throw Failure("--codec applies to single-layer builds; give each layer's codec as --layer NAME:CODEC=INPUT", 2);
-            if (layers.size() < storage::kMinLayers || layers.size() > storage::kMaxLayers)
-                throw Failure(fmt::format("a multi-layer store has {} to {} layers; --layer was given {} time(s)",
-                                          storage::kMinLayers, storage::kMaxLayers, layers.size()), 2);
-            for (std::size_t i = 0; i < layers.size(); ++i)
-                for (std::size_t j = 0; j < i; ++j)
-                    if (layers[i].name == layers[j].name) throw Failure(fmt::format("two layers are named '{}'", layers[i].name), 2);
-        }
-        if (a->atlas.empty() && a->input.empty() && layers.empty())
-            throw Failure("an input image, --layer NAME=INPUT layers or --atlas SCENE.obj is required", 2);
-        if (!a->atlas.empty() && !a->input.empty())
-            throw Failure("give either an input image or --atlas SCENE.obj, not both", 2);
-        if (a->atlas.empty() && !a->obj_out.empty()) throw Failure("--obj-out needs --atlas", 2);
-        if (!a->atlas.empty() && (a->pack.alignment == 0 || (a->pack.alignment & (a->pack.alignment - 1)) != 0 ||
-                                  a->pack.alignment > 4096))
-            throw Failure(fmt::format("--atlas-align must be a power of two up to 4096, got {}", a->pack.alignment), 2);
-        if (!a->atlas.empty() && a->pack.padding > 4096)
-            throw Failure(fmt::format("--atlas-padding must be at most 4096, got {}", a->pack.padding), 2);
-        if (!a->atlas.empty() && a->obj_out.empty())
-            a->obj_out = std::filesystem::path(a->output).replace_extension(".obj").string();
-
-        const bool visibility_given =
-            c->get_option("--visibility-view")->count() + c->get_option("--visibility-fps")->count() > 0;
-        if (visibility_given && a->visibility.empty())
-            throw Failure("--visibility-view and --visibility-fps need --visibility PATHS", 2);
-        if (!a->visibility.empty() && !a->atlas.empty())
-            throw Failure("--visibility works on the terrain scene of an image source, not with --atlas", 2);
-        scene::VisibilityOptions vis;
-        if (!a->visibility.empty()) {
-            unsigned w = 0, h = 0;
-            char x = 0, extra = 0;
-            if (std::sscanf(a->visibility_view.c_str(), "%u%c%u%c", &w, &x, &h, &extra) != 3 || x != 'x' || w == 0 ||
-                h == 0 || w > 16384 || h > 16384)
-                throw Failure(fmt::format("--visibility-view must be WxH (1 to 16384 each), got '{}'", a->visibility_view), 2);
-            if (!(a->visibility_fps > 0) || a->visibility_fps > 1000)
-                throw Failure(fmt::format("--visibility-fps must be above 0 and at most 1000, got {}", a->visibility_fps), 2);
-            vis.view_width = w;
-            vis.view_height = h;
-            vis.fps = a->visibility_fps;
-        }
-
-        ProgressBar bar("build", !a->quiet);
-        StderrCapture library_messages;
-        const auto on_progress = [&](const storage::BuildProgress& p) {
-            if (p.writing) {
-                bar.set_label("write");
-                bar.update(p.bytes_total ? double(p.bytes_written) / double(p.bytes_total) : 1.0,
-                           human_bytes(p.bytes_written) + " / " + human_bytes(p.bytes_total));
-            } else if (p.rows_total == 0) {  // a sparse source: tiles, no rows
-                bar.update(p.tiles_total ? double(p.tiles_done) / double(p.tiles_total) : 0.0,
-                           fmt::format("tiles {}/{}", p.tiles_done, p.tiles_total));
-            } else {
-                bar.update(p.rows_total ? double(p.rows_done) / double(p.rows_total) : 0.0,
-                           fmt::format("rows {}/{}  tiles {}/{}", p.rows_done, p.rows_total, p.tiles_done, p.tiles_total));
-            }
-        };
-        if (!a->atlas.empty()) {
-            const scene::UpAxis up = a->up == "y" ? scene::UpAxis::y : a->up == "z" ? scene::UpAxis::z : scene::UpAxis::automatic;
-            auto result = build_atlas(a->atlas, a->output, a->obj_out, opt, a->pack, on_progress, up);
-            bar.finish();
-            const std::string messages = library_messages.release();
-            if (!result) throw Failure(result.error().message);
-            std::fputs(messages.c_str(), stderr);
-            if (!a->quiet) {
-                const auto& s = *result;
-                fmt::print("built {} from {} images of {} ({} triangles) in {}\n", a->output, s.images, a->atlas, s.triangles,
-                           human_seconds(s.build.seconds));
-                fmt::print("up axis {} ({}; the scene spans {:.4g} x {:.4g} x {:.4g} in x, y, z)\n", s.up == scene::UpAxis::z ? "z" : "y",
-                           a->up == "auto" ? "auto, --up to choose" : "--up", s.extent[0], s.extent[1], s.extent[2]);
-                if (s.repeating_images > 0)
-                    fmt::print("{} repeating textures (padding wraps around); {} triangles are pieces cut at their repeats\n",
-                               s.repeating_images, s.repeat_pieces);
-                fmt::print("wrote {} (texture coordinates in the atlas, v down)\n", a->obj_out);
-                print_store_summary(a->output, s.build.info);
-            }
-            return 0;
-        }
-        if (layers.empty() && storage::is_sparse_input(a->input)) {
-            if (!a->visibility.empty()) throw Failure("--visibility does not apply to a sparse source (its absent tiles are its own)", 2);
-            auto result = storage::build_sparse_store(a->input, a->output, opt, on_progress);
-            bar.finish();
-            const std::string messages = library_messages.release();
-            if (!result) throw Failure(result.error().message, result.error().code == Errc::invalid_argument ? 2 : 1);
-            std::fputs(messages.c_str(), stderr);
-            if (!a->quiet) {
-                std::uint64_t present = 0, total = 0;
-                for (const auto& l : result->info.levels) {
-                    present += l.present + l.uniform;
-                    total += std::uint64_t(l.tiles_x) * l.tiles_y;
-                }
-                fmt::print("built {} in {}: {} present tiles of {} ({:.2g}%), the rest absent\n", a->output,
-                           human_seconds(result->seconds), present, total, 100.0 * double(present) / double(total));
-                print_store_summary(a->output, result->info);
-            }
-            return 0;
-        }
-        // A layered build opens its inputs itself; the first one is opened here too when its size
-        // is needed first (--visibility).
-        auto source = layers.empty() || !a->visibility.empty() ? storage::open_image_source(layers.empty() ? a->input : layers[0].input)
-                                                                : Result<std::unique_ptr<storage::ImageSource>>(nullptr);
-        if (!source) throw Failure((layers.empty() ? "" : "layer '" + layers[0].name + "': ") + source.error().message);
-        scene::PageSet mask;
-        if (!a->visibility.empty()) {
-            // The level-0 pages the paths want over the flat terrain of the source's size (plus
-            // their 8 neighbours); every other level-0 tile is written absent.
-            const auto& si = (*source)->info();
-            storage::StoreSpec spec;
-            spec.width = si.width;
-            spec.height = si.height;
-            spec.tile_payload = opt.tile_size - 2 * opt.border;
-            spec.border = opt.border;
-            const storage::StoreInfo geo = storage::store_info(spec);
-            auto terrain = scene::visibility_terrain(si.width, si.height);
-            if (!terrain) throw Failure(terrain.error().message);
-            auto paths = scene::parse_path_list(a->visibility, *terrain);
-            if (!paths) throw Failure("--visibility " + paths.error().message, 2);
-            mask = scene::level0_mask(*paths, scene::VtGeometry{si.width, si.height, spec.tile_payload, geo.level_count()}, vis);
-            opt.keep = [&mask](std::uint32_t level, std::uint32_t x, std::uint32_t y) {
-                return level != 0 || mask.contains(0, x, y);
-            };
-        }
-        if (!layers.empty()) source = Result<std::unique_ptr<storage::ImageSource>>(nullptr);
-        auto result = layers.empty() ? storage::build_store(**source, a->output, opt, on_progress)
-                                     : storage::build_layered_store(layers, a->output, opt, on_progress);
-        opt.keep = {};  // it refers to `mask`
-        bar.finish();
-        const std::string messages = library_messages.release();
-        if (!result) throw Failure(result.error().message);  // it already holds the libraries' own report
-        std::fputs(messages.c_str(), stderr);
-        if (!a->quiet) {
-            const auto& s = *result;
-            fmt::print("built {} in {} ({:.1f} MP/s)\n", a->output, human_seconds(s.seconds),
-                       double(s.source_texels) / 1e6 / std::max(s.seconds, 1e-9));
-            print_store_summary(a->output, s.info);
-            if (!s.tiles_dropped.empty()) {
-                const std::uint64_t total = mask.total(0), dropped = s.tiles_dropped[0];
-                fmt::print("visibility ({}, {}x{} at {} fps): level-0 tiles kept {} of {} ({:.1f}%), dropped {}; saved {}\n",
-                           a->visibility, vis.view_width, vis.view_height, vis.fps, total - dropped, total,
-                           total ? 100.0 * double(total - dropped) / double(total) : 0.0, dropped, human_bytes(s.bytes_dropped));
-            }
-        }
-        return 0;
+        a->visibility_options_given = c->get_option("--visibility-view")->count() + c->get_option("--visibility-fps")->count() > 0;
+        return run_build(*a);
     };
 }
 

@@ -4,16 +4,11 @@
 #include <CLI/CLI.hpp>
 
 #include <functional>
-#include <stdexcept>
 #include <string>
 
-namespace tessera::tools {
+#include "failure.hpp"
 
-// A user-facing error: printed as "tessera: error: <what>", exit status `code`.
-struct Failure : std::runtime_error {
-    int code;
-    explicit Failure(const std::string& what, int exit_code = 1) : std::runtime_error(what), code(exit_code) {}
-};
+namespace tessera::tools {
 
 using Command = std::function<int()>;
 

@@ -18,7 +18,7 @@
 #include <utility>
 
 #include "atomic_file.hpp"
-#include "commands.hpp"
+#include "failure.hpp"
 #include "height_layer.hpp"
 #include "png_write.hpp"
 #include "progress.hpp"

@@ -8,7 +8,7 @@
 #include <fstream>
 
 #include "atomic_file.hpp"
-#include "commands.hpp"
+#include "failure.hpp"
 
 namespace tessera::tools {
 namespace {

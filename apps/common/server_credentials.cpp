@@ -5,7 +5,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "commands.hpp"
+#include "failure.hpp"
 
 namespace tessera::tools {
 namespace {

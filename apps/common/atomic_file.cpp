@@ -6,7 +6,7 @@
 #include <fstream>
 #include <system_error>
 
-#include "commands.hpp"
+#include "failure.hpp"
 
 namespace tessera::tools {
 

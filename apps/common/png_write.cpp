@@ -5,7 +5,7 @@
 #include <ostream>
 
 #include "atomic_file.hpp"
-#include "commands.hpp"
+#include "failure.hpp"
 #include "tessera/storage/png_encode.hpp"
 
 namespace tessera::tools {
