@@ -28,6 +28,7 @@ if(NOT TESSERA_FUZZ_ONLY AND NOT TESSERA_SERVER_ONLY)
   pkg_check_modules(EGL REQUIRED IMPORTED_TARGET egl)
   pkg_check_modules(GLFW REQUIRED IMPORTED_TARGET glfw3)
   pkg_check_modules(TINYOBJ REQUIRED IMPORTED_TARGET tinyobjloader)
+  pkg_check_modules(TINYGLTF REQUIRED IMPORTED_TARGET tinygltf)  # glTF 2.0 scenes for the atlas build
   if(TESSERA_BUILD_TESTS)
     find_package(GTest REQUIRED)
     # libsquish: an independent BC decoder, so the tests do not check our blocks with our own code.

@@ -18,6 +18,7 @@
 #include "tessera/client/scene/scene.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
+#include "atlas_test_util.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -29,22 +30,10 @@ using tessera::test::run_tessera;
 using tessera::test::RunResult;
 using tessera::test::ScratchDir;
 using tessera::test::write_file;
-
-std::string q(const std::string& s) { return "'" + s + "'"; }
-
-std::set<std::string> entries(const fs::path& dir) {
-    std::set<std::string> out;
-    for (const auto& e : fs::directory_iterator(dir)) out.insert(e.path().filename().string());
-    return out;
-}
-
-// A failed command: non-zero exit (not a crash), one line "tessera: error: ...".
-void expect_one_line_error(const RunResult& r) {
-    EXPECT_NE(r.exit_code, 0) << r.out;
-    EXPECT_LT(r.exit_code, 128) << r.out;
-    EXPECT_EQ(r.out.rfind("tessera: error: ", 0), 0u) << r.out;
-    EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
-}
+using tessera::test::AtlasTexels;
+using tessera::test::entries;
+using tessera::test::expect_one_line_error;
+using tessera::test::q;
 
 struct Rgb8Image {
     int width = 0, height = 0;
@@ -66,30 +55,6 @@ Rgb8Image read_png(const std::string& path) {
     in->close();
     return img;
 }
-
-// Level-0 texels of a store, tile by tile (decoded once each).
-class AtlasTexels {
-public:
-    explicit AtlasTexels(std::shared_ptr<storage::StoreReader> r) : reader_(std::move(r)) {}
-    const storage::StoreInfo& info() const { return reader_->info(); }
-    std::array<std::uint8_t, 3> at(std::uint32_t x, std::uint32_t y) {
-        const storage::StoreInfo& s = reader_->info();
-        const std::uint32_t P = s.tile_payload, B = s.border, T = s.tile_size();
-        const tessera::TileKey key{0, x / P, y / P};
-        auto& tile = tiles_[{key.x, key.y}];
-        if (tile.empty()) {
-            auto t = reader_->read_tile(key);
-            EXPECT_TRUE(t.ok());
-            EXPECT_TRUE(storage::decode_tile(s, *t, tile).ok());
-        }
-        const std::size_t i = ((std::size_t(y % P) + B) * T + (x % P) + B) * 3;
-        return {tile[i], tile[i + 1], tile[i + 2]};
-    }
-
-private:
-    std::shared_ptr<storage::StoreReader> reader_;
-    std::map<std::pair<std::uint32_t, std::uint32_t>, std::vector<std::uint8_t>> tiles_;
-};
 
 tinyobj::ObjReader read_obj(const std::string& path) {
     tinyobj::ObjReader r;

@@ -1,4 +1,5 @@
-// The atlas build: OBJ materials -> images -> packed layout -> rewritten OBJ + one store.
+// The atlas build: a scene's materials (OBJ or glTF) -> images -> packed layout -> rewritten OBJ +
+// one store.
 #include "atlas_build.hpp"
 
 #include <unistd.h>
@@ -37,6 +38,36 @@ private:
     bool released_ = false;
 };
 
+// A folder beside `target` for the images a glTF scene holds inside itself (OpenImageIO reads
+// files), removed with everything in it unless empty of use.
+class TempFolder {
+public:
+    explicit TempFolder(const fs::path& target)
+        : path_((target.has_parent_path() ? target.parent_path() : fs::path(".")) /
+                (".tmp-" + std::to_string(::getpid()) + "-" + target.filename().string() + "-images")) {}
+    ~TempFolder() {
+        std::error_code ec;
+        fs::remove_all(path_, ec);
+    }
+    TempFolder(const TempFolder&) = delete;
+    TempFolder& operator=(const TempFolder&) = delete;
+    // Writes `bytes` to a new file in the folder (made on first use) and returns its path.
+    Result<std::string> write(const std::vector<std::uint8_t>& bytes, const std::string& extension) {
+        std::error_code ec;
+        fs::create_directories(path_, ec);
+        const fs::path file = path_ / ("image" + std::to_string(count_++) + extension);
+        std::ofstream f(file, std::ios::binary | std::ios::trunc);
+        f.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+        f.flush();
+        if (ec || !f) return make_error(Errc::io_error, "cannot write a temporary image in '" + path_.string() + "'");
+        return file.string();
+    }
+
+private:
+    fs::path path_;
+    int count_ = 0;
+};
+
 bool same_file(const std::string& a, const std::string& b) {
     std::error_code ec1, ec2;
     return fs::weakly_canonical(a, ec1) == fs::weakly_canonical(b, ec2) && !ec1 && !ec2;
@@ -56,11 +87,12 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
     TESSERA_TRY(storage::validate(options));
     if (obj_out.empty()) return make_error(Errc::invalid_argument, "--obj-out: no file given");
     if (same_file(obj_out, store)) return make_error(Errc::invalid_argument, "--obj-out and --output name the same file");
-    if (same_file(obj_out, obj)) return make_error(Errc::invalid_argument, "--obj-out would overwrite the input OBJ");
+    if (same_file(obj_out, obj)) return make_error(Errc::invalid_argument, "--obj-out would overwrite the input scene");
 
-    auto input = scene::ObjAtlasInput::load(obj, up);
+    auto input = scene::AtlasSceneInput::load(obj, up);
     if (!input) return input.error();
     const auto& refs = input->images();
+    TempFolder embedded_images(store);
 
     // Open every texture now: a missing or unreadable one fails before any work is done.
     std::vector<storage::AtlasItem> items(refs.size());
@@ -72,11 +104,22 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
             sizes[i] = {kSolidTileTexels, kSolidTileTexels};
             continue;
         }
+        std::string file = r.texture;
+        if (r.embedded) {
+            auto written = embedded_images.write(*r.embedded, r.embedded_extension);
+            if (!written) return written.error();
+            file = *written;
+        }
         std::error_code ec;
-        if (!fs::is_regular_file(r.texture, ec))
+        if (!fs::is_regular_file(file, ec))
             return make_error(Errc::not_found, material_list(r) + ": texture '" + r.texture + "' does not exist");
-        auto src = storage::open_image_source(r.texture);
-        if (!src) return make_error(src.error().code, material_list(r) + ": " + src.error().message);
+        auto src = storage::open_image_source(file);
+        if (!src) {
+            std::string message = src.error().message;
+            if (r.embedded)  // name the image in the scene, not the temporary file
+                if (auto at = message.find(file); at != std::string::npos) message.replace(at, file.size(), r.texture);
+            return make_error(src.error().code, material_list(r) + ": " + message);
+        }
         sizes[i] = {(*src)->info().width, (*src)->info().height};
         items[i].source = std::move(*src);
         items[i].wrap = r.repeats;
@@ -121,6 +164,7 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
     s.repeat_pieces = input->repeat_piece_count();
     s.up = input->up_axis();
     s.extent = input->extent();
+    s.warnings = input->warnings();
     s.repeating_images = static_cast<std::size_t>(std::count_if(refs.begin(), refs.end(), [](const auto& r) { return r.repeats; }));
     return s;
 }

@@ -1,6 +1,6 @@
 // tessera build INPUT -o STORE.tsr
 // tessera build --layer NAME[:CODEC]=INPUT --layer ... -o STORE.tsr   (a multi-layer store)
-// tessera build --atlas SCENE.obj -o ATLAS.tsr [--obj-out ATLAS.obj]
+// tessera build --atlas SCENE.obj|SCENE.gltf|SCENE.glb -o ATLAS.tsr [--obj-out ATLAS.obj]
 #include <fmt/format.h>
 
 #include <cstdio>
@@ -76,9 +76,9 @@ int run_build(BuildArgs& a) {
                 if (layers[i].name == layers[j].name) throw Failure(fmt::format("two layers are named '{}'", layers[i].name), 2);
     }
     if (a.atlas.empty() && a.input.empty() && layers.empty())
-        throw Failure("an input image, --layer NAME=INPUT layers or --atlas SCENE.obj is required", 2);
+        throw Failure("an input image, --layer NAME=INPUT layers or --atlas SCENE (.obj, .gltf, .glb) is required", 2);
     if (!a.atlas.empty() && !a.input.empty())
-        throw Failure("give either an input image or --atlas SCENE.obj, not both", 2);
+        throw Failure("give either an input image or --atlas SCENE, not both", 2);
     if (a.atlas.empty() && !a.obj_out.empty()) throw Failure("--obj-out needs --atlas", 2);
     if (!a.atlas.empty() && (a.pack.alignment == 0 || (a.pack.alignment & (a.pack.alignment - 1)) != 0 ||
                               a.pack.alignment > 4096))
@@ -130,6 +130,7 @@ int run_build(BuildArgs& a) {
         const std::string messages = library_messages.release();
         if (!result) throw Failure(result.error().message);
         std::fputs(messages.c_str(), stderr);
+        for (const std::string& w : result->warnings) fmt::print(stderr, "warning: {}\n", w);
         if (!a.quiet) {
             const auto& s = *result;
             fmt::print("built {} from {} images of {} ({} triangles) in {}\n", a.output, s.images, a.atlas, s.triangles,
@@ -252,15 +253,15 @@ Command add_build(CLI::App& app) {
         ->capture_default_str();
     c->add_flag("-q,--quiet", a->quiet, "No progress bar and no summary");
     c->add_option("--atlas", a->atlas,
-                  "Pack the textures of this OBJ scene's materials into one store (instead of INPUT); see docs/atlas.md");
+                  "Pack the colour textures of this scene's materials (OBJ, or glTF 2.0 .gltf/.glb) into one store (instead of INPUT); see docs/atlas.md");
     c->add_option("--obj-out", a->obj_out,
-                  "With --atlas: the rewritten OBJ, texture coordinates in the atlas (default: the store's name with .obj)");
+                  "With --atlas: the scene written as OBJ, texture coordinates in the atlas (default: the store's name with .obj)");
     c->add_option("--atlas-align", a->pack.alignment, "With --atlas: cells start at and span multiples of this (power of two)")
         ->capture_default_str();
     c->add_option("--atlas-padding", a->pack.padding, "With --atlas: texels of edge replication around each texture")
         ->capture_default_str();
-    c->add_option("--up", a->up, "With --atlas: the OBJ's up axis, y (OBJ's convention), z (SketchUp, CAD) or auto "
-                                 "(z when the scene is flatter along z than y)")
+    c->add_option("--up", a->up, "With --atlas: the scene's up axis, y (the OBJ and glTF convention), z (SketchUp, CAD) or auto "
+                                 "(glTF: y; OBJ: z when the scene is flatter along z than y)")
         ->check(CLI::IsMember({"auto", "y", "z"}))
         ->capture_default_str();
 

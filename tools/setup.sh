@@ -23,7 +23,7 @@ packages=(
   libcli11-dev nlohmann-json3-dev libfmt-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libboost-dev libssl-dev zlib1g-dev openssl
-  libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libtinyobjloader-dev  # GL client (llvmpipe headless)
+  libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libtinyobjloader-dev libtinygltf-dev  # GL client (llvmpipe headless)
   libgtest-dev libgmock-dev libbenchmark-dev  # small; the build configures its tests even when it does not build them
   python3
 )
@@ -31,6 +31,7 @@ test_packages=(
   clang libclang-rt-14-dev           # libFuzzer targets
   xvfb xauth                          # windowed-mode tests on an X server without a display
   imagemagick openimageio-tools       # tests read images other tools wrote (alpha conventions, formats)
+  assimp-testmodels                   # real glTF 2.0 scenes (Khronos samples) for the atlas build's tests
   python3-yaml time systemd           # systemd: systemd-analyze lints deploy/tessera.service
   mmdebstrap                          # deploy/build-image.py: the image's root filesystem
   nginx-light                         # remote stores over plain HTTP range requests (tests)

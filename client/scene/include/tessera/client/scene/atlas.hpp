@@ -1,8 +1,9 @@
 #pragma once
-// The OBJ side of `tessera build --atlas` (the image side, packing and composing the atlas, is
-// storage/atlas.hpp): read an OBJ scene and its materials, list the images its materials use, and
-// rewrite the OBJ so that its texture coordinates address the packed atlas. The rewritten OBJ is
-// what load_obj_scene (scene.hpp) reads.
+// The scene side of `tessera build --atlas` (the image side, packing and composing the atlas, is
+// storage/atlas.hpp): read an OBJ or glTF 2.0 scene and its materials, list the images its
+// materials use, and write the scene as an OBJ whose texture coordinates address the packed atlas.
+// The rewritten OBJ is what load_obj_scene (scene.hpp) reads; docs/atlas.md says what of a glTF
+// scene it keeps.
 //
 // Texture coordinates of the rewritten OBJ: u, v in [0, 1] of the whole atlas, u to the right and
 // v DOWN (v = 0 is the atlas's row 0, as texel coordinates of the virtual texture) -- the opposite
@@ -19,10 +20,14 @@
 
 namespace tessera::scene {
 
-// One image the atlas needs: a material's diffuse texture (map_Kd), or a small solid tile of the
-// material's diffuse colour (Kd) for a material without a texture.
+// One image the atlas needs: a material's colour texture (OBJ's map_Kd, glTF's baseColorTexture),
+// or a small solid tile of the material's colour (Kd, baseColorFactor) for a material without one.
 struct AtlasImageRef {
-    std::string texture;                   // the texture file, resolved against the OBJ's folder; empty: solid
+    // The texture file, resolved against the scene's folder; for an image inside the scene (a GLB
+    // buffer view, a data URI) a name for messages ("scene.glb image 2 'bark'"). Empty: solid.
+    std::string texture;
+    std::shared_ptr<const std::vector<std::uint8_t>> embedded;  // an image inside the scene: its file's bytes
+    std::string embedded_extension;        // ".png", ".jpg", ...: the embedded bytes' format (from the MIME type)
     std::array<std::uint8_t, 3> colour{};  // solid only: Kd as 8-bit values
     std::vector<std::string> materials;    // the materials that use this image (for messages)
     bool repeats = false;                  // texture coordinates leave [0, 1]: its cell's padding wraps around
@@ -38,26 +43,32 @@ struct AtlasRect {
     std::uint32_t x = 0, y = 0, width = 0, height = 0;
 };
 
-class ObjAtlasInput {
+class AtlasSceneInput {
 public:
-    // Reads the OBJ and its MTL files (found beside the OBJ). A triangle across which its texture
-    // repeats is cut at the repeats (u = k, v = j) into pieces that each lie in one copy, with new
-    // positions (and normals) where the cuts cross its edges. Errors: the OBJ missing or malformed,
-    // a material library or material that cannot be found, no triangles, a texture coordinate that
-    // is not finite, more than 2^16 repeats across one triangle or 2^24 triangles in all: the
-    // message names the material.
-    static Result<ObjAtlasInput> load(const std::string& obj_path, UpAxis up = UpAxis::automatic);
+    // Reads an OBJ (.obj) and its MTL files (found beside it), or a glTF 2.0 scene (.gltf with its
+    // buffers and images, or .glb; glTF is Y up, so `automatic` means y there). A triangle across
+    // which its texture repeats is cut at the repeats (u = k, v = j) into pieces that each lie in
+    // one copy, with new positions (and normals) where the cuts cross its edges; glTF's mirrored
+    // and clamped wrap modes are cut the same way. Errors: the file missing or malformed, a
+    // material library, material or texture file that cannot be found, a glTF extension the scene
+    // requires and this reader does not honour (named), no triangles, a texture coordinate that is
+    // not finite, more than 2^16 repeats across one triangle or 2^24 triangles in all: the message
+    // names the material.
+    static Result<AtlasSceneInput> load(const std::string& path, UpAxis up = UpAxis::automatic);
 
-    ObjAtlasInput(ObjAtlasInput&&) noexcept;
-    ObjAtlasInput& operator=(ObjAtlasInput&&) noexcept;
-    ~ObjAtlasInput();
+    AtlasSceneInput(AtlasSceneInput&&) noexcept;
+    AtlasSceneInput& operator=(AtlasSceneInput&&) noexcept;
+    ~AtlasSceneInput();
 
     // Distinct images, in first-use order (the same texture file used by two materials is one image).
     const std::vector<AtlasImageRef>& images() const;
     std::size_t triangle_count() const;     // after cutting at repeats
     std::size_t repeat_piece_count() const;  // triangles (after fan triangulation) that cutting made
     UpAxis up_axis() const;                  // y or z, resolved
-    std::array<double, 3> extent() const;    // the positions' extent along x, y, z (OBJ axes)
+    std::array<double, 3> extent() const;    // the positions' extent along x, y, z (the file's axes)
+    // What of the scene the atlas does not keep, one line each (e.g. a colour factor on a
+    // textured glTF material, lines and points): the build prints them.
+    const std::vector<std::string>& warnings() const;
 
     // The rewritten OBJ text: positions and normals as they were, texture coordinates mapped into
     // rects[i] for images()[i] (a solid image's texels all map to its middle texel's centre), one
@@ -68,7 +79,7 @@ public:
 
 private:
     struct Impl;
-    explicit ObjAtlasInput(std::unique_ptr<Impl> impl);
+    explicit AtlasSceneInput(std::unique_ptr<Impl> impl);
     std::unique_ptr<Impl> impl_;
 };
 

@@ -1,0 +1,61 @@
+#pragma once
+// What the atlas build's tests share: reading a store's level-0 texels, listing a folder, and the
+// shape of a failed command.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "tessera/storage/codec.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "test_util.hpp"
+
+namespace tessera::test {
+
+inline std::string q(const std::string& s) { return "'" + s + "'"; }
+
+inline std::set<std::string> entries(const std::filesystem::path& dir) {
+    std::set<std::string> out;
+    for (const auto& e : std::filesystem::directory_iterator(dir)) out.insert(e.path().filename().string());
+    return out;
+}
+
+// A failed command: non-zero exit (not a crash), one line "tessera: error: ...".
+inline void expect_one_line_error(const RunResult& r) {
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_LT(r.exit_code, 128) << r.out;
+    EXPECT_EQ(r.out.rfind("tessera: error: ", 0), 0u) << r.out;
+    EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+}
+
+// Level-0 texels of an 8-bit store, tile by tile (decoded once each): the first three channels.
+class AtlasTexels {
+public:
+    explicit AtlasTexels(std::shared_ptr<storage::StoreReader> r) : reader_(std::move(r)) {}
+    const storage::StoreInfo& info() const { return reader_->info(); }
+    std::array<std::uint8_t, 3> at(std::uint32_t x, std::uint32_t y) {
+        const storage::StoreInfo& s = reader_->info();
+        const std::uint32_t P = s.tile_payload, B = s.border, T = s.tile_size();
+        const TileKey key{0, x / P, y / P};
+        auto& tile = tiles_[{key.x, key.y}];
+        if (tile.empty()) {
+            auto t = reader_->read_tile(key);
+            EXPECT_TRUE(t.ok());
+            EXPECT_TRUE(storage::decode_tile(s, *t, tile).ok());
+        }
+        const std::size_t i = ((std::size_t(y % P) + B) * T + (x % P) + B) * s.channels;
+        return {tile[i], tile[i + 1], tile[i + 2]};
+    }
+
+private:
+    std::shared_ptr<storage::StoreReader> reader_;
+    std::map<std::pair<std::uint32_t, std::uint32_t>, std::vector<std::uint8_t>> tiles_;
+};
+
+}  // namespace tessera::test

@@ -1,0 +1,332 @@
+// `tessera build --atlas` on glTF 2.0 scenes (docs/atlas.md, "glTF scenes"): Khronos's sample
+// scenes as Debian's assimp-testmodels ships them (external, binary and embedded forms of one
+// scene must give the same atlas), every point of a quad mapped to the texel glTF's sampling rules
+// give (KHR_texture_transform, MIRRORED_REPEAT, CLAMP_TO_EDGE, computed here from the
+// specification, not by the build's code), and scenes the build cannot read failing cleanly.
+#include <gtest/gtest.h>
+#include <tiny_obj_loader.h>
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <filesystem>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "atlas_test_util.hpp"
+#include "tessera/client/scene/scene.hpp"
+#include "tessera/storage/png_encode.hpp"
+#include "tessera/storage/store_reader.hpp"
+#include "test_util.hpp"
+
+namespace {
+
+namespace fs = std::filesystem;
+namespace storage = tessera::storage;
+using tessera::test::AtlasTexels;
+using tessera::test::entries;
+using tessera::test::expect_one_line_error;
+using tessera::test::q;
+using tessera::test::read_file;
+using tessera::test::run_tessera;
+using tessera::test::RunResult;
+using tessera::test::ScratchDir;
+using tessera::test::write_file;
+
+// Khronos's glTF 2.0 samples in Debian's assimp-testmodels (tools/setup.sh --tests installs it).
+const fs::path kSamples = "/usr/share/assimp/models/glTF2";
+
+std::string base64(const std::vector<std::uint8_t>& in) {
+    static const char* abc = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    std::string out;
+    for (std::size_t i = 0; i < in.size(); i += 3) {
+        const std::uint32_t n = (std::uint32_t(in[i]) << 16) | (i + 1 < in.size() ? std::uint32_t(in[i + 1]) << 8 : 0) |
+                                (i + 2 < in.size() ? in[i + 2] : 0);
+        out += abc[(n >> 18) & 63];
+        out += abc[(n >> 12) & 63];
+        out += i + 1 < in.size() ? abc[(n >> 6) & 63] : '=';
+        out += i + 2 < in.size() ? abc[n & 63] : '=';
+    }
+    return out;
+}
+
+// The rewritten OBJ's triangles as sorted (position, atlas coordinate) corner triples, each
+// starting at its smallest corner: equal for scenes that differ only in vertex order.
+std::vector<std::array<std::array<float, 5>, 3>> triangle_set(const std::string& path) {
+    tinyobj::ObjReader obj;
+    tinyobj::ObjReaderConfig config;
+    config.triangulate = true;
+    EXPECT_TRUE(obj.ParseFromFile(path, config)) << obj.Error();
+    const auto& at = obj.GetAttrib();
+    std::vector<std::array<std::array<float, 5>, 3>> out;
+    for (const auto& sh : obj.GetShapes())
+        for (std::size_t f = 0; f + 2 < sh.mesh.indices.size(); f += 3) {
+            std::array<std::array<float, 5>, 3> t;
+            for (std::size_t k = 0; k < 3; ++k) {
+                const auto& ix = sh.mesh.indices[f + k];
+                for (std::size_t d = 0; d < 3; ++d) t[k][d] = at.vertices[3 * std::size_t(ix.vertex_index) + d];
+                for (std::size_t d = 0; d < 2; ++d) t[k][3 + d] = at.texcoords[2 * std::size_t(ix.texcoord_index) + d];
+            }
+            std::rotate(t.begin(), std::min_element(t.begin(), t.end()), t.end());
+            out.push_back(t);
+        }
+    std::sort(out.begin(), out.end());
+    return out;
+}
+
+class GltfAtlas : public ::testing::Test {
+protected:
+    void SetUp() override {
+        ASSERT_TRUE(fs::is_directory(kSamples)) << kSamples << " is missing: tools/setup.sh --tests installs assimp-testmodels";
+        fs::create_directory(dir_.file("out"));
+    }
+    // Builds `scene` into out/NAME.tsr and out/NAME.obj.
+    RunResult build(const std::string& scene, const std::string& name, const std::string& extra = "") {
+        return run_tessera("build -q --codec zstd " + extra + " --atlas " + q(scene) + " -o " + q(dir_.file("out/" + name + ".tsr")) +
+                           " --obj-out " + q(dir_.file("out/" + name + ".obj")));
+    }
+    ScratchDir dir_;
+};
+
+// Khronos's BoxTextured as a .glb and as a .gltf with its buffer and image in data URIs (the same
+// scene); the external-file version's sampler mirrors and clamps, so it only has to build.
+TEST_F(GltfAtlas, OneSceneBinaryOrEmbeddedGivesOneAtlas) {
+    const std::string forms[3] = {(kSamples / "BoxTextured-glTF/BoxTextured.gltf").string(),
+                                  (kSamples / "BoxTextured-glTF-Binary/BoxTextured.glb").string(),
+                                  (kSamples / "BoxTextured-glTF-Embedded/BoxTextured.gltf").string()};
+    for (int i = 0; i < 3; ++i) {
+        const RunResult r = build(forms[i], "box" + std::to_string(i));
+        ASSERT_EQ(r.exit_code, 0) << forms[i] << "\n" << r.out;
+    }
+    // Nothing but the stores and OBJs (the embedded images' temporary folder is gone).
+    EXPECT_EQ(entries(dir_.file("out")),
+              (std::set<std::string>{"box0.tsr", "box0.obj", "box1.tsr", "box1.obj", "box2.tsr", "box2.obj"}));
+    const auto triangles1 = triangle_set(dir_.file("out/box1.obj"));
+    EXPECT_EQ(triangles1.size(), 12u);
+    EXPECT_EQ(triangle_set(dir_.file("out/box2.obj")), triangles1);
+    std::vector<std::unique_ptr<AtlasTexels>> atlases;
+    for (int i = 0; i < 3; ++i) {
+        auto reader = storage::StoreReader::open(dir_.file("out/box" + std::to_string(i) + ".tsr"));
+        ASSERT_TRUE(reader.ok()) << reader.error().message;
+        atlases.push_back(std::make_unique<AtlasTexels>(*reader));
+    }
+    const auto& info = atlases[0]->info();
+    ASSERT_EQ(atlases[1]->info().width, info.width);
+    ASSERT_EQ(atlases[2]->info().height, info.height);
+    for (std::uint32_t y = 0; y < info.height; y += 7)
+        for (std::uint32_t x = 0; x < info.width; x += 5) {
+            ASSERT_EQ(atlases[2]->at(x, y), atlases[1]->at(x, y)) << x << "," << y;
+        }
+    // The scene loads as the atlas scene: a unit cube, 12 triangles, glTF's Y up made Z up.
+    auto scene = tessera::scene::load_obj_scene(dir_.file("out/box0.obj"), info.width, info.height);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    std::size_t triangles = 0;
+    for (const auto& c : scene->chunks) triangles += c.indices.size() / 3;
+    EXPECT_EQ(triangles, 12u);
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(scene->bounds_max[k] - scene->bounds_min[k], 1.0, 1e-5) << k;
+}
+
+TEST_F(GltfAtlas, KhronosSamplesBuildAndLoad) {
+    // A texture transform test card, a scene of many nodes and colour-only materials, a scene with
+    // normal and clear-coat maps (only base colour is packed: the build says so), two coordinate sets.
+    struct Case {
+        std::string file;
+        std::size_t min_triangles;
+        bool warns;
+    };
+    const Case cases[] = {{"textureTransform/TextureTransformTest.gltf", 18, false},
+                          {"2CylinderEngine-glTF-Binary/2CylinderEngine.glb", 100000, false},
+                          {"ClearCoat-glTF/ClearCoatTest.gltf", 1000, true},
+                          {"BoxTexcoords-glTF/boxTexcoords.gltf", 12, true}};
+    int n = 0;
+    for (const Case& c : cases) {
+        const std::string name = "s" + std::to_string(n++);
+        const RunResult r = build((kSamples / c.file).string(), name);
+        ASSERT_EQ(r.exit_code, 0) << c.file << "\n" << r.out;
+        EXPECT_EQ(r.out.find("warning: ") != std::string::npos, c.warns) << c.file << "\n" << r.out;
+        auto reader = storage::StoreReader::open(dir_.file("out/" + name + ".tsr"));
+        ASSERT_TRUE(reader.ok()) << reader.error().message;
+        auto scene = tessera::scene::load_obj_scene(dir_.file("out/" + name + ".obj"), (*reader)->info().width, (*reader)->info().height);
+        ASSERT_TRUE(scene.ok()) << c.file << ": " << scene.error().message;
+        std::size_t triangles = 0;
+        for (const auto& ch : scene->chunks) triangles += ch.indices.size() / 3;
+        EXPECT_GE(triangles, c.min_triangles) << c.file;
+    }
+}
+
+// The texel glTF's sampling gives at texture coordinate (u, v) (v down), nearest texel: the
+// transform's translation * rotation * scale, then each axis's wrap mode (the OpenGL definitions).
+std::array<int, 2> expected_texel(double u, double v, int w, int h) {
+    const double sx = 1.25, sy = 0.8, rot = 0.3, ox = 0.1, oy = -0.2;
+    const double su = u * sx, sv = v * sy;
+    const double tu = std::cos(rot) * su + std::sin(rot) * sv + ox;
+    const double tv = -std::sin(rot) * su + std::cos(rot) * sv + oy;
+    // MIRRORED_REPEAT on u: mirror(f) = f - 2 floor(f / 2), then 2 - that past 1.
+    double m = tu - 2.0 * std::floor(tu / 2.0);
+    if (m > 1.0) m = 2.0 - m;
+    // CLAMP_TO_EDGE on v.
+    const double c = std::clamp(tv, 0.0, 1.0);
+    return {std::clamp(int(std::floor(m * w)), 0, w - 1), std::clamp(int(std::floor(c * h)), 0, h - 1)};
+}
+
+TEST_F(GltfAtlas, EveryPointGetsTheTexelGltfSamplingGives) {
+    // A 40x24 texture of distinct texels, a quad whose coordinates run well outside [0, 1] on both
+    // axes, mirrored across u, clamped along v, through KHR_texture_transform.
+    const int W = 40, H = 24;
+    std::vector<std::uint8_t> rgb(std::size_t(W) * H * 3);
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+            std::uint8_t* p = &rgb[(std::size_t(y) * W + x) * 3];
+            p[0] = std::uint8_t(x * 6);
+            p[1] = std::uint8_t(y * 10);
+            p[2] = std::uint8_t((x * 37 + y * 101) % 251);
+        }
+    auto png = storage::encode_png({W, H, 3, storage::SampleType::u8, storage::ColourSpace::srgb, rgb});
+    ASSERT_TRUE(png.ok());
+    // Quad corners (x, y, 0) and their texture coordinates (u, v): u = -1.3 + 3.9 x, v = 2.2 - 3.1 y.
+    const float pos[4][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+    const float uv[4][2] = {{-1.3f, 2.2f}, {2.6f, 2.2f}, {2.6f, -0.9f}, {-1.3f, -0.9f}};
+    const std::uint16_t idx[6] = {0, 1, 2, 0, 2, 3};
+    std::vector<std::uint8_t> buffer(sizeof pos + sizeof uv + sizeof idx);
+    std::memcpy(buffer.data(), pos, sizeof pos);
+    std::memcpy(buffer.data() + sizeof pos, uv, sizeof uv);
+    std::memcpy(buffer.data() + sizeof pos + sizeof uv, idx, sizeof idx);
+    nlohmann::json j = {
+        {"asset", {{"version", "2.0"}}},
+        {"extensionsUsed", {"KHR_texture_transform"}},
+        {"extensionsRequired", {"KHR_texture_transform"}},
+        {"scene", 0},
+        {"scenes", {{{"nodes", {0}}}}},
+        {"nodes", {{{"mesh", 0}}}},
+        {"meshes", {{{"primitives", {{{"attributes", {{"POSITION", 0}, {"TEXCOORD_0", 1}}}, {"indices", 2}, {"material", 0}}}}}}},
+        {"materials",
+         {{{"name", "card"},
+           {"pbrMetallicRoughness",
+            {{"baseColorTexture",
+              {{"index", 0},
+               {"extensions", {{"KHR_texture_transform", {{"offset", {0.1, -0.2}}, {"rotation", 0.3}, {"scale", {1.25, 0.8}}}}}}}}}}}}},
+        {"textures", {{{"source", 0}, {"sampler", 0}}}},
+        {"samplers", {{{"wrapS", 33648}, {"wrapT", 33071}}}},
+        {"images", {{{"uri", "data:image/png;base64," + base64(*png)}}}},
+        {"buffers", {{{"byteLength", buffer.size()}, {"uri", "data:application/octet-stream;base64," + base64(buffer)}}}},
+        {"bufferViews",
+         {{{"buffer", 0}, {"byteOffset", 0}, {"byteLength", sizeof pos}},
+          {{"buffer", 0}, {"byteOffset", sizeof pos}, {"byteLength", sizeof uv}},
+          {{"buffer", 0}, {"byteOffset", sizeof pos + sizeof uv}, {"byteLength", sizeof idx}}}},
+        {"accessors",
+         {{{"bufferView", 0}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"}, {"min", {0, 0, 0}}, {"max", {1, 1, 0}}},
+          {{"bufferView", 1}, {"componentType", 5126}, {"count", 4}, {"type", "VEC2"}},
+          {{"bufferView", 2}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}}}}};
+    const std::string scene = dir_.file("card.gltf");
+    const std::string text = j.dump();
+    write_file(scene, std::vector<std::uint8_t>(text.begin(), text.end()));
+    const RunResult r = build(scene, "card");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_EQ(r.out.find("warning"), std::string::npos) << r.out;
+
+    auto reader = storage::StoreReader::open(dir_.file("out/card.tsr"));
+    ASSERT_TRUE(reader.ok()) << reader.error().message;
+    AtlasTexels atlas(*reader);
+    const double AW = atlas.info().width, AH = atlas.info().height;
+    tinyobj::ObjReader obj;
+    tinyobj::ObjReaderConfig config;
+    config.triangulate = true;
+    ASSERT_TRUE(obj.ParseFromFile(dir_.file("out/card.obj"), config)) << obj.Error();
+    const auto& attrib = obj.GetAttrib();
+    struct Piece {
+        double p[3][2], t[3][2];
+    };
+    std::vector<Piece> pieces;
+    for (const auto& sh : obj.GetShapes())
+        for (std::size_t f = 0; f + 2 < sh.mesh.indices.size(); f += 3) {
+            Piece pc;
+            for (int k = 0; k < 3; ++k) {
+                const auto& ix = sh.mesh.indices[f + std::size_t(k)];
+                for (int a = 0; a < 2; ++a) {
+                    pc.p[k][a] = attrib.vertices[3 * std::size_t(ix.vertex_index) + std::size_t(a)];
+                    pc.t[k][a] = attrib.texcoords[2 * std::size_t(ix.texcoord_index) + std::size_t(a)];
+                }
+            }
+            pieces.push_back(pc);
+        }
+    // The mirrored and clamped axes cut the quad: u spans 3.9 * 1.25 repeats, v is cut at 0 and 1.
+    EXPECT_GT(pieces.size(), 8u);
+
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    int compared = 0;
+    for (int i = 0; i < 4000 && compared < 1500; ++i) {
+        const double x = unit(rng), y = unit(rng);
+        const double u = -1.3 + 3.9 * x, v = 2.2 - 3.1 * y;
+        // Away from texel edges, so float rounding in the OBJ cannot pick a neighbour.
+        const double sx = 1.25, sy = 0.8, rot = 0.3;
+        const double tu = std::cos(rot) * u * sx + std::sin(rot) * v * sy + 0.1;
+        const double tv = -std::sin(rot) * u * sx + std::cos(rot) * v * sy - 0.2;
+        auto frac_ok = [](double f) { return std::abs(f - std::round(f)) > 0.02; };
+        if (!frac_ok(tu * W) || !(frac_ok(tv * H) || tv < 0 || tv > 1)) continue;
+        const auto want = expected_texel(u, v, W, H);
+        // The piece holding (x, y), and its atlas coordinate there.
+        bool found = false;
+        for (const Piece& pc : pieces) {
+            const double d = (pc.p[1][1] - pc.p[2][1]) * (pc.p[0][0] - pc.p[2][0]) + (pc.p[2][0] - pc.p[1][0]) * (pc.p[0][1] - pc.p[2][1]);
+            if (std::abs(d) < 1e-12) continue;
+            const double a = ((pc.p[1][1] - pc.p[2][1]) * (x - pc.p[2][0]) + (pc.p[2][0] - pc.p[1][0]) * (y - pc.p[2][1])) / d;
+            const double b = ((pc.p[2][1] - pc.p[0][1]) * (x - pc.p[2][0]) + (pc.p[0][0] - pc.p[2][0]) * (y - pc.p[2][1])) / d;
+            const double c = 1 - a - b;
+            if (a < 1e-6 || b < 1e-6 || c < 1e-6) continue;  // strictly inside one piece
+            const double au = a * pc.t[0][0] + b * pc.t[1][0] + c * pc.t[2][0];
+            const double av = a * pc.t[0][1] + b * pc.t[1][1] + c * pc.t[2][1];
+            const auto got = atlas.at(std::uint32_t(std::floor(au * AW)), std::uint32_t(std::floor(av * AH)));
+            const std::uint8_t* e = &rgb[(std::size_t(want[1]) * W + std::size_t(want[0])) * 3];
+            ASSERT_EQ(got, (std::array<std::uint8_t, 3>{e[0], e[1], e[2]}))
+                << "at (" << x << ", " << y << "), uv (" << u << ", " << v << "): want texel " << want[0] << "," << want[1];
+            found = true;
+            ++compared;
+            break;
+        }
+        if (!found) continue;  // on a cut between pieces
+    }
+    EXPECT_GE(compared, 1000);
+}
+
+TEST_F(GltfAtlas, ScenesItCannotReadFailAndLeaveNothing) {
+    const std::string out = dir_.file("out");
+    auto expect_fails = [&](const std::string& scene, const std::string& says) {
+        const RunResult r = build(scene, "bad");
+        expect_one_line_error(r);
+        EXPECT_NE(r.out.find(says), std::string::npos) << scene << "\n" << r.out;
+        EXPECT_TRUE(entries(out).empty()) << scene;
+    };
+    // A required extension the build does not read, named.
+    expect_fails((kSamples / "draco/2CylinderEngine.gltf").string(), "requires the extension KHR_draco_mesh_compression");
+    // A buffer file that is not there, a node that is its own ancestor, an index out of range.
+    expect_fails((kSamples / "MissingBin/BoxTextured.gltf").string(), "BoxTextured0.bin");
+    expect_fails((kSamples / "RecursiveNodes/RecursiveNodes.gltf").string(), "its own ancestor");
+    expect_fails((kSamples / "IndexOutOfRange/IndexOutOfRange.gltf").string(), "out of range");
+    // A GLB cut short.
+    auto glb = read_file((kSamples / "BoxTextured-glTF-Binary/BoxTextured.glb").string());
+    glb.resize(glb.size() / 2);
+    write_file(dir_.file("cut.glb"), glb);
+    expect_fails(dir_.file("cut.glb"), "cannot read glTF");
+    // A texture that is missing, and one OpenImageIO cannot read: the material is named.
+    fs::copy(kSamples / "BoxTextured-glTF", dir_.file("box"));
+    fs::remove(dir_.file("box/CesiumLogoFlat.png"));
+    expect_fails(dir_.file("box/BoxTextured.gltf"), "material 'Texture': texture");
+    write_file(dir_.file("box/CesiumLogoFlat.png"), std::vector<std::uint8_t>(300, 0x5a));
+    expect_fails(dir_.file("box/BoxTextured.gltf"), "material 'Texture'");
+    // An embedded image that is not an image: named as the scene's image, not a temporary file.
+    auto text = read_file((kSamples / "BoxTextured-glTF-Embedded/BoxTextured.gltf").string());
+    nlohmann::json j = nlohmann::json::parse(std::string(text.begin(), text.end()));
+    j["images"][0]["uri"] = "data:image/png;base64," + base64(std::vector<std::uint8_t>(200, 0x33));
+    const std::string bad = j.dump();
+    write_file(dir_.file("badimage.gltf"), std::vector<std::uint8_t>(bad.begin(), bad.end()));
+    expect_fails(dir_.file("badimage.gltf"), "badimage.gltf image 0");
+    // Not a scene file at all.
+    write_file(dir_.file("scene.fbx"), std::vector<std::uint8_t>(10, 1));
+    expect_fails(dir_.file("scene.fbx"), "not an OBJ (.obj) or glTF 2.0");
+}
+
+}  // namespace
