@@ -2,7 +2,8 @@
 // scenes as Debian's assimp-testmodels ships them (external, binary and embedded forms of one
 // scene must give the same atlas), every point of a quad mapped to the texel glTF's sampling rules
 // give (KHR_texture_transform, MIRRORED_REPEAT, CLAMP_TO_EDGE, computed here from the
-// specification, not by the build's code), and scenes the build cannot read failing cleanly.
+// specification, not by the build's code), scenes the build cannot read failing cleanly, and the
+// scene travelling with its store to `tessera view` (a file, and over gRPC from a server).
 #include <gtest/gtest.h>
 #include <tiny_obj_loader.h>
 
@@ -17,6 +18,7 @@
 #include <vector>
 
 #include "atlas_test_util.hpp"
+#include "server_process.hpp"
 #include "tessera/client/scene/scene.hpp"
 #include "tessera/storage/png_encode.hpp"
 #include "tessera/storage/store_reader.hpp"
@@ -34,6 +36,7 @@ using tessera::test::read_file;
 using tessera::test::run_tessera;
 using tessera::test::RunResult;
 using tessera::test::ScratchDir;
+using tessera::test::ServerProcess;
 using tessera::test::write_file;
 
 // Khronos's glTF 2.0 samples in Debian's assimp-testmodels (tools/setup.sh --tests installs it).
@@ -327,6 +330,39 @@ TEST_F(GltfAtlas, ScenesItCannotReadFailAndLeaveNothing) {
     // Not a scene file at all.
     write_file(dir_.file("scene.fbx"), std::vector<std::uint8_t>(10, 1));
     expect_fails(dir_.file("scene.fbx"), "not an OBJ (.obj) or glTF 2.0");
+}
+
+// `tessera view --store` with no --scene draws the atlas scene that travels with the store: the OBJ
+// beside the store file, and over gRPC the one the server reads beside its file; a rebuilt store
+// whose OBJ was not rewritten has no scene (the OBJ names the store's id), and the terrain is drawn.
+TEST_F(GltfAtlas, TheSceneTravelsWithItsStore) {
+    const std::string store = dir_.file("out/card.tsr");
+    ASSERT_EQ(build((kSamples / "textureTransform/TextureTransformTest.gltf").string(), "card").exit_code, 0);
+    auto scene_line = [](const std::string& out) {
+        const auto at = out.find("\nscene ");
+        return at == std::string::npos ? std::string("(no scene line)") : out.substr(at + 1, out.find('\n', at + 1) - at - 1);
+    };
+    auto view = [&](const std::string& what, const std::string& extra = "") {
+        const RunResult r = run_tessera("view --store " + q(what) + " --headless --size 96x64 --frames 6 --no-warmup " + extra);
+        EXPECT_EQ(r.exit_code, 0) << r.out;
+        return scene_line(r.out);
+    };
+    const std::string travelling = "scene         atlas, travelling with the store (57 triangles, 12 objects)";
+    EXPECT_EQ(view(store), travelling);
+    EXPECT_EQ(view(store, "--scene terrain"), "scene         terrain");
+    {
+        ServerProcess server({"--store-dir", dir_.file("out")}, dir_.file("server.log"));
+        ASSERT_TRUE(server.running()) << server.log();
+        EXPECT_EQ(view("grpc://" + server.grpc_address() + "/card"), travelling) << server.log();
+    }
+    // The store rebuilt (another codec: another id) without its OBJ: the old OBJ is not its scene.
+    const RunResult r = run_tessera("build -q --codec jpeg --atlas " + q((kSamples / "textureTransform/TextureTransformTest.gltf").string()) +
+                                    " -o " + q(store) + " --obj-out " + q(dir_.file("other.obj")));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_EQ(view(store), "scene         terrain");
+    ServerProcess server({"--store-dir", dir_.file("out")}, dir_.file("server2.log"));
+    ASSERT_TRUE(server.running()) << server.log();
+    EXPECT_EQ(view("grpc://" + server.grpc_address() + "/card"), "scene         terrain") << server.log();
 }
 
 }  // namespace

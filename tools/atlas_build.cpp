@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 
@@ -123,6 +124,7 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
         sizes[i] = {(*src)->info().width, (*src)->info().height};
         items[i].source = std::move(*src);
         items[i].wrap = r.repeats;
+        items[i].opaque = r.opaque;
     }
     auto layout = storage::pack_atlas(sizes, pack);
     if (!layout) return layout.error();
@@ -135,20 +137,35 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
                                fs::path(obj).filename().string() + " (store " + fs::path(store).filename().string() + ")");
     if (!text) return text.error();
 
-    // The OBJ first, to a temporary file (an unwritable destination fails before the build).
+    // The OBJ first, to a temporary file (an unwritable destination fails before the build); once
+    // the store is built, again with the store's id in its header, which binds the scene to the
+    // store: a viewer or server finds the scene beside its store only while the two belong together.
     TempFile tmp(obj_out);
-    {
+    auto write_obj = [&](const std::string& obj_text) -> Status {
         std::ofstream f(tmp.path(), std::ios::binary | std::ios::trunc);
         if (!f) return make_error(Errc::io_error, "cannot write '" + obj_out + "'");
-        f.write(text->data(), static_cast<std::streamsize>(text->size()));
+        f.write(obj_text.data(), static_cast<std::streamsize>(obj_text.size()));
         f.flush();
         if (!f) return make_error(Errc::io_error, "cannot write '" + obj_out + "'");
-    }
+        return {};
+    };
+    TESSERA_TRY(write_obj(*text));
 
     auto source = storage::make_atlas_source(std::move(items), *layout);
     if (!source) return source.error();
     auto built = storage::build_store(**source, store, options, progress);
     if (!built) return built.error();
+    {
+        char id_line[64];
+        std::snprintf(id_line, sizeof id_line, "# tessera-store %016llx\n", static_cast<unsigned long long>(built->info.store_id));
+        const std::size_t second_line = text->find('\n', text->find('\n') + 1) + 1;  // after "# tessera-atlas" and "# tessera-up"
+        text->insert(second_line, id_line);
+        if (auto st = write_obj(*text); !st.ok()) {
+            std::error_code ec;
+            fs::remove(store, ec);
+            return st.error();
+        }
+    }
 
     std::error_code ec;
     fs::rename(tmp.path(), obj_out, ec);

@@ -21,7 +21,7 @@ Command add_view(CLI::App& app) {
     CLI::App* c = app.add_subcommand("view", "View a store: windowed (mouse and keyboard camera) or headless");
     c->add_option("--store", o->store, "FILE.tsr, or a server store: grpc://HOST:PORT/NAME (grpcs:// for TLS; replicas: IP:PORT,IP:PORT,... or a name "
                                          "with several addresses)")->required();
-    c->add_option("--scene", o->scene, "terrain, or an atlas OBJ written by `tessera build --atlas --obj-out`")
+    c->add_option("--scene", o->scene, "auto (the scene that travels with the store: the atlas OBJ `tessera build --atlas` wrote beside it, read there or sent by its server; else terrain), terrain, or an atlas OBJ file")
         ->capture_default_str();
     c->add_option("--displacement", o->displacement,
                   "terrain: peak height of the displaced ground (0: flat); with a one-channel layer named height, "

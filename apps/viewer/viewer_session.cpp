@@ -274,6 +274,9 @@ private:
     std::optional<scene::Scene> scene_;
     std::optional<scene::CameraPath> path_;
     std::string displaced_by_;  // the layer the terrain follows, for the summary
+    std::optional<std::string> store_scene_;  // the scene that travels with the store (--scene auto)
+    bool atlas_scene_ = false;                // an atlas OBJ scene (from the store or --scene FILE)
+    std::string scene_label_;                 // for the summary
     std::unique_ptr<client::gl::ReferenceRenderer> reference_;
     std::unique_ptr<client::TraceWriter> trace_;
     std::unique_ptr<client::gl::Hud> hud_;
@@ -341,6 +344,14 @@ void ViewerRun::open_store() {
     if (!info) throw Failure(fmt::format("--store '{}': {}", o.store, info.error().message));
     if (info->channels < 1 || info->channels > 4) throw Failure("the store has an unsupported channel count");
     info_ = *info;
+
+    // The scene: with --scene auto, the one that travels with the store, if it has one.
+    if (o.scene == "auto") {
+        auto sc = source_->scene(store_name_);
+        if (!sc) throw Failure(fmt::format("--store '{}': its scene: {}", o.store, sc.error().message));
+        store_scene_ = std::move(*sc);
+    }
+    atlas_scene_ = store_scene_.has_value() || (o.scene != "auto" && o.scene != "terrain");
 }
 
 void ViewerRun::make_renderer() {
@@ -359,7 +370,7 @@ void ViewerRun::make_renderer() {
     rc.srgb = info_.colour_space == storage::ColourSpace::srgb;
     // An OBJ scene's store with alpha holds cut-outs (an atlas of leaves, fences): discard their
     // backgrounds. A terrain's alpha stays what the image shows.
-    rc.alpha_test = o.scene != "terrain" && info_.has_alpha;
+    rc.alpha_test = atlas_scene_ && info_.has_alpha;
     if (o.page_format == "auto") {
         // A block-codec store's own blocks go to the GPU as they are; anything else as RGBA8.
         rc.page_format = client::page_format_of(info_.codec).value_or(client::PageFormat::rgba8);
@@ -402,7 +413,8 @@ void ViewerRun::make_scene() {
     const ViewerOptions& o = o_;
     const storage::StoreInfo& info = info_;
     Result<scene::Scene> sc = [&]() -> Result<scene::Scene> {
-        if (o.scene != "terrain") return scene::load_obj_scene(o.scene, info.width, info.height);
+        if (store_scene_) return scene::parse_obj_scene(*store_scene_, "the store's scene", info.width, info.height);
+        if (atlas_scene_) return scene::load_obj_scene(o.scene, info.width, info.height);
         scene::TerrainOptions t;
         t.vt_width = info.width;
         t.vt_height = info.height;
@@ -426,6 +438,11 @@ void ViewerRun::make_scene() {
     }();
     if (!sc) throw Failure(fmt::format("--scene '{}': {}", o.scene, sc.error().message));
     scene_.emplace(std::move(*sc));
+    std::size_t triangles = 0;
+    for (const auto& c : scene_->chunks) triangles += c.indices.size() / 3;
+    scene_label_ = !atlas_scene_ ? std::string("terrain")
+                   : store_scene_ ? fmt::format("atlas, travelling with the store ({} triangles, {} objects)", triangles, scene_->chunks.size())
+                                  : fmt::format("atlas {} ({} triangles, {} objects)", o.scene, triangles, scene_->chunks.size());
     if (auto st = r().set_scene(*scene_, texture_); !st.ok()) throw Failure(st.error().message);
     auto path = scene::CameraPath::builtin_or_file(o.path, *scene_);
     if (!path) throw Failure(fmt::format("--path: {}", path.error().message));
@@ -474,6 +491,7 @@ void ViewerRun::open_outputs() {
 void ViewerRun::start_report() {
     const client::gl::RendererConfig& rc = rc_;
     rep_.displaced_by = displaced_by_;
+    rep_.scene = scene_label_;
     rep_.renderer = ctx_->renderer();
     rep_.page_format = rc.page_format;
     rep_.pool_pages = rc.pool_slots;
@@ -915,6 +933,7 @@ std::string summary_text(const ViewerReport& rep) {
     s += fmt::format("GPU pool      {} pages of {}, {} per page, {} in all; {:.1f} M texels\n", rep.pool_pages,
                      client::to_string(rep.page_format), human_bytes(rep.gpu_page_bytes),
                      human_bytes(rep.gpu_page_bytes * rep.pool_pages), double(rep.pool_texels) / 1e6);
+    if (!rep.scene.empty()) s += fmt::format("scene         {}\n", rep.scene);
     if (!rep.displaced_by.empty()) s += fmt::format("terrain       displaced by {}\n", rep.displaced_by);
     if (!rep.layers.empty()) {
         std::string layers;

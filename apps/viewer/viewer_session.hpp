@@ -23,7 +23,9 @@ constexpr double kDefaultMotionPrefetchMs = 200.0;
 struct ViewerOptions {
     std::string store;            // FILE.tsr, grpc://HOST:PORT/NAME, grpcs://HOST:PORT/NAME or HOST:PORT/NAME
     std::string reference_store;  // local .tsr for the PSNR reference (default: `store` when it is a file)
-    std::string scene = "terrain";  // "terrain" or an atlas OBJ file (tessera build --atlas --obj-out)
+    // "auto": the scene that travels with the store (an atlas OBJ beside the store file, or sent by
+    // its server: docs/atlas.md), else the terrain; "terrain"; or an atlas OBJ file.
+    std::string scene = "auto";
     double displacement = 0;      // terrain height, world units (0: flat); a store's height layer spans it
     std::string path = "auto";  // built-in name (auto: flyover over the terrain, orbit around an OBJ scene) or a path file
     std::uint32_t width = 1280, height = 720;
@@ -133,6 +135,7 @@ struct ViewerReport {
     client::PageFormat page_format = client::PageFormat::rgba8;
     std::vector<std::string> layers;  // a multi-layer pool's layers: "name format", in order
     std::string displaced_by;  // the layer the terrain follows ("layer height (level 4, ...)"), or empty
+    std::string scene;         // what was drawn: "terrain", "atlas from the store (... triangles)", ...
     std::uint64_t gpu_page_bytes = 0;
     std::uint32_t pool_pages = 0;
     std::uint64_t pool_texels = 0;

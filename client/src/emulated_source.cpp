@@ -78,6 +78,7 @@ public:
 
     bool available() const override { return inner_->available(); }
     SourceLink link() const override { return inner_->link(); }
+    Result<std::optional<std::string>> scene(const std::string& store) override { return inner_->scene(store); }
 
     std::string describe() const override {
         std::string s = inner_->describe() + " over an emulated link (latency " +

@@ -19,7 +19,22 @@ public:
         std::lock_guard lock(mu_);
         names_[texture] = store;
         textures_[store] = texture;
+        scenes_[store] = {meta->info.store_id, meta->has_scene};
         return std::move(meta->info);
+    }
+
+    Result<std::optional<std::string>> scene(const std::string& store) override {
+        std::pair<std::uint64_t, bool> bound;
+        {
+            std::lock_guard lock(mu_);
+            auto it = scenes_.find(store);
+            if (it == scenes_.end()) return make_error(Errc::invalid_argument, "store '" + store + "' is not bound");
+            bound = it->second;
+        }
+        if (!bound.second) return std::optional<std::string>{};
+        auto text = client_->get_scene(store, bound.first, std::chrono::seconds(30));
+        if (!text) return text.error();
+        return std::optional<std::string>{std::move(*text)};
     }
 
     void set_requests(std::uint64_t frame, std::span<const SourceRequest> requests) override {
@@ -61,6 +76,7 @@ private:
     std::mutex mu_;
     std::map<TextureId, std::string> names_;
     std::map<std::string, TextureId> textures_;
+    std::map<std::string, std::pair<std::uint64_t, bool>> scenes_;  // store -> (version bound, has a scene)
     std::vector<ReceivedTile> received_;  // poll() is called from one thread (the runtime's)
 };
 

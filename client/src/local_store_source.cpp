@@ -1,11 +1,14 @@
 // TileSource over .tsr files read directly: a few reader threads serve the newest request set,
 // highest priority first (worker_source.hpp holds the queues).
+#include <fstream>
+#include <iterator>
 #include <map>
 #include <memory>
 #include <mutex>
 
 #include "tessera/client/tile_source.hpp"
 #include "tessera/storage/store_reader.hpp"
+#include "tessera/storage/store_scene.hpp"
 #include "worker_source.hpp"
 
 namespace tessera::client {
@@ -23,7 +26,24 @@ public:
         storage::StoreInfo info = (*reader)->info();
         std::lock_guard lock(readers_mu_);
         readers_[texture] = std::move(*reader);
+        store_ids_[store] = info.store_id;
         return info;
+    }
+
+    Result<std::optional<std::string>> scene(const std::string& store) override {
+        std::uint64_t id = 0;
+        {
+            std::lock_guard lock(readers_mu_);
+            auto it = store_ids_.find(store);
+            if (it == store_ids_.end()) return make_error(Errc::invalid_argument, "store '" + store + "' is not bound");
+            id = it->second;
+        }
+        const auto path = storage::find_scene_beside(store, id);
+        if (!path) return std::optional<std::string>{};
+        std::ifstream f(*path, std::ios::binary);
+        std::string text(std::istreambuf_iterator<char>(f), {});
+        if (f.bad() || (!f.eof() && !f)) return make_error(Errc::io_error, "cannot read the scene '" + *path + "'");
+        return std::optional<std::string>{std::move(text)};
     }
 
     bool available() const override { return true; }
@@ -57,6 +77,7 @@ private:
 
     std::mutex readers_mu_;
     std::map<TextureId, std::shared_ptr<storage::StoreReader>> readers_;
+    std::map<std::string, std::uint64_t> store_ids_;  // bound store file -> its id (for its scene)
 };
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include "grpc_handoff.hpp"
 #include "reply_buffer.hpp"
 #include "tessera/protocol/wire.hpp"
+#include "tessera/storage/store_scene.hpp"
 
 namespace tessera::server {
 
@@ -219,7 +220,11 @@ const grpc::Status kUnauthenticated(grpc::StatusCode::UNAUTHENTICATED, "missing 
 grpc::ServerUnaryReactor* GrpcService::ListStores(grpc::CallbackServerContext* context, const v1::ListStoresRequest*,
                                                   v1::ListStoresReply* reply) {
     if (!authorized(context)) return finish(context, kUnauthenticated);
-    for (const auto& h : ctx_.stores.list()) *reply->add_stores() = protocol::to_proto(h->name, h->info());
+    for (const auto& h : ctx_.stores.list()) {
+        auto* m = reply->add_stores();
+        *m = protocol::to_proto(h->name, h->info());
+        m->set_has_scene(h->has_scene.load(std::memory_order_relaxed));
+    }
     return finish(context, grpc::Status::OK);
 }
 
@@ -232,6 +237,26 @@ grpc::ServerUnaryReactor* GrpcService::GetStore(grpc::CallbackServerContext* con
     auto h = ctx_.stores.find(request->name());
     if (!h) return finish(context, grpc::Status(grpc::StatusCode::NOT_FOUND, "no store named '" + request->name() + "'"));
     *reply = protocol::to_proto(h->name, h->info());
+    reply->set_has_scene(h->has_scene.load(std::memory_order_relaxed));
+    return finish(context, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* GrpcService::GetStoreScene(grpc::CallbackServerContext* context, const v1::GetStoreSceneRequest* request,
+                                                     v1::StoreScenePiece* reply) {
+    if (!authorized(context)) return finish(context, kUnauthenticated);
+    if (!protocol::valid_store_name(request->name()))
+        return finish(context, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                                            "store names are identifiers ([A-Za-z0-9_.-], no '..'), not paths"));
+    auto h = ctx_.stores.find(request->name());
+    if (!h) return finish(context, grpc::Status(grpc::StatusCode::NOT_FOUND, "no store named '" + request->name() + "'"));
+    const auto path = h->scene_path();
+    if (!path) return finish(context, grpc::Status(grpc::StatusCode::NOT_FOUND, "store '" + request->name() + "' has no scene"));
+    constexpr std::uint64_t kPiece = 1u << 20;
+    auto piece = storage::read_scene_bytes(*path, request->offset(), kPiece);
+    if (!piece) return finish(context, grpc::Status(grpc::StatusCode::UNAVAILABLE, piece.error().message));
+    reply->set_data(std::move(piece->data));
+    reply->set_total_size(piece->total);
+    reply->set_version(h->version);
     return finish(context, grpc::Status::OK);
 }
 

@@ -13,7 +13,8 @@ namespace tessera::server {
 
 // StreamTiles is a raw method (ByteBuffer both ways): replies are encoded by hand, without copies.
 using TileServiceBase = v1::TileService::WithCallbackMethod_ListStores<v1::TileService::WithCallbackMethod_GetStore<
-    v1::TileService::WithRawCallbackMethod_StreamTiles<v1::TileService::WithCallbackMethod_GetStats<v1::TileService::Service>>>>;
+    v1::TileService::WithCallbackMethod_GetStoreScene<v1::TileService::WithRawCallbackMethod_StreamTiles<
+        v1::TileService::WithCallbackMethod_GetStats<v1::TileService::Service>>>>>;
 
 class GrpcService final : public TileServiceBase {
 public:
@@ -23,6 +24,10 @@ public:
                                          v1::ListStoresReply* reply) override;
     grpc::ServerUnaryReactor* GetStore(grpc::CallbackServerContext* context, const v1::GetStoreRequest* request,
                                        v1::StoreMetadata* reply) override;
+    // A piece of a store's scene (at most 1 MiB, read from the local file on the calling thread:
+    // a scene is read once per viewer start).
+    grpc::ServerUnaryReactor* GetStoreScene(grpc::CallbackServerContext* context, const v1::GetStoreSceneRequest* request,
+                                            v1::StoreScenePiece* reply) override;
     grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* StreamTiles(grpc::CallbackServerContext* context) override;
     grpc::ServerUnaryReactor* GetStats(grpc::CallbackServerContext* context, const v1::GetStatsRequest* request,
                                        v1::ServerStats* reply) override;

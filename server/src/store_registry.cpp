@@ -8,6 +8,7 @@
 #include <system_error>
 
 #include "tessera/protocol/wire.hpp"
+#include "tessera/storage/store_scene.hpp"
 
 namespace tessera::server {
 
@@ -113,6 +114,11 @@ void StoreRegistry::scan_remote(const std::string& name, const std::string& loca
     h->remote_version = version;
     announce(*h, prev != nullptr, report);
     next.push_back(std::move(h));
+}
+
+std::optional<std::string> StoreHandle::scene_path() const {
+    if (remote()) return std::nullopt;
+    return storage::find_scene_beside(path, version);
 }
 
 std::shared_ptr<StoreHandle> StoreRegistry::new_handle(const std::string& name, const std::string& path,
@@ -240,6 +246,8 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         }
     }
     std::sort(next->begin(), next->end(), [](const auto& a, const auto& b) { return a->name < b->name; });
+    // Scenes beside the stores, looked up again on every scan (an OBJ may arrive after its store).
+    for (const auto& h : *next) h->has_scene.store(h->scene_path().has_value(), std::memory_order_relaxed);
     {
         std::lock_guard lock(mutex_);
         stores_ = std::move(next);

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <mutex>
 #include <string>
 #include <string_view>
@@ -51,6 +52,11 @@ struct StoreHandle {
     mutable std::atomic<Counter*> http_tiles_served{nullptr};
     const storage::StoreInfo& info() const { return reader->info(); }
     bool remote() const { return !remote_version.empty(); }  // read over the network
+    // The scene beside a store file that belongs to this version of it (storage/store_scene.hpp),
+    // looked up when asked: the OBJ may be written after the store. None for remote stores.
+    std::optional<std::string> scene_path() const;
+    // scene_path() as the last scan saw it (what store lists say, without touching the disk).
+    mutable std::atomic<bool> has_scene{false};
 };
 
 struct ReloadReport {

@@ -587,7 +587,7 @@ Result<std::vector<RemoteStore>> TileStreamClient::list_stores(milliseconds time
     if (!reply.ok()) return reply.error();
     std::vector<RemoteStore> stores;
     stores.reserve(static_cast<std::size_t>(reply->stores_size()));
-    for (const auto& m : reply->stores()) stores.push_back(RemoteStore{m.name(), protocol::from_proto(m)});
+    for (const auto& m : reply->stores()) stores.push_back(RemoteStore{m.name(), protocol::from_proto(m), m.has_scene()});
     return stores;
 }
 
@@ -596,7 +596,27 @@ Result<RemoteStore> TileStreamClient::get_store(const std::string& name, millise
     request.set_name(name);
     auto m = impl_->unary<v1::GetStoreRequest, v1::StoreMetadata>(request, timeout, &v1::TileService::Stub::GetStore);
     if (!m.ok()) return m.error();
-    return RemoteStore{m->name(), protocol::from_proto(*m)};
+    return RemoteStore{m->name(), protocol::from_proto(*m), m->has_scene()};
+}
+
+Result<std::string> TileStreamClient::get_scene(const std::string& name, std::uint64_t store_version, milliseconds timeout) {
+    std::string scene;
+    constexpr std::uint64_t kMaxScene = std::uint64_t(1) << 32;  // 4 GiB of OBJ text: not a scene a viewer can hold
+    for (;;) {
+        v1::GetStoreSceneRequest request;
+        request.set_name(name);
+        request.set_offset(scene.size());
+        auto piece = impl_->unary<v1::GetStoreSceneRequest, v1::StoreScenePiece>(request, timeout, &v1::TileService::Stub::GetStoreScene);
+        if (!piece.ok()) return piece.error();
+        if (piece->version() != store_version)
+            return make_error(Errc::io_error, "store '" + name + "' was replaced while its scene was read");
+        if (piece->total_size() > kMaxScene) return make_error(Errc::unsupported, "store '" + name + "': its scene is larger than 4 GiB");
+        if (scene.empty()) scene.reserve(piece->total_size());
+        scene += piece->data();
+        if (scene.size() >= piece->total_size()) break;
+        if (piece->data().empty()) return make_error(Errc::io_error, "store '" + name + "': its scene ended early");
+    }
+    return scene;
 }
 
 Result<v1::ServerStats> TileStreamClient::server_stats(milliseconds timeout) {

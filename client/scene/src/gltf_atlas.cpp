@@ -326,6 +326,16 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
                     data.images.push_back(std::move(ref));
                 }
                 mi.image = it->second;
+                // Alpha: an image only OPAQUE materials draw loses it (glTF ignores it there);
+                // MASK and BLEND keep it, drawn as cut-outs at one half (docs/atlas.md, "Alpha").
+                AtlasImageRef& ref = data.images[mi.image];
+                const bool opaque = mat.alphaMode.empty() || mat.alphaMode == "OPAQUE";
+                if (inserted) ref.opaque = opaque;
+                else if (!opaque) ref.opaque = false;
+                if (mat.alphaMode == "BLEND")
+                    warn_once("material '" + name + "': alphaMode BLEND is drawn as a cut-out at alpha 0.5");
+                else if (mat.alphaMode == "MASK" && std::abs(mat.alphaCutoff - 0.5) > 1e-6)
+                    warn_once("material '" + name + "': alphaCutoff " + std::to_string(mat.alphaCutoff) + " is drawn as 0.5");
                 if (factor.size() == 4 && (factor[0] != 1 || factor[1] != 1 || factor[2] != 1))
                     warn_once("material '" + name + "': its baseColorFactor is not applied to its texture (the atlas keeps the texture's colours)");
             }

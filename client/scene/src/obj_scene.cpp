@@ -20,42 +20,57 @@ std::string one_line(std::string s) {
     return s;
 }
 
-// The up axis named by "# tessera-up y|z" among the first comment lines: true for z (default y).
-bool z_up(const std::string& path) {
-    std::ifstream f(path);
-    std::string line;
-    for (int i = 0; i < 8 && std::getline(f, line) && line.rfind('#', 0) == 0; ++i)
-        if (line.rfind("# tessera-up ", 0) == 0) return line.size() > 13 && (line[13] == 'z' || line[13] == 'Z');
-    return false;
-}
-
-// The atlas size named by the first line ("# tessera-atlas W H"), if the file has one.
-bool atlas_size_of(const std::string& path, std::uint64_t& w, std::uint64_t& h) {
-    std::ifstream f(path);
-    std::string line;
-    if (!std::getline(f, line)) return false;
-    unsigned long long a = 0, b = 0;
-    if (std::sscanf(line.c_str(), "# tessera-atlas %llu %llu", &a, &b) != 2) return false;
-    w = a;
-    h = b;
-    return true;
+// The first lines of an atlas OBJ: its comment lines up to the first other line.
+std::vector<std::string> header_lines(std::string_view text) {
+    std::vector<std::string> out;
+    std::size_t at = 0;
+    while (at < text.size() && out.size() < 16 && text[at] == '#') {
+        std::size_t nl = text.find('\n', at);
+        if (nl == std::string_view::npos) nl = text.size();
+        out.emplace_back(text.substr(at, nl - at));
+        at = nl + 1;
+    }
+    return out;
 }
 
 }  // namespace
 
+AtlasObjHeader read_atlas_obj_header(std::string_view text) {
+    AtlasObjHeader h;
+    for (const std::string& line : header_lines(text)) {
+        unsigned long long a = 0, b = 0;
+        if (std::sscanf(line.c_str(), "# tessera-atlas %llu %llu", &a, &b) == 2) {
+            h.atlas = true;
+            h.width = a;
+            h.height = b;
+        } else if (line.rfind("# tessera-up ", 0) == 0) {
+            h.z_up = line.size() > 13 && (line[13] == 'z' || line[13] == 'Z');
+        }
+    }
+    return h;
+}
+
 Result<Scene> load_obj_scene(const std::string& obj_path, std::uint32_t vt_width, std::uint32_t vt_height) {
     std::error_code ec;
     if (!std::filesystem::exists(obj_path, ec)) return make_error(Errc::not_found, "OBJ file '" + obj_path + "' does not exist");
+    std::ifstream f(obj_path, std::ios::binary);
+    std::string text(std::istreambuf_iterator<char>(f), {});
+    if (!f && !f.eof()) return make_error(Errc::io_error, "cannot read OBJ '" + obj_path + "'");
+    return parse_obj_scene(text, obj_path, vt_width, vt_height);
+}
+
+Result<Scene> parse_obj_scene(const std::string& text, const std::string& obj_path, std::uint32_t vt_width, std::uint32_t vt_height) {
     if (vt_width == 0 || vt_height == 0) return make_error(Errc::invalid_argument, "OBJ scene: the virtual texture has zero size");
-    if (std::uint64_t w = 0, h = 0; atlas_size_of(obj_path, w, h) && (w != vt_width || h != vt_height))
-        return make_error(Errc::invalid_argument, "OBJ '" + obj_path + "' was written for a " + std::to_string(w) + "x" +
-                                                      std::to_string(h) + " atlas, but the virtual texture is " +
+    const AtlasObjHeader header = read_atlas_obj_header(text);
+    if (header.atlas && (header.width != vt_width || header.height != vt_height))
+        return make_error(Errc::invalid_argument, "OBJ '" + obj_path + "' was written for a " + std::to_string(header.width) + "x" +
+                                                      std::to_string(header.height) + " atlas, but the virtual texture is " +
                                                       std::to_string(vt_width) + "x" + std::to_string(vt_height));
     tinyobj::ObjReaderConfig config;
     config.triangulate = true;
     config.vertex_color = false;
     tinyobj::ObjReader reader;
-    if (!reader.ParseFromFile(obj_path, config))
+    if (!reader.ParseFromString(text, std::string(), config))
         return make_error(Errc::corrupt, "cannot read OBJ '" + obj_path + "': " + one_line(reader.Error()));
     if (reader.Warning().find("indices out of bounds") != std::string::npos ||
         reader.Warning().find("invalid vertex index") != std::string::npos)
@@ -72,7 +87,7 @@ Result<Scene> load_obj_scene(const std::string& obj_path, std::uint32_t vt_width
     }
     // OBJ is Y up unless the file says "# tessera-up z"; this library is Z up: a Y-up file maps
     // (x, y, z) -> (x, -z, y), a rotation (winding is kept).
-    const bool file_z_up = z_up(obj_path);
+    const bool file_z_up = header.z_up;
     auto world = [&](int v) -> Vec3d {
         const std::size_t i = 3 * static_cast<std::size_t>(v);
         if (file_z_up) return {double(a.vertices[i]), double(a.vertices[i + 1]), double(a.vertices[i + 2])};

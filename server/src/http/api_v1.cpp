@@ -34,6 +34,7 @@ nlohmann::json store_entry(const StoreHandle& h) {
     const std::string url = "/v1/stores/" + h.name;
     j["url"] = url;
     j["tiles"] = url + "/tiles/{level}/{x}/{y}?v=" + hex16(h.version);
+    j["scene"] = h.has_scene.load(std::memory_order_relaxed);  // an atlas OBJ travels with it (gRPC GetStoreScene)
     return j;
 }
 

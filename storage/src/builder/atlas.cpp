@@ -113,7 +113,7 @@ private:
         const std::size_t sb = sample_bytes(si.sample_type), texel = si.channels * sb;
         const int colour_channels = si.channels >= 3 ? 3 : 1;  // grey (+ alpha) or RGB (+ alpha)
         const bool plain = si.sample_type == SampleType::u8 && si.colour_space == ColourSpace::srgb;
-        const bool alpha = has_alpha(si);
+        const bool alpha = has_alpha(si) && !item_.opaque;
         for (std::uint32_t x = 0; x < si.width; ++x, in += texel, out += channels_) {
             if (channels_ == 4) {  // alpha is linear: scaled, never sRGB-encoded; opaque without one
                 const std::uint8_t* s = in + (si.channels - 1) * sb;
@@ -289,7 +289,7 @@ Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> it
     // RGBA when any image has alpha (cut-outs), RGB otherwise.
     std::uint32_t channels = 3;
     for (const auto& item : items)
-        if (item.source && ItemReader::has_alpha(item.source->info())) channels = 4;
+        if (item.source && !item.opaque && ItemReader::has_alpha(item.source->info())) channels = 4;
     std::vector<ItemReader> readers;
     readers.reserve(items.size());
     for (std::size_t i = 0; i < items.size(); ++i) {

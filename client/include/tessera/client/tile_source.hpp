@@ -9,6 +9,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -58,6 +59,13 @@ public:
     // available() with what a remote source knows about its link (default: available() alone).
     virtual SourceLink link() const { return SourceLink{available(), {}, 0}; }
     virtual std::string describe() const = 0;
+    // The scene that travels with a bound store (an atlas OBJ's text, docs/atlas.md): beside a
+    // store file, or from its server. nullopt when it has none (the default for sources that
+    // cannot carry one); an error when it has one that cannot be read.
+    virtual Result<std::optional<std::string>> scene(const std::string& store) {
+        (void)store;
+        return std::optional<std::string>{};
+    }
 };
 
 // Reads stores directly. `threads` readers serve the newest request set, highest priority first;

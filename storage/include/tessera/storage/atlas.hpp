@@ -56,6 +56,7 @@ struct AtlasItem {
     std::unique_ptr<ImageSource> source;
     std::array<std::uint8_t, 3> colour{};
     bool wrap = false;
+    bool opaque = false;  // its alpha is ignored (a glTF material whose alphaMode is OPAQUE)
 };
 
 // The atlas as an 8-bit sRGB source, RGB, or RGBA with straight alpha when any item's source has

@@ -81,6 +81,7 @@ struct BatchAckInfo {
 struct RemoteStore {
     std::string name;
     storage::StoreInfo info;
+    bool has_scene = false;  // a scene travels with the store (get_scene)
 };
 
 enum class ConnectionState { connecting, connected, backing_off, closed };
@@ -136,6 +137,10 @@ public:
     // unsupported (server lacks the call); messages carry the gRPC status name.
     Result<std::vector<RemoteStore>> list_stores(std::chrono::milliseconds timeout);
     Result<RemoteStore> get_store(const std::string& name, std::chrono::milliseconds timeout);
+    // The scene that travels with a store (an atlas OBJ's text, docs/atlas.md), read a piece at a
+    // time, each piece with `timeout`; not_found when the store has none. A store replaced while
+    // its scene is read fails (io_error): the scene would not match the store bound before.
+    Result<std::string> get_scene(const std::string& name, std::uint64_t store_version, std::chrono::milliseconds timeout);
     Result<v1::ServerStats> server_stats(std::chrono::milliseconds timeout);  // needs tessera.pb.h
 
     class Impl;

@@ -31,6 +31,7 @@ struct AtlasImageRef {
     std::array<std::uint8_t, 3> colour{};  // solid only: Kd as 8-bit values
     std::vector<std::string> materials;    // the materials that use this image (for messages)
     bool repeats = false;                  // texture coordinates leave [0, 1]: its cell's padding wraps around
+    bool opaque = false;                   // its alpha is not used (every glTF material drawing it is OPAQUE)
 };
 
 // Which OBJ axis points up. OBJ's convention is Y, but SketchUp and many CAD and GIS exports are Z

@@ -7,6 +7,7 @@
 // a texel; likewise positions are float offsets from a double-precision chunk origin.
 #include <cstdint>
 #include <memory>
+#include <string_view>
 #include <string>
 #include <vector>
 
@@ -91,5 +92,17 @@ double terrain_height(const TerrainOptions& options, double x, double y);
 // Positions are taken as they are: Y up (OBJ's convention), or Z up when the file's header says
 // "# tessera-up z"; converted to this library's Z up.
 Result<Scene> load_obj_scene(const std::string& obj_path, std::uint32_t vt_width, std::uint32_t vt_height);
+// The same from the OBJ's text (say, a scene a server sends with its store); `obj_path` names it
+// in messages.
+Result<Scene> parse_obj_scene(const std::string& text, const std::string& obj_path, std::uint32_t vt_width, std::uint32_t vt_height);
+
+// What the comment lines at the top of an atlas OBJ say: "# tessera-atlas W H" (the atlas size)
+// and "# tessera-up y|z". (Its "# tessera-store ID" line: storage/store_scene.hpp.)
+struct AtlasObjHeader {
+    bool atlas = false;  // has "# tessera-atlas W H"
+    std::uint64_t width = 0, height = 0;
+    bool z_up = false;
+};
+AtlasObjHeader read_atlas_obj_header(std::string_view text);
 
 }  // namespace tessera::scene
