@@ -332,6 +332,34 @@ TEST_F(GltfAtlas, ScenesItCannotReadFailAndLeaveNothing) {
     expect_fails(dir_.file("scene.fbx"), "not an OBJ (.obj) or glTF 2.0");
 }
 
+// glTF's alpha modes: an image only OPAQUE materials draw loses its alpha (glTF ignores it there,
+// and the viewer would cut holes); MASK keeps it for cut-outs. The scene: BoxTextured with its image
+// replaced by one with a transparent half.
+TEST_F(GltfAtlas, OpaqueMaterialsDropTheirTexturesAlpha) {
+    const int W = 16, H = 16;
+    std::vector<std::uint8_t> rgba(std::size_t(W) * H * 4);
+    for (int i = 0; i < W * H; ++i) {
+        rgba[std::size_t(i) * 4] = 200;
+        rgba[std::size_t(i) * 4 + 3] = (i % W) < W / 2 ? 0 : 255;
+    }
+    auto png = storage::encode_png({W, H, 4, storage::SampleType::u8, storage::ColourSpace::srgb, rgba});
+    ASSERT_TRUE(png.ok());
+    auto text = read_file((kSamples / "BoxTextured-glTF-Embedded/BoxTextured.gltf").string());
+    nlohmann::json j = nlohmann::json::parse(std::string(text.begin(), text.end()));
+    j["images"][0]["uri"] = "data:image/png;base64," + base64(*png);
+    for (const std::string mode : {"OPAQUE", "MASK"}) {
+        j["materials"][0]["alphaMode"] = mode;
+        const std::string scene = dir_.file(mode + ".gltf"), body = j.dump();
+        write_file(scene, std::vector<std::uint8_t>(body.begin(), body.end()));
+        const RunResult r = build(scene, mode);
+        ASSERT_EQ(r.exit_code, 0) << r.out;
+        auto reader = storage::StoreReader::open(dir_.file("out/" + mode + ".tsr"));
+        ASSERT_TRUE(reader.ok()) << reader.error().message;
+        EXPECT_EQ((*reader)->info().channels, mode == "OPAQUE" ? 3u : 4u) << mode;
+        EXPECT_EQ((*reader)->info().has_alpha, mode == "MASK") << mode;
+    }
+}
+
 // `tessera view --store` with no --scene draws the atlas scene that travels with the store: the OBJ
 // beside the store file, and over gRPC the one the server reads beside its file; a rebuilt store
 // whose OBJ was not rewritten has no scene (the OBJ names the store's id), and the terrain is drawn.
