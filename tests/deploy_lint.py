@@ -1314,12 +1314,25 @@ def check_dockerignore(rep: Report, ctx: Context) -> None:
          if shutil.which("git") and (root / ".git").exists() else None)
     if p is not None and p.returncode == 0 and p.stdout.strip():
         files = p.stdout.splitlines()
-    else:  # not a git checkout (a copy): every file except obvious build trees
+    else:  # not a git checkout (a copy, a source archive): every file .gitignore does not name
+        patterns = [ln.strip() for ln in (root / ".gitignore").read_text().splitlines()
+                    if ln.strip() and not ln.startswith("#")] if (root / ".gitignore").is_file() else []
+
+        def ignored(rel: str, name: str, is_dir: bool) -> bool:
+            for pat in patterns:
+                anchored, dir_only = pat.startswith("/"), pat.endswith("/")
+                body = pat.strip("/")
+                if dir_only and not is_dir:
+                    continue
+                if fnmatch.fnmatch(name, body) and (not anchored or rel == "."):
+                    return True
+            return False
+
         files = []
         for dirpath, dirnames, filenames in os.walk(root):
             rel = os.path.relpath(dirpath, root)
-            dirnames[:] = [d for d in dirnames if not (rel == "." and (d.startswith("build") or d == ".git"))]
-            files += [os.path.normpath(os.path.join(rel, f)) for f in filenames]
+            dirnames[:] = [d for d in dirnames if d != ".git" and not ignored(rel, d, True)]
+            files += [os.path.normpath(os.path.join(rel, f)) for f in filenames if not ignored(rel, f, False)]
     needed = [f for f in files if not f.startswith(("deploy/", ".ci/", "docs/", ".git"))
               and f not in ("README.md", ".gitignore")]
     excluded = []
