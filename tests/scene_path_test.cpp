@@ -433,3 +433,23 @@ TEST(Path, BuiltinsKeepAnObjSceneInView) {
         }
     }
 }
+
+// The orbit around a compact object (a unit cube: glTF samples are often one) stays outside it,
+// a quarter beyond its surface along the line of sight at least; it used to pass through it.
+TEST(Path, OrbitStaysOutsideACompactObject) {
+    tessera::scene::Scene cube;
+    cube.name = "atlas";
+    cube.vt_width = cube.vt_height = 256;
+    for (int k = 0; k < 3; ++k) {
+        cube.bounds_min[k] = -0.5;
+        cube.bounds_max[k] = 0.5;
+    }
+    auto p = CameraPath::builtin("orbit", cube);
+    ASSERT_TRUE(p.ok()) << p.error().message;
+    double nearest = INFINITY;
+    for (double t = 0; t <= p->duration(); t += 0.05) {
+        const auto c = p->at(t);
+        nearest = std::min(nearest, std::max({std::abs(c.position[0]), std::abs(c.position[1]), std::abs(c.position[2])}));
+    }
+    EXPECT_GT(nearest, 0.6) << "the camera comes within " << nearest << " of the cube's centre (its faces are at 0.5)";
+}

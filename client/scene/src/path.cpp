@@ -212,9 +212,11 @@ std::vector<Keyframe> walk(const Box& b, Framing framing) {
 }
 
 // orbit: around the scene, looking at the centre of its box from 30 degrees above, one turn in 30
-// s; it starts where the whole box fits the view (its bounding sphere inside the vertical field of
-// view) and moves in to 40% of that distance and back out twice per turn, so both the whole scene
-// and its detail are seen. The default for OBJ scenes (a site, a building, a room seen from outside).
+// s; it starts where the box's larger side spans the view's width and moves in to 40% of that
+// distance and back out twice per turn, so both the whole scene and its detail are seen, but never
+// closer than a quarter beyond where its line of sight leaves the box (a compact object, a cube,
+// would otherwise be entered). The default for OBJ scenes (a site, a building, a room seen from
+// outside).
 std::vector<Keyframe> orbit(const Box& b, double fov_y) {
     const double T = 30.0, elevation = 35.0 * kDeg;
     const Vec3d c{b.cx(), b.cy(), 0.5 * (b.z0 + b.z1)};
@@ -224,8 +226,15 @@ std::vector<Keyframe> orbit(const Box& b, double fov_y) {
     const double framed = std::max(0.5 * std::max(b.size(), b.z1 - b.z0) / std::tan(half_width_fov) + 0.5 * (b.z1 - b.z0), 1e-3);
     return sample(
         [&](double t) {
-            const double d = framed * (0.7 + 0.3 * std::cos(2 * kPi * 2.0 * t / T));
             const double yaw = 0.25 * kPi + 2 * kPi * t / T;  // view direction; the camera sits opposite
+            // Where the line from the centre towards the camera leaves the box.
+            const double u[3] = {std::abs(std::cos(elevation) * std::cos(yaw)), std::abs(std::cos(elevation) * std::sin(yaw)),
+                                 std::sin(elevation)};
+            const double half[3] = {0.5 * b.wx(), 0.5 * b.wy(), 0.5 * (b.z1 - b.z0)};
+            double leaves = INFINITY;
+            for (int k = 0; k < 3; ++k)
+                if (u[k] > 1e-9) leaves = std::min(leaves, half[k] / u[k]);
+            const double d = std::max(framed * (0.7 + 0.3 * std::cos(2 * kPi * 2.0 * t / T)), 1.25 * leaves);
             Keyframe k;
             k.position = {c[0] - d * std::cos(elevation) * std::cos(yaw), c[1] - d * std::cos(elevation) * std::sin(yaw),
                           c[2] + d * std::sin(elevation)};
