@@ -13,6 +13,8 @@
 #include <array>
 #include <cmath>
 #include <filesystem>
+#include <optional>
+#include <cstring>
 #include <random>
 #include <string>
 #include <vector>
@@ -79,6 +81,55 @@ std::vector<std::array<std::array<float, 5>, 3>> triangle_set(const std::string&
     std::sort(out.begin(), out.end());
     return out;
 }
+
+// The rewritten OBJ of a scene lying in the plane z = 0 (x, y as the glTF wrote them), and the
+// atlas texel each point of it samples: the piece holding the point, its atlas coordinate there by
+// barycentric interpolation, the store's level-0 texel under it.
+class PlanarAtlasLookup {
+public:
+    PlanarAtlasLookup(const std::string& obj_path, AtlasTexels& atlas) : atlas_(atlas) {
+        tinyobj::ObjReader obj;
+        tinyobj::ObjReaderConfig config;
+        config.triangulate = true;
+        EXPECT_TRUE(obj.ParseFromFile(obj_path, config)) << obj.Error();
+        const auto& attrib = obj.GetAttrib();
+        for (const auto& sh : obj.GetShapes())
+            for (std::size_t f = 0; f + 2 < sh.mesh.indices.size(); f += 3) {
+                Piece pc;
+                for (std::size_t k = 0; k < 3; ++k) {
+                    const auto& ix = sh.mesh.indices[f + k];
+                    for (std::size_t a = 0; a < 2; ++a) {
+                        pc.p[k][a] = attrib.vertices[3 * std::size_t(ix.vertex_index) + a];
+                        pc.t[k][a] = attrib.texcoords[2 * std::size_t(ix.texcoord_index) + a];
+                    }
+                }
+                pieces_.push_back(pc);
+            }
+    }
+    std::size_t pieces() const { return pieces_.size(); }
+    // nullopt on a cut between pieces (or off the scene).
+    std::optional<std::array<std::uint8_t, 3>> at(double x, double y) {
+        for (const Piece& pc : pieces_) {
+            const double d = (pc.p[1][1] - pc.p[2][1]) * (pc.p[0][0] - pc.p[2][0]) + (pc.p[2][0] - pc.p[1][0]) * (pc.p[0][1] - pc.p[2][1]);
+            if (std::abs(d) < 1e-12) continue;
+            const double a = ((pc.p[1][1] - pc.p[2][1]) * (x - pc.p[2][0]) + (pc.p[2][0] - pc.p[1][0]) * (y - pc.p[2][1])) / d;
+            const double b = ((pc.p[2][1] - pc.p[0][1]) * (x - pc.p[2][0]) + (pc.p[0][0] - pc.p[2][0]) * (y - pc.p[2][1])) / d;
+            const double c = 1 - a - b;
+            if (a < 1e-6 || b < 1e-6 || c < 1e-6) continue;  // strictly inside one piece
+            const double au = a * pc.t[0][0] + b * pc.t[1][0] + c * pc.t[2][0];
+            const double av = a * pc.t[0][1] + b * pc.t[1][1] + c * pc.t[2][1];
+            return atlas_.at(std::uint32_t(std::floor(au * atlas_.info().width)), std::uint32_t(std::floor(av * atlas_.info().height)));
+        }
+        return std::nullopt;
+    }
+
+private:
+    struct Piece {
+        double p[3][2], t[3][2];
+    };
+    AtlasTexels& atlas_;
+    std::vector<Piece> pieces_;
+};
 
 class GltfAtlas : public ::testing::Test {
 protected:
@@ -233,30 +284,9 @@ TEST_F(GltfAtlas, EveryPointGetsTheTexelGltfSamplingGives) {
     auto reader = storage::StoreReader::open(dir_.file("out/card.tsr"));
     ASSERT_TRUE(reader.ok()) << reader.error().message;
     AtlasTexels atlas(*reader);
-    const double AW = atlas.info().width, AH = atlas.info().height;
-    tinyobj::ObjReader obj;
-    tinyobj::ObjReaderConfig config;
-    config.triangulate = true;
-    ASSERT_TRUE(obj.ParseFromFile(dir_.file("out/card.obj"), config)) << obj.Error();
-    const auto& attrib = obj.GetAttrib();
-    struct Piece {
-        double p[3][2], t[3][2];
-    };
-    std::vector<Piece> pieces;
-    for (const auto& sh : obj.GetShapes())
-        for (std::size_t f = 0; f + 2 < sh.mesh.indices.size(); f += 3) {
-            Piece pc;
-            for (int k = 0; k < 3; ++k) {
-                const auto& ix = sh.mesh.indices[f + std::size_t(k)];
-                for (int a = 0; a < 2; ++a) {
-                    pc.p[k][a] = attrib.vertices[3 * std::size_t(ix.vertex_index) + std::size_t(a)];
-                    pc.t[k][a] = attrib.texcoords[2 * std::size_t(ix.texcoord_index) + std::size_t(a)];
-                }
-            }
-            pieces.push_back(pc);
-        }
+    PlanarAtlasLookup lookup(dir_.file("out/card.obj"), atlas);
     // The mirrored and clamped axes cut the quad: u spans 3.9 * 1.25 repeats, v is cut at 0 and 1.
-    EXPECT_GT(pieces.size(), 8u);
+    EXPECT_GT(lookup.pieces(), 8u);
 
     std::mt19937 rng(7);
     std::uniform_real_distribution<double> unit(0.0, 1.0);
@@ -271,28 +301,103 @@ TEST_F(GltfAtlas, EveryPointGetsTheTexelGltfSamplingGives) {
         auto frac_ok = [](double f) { return std::abs(f - std::round(f)) > 0.02; };
         if (!frac_ok(tu * W) || !(frac_ok(tv * H) || tv < 0 || tv > 1)) continue;
         const auto want = expected_texel(u, v, W, H);
-        // The piece holding (x, y), and its atlas coordinate there.
-        bool found = false;
-        for (const Piece& pc : pieces) {
-            const double d = (pc.p[1][1] - pc.p[2][1]) * (pc.p[0][0] - pc.p[2][0]) + (pc.p[2][0] - pc.p[1][0]) * (pc.p[0][1] - pc.p[2][1]);
-            if (std::abs(d) < 1e-12) continue;
-            const double a = ((pc.p[1][1] - pc.p[2][1]) * (x - pc.p[2][0]) + (pc.p[2][0] - pc.p[1][0]) * (y - pc.p[2][1])) / d;
-            const double b = ((pc.p[2][1] - pc.p[0][1]) * (x - pc.p[2][0]) + (pc.p[0][0] - pc.p[2][0]) * (y - pc.p[2][1])) / d;
-            const double c = 1 - a - b;
-            if (a < 1e-6 || b < 1e-6 || c < 1e-6) continue;  // strictly inside one piece
-            const double au = a * pc.t[0][0] + b * pc.t[1][0] + c * pc.t[2][0];
-            const double av = a * pc.t[0][1] + b * pc.t[1][1] + c * pc.t[2][1];
-            const auto got = atlas.at(std::uint32_t(std::floor(au * AW)), std::uint32_t(std::floor(av * AH)));
-            const std::uint8_t* e = &rgb[(std::size_t(want[1]) * W + std::size_t(want[0])) * 3];
-            ASSERT_EQ(got, (std::array<std::uint8_t, 3>{e[0], e[1], e[2]}))
-                << "at (" << x << ", " << y << "), uv (" << u << ", " << v << "): want texel " << want[0] << "," << want[1];
-            found = true;
-            ++compared;
-            break;
-        }
-        if (!found) continue;  // on a cut between pieces
+        const auto got = lookup.at(x, y);
+        if (!got) continue;  // on a cut between pieces
+        const std::uint8_t* e = &rgb[(std::size_t(want[1]) * W + std::size_t(want[0])) * 3];
+        ASSERT_EQ(*got, (std::array<std::uint8_t, 3>{e[0], e[1], e[2]}))
+            << "at (" << x << ", " << y << "), uv (" << u << ", " << v << "): want texel " << want[0] << "," << want[1];
+        ++compared;
     }
     EXPECT_GE(compared, 1000);
+}
+
+// Sixty textures through gltfpack (Debian's meshoptimizer tool, as engines' pipelines use it): it
+// rewrites the scene with quantised positions and texture coordinates (KHR_mesh_quantization,
+// undone by node transforms and KHR_texture_transform) and puts the images inside the GLB. Every
+// sampled point of every quad, repeating ones included, gets its own texture's texel.
+TEST_F(GltfAtlas, SixtyTexturesThroughGltfpackKeepEveryTexel) {
+    const int n = 60, W = 64, H = 48;
+    auto texel = [](int i, int x, int y) {
+        return std::array<std::uint8_t, 3>{std::uint8_t(x * 4), std::uint8_t(y * 5), std::uint8_t(i * 4)};
+    };
+    fs::create_directory(dir_.file("tex"));
+    nlohmann::json nodes = nlohmann::json::array(), meshes = nlohmann::json::array(), materials = nlohmann::json::array(),
+                   textures = nlohmann::json::array(), images = nlohmann::json::array(), accessors = nlohmann::json::array();
+    std::vector<float> pos, uv;
+    auto repeats = [](int i) { return i % 7 == 0 ? 2.0 : 1.0; };
+    for (int i = 0; i < n; ++i) {
+        std::vector<std::uint8_t> rgb(std::size_t(W) * H * 3);
+        for (int y = 0; y < H; ++y)
+            for (int x = 0; x < W; ++x) {
+                const auto c = texel(i, x, y);
+                std::copy(c.begin(), c.end(), &rgb[(std::size_t(y) * W + x) * 3]);
+            }
+        auto png = storage::encode_png({W, H, 3, storage::SampleType::u8, storage::ColourSpace::srgb, rgb});
+        ASSERT_TRUE(png.ok());
+        write_file(dir_.file("tex/t" + std::to_string(i) + ".png"), *png);
+        const float x = float(i % 10) * 1.25f, y = float(i / 10) * 1.25f, r = float(repeats(i));
+        pos.insert(pos.end(), {x, y, 0, x + 1, y, 0, x + 1, y + 1, 0, x, y + 1, 0});
+        uv.insert(uv.end(), {0, r, r, r, r, 0, 0, 0});
+        accessors.push_back({{"bufferView", 0}, {"byteOffset", 48 * i}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"},
+                             {"min", {x, y, 0}}, {"max", {x + 1, y + 1, 0}}});
+        accessors.push_back({{"bufferView", 1}, {"byteOffset", 32 * i}, {"componentType", 5126}, {"count", 4}, {"type", "VEC2"}});
+        meshes.push_back({{"primitives", {{{"attributes", {{"POSITION", 2 * i}, {"TEXCOORD_0", 2 * i + 1}}}, {"indices", 2 * n}, {"material", i}}}}});
+        nodes.push_back({{"mesh", i}});
+        materials.push_back({{"name", "m" + std::to_string(i)}, {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", i}}}}}});
+        textures.push_back({{"source", i}, {"sampler", 0}});
+        images.push_back({{"uri", "tex/t" + std::to_string(i) + ".png"}});
+    }
+    accessors.push_back({{"bufferView", 2}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}});
+    const std::uint16_t idx[6] = {0, 1, 2, 0, 2, 3};
+    std::vector<std::uint8_t> buffer(pos.size() * 4 + uv.size() * 4 + sizeof idx);
+    std::memcpy(buffer.data(), pos.data(), pos.size() * 4);
+    std::memcpy(buffer.data() + pos.size() * 4, uv.data(), uv.size() * 4);
+    std::memcpy(buffer.data() + pos.size() * 4 + uv.size() * 4, idx, sizeof idx);
+    write_file(dir_.file("scene.bin"), buffer);
+    nlohmann::json nodes_list = nlohmann::json::array();
+    for (int i = 0; i < n; ++i) nodes_list.push_back(i);
+    const nlohmann::json j = {{"asset", {{"version", "2.0"}}}, {"scene", 0}, {"scenes", {{{"nodes", nodes_list}}}}, {"nodes", nodes},
+                              {"meshes", meshes}, {"materials", materials}, {"textures", textures}, {"images", images},
+                              {"samplers", {{{"wrapS", 10497}, {"wrapT", 10497}}}},
+                              {"buffers", {{{"uri", "scene.bin"}, {"byteLength", buffer.size()}}}},
+                              {"bufferViews", {{{"buffer", 0}, {"byteOffset", 0}, {"byteLength", pos.size() * 4}},
+                                               {{"buffer", 0}, {"byteOffset", pos.size() * 4}, {"byteLength", uv.size() * 4}},
+                                               {{"buffer", 0}, {"byteOffset", pos.size() * 4 + uv.size() * 4}, {"byteLength", sizeof idx}}}},
+                              {"accessors", accessors}};
+    const std::string text = j.dump();
+    write_file(dir_.file("scene.gltf"), std::vector<std::uint8_t>(text.begin(), text.end()));
+    const RunResult packed = tessera::test::run_program("gltfpack", "-i " + q(dir_.file("scene.gltf")) + " -o " + q(dir_.file("packed.glb")));
+    ASSERT_EQ(packed.exit_code, 0) << "gltfpack (tools/setup.sh --tests installs it): " << packed.out;
+    {
+        // What gltfpack wrote: quantised, transformed, the images inside.
+        const auto glb = read_file(dir_.file("packed.glb"));
+        const std::string head(glb.begin(), glb.begin() + std::min<std::size_t>(glb.size(), 4096));
+        EXPECT_NE(head.find("KHR_mesh_quantization"), std::string::npos);
+        EXPECT_NE(head.find("KHR_texture_transform"), std::string::npos);
+        EXPECT_EQ(head.find("tex/t0.png"), std::string::npos);
+    }
+    const RunResult r = build(dir_.file("packed.glb"), "many");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_EQ(r.out.find("warning"), std::string::npos) << r.out;
+    auto reader = storage::StoreReader::open(dir_.file("out/many.tsr"));
+    ASSERT_TRUE(reader.ok()) << reader.error().message;
+    AtlasTexels atlas(*reader);
+    PlanarAtlasLookup lookup(dir_.file("out/many.obj"), atlas);
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> unit(0.02, 0.98);  // clear of the quads' (quantised) edges
+    int compared = 0;
+    for (int i = 0; i < n; ++i)
+        for (int k = 0; k < 40; ++k) {
+            const double fx = unit(rng), fy = unit(rng), rep = repeats(i);
+            const double u = fx * rep, v = (1 - fy) * rep;  // glTF's v points down: y up is v down
+            const double tx = (u - std::floor(u)) * W, ty = (v - std::floor(v)) * H;
+            if (std::abs(tx - std::round(tx)) < 0.1 || std::abs(ty - std::round(ty)) < 0.1) continue;  // quantised coordinates
+            const auto got = lookup.at(double(i % 10) * 1.25 + fx, double(i / 10) * 1.25 + fy);
+            if (!got) continue;
+            ASSERT_EQ(*got, texel(i, int(tx), int(ty))) << "texture " << i << " at (" << fx << ", " << fy << ")";
+            ++compared;
+        }
+    EXPECT_GE(compared, 1500);
 }
 
 TEST_F(GltfAtlas, ScenesItCannotReadFailAndLeaveNothing) {

@@ -31,7 +31,7 @@ test_packages=(
   clang libclang-rt-14-dev           # libFuzzer targets
   xvfb xauth                          # windowed-mode tests on an X server without a display
   imagemagick openimageio-tools       # tests read images other tools wrote (alpha conventions, formats)
-  assimp-testmodels                   # real glTF 2.0 scenes (Khronos samples) for the atlas build's tests
+  assimp-testmodels gltfpack          # real glTF 2.0 scenes (Khronos samples, meshoptimizer's packer) for the atlas tests
   python3-yaml time systemd           # systemd: systemd-analyze lints deploy/tessera.service
   mmdebstrap                          # deploy/build-image.py: the image's root filesystem
   nginx-light                         # remote stores over plain HTTP range requests (tests)
