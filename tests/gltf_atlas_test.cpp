@@ -481,6 +481,9 @@ TEST_F(GltfAtlas, TheSceneTravelsWithItsStore) {
         return scene_line(r.out);
     };
     const std::string travelling = "scene         atlas, travelling with the store (57 triangles, 12 objects)";
+    // `tessera inspect` names it too.
+    const RunResult inspected = run_tessera("inspect " + q(store));
+    EXPECT_NE(inspected.out.find("scene      " + dir_.file("out/card.obj")), std::string::npos) << inspected.out;
     EXPECT_EQ(view(store), travelling);
     EXPECT_EQ(view(store, "--scene terrain"), "scene         terrain");
     {
@@ -493,6 +496,7 @@ TEST_F(GltfAtlas, TheSceneTravelsWithItsStore) {
                                     " -o " + q(store) + " --obj-out " + q(dir_.file("other.obj")));
     ASSERT_EQ(r.exit_code, 0) << r.out;
     EXPECT_EQ(view(store), "scene         terrain");
+    EXPECT_EQ(run_tessera("inspect " + q(store)).out.find("scene "), std::string::npos);
     ServerProcess server({"--store-dir", dir_.file("out")}, dir_.file("server2.log"));
     ASSERT_TRUE(server.running()) << server.log();
     EXPECT_EQ(view("grpc://" + server.grpc_address() + "/card"), "scene         terrain") << server.log();

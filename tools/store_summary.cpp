@@ -4,6 +4,7 @@
 
 #include "progress.hpp"
 #include "tessera/storage/store_json.hpp"
+#include "tessera/storage/store_scene.hpp"
 
 namespace tessera::tools {
 
@@ -21,6 +22,8 @@ void print_store_summary(const std::string& name, const storage::StoreInfo& info
                    tessera::to_string(info.codec));
     fmt::print("tiles      {} texels ({} payload + 2 x {} border), {} levels\n", info.tile_size(), info.tile_payload, info.border,
                info.level_count());
+    if (const auto scene = storage::find_scene_beside(name, info.store_id))
+        fmt::print("scene      {} (the atlas scene that travels with this store: docs/atlas.md)\n", *scene);
     // "index": the level's block table and entry blocks; an "s" marks a sparse block table.
     fmt::print("{:>5} {:>13} {:>11} {:>9} {:>8} {:>8} {:>7} {:>11} {:>10} {:>12}\n", "level", "texels", "tiles", "present", "uniform",
                "absent", "dedup", "bytes", "bits/texel", "index");
