@@ -228,14 +228,26 @@ grpc::ServerUnaryReactor* GrpcService::ListStores(grpc::CallbackServerContext* c
     return finish(context, grpc::Status::OK);
 }
 
+std::shared_ptr<const StoreHandle> GrpcService::find_store(grpc::CallbackServerContext* context, const std::string& name,
+                                                             grpc::Status& refusal) const {
+    if (!authorized(context)) {
+        refusal = kUnauthenticated;
+        return nullptr;
+    }
+    if (!protocol::valid_store_name(name)) {
+        refusal = grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "store names are identifiers ([A-Za-z0-9_.-], no '..'), not paths");
+        return nullptr;
+    }
+    auto h = ctx_.stores.find(name);
+    if (!h) refusal = grpc::Status(grpc::StatusCode::NOT_FOUND, "no store named '" + name + "'");
+    return h;
+}
+
 grpc::ServerUnaryReactor* GrpcService::GetStore(grpc::CallbackServerContext* context, const v1::GetStoreRequest* request,
                                                 v1::StoreMetadata* reply) {
-    if (!authorized(context)) return finish(context, kUnauthenticated);
-    if (!protocol::valid_store_name(request->name()))
-        return finish(context, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
-                                            "store names are identifiers ([A-Za-z0-9_.-], no '..'), not paths"));
-    auto h = ctx_.stores.find(request->name());
-    if (!h) return finish(context, grpc::Status(grpc::StatusCode::NOT_FOUND, "no store named '" + request->name() + "'"));
+    grpc::Status refusal;
+    auto h = find_store(context, request->name(), refusal);
+    if (!h) return finish(context, refusal);
     *reply = protocol::to_proto(h->name, h->info());
     reply->set_has_scene(h->has_scene.load(std::memory_order_relaxed));
     return finish(context, grpc::Status::OK);
@@ -243,12 +255,9 @@ grpc::ServerUnaryReactor* GrpcService::GetStore(grpc::CallbackServerContext* con
 
 grpc::ServerUnaryReactor* GrpcService::GetStoreScene(grpc::CallbackServerContext* context, const v1::GetStoreSceneRequest* request,
                                                      v1::StoreScenePiece* reply) {
-    if (!authorized(context)) return finish(context, kUnauthenticated);
-    if (!protocol::valid_store_name(request->name()))
-        return finish(context, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
-                                            "store names are identifiers ([A-Za-z0-9_.-], no '..'), not paths"));
-    auto h = ctx_.stores.find(request->name());
-    if (!h) return finish(context, grpc::Status(grpc::StatusCode::NOT_FOUND, "no store named '" + request->name() + "'"));
+    grpc::Status refusal;
+    auto h = find_store(context, request->name(), refusal);
+    if (!h) return finish(context, refusal);
     const auto path = h->scene_path();
     if (!path) return finish(context, grpc::Status(grpc::StatusCode::NOT_FOUND, "store '" + request->name() + "' has no scene"));
     constexpr std::uint64_t kPiece = 1u << 20;

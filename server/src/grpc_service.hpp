@@ -34,6 +34,10 @@ public:
 
 private:
     bool authorized(grpc::CallbackServerContext* context) const;
+    // The store a unary call names, after its credentials and the name's form; null with `refusal`
+    // set (UNAUTHENTICATED, INVALID_ARGUMENT, NOT_FOUND) otherwise.
+    std::shared_ptr<const StoreHandle> find_store(grpc::CallbackServerContext* context, const std::string& name,
+                                                  grpc::Status& refusal) const;
     ServerContext& ctx_;
     Scheduler& scheduler_;
     Counter* unauthenticated_;

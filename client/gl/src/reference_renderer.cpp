@@ -112,7 +112,9 @@ public:
         glCullFace(GL_BACK);
         glFrontFace(GL_CCW);
         glEnable(GL_DEPTH_TEST);
-        glDepthFunc(GL_LESS);
+        // Ties (coplanar faces) go to the last drawn, as in the VT renderer's colour pass after its
+        // depth pre-pass; without overlapping faces this is GL_LESS.
+        glDepthFunc(GL_LEQUAL);
         glDisable(GL_BLEND);
         glDisable(GL_SCISSOR_TEST);
         glBindTextureUnit(0, texture_.get());

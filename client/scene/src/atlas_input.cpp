@@ -208,6 +208,12 @@ Status add_textured_triangle(AtlasInputData& data, Shape& shape, std::uint32_t i
     return {};
 }
 
+std::string trim_newlines(std::string s) {
+    std::replace(s.begin(), s.end(), '\n', ' ');
+    while (!s.empty() && s.back() == ' ') s.pop_back();
+    return s;
+}
+
 Status finish_atlas_input(AtlasInputData& data, UpAxis up, const std::string& what) {
     if (data.triangles == 0) return make_error(Errc::invalid_argument, what + " has no triangles");
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};

@@ -61,6 +61,9 @@ Status add_textured_triangle(AtlasInputData& data, Shape& shape, std::uint32_t i
 // than along Y, OBJ's rule); an error naming `what` when there are no triangles.
 Status finish_atlas_input(AtlasInputData& data, UpAxis up, const std::string& what);
 
+// A reader library's message on one line (newlines become spaces, trailing ones dropped).
+std::string trim_newlines(std::string s);
+
 // The readers (obj_atlas.cpp, gltf_atlas.cpp): fill `data` from the scene at `path`.
 Status read_obj(const std::string& path, UpAxis up, AtlasInputData& data);
 Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data);

@@ -185,12 +185,6 @@ std::string uri_decode(const std::string& s) {
     return out;
 }
 
-std::string trim_newlines(std::string s) {
-    std::replace(s.begin(), s.end(), '\n', ' ');
-    while (!s.empty() && s.back() == ' ') s.pop_back();
-    return s;
-}
-
 // The extensions a .gltf or .glb file says it requires, read before tinygltf parses it (tinygltf
 // fails on, say, a Draco-compressed mesh's accessors without naming the extension). Empty when the
 // file cannot be read this way: tinygltf then reports what is wrong.

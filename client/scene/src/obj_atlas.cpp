@@ -17,12 +17,6 @@ namespace {
 
 constexpr std::uint8_t kDefaultGrey = 204;  // faces with no material: a light grey solid tile
 
-std::string trim_newlines(std::string s) {
-    std::replace(s.begin(), s.end(), '\n', ' ');
-    while (!s.empty() && s.back() == ' ') s.pop_back();
-    return s;
-}
-
 std::uint8_t to_byte(double v) { return static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 1.0) * 255.0)); }
 
 }  // namespace
