@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <tuple>
 
 #include "atlas_input_data.hpp"
@@ -247,13 +248,18 @@ Result<AtlasSceneInput> AtlasSceneInput::load(const std::string& path, UpAxis up
     std::string ext5 = path.size() >= 5 ? path.substr(path.size() - 5) : std::string();
     for (auto* s : {&ext, &ext5})
         for (char& ch : *s) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
-    auto impl = std::make_unique<Impl>();
-    if (ext == ".glb" || ext5 == ".gltf") {
-        TESSERA_TRY(detail::read_gltf(path, up, *impl));
-    } else if (ext == ".obj") {
-        TESSERA_TRY(detail::read_obj(path, up, *impl));
-    } else {
+    const bool gltf = ext == ".glb" || ext5 == ".gltf";
+    if (!gltf && ext != ".obj")
         return make_error(Errc::invalid_argument, "scene '" + path + "': not an OBJ (.obj) or glTF 2.0 (.gltf, .glb) file");
+    const std::string kind = gltf ? "glTF" : "OBJ";
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec)) return make_error(Errc::not_found, kind + " file '" + path + "' does not exist");
+    if (std::filesystem::is_directory(path, ec)) return make_error(Errc::invalid_argument, kind + " file '" + path + "' is a directory");
+    auto impl = std::make_unique<Impl>();
+    if (gltf) {
+        TESSERA_TRY(detail::read_gltf(path, up, *impl));
+    } else {
+        TESSERA_TRY(detail::read_obj(path, up, *impl));
     }
     return AtlasSceneInput(std::move(impl));
 }

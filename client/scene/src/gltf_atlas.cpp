@@ -221,8 +221,6 @@ struct ColourTexture {
 
 Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
     std::error_code ec;
-    if (!fs::exists(path, ec)) return make_error(Errc::not_found, "glTF file '" + path + "' does not exist");
-    if (fs::is_directory(path, ec)) return make_error(Errc::invalid_argument, "glTF file '" + path + "' is a directory");
     const fs::path folder = fs::path(path).parent_path();
     const std::string file_name = fs::path(path).filename().string();
 

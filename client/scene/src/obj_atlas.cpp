@@ -22,9 +22,6 @@ std::uint8_t to_byte(double v) { return static_cast<std::uint8_t>(std::lround(st
 }  // namespace
 
 Status read_obj(const std::string& obj_path, UpAxis up, AtlasInputData& data) {
-    std::error_code ec;
-    if (!fs::exists(obj_path, ec)) return make_error(Errc::not_found, "OBJ file '" + obj_path + "' does not exist");
-    if (fs::is_directory(obj_path, ec)) return make_error(Errc::invalid_argument, "OBJ file '" + obj_path + "' is a directory");
     const fs::path folder = fs::path(obj_path).parent_path();
     tinyobj::ObjReaderConfig config;
     config.triangulate = true;
