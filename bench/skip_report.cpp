@@ -22,8 +22,8 @@
 #include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
-#include "tessera/client/scene/cpu_feedback.hpp"
-#include "tessera/client/scene/visibility.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/scene/visibility.hpp"
 #include "tessera/storage/store_reader.hpp"
 
 namespace {

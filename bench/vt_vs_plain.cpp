@@ -42,8 +42,8 @@
 #include "tessera/client/measures.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
-#include "tessera/client/scene/path.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/path.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace {
 

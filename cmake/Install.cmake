@@ -9,6 +9,7 @@ include(CMakePackageConfigHelpers)
 # The libraries an embedding program links, and what they link privately (static libraries carry
 # their private dependencies to the final link). Exported under tessera::<short name>.
 set(tessera_exported
+  tessera_core:core
   tessera_storage:storage
   tessera_blocks:blocks
   tessera_protocol_gen:protocol_gen
@@ -33,17 +34,17 @@ install(TARGETS ${tessera_export_targets} EXPORT TesseraTargets
 # Public headers only. The protocol's headers stay out: they include the generated protobuf and
 # gRPC code, which no embedding program should have to see. So do the builder's, the remote
 # stores' and the JSON description's, whose libraries are not part of the package.
-install(DIRECTORY storage/include/ storage/blocks/include/ client/include/ client/net/include/ client/scene/include/
-                  client/gl/include/
+install(DIRECTORY core/include/ storage/include/ storage/blocks/include/ client/include/ client/net/include/
+                  scene/include/ client/gl/include/
   DESTINATION ${CMAKE_INSTALL_INCLUDEDIR} COMPONENT dev
   FILES_MATCHING PATTERN "*.hpp"
   PATTERN "builder.hpp" EXCLUDE
   PATTERN "atlas.hpp" EXCLUDE
   PATTERN "remote_source.hpp" EXCLUDE
   PATTERN "store_json.hpp" EXCLUDE)
-# client/scene's atlas.hpp is public (the scene's atlas layout); only the builder's is excluded above.
-install(FILES client/scene/include/tessera/client/scene/atlas.hpp
-  DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}/tessera/client/scene COMPONENT dev)
+# scene/'s atlas.hpp is public (the scene's atlas layout); only the builder's is excluded above.
+install(FILES scene/include/tessera/scene/atlas.hpp
+  DESTINATION ${CMAKE_INSTALL_INCLUDEDIR}/tessera/scene COMPONENT dev)
 
 set(tessera_cmake_dir ${CMAKE_INSTALL_LIBDIR}/cmake/Tessera)
 install(EXPORT TesseraTargets NAMESPACE tessera:: DESTINATION ${tessera_cmake_dir} COMPONENT dev)

@@ -25,8 +25,8 @@
 #include "tessera/client/measures.hpp"
 #include "tessera/client/open_source.hpp"
 #include "tessera/client/runtime.hpp"
-#include "tessera/client/scene/path.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/path.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/storage/png_encode.hpp"
 

@@ -15,7 +15,7 @@
 #include <string>
 #include <vector>
 
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "atlas_test_util.hpp"

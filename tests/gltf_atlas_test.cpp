@@ -21,7 +21,7 @@
 
 #include "atlas_test_util.hpp"
 #include "server_process.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/storage/png_encode.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"

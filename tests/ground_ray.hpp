@@ -3,7 +3,7 @@
 #include <cmath>
 #include <cstdint>
 
-#include "tessera/client/scene/camera.hpp"
+#include "tessera/scene/camera.hpp"
 
 namespace tessera::test {
 

@@ -15,9 +15,9 @@ import subprocess
 import sys
 
 FORBIDDEN = ("/google/protobuf/", "/grpcpp/", "/grpc/", "/absl/", "tessera.pb.h", "tessera.grpc.pb.h")
-INCLUDE_DIRS = ("storage/include", "client/include", "client/net/include", "client/scene/include",
+INCLUDE_DIRS = ("core/include", "storage/include", "client/include", "client/net/include", "scene/include",
                 "client/gl/include")
-HEADER_ROOTS = ("client/include", "client/net/include", "client/scene/include", "client/gl/include")
+HEADER_ROOTS = ("core/include", "client/include", "client/net/include", "scene/include", "client/gl/include")
 
 
 def dependencies(cxx: str, src: pathlib.Path, header: pathlib.Path, include_dirs=None) -> list[str]:

@@ -33,8 +33,8 @@
 #include "procedural_source.hpp"
 #include "tessera/client/runtime.hpp"
 #include "residency.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace {

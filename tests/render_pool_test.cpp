@@ -10,7 +10,7 @@
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 #include "render_util.hpp"
 #include "test_util.hpp"
 

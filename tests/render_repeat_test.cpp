@@ -25,7 +25,7 @@
 #include "tessera/client/gl/reference_renderer.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/measures.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/storage/png_encode.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"

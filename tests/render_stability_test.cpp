@@ -20,8 +20,8 @@
 #include "render_util.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "page_table.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace {

@@ -16,8 +16,8 @@
 #include "ground_ray.hpp"
 #include "tessera/client/gl/context.hpp"
 #include "tessera/client/gl/renderer.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/storage/types.hpp"
 
 // A current headless GL 4.5 context named `ctx`, or the test fails with the reason.

@@ -15,8 +15,8 @@
 #include "tessera/client/gl/frame_loop.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/runtime.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/storage/types.hpp"
 

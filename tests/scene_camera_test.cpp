@@ -5,7 +5,7 @@
 #include <cmath>
 #include <numbers>
 
-#include "tessera/client/scene/camera.hpp"
+#include "tessera/scene/camera.hpp"
 
 namespace {
 

@@ -8,15 +8,15 @@
 #include <set>
 #include <tuple>
 
-#include "tessera/client/scene/cpu_feedback.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
 
 namespace {
 
 using namespace tessera::scene;
-using tessera::client::FeedbackId;
-using tessera::client::kNoPage;
-using tessera::client::PageKey;
-using tessera::client::unpack_feedback;
+using tessera::FeedbackId;
+using tessera::kNoPage;
+using tessera::PageKey;
+using tessera::unpack_feedback;
 constexpr double kPi = std::numbers::pi;
 
 using PageSet = std::set<std::tuple<int, std::uint32_t, std::uint32_t>>;  // level, x, y
@@ -295,7 +295,7 @@ TEST(CpuFeedback, AgreesWithAPlainImplementationOfTheRule) {
                     const std::uint32_t L = wanted_level(lod, p.rule.filter, vt.levels);
                     const auto px = static_cast<std::uint64_t>(std::floor(std::ldexp(hu, -int(L)))) / P;
                     const auto py = static_cast<std::uint64_t>(std::floor(std::ldexp(hv, -int(L)))) / P;
-                    want = tessera::client::pack_feedback(PageKey{p.texture, static_cast<std::uint8_t>(L), static_cast<std::uint32_t>(px),
+                    want = tessera::pack_feedback(PageKey{p.texture, static_cast<std::uint8_t>(L), static_cast<std::uint32_t>(px),
                                                                   static_cast<std::uint32_t>(py)});
                 }
                 const FeedbackId got = fb[j * p.fb_width + i];

@@ -1,11 +1,11 @@
-// The shared LoD rule (tessera/client/scene/lod.hpp): known derivatives per filter, anisotropy, bias,
+// The shared LoD rule (tessera/scene/lod.hpp): known derivatives per filter, anisotropy, bias,
 // clamping and the NaN / infinity / zero cases.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <limits>
 
-#include "tessera/client/scene/lod.hpp"
+#include "tessera/scene/lod.hpp"
 
 namespace {
 

@@ -8,8 +8,8 @@
 #include <numbers>
 #include <set>
 
-#include "tessera/client/scene/cpu_feedback.hpp"
-#include "tessera/client/scene/path.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/scene/path.hpp"
 #include "test_util.hpp"
 
 namespace {
@@ -290,12 +290,12 @@ TEST(Path, DiveNeedsEveryLevel) {
     params.main_height = 720;
     params.fb_width = 160;
     params.fb_height = 90;
-    std::vector<tessera::client::FeedbackId> fb;
+    std::vector<tessera::FeedbackId> fb;
     std::set<int> levels;
     for (double t = 0; t <= dive->duration(); t += 0.25) {
         cpu_feedback(dive->at(t), vt, params, fb);
         for (auto id : fb)
-            if (id != tessera::client::kNoPage) levels.insert(tessera::client::unpack_feedback(id).level);
+            if (id != tessera::kNoPage) levels.insert(tessera::unpack_feedback(id).level);
     }
     EXPECT_EQ(levels.size(), 8u);
     EXPECT_EQ(*levels.begin(), 0);

@@ -29,9 +29,9 @@
 #include "feedback_analysis.hpp"
 #include "tessera/client/page.hpp"
 #include "page_table.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/cpu_feedback.hpp"
-#include "tessera/client/scene/lod.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/scene/lod.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace {

@@ -7,9 +7,9 @@
 #include <iterator>
 #include <set>
 
-#include "tessera/client/scene/cpu_feedback.hpp"
-#include "tessera/client/scene/path.hpp"
-#include "tessera/client/scene/visibility.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/scene/path.hpp"
+#include "tessera/scene/visibility.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"
 
@@ -72,12 +72,12 @@ TEST_F(Visibility, KeepsExactlyTheWantedLevel0PagesAndTheirNeighbours) {
     p.fb_width = 40;
     p.fb_height = 23;
     std::set<std::pair<std::int64_t, std::int64_t>> wanted;
-    std::vector<tessera::client::FeedbackId> ids;
+    std::vector<tessera::FeedbackId> ids;
     for (int f = 0; f <= 10; ++f) {
         sc::cpu_feedback(path->at(f / 10.0), geo, p, ids);
         for (auto id : ids) {
-            if (id == tessera::client::kNoPage) continue;
-            const auto k = tessera::client::unpack_feedback(id);
+            if (id == tessera::kNoPage) continue;
+            const auto k = tessera::unpack_feedback(id);
             if (k.level != 0) continue;
             for (int dy = -1; dy <= 1; ++dy)
                 for (int dx = -1; dx <= 1; ++dx) wanted.emplace(std::int64_t(k.x) + dx, std::int64_t(k.y) + dy);

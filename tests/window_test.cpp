@@ -21,7 +21,7 @@
 #include "tessera/client/gl/hud.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "page_table.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 #include "render_util.hpp"
 
 namespace {

@@ -9,7 +9,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "tessera/client/scene/atlas.hpp"
+#include "tessera/scene/atlas.hpp"
 #include "tessera/storage/image_source.hpp"
 
 namespace tessera::tools {

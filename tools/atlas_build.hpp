@@ -9,7 +9,7 @@
 
 #include <array>
 
-#include "tessera/client/scene/atlas.hpp"
+#include "tessera/scene/atlas.hpp"
 #include "tessera/result.hpp"
 #include "tessera/storage/atlas.hpp"
 #include "tessera/storage/builder.hpp"

@@ -10,7 +10,7 @@
 #include "commands.hpp"
 #include "progress.hpp"
 #include "store_summary.hpp"
-#include "tessera/client/scene/visibility.hpp"
+#include "tessera/scene/visibility.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_writer.hpp"

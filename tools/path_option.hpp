@@ -5,7 +5,7 @@
 
 #include <string>
 
-#include "tessera/client/scene/path.hpp"
+#include "tessera/scene/path.hpp"
 
 namespace tessera::tools {
 

@@ -26,7 +26,7 @@
 #include "failure.hpp"
 #include "progress.hpp"
 #include "svg_plot.hpp"
-#include "tessera/client/scene/path.hpp"
+#include "tessera/scene/path.hpp"
 #include "tessera/storage/builder.hpp"
 #include "viewer_session.hpp"
 

@@ -42,9 +42,9 @@
 #include "tessera/client/stats.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/client/net/tile_stream_client.hpp"
-#include "tessera/client/scene/cpu_feedback.hpp"
-#include "tessera/client/scene/path.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/scene/path.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::tools {
 

@@ -7,7 +7,7 @@
 #include <memory>
 #include <optional>
 
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/storage/types.hpp"
 

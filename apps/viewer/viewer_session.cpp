@@ -34,8 +34,8 @@
 #include "tessera/client/open_source.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
-#include "tessera/client/scene/path.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/path.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::tools {
 namespace {

@@ -20,7 +20,7 @@
 //   UV over the whole virtual texture.
 // - Level L has ceil(size / 2^L) texels per side; the continuous level-L coordinate of level-0
 //   coordinate t is t / 2^L (texel i of level L covers [i, i + 1), centre i + 0.5), as GL mips.
-// - The LoD rule is tessera/client/scene/lod.hpp, line for line (vt_lod, vt_wanted_level).
+// - The LoD rule is tessera/scene/lod.hpp, line for line (vt_lod, vt_wanted_level).
 // - Page-table entry as the renderer uploads it (tessera/client/page_table_layout.hpp's, with the slot
 //   replaced by its atlas cell): bit 31 valid, bits 24..28 resident level R, bits 0..11 atlas
 //   column, bits 12..23 atlas row; R > L: fallback to the ancestor at level R. 0: nothing resident.
@@ -149,7 +149,7 @@ float vt_faded_fraction(uint e, float fraction) { return 1.0 - vt_fade_weight(e)
 #endif
 
 // ---------------------------------------------------------------------------------------------
-// The LoD rule (tessera/client/scene/lod.hpp). dx, dy: derivatives of the level-0 texel coordinate per
+// The LoD rule (tessera/scene/lod.hpp). dx, dy: derivatives of the level-0 texel coordinate per
 // pixel of the main colour target.
 float vt_lod(vec2 dx, vec2 dy) {
     float rho_x = sqrt(dx.x * dx.x + dx.y * dx.y);

@@ -8,8 +8,8 @@
 #include "gl_util.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/result.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::client::gl::detail {
 

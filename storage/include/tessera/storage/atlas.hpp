@@ -1,6 +1,6 @@
 #pragma once
 // Many images packed into one: the image side of `tessera build --atlas` (the OBJ side is
-// tessera/client/scene/atlas.hpp). The atlas is one more ImageSource, read top to bottom in strips like any
+// tessera/scene/atlas.hpp). The atlas is one more ImageSource, read top to bottom in strips like any
 // other, so a build never holds more than the strips of the images the current rows cross.
 //
 // Layout (docs/atlas.md): every image gets a cell of (image + 2 x padding) texels rounded up to a

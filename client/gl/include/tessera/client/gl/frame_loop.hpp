@@ -13,7 +13,7 @@
 
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/runtime.hpp"
-#include "tessera/client/scene/camera.hpp"
+#include "tessera/scene/camera.hpp"
 #include "tessera/client/stats.hpp"
 
 namespace tessera::client::gl {

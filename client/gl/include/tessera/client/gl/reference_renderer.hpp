@@ -9,8 +9,8 @@
 
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/measures.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/result.hpp"
 
 namespace tessera::client::gl {

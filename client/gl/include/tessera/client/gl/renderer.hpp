@@ -15,7 +15,7 @@
 // origin) plus the border; bilinear, trilinear (one lookup: the atlas holds each page's next
 // coarser level) or anisotropic (explicit trilinear taps along the major axis, up to 8, looked up
 // in the 2x2 pages around the centre: four fetches per pixel) filtering.
-// Levels (the rule is tessera/client/scene/lod.hpp; the GLSL mirrors it): `lod` = log2 of the level-0
+// Levels (the rule is tessera/scene/lod.hpp; the GLSL mirrors it): `lod` = log2 of the level-0
 // texels per main-target pixel (anisotropic: of max(minor, major / max_anisotropy)) + bias;
 // bilinear samples level clamp(floor(lod + 0.5), 0, levels - 1); trilinear and anisotropic look up
 // floor(lod) and floor(lod) + 1 of the lod clamped to [0, levels - 1], blended by its fraction.
@@ -31,8 +31,8 @@
 
 #include "tessera/client/upload.hpp"
 #include "tessera/result.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
 #include "tessera/storage/types.hpp"
 
 namespace tessera::client::gl {

@@ -5,7 +5,7 @@
 #include <cmath>
 #include <numbers>
 
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::scene {
 namespace {

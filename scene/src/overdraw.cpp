@@ -2,7 +2,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::scene {
 

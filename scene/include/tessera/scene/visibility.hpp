@@ -12,9 +12,9 @@
 #include <vector>
 
 #include "tessera/result.hpp"
-#include "tessera/client/scene/cpu_feedback.hpp"
-#include "tessera/client/scene/path.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
+#include "tessera/scene/path.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::scene {
 

@@ -12,10 +12,10 @@
 #include <cstdint>
 #include <vector>
 
-#include "tessera/client/page.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/lod.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/page_key.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/lod.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::scene {
 
@@ -30,12 +30,12 @@ struct CpuFeedbackParams {
     std::uint32_t fb_width = 0, fb_height = 0;
     float bias = 0;
     LodRule rule;
-    client::TextureId texture = 0;
+    TextureId texture = 0;
 };
 
 // Per pixel: the page wanted (kNoPage where the ray misses the plane or lands outside the
 // texture [0, width) x [0, height), or hits it from below). `out` is resized to fb_width*fb_height.
 void cpu_feedback(const Camera& camera, const VtGeometry& vt, const CpuFeedbackParams& params,
-                  std::vector<client::FeedbackId>& out);
+                  std::vector<FeedbackId>& out);
 
 }  // namespace tessera::scene

@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "tessera/result.hpp"
-#include "tessera/client/scene/camera.hpp"
+#include "tessera/scene/camera.hpp"
 
 namespace tessera::scene {
 

@@ -1,5 +1,5 @@
 // The double-precision camera: its frame, the view rotation and the GL projection.
-#include "tessera/client/scene/camera.hpp"
+#include "tessera/scene/camera.hpp"
 
 #include <algorithm>
 #include <cmath>

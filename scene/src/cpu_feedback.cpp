@@ -1,7 +1,7 @@
 // The feedback buffer of a flat terrain view, on the CPU: one ray per feedback pixel, intersected
 // with the plane z = 0 in double precision, and the shared LoD rule. Allocation-free once `out`
 // has its size: the load tester calls it every frame for every simulated viewer.
-#include "tessera/client/scene/cpu_feedback.hpp"
+#include "tessera/scene/cpu_feedback.hpp"
 
 #include <algorithm>
 #include <array>
@@ -22,10 +22,10 @@ constexpr double kThresholdBand = 1e-5;
 }  // namespace
 
 void cpu_feedback(const Camera& camera, const VtGeometry& vt, const CpuFeedbackParams& params,
-                  std::vector<client::FeedbackId>& out) {
+                  std::vector<FeedbackId>& out) {
     const std::uint32_t fbw = params.fb_width, fbh = params.fb_height;
     out.resize(std::size_t(fbw) * fbh);
-    std::fill(out.begin(), out.end(), client::kNoPage);
+    std::fill(out.begin(), out.end(), kNoPage);
     const double pz = camera.position[2];
     // From below (or on) the plane the terrain is back-facing: nothing is requested.
     if (fbw == 0 || fbh == 0 || params.main_width == 0 || params.main_height == 0 || vt.width == 0 || vt.height == 0 ||
@@ -34,9 +34,9 @@ void cpu_feedback(const Camera& camera, const VtGeometry& vt, const CpuFeedbackP
 
     // Per level: pages per axis (level L is ceil(size / 2^L) texels wide), the page's side in
     // level-0 texels, and the threshold on q from which the level is wanted.
-    const std::uint32_t levels = std::clamp<std::uint32_t>(vt.levels, 1, client::kMaxLevels);
-    std::array<std::uint64_t, client::kMaxLevels> pages_x{}, pages_y{};
-    std::array<double, client::kMaxLevels> page_texels{}, inv_page_texels{}, threshold{};
+    const std::uint32_t levels = std::clamp<std::uint32_t>(vt.levels, 1, kMaxLevels);
+    std::array<std::uint64_t, kMaxLevels> pages_x{}, pages_y{};
+    std::array<double, kMaxLevels> page_texels{}, inv_page_texels{}, threshold{};
     const SampleFilter filter = params.rule.filter;
     const double offset = filter == SampleFilter::bilinear ? 0.5 : 0.0;
     for (std::uint32_t l = 0; l < levels; ++l) {
@@ -85,7 +85,7 @@ void cpu_feedback(const Camera& camera, const VtGeometry& vt, const CpuFeedbackP
         // The difference one main pixel down, linear in nx: (t1 a1 - t0 a0) + (t1 - t0) nx sx r.
         const double dudy0 = t1 * ax1 - t0 * ax0, dvdy0 = t1 * ay1 - t0 * ay0;
         const double dudy1 = (t1 - t0) * sx * r[0], dvdy1 = (t1 - t0) * sx * r[1];
-        client::FeedbackId* row = out.data() + std::size_t(j) * fbw;
+        FeedbackId* row = out.data() + std::size_t(j) * fbw;
         std::uint32_t level = 0;
         for (std::uint32_t i = 0; i < fbw; ++i) {
             const double nx = (i + 0.5) * nx_step - 1.0;
@@ -106,7 +106,7 @@ void cpu_feedback(const Camera& camera, const VtGeometry& vt, const CpuFeedbackP
                 wanted = wanted_level(lod_from_derivatives(dudx, dvdx, dudy, dvdy, params.rule) + params.bias, filter, levels);
             const std::uint64_t x = page_of(tu, wanted, pages_x[wanted]);
             const std::uint64_t y = page_of(tv, wanted, pages_y[wanted]);
-            row[i] = client::pack_feedback(client::PageKey{params.texture, static_cast<std::uint8_t>(wanted),
+            row[i] = pack_feedback(PageKey{params.texture, static_cast<std::uint8_t>(wanted),
                                                            static_cast<std::uint32_t>(x), static_cast<std::uint32_t>(y)});
         }
     }

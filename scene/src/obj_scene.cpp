@@ -9,7 +9,7 @@
 #include <fstream>
 #include <unordered_map>
 
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::scene {
 namespace {

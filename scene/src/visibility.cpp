@@ -1,10 +1,10 @@
-#include "tessera/client/scene/visibility.hpp"
+#include "tessera/scene/visibility.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
 
-#include "tessera/client/page.hpp"
+#include "tessera/page_key.hpp"
 
 namespace tessera::scene {
 
@@ -17,7 +17,7 @@ namespace {
 
 PageSet empty_set(const VtGeometry& vt) {
     PageSet s;
-    const std::uint32_t levels = std::clamp<std::uint32_t>(vt.levels, 1, client::kMaxLevels);
+    const std::uint32_t levels = std::clamp<std::uint32_t>(vt.levels, 1, kMaxLevels);
     for (std::uint32_t l = 0; l < levels; ++l) {
         const std::uint64_t w = (std::uint64_t(vt.width) + (std::uint64_t(1) << l) - 1) >> l;
         const std::uint64_t h = (std::uint64_t(vt.height) + (std::uint64_t(1) << l) - 1) >> l;
@@ -40,15 +40,15 @@ PageSet pages_wanted(const std::vector<CameraPath>& paths, const VtGeometry& vt,
     params.main_height = o.view_height;
     params.fb_width = (o.view_width + 7) / 8;
     params.fb_height = (o.view_height + 7) / 8;
-    std::vector<client::FeedbackId> ids;
+    std::vector<FeedbackId> ids;
     for (const CameraPath& path : paths) {
         const double d = path.duration();
         const auto frames = static_cast<std::uint64_t>(std::floor(d * o.fps + 1e-9));
         for (std::uint64_t f = 0; f <= frames; ++f) {
             cpu_feedback(path.at(std::min(d, double(f) / o.fps)), vt, params, ids);
-            for (const client::FeedbackId id : ids) {
-                if (id == client::kNoPage) continue;
-                const client::PageKey k = client::unpack_feedback(id);
+            for (const FeedbackId id : ids) {
+                if (id == kNoPage) continue;
+                const PageKey k = unpack_feedback(id);
                 if (k.level < s.wanted.size() && k.x < s.tiles_x[k.level] && k.y < s.tiles_y[k.level])
                     s.wanted[k.level][std::size_t(k.y) * s.tiles_x[k.level] + k.x] = 1;
             }

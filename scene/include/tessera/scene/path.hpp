@@ -18,8 +18,8 @@
 #include <vector>
 
 #include "tessera/result.hpp"
-#include "tessera/client/scene/camera.hpp"
-#include "tessera/client/scene/scene.hpp"
+#include "tessera/scene/camera.hpp"
+#include "tessera/scene/scene.hpp"
 
 namespace tessera::scene {
 

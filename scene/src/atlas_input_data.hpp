@@ -8,7 +8,7 @@
 #include <unordered_map>
 #include <vector>
 
-#include "tessera/client/scene/atlas.hpp"
+#include "tessera/scene/atlas.hpp"
 
 namespace tessera::scene::detail {
 

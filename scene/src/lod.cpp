@@ -1,5 +1,5 @@
 // The LoD rule (lod.hpp): client/gl/shaders/vt_sample.glsl mirrors these lines.
-#include "tessera/client/scene/lod.hpp"
+#include "tessera/scene/lod.hpp"
 
 #include <algorithm>
 #include <cmath>

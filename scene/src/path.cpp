@@ -1,5 +1,5 @@
 // Camera paths: keyframes, their text format (docs/paths.md), interpolation and the built-ins.
-#include "tessera/client/scene/path.hpp"
+#include "tessera/scene/path.hpp"
 
 #include <algorithm>
 #include <charconv>
