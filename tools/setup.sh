@@ -27,8 +27,14 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev  # small; the build configures its tests even when it does not build them
   python3
 )
-test_packages=(
+# What only the tests need. The build itself needs clang (the fuzz sub-build) and npm (server/web's
+# OpenSeadragon goes into the build); the rest is needed only when the tests run, so it installs
+# in the background while the build compiles (apt and npm wait on the network and the disk, the
+# compiler on the CPUs).
+test_build_packages=(
   clang libclang-rt-14-dev           # libFuzzer targets
+)
+test_run_packages=(
   xvfb xauth                          # windowed-mode tests on an X server without a display
   imagemagick openimageio-tools       # tests read images other tools wrote (alpha conventions, formats)
   assimp-testmodels gltfpack          # real glTF 2.0 scenes (Khronos samples, meshoptimizer's packer) for the atlas tests
@@ -37,34 +43,73 @@ test_packages=(
   nginx-light                         # remote stores over plain HTTP range requests (tests)
   chromium                            # the web viewer, tested in a real headless browser
 )
-((tests)) && packages+=("${test_packages[@]}")
-missing=()
-for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
+((tests)) && packages+=("${test_build_packages[@]}")
+
+# The packages of `$@` that are not installed, into the array `missing`.
+find_missing() {
+  missing=()
+  for p in "$@"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+}
+apt_updated=0
+apt_install() {  # quietly; apt-get update once per run
+  export DEBIAN_FRONTEND=noninteractive
+  ((apt_updated)) || { apt-get update -qq; apt_updated=1; }
+  apt-get install -y -qq --no-install-recommends "$@" >/dev/null
+}
+npm_ci() {  # $1: a folder with a package-lock.json; only when the lock changed
+  if [[ ! -f $1/node_modules/.package-lock.json || $1/package-lock.json -nt $1/node_modules/.package-lock.json ]]; then
+    echo "setup: installing $1's packages from npm"
+    (cd "$1" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
+  fi
+}
+
+find_missing "${packages[@]}"
 # Node and npm for the web side: OpenSeadragon (built into the server's web viewer) and the test
 # tools (an S3 server, a headless-browser driver); any installed npm will do.
 ((tests)) && { command -v npm >/dev/null 2>&1 || missing+=(nodejs npm); }
 if ((${#missing[@]})); then
   echo "setup: installing ${missing[*]}"
-  export DEBIAN_FRONTEND=noninteractive
-  apt-get update -qq
-  apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  apt_install "${missing[@]}"
 fi
 
-# The npm packages (each package-lock.json pins them), when a lock changed: server/web holds
-# OpenSeadragon, which the build puts into the server's web viewer; tests/npm what the tests drive.
-# Without npm (the demo's setup on a fresh machine) the web viewer is built without OpenSeadragon
-# and its page says so; `--tests` installs both.
-if command -v npm >/dev/null 2>&1; then
-  for dir in server/web tests/npm; do
-    ((tests)) || [[ $dir == server/web ]] || continue
-    if [[ ! -f $dir/node_modules/.package-lock.json || $dir/package-lock.json -nt $dir/node_modules/.package-lock.json ]]; then
-      echo "setup: installing $dir's packages from npm"
-      (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
+# The npm packages (each package-lock.json pins them): server/web holds OpenSeadragon, which the
+# build puts into the server's web viewer. Without npm (the demo's setup on a fresh machine) the
+# web viewer is built without OpenSeadragon and its page says so; `--tests` installs it.
+command -v npm >/dev/null 2>&1 && npm_ci server/web
+
+# With --tests: the packages only the test run needs (and tests/npm, what the tests drive), in the
+# background while the build runs; its output goes to build/setup-test-packages.log.
+background=""
+if ((tests)); then
+  find_missing "${test_run_packages[@]}"
+  mkdir -p build
+  (
+    if ((${#missing[@]})); then
+      echo "setup: installing ${missing[*]}"
+      apt_install "${missing[@]}"
     fi
-  done
+    npm_ci tests/npm
+  ) > build/setup-test-packages.log 2>&1 &
+  background=$!
+  echo "setup: installing the test-only packages in the background (build/setup-test-packages.log)"
 fi
+# The build's exit status, then the background install's: both must succeed.
+finish() {
+  local rc=$1
+  if [[ -n $background ]]; then
+    if ! wait "$background"; then
+      echo "setup: installing the test-only packages failed:" >&2
+      cat build/setup-test-packages.log >&2
+      rc=1
+    else
+      cat build/setup-test-packages.log
+    fi
+  fi
+  exit "$rc"
+}
+trap 'finish 1' ERR
 
 build_type=${TESSERA_BUILD_TYPE:-RelWithDebInfo}
 if ((tests)); then
@@ -78,3 +123,4 @@ else
   cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE="$build_type" -DTESSERA_FUZZ=$fuzz ${TESSERA_CMAKE_ARGS:-} >/dev/null
   cmake --build build --parallel "$(nproc)" --target tessera
 fi
+finish 0
