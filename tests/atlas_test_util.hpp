@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "tessera/storage/codec.hpp"
+#include "tessera/storage/layers.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"
 
@@ -34,27 +35,40 @@ inline void expect_one_line_error(const RunResult& r) {
     EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
 }
 
-// Level-0 texels of an 8-bit store, tile by tile (decoded once each): the first three channels.
+// Level-0 texels of an 8-bit store, tile by tile (decoded once each): the first three channels;
+// of a multi-layer store, those of one layer.
 class AtlasTexels {
 public:
-    explicit AtlasTexels(std::shared_ptr<storage::StoreReader> r) : reader_(std::move(r)) {}
-    const storage::StoreInfo& info() const { return reader_->info(); }
+    explicit AtlasTexels(std::shared_ptr<storage::StoreReader> r, std::size_t layer = 0)
+        : reader_(std::move(r)), layer_(layer), info_(storage::layer_store_info(reader_->info(), layer)) {}
+    const storage::StoreInfo& info() const { return info_; }
     std::array<std::uint8_t, 3> at(std::uint32_t x, std::uint32_t y) {
-        const storage::StoreInfo& s = reader_->info();
+        const storage::StoreInfo& s = info_;
         const std::uint32_t P = s.tile_payload, B = s.border, T = s.tile_size();
         const TileKey key{0, x / P, y / P};
         auto& tile = tiles_[{key.x, key.y}];
         if (tile.empty()) {
             auto t = reader_->read_tile(key);
             EXPECT_TRUE(t.ok());
-            EXPECT_TRUE(storage::decode_tile(s, *t, tile).ok());
+            if (!t.ok()) return {};
+            storage::Tile part = *t;
+            if (reader_->info().layered() && t->kind == TileKind::present) {
+                auto parts = storage::split_layers(reader_->info(), t->bytes);
+                EXPECT_TRUE(parts.ok());
+                if (!parts.ok() || layer_ >= parts->size()) return {};
+                part = storage::layer_tile(key, (*parts)[layer_]);
+            }
+            EXPECT_TRUE(storage::decode_tile(s, part, tile).ok());
         }
         const std::size_t i = ((std::size_t(y % P) + B) * T + (x % P) + B) * s.channels;
+        if (i + 2 >= tile.size()) return {};
         return {tile[i], tile[i + 1], tile[i + 2]};
     }
 
 private:
     std::shared_ptr<storage::StoreReader> reader_;
+    std::size_t layer_ = 0;
+    storage::StoreInfo info_;
     std::map<std::pair<std::uint32_t, std::uint32_t>, std::vector<std::uint8_t>> tiles_;
 };
 

@@ -30,6 +30,7 @@ namespace {
 
 namespace fs = std::filesystem;
 namespace storage = tessera::storage;
+using tessera::Codec;
 using tessera::test::AtlasTexels;
 using tessera::test::entries;
 using tessera::test::expect_one_line_error;
@@ -185,7 +186,9 @@ TEST_F(GltfAtlas, OneSceneBinaryOrEmbeddedGivesOneAtlas) {
 
 TEST_F(GltfAtlas, KhronosSamplesBuildAndLoad) {
     // A texture transform test card, a scene of many nodes and colour-only materials, a scene with
-    // normal and clear-coat maps (only base colour is packed: the build says so), two coordinate sets.
+    // normal, metallic-roughness and emissive maps (packed into layers; its clear-coat maps and
+    // BLEND are not kept: the build says so), two coordinate sets (the map on the second is not
+    // packed: the build says so).
     struct Case {
         std::string file;
         std::size_t min_triangles;
@@ -311,6 +314,170 @@ TEST_F(GltfAtlas, EveryPointGetsTheTexelGltfSamplingGives) {
     EXPECT_GE(compared, 1000);
 }
 
+// A material's maps go into layers of their own (docs/atlas.md, "Material layers"), in the cell its
+// base colour has: two quads side by side, one with a base colour, a normal map of the same size, a
+// metallic-roughness map of half the size (resampled), a grey occlusion map and an emissive map;
+// the other with a base colour only, whose cells in the other layers hold its factors. Every sampled point of each
+// layer is checked against the texel glTF's sampling gives, computed here from the images.
+TEST_F(GltfAtlas, MaterialMapsGoToLayersOfTheirOwn) {
+    const int W = 40, H = 24;
+    auto image = [](int w, int h, auto fn) {
+        std::vector<std::uint8_t> rgb(std::size_t(w) * h * 3);
+        for (int y = 0; y < h; ++y)
+            for (int x = 0; x < w; ++x) {
+                const std::array<std::uint8_t, 3> t = fn(x, y);
+                std::memcpy(&rgb[(std::size_t(y) * w + x) * 3], t.data(), 3);
+            }
+        return rgb;
+    };
+    auto distinct = [](int salt) {
+        return [salt](int x, int y) {
+            return std::array<std::uint8_t, 3>{std::uint8_t(x * 6 + salt), std::uint8_t(y * 10 + salt),
+                                               std::uint8_t((x * 37 + y * 101 + salt) % 251)};
+        };
+    };
+    const auto base = image(W, H, distinct(0)), normal = image(W, H, distinct(3)), base2 = image(W, H, distinct(5));
+    const auto mr = image(W / 2, H / 2, [](int x, int y) { return std::array<std::uint8_t, 3>{0, std::uint8_t(x * 12), std::uint8_t(y * 20)}; });
+    std::vector<std::uint8_t> occlusion(std::size_t(W) * H);  // grey: one channel
+    for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) occlusion[std::size_t(y) * W + x] = std::uint8_t(255 - x * 3 - y * 2);
+    // Smooth, so that the emissive layer's JPEG stays close.
+    const auto emissive = image(W, H, [](int x, int y) { return std::array<std::uint8_t, 3>{std::uint8_t(40 + x * 4), std::uint8_t(60 + y * 5), 90}; });
+    auto png = [](const std::vector<std::uint8_t>& rgb, int w, int h) {
+        auto p = storage::encode_png({std::uint32_t(w), std::uint32_t(h), 3, storage::SampleType::u8, storage::ColourSpace::srgb, rgb});
+        EXPECT_TRUE(p.ok());
+        return "data:image/png;base64," + base64(*p);
+    };
+    auto grey = storage::encode_png({std::uint32_t(W), std::uint32_t(H), 1, storage::SampleType::u8, storage::ColourSpace::srgb, occlusion});
+    ASSERT_TRUE(grey.ok());
+    const std::string grey_png = "data:image/png;base64," + base64(*grey);
+    // Quad A at x in [0, 1], quad B at x in [2, 3]; (u, v) = (x - x0, y) with glTF's v down.
+    const float pos[8][3] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}, {2, 0, 0}, {3, 0, 0}, {3, 1, 0}, {2, 1, 0}};
+    const float uv[8][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}, {0, 0}, {1, 0}, {1, 1}, {0, 1}};
+    const std::uint16_t idx[12] = {0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7};
+    std::vector<std::uint8_t> buffer(sizeof pos + sizeof uv + sizeof idx);
+    std::memcpy(buffer.data(), pos, sizeof pos);
+    std::memcpy(buffer.data() + sizeof pos, uv, sizeof uv);
+    std::memcpy(buffer.data() + sizeof pos + sizeof uv, idx, sizeof idx);
+    nlohmann::json j = {
+        {"asset", {{"version", "2.0"}}},
+        {"scene", 0},
+        {"scenes", {{{"nodes", {0}}}}},
+        {"nodes", {{{"mesh", 0}}}},
+        {"meshes",
+         {{{"primitives",
+            {{{"attributes", {{"POSITION", 0}, {"TEXCOORD_0", 1}}}, {"indices", 2}, {"material", 0}},
+             {{"attributes", {{"POSITION", 0}, {"TEXCOORD_0", 1}}}, {"indices", 3}, {"material", 1}}}}}}},
+        {"materials",
+         {{{"name", "mapped"},
+           {"normalTexture", {{"index", 1}}},
+           {"emissiveTexture", {{"index", 3}}},
+           {"occlusionTexture", {{"index", 5}}},
+           {"emissiveFactor", {1, 1, 1}},
+           {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}, {"metallicRoughnessTexture", {{"index", 2}}}}}},
+          {{"name", "plain"},
+           {"emissiveFactor", {0.2, 0.4, 0.6}},
+           {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 4}}}, {"metallicFactor", 0.25}, {"roughnessFactor", 0.75}}}}}},
+        {"textures", {{{"source", 0}}, {{"source", 1}}, {{"source", 2}}, {{"source", 3}}, {{"source", 4}}, {{"source", 5}}}},
+        {"images",
+         {{{"uri", png(base, W, H)}},
+          {{"uri", png(normal, W, H)}},
+          {{"uri", png(mr, W / 2, H / 2)}},
+          {{"uri", png(emissive, W, H)}},
+          {{"uri", png(base2, W, H)}},
+          {{"uri", grey_png}}}},
+        {"buffers", {{{"byteLength", buffer.size()}, {"uri", "data:application/octet-stream;base64," + base64(buffer)}}}},
+        {"bufferViews",
+         {{{"buffer", 0}, {"byteOffset", 0}, {"byteLength", sizeof pos}},
+          {{"buffer", 0}, {"byteOffset", sizeof pos}, {"byteLength", sizeof uv}},
+          {{"buffer", 0}, {"byteOffset", sizeof pos + sizeof uv}, {"byteLength", sizeof idx / 2}},
+          {{"buffer", 0}, {"byteOffset", sizeof pos + sizeof uv + sizeof idx / 2}, {"byteLength", sizeof idx / 2}}}},
+        {"accessors",
+         {{{"bufferView", 0}, {"componentType", 5126}, {"count", 8}, {"type", "VEC3"}, {"min", {0, 0, 0}}, {"max", {3, 1, 0}}},
+          {{"bufferView", 1}, {"componentType", 5126}, {"count", 8}, {"type", "VEC2"}},
+          {{"bufferView", 2}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}},
+          {{"bufferView", 3}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}}}}};
+    const std::string scene = dir_.file("maps.gltf");
+    const std::string text = j.dump();
+    write_file(scene, std::vector<std::uint8_t>(text.begin(), text.end()));
+    const RunResult r = build(scene, "maps");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_EQ(r.out.find("warning"), std::string::npos) << r.out;
+
+    auto reader = storage::StoreReader::open(dir_.file("out/maps.tsr"));
+    ASSERT_TRUE(reader.ok()) << reader.error().message;
+    const storage::StoreInfo& info = (*reader)->info();
+    ASSERT_EQ(info.layers.size(), 5u);
+    const char* names[] = {"base", "normal", "metallic_roughness", "occlusion", "emissive"};
+    for (std::size_t l = 0; l < 5; ++l) EXPECT_EQ(info.layers[l].name, names[l]);
+    for (std::size_t l = 1; l <= 3; ++l) {  // data: values as they are, lossless
+        EXPECT_EQ(info.layers[l].colour_space, storage::ColourSpace::linear) << names[l];
+        EXPECT_EQ(info.layers[l].codec, Codec::zstd) << names[l];
+    }
+    EXPECT_EQ(info.layers[4].colour_space, storage::ColourSpace::srgb);
+
+    // Bilinear upsampling by 2 of the half-size map, edges clamped: what the cell must hold.
+    auto upsampled = [&](int x, int y, int c) {
+        auto axis = [](int o, int n, int& i0, int& i1, double& w) {
+            const double s = (o + 0.5) / 2 - 0.5;
+            const double f = std::floor(s);
+            w = s - f;
+            i0 = std::clamp(int(f), 0, n - 1);
+            i1 = std::clamp(int(f) + 1, 0, n - 1);
+        };
+        int x0, x1, y0, y1;
+        double wx, wy;
+        axis(x, W / 2, x0, x1, wx);
+        axis(y, H / 2, y0, y1, wy);
+        auto at = [&](int xx, int yy) { return double(mr[(std::size_t(yy) * (W / 2) + xx) * 3 + c]); };
+        return (1 - wy) * ((1 - wx) * at(x0, y0) + wx * at(x1, y0)) + wy * ((1 - wx) * at(x0, y1) + wx * at(x1, y1));
+    };
+    auto srgb_byte = [](double v) {
+        v = v <= 0.0031308 ? v * 12.92 : 1.055 * std::pow(v, 1 / 2.4) - 0.055;
+        return int(std::lround(v * 255));
+    };
+    std::vector<std::unique_ptr<AtlasTexels>> layers;
+    std::vector<std::unique_ptr<PlanarAtlasLookup>> lookups;
+    for (std::size_t l = 0; l < 5; ++l) {
+        layers.push_back(std::make_unique<AtlasTexels>(*reader, l));
+        lookups.push_back(std::make_unique<PlanarAtlasLookup>(dir_.file("out/maps.obj"), *layers.back()));
+    }
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    int compared = 0, emissive_max_error = 0;
+    for (int i = 0; i < 3000 && compared < 1200; ++i) {
+        const bool second = i % 2 == 1;
+        const double u = unit(rng), v = unit(rng);
+        auto frac_ok = [](double f) { return std::abs(f - std::round(f)) > 0.02; };
+        if (!frac_ok(u * W) || !frac_ok(v * H)) continue;
+        const int tx = int(u * W), ty = int(v * H);
+        const std::size_t t = (std::size_t(ty) * W + tx) * 3;
+        std::array<std::optional<std::array<std::uint8_t, 3>>, 5> got;
+        for (std::size_t l = 0; l < 5; ++l) got[l] = lookups[l]->at((second ? 2 : 0) + u, v);
+        if (!got[0] || !got[1] || !got[2] || !got[3] || !got[4]) continue;
+        const auto& b = second ? base2 : base;
+        ASSERT_EQ(*got[0], (std::array<std::uint8_t, 3>{b[t], b[t + 1], b[t + 2]})) << "base at " << tx << "," << ty;
+        if (!second) {
+            ASSERT_EQ(*got[1], (std::array<std::uint8_t, 3>{normal[t], normal[t + 1], normal[t + 2]})) << "normal at " << tx << "," << ty;
+            for (int c = 0; c < 3; ++c)
+                ASSERT_NEAR((*got[2])[std::size_t(c)], upsampled(tx, ty, c), 1.0) << "metallic_roughness at " << tx << "," << ty << " channel " << c;
+            const std::uint8_t o = occlusion[std::size_t(ty) * W + tx];  // grey, replicated
+            ASSERT_EQ(*got[3], (std::array<std::uint8_t, 3>{o, o, o})) << "occlusion at " << tx << "," << ty;
+            for (int c = 0; c < 3; ++c)
+                emissive_max_error = std::max(emissive_max_error, std::abs(int((*got[4])[std::size_t(c)]) - int(emissive[t + std::size_t(c)])));
+        } else {  // no maps: the flat normal, the factors
+            ASSERT_EQ(*got[1], (std::array<std::uint8_t, 3>{128, 128, 255}));
+            ASSERT_EQ(*got[2], (std::array<std::uint8_t, 3>{0, 191, 64}));  // roughness 0.75, metallic 0.25
+            ASSERT_EQ(*got[3], (std::array<std::uint8_t, 3>{255, 255, 255}));
+            const std::array<std::uint8_t, 3> e = {std::uint8_t(srgb_byte(0.2)), std::uint8_t(srgb_byte(0.4)), std::uint8_t(srgb_byte(0.6))};
+            for (std::size_t c = 0; c < 3; ++c) ASSERT_NEAR((*got[4])[c], e[c], 2) << "emissive factor";
+        }
+        ++compared;
+    }
+    EXPECT_GE(compared, 800);
+    EXPECT_LE(emissive_max_error, 8);  // JPEG, the emissive layer's default codec
+}
+
 // Sixty textures through gltfpack (Debian's meshoptimizer tool, as engines' pipelines use it): it
 // rewrites the scene with quantised positions and texture coordinates (KHR_mesh_quantization,
 // undone by node transforms and KHR_texture_transform) and puts the images inside the GLB. Every
@@ -425,6 +592,12 @@ TEST_F(GltfAtlas, ScenesItCannotReadFailAndLeaveNothing) {
     expect_fails(dir_.file("box/BoxTextured.gltf"), "material 'Texture': texture");
     write_file(dir_.file("box/CesiumLogoFlat.png"), std::vector<std::uint8_t>(300, 0x5a));
     expect_fails(dir_.file("box/BoxTextured.gltf"), "material 'Texture'");
+    // A material map (a layer's image) that is missing, and one OpenImageIO cannot read.
+    fs::copy(kSamples / "ClearCoat-glTF", dir_.file("coat"));
+    fs::remove(dir_.file("coat/RibsNormal.png"));
+    expect_fails(dir_.file("coat/ClearCoatTest.gltf"), "RibsNormal.png' does not exist");
+    write_file(dir_.file("coat/RibsNormal.png"), std::vector<std::uint8_t>(300, 0x5a));
+    expect_fails(dir_.file("coat/ClearCoatTest.gltf"), "RibsNormal.png");
     // An embedded image that is not an image: named as the scene's image, not a temporary file.
     auto text = read_file((kSamples / "BoxTextured-glTF-Embedded/BoxTextured.gltf").string());
     nlohmann::json j = nlohmann::json::parse(std::string(text.begin(), text.end()));

@@ -95,36 +95,67 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
     const auto& refs = input->images();
     TempFolder embedded_images(store);
 
-    // Open every texture now: a missing or unreadable one fails before any work is done.
-    std::vector<storage::AtlasItem> items(refs.size());
-    std::vector<storage::AtlasImageSize> sizes(refs.size());
-    for (std::size_t i = 0; i < refs.size(); ++i) {
-        const scene::AtlasImageRef& r = refs[i];
-        if (r.texture.empty()) {
-            items[i].colour = r.colour;
-            sizes[i] = {kSolidTileTexels, kSolidTileTexels};
-            continue;
-        }
-        std::string file = r.texture;
-        if (r.embedded) {
-            auto written = embedded_images.write(*r.embedded, r.embedded_extension);
+    // Open every texture and map now: a missing or unreadable one fails before any work is done.
+    auto open = [&](const scene::AtlasImageRef& r, const scene::AtlasMapRef& m) -> Result<std::unique_ptr<storage::ImageSource>> {
+        std::string file = m.texture;
+        if (m.embedded) {
+            auto written = embedded_images.write(*m.embedded, m.embedded_extension);
             if (!written) return written.error();
             file = *written;
         }
         std::error_code ec;
         if (!fs::is_regular_file(file, ec))
-            return make_error(Errc::not_found, material_list(r) + ": texture '" + r.texture + "' does not exist");
+            return make_error(Errc::not_found, material_list(r) + ": texture '" + m.texture + "' does not exist");
         auto src = storage::open_image_source(file);
         if (!src) {
             std::string message = src.error().message;
-            if (r.embedded)  // name the image in the scene, not the temporary file
-                if (auto at = message.find(file); at != std::string::npos) message.replace(at, file.size(), r.texture);
+            if (m.embedded)  // name the image in the scene, not the temporary file
+                if (auto at = message.find(file); at != std::string::npos) message.replace(at, file.size(), m.texture);
             return make_error(src.error().code, material_list(r) + ": " + message);
         }
-        sizes[i] = {(*src)->info().width, (*src)->info().height};
-        items[i].source = std::move(*src);
+        return src;
+    };
+    // The material layers this scene has: a role any cell has a map for (docs/atlas.md, "Material layers").
+    std::vector<std::size_t> roles;
+    for (std::size_t role = 0; role < scene::kMapRoles; ++role)
+        if (std::any_of(refs.begin(), refs.end(), [&](const auto& r) { return !r.maps[role].texture.empty(); })) roles.push_back(role);
+    std::vector<storage::AtlasItem> items(refs.size());
+    std::vector<std::vector<storage::AtlasItem>> map_items(roles.size());
+    for (auto& layer : map_items) layer.resize(refs.size());
+    std::vector<storage::AtlasImageSize> sizes(refs.size());
+    for (std::size_t i = 0; i < refs.size(); ++i) {
+        const scene::AtlasImageRef& r = refs[i];
+        if (r.solid()) {
+            sizes[i] = {kSolidTileTexels, kSolidTileTexels};
+        } else if (!r.texture.empty()) {
+            auto src = open(r, r);
+            if (!src) return src.error();
+            sizes[i] = {(*src)->info().width, (*src)->info().height};
+            items[i].source = std::move(*src);
+        }
+        items[i].colour = r.colour;
         items[i].wrap = r.repeats;
         items[i].opaque = r.opaque;
+        for (std::size_t k = 0; k < roles.size(); ++k) {
+            storage::AtlasItem& item = map_items[k][i];
+            item.colour = r.map_values[roles[k]];
+            item.wrap = r.repeats;
+            item.opaque = true;
+            const scene::AtlasMapRef& m = r.maps[roles[k]];
+            if (m.texture.empty()) continue;
+            auto src = open(r, m);
+            if (!src) return src.error();
+            if (sizes[i].width == 0) sizes[i] = {(*src)->info().width, (*src)->info().height};  // no colour texture: the first map's size
+            item.source = std::move(*src);
+        }
+        // Maps of another size than the cell are resampled to it.
+        for (std::size_t k = 0; k < roles.size(); ++k) {
+            storage::AtlasItem& item = map_items[k][i];
+            if (!item.source || (item.source->info().width == sizes[i].width && item.source->info().height == sizes[i].height)) continue;
+            auto resized = storage::make_resized_source(std::move(item.source), sizes[i].width, sizes[i].height);
+            if (!resized) return make_error(resized.error().code, material_list(r) + ": " + resized.error().message);
+            item.source = std::move(*resized);
+        }
     }
     auto layout = storage::pack_atlas(sizes, pack);
     if (!layout) return layout.error();
@@ -153,7 +184,29 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
 
     auto source = storage::make_atlas_source(std::move(items), *layout);
     if (!source) return source.error();
-    auto built = storage::build_store(**source, store, options, progress);
+    Result<storage::BuildSummary> built = make_error(Errc::invalid_argument, "not built");
+    std::vector<std::string> layer_names;
+    if (roles.empty()) {
+        built = storage::build_store(**source, store, options, progress);
+    } else {
+        // One layer per role beside the colour ("base"): normal, metallic-roughness and occlusion
+        // maps are data (values kept, lossless zstd), the emissive map colour (sRGB, as the base).
+        std::vector<storage::LayerSource> layers;
+        layers.push_back(storage::LayerSource{"base", std::move(*source), options.codec});
+        layer_names.push_back("base");
+        for (std::size_t k = 0; k < roles.size(); ++k) {
+            const bool colour = roles[k] == std::size_t(scene::MapRole::emissive);
+            auto layer = storage::make_atlas_source(std::move(map_items[k]), *layout,
+                                                    colour ? storage::AtlasTexels::colour : storage::AtlasTexels::data);
+            if (!layer) return layer.error();
+            layers.push_back(storage::LayerSource{scene::kMapLayerNames[roles[k]], std::move(*layer),
+                                                  colour ? std::optional<Codec>{} : std::optional<Codec>{Codec::zstd}});
+            layer_names.push_back(scene::kMapLayerNames[roles[k]]);
+        }
+        storage::BuildOptions layered = options;
+        layered.codec.reset();
+        built = storage::build_layered_store(std::move(layers), store, layered, progress);
+    }
     if (!built) return built.error();
     {
         char id_line[64];
@@ -177,6 +230,9 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
     AtlasBuildSummary s;
     s.build = std::move(*built);
     s.images = refs.size();
+    s.layers = std::move(layer_names);
+    for (const auto& r : refs)
+        for (const auto& m : r.maps) s.maps += m.texture.empty() ? 0 : 1;
     s.triangles = input->triangle_count();
     s.repeat_pieces = input->repeat_piece_count();
     s.up = input->up_axis();

@@ -25,6 +25,8 @@ struct AtlasBuildSummary {
     scene::UpAxis up = scene::UpAxis::y;  // resolved
     std::array<double, 3> extent{0, 0, 0};  // the scene's extent along x, y, z
     std::vector<std::string> warnings;  // what of the scene the atlas does not keep (AtlasSceneInput::warnings)
+    std::vector<std::string> layers;    // a glTF scene with material maps: the store's layers ("base", then by role); else empty
+    std::size_t maps = 0;               // material maps packed into those layers
 };
 
 // A material without a texture becomes a solid tile this many texels wide (before padding).

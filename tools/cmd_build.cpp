@@ -140,6 +140,8 @@ int run_build(BuildArgs& a) {
             if (s.repeating_images > 0)
                 fmt::print("{} repeating textures (padding wraps around); {} triangles are pieces cut at their repeats\n",
                            s.repeating_images, s.repeat_pieces);
+            if (!s.layers.empty())
+                fmt::print("material layers {} ({} maps; docs/atlas.md, \"Material layers\")\n", fmt::join(s.layers, ", "), s.maps);
             fmt::print("wrote {} (texture coordinates in the atlas, v down)\n", a.obj_out);
             print_store_summary(a.output, s.build.info);
         }

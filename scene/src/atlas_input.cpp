@@ -296,7 +296,7 @@ Result<std::string> AtlasSceneInput::rewrite(std::span<const AtlasRect> rects, s
         faces += "o " + (s.name.empty() ? std::string("shape") : s.name) + "\n";
         for (const detail::Triangle& t : s.triangles) {
             const AtlasRect& r = rects[t.image];
-            const bool solid = m.images[t.image].texture.empty();
+            const bool solid = m.images[t.image].solid();
             faces += "f";
             for (const detail::Corner& c : t.c) {
                 // Texel position in the atlas; OBJ's v points up, the atlas's rows down: flip.

@@ -13,6 +13,7 @@
 #include <functional>
 #include <map>
 #include <set>
+#include <tuple>
 
 #include "atlas_input_data.hpp"
 
@@ -246,9 +247,7 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
                                                      ", which tessera build does not read (write the scene without it first, "
                                                      "e.g. with gltf-transform)");
 
-    // Materials: their base colour texture (or colour) and how it is sampled.
-    std::map<int, std::uint32_t> image_of_gltf_image;  // glTF image -> atlas image
-    std::map<std::array<std::uint8_t, 3>, std::uint32_t> image_of_colour;
+    // Materials: their base colour texture (or colour), their other maps, and how they are sampled.
     std::set<std::string> warned;
     auto warn_once = [&](const std::string& w) {
         if (warned.insert(w).second) data.warnings.push_back(w);
@@ -258,72 +257,146 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
         const std::string& n = model.materials[static_cast<std::size_t>(m)].name;
         return n.empty() ? "material " + std::to_string(m) : n;
     };
+    // A material's texture reference (any of tinygltf's TextureInfo kinds): its image, texture
+    // coordinate set, sampler wrap modes and KHR_texture_transform; image -1 when there is none.
+    auto texture_of = [&](const auto& info, const std::string& name, const std::string& role) -> Result<ColourTexture> {
+        ColourTexture t;
+        if (info.index < 0) return t;
+        if (static_cast<std::size_t>(info.index) >= model.textures.size())
+            return make_error(Errc::corrupt, "glTF '" + path + "', material '" + name + "': texture " + std::to_string(info.index) +
+                                                 " does not exist");
+        const tinygltf::Texture& tex = model.textures[static_cast<std::size_t>(info.index)];
+        if (tex.source < 0) {
+            std::string by = tex.extensions.empty() ? std::string("no image") : "only the extension " + tex.extensions.begin()->first;
+            return make_error(Errc::unsupported, "glTF '" + path + "', material '" + name + "': its " + role + " texture has " + by +
+                                                     ", which tessera build does not read");
+        }
+        if (static_cast<std::size_t>(tex.source) >= model.images.size())
+            return make_error(Errc::corrupt, "glTF '" + path + "', material '" + name + "': image " + std::to_string(tex.source) +
+                                                 " does not exist");
+        t.image = tex.source;
+        t.texcoord = info.texCoord;
+        if (tex.sampler >= 0 && static_cast<std::size_t>(tex.sampler) < model.samplers.size()) {
+            t.wrap[0] = wrap_of(model.samplers[static_cast<std::size_t>(tex.sampler)].wrapS);
+            t.wrap[1] = wrap_of(model.samplers[static_cast<std::size_t>(tex.sampler)].wrapT);
+        }
+        if (auto x = info.extensions.find("KHR_texture_transform"); x != info.extensions.end()) {
+            const tinygltf::Value& v = x->second;
+            if (v.Has("offset") && v.Get("offset").ArrayLen() == 2)
+                for (int k = 0; k < 2; ++k) t.offset[k] = v.Get("offset").Get(k).GetNumberAsDouble();
+            if (v.Has("scale") && v.Get("scale").ArrayLen() == 2)
+                for (int k = 0; k < 2; ++k) t.scale[k] = v.Get("scale").Get(k).GetNumberAsDouble();
+            if (v.Has("rotation")) t.rotation = v.Get("rotation").GetNumberAsDouble();
+            if (v.Has("texCoord")) t.texcoord = v.Get("texCoord").GetNumberAsInt();
+        }
+        return t;
+    };
+    // A glTF image as the atlas names it: its file, or its bytes when it is inside the scene.
+    auto map_ref_of = [&](int gltf_image) {
+        AtlasMapRef ref;
+        const tinygltf::Image& img = model.images[static_cast<std::size_t>(gltf_image)];
+        if (auto e = embedded.bytes.find(gltf_image); e != embedded.bytes.end()) {
+            ref.texture = file_name + " image " + std::to_string(gltf_image) + (img.name.empty() ? "" : " '" + img.name + "'");
+            ref.embedded = e->second;
+            ref.embedded_extension = extension_of_mime(img.mimeType);
+        } else {
+            fs::path p = uri_decode(img.uri);
+            if (p.is_relative()) p = folder / p;
+            ref.texture = p.lexically_normal().string();
+        }
+        return ref;
+    };
+    auto same_coordinates = [](const ColourTexture& a, const ColourTexture& b) {
+        return a.texcoord == b.texcoord && a.offset[0] == b.offset[0] && a.offset[1] == b.offset[1] && a.scale[0] == b.scale[0] &&
+               a.scale[1] == b.scale[1] && a.rotation == b.rotation;
+    };
+    auto byte_of = [](double v) { return static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 1.0) * 255.0)); };
+
     struct MaterialImage {
         std::uint32_t image = 0;
-        ColourTexture texture;
+        ColourTexture texture;  // the texture whose coordinates the cell follows
         bool textured = false;
     };
+    // One cell per distinct (colour texture or colour, maps, values where maps are missing).
+    using CellKey = std::tuple<int, std::array<std::uint8_t, 3>, std::array<int, kMapRoles>,
+                               std::array<std::array<std::uint8_t, 3>, kMapRoles>>;
+    std::map<CellKey, std::uint32_t> cells;
     std::map<int, MaterialImage> material_images;
     auto material_image = [&](int m) -> Result<MaterialImage> {
         if (auto it = material_images.find(m); it != material_images.end()) return it->second;
         MaterialImage mi;
+        AtlasImageRef cell;  // what this material's cell holds
+        std::array<int, kMapRoles> map_images;
+        map_images.fill(-1);
         std::vector<double> factor = {1, 1, 1, 1};
         const std::string name = material_name(m);
+        bool opaque = true;
         if (m >= 0 && static_cast<std::size_t>(m) < model.materials.size()) {
             const tinygltf::Material& mat = model.materials[static_cast<std::size_t>(m)];
-            factor = mat.pbrMetallicRoughness.baseColorFactor;
-            const tinygltf::TextureInfo& info = mat.pbrMetallicRoughness.baseColorTexture;
-            if (info.index >= 0) {
-                if (static_cast<std::size_t>(info.index) >= model.textures.size())
-                    return make_error(Errc::corrupt, "glTF '" + path + "', material '" + name + "': texture " + std::to_string(info.index) +
-                                                         " does not exist");
-                const tinygltf::Texture& tex = model.textures[static_cast<std::size_t>(info.index)];
-                if (tex.source < 0) {
-                    std::string by = tex.extensions.empty() ? std::string("no image") : "only the extension " + tex.extensions.begin()->first;
-                    return make_error(Errc::unsupported, "glTF '" + path + "', material '" + name + "': its base colour texture has " + by +
-                                                             ", which tessera build does not read");
-                }
-                if (static_cast<std::size_t>(tex.source) >= model.images.size())
-                    return make_error(Errc::corrupt, "glTF '" + path + "', material '" + name + "': image " + std::to_string(tex.source) +
-                                                         " does not exist");
+            const tinygltf::PbrMetallicRoughness& pbr = mat.pbrMetallicRoughness;
+            factor = pbr.baseColorFactor;
+            auto base = texture_of(pbr.baseColorTexture, name, "base colour");
+            if (!base) return base.error();
+            std::array<ColourTexture, kMapRoles> maps;
+            {
+                auto normal = texture_of(mat.normalTexture, name, "normal");
+                if (!normal) return normal.error();
+                auto mr = texture_of(pbr.metallicRoughnessTexture, name, "metallic-roughness");
+                if (!mr) return mr.error();
+                auto occlusion = texture_of(mat.occlusionTexture, name, "occlusion");
+                if (!occlusion) return occlusion.error();
+                auto emissive = texture_of(mat.emissiveTexture, name, "emissive");
+                if (!emissive) return emissive.error();
+                maps = {*normal, *mr, *occlusion, *emissive};
+            }
+            // The cell follows the colour texture's coordinates, or without one the first map's; a
+            // map that reads other coordinates cannot share the cell and is left out.
+            if (base->image >= 0) {
                 mi.textured = true;
-                mi.texture.image = tex.source;
-                mi.texture.texcoord = info.texCoord;
-                if (tex.sampler >= 0 && static_cast<std::size_t>(tex.sampler) < model.samplers.size()) {
-                    mi.texture.wrap[0] = wrap_of(model.samplers[static_cast<std::size_t>(tex.sampler)].wrapS);
-                    mi.texture.wrap[1] = wrap_of(model.samplers[static_cast<std::size_t>(tex.sampler)].wrapT);
-                }
-                if (auto t = info.extensions.find("KHR_texture_transform"); t != info.extensions.end()) {
-                    const tinygltf::Value& v = t->second;
-                    if (v.Has("offset") && v.Get("offset").ArrayLen() == 2)
-                        for (int k = 0; k < 2; ++k) mi.texture.offset[k] = v.Get("offset").Get(k).GetNumberAsDouble();
-                    if (v.Has("scale") && v.Get("scale").ArrayLen() == 2)
-                        for (int k = 0; k < 2; ++k) mi.texture.scale[k] = v.Get("scale").Get(k).GetNumberAsDouble();
-                    if (v.Has("rotation")) mi.texture.rotation = v.Get("rotation").GetNumberAsDouble();
-                    if (v.Has("texCoord")) mi.texture.texcoord = v.Get("texCoord").GetNumberAsInt();
-                }
-                const tinygltf::Image& img = model.images[static_cast<std::size_t>(tex.source)];
-                auto [it, inserted] = image_of_gltf_image.emplace(tex.source, static_cast<std::uint32_t>(data.images.size()));
-                if (inserted) {
-                    AtlasImageRef ref;
-                    if (auto e = embedded.bytes.find(tex.source); e != embedded.bytes.end()) {
-                        ref.texture = file_name + " image " + std::to_string(tex.source) + (img.name.empty() ? "" : " '" + img.name + "'");
-                        ref.embedded = e->second;
-                        ref.embedded_extension = extension_of_mime(img.mimeType);
-                    } else {
-                        fs::path p = uri_decode(img.uri);
-                        if (p.is_relative()) p = folder / p;
-                        ref.texture = p.lexically_normal().string();
+                mi.texture = *base;
+            } else {
+                for (const ColourTexture& t : maps)
+                    if (t.image >= 0) {
+                        mi.textured = true;
+                        mi.texture = t;
+                        break;
                     }
-                    data.images.push_back(std::move(ref));
+            }
+            for (std::size_t r = 0; r < kMapRoles; ++r) {
+                if (maps[r].image < 0) continue;
+                if (!same_coordinates(maps[r], mi.texture)) {
+                    warn_once("material '" + name + "': its " + std::string(kMapLayerNames[r]) +
+                              " map reads other texture coordinates than its base colour and is not packed");
+                    continue;
                 }
-                mi.image = it->second;
-                // Alpha: an image only OPAQUE materials draw loses it (glTF ignores it there);
-                // MASK and BLEND keep it, drawn as cut-outs at one half (docs/atlas.md, "Alpha").
-                AtlasImageRef& ref = data.images[mi.image];
-                const bool opaque = mat.alphaMode.empty() || mat.alphaMode == "OPAQUE";
-                if (inserted) ref.opaque = opaque;
-                else if (!opaque) ref.opaque = false;
+                map_images[r] = maps[r].image;
+                cell.maps[r] = map_ref_of(maps[r].image);
+            }
+            // Values where a map is missing; factors a map would be multiplied by are not applied.
+            const double metallic = pbr.metallicFactor, roughness = pbr.roughnessFactor;
+            cell.map_values[1] = {0, byte_of(roughness), byte_of(metallic)};
+            if (map_images[1] >= 0 && (metallic != 1 || roughness != 1))
+                warn_once("material '" + name + "': its metallicFactor and roughnessFactor are not applied to its metallic-roughness map");
+            if (map_images[2] >= 0 && mat.occlusionTexture.strength != 1)
+                warn_once("material '" + name + "': its occlusion strength is not applied to its occlusion map");
+            if (map_images[0] >= 0 && mat.normalTexture.scale != 1)
+                warn_once("material '" + name + "': its normal scale is not applied to its normal map");
+            double strength = 1;
+            if (auto x = mat.extensions.find("KHR_materials_emissive_strength"); x != mat.extensions.end() && x->second.Has("emissiveStrength"))
+                strength = x->second.Get("emissiveStrength").GetNumberAsDouble();
+            std::array<double, 3> emissive = {0, 0, 0};
+            for (std::size_t k = 0; k < 3 && k < mat.emissiveFactor.size(); ++k) emissive[k] = mat.emissiveFactor[k] * strength;
+            if (map_images[3] >= 0) {
+                if (emissive[0] != 1 || emissive[1] != 1 || emissive[2] != 1)
+                    warn_once("material '" + name + "': its emissiveFactor is not applied to its emissive map");
+                cell.map_values[3] = {0, 0, 0};
+            } else {
+                cell.map_values[3] = {linear_to_srgb_byte(emissive[0]), linear_to_srgb_byte(emissive[1]), linear_to_srgb_byte(emissive[2])};
+            }
+            // Alpha: an image only OPAQUE materials draw loses it (glTF ignores it there);
+            // MASK and BLEND keep it, drawn as cut-outs at one half (docs/atlas.md, "Alpha").
+            opaque = mat.alphaMode.empty() || mat.alphaMode == "OPAQUE";
+            if (base->image >= 0) {
                 if (mat.alphaMode == "BLEND")
                     warn_once("material '" + name + "': alphaMode BLEND is drawn as a cut-out at alpha 0.5");
                 else if (mat.alphaMode == "MASK" && std::abs(mat.alphaCutoff - 0.5) > 1e-6)
@@ -331,18 +404,25 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
                 if (factor.size() == 4 && (factor[0] != 1 || factor[1] != 1 || factor[2] != 1))
                     warn_once("material '" + name + "': its baseColorFactor is not applied to its texture (the atlas keeps the texture's colours)");
             }
-            if (mat.normalTexture.index >= 0 || mat.occlusionTexture.index >= 0 || mat.emissiveTexture.index >= 0 ||
-                mat.pbrMetallicRoughness.metallicRoughnessTexture.index >= 0)
-                warn_once("normal, metallic-roughness, occlusion and emissive maps are not packed (the atlas holds base colour)");
         }
-        if (!mi.textured) {
-            const std::array<std::uint8_t, 3> colour = {factor.size() >= 3 ? linear_to_srgb_byte(factor[0]) : std::uint8_t(255),
-                                                        factor.size() >= 3 ? linear_to_srgb_byte(factor[1]) : std::uint8_t(255),
-                                                        factor.size() >= 3 ? linear_to_srgb_byte(factor[2]) : std::uint8_t(255)};
-            auto [it, inserted] = image_of_colour.emplace(colour, static_cast<std::uint32_t>(data.images.size()));
-            if (inserted) data.images.emplace_back().colour = colour;
-            mi.image = it->second;
+        // A colour texture, or the material's colour (also behind maps without a colour texture).
+        const bool has_colour_texture = m >= 0 && static_cast<std::size_t>(m) < model.materials.size() &&
+                                        model.materials[static_cast<std::size_t>(m)].pbrMetallicRoughness.baseColorTexture.index >= 0;
+        const int colour_image = has_colour_texture ? mi.texture.image : -1;
+        if (colour_image < 0)
+            cell.colour = {factor.size() >= 3 ? linear_to_srgb_byte(factor[0]) : std::uint8_t(255),
+                           factor.size() >= 3 ? linear_to_srgb_byte(factor[1]) : std::uint8_t(255),
+                           factor.size() >= 3 ? linear_to_srgb_byte(factor[2]) : std::uint8_t(255)};
+        const CellKey key{colour_image, colour_image < 0 ? cell.colour : std::array<std::uint8_t, 3>{}, map_images, cell.map_values};
+        auto [it, inserted] = cells.emplace(key, static_cast<std::uint32_t>(data.images.size()));
+        if (inserted) {
+            if (colour_image >= 0) static_cast<AtlasMapRef&>(cell) = map_ref_of(colour_image);
+            cell.opaque = opaque;
+            data.images.push_back(std::move(cell));
+        } else if (!opaque) {
+            data.images[it->second].opaque = false;
         }
+        mi.image = it->second;
         data.images[mi.image].materials.push_back(name);
         material_images.emplace(m, mi);
         return mi;
@@ -502,13 +582,17 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
     if (skipped_primitives)
         data.warnings.push_back(std::to_string(skipped_primitives) + " primitives of points or lines are left out (the atlas scene holds triangles)");
 
-    // Every external texture must exist (tinygltf only warns).
-    for (const AtlasImageRef& ref : data.images)
-        if (!ref.texture.empty() && !ref.embedded && !fs::is_regular_file(ref.texture, ec)) {
-            std::string mats;
-            for (const auto& m : ref.materials) mats += (mats.empty() ? "'" : ", '") + m + "'";
-            return make_error(Errc::not_found, "glTF '" + path + "', material " + mats + ": texture '" + ref.texture + "' does not exist");
-        }
+    // Every external texture (and map) must exist (tinygltf only warns).
+    for (const AtlasImageRef& ref : data.images) {
+        std::vector<const AtlasMapRef*> files = {&ref};
+        for (const AtlasMapRef& m : ref.maps) files.push_back(&m);
+        for (const AtlasMapRef* f : files)
+            if (!f->texture.empty() && !f->embedded && !fs::is_regular_file(f->texture, ec)) {
+                std::string mats;
+                for (const auto& m : ref.materials) mats += (mats.empty() ? "'" : ", '") + m + "'";
+                return make_error(Errc::not_found, "glTF '" + path + "', material " + mats + ": texture '" + f->texture + "' does not exist");
+            }
+    }
     // glTF is Y up: `automatic` is y, not guessed from the shape as for OBJ.
     return finish_atlas_input(data, up == UpAxis::automatic ? UpAxis::y : up, "glTF '" + path + "'");
 }

@@ -38,7 +38,8 @@ std::uint64_t shelf_pack(const std::vector<AtlasCell>& cells, const std::vector<
 // as the atlas rows move down.
 class ItemReader {
 public:
-    ItemReader(AtlasItem item, const AtlasCell& cell, std::uint32_t channels) : item_(std::move(item)), cell_(cell), channels_(channels) {}
+    ItemReader(AtlasItem item, const AtlasCell& cell, std::uint32_t channels, AtlasTexels texels)
+        : item_(std::move(item)), cell_(cell), channels_(channels), data_(texels == AtlasTexels::data) {}
 
     // Row r (0 <= r < height) as the atlas's texels; rows are asked for in non-decreasing order,
     // except for a wrapping item, which is read whole on first use (its padding needs rows from
@@ -87,37 +88,15 @@ public:
 private:
     static constexpr std::uint32_t kStrip = 64;
 
-    float sample(const std::uint8_t* p, SampleType t) const {
-        switch (t) {
-            case SampleType::u8: return p[0] / 255.0f;
-            case SampleType::u16: {
-                std::uint16_t v;
-                std::memcpy(&v, p, 2);
-                return v / 65535.0f;
-            }
-            case SampleType::f16: {
-                std::uint16_t v;
-                std::memcpy(&v, p, 2);
-                return build::half_to_float(v);
-            }
-            case SampleType::f32: {
-                float v;
-                std::memcpy(&v, p, 4);
-                return v;
-            }
-        }
-        return 0;
-    }
-
     void convert(const std::uint8_t* in, std::uint8_t* out, const SourceInfo& si) const {
         const std::size_t sb = sample_bytes(si.sample_type), texel = si.channels * sb;
         const int colour_channels = si.channels >= 3 ? 3 : 1;  // grey (+ alpha) or RGB (+ alpha)
-        const bool plain = si.sample_type == SampleType::u8 && si.colour_space == ColourSpace::srgb;
-        const bool alpha = has_alpha(si) && !item_.opaque;
+        const bool plain = si.sample_type == SampleType::u8 && (data_ || si.colour_space == ColourSpace::srgb);
+        const bool alpha = has_alpha(si) && !item_.opaque && !data_;
         for (std::uint32_t x = 0; x < si.width; ++x, in += texel, out += channels_) {
             if (channels_ == 4) {  // alpha is linear: scaled, never sRGB-encoded; opaque without one
                 const std::uint8_t* s = in + (si.channels - 1) * sb;
-                double a = alpha ? sample(s, si.sample_type) : 1.0;
+                double a = alpha ? build::sample_value(s, si.sample_type) : 1.0;
                 if (!(a > 0)) a = 0;  // also NaN
                 if (a > 1) a = 1;
                 out[3] = alpha && si.sample_type == SampleType::u8 ? *s : static_cast<std::uint8_t>(std::lround(a * 255.0));
@@ -128,10 +107,10 @@ private:
                     out[c] = *s;
                     continue;
                 }
-                double v = sample(s, si.sample_type);
+                double v = build::sample_value(s, si.sample_type);
                 if (!(v > 0)) v = 0;  // also NaN
                 if (v > 1) v = 1;
-                if (si.colour_space == ColourSpace::linear) v = build::linear_to_srgb(v);
+                if (si.colour_space == ColourSpace::linear && !data_) v = build::linear_to_srgb(v);
                 out[c] = static_cast<std::uint8_t>(std::lround(v * 255.0));
             }
         }
@@ -140,6 +119,7 @@ private:
     AtlasItem item_;
     AtlasCell cell_;
     std::uint32_t channels_ = 3;
+    bool data_ = false;  // AtlasTexels::data: values as they are
     std::vector<std::uint8_t> raw_, strip_;
     std::uint32_t first_ = 0, count_ = 0, next_ = 0;
     bool done_ = false;
@@ -147,14 +127,15 @@ private:
 
 class AtlasSource final : public ImageSource {
 public:
-    AtlasSource(std::vector<ItemReader> items, const AtlasLayout& layout, std::uint32_t channels) : items_(std::move(items)) {
+    AtlasSource(std::vector<ItemReader> items, const AtlasLayout& layout, std::uint32_t channels, AtlasTexels texels)
+        : items_(std::move(items)) {
         info_.width = layout.width;
         info_.height = layout.height;
         info_.channels = channels;
         info_.has_alpha = channels == 4;
         info_.sample_type = SampleType::u8;
-        info_.colour_space = ColourSpace::srgb;
-        info_.description = "atlas of " + std::to_string(items_.size()) + " images (" + std::to_string(layout.width) + "x" +
+        info_.colour_space = texels == AtlasTexels::data ? ColourSpace::linear : ColourSpace::srgb;
+        info_.description = std::string(texels == AtlasTexels::data ? "data " : "") + "atlas of " + std::to_string(items_.size()) + " images (" + std::to_string(layout.width) + "x" +
                             std::to_string(layout.height) + ")";
         order_.resize(items_.size());
         std::iota(order_.begin(), order_.end(), std::size_t(0));
@@ -282,14 +263,14 @@ Result<AtlasLayout> pack_atlas(std::span<const AtlasImageSize> sizes, const Atla
     return layout;
 }
 
-Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> items, AtlasLayout layout) {
+Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> items, AtlasLayout layout, AtlasTexels texels) {
     if (items.size() != layout.cells.size())
         return make_error(Errc::invalid_argument, "atlas: " + std::to_string(items.size()) + " images for " +
                                                       std::to_string(layout.cells.size()) + " cells");
     // RGBA when any image has alpha (cut-outs), RGB otherwise.
     std::uint32_t channels = 3;
     for (const auto& item : items)
-        if (item.source && !item.opaque && ItemReader::has_alpha(item.source->info())) channels = 4;
+        if (texels == AtlasTexels::colour && item.source && !item.opaque && ItemReader::has_alpha(item.source->info())) channels = 4;
     std::vector<ItemReader> readers;
     readers.reserve(items.size());
     for (std::size_t i = 0; i < items.size(); ++i) {
@@ -307,9 +288,9 @@ Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> it
             c.x < c.cell_x || c.y < c.cell_y || std::uint64_t(c.x) + c.width > std::uint64_t(c.cell_x) + c.cell_width ||
             std::uint64_t(c.y) + c.height > std::uint64_t(c.cell_y) + c.cell_height || c.width == 0 || c.height == 0)
             return make_error(Errc::invalid_argument, "atlas: cell " + std::to_string(i) + " is inconsistent");
-        readers.emplace_back(std::move(items[i]), c, channels);
+        readers.emplace_back(std::move(items[i]), c, channels, texels);
     }
-    return std::unique_ptr<ImageSource>(new AtlasSource(std::move(readers), layout, channels));
+    return std::unique_ptr<ImageSource>(new AtlasSource(std::move(readers), layout, channels, texels));
 }
 
 }  // namespace tessera::storage

@@ -94,7 +94,6 @@ std::string size_text(const SourceInfo& si) { return std::to_string(si.width) + 
 
 Result<BuildSummary> build_layered_store(std::span<const LayerInput> layers, const std::string& output,
                                          const BuildOptions& opt, const BuildProgressFn& progress) {
-    const auto t0 = std::chrono::steady_clock::now();
     TESSERA_TRY(validate(opt));
     if (opt.codec)
         return make_error(Errc::invalid_argument,
@@ -106,13 +105,31 @@ Result<BuildSummary> build_layered_store(std::span<const LayerInput> layers, con
         if (const std::string why = layers_misfit(named, opt.tile_size, opt.border); !why.empty())
             return make_error(Errc::invalid_argument, why);
     }
-
-    std::vector<std::unique_ptr<ImageSource>> sources;
+    std::vector<LayerSource> sources;
     for (const LayerInput& l : layers) {
         auto s = open_image_source(l.input);
         if (!s) return make_error(s.error().code, "layer '" + l.name + "': " + s.error().message);
-        sources.push_back(std::move(*s));
+        sources.push_back(LayerSource{l.name, std::move(*s), l.codec});
     }
+    return build_layered_store(std::move(sources), output, opt, progress);
+}
+
+Result<BuildSummary> build_layered_store(std::vector<LayerSource> layers, const std::string& output, const BuildOptions& opt,
+                                         const BuildProgressFn& progress) {
+    const auto t0 = std::chrono::steady_clock::now();
+    TESSERA_TRY(validate(opt));
+    if (opt.codec)
+        return make_error(Errc::invalid_argument, "a layered build takes each layer's codec, not one for the store");
+    {
+        std::vector<LayerInfo> named;
+        for (const LayerSource& l : layers) named.push_back(LayerInfo{l.name, 1, SampleType::u8, ColourSpace::linear, Codec::raw});
+        if (const std::string why = layers_misfit(named, opt.tile_size, opt.border); !why.empty())
+            return make_error(Errc::invalid_argument, why);
+    }
+    for (const LayerSource& l : layers)
+        if (!l.source) return make_error(Errc::invalid_argument, "layer '" + l.name + "': no source");
+    std::vector<std::unique_ptr<ImageSource>> sources;
+    for (LayerSource& l : layers) sources.push_back(std::move(l.source));
     const SourceInfo& first = sources.front()->info();
     for (std::size_t i = 1; i < sources.size(); ++i) {
         const SourceInfo& si = sources[i]->info();

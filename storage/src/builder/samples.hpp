@@ -1,12 +1,15 @@
 #pragma once
-// Sample conversions used by the mip computation: IEEE half floats and the sRGB transfer curve.
+// Sample conversions used by the mip computation: IEEE half floats and the sRGB transfer curve;
+// and one sample of any type as a float (8- and 16-bit integers scaled to [0, 1]).
 // The formulas are normative (docs/store-format.md, "Mip levels"): tests recompute the pyramid
 // independently from them and expect identical bytes.
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 
 #include "tessera/half_float.hpp"
+#include "tessera/storage/types.hpp"
 
 namespace tessera::storage::build {
 
@@ -14,6 +17,30 @@ inline double srgb_to_linear(double v) { return v <= 0.04045 ? v / 12.92 : std::
 inline double linear_to_srgb(double v) { return v <= 0.0031308 ? v * 12.92 : 1.055 * std::pow(v, 1.0 / 2.4) - 0.055; }
 
 using tessera::half_to_float;  // shared with the client's transcoder
+
+// The sample at `p` (native byte order, any alignment) as a float: u8 / 255, u16 / 65535, halves
+// and floats as they are.
+inline float sample_value(const std::uint8_t* p, SampleType t) {
+    switch (t) {
+        case SampleType::u8: return p[0] / 255.0f;
+        case SampleType::u16: {
+            std::uint16_t v;
+            std::memcpy(&v, p, 2);
+            return v / 65535.0f;
+        }
+        case SampleType::f16: {
+            std::uint16_t v;
+            std::memcpy(&v, p, 2);
+            return half_to_float(v);
+        }
+        case SampleType::f32: {
+            float v;
+            std::memcpy(&v, p, 4);
+            return v;
+        }
+    }
+    return 0;
+}
 
 // Round to nearest, ties to even; overflow gives infinity; NaN stays NaN.
 inline std::uint16_t float_to_half(float f) {

@@ -20,18 +20,45 @@
 
 namespace tessera::scene {
 
-// One image the atlas needs: a material's colour texture (OBJ's map_Kd, glTF's baseColorTexture),
-// or a small solid tile of the material's colour (Kd, baseColorFactor) for a material without one.
-struct AtlasImageRef {
-    // The texture file, resolved against the scene's folder; for an image inside the scene (a GLB
-    // buffer view, a data URI) a name for messages ("scene.glb image 2 'bark'"). Empty: solid.
+// A glTF material's map other than its base colour, packed into a layer of its own (docs/atlas.md,
+// "Material layers"), in the same cell as the base colour.
+enum class MapRole : std::uint8_t { normal = 0, metallic_roughness = 1, occlusion = 2, emissive = 3 };
+inline constexpr std::size_t kMapRoles = 4;
+// The layer names, by MapRole, after the first layer ("base").
+inline constexpr std::array<const char*, kMapRoles> kMapLayerNames = {"normal", "metallic_roughness", "occlusion", "emissive"};
+
+// An image of the scene: a file, or one inside the scene (a GLB buffer view, a data URI).
+struct AtlasMapRef {
+    // The file, resolved against the scene's folder; for an image inside the scene a name for
+    // messages ("scene.glb image 2 'bark'"). Empty: no image.
     std::string texture;
     std::shared_ptr<const std::vector<std::uint8_t>> embedded;  // an image inside the scene: its file's bytes
     std::string embedded_extension;        // ".png", ".jpg", ...: the embedded bytes' format (from the MIME type)
-    std::array<std::uint8_t, 3> colour{};  // solid only: Kd as 8-bit values
+};
+
+// One cell of the atlas: a material's colour texture (OBJ's map_Kd, glTF's baseColorTexture), or
+// a small solid tile of the material's colour (Kd, baseColorFactor) for a material without one;
+// with a glTF material's other maps, which share its texture coordinates and its cell.
+struct AtlasImageRef : AtlasMapRef {
+    std::array<std::uint8_t, 3> colour{};  // no colour texture: the colour, 8-bit sRGB
     std::vector<std::string> materials;    // the materials that use this image (for messages)
     bool repeats = false;                  // texture coordinates leave [0, 1]: its cell's padding wraps around
     bool opaque = false;                   // its alpha is not used (every glTF material drawing it is OPAQUE)
+    // The material's maps by MapRole (an empty texture: none), and what a layer holds where a map
+    // is missing: the flat normal (128, 128, 255), metallic-roughness (0, roughnessFactor,
+    // metallicFactor) as 8-bit values, full occlusion (255), the emissive colour (emissiveFactor
+    // times KHR_materials_emissive_strength, clamped, 8-bit sRGB).
+    std::array<AtlasMapRef, kMapRoles> maps;
+    std::array<std::array<std::uint8_t, 3>, kMapRoles> map_values{
+        {{128, 128, 255}, {0, 255, 255}, {255, 255, 255}, {0, 0, 0}}};
+    // Whether the cell is one solid texel value (no colour texture and no map): its texture
+    // coordinates all go to its middle.
+    bool solid() const {
+        if (!texture.empty()) return false;
+        for (const auto& m : maps)
+            if (!m.texture.empty()) return false;
+        return true;
+    }
 };
 
 // Which OBJ axis points up. OBJ's convention is Y, but SketchUp and many CAD and GIS exports are Z

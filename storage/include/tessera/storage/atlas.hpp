@@ -62,6 +62,20 @@ struct AtlasItem {
 // The atlas as an 8-bit sRGB source, RGB, or RGBA with straight alpha when any item's source has
 // alpha (cut-outs; the other images and the texels no cell covers are opaque): items[i] fills
 // layout.cells[i] (a source must have that cell's image size). Each item's source is read once, top to bottom, as the atlas rows reach it.
-Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> items, AtlasLayout layout);
+//
+// AtlasTexels::data is for maps whose values are not colours (normal, metallic-roughness and
+// occlusion maps): every value is kept as it is (8-bit samples copied, others scaled to 8 bits,
+// never sRGB-encoded, whatever colour space the source declares), alpha is dropped, and the atlas
+// is RGB declared linear; a solid item's colour is written as given.
+enum class AtlasTexels { colour, data };
+Result<std::unique_ptr<ImageSource>> make_atlas_source(std::vector<AtlasItem> items, AtlasLayout layout,
+                                                       AtlasTexels texels = AtlasTexels::colour);
+
+// `source` resampled to width x height (a map of another size than the colour texture whose cell it
+// shares): on each axis, the mean of the texels an output texel covers when shrinking, bilinear
+// when growing, edges clamped. Samples become 32-bit floats in the source's colour space, with its
+// channels and alpha. The source is read whole on the first read (at most 2^24 texels, both sizes).
+Result<std::unique_ptr<ImageSource>> make_resized_source(std::unique_ptr<ImageSource> source, std::uint32_t width,
+                                                         std::uint32_t height);
 
 }  // namespace tessera::storage

@@ -4,6 +4,7 @@
 // need, so memory is bounded by the image width, not its area. Tiles are encoded on all cores.
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -106,6 +107,16 @@ struct LayerInput {
 // (layers with an alpha channel make absent parts; a tile absent in every layer is absent). On
 // any error nothing is left at `output`; the message names the layer at fault.
 Result<BuildSummary> build_layered_store(std::span<const LayerInput> layers, const std::string& output,
+                                         const BuildOptions& options, const BuildProgressFn& progress = {});
+
+// One layer given as an open source (the atlas build's layers are composed, not files).
+struct LayerSource {
+    std::string name;
+    std::unique_ptr<ImageSource> source;
+    std::optional<Codec> codec;  // default: jpeg for 8-bit grey/RGB, zstd otherwise
+};
+// The same over open sources; `options.codec` must be unset.
+Result<BuildSummary> build_layered_store(std::vector<LayerSource> layers, const std::string& output,
                                          const BuildOptions& options, const BuildProgressFn& progress = {});
 
 }  // namespace tessera::storage
