@@ -2,7 +2,7 @@
 # "runtime", declared beside their targets), and the client libraries as a CMake package
 # (component "dev"): headers, static libraries and TesseraConfig.cmake, so that an engine finds
 # them with find_package(Tessera) and links tessera::client, tessera::client_gl,
-# tessera::scene, tessera::storage (docs/client.md, "Embedding the client"; examples/ is such a program).
+# tessera::scene, tessera::storage, tessera::core (docs/client.md, "Embedding the client"; examples/ is such a program).
 include(GNUInstallDirs)
 include(CMakePackageConfigHelpers)
 

@@ -478,6 +478,28 @@ TEST_F(GltfAtlas, MaterialMapsGoToLayersOfTheirOwn) {
     EXPECT_LE(emissive_max_error, 8);  // JPEG, the emissive layer's default codec
 }
 
+// Khronos's ClearCoatTest, viewed over gRPC with the scene that travels with its store, one
+// material layer at a time: each matches the reference renderer (which decodes the same layer from
+// the store file) at 50 dB or better (docs/atlas.md, "Material layers").
+TEST_F(GltfAtlas, EveryMaterialLayerMatchesTheReferenceOverGrpc) {
+    ASSERT_EQ(build((kSamples / "ClearCoat-glTF/ClearCoatTest.gltf").string(), "coat").exit_code, 0);
+    ServerProcess server({"--store-dir", dir_.file("out")}, dir_.file("server.log"));
+    ASSERT_TRUE(server.running()) << server.log();
+    for (const char* layer : {"base", "normal", "metallic_roughness", "emissive"}) {
+        const RunResult r = run_tessera("view --store grpc://" + server.grpc_address() + "/coat --headless --size 192x128 --frames 24 --pool 128 " +
+                                        "--psnr-every 8 --reference-store " + q(dir_.file("out/coat.tsr")) + " --show-layer " + layer);
+        ASSERT_EQ(r.exit_code, 0) << layer << "\n" << r.out << server.log();
+        EXPECT_NE(r.out.find("scene         atlas, travelling with the store"), std::string::npos) << r.out;
+        const auto at = r.out.find("\nPSNR ");
+        ASSERT_NE(at, std::string::npos) << r.out;
+        const std::string line = r.out.substr(at + 1, r.out.find('\n', at + 1) - at - 1);
+        if (line.find("lossless") != std::string::npos) continue;
+        const auto m = line.find("min ");
+        ASSERT_NE(m, std::string::npos) << line;
+        EXPECT_GE(std::stod(line.substr(m + 4)), 50.0) << layer << ": " << line;
+    }
+}
+
 // Sixty textures through gltfpack (Debian's meshoptimizer tool, as engines' pipelines use it): it
 // rewrites the scene with quantised positions and texture coordinates (KHR_mesh_quantization,
 // undone by node transforms and KHR_texture_transform) and puts the images inside the GLB. Every

@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """The client's public headers stand alone and keep protobuf and gRPC out of their users' builds.
 
-Each header under client/*/include is compiled on its own (so it includes what it uses) with only
-the client's and the store's include folders on the path, and the compiler's dependency list
+Each header under client/*/include, scene/include and core/include is compiled on its own (so it
+includes what it uses) with only the public include folders (core, storage, client, scene) on the path, and the compiler's dependency list
 (-MM is not enough: protobuf and gRPC live under /usr/include, a system folder, so -M) is checked
 for any file of protobuf, gRPC, Abseil or the generated tessera.pb.h. A header that includes
 <google/protobuf/...> or <grpcpp/...> fails here even though those headers are installed.

@@ -255,7 +255,8 @@ Command add_build(CLI::App& app) {
         ->capture_default_str();
     c->add_flag("-q,--quiet", a->quiet, "No progress bar and no summary");
     c->add_option("--atlas", a->atlas,
-                  "Pack the colour textures of this scene's materials (OBJ, or glTF 2.0 .gltf/.glb) into one store (instead of INPUT); see docs/atlas.md");
+                  "Pack the colour textures of this scene's materials (OBJ, or glTF 2.0 .gltf/.glb) into one store (instead of INPUT); "
+                  "a glTF scene's normal, metallic-roughness, occlusion and emissive maps go into layers of their own; see docs/atlas.md");
     c->add_option("--obj-out", a->obj_out,
                   "With --atlas: the scene written as OBJ, texture coordinates in the atlas (default: the store's name with .obj)");
     c->add_option("--atlas-align", a->pack.alignment, "With --atlas: cells start at and span multiples of this (power of two)")

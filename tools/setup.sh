@@ -3,9 +3,11 @@
 # then configures and builds into ./build. Run as root on a fresh machine; safe to re-run.
 #
 #   tools/setup.sh           what the demo needs: the build's packages, then the `tessera` program
-#   tools/setup.sh --tests   also what only the tests need (clang for the fuzz build, Chromium,
-#                            nginx, mmdebstrap, ImageMagick, Node and the npm test tools), then
-#                            everything: tests, benchmarks, the fuzz sub-build
+#   tools/setup.sh --tests   also what only the tests need, then everything: tests, benchmarks,
+#                            the fuzz sub-build. clang, Node and npm install before the build (it
+#                            uses them); Chromium, nginx, mmdebstrap, ImageMagick, Xvfb, the glTF
+#                            samples and the npm test tools install in the background while it
+#                            compiles (build/setup-test-packages.log)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 tests=0
@@ -23,7 +25,8 @@ packages=(
   libcli11-dev nlohmann-json3-dev libfmt-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libboost-dev libssl-dev zlib1g-dev openssl
-  libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev libtinyobjloader-dev libtinygltf-dev  # GL client (llvmpipe headless)
+  libepoxy-dev libegl-dev libegl-mesa0 libgl1-mesa-dri libglfw3-dev  # GL client (llvmpipe headless)
+  libtinyobjloader-dev libtinygltf-dev  # scene/: OBJ and glTF scenes
   libgtest-dev libgmock-dev libbenchmark-dev  # small; the build configures its tests even when it does not build them
   python3
 )

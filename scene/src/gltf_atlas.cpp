@@ -1,6 +1,8 @@
 // The glTF 2.0 reader of the atlas build (tinygltf, Debian's libtinygltf): the default scene's
-// node tree flattened, each material's base colour texture (or colour) an atlas image, texture
-// coordinates through KHR_texture_transform and the samplers' wrap modes (atlas_input_data.hpp).
+// node tree flattened, each material's base colour texture (or colour) and its normal,
+// metallic-roughness, occlusion and emissive maps one atlas cell (the maps for the material
+// layers, docs/atlas.md), texture coordinates through KHR_texture_transform and the samplers' wrap
+// modes (atlas_input_data.hpp).
 #include <tiny_gltf.h>
 
 #include <nlohmann/json.hpp>
@@ -23,7 +25,8 @@ namespace fs = std::filesystem;
 namespace {
 
 // Extensions a scene may require that this reader honours: texture transforms, quantised
-// attributes (normalised integers, read below), and material extensions that only change shading.
+// attributes (normalised integers, read below), and material extensions that only change shading
+// (KHR_materials_emissive_strength scales the emissive layer's colour where there is no map).
 const std::set<std::string> kHonouredRequired = {"KHR_texture_transform", "KHR_mesh_quantization", "KHR_materials_unlit",
                                                  "KHR_materials_emissive_strength"};
 

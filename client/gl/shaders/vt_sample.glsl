@@ -596,7 +596,7 @@ VtSample vt_sample(vec2 local) {
 }
 
 // The feedback id of the page `level` wants at origin + local: RG32UI, low word first
-// (tessera/client/page.hpp: x 20 bits, y 20, level 5, texture 16).
+// (tessera/page_key.hpp: x 20 bits, y 20, level 5, texture 16).
 uvec2 vt_feedback_id(vec2 local, int level) {
     uvec2 page = uvec2(vt_level_position(local, level).page);
     uint lo = (page.x & 0xFFFFFu) | ((page.y & 0xFFFu) << 20);

@@ -88,7 +88,8 @@ public:
     AtlasSceneInput& operator=(AtlasSceneInput&&) noexcept;
     ~AtlasSceneInput();
 
-    // Distinct images, in first-use order (the same texture file used by two materials is one image).
+    // The atlas's cells, in first-use order: the same texture file used by two materials is one cell
+    // (unless their glTF maps or map values differ).
     const std::vector<AtlasImageRef>& images() const;
     std::size_t triangle_count() const;     // after cutting at repeats
     std::size_t repeat_piece_count() const;  // triangles (after fan triangulation) that cutting made
