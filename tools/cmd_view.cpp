@@ -39,7 +39,7 @@ Command add_view(CLI::App& app) {
     c->add_option("--png-count", o->png_count, "PNG frames to write with --out, spread over the run")->capture_default_str();
     c->add_option("--stats", o->stats_file, "per-frame stats, .csv or .json");
     c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`");
-    c->add_option("--pool", o->pool, "physical pages in the GPU pool")->capture_default_str();
+    c->add_option("--pool", o->pool, "physical pages in the GPU pool (default: 2048, or every page of a store that has fewer)");
     c->add_option("--page-format", o->page_format,
                   "how the GPU pool holds pages: auto (a block-codec store's own blocks, else rgba8), rgba8, or "
                   "block-compressed (a store of that codec: its blocks as they are; any other store: encoded on the transcode "

@@ -266,6 +266,7 @@ private:
     std::unique_ptr<client::gl::GlContext> ctx_;
     GLFWwindow* win_ = nullptr;
     storage::StoreInfo info_;
+    std::uint32_t pool_ = 0;  // pages in the GPU pool (ViewerOptions::pool, resolved once the store is open)
     client::gl::RendererConfig rc_;
     std::unique_ptr<client::gl::VtRenderer> renderer_;
     std::unique_ptr<client::Runtime> runtime_;
@@ -307,7 +308,7 @@ void ViewerRun::check_options() const {
     if (o.width < 16 || o.height < 16 || o.width > 8192 || o.height > 8192)
         throw Failure(fmt::format("--size {}x{}: each side must be 16..8192", o.width, o.height));
     if (o.feedback_scale < 1 || o.feedback_scale > 64) throw Failure("--feedback-scale must be 1..64");
-    if (o.pool < 16) throw Failure("--pool must be at least 16 pages");
+    if (o.pool != 0 && o.pool < 16) throw Failure("--pool must be at least 16 pages");
     if (!(o.fps > 0) || o.fps > 1000) throw Failure("--fps must be in (0, 1000]");
     if (o.anisotropy < 1 || o.anisotropy > 8) throw Failure("--anisotropy must be 1..8");
 }
@@ -364,7 +365,14 @@ void ViewerRun::make_renderer() {
     rc.max_anisotropy = o.anisotropy;
     rc.feedback_prefetch_lod = o.prefetch_lod;
     rc.feedback_guard_band = o.guard_band;
-    rc.pool_slots = o.pool;
+    if (o.pool != 0) {
+        pool_ = o.pool;
+    } else {
+        std::uint64_t pages = 0;
+        for (const auto& level : info_.levels) pages += std::uint64_t(level.tiles_x) * level.tiles_y;
+        pool_ = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(pages, 16, kDefaultPoolPages));
+    }
+    rc.pool_slots = pool_;
     rc.tile_size = info_.tile_size();
     rc.border = info_.border;
     rc.srgb = info_.colour_space == storage::ColourSpace::srgb;
@@ -388,7 +396,7 @@ void ViewerRun::make_renderer() {
 void ViewerRun::make_runtime() {
     const ViewerOptions& o = o_;
     client::RuntimeConfig cfg;
-    cfg.residency.pool_slots = o.pool;
+    cfg.residency.pool_slots = pool_;
     // Motion prefetch: one feedback in motion_prefetch_every sees the view itself; its pages stay.
     if (o.motion_prefetch_ms > 0) cfg.residency.kept_frames = std::clamp<std::uint32_t>(o.motion_prefetch_every, 1, 64);
     cfg.bias = o.bias;
@@ -708,7 +716,7 @@ void ViewerRun::present(Clock::time_point t0, const FrameRecord& rec, float bias
                 server = link.reported_down() ? fmt::format("SERVER UNREACHABLE for {:.0f} s  (unserved {:.1f} s)",
                                                             link.outage_s(t0), link.unserved_s())
                                               : fmt::format("server connected  (unserved {:.1f} s)", link.unserved_s());
-            hud_lines_ = hud_text(rec, bias, o.pool, lat, rt().in_flight(), free_cam_.active, server, link.reported_down());
+            hud_lines_ = hud_text(rec, bias, pool_, lat, rt().in_flight(), free_cam_.active, server, link.reported_down());
         }
         hud_->draw(hud_lines_, ww, wh, ww >= 1800 ? 3 : 2);
     }
@@ -720,7 +728,7 @@ void ViewerRun::present(Clock::time_point t0, const FrameRecord& rec, float bias
                                              "latency p50 {:.1f} ms | {}",
                                              link.reported_down() ? " | SERVER UNREACHABLE" : "", rec.frame_ms, bias,
                                              std::isnan(fr) ? std::string("-") : fmt::format("{:.2f}%", 100 * fr),
-                                             rec.pages_resident, o.pool, lat.quantile(0.5),
+                                             rec.pages_resident, pool_, lat.quantile(0.5),
                                              free_cam_.active ? "free camera (Space: path)" : "path (WASD: fly)")
                                      .c_str());
     }

@@ -20,6 +20,9 @@ constexpr float kDefaultFadeMs = 250.0f;
 // prefetch").
 constexpr double kDefaultMotionPrefetchMs = 200.0;
 
+// The GPU pool a viewer gets unless told (ViewerOptions::pool).
+inline constexpr std::uint32_t kDefaultPoolPages = 2048;
+
 struct ViewerOptions {
     std::string store;            // FILE.tsr, grpc://HOST:PORT/NAME, grpcs://HOST:PORT/NAME or HOST:PORT/NAME
     std::string reference_store;  // local .tsr for the PSNR reference (default: `store` when it is a file)
@@ -36,7 +39,9 @@ struct ViewerOptions {
     std::uint32_t png_count = 4;  // frames written, spread over the run
     std::string stats_file;    // .csv or .json per-frame records (empty: none)
     std::string trace_file;    // feedback trace for `tessera loadtest` (empty: none)
-    std::uint32_t pool = 2048;
+    // Pages in the GPU pool. 0: kDefaultPoolPages, or every page of the store (all levels, all
+    // layers in one slot) when it has fewer: a small store's pool is not sized for a large one.
+    std::uint32_t pool = 0;
     // How the GPU pool holds pages: auto (the store's block format if it has one, else rgba8),
     // rgba8, bc1, bc4 or bc5 (JPEG/zstd pages block-encoded on the transcode threads).
     std::string page_format = "auto";
