@@ -143,6 +143,13 @@ protected:
         return run_tessera("build -q --codec zstd " + extra + " --atlas " + q(scene) + " -o " + q(dir_.file("out/" + name + ".tsr")) +
                            " --obj-out " + q(dir_.file("out/" + name + ".obj")));
     }
+    // Writes `scene` (glTF JSON) as NAME.gltf, then builds it as build() does.
+    RunResult build_json(const nlohmann::json& scene, const std::string& name) {
+        const std::string file = dir_.file(name + ".gltf");
+        const std::string text = scene.dump();
+        write_file(file, std::vector<std::uint8_t>(text.begin(), text.end()));
+        return build(file, name);
+    }
     ScratchDir dir_;
 };
 
@@ -277,10 +284,7 @@ TEST_F(GltfAtlas, EveryPointGetsTheTexelGltfSamplingGives) {
          {{{"bufferView", 0}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"}, {"min", {0, 0, 0}}, {"max", {1, 1, 0}}},
           {{"bufferView", 1}, {"componentType", 5126}, {"count", 4}, {"type", "VEC2"}},
           {{"bufferView", 2}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}}}}};
-    const std::string scene = dir_.file("card.gltf");
-    const std::string text = j.dump();
-    write_file(scene, std::vector<std::uint8_t>(text.begin(), text.end()));
-    const RunResult r = build(scene, "card");
+    const RunResult r = build_json(j, "card");
     ASSERT_EQ(r.exit_code, 0) << r.out;
     EXPECT_EQ(r.out.find("warning"), std::string::npos) << r.out;
 
@@ -397,10 +401,7 @@ TEST_F(GltfAtlas, MaterialMapsGoToLayersOfTheirOwn) {
           {{"bufferView", 1}, {"componentType", 5126}, {"count", 8}, {"type", "VEC2"}},
           {{"bufferView", 2}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}},
           {{"bufferView", 3}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}}}}};
-    const std::string scene = dir_.file("maps.gltf");
-    const std::string text = j.dump();
-    write_file(scene, std::vector<std::uint8_t>(text.begin(), text.end()));
-    const RunResult r = build(scene, "maps");
+    const RunResult r = build_json(j, "maps");
     ASSERT_EQ(r.exit_code, 0) << r.out;
     EXPECT_EQ(r.out.find("warning"), std::string::npos) << r.out;
 
