@@ -245,7 +245,7 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
     httpapi::ParsedRequest parsed;
     std::string query_token, why;
     const bool well_formed = httpapi::parse_request(req, parsed, query_token, why);
-    if (!authorized(httpapi::request_token(req, query_token), *ctx_.auth_token())) {
+    if (!ctx_.open_access() && !authorized(httpapi::request_token(req, query_token), *ctx_.auth_token())) {
         HttpResponse r = httpapi::error(401, "missing or wrong bearer token", api);
         r.headers.emplace_back("WWW-Authenticate", "Bearer");
         return r;

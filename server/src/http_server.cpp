@@ -63,6 +63,10 @@ namespace beast = boost::beast;
 namespace http = boost::beast::http;
 using tcp = boost::asio::ip::tcp;
 using error_code = boost::system::error_code;
+// A connection's socket names its loop's executor type: no type-erased executor copied and
+// destroyed around every operation.
+using Socket = net::basic_stream_socket<tcp, net::io_context::executor_type>;
+using Clock = std::chrono::steady_clock;
 
 constexpr std::chrono::seconds kLingerTimeout{2};  // reading what a closing client still sends
 constexpr std::size_t kLingerBytes = 256 * 1024;
@@ -98,9 +102,11 @@ struct Shared {
     std::atomic<std::size_t> connections{0};  // admitted sessions
     std::atomic<std::size_t> rejects{0};      // sessions answering 503 past max_connections
 
-    std::mutex idle_mutex;  // busy: requests read and not yet answered
+    // busy: requests read and not yet answered. Counted without a lock (every request passes
+    // here twice, from every loop); the mutex only pairs the last one's wake-up with wait_idle.
+    std::mutex idle_mutex;
     std::condition_variable idle_cv;
-    std::size_t busy = 0;
+    std::atomic<std::size_t> busy{0};
 
     std::mutex sessions_mutex;  // every live session, to drain or close them
     std::condition_variable sessions_cv;
@@ -124,13 +130,11 @@ struct Shared {
     }
 
     bool closing_connections() const { return draining.load() || stopped.load() || ctx.draining.load(); }
-    void request_begin() {
-        std::lock_guard lock(idle_mutex);
-        ++busy;
-    }
+    void request_begin() { busy.fetch_add(1, std::memory_order_relaxed); }
     void request_end() {
+        if (busy.fetch_sub(1, std::memory_order_acq_rel) != 1) return;
         std::lock_guard lock(idle_mutex);
-        if (--busy == 0) idle_cv.notify_all();
+        idle_cv.notify_all();
     }
 };
 
@@ -143,12 +147,16 @@ struct SessionBase : std::enable_shared_from_this<SessionBase> {
 
 template <bool Tls>
 class Session final : public SessionBase {
-    using Stream = std::conditional_t<Tls, beast::ssl_stream<beast::tcp_stream>, beast::tcp_stream>;
+    using Stream = std::conditional_t<Tls, beast::ssl_stream<Socket>, Socket>;
     enum class State { handshake, reading, busy, closing, closed };
 
 public:
-    Session(Shared& shared, tcp::socket&& socket, bool reject)
-        : shared_(shared), tls_(Tls ? shared.tls() : nullptr), stream_(make_stream(tls_, std::move(socket))), reject_(reject) {
+    Session(Shared& shared, Socket&& socket, bool reject)
+        : shared_(shared),
+          tls_(Tls ? shared.tls() : nullptr),
+          stream_(make_stream(tls_, std::move(socket))),
+          timer_(tcp().get_executor()),
+          reject_(reject) {
         (reject_ ? shared_.rejects : shared_.connections).fetch_add(1);
     }
     ~Session() override {
@@ -163,7 +171,7 @@ public:
         net::dispatch(stream_.get_executor(), [self = self()] {
             if constexpr (Tls) {
                 self->state_ = State::handshake;
-                self->tcp().expires_after(self->read_timeout());
+                self->set_deadline(self->read_timeout());
                 self->stream_.async_handshake(ssl::stream_base::server, [self](const error_code& ec) {
                     if (ec) return self->close();
                     self->first_step();
@@ -189,14 +197,33 @@ public:
     }
 
 private:
-    static Stream make_stream(const std::shared_ptr<ssl::context>& tls, tcp::socket&& socket) {
+    static Stream make_stream(const std::shared_ptr<ssl::context>& tls, Socket&& socket) {
         if constexpr (Tls) return Stream(std::move(socket), *tls);
         else return Stream(std::move(socket));
     }
     std::shared_ptr<Session> self() { return std::static_pointer_cast<Session>(shared_from_this()); }
-    beast::tcp_stream& tcp() {
+    Socket& tcp() {
         if constexpr (Tls) return stream_.next_layer();
         else return stream_;
+    }
+
+    // Timeouts. Every wait (handshake, request, write, linger) has a deadline; moving it is a
+    // store, not a timer operation, so the hot path touches no timer queue. One timer per
+    // connection wakes at the earliest deadline it may have to enforce: it closes the connection
+    // if the deadline has passed, and otherwise sleeps until the current one. Closing the socket
+    // ends whatever operation was waiting (operation_aborted).
+    void set_deadline(Clock::duration d) {
+        deadline_ = Clock::now() + d;
+        if (deadline_ < timer_at_) arm_timer(deadline_);
+    }
+    void arm_timer(Clock::time_point at) {
+        timer_at_ = at;
+        timer_.expires_at(at);  // cancels a wait already pending: its handler sees operation_aborted
+        timer_.async_wait([self = self()](const error_code& ec) {
+            if (ec || self->state_ == State::closed) return;
+            if (Clock::now() >= self->deadline_) return self->close();
+            self->arm_timer(self->deadline_);
+        });
     }
     std::chrono::steady_clock::duration read_timeout() const {
         const std::chrono::steady_clock::duration idle = shared_.ctx.config.idle_timeout;
@@ -216,9 +243,43 @@ private:
         parser_->header_limit(static_cast<std::uint32_t>(std::min<std::size_t>(shared_.ctx.config.max_header_bytes, UINT32_MAX)));
         // No request takes a body: one is refused (413) as soon as its header says so.
         parser_->body_limit(0);
-        tcp().expires_after(read_timeout());
-        http::async_read(stream_, buffer_, *parser_,
-                         [self = self()](const error_code& ec, std::size_t) { self->on_read(ec); });
+        set_deadline(read_timeout());
+        parse_buffered();
+    }
+
+    // The request is parsed from what the connection has already sent (pipelined requests) and
+    // read as it comes: Beast's parser fed directly, as http::async_read would feed it, without
+    // its composed operation around every read.
+    void parse_buffered() {
+        while (buffer_.size() > 0 && !parser_->is_done()) {
+            error_code ec;
+            const std::size_t used = parser_->put(buffer_.data(), ec);
+            buffer_.consume(used);
+            if (ec == http::error::need_more) break;
+            if (ec) return on_read(ec);
+            if (used == 0) break;
+        }
+        if (parser_->is_done()) return on_read({});
+        read_more();
+    }
+
+    void read_more() {
+        // As Beast reads: at least 512 bytes of room, at most 64 KiB a read. The parser's header
+        // limit bounds how far the buffer grows.
+        const std::size_t room = std::min<std::size_t>(std::max<std::size_t>(512, buffer_.capacity() - buffer_.size()), 65536);
+        stream_.async_read_some(buffer_.prepare(room), [self = self()](const error_code& ec, std::size_t n) {
+            self->buffer_.commit(n);
+            if (self->state_ == State::closed) return;
+            if (ec == net::error::eof) {
+                // A request cut short is partial_message; none begun is the end of the stream.
+                if (!self->parser_->got_some()) return self->on_read(http::error::end_of_stream);
+                error_code e;
+                self->parser_->put_eof(e);
+                return self->on_read(e);
+            }
+            if (ec) return self->on_read(ec);
+            self->parse_buffered();
+        });
     }
 
     void on_read(const error_code& ec) {
@@ -373,16 +434,18 @@ private:
         net::const_buffer body;
         if (!head && !bodiless && length > 0)
             body = held_.payload ? net::buffer(held_.payload->bytes.data(), length) : net::buffer(held_.body);
-        const auto buffers = beast::buffers_cat(net::buffer(head_), body);
-        tcp().expires_after(shared_.ctx.config.idle_timeout);
-        net::async_write(stream_, buffers, [self = self(), keep_alive](const error_code& ec, std::size_t) {
-            self->end_request();
-            self->held_ = HttpResponse{};
-            if (self->state_ == State::closed) return;
-            if (ec) return self->close();
-            if (!keep_alive) return self->graceful_close();
-            self->do_read();
-        });
+        set_deadline(shared_.ctx.config.idle_timeout);
+        net::async_write(stream_, beast::buffers_cat(net::buffer(head_), body),
+                         [self = self(), keep_alive](const error_code& ec, std::size_t) { self->after_write(ec, keep_alive); });
+    }
+
+    void after_write(const error_code& ec, bool keep_alive) {
+        end_request();
+        held_ = HttpResponse{};
+        if (state_ == State::closed) return;
+        if (ec) return close();
+        if (!keep_alive) return graceful_close();
+        do_read();
     }
 
     // TLS: close_notify (bounded). Plain: stop sending, then read and drop what the client still
@@ -391,12 +454,12 @@ private:
     void graceful_close() {
         if (state_ == State::closed || state_ == State::closing) return;
         state_ = State::closing;
-        tcp().expires_after(kLingerTimeout);
+        set_deadline(kLingerTimeout);
         if constexpr (Tls) {
             stream_.async_shutdown([self = self()](const error_code&) { self->close(); });
         } else {
             error_code ec;
-            tcp().socket().shutdown(tcp::socket::shutdown_send, ec);
+            tcp().shutdown(tcp::socket::shutdown_send, ec);
             if (ec) return close();
             linger();
         }
@@ -413,13 +476,17 @@ private:
         if (state_ == State::closed) return;
         state_ = State::closed;
         error_code ec;
-        tcp().socket().shutdown(tcp::socket::shutdown_both, ec);
-        tcp().close();  // pending operations complete with operation_aborted
+        tcp().shutdown(tcp::socket::shutdown_both, ec);
+        tcp().close(ec);  // pending operations complete with operation_aborted
+        timer_.cancel();
     }
 
     Shared& shared_;
     std::shared_ptr<ssl::context> tls_;  // the context this session's TLS stream was made from
     Stream stream_;
+    net::basic_waitable_timer<Clock, net::wait_traits<Clock>, net::io_context::executor_type> timer_;
+    Clock::time_point deadline_ = Clock::time_point::max();
+    Clock::time_point timer_at_ = Clock::time_point::max();  // when the timer wakes next
     const bool reject_;
     State state_ = State::reading;
     bool in_request_ = false;
@@ -630,12 +697,12 @@ private:
         if (!acceptor_.is_open()) return;
         // The next loop in turn owns the connection; its executor is the loop's (one thread: no strand).
         net::io_context& loop = *iocs_[next_loop_++ % iocs_.size()];
-        acceptor_.async_accept(loop.get_executor(), [this](const error_code& ec, tcp::socket socket) {
+        acceptor_.async_accept(loop.get_executor(), [this](const error_code& ec, Socket socket) {
             on_accept(ec, std::move(socket));
         });
     }
 
-    void on_accept(const error_code& ec, tcp::socket socket) {
+    void on_accept(const error_code& ec, Socket socket) {
         if (ec == net::error::operation_aborted || !acceptor_.is_open()) return;
         if (ec) {
             // Out of file descriptors and the like: back off a little instead of spinning.

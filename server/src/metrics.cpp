@@ -201,9 +201,16 @@ void append_series(std::string& out, std::string_view name, std::string_view suf
 
 void Gauge::add(double d) { cas_add(value_, d); }
 
+std::size_t next_metric_stripe() {
+    static std::atomic<std::size_t> next{0};
+    return next.fetch_add(1, relaxed) % kMetricStripes;
+}
+
 Histogram::Histogram(std::vector<double> upper_bounds)
     : bounds_(normalize_bounds(std::move(upper_bounds))),
-      buckets_(std::make_unique<std::atomic<std::uint64_t>[]>(bounds_.size() + 1)) {}
+      row_((bounds_.size() + 1 + 7) / 8 * 8),
+      buckets_(std::make_unique<std::atomic<std::uint64_t>[]>(row_ * kMetricStripes)),
+      sums_(std::make_unique<Sum[]>(kMetricStripes)) {}
 
 void Histogram::observe(double v) {
     // A NaN has no bucket, and would turn _sum into NaN for the rest of the process: dropped.
@@ -211,9 +218,9 @@ void Histogram::observe(double v) {
     // First bound >= v: a value equal to a bound counts in that bucket (Prometheus `le`);
     // above every bound (or +Inf) it lands in the implicit +Inf bucket at index size().
     const auto i = static_cast<std::size_t>(std::lower_bound(bounds_.begin(), bounds_.end(), v) - bounds_.begin());
-    buckets_[i].fetch_add(1, relaxed);
-    cas_add(sum_, v);
-    count_.fetch_add(1, relaxed);
+    const std::size_t stripe = metric_stripe();
+    buckets_[stripe * row_ + i].fetch_add(1, relaxed);
+    cas_add(sums_[stripe].value, v);
 }
 
 Histogram::Snapshot Histogram::snapshot() const {
@@ -222,13 +229,13 @@ Histogram::Snapshot Histogram::snapshot() const {
     s.cumulative.resize(bounds_.size() + 1);
     std::uint64_t acc = 0;
     for (std::size_t i = 0; i <= bounds_.size(); ++i) {
-        acc += buckets_[i].load(relaxed);
+        for (std::size_t stripe = 0; stripe < kMetricStripes; ++stripe) acc += buckets_[stripe * row_ + i].load(relaxed);
         s.cumulative[i] = acc;
     }
-    // The count is the bucket total rather than count_: the atomics are read one by one while
-    // observe() runs, and the exposition requires _count == the +Inf bucket exactly.
+    // The count is the bucket total: the atomics are read one by one while observe() runs, and
+    // the exposition requires _count == the +Inf bucket exactly.
     s.count = acc;
-    s.sum = sum_.load(relaxed);
+    for (std::size_t stripe = 0; stripe < kMetricStripes; ++stripe) s.sum += sums_[stripe].value.load(relaxed);
     return s;
 }
 

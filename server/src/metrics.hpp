@@ -2,6 +2,7 @@
 // Server metrics, exposed on /metrics in the Prometheus text format (version 0.0.4).
 // Registration takes a lock and returns a reference that stays valid for the registry's life;
 // updates are lock-free atomics, cheap enough for every tile.
+#include <array>
 #include <atomic>
 #include <cstdint>
 #include <deque>
@@ -17,13 +18,30 @@ namespace tessera::server {
 
 using Labels = std::vector<std::pair<std::string, std::string>>;
 
+// Counters and histograms are striped: each thread updates its own stripe (threads take
+// stripes in turn), so the event loops and workers that count every tile do not pass one cache
+// line back and forth between cores; a read sums the stripes.
+inline constexpr std::size_t kMetricStripes = 8;
+std::size_t next_metric_stripe();
+inline std::size_t metric_stripe() {
+    thread_local const std::size_t stripe = next_metric_stripe();
+    return stripe;
+}
+
 class Counter {
 public:
-    void inc(std::uint64_t n = 1) { value_.fetch_add(n, std::memory_order_relaxed); }
-    std::uint64_t value() const { return value_.load(std::memory_order_relaxed); }
+    void inc(std::uint64_t n = 1) { stripes_[metric_stripe()].value.fetch_add(n, std::memory_order_relaxed); }
+    std::uint64_t value() const {
+        std::uint64_t total = 0;
+        for (const Stripe& s : stripes_) total += s.value.load(std::memory_order_relaxed);
+        return total;
+    }
 
 private:
-    std::atomic<std::uint64_t> value_{0};
+    struct alignas(64) Stripe {
+        std::atomic<std::uint64_t> value{0};
+    };
+    std::array<Stripe, kMetricStripes> stripes_{};
 };
 
 class Gauge {
@@ -52,10 +70,14 @@ public:
     double quantile(double q) const;
 
 private:
+    struct alignas(64) Sum {
+        std::atomic<double> value{0};
+    };
     std::vector<double> bounds_;
-    std::unique_ptr<std::atomic<std::uint64_t>[]> buckets_;  // non-cumulative, bounds_.size()+1
-    std::atomic<double> sum_{0};
-    std::atomic<std::uint64_t> count_{0};
+    // Non-cumulative, bounds_.size()+1 per stripe; each stripe's row starts on a cache line.
+    std::size_t row_ = 0;
+    std::unique_ptr<std::atomic<std::uint64_t>[]> buckets_;
+    std::unique_ptr<Sum[]> sums_;  // one per stripe
 };
 
 // Latency buckets in seconds, 50 µs .. 10 s.

@@ -35,6 +35,9 @@ struct ServerContext {
         token_.compare_exchange_strong(t, fresh, std::memory_order_acq_rel);
         return token_set_.load(std::memory_order_acquire) ? token_.load(std::memory_order_acquire) : fresh;
     }
+    // No token is asked for (none configured, none set since): answered without loading the
+    // shared token, which every request would otherwise pass between threads.
+    bool open_access() const { return !token_set_.load(std::memory_order_acquire) && config.auth_token.empty(); }
     void set_auth_token(std::string token) {
         // The flag first: a reader that sees the new token also sees that it was set, so it
         // never swaps it back for the config's.

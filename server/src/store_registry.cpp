@@ -260,14 +260,12 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
 
 std::shared_ptr<const StoreHandle> StoreRegistry::find(std::string_view name) const {
     if (!protocol::valid_store_name(name)) return nullptr;
-    std::shared_ptr<const std::vector<std::shared_ptr<const StoreHandle>>> snapshot;
-    {
-        std::lock_guard lock(mutex_);
-        snapshot = stores_;
-    }
-    auto it = std::lower_bound(snapshot->begin(), snapshot->end(), name,
+    // Searched under the lock (a few comparisons): only the handle found is copied, not the
+    // snapshot, whose shared count every request would otherwise pass between threads.
+    std::lock_guard lock(mutex_);
+    auto it = std::lower_bound(stores_->begin(), stores_->end(), name,
                                [](const auto& h, std::string_view n) { return h->name < n; });
-    if (it == snapshot->end() || (*it)->name != name) return nullptr;
+    if (it == stores_->end() || (*it)->name != name) return nullptr;
     return *it;
 }
 

@@ -47,17 +47,24 @@ std::size_t shard_index(std::uint64_t hash, unsigned shard_count) {
     return static_cast<std::size_t>(((hash >> 32) * shard_count) >> 32);
 }
 
+// An entry's place in the queues. What a hit reads and writes (the tile, its frequency) lives
+// in the index's slot instead, so that a hit touches one slot and not a list node elsewhere in
+// memory as well.
 struct Entry {
     CacheKey key;
-    std::shared_ptr<const storage::Tile> tile;
     std::size_t charge = 0;
-    std::uint8_t freq = 0;  // hits since insertion or the last main-queue pass, saturating
     bool in_main = false;
 };
 
 // Front = oldest. std::list so that moving an entry between queues (splice) keeps the index's
 // iterators valid and costs no allocation.
 using Queue = std::list<Entry>;
+
+struct Slot {
+    Queue::iterator entry;
+    std::shared_ptr<const storage::Tile> tile;
+    std::uint8_t freq = 0;  // hits since insertion or the last main-queue pass, saturating
+};
 
 // Keys recently evicted from the small queue, by hash only (no data). Bounded by the bytes the
 // remembered tiles would occupy, so it covers about as many entries as the main queue holds.
@@ -112,7 +119,7 @@ struct alignas(64) TileCache::Shard {
     Queue main;
     std::size_t small_bytes = 0;
     std::size_t main_bytes = 0;
-    absl::flat_hash_map<CacheKey, Queue::iterator, KeyHash> index;  // flat: one probe, no node per entry
+    absl::flat_hash_map<CacheKey, Slot, KeyHash> index;  // flat: one probe, no node per entry
     Ghost ghost;
     std::uint64_t hits = 0;
     std::uint64_t misses = 0;
@@ -136,10 +143,10 @@ struct alignas(64) TileCache::Shard {
             return {};
         }
         // A hit only bumps the counter: no queue movement, so hits stay cheap (lazy promotion).
-        Entry& e = *it->second;
-        if (e.freq < kMaxFreq) ++e.freq;
+        Slot& slot = it->second;
+        if (slot.freq < kMaxFreq) ++slot.freq;
         ++hits;
-        return e.tile;
+        return slot.tile;
     }
 
     void put(const CacheKey& key, std::uint64_t hash, std::shared_ptr<const storage::Tile> tile,
@@ -148,17 +155,17 @@ struct alignas(64) TileCache::Shard {
         if (charge > budget) {  // also the disabled cache (budget 0)
             // A replacement that does not fit must not leave the old value to be served.
             if (found != index.end()) {
-                drop(found->second);
+                drop(found->second.entry);
                 ++evictions;
             }
             return;
         }
         if (found != index.end()) {
-            Entry& e = *found->second;
+            Entry& e = *found->second.entry;
             std::size_t& held = queue_bytes(e);
             held = held - e.charge + charge;
             e.charge = charge;
-            e.tile = std::move(tile);  // keeps its frequency: a put is not an access
+            found->second.tile = std::move(tile);  // keeps its frequency: a put is not an access
             make_room(0);
             return;
         }
@@ -166,9 +173,9 @@ struct alignas(64) TileCache::Shard {
         // A key evicted from small recently and asked for again has proven reuse: straight to main.
         const bool to_main = ghost.take(hash);
         Queue& q = to_main ? main : small;
-        q.push_back(Entry{key, std::move(tile), charge, 0, to_main});
+        q.push_back(Entry{key, charge, to_main});
         queue_bytes(q.back()) += charge;
-        index.emplace(key, std::prev(q.end()));
+        index.emplace(key, Slot{std::prev(q.end()), std::move(tile), 0});
         ++insertions;
     }
 
@@ -186,13 +193,14 @@ struct alignas(64) TileCache::Shard {
     void evict_small() {
         while (!small.empty()) {
             const auto it = small.begin();
-            if (it->freq == 0) {
+            std::uint8_t& freq = index.find(it->key)->second.freq;
+            if (freq == 0) {
                 ghost.add(hash_key(it->key), it->charge);
                 drop(it);
                 ++evictions;
                 return;
             }
-            it->freq = 0;
+            freq = 0;
             small_bytes -= it->charge;
             main_bytes += it->charge;
             it->in_main = true;
@@ -206,12 +214,13 @@ struct alignas(64) TileCache::Shard {
     void evict_main() {
         while (!main.empty()) {
             const auto it = main.begin();
-            if (it->freq == 0) {
+            std::uint8_t& freq = index.find(it->key)->second.freq;
+            if (freq == 0) {
                 drop(it);
                 ++evictions;
                 return;
             }
-            --it->freq;
+            --freq;
             main.splice(main.end(), main, it);
         }
     }

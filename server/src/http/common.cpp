@@ -218,7 +218,7 @@ HttpResponse defer(WorkKind kind, std::shared_ptr<const StoreHandle> store, std:
 }
 
 std::string cache_control(const ServerContext& ctx, bool immutable) {
-    const std::string scope = ctx.auth_token()->empty() ? "public" : "private";
+    const std::string scope = ctx.open_access() || ctx.auth_token()->empty() ? "public" : "private";
     return immutable ? scope + ", max-age=" + std::to_string(kImmutableMaxAge) + ", immutable"
                      : scope + ", max-age=" + std::to_string(ctx.config.http_max_age);
 }
