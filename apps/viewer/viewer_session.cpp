@@ -451,6 +451,7 @@ void ViewerRun::make_scene() {
     scene_label_ = !atlas_scene_ ? std::string("terrain")
                    : store_scene_ ? fmt::format("atlas, travelling with the store ({} triangles, {} objects)", triangles, scene_->chunks.size())
                                   : fmt::format("atlas {} ({} triangles, {} objects)", o.scene, triangles, scene_->chunks.size());
+    if (atlas_scene_ && info_.has_alpha) scene_label_ += ", cut-outs at alpha 0.5";
     if (auto st = r().set_scene(*scene_, texture_); !st.ok()) throw Failure(st.error().message);
     auto path = scene::CameraPath::builtin_or_file(o.path, *scene_);
     if (!path) throw Failure(fmt::format("--path: {}", path.error().message));
