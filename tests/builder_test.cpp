@@ -630,7 +630,7 @@ TEST(Builder, AlphaFromOtherToolsIsStoredStraightAndWeightedOnce) {
         const bool floats = file.type == SampleType::f16 || file.type == SampleType::f32;
         EXPECT_EQ(cs, floats ? ColourSpace::linear : ColourSpace::srgb);
         expect_exact(Built{*reader, test::reference_pyramid(straight, cs, true, o.tile_size - 2 * o.border)});
-        if (!c.associated && file.type == SampleType::u8) {  // the texel: grey 52 at alpha 220
+        if (!c.associated && file.type == SampleType::u8) {  // the texel of interest: grey 52 at alpha 220
             auto t = (*reader)->read_tile({0, 0, 0});
             std::vector<std::uint8_t> decoded;
             ASSERT_TRUE(t.ok() && decode_tile((*reader)->info(), *t, decoded).ok());

@@ -31,7 +31,7 @@ Command add_demo(CLI::App& app) {
         std::uint32_t frames = 0;
         std::uint32_t psnr_every = 60;
         std::uint32_t pool = 2048;
-        float prefetch_lod = 0.3f;
+        float prefetch_lod = 0.15f;
         float guard_band = 0.1f;
         float fade_ms = kDefaultFadeMs;
         double motion_prefetch_ms = kDefaultMotionPrefetchMs;

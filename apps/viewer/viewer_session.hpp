@@ -56,7 +56,7 @@ struct ViewerOptions {
     client::gl::Filter filter = client::gl::Filter::trilinear;
     std::uint32_t anisotropy = 8;
     std::uint32_t feedback_scale = 8;
-    float prefetch_lod = 0.3f;  // RendererConfig::feedback_prefetch_lod (docs/renderer.md, "Prefetch")
+    float prefetch_lod = 0.15f;  // RendererConfig::feedback_prefetch_lod (docs/renderer.md, "Prefetch")
     float guard_band = 0.1f;    // RendererConfig::feedback_guard_band
     // RuntimeConfig::fade_ms (docs/renderer.md, "Blending in"): arriving pages blend in, and
     // evicted pages that may be in view fade out, over this long, on path time (headless) or wall
