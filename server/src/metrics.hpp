@@ -74,7 +74,8 @@ private:
         std::atomic<double> value{0};
     };
     std::vector<double> bounds_;
-    // Non-cumulative, bounds_.size()+1 per stripe; each stripe's row starts on a cache line.
+    // Non-cumulative, bounds_.size()+1 per stripe; rows are whole multiples of 64 bytes apart,
+    // so two stripes share at most the line where one row ends and the next begins.
     std::size_t row_ = 0;
     std::unique_ptr<std::atomic<std::uint64_t>[]> buckets_;
     std::unique_ptr<Sum[]> sums_;  // one per stripe
