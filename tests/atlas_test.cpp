@@ -2,7 +2,6 @@
 // load, every sampled texel of the atlas at a rewritten texture coordinate equals the original
 // texture's texel at the original coordinate (lossless zstd tiles), padding repeats the edges, the
 // build is deterministic, and bad input fails cleanly leaving nothing behind.
-#include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
 #include <tiny_obj_loader.h>
 
@@ -34,27 +33,8 @@ using tessera::test::AtlasTexels;
 using tessera::test::entries;
 using tessera::test::expect_one_line_error;
 using tessera::test::q;
-
-struct Rgb8Image {
-    int width = 0, height = 0;
-    std::vector<std::uint8_t> rgb;
-    std::array<std::uint8_t, 3> at(int x, int y) const {
-        const std::size_t i = (std::size_t(y) * width + x) * 3;
-        return {rgb[i], rgb[i + 1], rgb[i + 2]};
-    }
-};
-
-Rgb8Image read_png(const std::string& path) {
-    Rgb8Image img;
-    auto in = OIIO::ImageInput::open(path);
-    if (!in) return img;
-    img.width = in->spec().width;
-    img.height = in->spec().height;
-    img.rgb.resize(std::size_t(img.width) * img.height * 3);
-    in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, img.rgb.data());
-    in->close();
-    return img;
-}
+using tessera::test::read_png;
+using tessera::test::Rgb8Image;
 
 tinyobj::ObjReader read_obj(const std::string& path) {
     tinyobj::ObjReader r;

@@ -1,6 +1,7 @@
 #pragma once
-// What the atlas build's tests share: reading a store's level-0 texels, listing a folder, and the
-// shape of a failed command.
+// What the atlas build's tests share: reading a store's level-0 texels and an image file, listing a
+// folder, and the shape of a failed command.
+#include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -33,6 +34,29 @@ inline void expect_one_line_error(const RunResult& r) {
     EXPECT_LT(r.exit_code, 128) << r.out;
     EXPECT_EQ(r.out.rfind("tessera: error: ", 0), 0u) << r.out;
     EXPECT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << r.out;
+}
+
+// An image file's first three channels as 8-bit RGB, read by OpenImageIO (not by Tessera's own
+// writers): empty if it cannot be read.
+struct Rgb8Image {
+    int width = 0, height = 0;
+    std::vector<std::uint8_t> rgb;
+    std::array<std::uint8_t, 3> at(int x, int y) const {
+        const std::size_t i = (std::size_t(y) * width + x) * 3;
+        return {rgb[i], rgb[i + 1], rgb[i + 2]};
+    }
+};
+
+inline Rgb8Image read_png(const std::string& path) {
+    Rgb8Image img;
+    auto in = OIIO::ImageInput::open(path);
+    if (!in) return img;
+    img.width = in->spec().width;
+    img.height = in->spec().height;
+    img.rgb.resize(std::size_t(img.width) * img.height * 3);
+    in->read_image(0, 0, 0, 3, OIIO::TypeDesc::UINT8, img.rgb.data());
+    in->close();
+    return img;
 }
 
 // Level-0 texels of an 8-bit store, tile by tile (decoded once each): the first three channels;

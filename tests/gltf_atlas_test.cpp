@@ -517,7 +517,7 @@ TEST_F(GltfAtlas, ABlenderGardenWithCutOutsMatchesTheReferenceOverGrpc) {
     const RunResult r = run_tessera("view --store grpc://" + server.grpc_address() + "/garden --headless --size 192x128 --frames 48 " +
                                     "--psnr-every 6 --reference-store " + q(dir_.file("out/garden.tsr")));
     ASSERT_EQ(r.exit_code, 0) << r.out << server.log();
-    EXPECT_NE(r.out.find("scene         atlas, travelling with the store (66 triangles, 6 objects)"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find("scene         atlas, travelling with the store (132 triangles, 6 objects)"), std::string::npos) << r.out;
     EXPECT_NE(r.out.find(", cut-outs at alpha 0.5\n"), std::string::npos) << r.out;
     const auto at = r.out.find("\nPSNR ");
     ASSERT_NE(at, std::string::npos) << r.out;
@@ -525,6 +525,53 @@ TEST_F(GltfAtlas, ABlenderGardenWithCutOutsMatchesTheReferenceOverGrpc) {
     const auto m = line.find("min ");
     ASSERT_NE(m, std::string::npos) << line;
     EXPECT_GE(std::stod(line.substr(m + 4)), 50.0) << line;
+}
+
+// A Blender-exported courtyard whose materials have every map (tests/assets/courtyard): a normal
+// map, metallic-roughness, occlusion and an emissive map become layers, and the viewer lights the
+// base colour with them, over gRPC with the scene that travels with the store, as the reference
+// lights its own textures of the same layers.
+TEST_F(GltfAtlas, ABlenderCourtyardLitByItsMapsMatchesTheReferenceOverGrpc) {
+    const fs::path courtyard = fs::path(TESSERA_TEST_ASSETS) / "courtyard" / "courtyard.glb";
+    ASSERT_TRUE(fs::is_regular_file(courtyard)) << courtyard;
+    const RunResult b = build(courtyard.string(), "courtyard");
+    ASSERT_EQ(b.exit_code, 0) << b.out;
+    {
+        auto reader = storage::StoreReader::open(dir_.file("out/courtyard.tsr"));
+        ASSERT_TRUE(reader.ok()) << reader.error().message;
+        const auto& layers = (*reader)->info().layers;
+        std::vector<std::string> names;
+        for (const auto& l : layers) names.push_back(l.name);
+        EXPECT_EQ(names, (std::vector<std::string>{"base", "normal", "metallic_roughness", "occlusion", "emissive"}));
+    }
+    ServerProcess server({"--store-dir", dir_.file("out")}, dir_.file("server.log"));
+    ASSERT_TRUE(server.running()) << server.log();
+    const std::string view = "view --store grpc://" + server.grpc_address() + "/courtyard --headless --size 192x128 --frames 48 ";
+    const RunResult r = run_tessera(view + "--psnr-every 6 --reference-store " + q(dir_.file("out/courtyard.tsr")) + " --out " +
+                                    q(dir_.file("lit")) + " --png-count 1");
+    ASSERT_EQ(r.exit_code, 0) << r.out << server.log();
+    EXPECT_NE(r.out.find("scene         atlas, travelling with the store (1120 triangles, 4 objects), lit by its material maps "
+                         "(normal, metallic_roughness, occlusion, emissive)\n"),
+              std::string::npos)
+        << r.out;
+    const auto at = r.out.find("\nPSNR ");
+    ASSERT_NE(at, std::string::npos) << r.out;
+    const std::string line = r.out.substr(at + 1, r.out.find('\n', at + 1) - at - 1);
+    const auto m = line.find("min ");
+    ASSERT_NE(m, std::string::npos) << line;
+    EXPECT_GE(std::stod(line.substr(m + 4)), 50.0) << line;
+    // --unlit draws the base colour as it is: the lighting changes what is seen.
+    const RunResult u = run_tessera(view + "--unlit --out " + q(dir_.file("unlit")) + " --png-count 1");
+    ASSERT_EQ(u.exit_code, 0) << u.out;
+    EXPECT_EQ(u.out.find("lit by its material maps"), std::string::npos) << u.out;
+    const auto lit = tessera::test::read_png(dir_.file("lit/frame_00024.png")).rgb;
+    const auto unlit = tessera::test::read_png(dir_.file("unlit/frame_00024.png")).rgb;
+    ASSERT_EQ(lit.size(), std::size_t(192) * 128 * 3);
+    ASSERT_EQ(unlit.size(), lit.size());
+    std::size_t differ = 0;
+    for (std::size_t i = 0; i < lit.size(); i += 3)
+        if (std::abs(int(lit[i]) - int(unlit[i])) + std::abs(int(lit[i + 1]) - int(unlit[i + 1])) > 16) ++differ;
+    EXPECT_GT(differ, lit.size() / 3 / 10) << "the lit and unlit frames differ in only " << differ << " pixels";
 }
 
 // Sixty textures through gltfpack (Debian's meshoptimizer tool, as engines' pipelines use it): it

@@ -278,7 +278,11 @@ std::unique_ptr<Vt> expect_store_matches_reference(const gl::RendererConfig& cfg
         second = second_of(cfg.show_layer, *levels);
         if (lit) normal_second = second_of(*cfg.normal_layer, normals);
     }
-    auto ref = gl::ReferenceRenderer::create(cfg, *levels, normals, second, normal_second);
+    std::vector<Levels> layers, layer_seconds;
+    if (lit) layers.push_back(normals);
+    if (!second.empty()) layer_seconds.resize(layers.size());
+    if (!second.empty() && lit) layer_seconds[0] = normal_second;
+    auto ref = gl::ReferenceRenderer::create(cfg, *levels, layers, second, layer_seconds);
     if (!ref) {
         ADD_FAILURE() << ref.error().message;
         return nullptr;

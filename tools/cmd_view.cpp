@@ -48,7 +48,7 @@ Command add_view(CLI::App& app) {
         ->capture_default_str();
     c->add_option("--show-layer", o->show_layer,
                   "a multi-layer store: the layer to draw (default: the first; a layer named \"normal\" lights it)");
-    c->add_flag("--unlit", o->unlit, "a multi-layer store: do not light the first layer by its \"normal\" layer");
+    c->add_flag("--unlit", o->unlit, "a multi-layer store: draw the first layer as it is, not lit by its \"normal\" layer or a glTF material's maps");
     c->add_option("--layer-format", o->layer_formats,
                   "a multi-layer store: NAME=FORMAT, a layer's page format (as --page-format; repeatable; default: its "
                   "block format, or its 16-bit/float samples exactly, else rgba8)");

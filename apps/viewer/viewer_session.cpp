@@ -183,8 +183,18 @@ void configure_layers(const storage::StoreInfo& info, const ViewerOptions& o, cl
     for (std::size_t i = 0; i < info.layers.size(); ++i) {
         names += (i ? ", " : "") + info.layers[i].name;
         if (info.layers[i].name == o.show_layer) rc.show_layer = std::uint32_t(i);
-        if (info.layers[i].name == "normal" && info.layers[i].channels == 2 && i > 0 && !o.unlit) rc.normal_layer = std::uint32_t(i);
+        if (i == 0 || o.unlit) continue;
+        // A terrain's normals (two channels) light it; a glTF scene's material maps (the build's
+        // layer names, docs/atlas.md, "Material layers") light its base colour.
+        const std::string& name = info.layers[i].name;
+        const auto layer = std::uint32_t(i);
+        if (name == "normal" && info.layers[i].channels == 2) rc.normal_layer = layer;
+        else if (name == "normal") rc.material.normal = layer;
+        else if (name == "metallic_roughness") rc.material.metallic_roughness = layer;
+        else if (name == "occlusion") rc.material.occlusion = layer;
+        else if (name == "emissive") rc.material.emissive = layer;
     }
+    if (rc.normal_layer) rc.material = {};  // a terrain: its normals light it
     if (!o.show_layer.empty() && info.layers[rc.show_layer].name != o.show_layer)
         throw Failure(fmt::format("--show-layer '{}': the store's layers are {}", o.show_layer, names));
     // Chosen formats; whether each fits its layer is checked with the pool (the error names it).
@@ -452,6 +462,11 @@ void ViewerRun::make_scene() {
                    : store_scene_ ? fmt::format("atlas, travelling with the store ({} triangles, {} objects)", triangles, scene_->chunks.size())
                                   : fmt::format("atlas {} ({} triangles, {} objects)", o.scene, triangles, scene_->chunks.size());
     if (atlas_scene_ && info_.has_alpha) scene_label_ += ", cut-outs at alpha 0.5";
+    if (rc_.material.any() && rc_.show_layer == 0) {  // the maps that light it (docs/renderer.md, "Materials")
+        std::string maps;
+        for (const std::uint32_t layer : rc_.sampled_layers()) maps += (maps.empty() ? "" : ", ") + info_.layers[layer].name;
+        scene_label_ += ", lit by its material maps (" + maps + ")";
+    }
     if (auto st = r().set_scene(*scene_, texture_); !st.ok()) throw Failure(st.error().message);
     auto path = scene::CameraPath::builtin_or_file(o.path, *scene_);
     if (!path) throw Failure(fmt::format("--path: {}", path.error().message));
@@ -468,13 +483,14 @@ void ViewerRun::make_reference() {
     std::fflush(stdout);
     auto levels = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, rc_.show_layer);
     if (!levels) throw Failure(fmt::format("reference: {}", levels.error().message));
-    std::vector<client::gl::ReferenceRenderer::Level> normals;
-    if (rc_.normal_layer && rc_.show_layer == 0) {
-        auto n = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, *rc_.normal_layer);
+    // The layers that light the colour, decoded the same way.
+    std::vector<client::gl::ReferenceRenderer::Levels> layers;
+    for (const std::uint32_t layer : rc_.sampled_layers()) {
+        auto n = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, layer);
         if (!n) throw Failure(fmt::format("reference: {}", n.error().message));
-        normals = std::move(*n);
+        layers.push_back(std::move(*n));
     }
-    auto ref = client::gl::ReferenceRenderer::create(rc_, *levels, normals);
+    auto ref = client::gl::ReferenceRenderer::create(rc_, *levels, layers);
     if (!ref) throw Failure(fmt::format("reference: {}", ref.error().message));
     reference_ = std::move(*ref);
     if (auto st = reference_->set_scene(*scene_); !st.ok()) throw Failure(st.error().message);

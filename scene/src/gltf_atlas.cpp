@@ -499,17 +499,26 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
                 for (double x : o) data.normals.push_back(static_cast<float>(x / len));
             }
         }
+        // A double-sided material's triangles are drawn from behind too: each gets a back copy,
+        // wound the other way, with the normals turned around (the renderer culls back faces).
+        const bool double_sided = prim.material >= 0 && static_cast<std::size_t>(prim.material) < model.materials.size() &&
+                                  model.materials[static_cast<std::size_t>(prim.material)].doubleSided;
+        if (double_sided && !normals.empty()) {
+            const std::size_t front = data.normals.size() - 3 * count;
+            for (std::size_t i = 0; i < 3 * count; ++i) data.normals.push_back(-data.normals[front + i]);
+        }
         const bool mirrored = determinant3(world) < 0;  // a mirroring transform turns the winding around
         const ColourTexture& tex = mi->texture;
         const double cr = std::cos(tex.rotation), sr = std::sin(tex.rotation);
-        auto add = [&](std::uint32_t a, std::uint32_t b, std::uint32_t c) -> Status {
+        auto add_side = [&](std::uint32_t a, std::uint32_t b, std::uint32_t c, bool back) -> Status {
             if (a == b || b == c || a == c) return {};
             std::uint32_t corner[3] = {a, b, c};
-            if (mirrored) std::swap(corner[1], corner[2]);
+            if (mirrored != back) std::swap(corner[1], corner[2]);
+            const int normal_base = base_n + (back ? static_cast<int>(count) : 0);
             int v[3], vn[3];
             for (int k = 0; k < 3; ++k) {
                 v[k] = base_v + static_cast<int>(corner[k]);
-                vn[k] = normals.empty() ? -1 : base_n + static_cast<int>(corner[k]);
+                vn[k] = normals.empty() ? -1 : normal_base + static_cast<int>(corner[k]);
             }
             if (!mi->textured) {
                 Triangle tri;
@@ -531,6 +540,10 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
             }
             return add_textured_triangle(data, shape, mi->image, v, vn, uv, tex.wrap,
                                          "material '" + material_name(prim.material) + "' (" + shape_name + ")");
+        };
+        auto add = [&](std::uint32_t a, std::uint32_t b, std::uint32_t c) -> Status {
+            TESSERA_TRY(add_side(a, b, c, false));
+            return double_sided ? add_side(a, b, c, true) : Status{};
         };
         if (mode == TINYGLTF_MODE_TRIANGLES) {
             for (std::size_t i = 0; i + 2 < indices.size(); i += 3) TESSERA_TRY(add(indices[i], indices[i + 1], indices[i + 2]));

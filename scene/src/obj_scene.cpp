@@ -59,6 +59,19 @@ Result<Scene> load_obj_scene(const std::string& obj_path, std::uint32_t vt_width
     return parse_obj_scene(text, obj_path, vt_width, vt_height);
 }
 
+namespace {
+struct VertexKey {
+    std::uint64_t vertex_texcoord;
+    int normal;
+    bool operator==(const VertexKey&) const = default;
+};
+struct VertexKeyHash {
+    std::size_t operator()(const VertexKey& k) const noexcept {
+        return std::hash<std::uint64_t>()(k.vertex_texcoord ^ (std::uint64_t(std::uint32_t(k.normal)) * 0x9E3779B97F4A7C15ull));
+    }
+};
+}  // namespace
+
 Result<Scene> parse_obj_scene(const std::string& text, const std::string& obj_path, std::uint32_t vt_width, std::uint32_t vt_height) {
     if (vt_width == 0 || vt_height == 0) return make_error(Errc::invalid_argument, "OBJ scene: the virtual texture has zero size");
     const AtlasObjHeader header = read_atlas_obj_header(text);
@@ -93,6 +106,15 @@ Result<Scene> parse_obj_scene(const std::string& text, const std::string& obj_pa
         if (file_z_up) return {double(a.vertices[i]), double(a.vertices[i + 1]), double(a.vertices[i + 2])};
         return {double(a.vertices[i]), -double(a.vertices[i + 2]), double(a.vertices[i + 1])};
     };
+    // Normals turn as positions do; a corner without one gets (0, 0, 0): the renderer then lights
+    // its facet. A scene with no `vn` at all keeps none.
+    const bool with_normals = !a.normals.empty();
+    auto normal = [&](int n) -> Vec3d {
+        if (n < 0 || 3 * std::size_t(n) + 2 >= a.normals.size()) return {0.0, 0.0, 0.0};
+        const std::size_t i = 3 * static_cast<std::size_t>(n);
+        if (file_z_up) return {double(a.normals[i]), double(a.normals[i + 1]), double(a.normals[i + 2])};
+        return {double(a.normals[i]), -double(a.normals[i + 2]), double(a.normals[i + 1])};
+    };
     auto texel = [&](int t) -> std::array<double, 2> {
         if (t < 0) return {0.0, 0.0};
         const std::size_t i = 2 * static_cast<std::size_t>(t);
@@ -124,7 +146,7 @@ Result<Scene> parse_obj_scene(const std::string& text, const std::string& obj_pa
         c.texel_origin[0] = static_cast<std::uint32_t>(std::clamp(std::floor(tmin[0]), 0.0, double(vt_width)));
         c.texel_origin[1] = static_cast<std::uint32_t>(std::clamp(std::floor(tmin[1]), 0.0, double(vt_height)));
 
-        std::unordered_map<std::uint64_t, std::uint32_t> seen;  // (vertex, texcoord) -> chunk vertex
+        std::unordered_map<VertexKey, std::uint32_t, VertexKeyHash> seen;  // (vertex, texcoord, normal) -> chunk vertex
         std::size_t offset = 0;
         for (std::size_t f = 0; f < s.mesh.num_face_vertices.size(); ++f) {
             const std::size_t nv = s.mesh.num_face_vertices[f];
@@ -132,10 +154,14 @@ Result<Scene> parse_obj_scene(const std::string& text, const std::string& obj_pa
             for (std::size_t k = 1; k + 1 < nv; ++k) {
                 const tinyobj::index_t tri[3] = {idx[offset], idx[offset + k], idx[offset + k + 1]};
                 for (int j = 0; j < 3; ++j) {
-                    const std::uint64_t key = (std::uint64_t(std::uint32_t(tri[j].vertex_index)) << 32) |
-                                              std::uint32_t(tri[j].texcoord_index);
+                    const VertexKey key{(std::uint64_t(std::uint32_t(tri[j].vertex_index)) << 32) | std::uint32_t(tri[j].texcoord_index),
+                                        tri[j].normal_index};
                     auto [it, inserted] = seen.emplace(key, static_cast<std::uint32_t>(c.vertices.size()));
                     if (inserted) {
+                        if (with_normals) {
+                            const Vec3d n = normal(tri[j].normal_index);
+                            c.normals.insert(c.normals.end(), {float(n[0]), float(n[1]), float(n[2])});
+                        }
                         const Vec3d p = world(tri[j].vertex_index);
                         const auto t = texel(tri[j].texcoord_index);
                         Vertex v{};

@@ -11,6 +11,7 @@
 // program's fragment shader does not read are dropped at link time, with their uniforms.
 layout(location = 0) in vec3 a_position;  // world units, relative to the chunk origin
 layout(location = 1) in vec2 a_texel;     // level-0 texels, relative to the chunk's texel origin
+layout(location = 2) in vec3 a_normal;    // world frame; (0, 0, 0) where the scene has none
 
 uniform mat4 u_view_projection;
 uniform vec3 u_chunk_offset;
@@ -28,6 +29,8 @@ uniform float u_bias;
 
 out vec2 v_local;
 out float v_w;  // clip w (eye depth): the feedback pass's exact derivatives need it
+out vec3 v_normal;  // material.glsl's lighting
+out vec3 v_eye;     // position relative to the camera (world units): material.glsl's view vector
 flat out ivec2 vt_chunk_page;
 flat out vec2 vt_chunk_base;
 flat out vec4 vt_chunk_bounds;
@@ -50,6 +53,8 @@ void main() {
     vt_table_column = u_table_column;
     vt_table_last_row = u_table_last_row;
     vt_bias = u_bias;
-    gl_Position = u_view_projection * vec4(a_position + u_chunk_offset, 1.0);
+    v_eye = a_position + u_chunk_offset;
+    v_normal = a_normal;
+    gl_Position = u_view_projection * vec4(v_eye, 1.0);
     v_w = gl_Position.w;
 }

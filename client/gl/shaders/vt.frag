@@ -11,6 +11,9 @@
 layout(early_fragment_tests) in;
 
 #include "vt_sample.glsl"
+#ifdef VT_MATERIAL
+#include "material.glsl"
+#endif
 
 in vec2 v_local;
 
@@ -24,6 +27,9 @@ layout(location = 0) out vec4 o_colour;
 
 void main() {
     VtSample s = vt_sample(v_local);
+#ifdef VT_MATERIAL
+    MatFrame frame = mat_frame(v_local);  // derivatives: before the alpha test's discard
+#endif
     o_colour = s.colour;
 #ifdef VT_ALPHA_TEST
     // Cut-outs: the pre-pass discarded this pixel too, and left the depth of what lies behind,
@@ -32,7 +38,10 @@ void main() {
     o_colour.a = 1.0;
 #endif
 #ifdef VT_LIT
-    o_colour.rgb = vt_lit(s.colour.rgb, s.second);
+    o_colour.rgb = vt_lit(s.colour.rgb, s.layers[0]);
+#endif
+#ifdef VT_MATERIAL
+    o_colour.rgb = mat_shade(frame, s.colour.rgb, s.layers);
 #endif
     int kind = int(s.resident > s.wanted_unbiased) + 2 * int(s.resident > s.wanted);
     if (kind != 0) atomicAdd(vt_counters.fallback[kind], 1u);

@@ -9,6 +9,9 @@
 //     [#define VT_ATLAS_RECT 1]     (RGBA8 pages, one level: a rectangle atlas in texel coordinates)
 //     [#define VT_FADE 1]           (blending in: each atlas cell's weight, see vt_fade_weight)
 //     [#define VT_FADE_ENCODED 1]   (with VT_FADE on an sRGB target: blends mix encoded colours)
+//     [#define VT_LAYERS n]         (n more layers sampled beside the colour: vt_layer_atlas)
+//     [#define VT_LIT 1]            (the terrain lit by its normal layer, layer texels [0]: vt_lit)
+//     [#define VT_MATERIAL 1, VT_NORMAL_MAP k, ...] (a glTF material's maps: material.glsl)
 //     <this file> <the shader>
 // (detail::vt_shader_defines). It is drawn with scene.vert, which forwards the per-draw,
 // per-texture and per-frame values as flat varyings (see "Inputs").
@@ -89,12 +92,14 @@ uniform sampler2DRect vt_atlas;     // the physical pages (RGBA8 or SRGB8_ALPHA8
 uniform sampler2D vt_atlas;
 const vec2 vt_inv_atlas_size = 1.0 / VT_ATLAS_SIZE;  // 1 / the atlas's level-0 size, texels
 #endif
+#ifdef VT_LAYERS
+// A multi-layer pool drawn with more layers than the colour: VT_LAYERS of them (a normal layer
+// lighting the terrain, or a glTF material's maps), each an atlas with layer 0's grid, so the same
+// coordinates, read wherever vt_atlas is with the same weights (vt_sample's VtSample.layers).
+uniform sampler2D vt_layer_atlas[VT_LAYERS];
+vec4 vt_layer_texels[VT_LAYERS];  // what the last vt_sample_entry read from them
+#endif
 #ifdef VT_LIT
-// A multi-layer pool lit by its normal layer: that layer's atlas (layer 0's grid, so the same
-// coordinates) is read wherever vt_atlas is, with the same weights (vt_sample's VtSample.second).
-uniform sampler2D vt_second_atlas;
-vec4 vt_second_texel;  // what the last vt_sample_entry read from it
-
 // Layer 0's colour lit by a normal layer's filtered texel: Lambert under a fixed sun, in the
 // texture's frame (x along u, y along v, z out of the surface); the normal's x and y are the
 // texel's red and alpha mapped from [0, 1] to [-1, 1] (a 2-channel store's two samples in every
@@ -334,7 +339,7 @@ vec4 vt_trilinear_texel(sampler2D atlas, vec2 coord, vec2 coarse, float fraction
 #endif
 #endif
 
-// One lookup of entry e as described above; under VT_LIT also the normal layer's texel.
+// One lookup of entry e as described above; under VT_LAYERS also the other layers' texels.
 vec4 vt_sample_entry_once(VtPos p, int level, uint e, float fraction) {
     int r = int((e >> 24) & 31u);
     vec2 in_page = vt_ancestor_position(p, max(r - level, 0)).in_page;
@@ -354,13 +359,15 @@ vec4 vt_sample_entry_once(VtPos p, int level, uint e, float fraction) {
     vec4 c = vt_trilinear_texel(vt_atlas, cell + in_page, coarse, f);
 #endif
     bool valid = (e >> 31) != 0u;
-#ifdef VT_LIT
+#ifdef VT_LAYERS
+    for (int k = 0; k < VT_LAYERS; ++k) {
 #if VT_FILTER == VT_BILINEAR
-    vec4 second = textureLod(vt_second_atlas, (cell + in_page) * vt_inv_atlas_size, 0.0);
+        vec4 t = textureLod(vt_layer_atlas[k], (cell + in_page) * vt_inv_atlas_size, 0.0);
 #else
-    vec4 second = vt_trilinear_texel(vt_second_atlas, cell + in_page, coarse, f);
+        vec4 t = vt_trilinear_texel(vt_layer_atlas[k], cell + in_page, coarse, f);
 #endif
-    vt_second_texel = valid ? second : vt_no_data_colour;
+        vt_layer_texels[k] = valid ? t : vt_no_data_colour;
+    }
 #endif
     return valid ? c : vt_no_data_colour;
 }
@@ -383,16 +390,17 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
         VtPos q = vt_ancestor_position(p, up - level);
         uint ea = vt_entry(q.page, up);
         if ((ea >> 31) != 0u) {
-#ifdef VT_LIT
-            vec4 second_now = vt_second_texel;
-            vec4 second_before = vec4(0.0);
+#ifdef VT_LAYERS
+            vec4 layers_now[VT_LAYERS] = vt_layer_texels;
+            vec4 layers_before[VT_LAYERS];
+            for (int k = 0; k < VT_LAYERS; ++k) layers_before[k] = vec4(0.0);
 #endif
             vec4 before = vec4(0.0);
             float rest = 1.0;  // the weight of the chain not yet accounted for
             for (int i = 0; i < VT_FADE_CHAIN; ++i) {
                 vec4 s = vt_fade_space(vt_sample_entry_once(q, up, ea, 0.0));
-#ifdef VT_LIT
-                vec4 second_s = vt_second_texel;  // the normals, blended with the same weights
+#ifdef VT_LAYERS
+                vec4 layers_s[VT_LAYERS] = vt_layer_texels;  // the other layers, blended with the same weights
 #endif
                 float wa = vt_fade_weight(ea);
                 int ua = max(int((ea >> 24) & 31u), up) + 1;
@@ -404,14 +412,14 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
                 }
                 if ((next >> 31) == 0u) {
                     before += rest * s;
-#ifdef VT_LIT
-                    second_before += rest * second_s;
+#ifdef VT_LAYERS
+                    for (int k = 0; k < VT_LAYERS; ++k) layers_before[k] += rest * layers_s[k];
 #endif
                     break;
                 }
                 before += rest * wa * s;
-#ifdef VT_LIT
-                second_before += rest * wa * second_s;
+#ifdef VT_LAYERS
+                for (int k = 0; k < VT_LAYERS; ++k) layers_before[k] += rest * wa * layers_s[k];
 #endif
                 rest *= 1.0 - wa;
                 q = qn;
@@ -419,8 +427,8 @@ vec4 vt_sample_entry(VtPos p, int level, uint e, float fraction, out uint reside
                 ea = next;
             }
             c = vt_from_fade_space(mix(before, vt_fade_space(c), w));
-#ifdef VT_LIT
-            vt_second_texel = mix(second_before, second_now, w);
+#ifdef VT_LAYERS
+            for (int k = 0; k < VT_LAYERS; ++k) vt_layer_texels[k] = mix(layers_before[k], layers_now[k], w);
 #endif
         }
     }
@@ -506,8 +514,8 @@ struct VtSample {
     uint wanted;           // wanted level with the bias (what the feedback requests)
     uint wanted_unbiased;  // wanted level without the bias
     uint resident;         // resident level sampled for the wanted page (32: none)
-#ifdef VT_LIT
-    vec4 second;           // the normal layer at the same place, filtered the same way
+#ifdef VT_LAYERS
+    vec4 layers[VT_LAYERS];  // the other layers at the same place, filtered the same way
 #endif
 };
 
@@ -524,13 +532,13 @@ VtSample vt_sample(vec2 local) {
     s.wanted_unbiased = uint(vt_wanted_level(lod0));
 #if VT_FILTER == VT_BILINEAR
     s.colour = vt_lookup(local, wanted, s.resident);
-#ifdef VT_LIT
-    s.second = vt_second_texel;
+#ifdef VT_LAYERS
+    s.layers = vt_layer_texels;
 #endif
 #elif VT_FILTER == VT_TRILINEAR
     s.colour = vt_trilinear(local, lod, s.resident);
-#ifdef VT_LIT
-    s.second = vt_second_texel;
+#ifdef VT_LAYERS
+    s.layers = vt_layer_texels;
 #endif
 #else
     // Anisotropic: count trilinear taps along the major axis, at level l0 = floor(lod) with the
@@ -570,8 +578,9 @@ VtSample vt_sample(vec2 local) {
     VtTapMap m01 = vt_tap_map(block.x, corner, ivec2(0, 1), l0, fraction);
     VtTapMap m11 = vt_tap_map(block.y, corner, ivec2(1, 1), l0, fraction);
     vec4 sum = vec4(0.0);
-#ifdef VT_LIT
-    vec4 second_sum = vec4(0.0);
+#ifdef VT_LAYERS
+    vec4 layer_sums[VT_LAYERS];
+    for (int k = 0; k < VT_LAYERS; ++k) layer_sums[k] = vec4(0.0);
 #endif
     float valid = 0.0;
     for (int i = 0; i < int(count); ++i) {
@@ -581,15 +590,15 @@ VtSample vt_sample(vec2 local) {
         float w = up.y ? (up.x ? m11.weight : m01.weight) : (up.x ? m10.weight : m00.weight);
         vec2 coarse = clamp(t, coarse_bounds.xy, coarse_bounds.zw) * a.x + a.yz;  // as vt_sample_entry
         sum += w * vt_trilinear_texel(vt_atlas, t * a.x + a.yz, coarse, a.w);
-#ifdef VT_LIT
-        second_sum += w * vt_trilinear_texel(vt_second_atlas, t * a.x + a.yz, coarse, a.w);
+#ifdef VT_LAYERS
+        for (int k = 0; k < VT_LAYERS; ++k) layer_sums[k] += w * vt_trilinear_texel(vt_layer_atlas[k], t * a.x + a.yz, coarse, a.w);
 #endif
         valid += w;
     }
     sum += (count - valid) * vt_no_data_colour;
     s.colour = sum / count;
-#ifdef VT_LIT
-    s.second = (second_sum + (count - valid) * vt_no_data_colour) / count;
+#ifdef VT_LAYERS
+    for (int k = 0; k < VT_LAYERS; ++k) s.layers[k] = (layer_sums[k] + (count - valid) * vt_no_data_colour) / count;
 #endif
 #endif
     return s;

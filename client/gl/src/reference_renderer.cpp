@@ -17,19 +17,24 @@ class ReferenceRendererImpl final : public ReferenceRenderer {
 public:
     explicit ReferenceRendererImpl(const RendererConfig& c) : cfg_(c) {}
 
-    Status init(std::span<const Level> levels, std::span<const Level> normals, std::span<const Level> second,
-                std::span<const Level> normal_second) {
+    Status init(std::span<const Level> levels, std::span<const Levels> layers, std::span<const Level> second,
+                std::span<const Levels> layer_seconds) {
         if (cfg_.width == 0 || cfg_.height == 0) return Error{Errc::invalid_argument, "reference: zero width or height"};
         if (cfg_.max_anisotropy < 1 || cfg_.max_anisotropy > 8) return Error{Errc::invalid_argument, "reference: max_anisotropy must be 1..8"};
         if (levels.empty() || levels.size() > 32) return Error{Errc::invalid_argument, "reference: 1..32 levels"};
-        const bool lit = cfg_.normal_layer && cfg_.show_layer == 0;
-        if (lit && normals.size() != levels.size())
-            return Error{Errc::invalid_argument, fmt::format("reference: lighting needs the normal layer's {} levels, got {}", levels.size(),
-                                                             normals.size())};
+        const auto sampled = cfg_.sampled_layers();
+        if (layers.size() != sampled.size())
+            return Error{Errc::invalid_argument, fmt::format("reference: the config lights with {} more layers, got {}", sampled.size(),
+                                                             layers.size())};
+        for (std::size_t k = 0; k < layers.size(); ++k)
+            if (layers[k].size() != levels.size())
+                return Error{Errc::invalid_argument, fmt::format("reference: layer {} needs the colour's {} levels, got {}", sampled[k],
+                                                                 levels.size(), layers[k].size())};
         for (std::size_t l = 0; l < levels.size(); ++l) {
             const auto& lv = levels[l];
-            if (lit && (normals[l].width != lv.width || normals[l].height != lv.height || normals[l].rgba8.size() != lv.rgba8.size()))
-                return Error{Errc::invalid_argument, fmt::format("reference: normal level {} differs from the colour level", l)};
+            for (std::size_t k = 0; k < layers.size(); ++k)
+                if (layers[k][l].width != lv.width || layers[k][l].height != lv.height || layers[k][l].rgba8.size() != lv.rgba8.size())
+                    return Error{Errc::invalid_argument, fmt::format("reference: level {} of layer {} differs from the colour level", l, sampled[k])};
             if (lv.width == 0 || lv.height == 0 || lv.rgba8.size() != std::size_t(lv.width) * lv.height * 4)
                 return Error{Errc::invalid_argument, fmt::format("reference: level {} is {}x{} with {} bytes", l, lv.width, lv.height, lv.rgba8.size())};
             if (l > 0 && (lv.width != std::max(1u, levels[l - 1].width / 2) || lv.height != std::max(1u, levels[l - 1].height / 2)))
@@ -43,15 +48,17 @@ public:
             if (second.size() + 1 != levels.size())
                 return Error{Errc::invalid_argument,
                              fmt::format("reference: {} second levels for {} levels (one per level but the last)", second.size(), levels.size())};
-            if (lit && normal_second.size() != second.size())
-                return Error{Errc::invalid_argument, "reference: lit with second levels needs the normal layer's second levels too"};
+            if (layer_seconds.size() != layers.size())
+                return Error{Errc::invalid_argument, "reference: with second levels, every lighting layer needs its second levels too"};
             for (std::size_t l = 0; l < second.size(); ++l) {
                 const auto& want = levels[l + 1];
-                for (const auto* s : {&second[l], lit ? &normal_second[l] : &second[l]})
-                    if (s->width != want.width || s->height != want.height || s->rgba8.size() != want.rgba8.size())
+                std::vector<const Level*> all = {&second[l]};
+                for (const auto& ls : layer_seconds) all.push_back(l < ls.size() ? &ls[l] : nullptr);
+                for (const Level* s : all)
+                    if (!s || s->width != want.width || s->height != want.height || s->rgba8.size() != want.rgba8.size())
                         return Error{Errc::invalid_argument,
-                                     fmt::format("reference: second level {} is {}x{}, level {} is {}x{}", l, s->width, s->height, l + 1,
-                                                 want.width, want.height)};
+                                     fmt::format("reference: second level {} is not the size of level {} ({}x{})", l, l + 1, want.width,
+                                                 want.height)};
             }
         }
         GLint max_size = 0;
@@ -61,11 +68,13 @@ public:
                          fmt::format("reference: level 0 ({}x{}) does not fit the GPU's largest texture ({}^2): use the VT with every "
                                      "page resident instead",
                                      levels[0].width, levels[0].height, max_size)};
+        // A layer's texels are colour with the sRGB curve where its atlas has it (an emissive map).
+        const auto layer_srgb = [&](std::uint32_t layer) { return cfg_.srgb && cfg_.more_layers[layer - 1].srgb; };
         texture_ = level_texture(levels, cfg_.srgb);
-        if (lit) normals_ = level_texture(normals, false);
+        for (std::size_t k = 0; k < layers.size(); ++k) layers_.push_back(level_texture(layers[k], layer_srgb(sampled[k])));
         if (blend_second) {
             second_ = level_texture(second, cfg_.srgb);
-            if (lit) normal_second_ = level_texture(normal_second, false);
+            for (std::size_t k = 0; k < layers.size(); ++k) layer_seconds_.push_back(level_texture(layer_seconds[k], layer_srgb(sampled[k])));
         }
         if (auto e = take_gl_errors("reference texture"); !e.empty()) return Error{Errc::resource_exhausted, e};
 
@@ -80,10 +89,14 @@ public:
         chunk_.chunk_offset = uniform(program_, "u_chunk_offset");
         chunk_.texel_origin = uniform(program_, "u_texel_origin");
         glProgramUniform1i(id, uniform(program_, "ref_texture"), 0);
-        if (lit) glProgramUniform1i(id, uniform(program_, "ref_normals"), 3);
+        // Units: 0 the colour, 1 its second levels, 2.. the other layers, 2 + kMaxLayers.. theirs.
+        std::vector<GLint> units(kMaxLayers);
+        for (std::size_t k = 0; k < kMaxLayers; ++k) units[k] = GLint(2 + k);
+        if (!layers_.empty()) glProgramUniform1iv(id, uniform(program_, "ref_layers"), GLsizei(layers_.size()), units.data());
         if (blend_second) {
             glProgramUniform1i(id, uniform(program_, "ref_second"), 1);
-            if (lit) glProgramUniform1i(id, uniform(program_, "ref_normal_second"), 4);
+            for (auto& u : units) u += GLint(kMaxLayers);
+            if (!layers_.empty()) glProgramUniform1iv(id, uniform(program_, "ref_layer_seconds"), GLsizei(layers_.size()), units.data());
         }
         glProgramUniform1ui(id, uniform(program_, "u_levels"), std::uint32_t(levels.size()));
 
@@ -97,7 +110,10 @@ public:
 
     void set_repeat(bool repeat) override {
         const GLint wrap = repeat ? GL_REPEAT : GL_CLAMP_TO_EDGE;
-        for (const Texture* t : {&texture_, &normals_, &second_, &normal_second_})
+        std::vector<const Texture*> all = {&texture_, &second_};
+        for (const auto* v : {&layers_, &layer_seconds_})
+            for (const Texture& t : *v) all.push_back(&t);
+        for (const Texture* t : all)
             if (*t)
                 for (const GLenum axis : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T}) glTextureParameteri(t->get(), axis, wrap);
     }
@@ -118,9 +134,9 @@ public:
         glDisable(GL_BLEND);
         glDisable(GL_SCISSOR_TEST);
         glBindTextureUnit(0, texture_.get());
-        if (normals_) glBindTextureUnit(3, normals_.get());
         if (second_) glBindTextureUnit(1, second_.get());
-        if (normal_second_) glBindTextureUnit(4, normal_second_.get());
+        for (std::size_t k = 0; k < layers_.size(); ++k) glBindTextureUnit(GLuint(2 + k), layers_[k].get());
+        for (std::size_t k = 0; k < layer_seconds_.size(); ++k) glBindTextureUnit(GLuint(2 + kMaxLayers + k), layer_seconds_[k].get());
         glUseProgram(program_.get());
         geometry_.draw(program_, chunk_, camera);
         glUseProgram(0);
@@ -153,8 +169,11 @@ private:
 
     RendererConfig cfg_;
     Texture texture_;
-    Texture normals_;  // the normal layer's levels, when the scene is lit by them
-    Texture second_, normal_second_;  // the block atlas's second levels, when given (trilinear, anisotropic)
+    static constexpr std::size_t kMaxLayers = 4;  // sampled_layers: at most a material's four maps
+    std::vector<Texture> layers_;         // the layers lighting the colour (sampled_layers' order)
+    Texture second_;                      // the block atlas's second levels, when given (trilinear, anisotropic)
+    std::vector<Texture> layer_seconds_;  // and the lighting layers'
+
     Program program_;
     GLint u_view_projection_ = -1;
     ChunkUniforms chunk_;
@@ -165,10 +184,10 @@ private:
 }  // namespace
 
 Result<std::unique_ptr<ReferenceRenderer>> ReferenceRenderer::create(const RendererConfig& config, std::span<const Level> levels,
-                                                                    std::span<const Level> normals, std::span<const Level> second_levels,
-                                                                    std::span<const Level> normal_second_levels) {
+                                                                    std::span<const Levels> layers, std::span<const Level> second_levels,
+                                                                    std::span<const Levels> layer_second_levels) {
     auto r = std::make_unique<ReferenceRendererImpl>(config);
-    if (Status st = r->init(levels, normals, second_levels, normal_second_levels); !st) return st.error();
+    if (Status st = r->init(levels, layers, second_levels, layer_second_levels); !st) return st.error();
     return std::unique_ptr<ReferenceRenderer>(std::move(r));
 }
 

@@ -7,6 +7,8 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <optional>
+#include <utility>
 
 namespace tessera::client::gl::detail {
 
@@ -14,6 +16,22 @@ namespace {
 bool any_block_layer(const RendererConfig& c) {
     if (is_block_compressed(c.page_format)) return true;
     return std::any_of(c.more_layers.begin(), c.more_layers.end(), [](const auto& l) { return is_block_compressed(l.page_format); });
+}
+// VT_LAYERS and what lights with them (vt_sample.glsl, material.glsl).
+std::string material_defines(const RendererConfig& c) {
+    const auto layers = c.sampled_layers();
+    if (layers.empty()) return {};
+    std::string d = fmt::format("#define VT_LAYERS {}\n", layers.size());
+    if (c.normal_layer) return d + "#define VT_LIT 1\n";
+    d += "#define VT_MATERIAL 1\n";
+    int k = 0;
+    const std::pair<const std::optional<std::uint32_t>*, const char*> roles[] = {{&c.material.normal, "VT_NORMAL_MAP"},
+                                                                                {&c.material.metallic_roughness, "VT_MR_MAP"},
+                                                                                {&c.material.occlusion, "VT_OCCLUSION_MAP"},
+                                                                                {&c.material.emissive, "VT_EMISSIVE_MAP"}};
+    for (const auto& [layer, name] : roles)
+        if (*layer) d += fmt::format("#define {} {}\n", name, k++);
+    return d;
 }
 }  // namespace
 
@@ -29,8 +47,9 @@ std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width
                 ? "#define VT_ATLAS_RECT 1\n"
                 : "") +
 
-           // Lighting by a normal layer: vt_sample also samples that layer's atlas (docs/renderer.md, "Layers").
-           (c.normal_layer && c.show_layer == 0 ? "#define VT_LIT 1\n" : "") +
+           // Lighting by a normal layer or a material's maps: vt_sample also samples those layers' atlases
+           // (docs/renderer.md, "Layers" and "Materials").
+           material_defines(c) +
            // Block atlases' second levels have their own border blocks at the texture's edges.
            (c.has_second_level() && any_block_layer(c) ? "#define VT_BLOCK_EDGES 1\n" : "") +
            // Cut-outs: every pass discards where the texture's alpha is below vt_alpha_cutoff.
@@ -69,6 +88,15 @@ Status SceneGeometry::upload(const scene::Scene& s) {
     const auto ibytes = static_cast<GLsizeiptr>(std::max<std::size_t>(index_count, 1) * sizeof(std::uint32_t));
     glNamedBufferStorage(vertices_.get(), vbytes, nullptr, GL_DYNAMIC_STORAGE_BIT);
     glNamedBufferStorage(indices_.get(), ibytes, nullptr, GL_DYNAMIC_STORAGE_BIT);
+    // Vertex normals (attribute 2) where the scene has them; a chunk without them reads zeros, and
+    // without any the attribute is off (its constant value, (0, 0, 0)): material.glsl lights facets.
+    const bool with_normals = std::any_of(s.chunks.begin(), s.chunks.end(), [](const scene::Chunk& c) { return !c.normals.empty(); });
+    normals_ = Buffer();
+    if (with_normals) {
+        normals_ = make_buffer();
+        const std::vector<float> zeros(std::max<std::size_t>(vertex_count, 1) * 3, 0.0f);
+        glNamedBufferStorage(normals_.get(), static_cast<GLsizeiptr>(zeros.size() * sizeof(float)), zeros.data(), GL_DYNAMIC_STORAGE_BIT);
+    }
     std::size_t v = 0, i = 0;
     for (const auto& c : s.chunks) {
         if (c.indices.empty() || c.vertices.empty()) continue;
@@ -97,6 +125,9 @@ Status SceneGeometry::upload(const scene::Scene& s) {
                              static_cast<GLsizeiptr>(c.vertices.size() * sizeof(scene::Vertex)), c.vertices.data());
         glNamedBufferSubData(indices_.get(), static_cast<GLintptr>(d.index_offset),
                              static_cast<GLsizeiptr>(c.indices.size() * sizeof(std::uint32_t)), c.indices.data());
+        if (with_normals && c.normals.size() == 3 * c.vertices.size())
+            glNamedBufferSubData(normals_.get(), static_cast<GLintptr>(v * 3 * sizeof(float)),
+                                 static_cast<GLsizeiptr>(c.normals.size() * sizeof(float)), c.normals.data());
         v += c.vertices.size();
         i += c.indices.size();
         chunks_.push_back(d);
@@ -110,6 +141,14 @@ Status SceneGeometry::upload(const scene::Scene& s) {
     glVertexArrayAttribFormat(vao, 1, 2, GL_FLOAT, GL_FALSE, 3 * sizeof(float));
     glVertexArrayAttribBinding(vao, 0, 0);
     glVertexArrayAttribBinding(vao, 1, 0);
+    if (with_normals) {
+        glVertexArrayVertexBuffer(vao, 1, normals_.get(), 0, 3 * sizeof(float));
+        glVertexArrayAttribFormat(vao, 2, 3, GL_FLOAT, GL_FALSE, 0);
+        glVertexArrayAttribBinding(vao, 2, 1);
+        glEnableVertexArrayAttrib(vao, 2);
+    } else {
+        glDisableVertexArrayAttrib(vao, 2);
+    }
     if (auto e = take_gl_errors("scene upload"); !e.empty()) return Error{Errc::resource_exhausted, e};
     return Status();
 }
@@ -320,3 +359,16 @@ std::vector<std::uint8_t> read_colour(const ColourTarget& t) {
 }
 
 }  // namespace tessera::client::gl::detail
+
+namespace tessera::client::gl {
+
+std::vector<std::uint32_t> RendererConfig::sampled_layers() const {
+    if (show_layer != 0) return {};
+    if (normal_layer) return {*normal_layer};
+    std::vector<std::uint32_t> out;
+    for (const auto& l : {material.normal, material.metallic_roughness, material.occlusion, material.emissive})
+        if (l) out.push_back(*l);
+    return out;
+}
+
+}  // namespace tessera::client::gl

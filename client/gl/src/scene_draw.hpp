@@ -72,6 +72,7 @@ private:
     };
     VertexArray vao_;
     Buffer vertices_, indices_;
+    Buffer normals_;  // three floats per vertex, when the scene has normals
     std::vector<ChunkDraw> chunks_;
     std::vector<std::uint32_t> visible_;
     double chunk_pitch_ = 0;  // > 0: a heightfield scene

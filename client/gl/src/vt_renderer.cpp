@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <array>
 #include <numeric>
 #include <optional>
 #include <utility>
@@ -26,12 +27,16 @@ namespace {
 
 using namespace detail;
 
+// Texture units of the layers sampled beside layer 0 (vt_layer_atlas[k]); 0, 1 and 3 hold the page
+// table, the atlas and the fade weights.
+constexpr std::array<GLint, 4> kLayerUnits = {2, 4, 5, 6};
+
 // Uniform locations of a program built with vt_sample.glsl (scene.vert forwards most of them to
 // the fragment shader: vt_sample.glsl, "Inputs").
 struct VtUniforms {
     GLint view_projection = -1, bias = -1, main_pixel = -1;
     GLint table_column = -1, table_last_row = -1, levels = -1, texture_size = -1, texture_id = -1;
-    GLint page_table = -1, atlas = -1, second_atlas = -1, fade = -1, dir_offset = -1, dir_width = -1;
+    GLint page_table = -1, atlas = -1, layer_atlas = -1, fade = -1, dir_offset = -1, dir_width = -1;
     ChunkUniforms chunk;
 
     explicit VtUniforms(const Program& p = Program()) {
@@ -48,7 +53,7 @@ struct VtUniforms {
         dir_offset = uniform(p, "vt_dir_offset");
         dir_width = uniform(p, "vt_dir_width");
         atlas = uniform(p, "vt_atlas");
-        second_atlas = uniform(p, "vt_second_atlas");
+        layer_atlas = uniform(p, "vt_layer_atlas");
         fade = uniform(p, "vt_fade");
         chunk.chunk_offset = uniform(p, "u_chunk_offset");
         chunk.chunk_page = uniform(p, "u_chunk_page");
@@ -98,6 +103,11 @@ public:
         if (c.normal_layer && (*c.normal_layer == 0 || *c.normal_layer >= layers))
             return Error{Errc::invalid_argument,
                          fmt::format("renderer: normal_layer {} must be one of layers 1..{}", *c.normal_layer, layers - 1)};
+        if (c.normal_layer && c.material.any())
+            return Error{Errc::invalid_argument, "renderer: normal_layer lights the terrain, material a glTF scene: not both"};
+        for (const auto& l : {c.material.normal, c.material.metallic_roughness, c.material.occlusion, c.material.emissive})
+            if (l && (*l == 0 || *l >= layers))
+                return Error{Errc::invalid_argument, fmt::format("renderer: material layer {} must be one of layers 1..{}", *l, layers - 1)};
         for (std::size_t i = 0; i < layers; ++i) TESSERA_TRY(check_page_format_support(layer_config(i)));
         GLint max_size = 0;
         glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
@@ -161,11 +171,14 @@ public:
     Status build_programs(int fading) {
         const auto& c = cfg_;
         const std::string defines = vt_shader_defines(c, atlas_.width(), atlas_.height());
-        const auto set_units = [](const Program& p, const VtUniforms& u) {
+        const auto set_units = [this](const Program& p, const VtUniforms& u) {
             if (!p) return;
             glProgramUniform1i(p.get(), u.page_table, 0);
             glProgramUniform1i(p.get(), u.atlas, 1);
-            if (u.second_atlas >= 0) glProgramUniform1i(p.get(), u.second_atlas, 2);
+            if (u.layer_atlas >= 0) {
+                const auto n = cfg_.sampled_layers().size();
+                glProgramUniform1iv(p.get(), u.layer_atlas, GLsizei(n), kLayerUnits.data());
+            }
             if (u.fade >= 0) glProgramUniform1i(p.get(), u.fade, 3);
         };
         for (int sparse = 0; sparse < 2; ++sparse) {
@@ -489,7 +502,8 @@ private:
     void bind_atlases() {
         glBindTextureUnit(1, atlas(cfg_.show_layer).texture());
 
-        if (cfg_.normal_layer) glBindTextureUnit(2, atlas(*cfg_.normal_layer).texture());
+        const auto layers = cfg_.sampled_layers();
+        for (std::size_t k = 0; k < layers.size(); ++k) glBindTextureUnit(GLuint(kLayerUnits[k]), atlas(layers[k]).texture());
         glBindTextureUnit(3, weights_.texture());
     }
 

@@ -26,6 +26,9 @@ struct Chunk {
     std::uint32_t texel_origin[2] = {0, 0};  // level-0 texel of local texel (0, 0)
     std::vector<Vertex> vertices;
     std::vector<std::uint32_t> indices;  // triangles, counter-clockwise seen from the front
+    // Vertex normals, world frame, three floats per vertex (an OBJ's `vn`, for lighting a
+    // material: docs/renderer.md, "Materials"); empty where the scene has none.
+    std::vector<float> normals;
     double bounds_min[3] = {0, 0, 0};    // world-space box of the chunk (for culling)
     double bounds_max[3] = {0, 0, 0};
     // A heightfield over a regular grid (make_terrain's chunks; 0: not one): grid_quads quads per

@@ -26,16 +26,20 @@ public:
     // Errors: a level 0 larger than GL_MAX_TEXTURE_SIZE ("does not fit": use the VT with every page
     // resident instead), levels not halving: each level must be max(1, previous / 2) per side (GL's
     // mip chain rounds down, the store's rounds up: they agree for power-of-two sides).
-    // `normals`: the normal layer's levels, needed when config lights the scene (normal_layer set
-    // and show_layer 0): the reference lights its colour as the VT pass does.
-    // `second_levels` (optional; and `normal_second_levels` when lit): what a block-format atlas
-    // holds under each page of level L as its coarser level (client::decode_store_second_levels), one per
-    // level but the last, the size of level L + 1. Given, trilinear and anisotropic lookups blend
-    // level L with it, as the VT does, instead of with level L + 1.
+    // `layers`: the levels of each layer the config lights layer 0 with (the normal layer, or a
+    // material's maps), in the order the VT samples them (normal, metallic-roughness, occlusion,
+    // emissive: those named), each as many and as large as `levels`; the reference lights its
+    // colour as the VT pass does.
+    // `second_levels` (optional; and then `layer_second_levels`, one list per layer): what a
+    // block-format atlas holds under each page of level L as its coarser level
+    // (client::decode_store_second_levels), one per level but the last, the size of level L + 1.
+    // Given, trilinear and anisotropic lookups blend level L with it, as the VT does, instead of
+    // with level L + 1.
+    using Levels = std::vector<Level>;
     static Result<std::unique_ptr<ReferenceRenderer>> create(const RendererConfig& config, std::span<const Level> levels,
-                                                             std::span<const Level> normals = {},
+                                                             std::span<const Levels> layers = {},
                                                              std::span<const Level> second_levels = {},
-                                                             std::span<const Level> normal_second_levels = {});
+                                                             std::span<const Levels> layer_second_levels = {});
     virtual ~ReferenceRenderer() = default;
     virtual Status set_scene(const scene::Scene& scene) = 0;
     // The texture repeats past its edges (GL_REPEAT) instead of clamping (the default): one

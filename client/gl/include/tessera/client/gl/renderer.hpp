@@ -67,6 +67,18 @@ struct RendererConfig {
     // y in alpha, each mapped from [0, 1] to [-1, 1]: a 2-channel store's two samples; z implied).
     std::uint32_t show_layer = 0;
     std::optional<std::uint32_t> normal_layer;
+    // A glTF scene's material layers (docs/renderer.md, "Materials"): with show_layer 0 and any of
+    // these set, layer 0 is the base colour of a metallic-roughness material lit by one sun and an
+    // ambient term, with the maps in these layers (a tangent-space normal map in RGB; G roughness
+    // and B metallic; R occlusion; an emissive colour). Not with normal_layer.
+    struct MaterialLayers {
+        std::optional<std::uint32_t> normal, metallic_roughness, occlusion, emissive;
+        bool any() const { return normal || metallic_roughness || occlusion || emissive; }
+    };
+    MaterialLayers material;
+    // The layers drawn beside layer 0, in the order the shaders sample them: the normal layer, or
+    // the material's maps in the order above (those set). Empty: none, or a layer other than 0 shown.
+    std::vector<std::uint32_t> sampled_layers() const;
     std::size_t staging_bytes = 32u << 20;  // page + page-table staging ring (bounded; when full, uploads go
                                             // straight from client memory: RendererStats::direct_uploads)
     // Page-sized buffers of mapped GPU memory lent to the runtime to decode pages into
