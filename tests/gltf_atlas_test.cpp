@@ -574,6 +574,106 @@ TEST_F(GltfAtlas, ABlenderCourtyardLitByItsMapsMatchesTheReferenceOverGrpc) {
     EXPECT_GT(differ, lit.size() / 3 / 10) << "the lit and unlit frames differ in only " << differ << " pixels";
 }
 
+// The lighting itself, against glTF 2.0's BRDF (its specification, appendix B) written out here in
+// double precision, not the shader's code: one quad of constant maps seen from a fixed camera, whose
+// centre ray meets the quad's centre, so the view vector there is known. Its normal map tilts the
+// normal towards +u (the tangent: +x here) and its bitangent (up the image: +y), so a wrong
+// tangent frame, a swapped channel or a lost map moves the centre pixel's colour.
+TEST_F(GltfAtlas, MaterialLightingMatchesTheGltfBrdfWrittenOutIndependently) {
+    const int W = 8, H = 8;
+    auto solid = [&](std::array<std::uint8_t, 3> c) {
+        std::vector<std::uint8_t> rgb(std::size_t(W) * H * 3);
+        for (std::size_t i = 0; i < rgb.size(); i += 3) std::copy(c.begin(), c.end(), rgb.begin() + std::ptrdiff_t(i));
+        auto png = storage::encode_png({W, H, 3, storage::SampleType::u8, storage::ColourSpace::srgb, rgb});
+        EXPECT_TRUE(png.ok());
+        return "data:image/png;base64," + base64(*png);
+    };
+    const std::array<std::uint8_t, 3> base{180, 120, 60}, normal{204, 159, 220}, orm{150, 110, 40}, emissive{30, 20, 10};
+    // glTF is Y up: the quad lies in y = 0 facing +Y, u along +x, v (down the image) along +z.
+    const float pos[4][3] = {{-1, 0, 1}, {1, 0, 1}, {1, 0, -1}, {-1, 0, -1}};
+    const float nrm[4][3] = {{0, 1, 0}, {0, 1, 0}, {0, 1, 0}, {0, 1, 0}};
+    const float uv[4][2] = {{0, 1}, {1, 1}, {1, 0}, {0, 0}};
+    const std::uint16_t idx[6] = {0, 1, 2, 0, 2, 3};
+    std::vector<std::uint8_t> buffer(sizeof pos + sizeof nrm + sizeof uv + sizeof idx);
+    std::memcpy(buffer.data(), pos, sizeof pos);
+    std::memcpy(buffer.data() + sizeof pos, nrm, sizeof nrm);
+    std::memcpy(buffer.data() + sizeof pos + sizeof nrm, uv, sizeof uv);
+    std::memcpy(buffer.data() + sizeof pos + sizeof nrm + sizeof uv, idx, sizeof idx);
+    const std::size_t o_nrm = sizeof pos, o_uv = o_nrm + sizeof nrm, o_idx = o_uv + sizeof uv;
+    const nlohmann::json j = {
+        {"asset", {{"version", "2.0"}}},
+        {"scene", 0},
+        {"scenes", {{{"nodes", {0}}}}},
+        {"nodes", {{{"mesh", 0}}}},
+        {"meshes", {{{"primitives", {{{"attributes", {{"POSITION", 0}, {"NORMAL", 1}, {"TEXCOORD_0", 2}}}, {"indices", 3}, {"material", 0}}}}}}},
+        {"materials",
+         {{{"name", "lit"},
+           {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}, {"metallicRoughnessTexture", {{"index", 2}}}}},
+           {"normalTexture", {{"index", 1}}},
+           {"occlusionTexture", {{"index", 2}}},
+           {"emissiveTexture", {{"index", 3}}},
+           {"emissiveFactor", {1, 1, 1}}}}},
+        {"textures", {{{"source", 0}}, {{"source", 1}}, {{"source", 2}}, {{"source", 3}}}},
+        {"images", {{{"uri", solid(base)}}, {{"uri", solid(normal)}}, {{"uri", solid(orm)}}, {{"uri", solid(emissive)}}}},
+        {"buffers", {{{"byteLength", buffer.size()}, {"uri", "data:application/octet-stream;base64," + base64(buffer)}}}},
+        {"bufferViews",
+         {{{"buffer", 0}, {"byteOffset", 0}, {"byteLength", sizeof pos}},
+          {{"buffer", 0}, {"byteOffset", o_nrm}, {"byteLength", sizeof nrm}},
+          {{"buffer", 0}, {"byteOffset", o_uv}, {"byteLength", sizeof uv}},
+          {{"buffer", 0}, {"byteOffset", o_idx}, {"byteLength", sizeof idx}}}},
+        {"accessors",
+         {{{"bufferView", 0}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"}, {"min", {-1, 0, -1}}, {"max", {1, 0, 1}}},
+          {{"bufferView", 1}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"}},
+          {{"bufferView", 2}, {"componentType", 5126}, {"count", 4}, {"type", "VEC2"}},
+          {{"bufferView", 3}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}}}}};
+    const RunResult b = build_json(j, "lit");
+    ASSERT_EQ(b.exit_code, 0) << b.out;
+    // The camera 3 units from the quad's centre, looking at it along +y, 60 degrees down (the
+    // library is Z up: the quad is z = 0, u along +x, up the image +y).
+    const double pitch = 60.0 * std::acos(-1.0) / 180.0;
+    const std::array<double, 3> eye{0, -3 * std::cos(pitch), 3 * std::sin(pitch)};
+    char path[256];
+    std::snprintf(path, sizeof path, "fov 40\n0 0 %.17g %.17g 90 -60\n1 0 %.17g %.17g 90 -60\n", eye[1], eye[2], eye[1], eye[2]);
+    write_file(dir_.file("still.path"), std::vector<std::uint8_t>(path, path + std::strlen(path)));
+    const RunResult r = run_tessera("view --store " + q(dir_.file("out/lit.tsr")) + " --headless --size 65x65 --frames 40 --path " +
+                                    q(dir_.file("still.path")) + " --out " + q(dir_.file("frames")) + " --png-count 1");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    ASSERT_NE(r.out.find("lit by its material maps (normal, metallic_roughness, occlusion, emissive)"), std::string::npos) << r.out;
+    const auto frame = tessera::test::read_png(dir_.file("frames/frame_00020.png"));
+    ASSERT_EQ(frame.width, 65);
+
+    // The BRDF at the centre: n from the normal map in the frame (t, b, n) = (+x, +y, +z).
+    using V3 = std::array<double, 3>;
+    auto dot = [](V3 a, V3 c) { return a[0] * c[0] + a[1] * c[1] + a[2] * c[2]; };
+    auto unit = [&](V3 a) {
+        const double l = std::sqrt(dot(a, a));
+        return V3{a[0] / l, a[1] / l, a[2] / l};
+    };
+    auto linear = [](std::uint8_t c) {
+        const double x = c / 255.0;
+        return x <= 0.04045 ? x / 12.92 : std::pow((x + 0.055) / 1.055, 2.4);
+    };
+    const V3 n = unit({normal[0] / 255.0 * 2 - 1, normal[1] / 255.0 * 2 - 1, normal[2] / 255.0 * 2 - 1});
+    const V3 l = unit({-0.5, -0.4, 0.75});  // the sun (docs/renderer.md, "Materials")
+    const V3 v = unit(eye);
+    const V3 h = unit({l[0] + v[0], l[1] + v[1], l[2] + v[2]});
+    const double occlusion = orm[0] / 255.0, roughness = orm[1] / 255.0, metallic = orm[2] / 255.0;
+    const double alpha = roughness * roughness, a2 = alpha * alpha;
+    const double nl = std::max(dot(n, l), 0.0), nv = dot(n, v), nh = dot(n, h), vh = dot(v, h);
+    const double d = a2 / (std::acos(-1.0) * std::pow(nh * nh * (a2 - 1) + 1, 2));
+    const double vis = 0.5 / (nl * std::sqrt(nv * nv * (1 - a2) + a2) + nv * std::sqrt(nl * nl * (1 - a2) + a2));
+    for (int c = 0; c < 3; ++c) {
+        const double colour = linear(base[std::size_t(c)]);
+        const double f0 = 0.04 * (1 - metallic) + colour * metallic, diffuse = colour * (1 - metallic);
+        const double fresnel = f0 + (1 - f0) * std::pow(1 - vh, 5);
+        const double out = ((1 - fresnel) * diffuse / std::acos(-1.0) + fresnel * d * vis) * 2.4 * nl + 0.3 * occlusion * (diffuse + f0) +
+                           linear(emissive[std::size_t(c)]);
+        const double x = std::clamp(out, 0.0, 1.0);
+        const double encoded = 255.0 * (x <= 0.0031308 ? x * 12.92 : 1.055 * std::pow(x, 1 / 2.4) - 0.055);
+        EXPECT_NEAR(frame.at(32, 32)[std::size_t(c)], encoded, 2.0) << "channel " << c << "\n" << r.out;
+    }
+}
+
 // Sixty textures through gltfpack (Debian's meshoptimizer tool, as engines' pipelines use it): it
 // rewrites the scene with quantised positions and texture coordinates (KHR_mesh_quantization,
 // undone by node transforms and KHR_texture_transform) and puts the images inside the GLB. Every
