@@ -132,6 +132,34 @@ private:
     std::vector<Piece> pieces_;
 };
 
+// An 8x8 PNG of one colour (RGB, or RGBA with `alpha`), as a data URI.
+std::string solid_png_uri(std::array<std::uint8_t, 3> c, std::optional<std::uint8_t> alpha = std::nullopt) {
+    const std::uint32_t W = 8, H = 8, channels = alpha ? 4 : 3;
+    std::vector<std::uint8_t> px(std::size_t(W) * H * channels);
+    for (std::size_t i = 0; i < px.size(); i += channels) {
+        std::copy(c.begin(), c.end(), px.begin() + std::ptrdiff_t(i));
+        if (alpha) px[i + 3] = *alpha;
+    }
+    auto png = storage::encode_png({W, H, channels, storage::SampleType::u8, storage::ColourSpace::srgb, px});
+    EXPECT_TRUE(png.ok());
+    return png.ok() ? "data:image/png;base64," + base64(*png) : std::string();
+}
+
+// The camera of the still views below: 3 units from the origin, looking at it along +y, 60
+// degrees down (the library is Z up), so the centre pixel of an odd-sized frame sees the origin.
+constexpr double kStillPitch = 60.0 * 3.14159265358979323846 / 180.0;
+const std::array<double, 3> kStillEye{0, -3 * std::cos(kStillPitch), 3 * std::sin(kStillPitch)};
+
+// sRGB-encoded byte of linear x (clamped), and the linear value of an sRGB byte.
+double encode_srgb(double x) {
+    x = std::clamp(x, 0.0, 1.0);
+    return 255.0 * (x <= 0.0031308 ? x * 12.92 : 1.055 * std::pow(x, 1 / 2.4) - 0.055);
+}
+double linear_of(std::uint8_t c) {
+    const double x = c / 255.0;
+    return x <= 0.04045 ? x / 12.92 : std::pow((x + 0.055) / 1.055, 2.4);
+}
+
 class GltfAtlas : public ::testing::Test {
 protected:
     void SetUp() override {
@@ -149,6 +177,16 @@ protected:
         const std::string text = scene.dump();
         write_file(file, std::vector<std::uint8_t>(text.begin(), text.end()));
         return build(file, name);
+    }
+    // Views out/NAME.tsr headless at 65x65 from the still camera (kStillEye), 40 frames, and
+    // writes frame 20 to frames/ (past the first view and its fades).
+    RunResult still_view(const std::string& name, const std::string& extra = "") {
+        char path[256];
+        std::snprintf(path, sizeof path, "fov 40\n0 0 %.17g %.17g 90 -60\n1 0 %.17g %.17g 90 -60\n", kStillEye[1], kStillEye[2],
+                      kStillEye[1], kStillEye[2]);
+        write_file(dir_.file("still.path"), std::vector<std::uint8_t>(path, path + std::strlen(path)));
+        return run_tessera("view --store " + q(dir_.file("out/" + name + ".tsr")) + " --headless --size 65x65 --frames 40 --path " +
+                           q(dir_.file("still.path")) + " --out " + q(dir_.file("frames")) + " --png-count 1 " + extra);
     }
     ScratchDir dir_;
 };
@@ -580,14 +618,7 @@ TEST_F(GltfAtlas, ABlenderCourtyardLitByItsMapsMatchesTheReferenceOverGrpc) {
 // normal towards +u (the tangent: +x here) and its bitangent (up the image: +y), so a wrong
 // tangent frame, a swapped channel or a lost map moves the centre pixel's colour.
 TEST_F(GltfAtlas, MaterialLightingMatchesTheGltfBrdfWrittenOutIndependently) {
-    const int W = 8, H = 8;
-    auto solid = [&](std::array<std::uint8_t, 3> c) {
-        std::vector<std::uint8_t> rgb(std::size_t(W) * H * 3);
-        for (std::size_t i = 0; i < rgb.size(); i += 3) std::copy(c.begin(), c.end(), rgb.begin() + std::ptrdiff_t(i));
-        auto png = storage::encode_png({W, H, 3, storage::SampleType::u8, storage::ColourSpace::srgb, rgb});
-        EXPECT_TRUE(png.ok());
-        return "data:image/png;base64," + base64(*png);
-    };
+    const auto solid = [](std::array<std::uint8_t, 3> c) { return solid_png_uri(c); };
     const std::array<std::uint8_t, 3> base{180, 120, 60}, normal{204, 159, 220}, orm{150, 110, 40}, emissive{30, 20, 10};
     // glTF is Y up: the quad lies in y = 0 facing +Y, u along +x, v (down the image) along +z.
     const float pos[4][3] = {{-1, 0, 1}, {1, 0, 1}, {1, 0, -1}, {-1, 0, -1}};
@@ -628,19 +659,13 @@ TEST_F(GltfAtlas, MaterialLightingMatchesTheGltfBrdfWrittenOutIndependently) {
           {{"bufferView", 3}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}}}}};
     const RunResult b = build_json(j, "lit");
     ASSERT_EQ(b.exit_code, 0) << b.out;
-    // The camera 3 units from the quad's centre, looking at it along +y, 60 degrees down (the
-    // library is Z up: the quad is z = 0, u along +x, up the image +y).
-    const double pitch = 60.0 * std::acos(-1.0) / 180.0;
-    const std::array<double, 3> eye{0, -3 * std::cos(pitch), 3 * std::sin(pitch)};
-    char path[256];
-    std::snprintf(path, sizeof path, "fov 40\n0 0 %.17g %.17g 90 -60\n1 0 %.17g %.17g 90 -60\n", eye[1], eye[2], eye[1], eye[2]);
-    write_file(dir_.file("still.path"), std::vector<std::uint8_t>(path, path + std::strlen(path)));
-    const RunResult r = run_tessera("view --store " + q(dir_.file("out/lit.tsr")) + " --headless --size 65x65 --frames 40 --path " +
-                                    q(dir_.file("still.path")) + " --out " + q(dir_.file("frames")) + " --png-count 1");
+    // The quad is z = 0 in the library's Z up, u along +x, up the image +y.
+    const RunResult r = still_view("lit");
     ASSERT_EQ(r.exit_code, 0) << r.out;
     ASSERT_NE(r.out.find("lit by its material maps (normal, metallic_roughness, occlusion, emissive)"), std::string::npos) << r.out;
     const auto frame = tessera::test::read_png(dir_.file("frames/frame_00020.png"));
     ASSERT_EQ(frame.width, 65);
+    const std::array<double, 3> eye = kStillEye;
 
     // The BRDF at the centre: n from the normal map in the frame (t, b, n) = (+x, +y, +z).
     using V3 = std::array<double, 3>;
@@ -649,10 +674,7 @@ TEST_F(GltfAtlas, MaterialLightingMatchesTheGltfBrdfWrittenOutIndependently) {
         const double l = std::sqrt(dot(a, a));
         return V3{a[0] / l, a[1] / l, a[2] / l};
     };
-    auto linear = [](std::uint8_t c) {
-        const double x = c / 255.0;
-        return x <= 0.04045 ? x / 12.92 : std::pow((x + 0.055) / 1.055, 2.4);
-    };
+    const auto linear = linear_of;
     const V3 n = unit({normal[0] / 255.0 * 2 - 1, normal[1] / 255.0 * 2 - 1, normal[2] / 255.0 * 2 - 1});
     const V3 l = unit({-0.5, -0.4, 0.75});  // the sun (docs/renderer.md, "Materials")
     const V3 v = unit(eye);
@@ -668,10 +690,71 @@ TEST_F(GltfAtlas, MaterialLightingMatchesTheGltfBrdfWrittenOutIndependently) {
         const double fresnel = f0 + (1 - f0) * std::pow(1 - vh, 5);
         const double out = ((1 - fresnel) * diffuse / std::acos(-1.0) + fresnel * d * vis) * 2.4 * nl + 0.3 * occlusion * (diffuse + f0) +
                            linear(emissive[std::size_t(c)]);
-        const double x = std::clamp(out, 0.0, 1.0);
-        const double encoded = 255.0 * (x <= 0.0031308 ? x * 12.92 : 1.055 * std::pow(x, 1 / 2.4) - 0.055);
-        EXPECT_NEAR(frame.at(32, 32)[std::size_t(c)], encoded, 2.0) << "channel " << c << "\n" << r.out;
+        EXPECT_NEAR(frame.at(32, 32)[std::size_t(c)], encode_srgb(out), 2.0) << "channel " << c << "\n" << r.out;
     }
+}
+
+// alphaMode BLEND: a half-transparent blue quad half a unit above an opaque red one. Both
+// renderers draw it over what lies behind, after the rest; the centre pixel must be the two
+// colours mixed by the alpha in linear light, computed here, and the VT must match the reference.
+TEST_F(GltfAtlas, BlendedMaterialsMixWithWhatLiesBehind) {
+    const std::array<std::uint8_t, 3> back{200, 40, 30}, front{20, 60, 220};
+    const std::uint8_t alpha = 100;
+    const float pos[4][3] = {{-1, 0, 1}, {1, 0, 1}, {1, 0, -1}, {-1, 0, -1}};
+    const float uv[4][2] = {{0, 1}, {1, 1}, {1, 0}, {0, 0}};
+    const std::uint16_t idx[6] = {0, 1, 2, 0, 2, 3};
+    std::vector<std::uint8_t> buffer(sizeof pos + sizeof uv + sizeof idx);
+    std::memcpy(buffer.data(), pos, sizeof pos);
+    std::memcpy(buffer.data() + sizeof pos, uv, sizeof uv);
+    std::memcpy(buffer.data() + sizeof pos + sizeof uv, idx, sizeof idx);
+    const auto primitive = [](int material) {
+        return nlohmann::json{{"primitives", {{{"attributes", {{"POSITION", 0}, {"TEXCOORD_0", 1}}}, {"indices", 2}, {"material", material}}}}};
+    };
+    const nlohmann::json j = {
+        {"asset", {{"version", "2.0"}}},
+        {"scene", 0},
+        {"scenes", {{{"nodes", {0, 1}}}}},
+        {"nodes", {{{"mesh", 0}, {"name", "floor"}}, {{"mesh", 1}, {"name", "glass"}, {"translation", {0, 0.5, 0}}}}},
+        {"meshes", {primitive(0), primitive(1)}},
+        {"materials",
+         {{{"name", "red"}, {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}}}},
+          {{"name", "glass"}, {"alphaMode", "BLEND"}, {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 1}}}}}}}},
+        {"textures", {{{"source", 0}}, {{"source", 1}}}},
+        {"images", {{{"uri", solid_png_uri(back)}}, {{"uri", solid_png_uri(front, alpha)}}}},
+        {"buffers", {{{"byteLength", buffer.size()}, {"uri", "data:application/octet-stream;base64," + base64(buffer)}}}},
+        {"bufferViews",
+         {{{"buffer", 0}, {"byteOffset", 0}, {"byteLength", sizeof pos}},
+          {{"buffer", 0}, {"byteOffset", sizeof pos}, {"byteLength", sizeof uv}},
+          {{"buffer", 0}, {"byteOffset", sizeof pos + sizeof uv}, {"byteLength", sizeof idx}}}},
+        {"accessors",
+         {{{"bufferView", 0}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"}, {"min", {-1, 0, -1}}, {"max", {1, 0, 1}}},
+          {{"bufferView", 1}, {"componentType", 5126}, {"count", 4}, {"type", "VEC2"}},
+          {{"bufferView", 2}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}}}}};
+    const RunResult b = build_json(j, "glass");
+    ASSERT_EQ(b.exit_code, 0) << b.out;
+    EXPECT_EQ(b.out.find("warning"), std::string::npos) << b.out;
+    // The rewritten OBJ marks the blended object.
+    const auto obj = read_file(dir_.file("out/glass.obj"));
+    const std::string text(obj.begin(), obj.end());
+    EXPECT_NE(text.find("# tessera-blend\no glass\n"), std::string::npos) << text;
+    EXPECT_EQ(text.find("# tessera-blend\no floor\n"), std::string::npos) << text;
+
+    const RunResult r = still_view("glass", "--psnr-every 5 --reference-store " + q(dir_.file("out/glass.tsr")));
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    const auto frame = tessera::test::read_png(dir_.file("frames/frame_00020.png"));
+    ASSERT_EQ(frame.width, 65);
+    const double a = alpha / 255.0;
+    for (std::size_t c = 0; c < 3; ++c) {
+        const double mixed = a * linear_of(front[c]) + (1 - a) * linear_of(back[c]);
+        EXPECT_NEAR(frame.at(32, 32)[c], encode_srgb(mixed), 1.5) << "channel " << c << "\n" << r.out;
+    }
+    const auto at = r.out.find("\nPSNR ");
+    ASSERT_NE(at, std::string::npos) << r.out;
+    const std::string line = r.out.substr(at + 1, r.out.find('\n', at + 1) - at - 1);
+    if (line.find("lossless") != std::string::npos) return;  // identical to the reference
+    const auto m = line.find("min ");
+    ASSERT_NE(m, std::string::npos) << line;
+    EXPECT_GE(std::stod(line.substr(m + 4)), 50.0) << line;
 }
 
 // Sixty textures through gltfpack (Debian's meshoptimizer tool, as engines' pipelines use it): it

@@ -292,35 +292,43 @@ Result<std::string> AtlasSceneInput::rewrite(std::span<const AtlasRect> rects, s
     std::unordered_map<std::uint64_t, std::uint32_t> vt_index;
     std::string faces, vts;
     const double W = atlas_width, H = atlas_height;
-    for (const detail::Shape& s : m.shapes) {
-        faces += "o " + (s.name.empty() ? std::string("shape") : s.name) + "\n";
-        for (const detail::Triangle& t : s.triangles) {
-            const AtlasRect& r = rects[t.image];
-            const bool solid = m.images[t.image].solid();
-            faces += "f";
-            for (const detail::Corner& c : t.c) {
-                // Texel position in the atlas; OBJ's v points up, the atlas's rows down: flip.
-                // A solid tile: the centre of its middle texel (no sample lands on a texel edge).
-                const double ax = solid ? r.x + r.width / 2 + 0.5 : r.x + c.u * r.width;
-                const double ay = solid ? r.y + r.height / 2 + 0.5 : r.y + (1.0 - c.t) * r.height;
-                const float au = static_cast<float>(ax / W), av = static_cast<float>(ay / H);
-                std::uint32_t bu, bv;
-                std::memcpy(&bu, &au, 4);
-                std::memcpy(&bv, &av, 4);
-                auto [it, inserted] = vt_index.emplace((std::uint64_t(bu) << 32) | bv, static_cast<std::uint32_t>(vt_index.size() + 1));
-                if (inserted) {
-                    char vt[64];
-                    const int n = std::snprintf(vt, sizeof vt, "vt %.9g %.9g\n", double(au), double(av));
-                    vts.append(vt, static_cast<std::size_t>(std::max(0, n)));
-                }
-                char buf[64];
-                const int n = c.n >= 0 ? std::snprintf(buf, sizeof buf, " %d/%u/%d", c.v + 1, it->second, c.n + 1)
-                                       : std::snprintf(buf, sizeof buf, " %d/%u", c.v + 1, it->second);
-                faces.append(buf, static_cast<std::size_t>(std::max(0, n)));
+    auto write_triangle = [&](const detail::Triangle& t) {
+        const AtlasRect& r = rects[t.image];
+        const bool solid = m.images[t.image].solid();
+        faces += "f";
+        for (const detail::Corner& c : t.c) {
+            // Texel position in the atlas; OBJ's v points up, the atlas's rows down: flip.
+            // A solid tile: the centre of its middle texel (no sample lands on a texel edge).
+            const double ax = solid ? r.x + r.width / 2 + 0.5 : r.x + c.u * r.width;
+            const double ay = solid ? r.y + r.height / 2 + 0.5 : r.y + (1.0 - c.t) * r.height;
+            const float au = static_cast<float>(ax / W), av = static_cast<float>(ay / H);
+            std::uint32_t bu, bv;
+            std::memcpy(&bu, &au, 4);
+            std::memcpy(&bv, &av, 4);
+            auto [it, inserted] = vt_index.emplace((std::uint64_t(bu) << 32) | bv, static_cast<std::uint32_t>(vt_index.size() + 1));
+            if (inserted) {
+                char vt[64];
+                const int n = std::snprintf(vt, sizeof vt, "vt %.9g %.9g\n", double(au), double(av));
+                vts.append(vt, static_cast<std::size_t>(std::max(0, n)));
             }
-            faces += "\n";
+            char buf[64];
+            const int n = c.n >= 0 ? std::snprintf(buf, sizeof buf, " %d/%u/%d", c.v + 1, it->second, c.n + 1)
+                                   : std::snprintf(buf, sizeof buf, " %d/%u", c.v + 1, it->second);
+            faces.append(buf, static_cast<std::size_t>(std::max(0, n)));
         }
-    }
+        faces += "\n";
+    };
+    // A shape's blended triangles (Triangle::blend) follow its others as an object of the same
+    // name marked by a "# tessera-blend" line before it (parse_obj_scene: Chunk::blend).
+    for (const detail::Shape& s : m.shapes)
+        for (const bool blend : {false, true}) {
+            const auto of_kind = [&](const detail::Triangle& t) { return t.blend == blend; };
+            if (std::none_of(s.triangles.begin(), s.triangles.end(), of_kind)) continue;
+            if (blend) faces += "# tessera-blend\n";
+            faces += "o " + (s.name.empty() ? std::string("shape") : s.name) + "\n";
+            for (const detail::Triangle& t : s.triangles)
+                if (of_kind(t)) write_triangle(t);
+        }
     out += vts;
     out += faces;
     return out;

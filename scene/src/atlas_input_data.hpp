@@ -23,6 +23,7 @@ struct Corner {
 struct Triangle {
     std::uint32_t image = 0;
     Corner c[3];
+    bool blend = false;  // drawn blended (a glTF BLEND material): written as an object of its own
 };
 struct Shape {
     std::string name;

@@ -319,6 +319,7 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
         std::uint32_t image = 0;
         ColourTexture texture;  // the texture whose coordinates the cell follows
         bool textured = false;
+        bool blend = false;  // alphaMode BLEND: its triangles are drawn blended (Triangle::blend)
     };
     // One cell per distinct (colour texture or colour, maps, values where maps are missing).
     using CellKey = std::tuple<int, std::array<std::uint8_t, 3>, std::array<int, kMapRoles>,
@@ -397,12 +398,12 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
                 cell.map_values[3] = {linear_to_srgb_byte(emissive[0]), linear_to_srgb_byte(emissive[1]), linear_to_srgb_byte(emissive[2])};
             }
             // Alpha: an image only OPAQUE materials draw loses it (glTF ignores it there);
-            // MASK and BLEND keep it, drawn as cut-outs at one half (docs/atlas.md, "Alpha").
+            // MASK keeps it, drawn as cut-outs at one half, and BLEND, drawn blended over what
+            // lies behind (docs/atlas.md, "Alpha").
             opaque = mat.alphaMode.empty() || mat.alphaMode == "OPAQUE";
+            mi.blend = mat.alphaMode == "BLEND";
             if (base->image >= 0) {
-                if (mat.alphaMode == "BLEND")
-                    warn_once("material '" + name + "': alphaMode BLEND is drawn as a cut-out at alpha 0.5");
-                else if (mat.alphaMode == "MASK" && std::abs(mat.alphaCutoff - 0.5) > 1e-6)
+                if (mat.alphaMode == "MASK" && std::abs(mat.alphaCutoff - 0.5) > 1e-6)
                     warn_once("material '" + name + "': alphaCutoff " + std::to_string(mat.alphaCutoff) + " is drawn as 0.5");
                 if (factor.size() == 4 && (factor[0] != 1 || factor[1] != 1 || factor[2] != 1))
                     warn_once("material '" + name + "': its baseColorFactor is not applied to its texture (the atlas keeps the texture's colours)");
@@ -455,6 +456,7 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
             return make_error(Errc::corrupt, what + ": NORMAL and POSITION have different counts");
         auto mi = material_image(prim.material);
         if (!mi) return mi.error();
+        const std::size_t first_triangle = shape.triangles.size();
         std::vector<double> uvs;
         if (mi->textured) {
             const std::string attr = "TEXCOORD_" + std::to_string(mi->texture.texcoord);
@@ -553,6 +555,8 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
         } else {
             for (std::size_t i = 1; i + 1 < indices.size(); ++i) TESSERA_TRY(add(indices[0], indices[i], indices[i + 1]));
         }
+        if (mi->blend)
+            for (std::size_t i = first_triangle; i < shape.triangles.size(); ++i) shape.triangles[i].blend = true;
         return {};
     };
 

@@ -121,12 +121,47 @@ Result<Scene> parse_obj_scene(const std::string& text, const std::string& obj_pa
         return {double(a.texcoords[i]) * vt_width, double(a.texcoords[i + 1]) * vt_height};  // v is already down
     };
 
+    // Objects written blended (an atlas OBJ's "# tessera-blend" line before their "o" line), in
+    // file order; the shapes come in the same order, each named as its object.
+    std::vector<std::pair<std::string, bool>> objects;
+    {
+        bool marked = false;
+        std::size_t at = 0;
+        while (at < text.size()) {
+            std::size_t eol = text.find('\n', at);
+            if (eol == std::string::npos) eol = text.size();
+            std::string_view line(text.data() + at, eol - at);
+            if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+            if (line == "# tessera-blend") {
+                marked = true;
+            } else if (line.rfind("o ", 0) == 0) {
+                std::string_view name = line.substr(2);
+                while (!name.empty() && (name.front() == ' ' || name.front() == '\t')) name.remove_prefix(1);
+                while (!name.empty() && (name.back() == ' ' || name.back() == '\t')) name.remove_suffix(1);
+                objects.emplace_back(std::string(name), marked);
+                marked = false;
+            }
+            at = eol + 1;
+        }
+    }
+    std::size_t next_object = 0;
+    auto blended = [&](const std::string& name) {
+        for (std::size_t i = next_object; i < objects.size(); ++i)
+            if (objects[i].first == name) {
+                next_object = i + 1;
+                return objects[i].second;
+            }
+        return false;
+    };
+
     for (const tinyobj::shape_t& s : reader.GetShapes()) {
+        const bool blend = blended(s.name);
         const auto& idx = s.mesh.indices;
         if (idx.empty()) continue;
         // Bounds first: the chunk's origin is its box centre, its texel origin the floor of its
         // smallest texel, so the float offsets stay small.
         Chunk c;
+        c.blend = blend;
         double tmin[2] = {INFINITY, INFINITY};
         for (int k = 0; k < 3; ++k) {
             c.bounds_min[k] = INFINITY;

@@ -4,6 +4,7 @@
 #include "vt_sample.glsl"
 
 in vec2 v_local;
+flat in int vt_blend;  // a blended chunk (scene.vert)
 in float v_w;  // perspective-correct, so exact at the pixel centre (clipped triangles included)
 // One main-target pixel in feedback pixels: (fb_width / width, fb_height / height), i.e. 1/N.
 uniform vec2 vt_main_pixel;
@@ -24,11 +25,14 @@ void main() {
     vec2 dx = right.xy / right.z - centre;
     vec2 dy = down.xy / down.z - centre;
 #ifdef VT_ALPHA_TEST
+    // A blended chunk shows what lies behind it too: it asks for its pages from every other
+    // pixel only, and what lies behind (drawn before it, its depth written) from the rest.
+    if (vt_blend != 0 && ((int(gl_FragCoord.x) + int(gl_FragCoord.y)) & 1) == 0) discard;
     // Cut-outs: a pixel the main pass discards asks for nothing; what lies behind it (drawn with
     // its own depth, the discarded fragment having written none) asks for its pages. The alpha is
     // that of the wanted level's page (or the resident ancestor the main pass would sample).
     uint resident;
-    if (vt_lookup(v_local, vt_wanted_level(vt_lod(dx, dy) + vt_bias), resident).a < vt_alpha_cutoff) discard;
+    if (vt_blend == 0 && vt_lookup(v_local, vt_wanted_level(vt_lod(dx, dy) + vt_bias), resident).a < vt_alpha_cutoff) discard;
 #endif
     o_id = vt_feedback(v_local, dx, dy);
 }

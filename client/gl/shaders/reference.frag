@@ -10,6 +10,7 @@
 
 in vec2 v_local;
 flat in uvec2 vt_texel_origin;          // the chunk's (scene.vert)
+flat in int vt_blend;                   // a blended chunk (scene.vert)
 uniform sampler2D ref_texture;          // GL_LINEAR_MIPMAP_LINEAR, clamp to edge
 #ifdef VT_LAYERS
 uniform sampler2D ref_layers[VT_LAYERS];  // the other layers' levels, the same way
@@ -79,8 +80,10 @@ void main() {
 #endif
 #endif
 #ifdef VT_ALPHA_TEST
-    if (o_colour.a < vt_alpha_cutoff) discard;  // cut-outs, as the VT pass
-    o_colour.a = 1.0;
+    if (vt_blend == 0) {  // cut-outs, as the VT pass; a blended chunk keeps its alpha
+        if (o_colour.a < vt_alpha_cutoff) discard;
+        o_colour.a = 1.0;
+    }
 #endif
 #ifdef VT_LIT
     o_colour.rgb = vt_lit(o_colour.rgb, layers[0]);

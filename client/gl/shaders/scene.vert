@@ -20,6 +20,7 @@ uniform ivec2 u_chunk_page;
 uniform vec2 u_chunk_base;
 uniform vec4 u_chunk_bounds;
 uniform uvec2 u_texel_origin;
+uniform int u_blend;  // 1: a blended chunk (SceneGeometry::Chunks)
 // Per texture and per frame.
 uniform uint u_levels;
 uniform vec2 u_texture_size;
@@ -35,6 +36,7 @@ flat out ivec2 vt_chunk_page;
 flat out vec2 vt_chunk_base;
 flat out vec4 vt_chunk_bounds;
 flat out uvec2 vt_texel_origin;
+flat out int vt_blend;
 flat out uint vt_levels;
 flat out vec2 vt_texture_size;
 flat out int vt_table_column;
@@ -48,6 +50,7 @@ void main() {
     vt_chunk_base = u_chunk_base;
     vt_chunk_bounds = u_chunk_bounds;
     vt_texel_origin = u_texel_origin;
+    vt_blend = u_blend;
     vt_levels = u_levels;
     vt_texture_size = u_texture_size;
     vt_table_column = u_table_column;

@@ -16,6 +16,7 @@ layout(early_fragment_tests) in;
 #endif
 
 in vec2 v_local;
+flat in int vt_blend;  // a blended chunk (scene.vert)
 
 layout(std430, binding = 0) buffer VtCounters {
     // [u + 2 b]: pixels that fall back against the unbiased level (u = 1), the biased level
@@ -33,9 +34,12 @@ void main() {
     o_colour = s.colour;
 #ifdef VT_ALPHA_TEST
     // Cut-outs: the pre-pass discarded this pixel too, and left the depth of what lies behind,
-    // which draws here at GL_LEQUAL; what is kept is opaque.
-    if (s.colour.a < vt_alpha_cutoff) discard;
-    o_colour.a = 1.0;
+    // which draws here at GL_LEQUAL; what is kept is opaque. A blended chunk (drawn after the
+    // others, far to near, blending by its alpha) keeps its alpha instead.
+    if (vt_blend == 0) {
+        if (s.colour.a < vt_alpha_cutoff) discard;
+        o_colour.a = 1.0;
+    }
 #endif
 #ifdef VT_LIT
     o_colour.rgb = vt_lit(s.colour.rgb, s.layers[0]);

@@ -88,6 +88,7 @@ public:
         u_view_projection_ = uniform(program_, "u_view_projection");
         chunk_.chunk_offset = uniform(program_, "u_chunk_offset");
         chunk_.texel_origin = uniform(program_, "u_texel_origin");
+        chunk_.blend = uniform(program_, "u_blend");
         glProgramUniform1i(id, uniform(program_, "ref_texture"), 0);
         // Units: 0 the colour, 1 its second levels, 2.. the other layers, 2 + kMaxLayers.. theirs.
         std::vector<GLint> units(kMaxLayers);
@@ -138,7 +139,15 @@ public:
         for (std::size_t k = 0; k < layers_.size(); ++k) glBindTextureUnit(GLuint(2 + k), layers_[k].get());
         for (std::size_t k = 0; k < layer_seconds_.size(); ++k) glBindTextureUnit(GLuint(2 + kMaxLayers + k), layer_seconds_[k].get());
         glUseProgram(program_.get());
-        geometry_.draw(program_, chunk_, camera);
+        geometry_.draw(program_, chunk_, camera, SceneGeometry::Chunks::opaque);
+        if (geometry_.blended_visible()) {  // as the VT pass: over the rest, far to near, no depth writes
+            glDepthMask(GL_FALSE);
+            glEnable(GL_BLEND);
+            glBlendFuncSeparate(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA, GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+            geometry_.draw(program_, chunk_, camera, SceneGeometry::Chunks::blended);
+            glDisable(GL_BLEND);
+            glDepthMask(GL_TRUE);
+        }
         glUseProgram(0);
         glDisable(GL_FRAMEBUFFER_SRGB);
         glBindFramebuffer(GL_FRAMEBUFFER, 0);

@@ -72,6 +72,7 @@ Status SceneGeometry::upload(const scene::Scene& s) {
     static_assert(sizeof(scene::Vertex) == 5 * sizeof(float), "Vertex must be five packed floats");
     chunks_.clear();
     visible_.clear();
+    blend_begin_ = 0;
     ordered_ = false;
     // A heightfield scene only when every chunk is a grid of the one chunk grid.
     chunk_pitch_ = s.chunk_pitch > 0 && std::all_of(s.chunks.begin(), s.chunks.end(), [](const scene::Chunk& c) {
@@ -109,6 +110,7 @@ Status SceneGeometry::upload(const scene::Scene& s) {
         d.quad_size[1] = c.grid_quad_size[1];
         d.grid_chunk[0] = c.grid_chunk[0];
         d.grid_chunk[1] = c.grid_chunk[1];
+        d.blend = c.blend;
         d.index_count = static_cast<GLsizei>(c.indices.size());
         d.index_offset = i * sizeof(std::uint32_t);
         d.base_vertex = static_cast<GLint>(v);
@@ -197,6 +199,20 @@ void SceneGeometry::cull(const scene::Camera& camera, double aspect) {
         }
         if (std::none_of(std::begin(out), std::end(out), [](int o) { return o == 8; })) visible_.push_back(k);
     }
+    // Blended chunks last, the farthest first (by their boxes' centres): each blends over what is
+    // behind it. Within a chunk triangles keep their order.
+    const auto first_blended = std::stable_partition(visible_.begin(), visible_.end(), [&](std::uint32_t k) { return !chunks_[k].blend; });
+    blend_begin_ = std::size_t(first_blended - visible_.begin());
+    auto distance2 = [&](std::uint32_t k) {
+        const auto& d = chunks_[k];
+        double s = 0;
+        for (int a = 0; a < 3; ++a) {
+            const double c = 0.5 * (d.bmin[a] + d.bmax[a]) - camera.position[a];
+            s += c * c;
+        }
+        return s;
+    };
+    std::stable_sort(first_blended, visible_.end(), [&](std::uint32_t a, std::uint32_t b) { return distance2(a) > distance2(b); });
 }
 
 namespace {
@@ -288,11 +304,14 @@ bool SceneGeometry::order_front_to_back(const scene::Camera& camera) {
     return true;
 }
 
-void SceneGeometry::draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera) const {
+void SceneGeometry::draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera, Chunks which) const {
     glBindVertexArray(vao_.get());
     glVertexArrayElementBuffer(vao_.get(), ordered_ ? ordered_indices_.get() : indices_.get());
-    for (const auto k : visible_) {
-        const auto& d = chunks_[k];
+    const std::size_t begin = which == Chunks::blended ? blend_begin_ : 0;
+    const std::size_t end = which == Chunks::opaque ? blend_begin_ : visible_.size();
+    for (std::size_t i = begin; i < end; ++i) {
+        const auto& d = chunks_[visible_[i]];
+        if (u.blend >= 0) glProgramUniform1i(program.get(), u.blend, d.blend ? 1 : 0);
         const auto off = scene::camera_relative(d.origin, camera.position);
         glProgramUniform3f(program.get(), u.chunk_offset, off[0], off[1], off[2]);
         glProgramUniform2ui(program.get(), u.texel_origin, d.texel_origin[0], d.texel_origin[1]);

@@ -25,6 +25,7 @@ struct ChunkUniforms {
     // The chunk's page frame (vt_sample.glsl, "Addressing"): ivec2, vec2, vec4. Set when the
     // program uses them, once set_page_layout was called.
     GLint chunk_page = -1, chunk_base = -1, chunk_bounds = -1;
+    GLint blend = -1;  // int: 1 for a blended chunk (scene::Chunk::blend), where the program reads it
 };
 
 class SceneGeometry {
@@ -47,8 +48,14 @@ public:
     // or when more than kMaxOrderedQuads quads are in view.
     bool order_front_to_back(const scene::Camera& camera);
     static constexpr std::size_t kMaxOrderedQuads = 1u << 16;
+    // Which of the chunks `cull` kept a draw covers: the opaque ones (cut-outs included) in their
+    // order, the blended ones (scene::Chunk::blend) from the farthest to the nearest, or both in
+    // that order.
+    enum class Chunks { opaque, blended, all };
     // Draws the chunks `cull` kept with the bound program.
-    void draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera) const;
+    void draw(const Program& program, const ChunkUniforms& u, const scene::Camera& camera, Chunks which = Chunks::all) const;
+    // Whether `cull` kept any blended chunk.
+    bool blended_visible() const { return blend_begin_ < visible_.size(); }
     std::size_t visible_chunks() const { return visible_.size(); }
 
 private:
@@ -69,12 +76,14 @@ private:
         double quad_size[2] = {0, 0};
         std::int64_t grid_chunk[2] = {0, 0};
         std::size_t ordered_offset = 0;  // bytes
+        bool blend = false;             // scene::Chunk::blend
     };
     VertexArray vao_;
     Buffer vertices_, indices_;
     Buffer normals_;  // three floats per vertex, when the scene has normals
     std::vector<ChunkDraw> chunks_;
-    std::vector<std::uint32_t> visible_;
+    std::vector<std::uint32_t> visible_;  // opaque chunks, then blended ones from blend_begin_, far to near
+    std::size_t blend_begin_ = 0;
     double chunk_pitch_ = 0;  // > 0: a heightfield scene
     // This frame's front-to-back indices (orphaned and refilled each frame: the GPU may still be
     // reading the last frame's).

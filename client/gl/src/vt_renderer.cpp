@@ -59,6 +59,7 @@ struct VtUniforms {
         chunk.chunk_page = uniform(p, "u_chunk_page");
         chunk.chunk_base = uniform(p, "u_chunk_base");
         chunk.chunk_bounds = uniform(p, "u_chunk_bounds");
+        chunk.blend = uniform(p, "u_blend");
     }
 };
 
@@ -528,14 +529,21 @@ private:
             glColorMask(GL_FALSE, GL_FALSE, GL_FALSE, GL_FALSE);
             glDepthFunc(GL_LESS);
             glUseProgram(depth_program().get());
-            geometry_.draw(depth_program(), depth_u().chunk, camera);
+            geometry_.draw(depth_program(), depth_u().chunk, camera, SceneGeometry::Chunks::opaque);
             glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
             glDepthMask(GL_FALSE);
         }
         glDepthFunc(prepass ? GL_LEQUAL : GL_LESS);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, counters);
         glUseProgram(vt_program().get());
-        geometry_.draw(vt_program(), vt_u().chunk, camera);
+        geometry_.draw(vt_program(), vt_u().chunk, camera, SceneGeometry::Chunks::opaque);
+        if (geometry_.blended_visible()) {  // over the rest, far to near, writing no depth (docs/renderer.md)
+            glDepthMask(GL_FALSE);
+            glEnable(GL_BLEND);
+            glBlendFuncSeparate(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA, GL_ONE, GL_ONE_MINUS_SRC_ALPHA);
+            geometry_.draw(vt_program(), vt_u().chunk, camera, SceneGeometry::Chunks::blended);
+            glDisable(GL_BLEND);
+        }
         glDepthMask(GL_TRUE);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, 0);
     }

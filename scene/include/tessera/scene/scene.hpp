@@ -29,6 +29,9 @@ struct Chunk {
     // Vertex normals, world frame, three floats per vertex (an OBJ's `vn`, for lighting a
     // material: docs/renderer.md, "Materials"); empty where the scene has none.
     std::vector<float> normals;
+    // Drawn blended over what lies behind (a glTF BLEND material: docs/renderer.md, "Blended
+    // surfaces"): after every other chunk, back to front, writing no depth.
+    bool blend = false;
     double bounds_min[3] = {0, 0, 0};    // world-space box of the chunk (for culling)
     double bounds_max[3] = {0, 0, 0};
     // A heightfield over a regular grid (make_terrain's chunks; 0: not one): grid_quads quads per
