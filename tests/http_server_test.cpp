@@ -372,9 +372,9 @@ protected:
         // Bodiless: a 304 revalidation and a HEAD (Content-Length of the GET, nothing after it).
         const std::string big = "/v1/stores/sizes/tiles/0/" + std::to_string(kSizes.size() - 1) + "/0";
         const HttpResponse full = direct(big);
-        const std::string* etag = full.header("ETag");
+        const auto* etag = full.header("ETag");
         EXPECT_TRUE(etag);
-        cases.push_back({big, false, {{"If-None-Match", etag ? *etag : ""}}, 304, "", {}});
+        cases.push_back({big, false, {{"If-None-Match", etag ? etag->str() : ""}}, 304, "", {}});
         cases.push_back({big, true, {}, 200, full.body, {}});
         cases.push_back({"/healthz", false, {}, 200, "ok\n", {}});
         cases.push_back({"/metrics", false, {}, 200, "", [](const std::string& body) {

@@ -51,7 +51,7 @@ std::string_view to_string(HttpRoute r) {
     return "other";
 }
 
-const std::string* HttpResponse::header(std::string_view name) const {
+const HeaderValue* HttpResponse::header(std::string_view name) const {
     for (const auto& [k, v] : headers)
         if (httpapi::iequals(k, name)) return &v;
     return nullptr;

@@ -25,6 +25,7 @@
 #include <utility>
 #include <vector>
 
+#include "header_value.hpp"
 #include "metrics.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "server_context.hpp"
@@ -80,9 +81,9 @@ struct HttpResponse {
     // The full representation, also for HEAD: the transport sends only the headers then, with
     // this body's length as Content-Length.
     std::string body;
-    // Besides Content-Type/-Length. Names are string literals (a fixed set), so only values
-    // are allocated per response.
-    std::vector<std::pair<std::string_view, std::string>> headers;
+    // Besides Content-Type/-Length. Names are string literals (a fixed set); values up to
+    // HeaderValue::kInline characters are held in place.
+    std::vector<std::pair<std::string_view, HeaderValue>> headers;
     HttpRoute route = HttpRoute::other;
     // Set instead of body when the caller asked to borrow payloads: the stored tile is the body
     // (the transport writes its bytes from the cache; nothing is copied).
@@ -93,7 +94,7 @@ struct HttpResponse {
     std::size_t body_size() const { return payload ? payload->bytes.size() : body.size(); }
 
     // First header with this name (case-insensitive), nullptr when absent.
-    const std::string* header(std::string_view name) const;
+    const HeaderValue* header(std::string_view name) const;
 };
 
 // A one-line error response from the transport itself (malformed request, too many

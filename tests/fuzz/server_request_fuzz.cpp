@@ -353,8 +353,8 @@ void fuzz_http(const Fixture& fx, std::uint8_t flags, std::string_view rest) {
         FUZZ_CHECK(t.tile->kind != TileKind::absent);
         const std::string etag = "\"" + version + "-" + hex16(XXH3_64bits(t.tile->bytes.data(), t.tile->bytes.size())) +
                                  (png ? "-png" : "") + "\"";
-        const std::string* got_etag = res.header("ETag");
-        const std::string* got_version = res.header("X-Tessera-Store-Version");
+        const auto* got_etag = res.header("ETag");
+        const auto* got_version = res.header("X-Tessera-Store-Version");
         if (res.status == 500) {
             // The only tile that fails is the corrupted one (DATA_LOSS is a 500).
             FUZZ_CHECK(t.tile->corrupt);
@@ -368,7 +368,7 @@ void fuzz_http(const Fixture& fx, std::uint8_t flags, std::string_view rest) {
             FUZZ_CHECK(!t.tile->corrupt);
             FUZZ_CHECK(got_etag && *got_etag == etag);
             FUZZ_CHECK(got_version && *got_version == version);
-            const std::string* kind = res.header("X-Tessera-Kind");
+            const auto* kind = res.header("X-Tessera-Kind");
             FUZZ_CHECK(kind && *kind == tessera::to_string(t.tile->kind));
             if (png) {
                 FUZZ_CHECK(res.content_type == "image/png");
@@ -376,7 +376,7 @@ void fuzz_http(const Fixture& fx, std::uint8_t flags, std::string_view rest) {
             } else {
                 FUZZ_CHECK(res.body.size() == t.tile->bytes.size() &&
                            std::memcmp(res.body.data(), t.tile->bytes.data(), res.body.size()) == 0);
-                const std::string* sum = res.header("X-Tessera-Checksum");
+                const auto* sum = res.header("X-Tessera-Checksum");
                 FUZZ_CHECK(sum && *sum == hex16(XXH3_64bits(res.body.data(), res.body.size())));
             }
         }
@@ -386,7 +386,7 @@ void fuzz_http(const Fixture& fx, std::uint8_t flags, std::string_view rest) {
     } else {
         FUZZ_CHECK(res.status != 500);  // nothing else fails internally
     }
-    if (const std::string* kind = res.header("X-Tessera-Kind"); kind && *kind == "absent") {
+    if (const auto* kind = res.header("X-Tessera-Kind"); kind && *kind == "absent") {
         FUZZ_CHECK(res.status == 404);
         const TileTarget t = accepted_tile_target(fx, req.target);
         FUZZ_CHECK(t.tile->kind == TileKind::absent);

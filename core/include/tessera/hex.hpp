@@ -7,11 +7,15 @@
 namespace tessera {
 
 // By hand: the HTTP server writes three of these per tile response (snprintf showed up in its
-// profile).
-inline std::string hex16(std::uint64_t v) {
+// profile). hex16_to writes the 16 digits to `out` (no terminator) and returns the end.
+inline char* hex16_to(char* out, std::uint64_t v) {
     static constexpr char kDigits[] = "0123456789abcdef";
+    for (int i = 15; i >= 0; --i, v >>= 4) out[i] = kDigits[v & 0xF];
+    return out + 16;
+}
+inline std::string hex16(std::uint64_t v) {
     std::string s(16, '0');
-    for (int i = 15; i >= 0; --i, v >>= 4) s[static_cast<std::size_t>(i)] = kDigits[v & 0xF];
+    hex16_to(s.data(), v);
     return s;
 }
 

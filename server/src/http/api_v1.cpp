@@ -47,17 +47,37 @@ struct TileAnswer {
     TileKey key;
     bool png = false;
     std::size_t layer = 0;
-    std::string version_hex, png_tag, cache, if_none_match;
+    // Values held in place (HeaderValue): a RAM cache hit's answer allocates no header.
+    HeaderValue version_hex, cache;
+    std::string png_tag, if_none_match;
     bool head = false, borrow_payload = false;
 
-    std::string etag_of(std::uint64_t checksum) const { return "\"" + version_hex + "-" + hex16(checksum) + png_tag + "\""; }
+    // "VERSION-CHECKSUM[PNG_TAG]", quoted.
+    HeaderValue etag_of(std::uint64_t checksum) const {
+        char buf[2 + 16 + 1 + 16];
+        char* p = buf;
+        *p++ = '"';
+        const std::string_view v = version_hex;
+        p = std::copy(v.begin(), v.end(), p);
+        *p++ = '-';
+        p = hex16_to(p, checksum);
+        if (png_tag.empty()) {
+            *p++ = '"';
+            return HeaderValue(std::string_view(buf, std::size_t(p - buf)));
+        }
+        return HeaderValue(std::string(buf, p) + png_tag + "\"");
+    }
+    static HeaderValue hex_value(std::uint64_t v) {
+        char buf[16];
+        return HeaderValue(std::string_view(buf, std::size_t(hex16_to(buf, v) - buf)));
+    }
     void common_headers(HttpResponse& r, TileKind kind, std::string_view codec) const {
         r.headers.emplace_back("Cache-Control", cache);
         r.headers.emplace_back("X-Tessera-Store-Version", version_hex);
-        r.headers.emplace_back("X-Tessera-Kind", std::string(tessera::to_string(kind)));
-        if (!codec.empty()) r.headers.emplace_back("X-Tessera-Codec", std::string(codec));
+        r.headers.emplace_back("X-Tessera-Kind", tessera::to_string(kind));
+        if (!codec.empty()) r.headers.emplace_back("X-Tessera-Codec", codec);
     }
-    HttpResponse not_modified(TileKind kind, const std::string& etag) const {
+    HttpResponse not_modified(TileKind kind, const HeaderValue& etag) const {
         HttpResponse r;
         r.status = 304;
         r.headers.emplace_back("ETag", etag);
@@ -77,7 +97,7 @@ struct TileAnswer {
         if (!if_none_match.empty()) {
             const auto loc = h->reader->locate(key);
             if (loc.ok() && loc->kind != TileKind::absent) {
-                const std::string etag = etag_of(loc->checksum);
+                const HeaderValue etag = etag_of(loc->checksum);
                 if (if_none_match_matches(if_none_match, etag)) return not_modified(loc->kind, etag);
             }
         }
@@ -107,7 +127,7 @@ struct TileAnswer {
             return r;
         }
 
-        const std::string etag = etag_of(t.checksum);
+        const HeaderValue etag = etag_of(t.checksum);
         if (!if_none_match.empty() && if_none_match_matches(if_none_match, etag)) return not_modified(t.kind, etag);
 
         HttpResponse r;
@@ -152,7 +172,7 @@ struct TileAnswer {
             if (borrow_payload) r.payload = fetched.tile;
             else r.body.assign(reinterpret_cast<const char*>(t.bytes.data()), t.bytes.size());
             common_headers(r, t.kind, t.kind == TileKind::uniform ? "uniform" : tessera::to_string(info.codec));
-            r.headers.emplace_back("X-Tessera-Checksum", hex16(t.checksum));
+            r.headers.emplace_back("X-Tessera-Checksum", hex_value(t.checksum));
         }
         if (!head) handler->count_served(*h, r.body_size());
         return r;
@@ -175,14 +195,14 @@ HttpResponse tile(HttpHandler& handler, const HttpRequestView& req, std::string_
     if (!h) return error(404, "unknown store '" + std::string(name) + "'", api);
     const storage::StoreInfo& info = h->info();
     if (h->metrics.requests) h->metrics.requests->inc();
-    const std::string version_hex = hex16(h->version);
+    const HeaderValue version_hex = TileAnswer::hex_value(h->version);
 
     // A pinned version that is not the one served: 404, not 409 or a redirect. The URL names a
     // representation this server does not have (versions are content hashes; an old one is gone
     // for good unless the same file comes back). The client refetches the store metadata and
     // uses the new version; caches may not keep this answer (no-store, as every error).
     if (has_version && want_version != h->version)
-        return error(404, "store version " + hex16(want_version) + " is not served (current " + version_hex + ")", api);
+        return error(404, "store version " + hex16(want_version) + " is not served (current " + version_hex.str() + ")", api);
 
     if (*level >= info.level_count())
         return error(404, "level " + std::to_string(*level) + " out of range: the store has levels 0.." +

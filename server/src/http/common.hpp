@@ -58,7 +58,7 @@ HttpResponse defer(WorkKind kind, std::shared_ptr<const StoreHandle> store, std:
 // Cache-Control for a cacheable answer: public, or private when the server requires a token (a
 // shared cache must not hand a token's answer to someone without it). immutable: the URL pins a
 // store version (a year).
-std::string cache_control(const ServerContext& ctx, bool immutable);
+HeaderValue cache_control(const ServerContext& ctx, bool immutable);
 
 // A strict decimal: digits only, no sign, no leading zeros (one URL per resource), below 2^32.
 std::optional<std::uint32_t> parse_u32(std::string_view s);
