@@ -453,3 +453,33 @@ TEST(Path, OrbitStaysOutsideACompactObject) {
     }
     EXPECT_GT(nearest, 0.6) << "the camera comes within " << nearest << " of the cube's centre (its faces are at 0.5)";
 }
+
+// An upright panel (a painting, a facade, a glTF scene of quads standing in a Y-up file) is flat in
+// one horizontal axis: the orbit still frames it, from in front of it and behind; the paths over a
+// site's ground, which need an area, refuse it by name.
+TEST(Path, OrbitFramesAnUprightPanel) {
+    tessera::scene::Scene panel;
+    panel.name = "atlas";
+    panel.vt_width = panel.vt_height = 256;
+    panel.bounds_min[0] = 0, panel.bounds_max[0] = 12;
+    panel.bounds_min[1] = panel.bounds_max[1] = 0;  // no depth
+    panel.bounds_min[2] = 0, panel.bounds_max[2] = 7;
+    auto p = CameraPath::builtin("auto", panel);
+    ASSERT_TRUE(p.ok()) << p.error().message;
+    bool front = false, back = false;
+    for (double t = 0; t <= p->duration(); t += 0.5) {
+        const auto c = p->at(t);
+        for (int k = 0; k < 3; ++k) ASSERT_TRUE(std::isfinite(c.position[k]));
+        front |= c.position[1] < -1;
+        back |= c.position[1] > 1;
+        // Looking at the panel's centre (6, 0, 3.5): its forward vector points there.
+        const double to[3] = {6 - c.position[0], 0 - c.position[1], 3.5 - c.position[2]};
+        const double len = std::sqrt(to[0] * to[0] + to[1] * to[1] + to[2] * to[2]);
+        const auto f = c.forward();
+        EXPECT_GT((f[0] * to[0] + f[1] * to[1] + f[2] * to[2]) / len, 0.99) << "at t = " << t;
+    }
+    EXPECT_TRUE(front && back);
+    const auto flyover = CameraPath::builtin("flyover", panel);
+    ASSERT_FALSE(flyover.ok());
+    EXPECT_NE(flyover.error().message.find("empty extent"), std::string::npos) << flyover.error().message;
+}

@@ -348,12 +348,15 @@ Result<CameraPath> CameraPath::builtin(const std::string& name, const Scene& sce
                 scene.bounds_max[0], scene.bounds_max[1], scene.bounds_max[2]};
     for (double v : {b.x0, b.y0, b.z0, b.x1, b.y1, b.z1})
         if (!std::isfinite(v)) return make_error(Errc::invalid_argument, "scene '" + scene.name + "' has no bounds");
-    if (!(b.wx() > 0 && b.wy() > 0 && b.z1 >= b.z0))
-        return make_error(Errc::invalid_argument, "scene '" + scene.name + "' has an empty extent");
-    const double fov = Camera{}.fov_y;
-    std::vector<Keyframe> keys;
     // auto: the terrain's flyover; around any other scene (a finite site or object), the orbit.
     const std::string chosen = name != "auto" ? name : scene.name == "terrain" ? "flyover" : "orbit";
+    // The paths over a site need its ground to have an area; the orbit only a size (an upright
+    // panel, a painting or a facade, is flat in one horizontal axis).
+    const bool has_extent = chosen == "orbit" ? std::max({b.wx(), b.wy(), b.z1 - b.z0}) > 0 && b.wx() >= 0 && b.wy() >= 0 && b.z1 >= b.z0
+                                              : b.wx() > 0 && b.wy() > 0 && b.z1 >= b.z0;
+    if (!has_extent) return make_error(Errc::invalid_argument, "scene '" + scene.name + "' has an empty extent");
+    const double fov = Camera{}.fov_y;
+    std::vector<Keyframe> keys;
     const Framing framing{scene.name != "terrain"};
     if (chosen == "flyover") keys = flyover(b, framing);
     else if (chosen == "dive") keys = dive(b, fov, framing);
