@@ -67,7 +67,8 @@ def run_view(a, store, path, size, fmt, pool):
         raise RuntimeError(f"{' '.join(cmd)} exited {r.returncode}:\n{r.stderr[-3000:]}")
     s = parse_summary(r.stdout + "\n" + r.stderr)
     w, h = (int(v) for v in size.split("x"))
-    pool_mib = float(s["pool"][3]) / (1024 if s["pool"][4] == "KiB" else 1)
+    # From the page's size, not the total the viewer prints rounded to 0.1 MiB (2 % at 2 MiB).
+    pool_mib = pool * float(s["pool"][2]) / 1024
     frames, seconds = int(s["frames"][0]), float(s["frames"][1])
     res = {
         "pool_pages": pool,
