@@ -73,6 +73,7 @@ Status SceneGeometry::upload(const scene::Scene& s) {
     chunks_.clear();
     visible_.clear();
     blend_begin_ = 0;
+    any_blend_ = false;
     ordered_ = false;
     // A heightfield scene only when every chunk is a grid of the one chunk grid.
     chunk_pitch_ = s.chunk_pitch > 0 && std::all_of(s.chunks.begin(), s.chunks.end(), [](const scene::Chunk& c) {
@@ -111,6 +112,7 @@ Status SceneGeometry::upload(const scene::Scene& s) {
         d.grid_chunk[0] = c.grid_chunk[0];
         d.grid_chunk[1] = c.grid_chunk[1];
         d.blend = c.blend;
+        any_blend_ = any_blend_ || c.blend;
         d.index_count = static_cast<GLsizei>(c.indices.size());
         d.index_offset = i * sizeof(std::uint32_t);
         d.base_vertex = static_cast<GLint>(v);
@@ -200,7 +202,9 @@ void SceneGeometry::cull(const scene::Camera& camera, double aspect) {
         if (std::none_of(std::begin(out), std::end(out), [](int o) { return o == 8; })) visible_.push_back(k);
     }
     // Blended chunks last, the farthest first (by their boxes' centres): each blends over what is
-    // behind it. Within a chunk triangles keep their order.
+    // behind it. Within a chunk triangles keep their order. (Most scenes have none: no work.)
+    blend_begin_ = visible_.size();
+    if (!any_blend_) return;
     const auto first_blended = std::stable_partition(visible_.begin(), visible_.end(), [&](std::uint32_t k) { return !chunks_[k].blend; });
     blend_begin_ = std::size_t(first_blended - visible_.begin());
     auto distance2 = [&](std::uint32_t k) {

@@ -84,6 +84,7 @@ private:
     std::vector<ChunkDraw> chunks_;
     std::vector<std::uint32_t> visible_;  // opaque chunks, then blended ones from blend_begin_, far to near
     std::size_t blend_begin_ = 0;
+    bool any_blend_ = false;  // the scene has a blended chunk
     double chunk_pitch_ = 0;  // > 0: a heightfield scene
     // This frame's front-to-back indices (orphaned and refilled each frame: the GPU may still be
     // reading the last frame's).
