@@ -7,6 +7,9 @@
 #  1. peak throughput, ROUNDS interleaved rounds of SECONDS each:
 #       nginx        wrk -t2 -c64 (random tile URLs, bench/wrk_tiles.lua)
 #       tessera HTTP wrk -t2 -c64, the same URLs
+#       floor        wrk -t2 -c64, the same URLs from bench/floor_server: the tiles in memory, one recv
+#                    and one send per request and nothing else, so what any HTTP server could reach
+#                    here in the same minutes (peak only)
 #       tessera gRPC serve_load --rate 0 (closed loop: PEAK_VIEWERS streams, outstanding set topped up to WINDOW)
 #  2. latency under an open-model load (fixed offered rate; latency from the scheduled send time)
 #     at half of each one's own median peak, with serve_load: HTTP for nginx and tessera
@@ -20,7 +23,8 @@
 # Prints a table and writes WORKDIR/results.json (every run's JSON under WORKDIR/runs/).
 #
 #   bench/serve_vs_nginx.sh [ROUNDS] [SECONDS] [WORKDIR]      defaults: 3 10 build/bench-serve
-#   env: PEAK_VIEWERS (4), WINDOW (512), VIEWERS (16), CONNECTIONS (64), TESSERA, SERVE_LOAD, EXPORT_TILES
+#   env: PEAK_VIEWERS (4), WINDOW (512), VIEWERS (16), CONNECTIONS (64), TESSERA, SERVE_LOAD, EXPORT_TILES,
+#        FLOOR_SERVER, FLOOR_ARGS (e.g. --uring: the floor through io_uring, where built with liburing)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rounds=${1:-3}
@@ -33,8 +37,10 @@ conns=${CONNECTIONS:-64}
 tessera=${TESSERA:-build/tessera}
 load=${SERVE_LOAD:-build/bench/serve_load}
 exporter=${EXPORT_TILES:-build/bench/export_tiles}
-for b in "$tessera" "$load" "$exporter"; do
-  [ -x "$b" ] || { echo "build first: ninja -C build tessera serve_load export_tiles ($b missing)" >&2; exit 1; }
+floor=${FLOOR_SERVER:-build/bench/floor_server}
+read -r -a floor_args <<< "${FLOOR_ARGS:-}"
+for b in "$tessera" "$load" "$exporter" "$floor"; do
+  [ -x "$b" ] || { echo "build first: ninja -C build tessera serve_load export_tiles floor_server ($b missing)" >&2; exit 1; }
 done
 command -v nginx >/dev/null || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nginx-light >/dev/null; }
 command -v wrk >/dev/null || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq wrk >/dev/null; }
@@ -89,6 +95,8 @@ ngx_pid=$!
 # ---- tessera serve --------------------------------------------------------------------------------
 "$tessera" serve --store "$store" --grpc 127.0.0.1:0 --http 127.0.0.1:0 2> "$work/tessera.log" &
 tsr_pid=$!
+"$floor" "$static" --threads "$(nproc)" "${floor_args[@]}" > "$work/floor.log" 2>&1 &
+floor_pid=$!
 # SIGTERM; SIGKILL (said so) if one is still there 15 s later (tessera drains for up to 10 s).
 stop() {  # pid name
   kill "$1" 2>/dev/null || return 0
@@ -100,6 +108,7 @@ stop() {  # pid name
 cleanup() {
   stop "$tsr_pid" "tessera serve"
   stop "$ngx_pid" nginx
+  stop "$floor_pid" floor_server
 }
 trap cleanup EXIT
 
@@ -113,13 +122,17 @@ done
 tsr_http=$(sed -E 's/.*"http":"([^"]*)".*/\1/' <<< "$listening")
 tsr_grpc=$(sed -E 's/.*"grpc":"([^"]*)".*/\1/' <<< "$listening")
 ngx_http="127.0.0.1:$ngx_port"
+for _ in $(seq 1 300); do grep -q '^listening' "$work/floor.log" && break; sleep 0.1; done
+grep -q '^listening' "$work/floor.log" || { echo "floor_server did not start:" >&2; cat "$work/floor.log" >&2; exit 1; }
+floor_http=$(sed -nE 's/^listening ([0-9.]+:[0-9]+).*/\1/p' "$work/floor.log")
 for _ in $(seq 1 100); do curl -sf -o /dev/null "http://$ngx_http$(head -1 "$urls")" && break; sleep 0.1; done
 
-# Both serve the same bytes under the same URLs.
+# All serve the same bytes under the same URLs.
 for u in $(shuf -n 20 --random-source=<(yes) "$urls"); do
   cmp -s <(curl -sf "http://$ngx_http$u") <(curl -sf "http://$tsr_http$u") || { echo "nginx and tessera differ on $u" >&2; exit 1; }
+  cmp -s <(curl -sf "http://$ngx_http$u") <(curl -sf "http://$floor_http$u") || { echo "nginx and floor_server differ on $u" >&2; exit 1; }
 done
-echo "nginx $ngx_http (pid $ngx_pid), tessera serve http $tsr_http grpc $tsr_grpc (pid $tsr_pid); $(wc -l < "$urls") tiles"
+echo "nginx $ngx_http (pid $ngx_pid), tessera serve http $tsr_http grpc $tsr_grpc (pid $tsr_pid), floor $floor_http (pid $floor_pid); $(wc -l < "$urls") tiles"
 echo "$(nproc) cores; servers, wrk and serve_load all share them"
 
 # CPU seconds (user + system) used so far by a process and its children's threads (nginx: workers).
@@ -170,14 +183,17 @@ echo "warm-up (page cache, open file cache, tessera's tile cache)"
 r=0
 wrk -t2 -c"$conns" -d3s -s bench/wrk_tiles.lua "http://$ngx_http" -- "$urls" 0 >/dev/null
 wrk -t2 -c"$conns" -d3s -s bench/wrk_tiles.lua "http://$tsr_http" -- "$urls" 0 >/dev/null
+wrk -t2 -c"$conns" -d1s -s bench/wrk_tiles.lua "http://$floor_http" -- "$urls" 0 >/dev/null
 "$load" --grpc "$tsr_grpc" --store terrain --url-file "$urls" --rate 0 --duration 2 --warmup 0 --json /dev/null >/dev/null
 
 echo "peak throughput: $rounds rounds of ${secs}s, interleaved"
 for r in $(seq 1 "$rounds"); do
   if [ $((r % 2)) = 1 ]; then
-    wrk_run "peak-nginx-$r" "$ngx_pid" "$ngx_http"; wrk_run "peak-tessera-http-$r" "$tsr_pid" "$tsr_http"; grpc_peak "peak-tessera-grpc-$r"
+    wrk_run "peak-nginx-$r" "$ngx_pid" "$ngx_http"; wrk_run "peak-tessera-http-$r" "$tsr_pid" "$tsr_http"
+    wrk_run "peak-floor-$r" "$floor_pid" "$floor_http"; grpc_peak "peak-tessera-grpc-$r"
   else
-    grpc_peak "peak-tessera-grpc-$r"; wrk_run "peak-tessera-http-$r" "$tsr_pid" "$tsr_http"; wrk_run "peak-nginx-$r" "$ngx_pid" "$ngx_http"
+    grpc_peak "peak-tessera-grpc-$r"; wrk_run "peak-floor-$r" "$floor_pid" "$floor_http"
+    wrk_run "peak-tessera-http-$r" "$tsr_pid" "$tsr_http"; wrk_run "peak-nginx-$r" "$ngx_pid" "$ngx_http"
   fi
 done
 
@@ -225,9 +241,9 @@ for r in $(seq 1 "$rounds"); do
   fi
 done
 
-python3 - "$work" "$static" "$(git rev-parse --short HEAD)" "$rounds" "$secs" "$viewers" "$window" "$conns" "$peak_viewers" <<'PY'
+python3 - "$work" "$static" "$(git rev-parse --short HEAD)" "$rounds" "$secs" "$viewers" "$window" "$conns" "$peak_viewers" "$(head -1 "$work/floor.log")" <<'PY'
 import glob, json, os, platform, statistics, subprocess, sys
-work, static, commit, rounds, secs, viewers, window, conns, peak_viewers = sys.argv[1:10]
+work, static, commit, rounds, secs, viewers, window, conns, peak_viewers, floor_banner = sys.argv[1:11]
 runs = os.path.join(work, "runs")
 sizes = [os.path.getsize(os.path.join(dp, f)) for dp, _, fs in os.walk(os.path.join(static)) for f in fs if f != "urls.txt"]
 mean_tile = sum(sizes) / len(sizes)
@@ -299,8 +315,19 @@ for key, label in (("nginx", "nginx (static files)"), ("tessera-http", "tessera 
         p["burst_server_p99_ms"] = med(burst, lambda r: r["server_latency_ms"]["p99"])
     res["peers"][key] = p
     rows.append((label, p))
+floor_peak = load("peak-floor-*.json")
+res["floor"] = {"server": floor_banner, "peak_runs": floor_peak,
+                "peak_tiles_per_s": med(floor_peak, lambda r: r["tiles_per_s"]),
+                "peak_tiles_per_server_cpu_s": med(floor_peak, lambda r: r["tiles_per_server_cpu_s"] or 0),
+                "peak_server_cores": med(floor_peak, lambda r: r["server_cores"]),
+                "peak_client_cores": med(floor_peak, lambda r: r["client_cores"]),
+                "peak_errors": sum(r["errors"] for r in floor_peak)}
+fl = res["floor"]
 ng = res["peers"]["nginx"]
 res["ratios"] = {
+    "http_over_floor_tiles_per_s": res["peers"]["tessera-http"]["peak_tiles_per_s"] / fl["peak_tiles_per_s"],
+    "nginx_over_floor_tiles_per_s": ng["peak_tiles_per_s"] / fl["peak_tiles_per_s"],
+    "floor_over_nginx_tiles_per_s": fl["peak_tiles_per_s"] / ng["peak_tiles_per_s"],
     "grpc_over_nginx_tiles_per_s": res["peers"]["tessera-grpc"]["peak_tiles_per_s"] / ng["peak_tiles_per_s"],
     "http_over_nginx_tiles_per_s": res["peers"]["tessera-http"]["peak_tiles_per_s"] / ng["peak_tiles_per_s"],
     "grpc_over_nginx_p99_at_half": res["peers"]["tessera-grpc"]["half_p99_ms"] / ng["half_p99_ms"],
@@ -327,7 +354,11 @@ for label, p in rows:
     print(f"  {label:22} p50 {p['same_p50_ms']:.2f} ms, p99 {p['same_p99_ms']:.2f} ms, p99.9 {p['same_p99_9_ms']:.2f} ms, "
           f"errors {p['same_errors']}; per run p99 {', '.join('%.2f' % x for x in p['same_p99_ms_runs'])} ms, noise {noise} cores")
 r = res["ratios"]
-print(f"\ntessera/nginx peak tiles/s: gRPC {r['grpc_over_nginx_tiles_per_s']:.2f}x (target >= 2), HTTP {r['http_over_nginx_tiles_per_s']:.2f}x (target >= 1)")
+print(f"\nfloor ({fl['server']}): peak {fl['peak_tiles_per_s']:.0f} tiles/s (runs {', '.join('%.0f' % x['tiles_per_s'] for x in fl['peak_runs'])}), "
+      f"{fl['peak_tiles_per_server_cpu_s']:.0f} tiles per server CPU-s, cores server / wrk {fl['peak_server_cores']:.2f} / {fl['peak_client_cores']:.2f}, errors {fl['peak_errors']}")
+print(f"peak tiles/s against the floor: tessera HTTP {r['http_over_floor_tiles_per_s']:.2f}x, nginx {r['nginx_over_floor_tiles_per_s']:.2f}x "
+      f"(the floor is {r['floor_over_nginx_tiles_per_s']:.2f}x nginx: no HTTP server can pass that ratio here)")
+print(f"tessera/nginx peak tiles/s: gRPC {r['grpc_over_nginx_tiles_per_s']:.2f}x (target >= 2.5), HTTP {r['http_over_nginx_tiles_per_s']:.2f}x (target >= 1.3)")
 print(f"tessera/nginx tiles per server CPU-second: gRPC {r['grpc_over_nginx_tiles_per_server_cpu_s']:.2f}x, HTTP {r['http_over_nginx_tiles_per_server_cpu_s']:.2f}x")
 print(f"p99 at half peak: gRPC {res['peers']['tessera-grpc']['half_p99_ms']:.2f} ms, HTTP {res['peers']['tessera-http']['half_p99_ms']:.2f} ms, "
       f"nginx {ng['half_p99_ms']:.2f} ms (target < 5 ms)")

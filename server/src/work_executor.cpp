@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <utility>
 
 #include "tessera/storage/byte_source.hpp"
 
@@ -124,6 +125,7 @@ WorkExecutor::Lane& WorkExecutor::lane(const std::string& store) {
 
 Admission WorkExecutor::submit(WorkJob job) {
     Admission verdict = Admission::admitted;
+    bool wake_expiry = false;
     const WorkKind job_kind = job.kind;
     Lane& lane = this->lane(job.store);
     {
@@ -149,12 +151,14 @@ Admission WorkExecutor::submit(WorkJob job) {
                     ++stats_.queued_reads;
                     lane.reads.push_back(std::move(job));
                 }
+                wake_expiry = std::exchange(expiry_asleep_, false);
             }
         }
         if (verdict != Admission::admitted)
             kind_metrics_[static_cast<int>(job.kind)].rejected[static_cast<std::size_t>(verdict)]->inc();
     }
     if (verdict == Admission::admitted) (job_kind == WorkKind::read ? work_cv_ : render_cv_).notify_one();
+    if (wake_expiry) expiry_cv_.notify_one();
     return verdict;
 }
 
@@ -237,6 +241,13 @@ void WorkExecutor::expiry() {
     for (;;) {
         {
             std::unique_lock lock(mu_);
+            // Nothing queued, nothing can expire: sleep until a job queues (submit wakes this
+            // thread once per such sleep), not a wake-up every tick on an idle server.
+            if (stats_.queued_reads + stats_.queued_renders == 0) {
+                expiry_asleep_ = true;
+                expiry_cv_.wait(lock, [&] { return stopping_ || !expiry_asleep_; });
+                expiry_asleep_ = false;
+            }
             expiry_cv_.wait_for(lock, kExpiryTick, [&] { return stopping_; });
             if (stopping_) return;
             const auto now = Clock::now();

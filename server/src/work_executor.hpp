@@ -14,7 +14,7 @@
 // - A render is admitted against `render_queue` (waiting) and `render_memory`, the bytes its
 //   estimate says the renders running and waiting may hold.
 // - A job whose deadline passes while it waits is taken out and answered (expired) within
-//   kExpiryTick; a running job's remote reads end at its deadline (storage::ReadDeadlineScope).
+//   kExpiryTick (the expiry thread sleeps while nothing waits); a running job's remote reads end at its deadline (storage::ReadDeadlineScope).
 //
 // Owner: the HTTP server. Threads: `threads` read workers, `render_concurrency` render workers
 // and one expiry thread, owned here; nothing
@@ -109,6 +109,7 @@ private:
     std::condition_variable work_cv_;    // read workers
     std::condition_variable render_cv_;  // render workers
     std::condition_variable expiry_cv_;
+    bool expiry_asleep_ = false;  // the expiry thread waits for a job to queue (nothing to watch)
     bool stopping_ = false;
     std::map<std::string, std::unique_ptr<Lane>> lanes_;  // one per store ever asked for
     std::vector<Lane*> order_;                            // round robin over lanes
