@@ -168,10 +168,17 @@ def main():
             fail(f"fallback {fallback}% over the run (bound {FALLBACK_BOUND:g}%)")
 
         # One server, killed and restarted on its port.
-        p, grpc, _ = start_server(a.server, store)
+        p, grpc, http = start_server(a.server, store)
         restarted = {}
 
         def restart():
+            # Only once the viewer is streaming (a viewer still starting when its only server goes
+            # away exits with an error, by design): on a loaded machine that may take longer than
+            # the 1.5 s before this runs; 20 s at most.
+            for _ in range(200):
+                if tiles_sent(http) > 0:
+                    break
+                time.sleep(0.1)
             p.send_signal(signal.SIGKILL)
             p.wait()
             time.sleep(0.3)

@@ -343,6 +343,54 @@ TEST_F(ServerGrpc, HigherPriorityTilesAreSentFirst) {
     }
 }
 
+TEST_F(ServerGrpc, CachedTilesAreAnsweredOnTheStreamsThreadInPriorityOrder) {
+    // A viewer alone on the server asks for 40 tiles twice. The second time they are all in the
+    // RAM cache: the first 32 (kInlineTiles in server/src/scheduler.hpp) are answered where the
+    // batch was read, the rest by the reader thread, and the stream still carries them in priority order with the
+    // stored bytes.
+    ServerProcess srv({"--store", Stores::jpeg(), "--io-threads", "1"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto keys = level_keys(Stores::jpeg(), 1);
+    keys.resize(40);
+    for (std::size_t i = 0; i < keys.size(); ++i) keys[i].priority = static_cast<float>((i * 17) % 40);
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "terrain", keys)));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == keys.size(); }));
+    const auto inline_count = [&] {
+        const auto metrics = tessera::test::http_get(srv.http_port(), "/metrics");
+        EXPECT_EQ(metrics.status, 200);
+        const auto p = tessera::test::parse_prometheus_text(metrics.body);
+        EXPECT_TRUE(p.ok()) << p.error;
+        return p.value("tessera_grpc_tiles_inline_total", {});
+    };
+    EXPECT_EQ(inline_count(), 0.0) << "the first batch found nothing in the cache";
+    ASSERT_TRUE(v.send(batch(2, "terrain", keys)));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == 2 * keys.size(); }));
+    EXPECT_EQ(inline_count(), 32.0);
+
+    auto reader = tessera::storage::StoreReader::open(Stores::jpeg());
+    ASSERT_TRUE(reader.ok());
+    std::map<std::tuple<unsigned, unsigned, unsigned>, float> prio;
+    for (const auto& r : keys) prio[{r.level, r.x, r.y}] = r.priority;
+    float last = 1e9f;
+    std::set<std::tuple<unsigned, unsigned, unsigned>> seen;
+    for (std::size_t i = keys.size(); i < v.tiles.size(); ++i) {
+        const auto& t = v.tiles[i];
+        ASSERT_EQ(t.status(), v1::TILE_OK) << t.message();
+        EXPECT_EQ(t.frame(), 2u);
+        const std::tuple<unsigned, unsigned, unsigned> k{t.key().level(), t.key().x(), t.key().y()};
+        EXPECT_TRUE(seen.insert(k).second) << "sent twice";
+        const float p = prio.at(k);
+        EXPECT_LE(p, last) << "tile (" << t.key().x() << "," << t.key().y() << ") came out of priority order";
+        last = p;
+        auto stored = (*reader)->read_tile({t.key().level(), t.key().x(), t.key().y()});
+        ASSERT_TRUE(stored.ok());
+        EXPECT_TRUE(std::equal(stored->bytes.begin(), stored->bytes.end(), t.payload().begin(), t.payload().end(),
+                               [](std::uint8_t a, char b) { return a == static_cast<std::uint8_t>(b); }));
+    }
+    EXPECT_TRUE(v.finish().ok());
+}
+
 TEST_F(ServerGrpc, NewBatchCancelsSupersededRequests) {
     // A viewer that does not read stops being served (small per-viewer buffer). Its next batch
     // replaces the first: the first batch's unsent tiles are never sent.

@@ -1,7 +1,9 @@
 #pragma once
 // The request scheduler behind StreamTiles. Each viewer's pending set is replaced by every batch
 // it sends (superseded requests are dropped before any I/O, or, if already read, before they are
-// sent). A pool of I/O threads serves the pending requests of all viewers: fairly between viewers
+// sent). While no other viewer waits, the first tiles of a batch that are in the RAM cache are
+// answered at once on the stream's thread (no hand-off to an I/O thread: see submit()). A pool of
+// I/O threads serves the rest of the pending requests of all viewers: fairly between viewers
 // (the least-served viewer goes next, within a small slack in which the higher priority wins),
 // highest priority first within a viewer, a chunk at a time so that tiles adjacent in the file
 // are read together. Replies wait in a per-viewer outbox bounded in bytes: a viewer that does not
@@ -82,6 +84,7 @@ public:
     static constexpr std::size_t kChunk = 16;              // requests taken per dispatch
     static constexpr unsigned kMaxChunksInFlight = 2;      // per viewer
     static constexpr std::uint64_t kFairnessSlack = kChunk; // tiles of service a priority may jump
+    static constexpr std::size_t kInlineTiles = kChunk * kMaxChunksInFlight;  // cache hits answered in submit()
     // What one batch can make the server hold is bounded by constants, not by what it carries:
     // a batch listing more stores, or a name longer than any store name can be
     // (protocol::kMaxStoreNameLength bytes), is refused whole with one small ack; at most
@@ -146,6 +149,7 @@ private:
     void written_locked(Viewer& v, const OutMessage& msg, bool& wake_workers);
     void account_written(const OutMessage& msg, bool ok);
     void notify(std::vector<std::shared_ptr<ViewerSink>>& sinks);
+    void serve_cached_locked(Viewer& v);
 
     ServerContext& ctx_;
     mutable std::mutex mu_;
@@ -161,7 +165,7 @@ private:
 
     // Metrics (owned by ctx_.metrics).
     Counter *batches_, *requests_, *tiles_sent_, *bytes_sent_, *cancelled_, *refused_, *invalid_,
-        *deadline_exceeded_, *data_loss_, *batches_refused_;
+        *deadline_exceeded_, *data_loss_, *batches_refused_, *inline_served_;
     Histogram* latency_;
     Histogram* batch_size_;
 
