@@ -152,6 +152,12 @@ void Scheduler::remove_viewer(ViewerId id) {
     viewers_.erase(it);
 }
 
+// The reply to a pending request, its payload and status still to be filled in.
+OutMessage Scheduler::tile_reply(const Pending& p) {
+    return OutMessage{.received = p.received, .store = p.store, .packed_key = p.packed, .is_tile = true, .key = p.key,
+                      .frame = p.frame};
+}
+
 void Scheduler::push_locked(Viewer& v, OutMessage msg) {
     msg.bytes = message_bytes(msg);
     v.outbox_bytes += msg.bytes;
@@ -415,13 +421,7 @@ void Scheduler::serve_cached_locked(Viewer& v) {
         const Pending& p = v.pending.back();
         std::shared_ptr<const storage::Tile> tile = ctx_.fetcher.cached(*p.store, p.key);
         if (!tile) break;
-        OutMessage r;
-        r.is_tile = true;
-        r.key = p.key;
-        r.frame = p.frame;
-        r.received = p.received;
-        r.store = p.store;
-        r.packed_key = p.packed;
+        OutMessage r = tile_reply(p);
         r.status = TileStatus::ok;
         r.kind = tile->kind;
         r.codec = p.store->info().codec;
@@ -501,12 +501,7 @@ void Scheduler::worker() {
         std::vector<std::size_t> expired;
         for (std::size_t i = 0; i < chunk.size(); ++i) {
             auto& r = replies[i];
-            r.is_tile = true;
-            r.key = chunk[i].key;
-            r.frame = chunk[i].frame;
-            r.received = chunk[i].received;
-            r.store = chunk[i].store;
-            r.packed_key = chunk[i].packed;
+            r = tile_reply(chunk[i]);
             if (chunk[i].deadline < now) {
                 r.status = TileStatus::deadline_exceeded;
                 r.error = "not started before its deadline";

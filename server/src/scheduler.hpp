@@ -48,7 +48,7 @@ public:
 // a tile an I/O thread read (is_tile: the reply's fields, the payload by reference to the cached
 // tile, never copied; the stream encodes it, see grpc_service.cpp).
 struct OutMessage {
-    v1::ServerMessage message;       // !is_tile
+    v1::ServerMessage message{};     // !is_tile
     std::size_t bytes = 0;           // charged to the outbox
     Clock::time_point received{};    // batch arrival (tiles), for latency
     std::shared_ptr<const StoreHandle> store;  // tiles: per-store accounting
@@ -58,10 +58,10 @@ struct OutMessage {
     TileKey key;
     std::uint64_t frame = 0;
     TileStatus status = TileStatus::ok;
-    std::string error;               // when status is not ok
+    std::string error{};             // when status is not ok
     TileKind kind = TileKind::absent;
     Codec codec = Codec::raw;        // the store's codec (the wire's codec: protocol::reply_codec)
-    std::shared_ptr<const storage::Tile> tile;  // status TILE_OK: payload and checksum
+    std::shared_ptr<const storage::Tile> tile{};  // status TILE_OK: payload and checksum
     std::uint32_t server_micros = 0;            // set when taken from the outbox
     bool left_in_flight = false;  // taken into the sent set (revision 1): in_flight already cleared
 
@@ -150,6 +150,7 @@ private:
     void account_written(const OutMessage& msg, bool ok);
     void notify(std::vector<std::shared_ptr<ViewerSink>>& sinks);
     void serve_cached_locked(Viewer& v);
+    static OutMessage tile_reply(const Pending& p);
 
     ServerContext& ctx_;
     mutable std::mutex mu_;
