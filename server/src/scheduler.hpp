@@ -45,8 +45,9 @@ public:
 };
 
 // One message on its way to a viewer: an ack or an error reply found in submit() (message), or
-// a tile an I/O thread read (is_tile: the reply's fields, the payload by reference to the cached
-// tile, never copied; the stream encodes it, see grpc_service.cpp).
+// a tile taken from the RAM cache or read from its store (is_tile: the reply's fields, the
+// payload by reference to the cached tile, never copied; the stream encodes it, see
+// grpc_service.cpp).
 struct OutMessage {
     v1::ServerMessage message{};     // !is_tile
     std::size_t bytes = 0;           // charged to the outbox
