@@ -14,7 +14,8 @@
 // - A render is admitted against `render_queue` (waiting) and `render_memory`, the bytes its
 //   estimate says the renders running and waiting may hold.
 // - A job whose deadline passes while it waits is taken out and answered (expired) within
-//   kExpiryTick (the expiry thread sleeps while nothing waits); a running job's remote reads end at its deadline (storage::ReadDeadlineScope).
+//   kExpiryTick (the expiry thread sleeps while nothing waits); a running job's remote reads end
+//   at its deadline (storage::ReadDeadlineScope).
 //
 // Owner: the HTTP server. Threads: `threads` read workers, `render_concurrency` render workers
 // and one expiry thread, owned here; nothing
