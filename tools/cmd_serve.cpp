@@ -206,7 +206,7 @@ Command add_serve(CLI::App& app) {
         "Signals: SIGHUP rescans the stores and rereads --auth-token-file, --tls-cert and --tls-key; SIGTERM/SIGINT stop accepting, finish admitted work\n"
         "(up to --drain-timeout) and exit 0. Logs go to stderr, one line each: a JSON object (--log-format json) or text\n"
         "(--log-format text).");
-    // Debian 12's CLI11 (2.1) reads config files only for the main app (CLIUtils/CLI11#1056),
+    // Debian 12's CLI11 (2.1) reads config files only for the main app,
     // so apply --config here: keys are long option names, top level or under [serve]; the
     // command line wins; an unknown key is an error.
     s->parse_complete_callback([s] {

@@ -1,5 +1,5 @@
 // Tessera's own API under /v1/: the list of stores, a store's metadata, and its tiles as stored
-// (or decoded to PNG). docs/server.md, "HTTP API".
+// (or decoded to PNG). docs/protocol.md, "HTTP".
 #include <nlohmann/json.hpp>
 
 #include "apis.hpp"
