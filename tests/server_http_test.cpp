@@ -1,9 +1,12 @@
 // Integration tests of `tessera serve` over HTTP: a real server process on loopback, spoken to
 // over plain sockets.
 #include <gtest/gtest.h>
+#include <sys/syscall.h>
 #include <zlib.h>
 
+#include <cstring>
 #include <filesystem>
+#include <fstream>
 
 #include "prometheus_text.hpp"
 #include "server_process.hpp"
@@ -72,6 +75,81 @@ TEST_F(ServerHttp, TilesWithEtagAnd304) {
     auto head = c.get("/v1/stores/terrain/tiles/1/2/1", {}, "HEAD");
     EXPECT_EQ(head.status, 200);
     EXPECT_EQ(head.headers["content-length"], std::to_string(tile->bytes.size()));
+}
+
+// The kernel's slice of each of a process's threads, by thread name, from /proc (se.slice, ns;
+// -1 where the kernel does not print one).
+std::multimap<std::string, long long> thread_slices(pid_t pid) {
+    std::multimap<std::string, long long> out;
+    for (const auto& e : fs::directory_iterator("/proc/" + std::to_string(pid) + "/task")) {
+        std::ifstream comm(e.path() / "comm");
+        std::string name, line;
+        std::getline(comm, name);
+        long long slice = -1;
+        std::ifstream sched(e.path() / "sched");
+        while (std::getline(sched, line))
+            if (line.rfind("se.slice", 0) == 0) slice = std::stoll(line.substr(line.find(':') + 1));
+        out.emplace(name, slice);
+    }
+    return out;
+}
+
+// Whether this kernel keeps a fair thread's sched_runtime (EEVDF custom slices, Linux 6.12+),
+// asked on a scratch thread with the raw system calls.
+bool kernel_keeps_fair_slices() {
+    struct Attr {
+        std::uint32_t size, policy;
+        std::uint64_t flags;
+        std::int32_t nice;
+        std::uint32_t priority;
+        std::uint64_t runtime, deadline, period;
+        std::uint32_t util_min, util_max;
+    };
+    bool kept = false;
+    std::thread([&] {
+        Attr a;
+        std::memset(&a, 0, sizeof a);
+        a.size = sizeof a;
+        a.runtime = 250000;
+        if (syscall(SYS_sched_setattr, 0, &a, 0) != 0) return;
+        Attr b;
+        std::memset(&b, 0, sizeof b);
+        kept = syscall(SYS_sched_getattr, 0, &b, sizeof b, 0) == 0 && b.runtime == 250000;
+    }).join();
+    return kept;
+}
+
+TEST_F(ServerHttp, EventLoopsAskForTheConfiguredSlice) {
+    // docs/server.md, "Short slices": the HTTP event loops ask for --http-loop-slice-us; the
+    // executor's workers and everything else keep the kernel's default. On a kernel without
+    // custom slices the server runs the same and no thread has the slice.
+    const bool kernel = kernel_keeps_fair_slices();
+    ServerProcess srv({"--store", store_, "--http-threads", "2", "--http-loop-slice-us", "300", "--render-concurrency", "1"},
+                      dir.file("log"), "", true);
+    ASSERT_TRUE(srv.running()) << srv.log();
+    ASSERT_EQ(tessera::test::http_get(srv.http_port(), "/v1/stores/terrain/tiles/0/0/0").status, 200);
+    const auto threads = thread_slices(srv.pid());
+    ASSERT_EQ(threads.count("http-loop"), 2u);
+    ASSERT_EQ(threads.count("work-render"), 1u);
+    ASSERT_GE(threads.count("work-read"), 1u);
+    for (const auto& [name, slice] : threads) {
+        if (name == "http-loop" && kernel)
+            EXPECT_EQ(slice, 300000) << name;
+        else
+            EXPECT_NE(slice, 300000) << name << (kernel ? " took the loops' slice" : ": this kernel keeps no slices");
+    }
+
+    ServerProcess plain({"--store", store_, "--http-threads", "1", "--http-loop-slice-us", "0"}, dir.file("log2"), "", true);
+    ASSERT_TRUE(plain.running()) << plain.log();
+    const auto defaults = thread_slices(plain.pid());
+    ASSERT_EQ(defaults.count("http-loop"), 1u);
+    const long long loop = defaults.find("http-loop")->second;
+    const long long read = defaults.find("work-read")->second;
+    EXPECT_EQ(loop, read) << "with 0 the loop keeps the kernel's default slice";
+
+    const auto bad = tessera::test::run_tessera("serve --store " + store_ + " --http-loop-slice-us 50");
+    EXPECT_NE(bad.exit_code, 0);
+    EXPECT_NE(bad.out.find("--http-loop-slice-us must be 0 or 100..100000"), std::string::npos) << bad.out;
 }
 
 TEST_F(ServerHttp, PngIsTheDecodedTile) {

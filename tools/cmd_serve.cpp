@@ -28,7 +28,7 @@ struct ServeArgs {
     std::string auth_token_file;
     std::string log_format = "json";
     std::string log_level = "info";
-    long long watch_ms = 2000, timeout_ms = 5000, drain_ms = 10000, idle_ms = 60000;
+    long long watch_ms = 2000, timeout_ms = 5000, drain_ms = 10000, idle_ms = 60000, slice_us = 100;
     std::size_t cache_bytes = std::size_t(256) << 20;
     std::size_t viewer_buffer = std::size_t(4) << 20, total_buffer = std::size_t(512) << 20;
     std::size_t max_message = std::size_t(4) << 20;
@@ -55,6 +55,8 @@ int run_serve(ServeArgs& a) {
     c.request_timeout = std::chrono::milliseconds(a.timeout_ms);
     c.drain_timeout = std::chrono::milliseconds(a.drain_ms);
     c.idle_timeout = std::chrono::milliseconds(a.idle_ms);
+    if (a.slice_us != 0 && a.slice_us < 100) throw Failure("--http-loop-slice-us must be 0 or 100..100000 (the kernel's bounds)");
+    c.http_loop_slice = std::chrono::microseconds(a.slice_us);
     c.cache_bytes = a.cache_bytes;
     c.viewer_buffer_bytes = a.viewer_buffer;
     c.total_buffer_bytes = a.total_buffer;
@@ -151,6 +153,10 @@ Command add_serve(CLI::App& app) {
     add_bytes_option(*s, "--cache-size", a->cache_bytes, "RAM tile cache budget, e.g. 256MiB (0: off)");
     s->add_option("--io-threads", c.io_threads, "Tile reader threads (0: all cores; at least 16 with a remote store)")->capture_default_str();
     s->add_option("--http-threads", c.http_threads, "HTTP event-loop threads (0: all cores); they never read or render (--work-threads do)")->capture_default_str();
+    s->add_option("--http-loop-slice-us", a->slice_us,
+                  "Time slice, us, the HTTP event loops ask of the kernel (Linux 6.12+: a loop woken by a request "
+                  "preempts longer-running work; 0: the kernel's default)")
+        ->capture_default_str()->check(CLI::Range(0LL, 100000LL));
     s->add_option("--max-viewers", c.max_viewers, "Concurrent StreamTiles calls; beyond: RESOURCE_EXHAUSTED")
         ->capture_default_str();
     s->add_option("--max-batch", c.max_batch, "Requests in one batch; a larger batch is refused whole")

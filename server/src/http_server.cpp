@@ -24,6 +24,7 @@
 #endif
 #include "http_server.hpp"
 
+#include <pthread.h>
 #include <openssl/ssl.h>
 
 #include <array>
@@ -51,6 +52,7 @@
 
 #include "http_handler.hpp"
 #include "http_response_head.hpp"
+#include "thread_slice.hpp"
 #include "work_executor.hpp"
 
 namespace tessera::server {
@@ -661,6 +663,8 @@ private:
     }
 
     void run(net::io_context& ioc) {
+        pthread_setname_np(pthread_self(), "http-loop");
+        request_short_slice(shared_.ctx.config.http_loop_slice);
         for (;;) {
             try {
                 ioc.run();

@@ -1,5 +1,6 @@
 #include "scheduler.hpp"
 
+#include <pthread.h>
 #include <absl/container/flat_hash_map.h>
 #include <absl/container/flat_hash_set.h>
 
@@ -465,6 +466,7 @@ Scheduler::Viewer* Scheduler::pick_locked() {
 }
 
 void Scheduler::worker() {
+    pthread_setname_np(pthread_self(), "grpc-io");
     std::vector<Pending> chunk;
     std::vector<OutMessage> replies;
     std::vector<FetchedTile> fetched;

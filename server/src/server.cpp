@@ -1,6 +1,7 @@
 // Server: wires the parts together and owns them, in this order (destroyed in reverse):
 // logger, metrics, stores, cache, fetcher, context, scheduler, gRPC service and server, HTTP
 // server, and the watch thread that rescans the stores.
+#include <pthread.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/security/server_credentials.h>
 #include <grpcpp/security/tls_certificate_provider.h>
@@ -306,6 +307,7 @@ private:
     }
 
     void watch() {
+        pthread_setname_np(pthread_self(), "store-watch");
         std::unique_lock lock(watch_mutex_);
         while (!watch_cv_.wait_for(lock, config_.watch_interval, [this] { return stop_watch_; })) {
             lock.unlock();

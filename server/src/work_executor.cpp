@@ -1,5 +1,6 @@
 #include "work_executor.hpp"
 
+#include <pthread.h>
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -200,6 +201,7 @@ void WorkExecutor::account_done_locked(Lane& lane, const WorkJob& job) {
 }
 
 void WorkExecutor::worker(WorkKind kind) {
+    pthread_setname_np(pthread_self(), kind == WorkKind::read ? "work-read" : "work-render");
     if (kind == WorkKind::render) {
         // Renders are CPU work that can wait; the event loops and reads cannot. A lower priority
         // (nice 5: a third of a default thread's CPU share under contention) keeps the loops'
@@ -237,6 +239,7 @@ void WorkExecutor::worker(WorkKind kind) {
 }
 
 void WorkExecutor::expiry() {
+    pthread_setname_np(pthread_self(), "work-expiry");
     std::vector<WorkJob> expired;
     for (;;) {
         {

@@ -35,6 +35,10 @@ struct ServerConfig {
     std::size_t cache_bytes = std::size_t(256) << 20;  // RAM tile cache; 0 disables it
     unsigned io_threads = 0;    // tile readers; 0: hardware threads
     unsigned http_threads = 0;  // HTTP event loops; 0: hardware threads
+    // The time slice the HTTP event loops ask of the kernel's fair scheduler, so that a loop
+    // woken by a request preempts longer-running work instead of waiting for its slice to end
+    // (docs/server.md, "Short slices"; Linux 6.12+, ignored elsewhere). 0: the kernel's default.
+    std::chrono::microseconds http_loop_slice{100};
 
     // Bounds. Beyond them new work is refused (RESOURCE_EXHAUSTED / 503); admitted work goes on.
     std::size_t max_viewers = 256;          // concurrent StreamTiles calls
