@@ -94,6 +94,16 @@ std::multimap<std::string, long long> thread_slices(pid_t pid) {
     return out;
 }
 
+// The same, once `count` threads named `name` are there (a thread names itself as it starts).
+std::multimap<std::string, long long> thread_slices_once(pid_t pid, const std::string& name, std::size_t count) {
+    auto threads = thread_slices(pid);
+    for (int i = 0; i < 100 && threads.count(name) < count; ++i) {
+        std::this_thread::sleep_for(50ms);
+        threads = thread_slices(pid);
+    }
+    return threads;
+}
+
 // Whether this kernel keeps a fair thread's sched_runtime (EEVDF custom slices, Linux 6.12+),
 // asked on a scratch thread with the raw system calls.
 bool kernel_keeps_fair_slices() {
@@ -128,7 +138,7 @@ TEST_F(ServerHttp, EventLoopsAskForTheConfiguredSlice) {
                       dir.file("log"), "", true);
     ASSERT_TRUE(srv.running()) << srv.log();
     ASSERT_EQ(tessera::test::http_get(srv.http_port(), "/v1/stores/terrain/tiles/0/0/0").status, 200);
-    const auto threads = thread_slices(srv.pid());
+    const auto threads = thread_slices_once(srv.pid(), "http-loop", 2);
     ASSERT_EQ(threads.count("http-loop"), 2u);
     ASSERT_EQ(threads.count("work-render"), 1u);
     ASSERT_GE(threads.count("work-read"), 1u);
@@ -141,8 +151,9 @@ TEST_F(ServerHttp, EventLoopsAskForTheConfiguredSlice) {
 
     ServerProcess plain({"--store", store_, "--http-threads", "1", "--http-loop-slice-us", "0"}, dir.file("log2"), "", true);
     ASSERT_TRUE(plain.running()) << plain.log();
-    const auto defaults = thread_slices(plain.pid());
+    const auto defaults = thread_slices_once(plain.pid(), "http-loop", 1);
     ASSERT_EQ(defaults.count("http-loop"), 1u);
+    ASSERT_GE(defaults.count("work-read"), 1u);
     const long long loop = defaults.find("http-loop")->second;
     const long long read = defaults.find("work-read")->second;
     EXPECT_EQ(loop, read) << "with 0 the loop keeps the kernel's default slice";
