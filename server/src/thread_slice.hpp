@@ -10,8 +10,8 @@ namespace tessera::server {
 // it preempts a thread that has been running a longer slice instead of waiting for that slice
 // to end: an HTTP event loop gets to a request in tens of microseconds rather than a
 // millisecond or more on a busy machine. Its CPU share is unchanged (the policy and nice
-// value stay). A kernel without the feature ignores it or refuses it; either
-// way the thread runs as before. docs/server.md, "Short slices".
+// value stay). A kernel without the feature ignores it or refuses it; either way the thread
+// runs as before. docs/server.md, "Short slices".
 // Returns whether the kernel took it (read back). A zero slice does nothing. The kernel keeps a
 // slice within 0.1–100 ms.
 bool request_short_slice(std::chrono::microseconds slice);
