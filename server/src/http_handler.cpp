@@ -142,15 +142,18 @@ std::string loggable_target(std::string_view target) {
 HttpResponse HttpHandler::handle_http_request(const HttpRequestView& req, bool borrow_payload) {
     HttpResponse res = start(req, borrow_payload);
     if (!res.deferred) return res;
-    const std::shared_ptr<DeferredAnswer> d = std::move(res.deferred);
-    HttpResponse answered;
-    try {
-        answered = d->answer();
-    } catch (const std::exception& e) {
-        ctx_.log.error("http handler failed", {{"target", d->target}, {"error", e.what()}});
-        answered = httpapi::error(500, "internal error", d->target.starts_with("/v1/"));
+    std::shared_ptr<DeferredAnswer> d = std::move(res.deferred);
+    for (;;) {
+        HttpResponse answered;
+        try {
+            answered = d->answer();
+        } catch (const std::exception& e) {
+            ctx_.log.error("http handler failed", {{"target", d->target}, {"error", e.what()}});
+            answered = httpapi::error(500, "internal error", d->target.starts_with("/v1/"));
+        }
+        if (!answered.deferred) return complete(*d, std::move(answered));
+        d = follow_up(*d, std::move(answered));
     }
-    return complete(*d, std::move(answered));
 }
 
 HttpResponse HttpHandler::start(const HttpRequestView& req, bool borrow_payload) {
@@ -177,6 +180,16 @@ HttpResponse HttpHandler::start(const HttpRequestView& req, bool borrow_payload)
 
 HttpResponse HttpHandler::complete(const DeferredAnswer& d, HttpResponse r) {
     return finish(std::move(r), d.route, d.origin, d.target, d.head, d.started);
+}
+
+std::shared_ptr<DeferredAnswer> HttpHandler::follow_up(const DeferredAnswer& d, HttpResponse r) {
+    std::shared_ptr<DeferredAnswer> next = std::move(r.deferred);
+    next->route = d.route;
+    next->started = d.started;
+    next->origin = d.origin;
+    next->target = d.target;
+    next->head = d.head;
+    return next;
 }
 
 HttpResponse HttpHandler::refused(const DeferredAnswer& d, Admission why) {

@@ -137,6 +137,9 @@ public:
     // loop and sends complete(*deferred, result), or sends refused() / expired().
     HttpResponse start(const HttpRequestView& req, bool borrow_payload);
     HttpResponse complete(const DeferredAnswer& d, HttpResponse r);
+    // An answer that is itself deferred (work of another kind found to be needed, e.g. a render
+    // after a read): its work, as part of d's request. The transport admits it on its own.
+    std::shared_ptr<DeferredAnswer> follow_up(const DeferredAnswer& d, HttpResponse r);
     // 503 + Retry-After: the executor refused the work (a store's lane or the render budget full).
     HttpResponse refused(const DeferredAnswer& d, Admission why);
     // 504: the request's deadline (--request-timeout) passed before its work could finish.

@@ -331,15 +331,21 @@ private:
 
     // The answer needs a read or a render: it runs on the executor, and its response comes back
     // to this connection's loop. The loop goes on serving other connections meanwhile; this one
-    // waits (it reads its next request only after this answer is written).
-    void run_deferred(std::shared_ptr<DeferredAnswer> d, unsigned version, bool head, bool keep_alive) {
-        const auto deadline = std::chrono::steady_clock::now() + shared_.ctx.config.request_timeout;
+    // waits (it reads its next request only after this answer is written). Work that finds it
+    // needs more of another kind (a render after a read) comes back as a follow-up, admitted on
+    // its own, under the same deadline.
+    void run_deferred(std::shared_ptr<DeferredAnswer> d, unsigned version, bool head, bool keep_alive,
+                      std::optional<Clock::time_point> deadline = std::nullopt) {
+        if (!deadline) deadline = Clock::now() + shared_.ctx.config.request_timeout;
+        // The connection waits for the answer, which comes by the request's deadline (504 then):
+        // the idle deadline set for reading this request must not close it meanwhile.
+        set_deadline(*deadline - Clock::now() + shared_.ctx.config.idle_timeout);
         WorkJob job;
         job.kind = d->kind;
         job.store = d->store ? d->store->name : std::string();
         job.memory = d->memory;
-        job.deadline = deadline;
-        job.run = [self = self(), d, version, head, keep_alive](bool started) mutable {
+        job.deadline = *deadline;
+        job.run = [self = self(), d, version, head, keep_alive, deadline = *deadline](bool started) mutable {
             HttpHandler& handler = self->shared_.handler;
             HttpResponse r;
             try {
@@ -356,6 +362,15 @@ private:
                         answered.content_type = "text/plain; charset=utf-8";
                         answered.body = "internal error\n";
                         answered.headers.emplace_back("Cache-Control", "no-store");
+                    }
+                    if (answered.deferred) {  // a follow-up: submitted from the connection's loop
+                        auto next = handler.follow_up(*d, std::move(answered));
+                        auto executor = self->stream_.get_executor();
+                        net::post(executor, [self = std::move(self), next = std::move(next), version, head, keep_alive,
+                                             deadline]() mutable {
+                            self->run_deferred(std::move(next), version, head, keep_alive, deadline);
+                        });
+                        return;
                     }
                     r = handler.complete(*d, std::move(answered));
                 }
@@ -643,7 +658,7 @@ public:
             shared_.sessions_cv.wait_for(lock, std::chrono::seconds(2), [&] { return shared_.sessions.empty(); });
         }
         // Waiting work is answered (its sessions are closed: nothing is written); running work
-        // ends by its deadline at the latest.
+        // is waited for: its remote reads end by its deadline, a render or a local read when done.
         shared_.executor.stop();
         work_.clear();
         for (auto& ioc : iocs_) ioc->stop();

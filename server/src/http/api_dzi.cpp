@@ -145,7 +145,11 @@ HttpResponse api_dzi(HttpHandler& handler, const ParsedRequest& req, HttpRoute& 
                 HttpRequestView plain;
                 plain.method = head ? "HEAD" : "GET";
                 plain.if_none_match = if_none_match;
-                return answer_in_place(web_image_response(*hp, plain, hs, answer, memory, render));
+                // A small render runs here, on this read worker; a bigger one goes back to the
+                // executor as a follow-up, admitted against the render budget like any render.
+                HttpResponse r = web_image_response(*hp, plain, hs, answer, memory, render);
+                if (r.deferred && r.deferred->kind == WorkKind::render) return r;
+                return answer_in_place(std::move(r));
             });
         }
     }

@@ -82,12 +82,15 @@ bool decode_web_tile(const StoreHandle& store, const WebLook& look, const storag
     return true;
 }
 
-// Decode buffers a render reuses: a worker thread keeps those of renders a few tiles wide, so a
-// web tile allocates (and the kernel zeroes) no tile-sized buffer per request; a wider render's
-// are its own and freed with it, so no thread holds a big render's memory after it.
+// Decode buffers a render reuses: a worker thread keeps those of renders a few small tiles wide,
+// so a web tile allocates (and the kernel zeroes) no tile-sized buffer per request; a wider
+// render's, or one of large tiles, are its own and freed with it. What a thread keeps, which the
+// render budget no longer counts, is so at most kKept tiles and one samples buffer, each at most
+// kKeptBytes / kKept.
 class TileScratch {
 public:
-    explicit TileScratch(std::size_t tiles) : own_(tiles > kKept) {
+    // tile_bytes: one decoded tile and its samples, at most.
+    TileScratch(std::size_t tiles, std::size_t tile_bytes) : own_(tiles > kKept || tile_bytes > kKeptBytes / kKept) {
         if (own_) tiles_.resize(tiles);
         else if (kept().tiles.size() < tiles) kept().tiles.resize(tiles);
     }
@@ -96,6 +99,7 @@ public:
 
 private:
     static constexpr std::size_t kKept = 4;
+    static constexpr std::size_t kKeptBytes = std::size_t(4) << 20;
     struct Kept {
         std::vector<std::vector<std::uint8_t>> tiles;
         std::vector<std::uint8_t> samples;
@@ -256,7 +260,7 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
     const std::uint32_t tx0 = r.x / P, tx1 = (r.x + r.w - 1) / P, ty0 = r.y / P, ty1 = (r.y + r.h - 1) / P;
     std::vector<TileKey> keys;
     std::vector<FetchedTile> fetched;
-    TileScratch tiles(tx1 - tx0 + 1);
+    TileScratch tiles(tx1 - tx0 + 1, std::size_t(T) * T * (c + look.info.texel_bytes()));
     std::vector<std::uint8_t> row(copy ? 0 : std::size_t(r.w) * c);
     for (std::uint32_t ty = ty0; ty <= ty1; ++ty) {
         keys.clear();
