@@ -23,6 +23,7 @@ if(NOT TESSERA_FUZZ_ONLY AND NOT TESSERA_SERVER_ONLY)
   # installed; its pkg-config file is sound, so use that.
   pkg_check_modules(OIIO REQUIRED IMPORTED_TARGET OpenImageIO)
   pkg_check_modules(TIFF REQUIRED IMPORTED_TARGET libtiff-4)
+  pkg_check_modules(WEBP REQUIRED IMPORTED_TARGET libwebp)
   # The GL client: libepoxy dispatches GL calls for both EGL (headless) and GLFW (windowed).
   pkg_check_modules(EPOXY REQUIRED IMPORTED_TARGET epoxy)
   pkg_check_modules(EGL REQUIRED IMPORTED_TARGET egl)

@@ -314,11 +314,22 @@ TEST(DiskTileCache, RoundTrip) {
     EXPECT_TRUE(fs::exists(cache->entry_path(a)));
     EXPECT_EQ(cache->entry_path(a), dir.str() + "/earth/0000000000000001/2/3_4.tile");
 
+    // Every codec a store may hold comes back, layered tiles (the last codec) included.
+    for (int codec = 0; codec <= int(tessera::Codec::layers); ++codec) {
+        const TileId k = tid(1, std::uint32_t(codec), 1, 3, "codecs");
+        TileData t = make_tile(k, 300);
+        t.codec = tessera::Codec(codec);
+        ASSERT_TRUE(cache->put(k, t));
+        cache->flush();
+        EXPECT_EQ(must_get(*cache, k), t) << "codec " << codec;
+    }
+    EXPECT_EQ(cache->stats().corrupt, 0u);
+
     const DiskCacheStats s = cache->stats();
-    EXPECT_EQ(s.writes, 3u);
-    EXPECT_EQ(s.hits, 3u);
+    EXPECT_EQ(s.writes, 11u);
+    EXPECT_EQ(s.hits, 11u);
     EXPECT_EQ(s.misses, 2u);
-    EXPECT_EQ(s.entries, 3u);
+    EXPECT_EQ(s.entries, 11u);
     EXPECT_EQ(s.corrupt, 0u);
     EXPECT_EQ(s.bytes, tree_info(dir.str()).bytes);
     EXPECT_TRUE(s.scan_complete);
@@ -327,7 +338,7 @@ TEST(DiskTileCache, RoundTrip) {
     ASSERT_TRUE(cache->put(a, make_tile(a, 10)));
     cache->flush();
     EXPECT_EQ(must_get(*cache, a), make_tile(a, 10));
-    EXPECT_EQ(cache->stats().entries, 3u);
+    EXPECT_EQ(cache->stats().entries, 11u);
     EXPECT_EQ(cache->stats().bytes, tree_info(dir.str()).bytes);
 }
 

@@ -21,7 +21,7 @@ packages=(
   build-essential cmake ninja-build pkg-config git
   libzstd-dev libturbojpeg0-dev libxxhash-dev
   libstb-dev libsquish-dev            # BC page encoding (stb_dxt); an independent BC decoder for tests
-  libopenimageio-dev libtiff-dev
+  libopenimageio-dev libtiff-dev libwebp-dev  # libwebp: WebP alpha kept straight
   libcli11-dev nlohmann-json3-dev libfmt-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libboost-dev libssl-dev zlib1g-dev openssl
@@ -39,7 +39,7 @@ test_build_packages=(
 )
 test_run_packages=(
   xvfb xauth                          # windowed-mode tests on an X server without a display
-  imagemagick openimageio-tools       # tests read images other tools wrote (alpha conventions, formats)
+  imagemagick openimageio-tools webp  # tests read images other tools wrote (alpha conventions, formats)
   assimp-testmodels gltfpack          # real glTF 2.0 scenes (Khronos samples, meshoptimizer's packer) for the atlas tests
   python3-yaml time systemd           # systemd: systemd-analyze lints deploy/tessera.service
   mmdebstrap                          # deploy/build-image.py: the image's root filesystem

@@ -293,7 +293,7 @@ struct DiskTileCache::Impl {
         }
         const std::uint64_t len = get_le(&h[32], 8);
         if (len != size - hs) return ReadOutcome::corrupt;
-        if (h[8] > static_cast<std::uint8_t>(TileKind::uniform) || h[9] > static_cast<std::uint8_t>(Codec::bc7))
+        if (h[8] > static_cast<std::uint8_t>(TileKind::uniform) || h[9] > static_cast<std::uint8_t>(Codec::layers))
             return ReadOutcome::corrupt;
         out.kind = static_cast<TileKind>(h[8]);
         out.codec = static_cast<Codec>(h[9]);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <filesystem>
 #include <memory>
 #include <thread>
 
@@ -104,6 +105,11 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
 Result<BuildSummary> build_store(const std::string& input, const std::string& output, const BuildOptions& opt,
                                  const BuildProgressFn& progress) {
     TESSERA_TRY(validate(opt));
+    // The store replaces its output only when complete, so building over the input would read the
+    // whole image and then destroy it.
+    std::error_code ec;
+    if (std::filesystem::equivalent(input, output, ec))
+        return make_error(Errc::invalid_argument, "output '" + output + "' is the input; choose another output path");
     auto source = open_image_source(input);
     if (!source) return source.error();
     return build_store(**source, output, opt, progress);

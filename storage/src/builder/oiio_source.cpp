@@ -1,10 +1,13 @@
 // The OpenImageIO plugin (libtessera_oiio.so): image files in and out through OpenImageIO.
 // Loaded on demand by oiio_plugin.cpp; see sources_internal.hpp for why it is a separate module.
 #include <OpenImageIO/imageio.h>
+#include <webp/decode.h>
 
 #include <algorithm>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 
 #include "oiio_plugin_abi.hpp"
 #include "straight_alpha.hpp"
@@ -14,6 +17,7 @@ namespace {
 
 class OiioSource final : public ImageSource {
 public:
+    // type: the samples as read from the file; signed integers are widened to the f32 of info.
     OiioSource(std::unique_ptr<OIIO::ImageInput> in, SourceInfo info, OIIO::TypeDesc type, bool associated)
         : in_(std::move(in)), info_(std::move(info)), type_(type), associated_(associated) {}
     ~OiioSource() override { in_->close(); }
@@ -21,15 +25,30 @@ public:
 
     Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor&) override {
         Status st = read_file_rows(y0, count, dst);
+        const std::size_t samples = std::size_t(info_.width) * count * info_.channels;
+        if (st && type_ == OIIO::TypeDesc::INT16) widen<std::int16_t>(dst, samples);
+        if (st && type_ == OIIO::TypeDesc::INT8) widen<std::int8_t>(dst, samples);
         if (st && associated_) build::make_alpha_straight(dst, std::size_t(info_.width) * count, info_);
         return st;
     }
 
 private:
-    // The file's own samples (alpha as the file holds it).
+    // Signed integer samples (heights, say) as the floats of the same values, in place: the file's
+    // samples fill the front of dst, and each float lands at or after the sample it comes from.
+    template <class Signed>
+    static void widen(std::uint8_t* dst, std::size_t samples) {
+        for (std::size_t i = samples; i-- > 0;) {
+            Signed v;
+            std::memcpy(&v, dst + i * sizeof(Signed), sizeof v);
+            const float f = float(v);
+            std::memcpy(dst + i * sizeof(float), &f, sizeof f);
+        }
+    }
+
+    // The file's own samples (alpha as the file holds it), packed in type_.
     Status read_file_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst) {
         const OIIO::ImageSpec& s = in_->spec();
-        const std::size_t row = std::size_t(info_.width) * info_.channels * sample_bytes(info_.sample_type);
+        const std::size_t row = std::size_t(info_.width) * info_.channels * type_.size();
         if (s.tile_width == 0) {
             if (!in_->read_scanlines(0, 0, s.y + int(y0), s.y + int(y0 + count), 0, 0, int(info_.channels), type_, dst) ||
                 in_->has_error())
@@ -72,6 +91,39 @@ private:
     std::uint32_t band_index_ = 0;
 };
 
+// WebP with alpha, decoded by libwebp itself: OpenImageIO's reader multiplies colour by alpha
+// whatever it is asked (so a transparent texel's colour would be lost), while the file's alpha is
+// straight. A WebP is at most 16383 texels a side, so it is decoded whole.
+class WebpSource final : public ImageSource {
+public:
+    WebpSource(SourceInfo info, std::vector<std::uint8_t> rgba) : info_(std::move(info)), rgba_(std::move(rgba)) {}
+    const SourceInfo& info() const override { return info_; }
+    Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor&) override {
+        const std::size_t row = std::size_t(info_.width) * 4;
+        std::memcpy(dst, rgba_.data() + y0 * row, count * row);
+        if (y0 + count >= info_.height) std::vector<std::uint8_t>().swap(rgba_);  // strips come once each, in order
+        return {};
+    }
+
+private:
+    SourceInfo info_;
+    std::vector<std::uint8_t> rgba_;
+};
+
+Result<std::unique_ptr<ImageSource>> open_webp_with_alpha(const std::string& path, SourceInfo info) {
+    std::ifstream f(path, std::ios::binary);
+    std::vector<std::uint8_t> file((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    if (!f.good() && !f.eof()) return make_error(Errc::io_error, "cannot read '" + path + "'");
+    int w = 0, h = 0;
+    std::uint8_t* rgba = WebPDecodeRGBA(file.data(), file.size(), &w, &h);
+    if (!rgba) return make_error(Errc::corrupt, info.description + ": libwebp cannot decode it");
+    std::vector<std::uint8_t> texels(rgba, rgba + std::size_t(w) * h * 4);
+    WebPFree(rgba);
+    if (std::uint32_t(w) != info.width || std::uint32_t(h) != info.height)
+        return make_error(Errc::corrupt, info.description + ": libwebp and OpenImageIO disagree on its size");
+    return std::unique_ptr<ImageSource>(new WebpSource(std::move(info), std::move(texels)));
+}
+
 std::string oiio_error(std::string msg) {
     if (msg.empty()) msg = OIIO::geterror();
     std::replace(msg.begin(), msg.end(), '\n', ' ');
@@ -101,16 +153,35 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
         case OIIO::TypeDesc::UINT8: info.sample_type = SampleType::u8; type = OIIO::TypeDesc::UINT8; break;
         case OIIO::TypeDesc::UINT16: info.sample_type = SampleType::u16; type = OIIO::TypeDesc::UINT16; break;
         case OIIO::TypeDesc::HALF: info.sample_type = SampleType::f16; type = OIIO::TypeDesc::HALF; break;
-        case OIIO::TypeDesc::INT8: info.sample_type = SampleType::u8; type = OIIO::TypeDesc::UINT8; break;
-        case OIIO::TypeDesc::INT16: info.sample_type = SampleType::u16; type = OIIO::TypeDesc::UINT16; break;
-        default: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::FLOAT; break;
+        // Signed samples (a DEM's heights) keep their values, as floats: a conversion to unsigned
+        // would drop the negatives and scale the rest.
+        case OIIO::TypeDesc::INT8: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::INT8; break;
+        case OIIO::TypeDesc::INT16: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::INT16; break;
+        case OIIO::TypeDesc::FLOAT:
+        case OIIO::TypeDesc::DOUBLE: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::FLOAT; break;
+        default:  // 32- and 64-bit integers: as floats they would lose their low bits or be rescaled
+            return make_error(Errc::unsupported, info.description + " has " + std::string(s.format.c_str()) +
+                                                     " samples; 8- and 16-bit integers, half and float are supported "
+                                                     "(convert it first, e.g. gdal_translate -ot Float32)");
     }
-    info.has_alpha = (info.channels == 2 || info.channels == 4) && (s.alpha_channel == s.nchannels - 1 || s.alpha_channel < 0);
-    if (s.alpha_channel < 0 && info.channels == 2) info.has_alpha = true;  // grey + alpha by convention
-    if (s.alpha_channel < 0 && info.channels == 4) info.has_alpha = true;  // RGBA by convention
+    // A reader may name an alpha channel it does not index (OpenImageIO's GIF reader: alpha_channel
+    // = nchannels): the last channel called A is alpha too.
+    const bool alpha_named = s.channelnames.size() == std::size_t(s.nchannels) &&
+                             (s.channelnames.back() == "A" || s.channelnames.back() == "Alpha");
+    const bool alpha_index_valid = s.alpha_channel >= 0 && s.alpha_channel < s.nchannels;
+    info.has_alpha = (info.channels == 2 || info.channels == 4) &&
+                     (s.alpha_channel == s.nchannels - 1 || !alpha_index_valid || alpha_named);
     // Associated only when OpenImageIO knows the channel as alpha and did not keep it straight.
-    const bool associated = info.has_alpha && s.alpha_channel == s.nchannels - 1 && s.get_int_attribute("oiio:UnassociatedAlpha", 0) == 0;
+    // BMP's alpha is straight and its reader returns it as stored, without saying so.
+    const std::string format = in->format_name();
+    if (format == "webp" && info.has_alpha && info.channels == 4 && type == OIIO::TypeDesc::UINT8) {
+        info.colour_space = ColourSpace::srgb;
+        return open_webp_with_alpha(path, std::move(info));
+    }
+    const bool associated = info.has_alpha && s.alpha_channel == s.nchannels - 1 &&
+                            s.get_int_attribute("oiio:UnassociatedAlpha", 0) == 0 && format != "bmp";
     if (associated) info.description.insert(info.description.size() - 1, ", associated alpha made straight");
+    info.orientation = static_cast<std::uint32_t>(std::clamp(s.get_int_attribute("Orientation", 1), 1, 8));
     const std::string cs = s.get_string_attribute("oiio:ColorSpace");
     if (cs == "sRGB" || cs == "srgb" || cs == "srgb_rec709_scene") info.colour_space = ColourSpace::srgb;
     else if (cs == "Linear" || cs == "linear" || cs == "lin_srgb" || cs == "scene_linear") info.colour_space = ColourSpace::linear;

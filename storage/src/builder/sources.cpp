@@ -79,9 +79,12 @@ Result<std::unique_ptr<ImageSource>> open_image_source(const std::string& spec) 
     if (std::filesystem::is_directory(spec, ec)) return make_error(Errc::invalid_argument, "input '" + spec + "' is a directory");
     if (looks_like_tiff(spec)) {
         auto tiff = open_tiff_source(spec);
-        if (tiff.ok() || tiff.error().code != Errc::unsupported) return tiff;
+        if (!tiff.ok() && tiff.error().code != Errc::unsupported) return tiff;
+        if (tiff.ok()) return make_upright_source(std::move(tiff).value());
     }
-    return open_oiio_source(spec);
+    auto source = open_oiio_source(spec);
+    if (!source.ok()) return source;
+    return make_upright_source(std::move(source).value());
 }
 
 }  // namespace tessera::storage

@@ -16,4 +16,8 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path);
 // Through the OpenImageIO plugin (loaded on demand).
 Result<std::unique_ptr<ImageSource>> open_oiio_source(const std::string& path);
 
+// `stored` as it is meant to be seen: its info().orientation (EXIF/TIFF, 2..8) undone; orientation 1
+// is returned as is. Errors name the input when a turn would not fit in memory.
+Result<std::unique_ptr<ImageSource>> make_upright_source(std::unique_ptr<ImageSource> stored);
+
 }  // namespace tessera::storage

@@ -157,6 +157,9 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path) {
     if (info.has_alpha && TIFFGetField(tif, TIFFTAG_EXTRASAMPLES, &extra_count, &extra) && extra_count >= 1 && extra)
         associated = extra[extra_count - 1] == EXTRASAMPLE_ASSOCALPHA;
     if (associated) info.description = path + " (TIFF, associated alpha made straight)";
+    std::uint16_t orientation = ORIENTATION_TOPLEFT;
+    if (TIFFGetField(tif, TIFFTAG_ORIENTATION, &orientation) && orientation >= 1 && orientation <= 8)
+        info.orientation = orientation;
     info.colour_space = (info.sample_type == SampleType::u8 || info.sample_type == SampleType::u16) ? ColourSpace::srgb
                                                                                                      : ColourSpace::linear;
     return std::unique_ptr<ImageSource>(new TiffSource(tif, std::move(info), associated));

@@ -19,6 +19,9 @@ struct SourceInfo {
     SampleType sample_type = SampleType::u8;
     ColourSpace colour_space = ColourSpace::srgb;
     bool has_alpha = false;      // last channel is alpha
+    // The file's EXIF/TIFF orientation (1..8, 1 = stored upright). open_image_source() returns
+    // upright sources, so outside the readers this is always 1.
+    std::uint32_t orientation = 1;
     std::string description;     // for messages: file name and format
 };
 
