@@ -7,6 +7,7 @@
 
 #include <xxhash.h>
 
+#include "tessera/storage/byte_source.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
@@ -395,4 +396,68 @@ TEST(StoreFormat, SparseIndexReadsBackAndRefusesBadTables) {
         if (o.ok() && verify_store(**o).ok()) ++undetected;
     }
     EXPECT_EQ(undetected, 0u) << "of " << first_entry_block << " index bytes";
+}
+
+namespace {
+
+// A source as a lying remote origin could be: it claims `size` bytes, holds `head` at offset 0
+// and zeros after it.
+class ClaimedSizeSource final : public ByteSource {
+public:
+    ClaimedSizeSource(std::vector<std::uint8_t> head, std::uint64_t size) : head_(std::move(head)), size_(size) {}
+    std::uint64_t size() const override { return size_; }
+    Status read(std::uint64_t offset, std::uint64_t length, std::uint8_t* dst) const override {
+        if (offset > size_ || length > size_ - offset) return make_error(Errc::corrupt, "past the end");
+        for (std::uint64_t i = 0; i < length; ++i) dst[i] = offset + i < head_.size() ? head_[offset + i] : 0;
+        return {};
+    }
+
+private:
+    std::vector<std::uint8_t> head_;
+    std::uint64_t size_;
+};
+
+}  // namespace
+
+// A sound-looking header (all its checksums right) for a 2^32-1 texel square of 2-texel tiles,
+// in a file that claims 2^60 bytes: level 0 alone would need a 2^54-byte dense block table. The
+// reader refuses it with an error before allocating, as it must on a server's reload thread.
+TEST(StoreFormat, HugeClaimedIndexIsRefusedNotAllocated) {
+    ScratchDir d;
+    std::vector<std::uint8_t> b = test::read_file(write_small_store(d).path);
+    b.resize(128);  // the real header: magic and version
+    const std::uint64_t size = std::uint64_t(1) << 60;
+    const std::uint32_t side = 0xffffffffu, payload = 2;
+    std::uint32_t levels = 1;  // docs/store-format.md, "Geometry": halve (rounding up) until one tile
+    for (std::uint64_t w = side; w > payload; w = (w + 1) / 2) ++levels;
+    store_at<std::uint32_t>(b, 16, side);
+    store_at<std::uint32_t>(b, 20, side);
+    store_at<std::uint32_t>(b, 24, payload);
+    store_at<std::uint16_t>(b, 28, 0);
+    b[30] = std::uint8_t(levels);
+    b[35] = 0;  // flags: dense index, no alpha
+    store_at<std::uint64_t>(b, 40, 128);
+    store_at<std::uint32_t>(b, 48, levels * 96);
+    store_at<std::uint32_t>(b, 52, 0);
+    store_at<std::uint64_t>(b, 56, 128 + levels * 96);
+    store_at<std::uint64_t>(b, 64, 128 + levels * 96);
+    store_at<std::uint64_t>(b, 72, size);  // data_offset: the whole file is index
+    store_at<std::uint64_t>(b, 80, size);
+    store_at<std::uint64_t>(b, 104, XXH3_64bits(nullptr, 0));
+    b.resize(128 + levels * 96);
+    const std::uint64_t tiles = (std::uint64_t(side) + payload - 1) / payload, blocks = (tiles + 63) / 64;
+    store_at<std::uint32_t>(b, 128 + 0, side);
+    store_at<std::uint32_t>(b, 128 + 4, side);
+    store_at<std::uint32_t>(b, 128 + 8, std::uint32_t(tiles));
+    store_at<std::uint32_t>(b, 128 + 12, std::uint32_t(tiles));
+    store_at<std::uint32_t>(b, 128 + 16, std::uint32_t(blocks));
+    store_at<std::uint32_t>(b, 128 + 20, std::uint32_t(blocks));
+    store_at<std::uint64_t>(b, 128 + 24, 128 + levels * 96);  // block table right after the level table
+    store_at<std::uint64_t>(b, 96, XXH3_64bits(b.data() + 128, levels * 96));
+    store_at<std::uint64_t>(b, 120, XXH3_64bits(b.data(), 120));
+
+    auto r = StoreReader::open_source(std::make_unique<ClaimedSizeSource>(b, size), "liar");
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, Errc::unsupported) << r.error().message;
+    EXPECT_NE(r.error().message.find("block tables"), std::string::npos) << r.error().message;
 }

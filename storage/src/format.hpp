@@ -34,6 +34,10 @@ inline constexpr std::size_t kEntriesPerBlock = std::size_t(kBlockSide) * kBlock
 inline constexpr std::size_t kEntryBlockBytes = kEntriesPerBlock * kEntryBytes;
 inline constexpr std::uint32_t kMaxLevels = 32;
 inline constexpr std::uint32_t kMaxTileSize = 4096;
+// The most block-table bytes (all levels) a reader holds in memory from open: a block record
+// stands for 64 x 64 tiles, so this covers a dense level of ~2.7e11 tiles, while a crafted or
+// lying header (a remote origin may report any size) cannot make a reader allocate more.
+inline constexpr std::uint64_t kMaxBlockTableBytes = std::uint64_t(1) << 30;
 
 inline constexpr std::uint8_t kHeaderFlagAlpha = 1;
 inline constexpr std::uint8_t kHeaderFlagSparseIndex = 2;

@@ -4,7 +4,9 @@
 
 #include <algorithm>
 #include <atomic>
+#include <new>
 #include <numeric>
+#include <stdexcept>
 
 #include "tessera/storage/byte_source.hpp"
 #include "format.hpp"
@@ -154,6 +156,7 @@ public:
             return corrupt("palette checksum mismatch");
 
         index_.resize(level_count);
+        std::uint64_t block_table_bytes = 0;
         for (std::uint32_t l = 0; l < level_count; ++l) {
             const std::uint8_t* r = level_table.data() + std::size_t(l) * kLevelRecordBytes;
             LevelInfo& li = levels[l];
@@ -174,6 +177,13 @@ public:
             const std::size_t rec_bytes = sparse_index ? kSparseBlockRecordBytes : kBlockRecordBytes;
             const std::uint64_t bt_bytes = records * rec_bytes;
             if (!inside_index(bt_off, bt_bytes)) return corrupt("level " + std::to_string(l) + " block table outside the index");
+            // Block tables are held from open: more than a reader holds is refused before any of
+            // it is allocated (a crafted header, or a remote origin that reports a huge size).
+            block_table_bytes += bt_bytes;
+            if (block_table_bytes > kMaxBlockTableBytes)
+                return make_error(Errc::unsupported, "block tables of " + std::to_string(block_table_bytes >> 20) +
+                                                         " MiB or more are larger than this reader holds (" +
+                                                         std::to_string(kMaxBlockTableBytes >> 20) + " MiB)");
             std::vector<std::uint8_t> table(bt_bytes);
             TESSERA_TRY(src_->read(bt_off, bt_bytes, table.data()));
             if (XXH3_64bits(table.data(), bt_bytes) != load<std::uint64_t>(r, level::block_table_checksum))
@@ -441,8 +451,16 @@ private:
 
 Result<std::shared_ptr<StoreReader>> finish_open(std::unique_ptr<ByteSource> src) {
     auto r = std::make_shared<Reader>(std::move(src));
-    Status st = r->parse();
-    if (!st) return st.error();
+    // Opening runs on a server's reload thread too: an index that does not fit in memory is an
+    // error for this store, never an exception that ends the process.
+    try {
+        Status st = r->parse();
+        if (!st) return st.error();
+    } catch (const std::bad_alloc&) {
+        return make_error(Errc::resource_exhausted, "not enough memory for the store's index");
+    } catch (const std::length_error&) {
+        return make_error(Errc::resource_exhausted, "not enough memory for the store's index");
+    }
     return std::shared_ptr<StoreReader>(std::move(r));
 }
 
