@@ -511,6 +511,71 @@ namespace {
 
 // The runtime transcodes every page to the uploader's pool format, and refuses a store that
 // cannot take it when the texture is added, naming the format.
+// A layered store whose layers are sparse apart: a tile with one layer absent is a page the
+// runtime cannot make (never a page resident in some layers only), so it falls back to the parent
+// like an absent tile, and is asked for once, not again on every frame.
+TEST_F(RuntimeSim, PagesWithAnAbsentLayerAreAskedForOnce) {
+    tessera::test::ScratchDir d;
+    const std::uint32_t N = 256;  // 4 x 4 tiles of 64 at level 0
+    // Two RGBA layers: a transparent on the left half, b on the left half and the top half, so
+    // tiles (2..3, 0..1) hold a but not b.
+    for (const bool second : {false, true}) {
+        std::vector<std::uint8_t> im(std::size_t(N) * N * 4);
+        for (std::uint32_t y = 0; y < N; ++y)
+            for (std::uint32_t x = 0; x < N; ++x) {
+                std::uint8_t* t = im.data() + (std::size_t(y) * N + x) * 4;
+                t[0] = std::uint8_t(x), t[1] = std::uint8_t(y), t[2] = second ? 200 : 7;
+                t[3] = x < N / 2 || (second && y < N / 2) ? 0 : 255;
+            }
+        const std::string raw = d.file(second ? "b.rgba" : "a.rgba");
+        std::FILE* f = std::fopen(raw.c_str(), "wb");
+        ASSERT_TRUE(f);
+        ASSERT_EQ(std::fwrite(im.data(), 1, im.size(), f), im.size());
+        std::fclose(f);
+        const std::string cmd = "convert-im6.q16 -size 256x256 -depth 8 rgba:" + raw + " " + d.file(second ? "b.png" : "a.png");
+        ASSERT_EQ(std::system((cmd + " >/dev/null 2>&1").c_str()), 0) << cmd;
+    }
+    const std::string store = d.file("s.tsr");
+    const auto built = tessera::test::run_tessera("build --quiet --sparse --tile-size 64 --border 0 --layer a=" + d.file("a.png") +
+                                                  " --layer b=" + d.file("b.png") + " -o " + store);
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+
+    PagePoolFormat pool;
+    pool.format = PageFormat::rgba8;
+    pool.more_layers = {PageFormat::rgba8};
+    FakeUploader up(pool);
+    DelayedSource src(store, 1);
+    RuntimeConfig c;
+    c.residency.pool_slots = 64;
+    c.transcode_threads = 0;
+    c.ram_cache_bytes = 0;  // every page comes from the source
+    auto rt = Runtime::create(c, up);
+    ASSERT_TRUE(rt.ok());
+    auto id = (*rt)->add_texture(src, "s");
+    ASSERT_TRUE(id.ok()) << id.error().message;
+    // The view wants every level-0 page.
+    std::vector<FeedbackId> ids;
+    for (std::uint32_t y = 0; y < 4; ++y)
+        for (std::uint32_t x = 0; x < 4; ++x) ids.push_back(pack_feedback(PageKey{0, 0, x, y}));
+    auto frames = [&](int n) {
+        for (int f = 0; f < n; ++f) {
+            src.tick();
+            (*rt)->frame(ids, std::uint32_t(ids.size()), 1, 0);
+        }
+    };
+    frames(20);
+    const std::uint64_t served = src.served();
+    frames(20);
+    EXPECT_EQ(src.served(), served) << "pages asked for again after they were found";
+    EXPECT_EQ(up.malformed(), 0u);
+    for (const auto& p : up.pages())
+        EXPECT_FALSE(p.page.level == 0 && p.page.x >= 2 && p.page.y < 2) << "a page without its layer b was uploaded: " << p.page.x << "," << p.page.y;
+    // The four level-0 pages with both layers are resident.
+    std::size_t both = 0;
+    for (const auto& p : up.pages()) both += p.page.level == 0 && p.page.x >= 2 && p.page.y >= 2;
+    EXPECT_EQ(both, 4u);
+}
+
 TEST_F(RuntimeSim, PagesComeInThePoolsFormat) {
     for (const bool second_level : {false, true}) {
         FakeUploader up(PagePoolFormat{PageFormat::bc1, second_level, {}});

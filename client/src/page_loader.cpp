@@ -6,6 +6,8 @@
 #include <mutex>
 #include <thread>
 
+#include "tessera/storage/layers.hpp"
+
 namespace tessera::client {
 
 // Looks up tiles in the disk cache off the render thread. Owner: the loader. Queues: lookups
@@ -133,9 +135,23 @@ TileId PageLoader::tile_id(const PageKey& p) const {
     return TileId{t.store, t.info->store_id, p.tile()};
 }
 
+namespace {
+
+// A layer bundle with an absent part: no page can be made of it (a page is never resident in some
+// layers only), so the page stands absent and its parent is shown, like an absent tile.
+bool has_absent_layer(const storage::StoreInfo& info, const TileData& tile) {
+    if (!info.layered() || tile.kind != TileKind::present || tile.codec != Codec::layers) return false;
+    auto parts = storage::split_layers(info, tile.payload);
+    if (!parts) return false;  // a malformed bundle fails its decode, and is counted there
+    return std::any_of(parts->begin(), parts->end(), [](const storage::LayerPart& p) { return p.kind == TileKind::absent; });
+}
+
+}  // namespace
+
 void PageLoader::arrived(const PageKey& page, Work& w, std::shared_ptr<const TileData> tile, FrameStats& stats) {
     ++stats.pages_arrived;
-    if (tile->kind == TileKind::absent) {  // a sparse store: nothing to fetch, ever
+    // A sparse store: nothing to fetch, ever.
+    if (tile->kind == TileKind::absent || has_absent_layer(*textures_[page.texture].info, *tile)) {
         absent_.insert(page);
         work_.erase(page);
         return;
