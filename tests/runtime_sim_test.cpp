@@ -55,7 +55,7 @@ public:
             auto tile = reader_->read_tile({it->page.level, it->page.x, it->page.y});
             SourceTile t;
             t.page = it->page;
-            t.store_version = reader_->info().store_id;
+            t.store_version = reader_->info().store_id + version_offset_;
             t.data.kind = tile->kind;
             t.data.codec = reader_->info().codec;
             t.data.checksum = tile->checksum;
@@ -70,6 +70,8 @@ public:
     bool available() const override { return true; }
     std::string describe() const override { return "delayed"; }
     void tick() { ++frame_; }
+    // From now on tiles come as another version of the store (rebuilt and reloaded on a server).
+    void replace_store() { version_offset_ = 1; }
     std::uint64_t served() const { return served_; }
 
 private:
@@ -85,6 +87,7 @@ private:
     std::deque<Pending> pending_;
     std::uint64_t frame_ = 0;
     std::uint64_t sets_ = 0, served_ = 0;
+    std::uint64_t version_offset_ = 0;
 };
 
 // A camera over the ground plane: a 1280x720 view with feedback at 1/8 resolution (160x90). Row r
@@ -574,6 +577,44 @@ TEST_F(RuntimeSim, PagesWithAnAbsentLayerAreAskedForOnce) {
     std::size_t both = 0;
     for (const auto& p : up.pages()) both += p.page.level == 0 && p.page.x >= 2 && p.page.y >= 2;
     EXPECT_EQ(both, 4u);
+}
+
+// The store is rebuilt and reloaded on its server while a view runs: its tiles are refused (never
+// mixed with the bound version's), counted, the texture says it was replaced, and the runtime stops
+// asking for pages it would only refuse again, keeping what is resident.
+TEST_F(RuntimeSim, AReplacedStoreIsNotAskedForEveryFrame) {
+    FakeUploader up;
+    DelayedSource src(path_, 2);
+    auto rt = make(1024, up, src);
+    const auto& info = *rt->texture_info(0);
+    const std::uint64_t bound = info.store_id;
+    const auto ids = feedback(info, 160, 90, 4000, 4000, 2, 0);
+    for (int f = 0; f < 3; ++f) {
+        src.tick();
+        rt->frame(ids, 160, 90, 0);
+    }
+    ASSERT_GT(rt->in_flight(), 0u) << "the view should still be loading when the store is replaced";
+    EXPECT_EQ(rt->texture_replaced(0), 0u);
+    src.replace_store();
+    // The camera moves on: the view wants pages it has not asked for yet.
+    const auto moved = feedback(info, 160, 90, 1500, 6000, 2, 0);
+    for (int f = 0; f < 10; ++f) {
+        src.tick();
+        rt->frame(moved, 160, 90, 0);
+    }
+    EXPECT_EQ(rt->texture_replaced(0), bound + 1);
+    EXPECT_GT(rt->summary().other_version_arrivals(), 0u);
+    const std::uint64_t served = src.served();
+    const std::size_t uploaded = up.pages().size();
+    for (int f = 0; f < 20; ++f) {
+        src.tick();
+        rt->frame(moved, 160, 90, 0);
+    }
+    EXPECT_EQ(src.served(), served) << "pages of the replaced store asked for again";
+    EXPECT_EQ(rt->in_flight(), 0u);
+    EXPECT_EQ(up.pages().size(), uploaded) << "pages uploaded after every request was refused";
+    EXPECT_GT(rt->residency().stats().resident_pages, 0u) << "what was resident stays";
+    EXPECT_NE(rt->summary().to_json().find("\"other_version_arrivals\""), std::string::npos);
 }
 
 TEST_F(RuntimeSim, PagesComeInThePoolsFormat) {

@@ -298,6 +298,7 @@ private:
     std::map<std::uint64_t, std::size_t> by_render_frame_;  // renderer frame number -> record
     std::vector<client::gl::FrameCounters> counters_;
     std::unique_ptr<LinkMonitor> link_monitor_;
+    bool replaced_reported_ = false;  // the store was rebuilt on its server: said once
     ProgressBar* shown_bar_ = nullptr;  // cleared before a link line, redrawn by its next update
     double clock_s_ = 0;                // the runtime's clock: path time plus the settling frames before it
     double path_clock_start_ = 0;
@@ -558,7 +559,13 @@ void ViewerRun::wait_for_link() {
 }
 
 void ViewerRun::watch_link(Clock::time_point now) {
-    const std::string line = link_monitor_->sample(now);
+    std::string line = link_monitor_->sample(now);
+    if (const std::uint64_t v = rt().texture_replaced(texture_); v != 0 && !replaced_reported_) {
+        replaced_reported_ = true;
+        line += fmt::format("{}view: store {} was replaced by version {:016x} (this view has {:016x}); drawing what is "
+                            "resident, restart the viewer to see the new version",
+                            line.empty() ? "" : "\n", store_name_, v, rt().texture_info(texture_)->store_id);
+    }
     if (line.empty()) return;
     if (shown_bar_) shown_bar_->finish();
     std::fflush(stdout);

@@ -199,8 +199,16 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
                 work_.erase(it);  // asked again next frame if still wanted
                 continue;
             }
-            if (r.page.texture >= textures_.size() || r.store_version != textures_[r.page.texture].info->store_id) {
-                work_.erase(it);  // another version of the store: never mixed in
+            if (r.page.texture >= textures_.size()) {
+                work_.erase(it);
+                continue;
+            }
+            if (Texture& t = textures_[r.page.texture]; r.store_version != t.info->store_id) {
+                // Another version of the store (rebuilt and reloaded on the server): never mixed
+                // in, and not asked for again either, since every answer would be the new version.
+                ++stats.other_version_arrivals;
+                t.replaced_by = r.store_version;
+                work_.erase(it);
                 continue;
             }
             ++stats.network[r.page.level];
@@ -244,7 +252,8 @@ void PageLoader::issue_requests(const WantedPages& wanted, Clock::time_point now
     // Highest priority first, within the in-flight bound.
     order_.clear();
     for (const auto& [k, p] : wanted)
-        if (!work_.contains(k) && !absent_.contains(k) && k.texture < textures_.size()) order_.emplace_back(p, k);
+        if (!work_.contains(k) && !absent_.contains(k) && k.texture < textures_.size() && textures_[k.texture].replaced_by == 0)
+            order_.emplace_back(p, k);
     std::sort(order_.begin(), order_.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
     for (const auto& [priority, key] : order_) {
         if (work_.size() >= config_.max_requests_in_flight) break;

@@ -55,6 +55,9 @@ public:
     const storage::StoreInfo* info(TextureId texture) const {
         return texture < textures_.size() ? textures_[texture].info.get() : nullptr;
     }
+    // The version of the texture's store its source delivers instead of the bound one (the store
+    // was rebuilt and reloaded); 0 while none has come.
+    std::uint64_t replaced_by(TextureId texture) const { return texture < textures_.size() ? textures_[texture].replaced_by : 0; }
     // A page the store says has no data (sparse stores): never requested again.
     bool is_absent(const PageKey& page) const { return absent_.contains(page); }
 
@@ -88,6 +91,7 @@ private:
         TileSource* source = nullptr;
         std::string store;
         std::shared_ptr<const storage::StoreInfo> info;
+        std::uint64_t replaced_by = 0;  // the store version a source delivered instead (0: none)
     };
     enum class Stage { disk, source, arrived, decoding, ready };
     struct Work {

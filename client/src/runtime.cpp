@@ -52,6 +52,7 @@ public:
     }
 
     const storage::StoreInfo* texture_info(TextureId texture) const override { return loader_.info(texture); }
+    std::uint64_t texture_replaced(TextureId texture) const override { return loader_.replaced_by(texture); }
 
     const FrameStats& frame(std::span<const FeedbackId> feedback, std::uint32_t width, std::uint32_t height,
                             float feedback_bias) override {

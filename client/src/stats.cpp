@@ -169,6 +169,7 @@ void StatsSummary::add_frame(const FrameStats& f) {
     cancelled_decoded_ += f.cancelled_decoded;
     decodes_dropped_ += f.decodes_dropped;
     stale_arrivals_ += f.stale_arrivals;
+    other_version_arrivals_ += f.other_version_arrivals;
     duplicate_arrivals_ += f.duplicate_arrivals;
 }
 
@@ -210,7 +211,8 @@ std::string StatsSummary::to_json() const {
     j["fallback_estimate_mean"] = json_num(mean_fallback_estimate());
     j["skipped"] = Json{{"cancelled_waiting", cancelled_waiting_}, {"cancelled_arrived", cancelled_arrived_},
                         {"cancelled_decoded", cancelled_decoded_}, {"decodes_dropped", decodes_dropped_},
-                        {"stale_arrivals", stale_arrivals_},       {"duplicate_arrivals", duplicate_arrivals_}};
+                        {"stale_arrivals", stale_arrivals_},       {"duplicate_arrivals", duplicate_arrivals_},
+                        {"other_version_arrivals", other_version_arrivals_}};
     return j.dump();
 }
 

@@ -83,6 +83,9 @@ struct FrameStats {
     std::uint32_t decodes_dropped = 0;
     std::uint32_t stale_arrivals = 0;
     std::uint32_t duplicate_arrivals = 0;
+    // Tiles of another version of a texture's store (rebuilt and reloaded on its server): refused,
+    // never mixed in (Runtime::texture_replaced).
+    std::uint32_t other_version_arrivals = 0;
 
     std::uint32_t total_ram_hits() const;
     std::uint32_t total_disk_hits() const;
@@ -135,6 +138,7 @@ public:
     std::uint64_t decodes_dropped() const { return decodes_dropped_; }
     std::uint64_t stale_arrivals() const { return stale_arrivals_; }
     std::uint64_t duplicate_arrivals() const { return duplicate_arrivals_; }
+    std::uint64_t other_version_arrivals() const { return other_version_arrivals_; }
     const std::array<std::uint64_t, kMaxLevels>& ram_hits() const { return ram_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& disk_hits() const { return disk_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& network() const { return network_; }
@@ -153,7 +157,7 @@ private:
     float bias_max_ = 0.0f, bias_last_ = 0.0f;
     double fallback_sum_ = 0.0;
     std::uint64_t cancelled_waiting_ = 0, cancelled_arrived_ = 0, cancelled_decoded_ = 0, decodes_dropped_ = 0,
-                  stale_arrivals_ = 0, duplicate_arrivals_ = 0;
+                  stale_arrivals_ = 0, duplicate_arrivals_ = 0, other_version_arrivals_ = 0;
     LatencyHistogram latency_;
     LogLinearHistogram<4, 32> time_to_detail_;
 };
