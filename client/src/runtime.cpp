@@ -172,7 +172,9 @@ private:
 
     void upload(Clock::time_point now) {
         // Leaving pages this frame's feedback saw again stay, fading back in. Each was a victim the
-        // view still wanted: the bias controller counts it as it counts such an eviction.
+        // view still wanted: the bias controller counts it as such an eviction. They are the only
+        // ones: a page this frame's feedback saw is never a victim (acquire_slot), and desired_
+        // holds pages not resident, so no victim is in it.
         stats_.pages_rescued = residency_.take_kept();
         evicted_wanted_ = stats_.pages_rescued;
         stats_.pages_evicted += residency_.take_left();  // faded out this frame (begin_frame)
@@ -188,10 +190,7 @@ private:
                 loader_.done(key);
                 continue;
             }
-            if (grant->evicted) {
-                ++stats_.pages_evicted;
-                if (desired_.contains(grant->victim)) ++evicted_wanted_;
-            }
+            if (grant->evicted) ++stats_.pages_evicted;
             // Unmapped before it is overwritten (acquire_slot did), mapped once complete.
             uploader_.upload_page(grant->slot, key, p.data, loader_.info(key.texture)->tile_size());
             (void)residency_.complete(key, grant->slot);
