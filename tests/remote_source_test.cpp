@@ -7,8 +7,12 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
+#include <thread>
+#include <vector>
 
+#include "remote/http_client.hpp"
 #include "remote/s3_sign.hpp"
 #include "tessera/storage/remote_source.hpp"
 
@@ -90,4 +94,48 @@ TEST(RemoteSource, ASilentOriginFailsAtTheReadsDeadline) {
     EXPECT_NE(r.error().message.find("600 ms deadline"), std::string::npos) << r.error().message;
     EXPECT_LT(took, std::chrono::milliseconds(2000));
     EXPECT_GE(took, std::chrono::milliseconds(550));
+}
+
+// A DNS server that takes seconds to answer: requests wait for the lookup only until their own
+// deadline, however many of them there are, and only one lookup runs at a time. Its answer is
+// kept, so the requests after it go straight to connecting.
+TEST(RemoteHttpClient, ASlowLookupHoldsNoRequestPastItsDeadline) {
+    using namespace std::chrono;
+    std::atomic<int> lookups{0}, running{0}, most_running{0};
+    auto slow = [&](const std::string&, const std::string&) -> Result<std::vector<std::string>> {
+        ++lookups;
+        const int now = ++running;
+        for (int seen = most_running.load(); now > seen && !most_running.compare_exchange_weak(seen, now);) {
+        }
+        std::this_thread::sleep_for(milliseconds(1500));
+        --running;
+        return std::vector<std::string>{"127.0.0.1"};
+    };
+    // Port 1 on loopback: nothing listens, so a request that gets past the lookup is refused.
+    remote::HttpClient client({false, "tiles.example", "1"}, 8, milliseconds(10000), "", slow);
+    std::vector<std::thread> threads;
+    std::vector<std::string> errors(8);
+    std::vector<milliseconds> took(8);
+    for (int i = 0; i < 8; ++i)
+        threads.emplace_back([&, i] {
+            const auto t0 = steady_clock::now();
+            auto r = client.request("GET", "/s.tsr", {}, 1 << 20, t0 + milliseconds(300));
+            took[i] = duration_cast<milliseconds>(steady_clock::now() - t0);
+            errors[i] = r.ok() ? "ok" : r.error().message;
+        });
+    for (auto& t : threads) t.join();
+    for (int i = 0; i < 8; ++i) {
+        EXPECT_LT(took[i], milliseconds(800)) << i;
+        EXPECT_NE(errors[i].find("cannot resolve tiles.example before the read's deadline"), std::string::npos) << errors[i];
+    }
+    EXPECT_EQ(most_running.load(), 1) << "one lookup at a time";
+    // The lookup finishes on its own; its answer is then kept.
+    std::this_thread::sleep_for(milliseconds(1500));
+    for (int i = 0; i < 3; ++i) {
+        auto r = client.request("GET", "/s.tsr", {}, 1 << 20, steady_clock::now() + milliseconds(300));
+        ASSERT_FALSE(r.ok());
+        EXPECT_EQ(r.error().message.find("resolve"), std::string::npos) << "refused by the port, not the lookup: " << r.error().message;
+    }
+    EXPECT_EQ(lookups.load(), 1);
+    while (running.load() > 0) std::this_thread::sleep_for(milliseconds(10));  // the lookup holds references to this test
 }

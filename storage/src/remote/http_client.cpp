@@ -11,6 +11,7 @@
 #include <boost/beast/http.hpp>
 #include <boost/beast/ssl.hpp>
 #include <cctype>
+#include <charconv>
 #include <optional>
 
 namespace tessera::storage::remote {
@@ -50,8 +51,18 @@ struct HttpClient::Connection {
     }
 };
 
-HttpClient::HttpClient(Origin origin, unsigned max_connections, std::chrono::milliseconds timeout, std::string ca_file)
-    : origin_(std::move(origin)), max_connections_(std::max(1u, max_connections)), timeout_(timeout), ca_file_(std::move(ca_file)) {}
+HttpClient::HttpClient(Origin origin, unsigned max_connections, std::chrono::milliseconds timeout, std::string ca_file,
+                       HostResolver::Lookup lookup)
+    : origin_(std::move(origin)),
+      max_connections_(std::max(1u, max_connections)),
+      timeout_(timeout),
+      ca_file_(std::move(ca_file)),
+      resolver_(origin_.host, origin_.port, std::move(lookup)) {
+    unsigned port = 0;
+    const auto [end, ec] = std::from_chars(origin_.port.data(), origin_.port.data() + origin_.port.size(), port);
+    if (ec == std::errc() && end == origin_.port.data() + origin_.port.size() && port > 0 && port <= 65535)
+        port_ = static_cast<std::uint16_t>(port);
+}
 
 HttpClient::~HttpClient() = default;
 
@@ -109,15 +120,23 @@ Result<HttpResponse> HttpClient::request(const std::string& method, const std::s
     for (int attempt = 0;; ++attempt) {
         const bool reused = c->open;
         if (!c->open) {
-            tcp::resolver resolver(c->ioc);
-            tcp::resolver::results_type endpoints;
-            error_code ec = c->run([&](auto handler) {
-                resolver.async_resolve(origin_.host, origin_.port, [&endpoints, handler](error_code e, tcp::resolver::results_type r) mutable {
-                    endpoints = std::move(r);
-                    handler(e);
-                });
-            });
-            if (ec) return fail("cannot resolve " + origin_.host, ec);
+            // The addresses within this step's time: a slow DNS server holds no request past it.
+            auto addresses = resolver_.addresses(std::chrono::steady_clock::now() + step_time());
+            if (!addresses) {
+                c->close();
+                return Error{Errc::io_error, where + ": " + addresses.error().message};
+            }
+            std::vector<tcp::endpoint> endpoints;
+            for (const std::string& a : *addresses) {
+                error_code bad;
+                const auto ip = asio::ip::make_address(a, bad);
+                if (!bad) endpoints.emplace_back(ip, port_);
+            }
+            if (endpoints.empty() || port_ == 0) {
+                c->close();
+                return Error{Errc::io_error, where + ": " + origin_.host + " has no usable address"};
+            }
+            error_code ec;
             if (origin_.tls) {
                 if (!c->tls) {
                     c->tls.emplace(ssl::context::tls_client);

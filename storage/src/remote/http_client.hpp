@@ -13,6 +13,7 @@
 #include <utility>
 #include <vector>
 
+#include "host_resolver.hpp"
 #include "tessera/result.hpp"
 
 namespace tessera::storage::remote {
@@ -35,8 +36,11 @@ struct HttpResponse {
 
 class HttpClient {
 public:
-    // ca_file: PEM roots for TLS ("" = the system's).
-    HttpClient(Origin origin, unsigned max_connections, std::chrono::milliseconds timeout, std::string ca_file);
+    // ca_file: PEM roots for TLS ("" = the system's). lookup: how the host's addresses are found
+    // (tests give a slow one); each lookup runs apart, so a request waits for it only until its
+    // deadline (host_resolver.hpp).
+    HttpClient(Origin origin, unsigned max_connections, std::chrono::milliseconds timeout, std::string ca_file,
+               HostResolver::Lookup lookup = HostResolver::system_lookup);
     ~HttpClient();
     HttpClient(const HttpClient&) = delete;
     HttpClient& operator=(const HttpClient&) = delete;
@@ -62,6 +66,8 @@ private:
     unsigned max_connections_;
     std::chrono::milliseconds timeout_;
     std::string ca_file_;
+    HostResolver resolver_;
+    std::uint16_t port_ = 0;  // origin_.port as a number (0: not one; requests fail)
     std::mutex m_;
     std::condition_variable cv_;
     unsigned busy_ = 0;
