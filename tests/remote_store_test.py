@@ -129,7 +129,9 @@ class FlakyOrigin(http.server.BaseHTTPRequestHandler):
     fail_first = 2
     delay = 0.0
     etag = '"v1"'
+    last_modified = None  # sent when set
     if_match = []  # the If-Match header of each range GET (None when absent)
+    if_unmodified = []  # the If-Unmodified-Since header of each range GET
 
     def log_message(self, *args):
         pass
@@ -147,6 +149,7 @@ class FlakyOrigin(http.server.BaseHTTPRequestHandler):
         if rng and self.command == "GET":
             with self.lock:
                 self.if_match.append(self.headers.get("If-Match"))
+                self.if_unmodified.append(self.headers.get("If-Unmodified-Since"))
         status, part = 200, self.data
         if rng and self.delay:
             time.sleep(self.delay)
@@ -155,6 +158,8 @@ class FlakyOrigin(http.server.BaseHTTPRequestHandler):
             part, status = self.data[int(a):int(b) + 1], 206
         self.send_response(status)
         self.send_header("ETag", self.etag)
+        if self.last_modified:
+            self.send_header("Last-Modified", self.last_modified)
         self.send_header("Content-Length", str(len(part) if status == 206 else len(self.data)))
         if status == 206:
             self.send_header("Content-Range", f"bytes {a}-{b}/{len(self.data)}")
@@ -362,8 +367,9 @@ http {{ access_log {d}/nginx-access.log; client_body_temp_path {d}/body; proxy_t
             origin.shutdown()
 
         # --- an origin whose ETag is weak (as nginx's with gzip, many CDNs): If-Match would never
-        # match it; the version is pinned by the answers' total size instead ---
+        # match it; the version is pinned by If-Unmodified-Since and the answers' total size ---
         FlakyOrigin.fail_first, FlakyOrigin.etag, FlakyOrigin.tries = 0, 'W/"v1"', {}
+        FlakyOrigin.last_modified, FlakyOrigin.if_match, FlakyOrigin.if_unmodified = "Wed, 02 Dec 2026 10:00:00 GMT", [], []
         origin = http.server.ThreadingHTTPServer(("127.0.0.1", 0), FlakyOrigin)
         threading.Thread(target=origin.serve_forever, daemon=True).start()
         try:
@@ -373,11 +379,16 @@ http {{ access_log {d}/nginx-access.log; client_body_temp_path {d}/body; proxy_t
                 if any(got[k] != want[k] for k in keys[:5]):
                     fail("tiles from an origin with a weak ETag differ (or were refused)")
                 print("weak ETag: 5 tiles as from disk")
+                unpinned = [v for v in FlakyOrigin.if_unmodified if v != FlakyOrigin.last_modified]
+                if not FlakyOrigin.if_unmodified or unpinned or any(FlakyOrigin.if_match):
+                    fail(f"{len(unpinned)} of {len(FlakyOrigin.if_unmodified)} range reads not pinned by If-Unmodified-Since "
+                         f"(If-Match sent {sum(1 for v in FlakyOrigin.if_match if v)} times)")
+                print(f"weak ETag: all {len(FlakyOrigin.if_unmodified)} range reads carried If-Unmodified-Since")
             finally:
                 stop(p)
         finally:
             origin.shutdown()
-        FlakyOrigin.etag = '"v1"'
+        FlakyOrigin.etag, FlakyOrigin.last_modified = '"v1"', None
 
         # --- 16 clients missing the same tiles at once, from a far origin: one read per tile ---
         FlakyOrigin.fail_first, FlakyOrigin.delay, FlakyOrigin.tries = 0, 0.2, {}

@@ -161,7 +161,12 @@ public:
           client_(target_.origin, options.max_concurrency, options.timeout, options.ca_file) {}
 
     // HEAD: size and version. Also the cheap version probe (remote_version).
-    Result<std::pair<std::uint64_t, std::string>> head() const {
+    struct Head {
+        std::uint64_t size = 0;
+        std::string version;        // the ETag, else "modified " + Last-Modified
+        std::string last_modified;  // "" when the origin sent none
+    };
+    Result<Head> head() const {
         auto r = send("HEAD", {}, 0);
         if (!r) return r.error();
         if (r->status != 200) return status_error(*r, "HEAD");
@@ -172,16 +177,17 @@ public:
         } catch (...) {
             return make_error(Errc::io_error, location_ + ": HEAD gave no Content-Length");
         }
-        std::string version = r->header("etag");
-        if (version.empty()) version = "modified " + r->header("last-modified");
-        return std::make_pair(size, version);
+        Head h{size, r->header("etag"), r->header("last-modified")};
+        if (h.version.empty()) h.version = "modified " + h.last_modified;
+        return h;
     }
 
     Status open() {
         auto h = head();
         if (!h) return h.error();
-        size_ = h->first;
-        version_ = h->second;
+        size_ = h->size;
+        version_ = h->version;
+        last_modified_ = h->last_modified;
         return {};
     }
 
@@ -194,10 +200,11 @@ public:
         std::vector<std::pair<std::string, std::string>> extra{
             {"range", "bytes=" + std::to_string(offset) + "-" + std::to_string(offset + length - 1)}};
         // Pin the version: If-Match with a strong ETag (a weak one never matches, RFC 9110), else
-        // If-Unmodified-Since with the Last-Modified seen at open; the answer's total size is
-        // checked too, so a replaced object's bytes are never taken for the old one's.
+        // If-Unmodified-Since with the Last-Modified seen at open (a weak ETag's origin too); the
+        // answer's total size is checked too, so a replaced object's bytes are never taken for the
+        // old one's.
         if (!version_.empty() && version_.front() == '"') extra.emplace_back("if-match", version_);
-        else if (version_.starts_with("modified ") && version_.size() > 9) extra.emplace_back("if-unmodified-since", version_.substr(9));
+        else if (!last_modified_.empty()) extra.emplace_back("if-unmodified-since", last_modified_);
         // Error answers carry small bodies (S3's XML): room for them beyond a short range.
         auto r = send("GET", extra, std::max<std::uint64_t>(length + 1, 64 * 1024));
         if (!r) {
@@ -240,7 +247,7 @@ public:
             last_probe_ = now;
         }
         auto h = head();
-        if (h && (h->second != version_ || h->first != size_)) changed_.store(true);
+        if (h && (h->version != version_ || h->size != size_)) changed_.store(true);
         if (!h && h.error().code == Errc::not_found) changed_.store(true);  // deleted
         return changed_.load();
     }
@@ -315,6 +322,7 @@ private:
     mutable HttpClient client_;
     std::uint64_t size_ = 0;
     std::string version_;
+    std::string last_modified_;  // as seen at open ("" when the origin sent none)
     mutable std::atomic<bool> changed_{false};
     mutable std::mutex probe_mutex_;
     mutable std::chrono::steady_clock::time_point last_probe_{};
@@ -338,7 +346,7 @@ Result<std::string> remote_version(const std::string& location, const RemoteOpti
     RemoteSource src(location, std::move(*t), once);
     auto h = src.head();
     if (!h) return h.error();
-    return h->second;
+    return h->version;
 }
 
 }  // namespace tessera::storage
