@@ -814,4 +814,21 @@ TEST(Builder, RefusesToWriteOverItsInput) {
     EXPECT_EQ(r.error().code, Errc::invalid_argument);
     EXPECT_EQ(std::filesystem::file_size(d.file("in.png")), before);
     EXPECT_EQ(read_file_samples(d.file("in.png")).bytes, im.bytes);
+    // The same for a layer's input (through another name for the same file) and a mosaic manifest.
+    std::filesystem::create_hard_link(d.file("in.png"), d.file("same.png"));
+    const std::vector<LayerInput> layers = {{"a", d.file("in.png"), {}}, {"b", d.file("in.png"), {}}};
+    auto layered = build_layered_store(layers, d.file("same.png"), small_tiles(Codec::zstd));
+    ASSERT_FALSE(layered.ok());
+    EXPECT_EQ(layered.error().code, Errc::invalid_argument) << layered.error().message;
+    EXPECT_EQ(read_file_samples(d.file("in.png")).bytes, im.bytes);
+    {
+        std::FILE* f = std::fopen(d.file("m.json").c_str(), "w");
+        ASSERT_TRUE(f);
+        std::fprintf(f, "{\"width\": 40, \"height\": 30, \"images\": [{\"path\": \"in.png\", \"x\": 0, \"y\": 0}]}");
+        std::fclose(f);
+    }
+    auto mosaic = build_sparse_store(d.file("m.json"), d.file("m.json"), small_tiles(Codec::zstd));
+    ASSERT_FALSE(mosaic.ok());
+    EXPECT_EQ(mosaic.error().code, Errc::invalid_argument) << mosaic.error().message;
+    EXPECT_NE(mosaic.error().message.find("is the input"), std::string::npos) << mosaic.error().message;
 }

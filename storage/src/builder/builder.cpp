@@ -2,11 +2,11 @@
 
 #include <algorithm>
 #include <chrono>
-#include <filesystem>
 #include <memory>
 #include <thread>
 
 #include "pyramid_builder.hpp"
+#include "sources_internal.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
 #include "thread_pool.hpp"
@@ -105,11 +105,7 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
 Result<BuildSummary> build_store(const std::string& input, const std::string& output, const BuildOptions& opt,
                                  const BuildProgressFn& progress) {
     TESSERA_TRY(validate(opt));
-    // The store replaces its output only when complete, so building over the input would read the
-    // whole image and then destroy it.
-    std::error_code ec;
-    if (std::filesystem::equivalent(input, output, ec))
-        return make_error(Errc::invalid_argument, "output '" + output + "' is the input; choose another output path");
+    TESSERA_TRY(refuse_output_over_input(input, output));
     auto source = open_image_source(input);
     if (!source) return source.error();
     return build_store(**source, output, opt, progress);

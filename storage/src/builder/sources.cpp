@@ -71,6 +71,13 @@ Result<std::unique_ptr<ImageSource>> open_procedural(const std::string& spec) {
 
 }  // namespace
 
+Status refuse_output_over_input(const std::string& input, const std::string& output) {
+    std::error_code ec;
+    if (std::filesystem::equivalent(input, output, ec))
+        return make_error(Errc::invalid_argument, "output '" + output + "' is the input '" + input + "'; choose another output path");
+    return {};
+}
+
 Result<std::unique_ptr<ImageSource>> open_image_source(const std::string& spec) {
     if (spec.rfind("procedural:", 0) == 0) return open_procedural(spec);
     if (spec.empty()) return make_error(Errc::invalid_argument, "no input given");

@@ -23,6 +23,7 @@
 
 #include "mip_reducer.hpp"
 #include "pyramid_builder.hpp"
+#include "sources_internal.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/coords_pattern.hpp"
 #include "tessera/storage/image_source.hpp"
@@ -362,6 +363,7 @@ Result<BuildSummary> build_sparse_store(const std::string& input, const std::str
     if (!is_mosaic(input))
         return make_error(Errc::invalid_argument, "'" + input + "' is not a sparse source (expected procedural:coords-sparse:SIZE "
                                                   "or a mosaic manifest, FILE.json)");
+    TESSERA_TRY(refuse_output_over_input(input, output));
     auto source = open_mosaic_source(input);
     if (!source) return source.error();
     return build_sparse_store(**source, output, opt, progress);
