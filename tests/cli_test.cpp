@@ -125,6 +125,20 @@ TEST(CliBuildInput, MissingFile) {
     EXPECT_NE(r.out.find("nosuch.png"), std::string::npos) << "the error should name the input: " << r.out;
 }
 
+// The store would replace its own input: refused before anything is read, the input untouched.
+TEST(CliBuildInput, OutputIsTheInput) {
+    ScratchDir d;
+    write_image(d.file("in.png"), 64, 48, 3, OIIO::TypeDesc::UINT8);
+    const auto before = read_file(d.file("in.png"));
+    const auto r = expect_build_fails(d, q(d.file("in.png")) + " -o " + q(d.file("in.png")), {"in.png"});
+    EXPECT_EQ(r.exit_code, 2);
+    EXPECT_NE(r.out.find("is the input"), std::string::npos) << r.out;
+    EXPECT_EQ(read_file(d.file("in.png")), before);
+    const auto layered = expect_build_fails(d, "--layer a=" + q(d.file("in.png")) + " --layer b=" + q(d.file("in.png")) + " -o " + q(d.file("in.png")), {"in.png"});
+    EXPECT_NE(layered.out.find("is the input"), std::string::npos) << layered.out;
+    EXPECT_EQ(read_file(d.file("in.png")), before);
+}
+
 TEST(CliBuildInput, DirectoryAsInput) {
     ScratchDir d;
     fs::create_directory(d.file("images"));

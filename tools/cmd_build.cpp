@@ -166,6 +166,9 @@ int run_build(BuildArgs& a) {
         }
         return 0;
     }
+    if (layers.empty()) {
+        if (Status st = storage::check_output_is_not_input(a.input, a.output); !st) throw Failure(st.error().message, 2);
+    }
     // A layered build opens its inputs itself; the first one is opened here too when its size
     // is needed first (--visibility).
     auto source = layers.empty() || !a.visibility.empty() ? storage::open_image_source(layers.empty() ? a.input : layers[0].input)

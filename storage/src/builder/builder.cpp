@@ -105,7 +105,7 @@ Result<BuildSummary> build_store(ImageSource& source, const std::string& output,
 Result<BuildSummary> build_store(const std::string& input, const std::string& output, const BuildOptions& opt,
                                  const BuildProgressFn& progress) {
     TESSERA_TRY(validate(opt));
-    TESSERA_TRY(refuse_output_over_input(input, output));
+    TESSERA_TRY(check_output_is_not_input(input, output));
     auto source = open_image_source(input);
     if (!source) return source.error();
     return build_store(**source, output, opt, progress);

@@ -106,7 +106,7 @@ Result<BuildSummary> build_layered_store(std::span<const LayerInput> layers, con
         if (const std::string why = layers_misfit(named, opt.tile_size, opt.border); !why.empty())
             return make_error(Errc::invalid_argument, why);
     }
-    for (const LayerInput& l : layers) TESSERA_TRY(refuse_output_over_input(l.input, output));
+    for (const LayerInput& l : layers) TESSERA_TRY(check_output_is_not_input(l.input, output));
     std::vector<LayerSource> sources;
     for (const LayerInput& l : layers) {
         auto s = open_image_source(l.input);

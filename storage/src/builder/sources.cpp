@@ -71,7 +71,7 @@ Result<std::unique_ptr<ImageSource>> open_procedural(const std::string& spec) {
 
 }  // namespace
 
-Status refuse_output_over_input(const std::string& input, const std::string& output) {
+Status check_output_is_not_input(const std::string& input, const std::string& output) {
     std::error_code ec;
     if (std::filesystem::equivalent(input, output, ec))
         return make_error(Errc::invalid_argument, "output '" + output + "' is the input '" + input + "'; choose another output path");

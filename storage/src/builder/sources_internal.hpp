@@ -16,10 +16,6 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path);
 // Through the OpenImageIO plugin (loaded on demand).
 Result<std::unique_ptr<ImageSource>> open_oiio_source(const std::string& path);
 
-// invalid_argument when `output` names the file `input` is (a store replaces its output only when
-// complete, so building over an input would read it whole and then destroy it).
-Status refuse_output_over_input(const std::string& input, const std::string& output);
-
 // `stored` as it is meant to be seen: its info().orientation (EXIF/TIFF, 2..8) undone; orientation 1
 // is returned as is. Errors name the input when a turn would not fit in memory.
 Result<std::unique_ptr<ImageSource>> make_upright_source(std::unique_ptr<ImageSource> stored);

@@ -363,7 +363,7 @@ Result<BuildSummary> build_sparse_store(const std::string& input, const std::str
     if (!is_mosaic(input))
         return make_error(Errc::invalid_argument, "'" + input + "' is not a sparse source (expected procedural:coords-sparse:SIZE "
                                                   "or a mosaic manifest, FILE.json)");
-    TESSERA_TRY(refuse_output_over_input(input, output));
+    TESSERA_TRY(check_output_is_not_input(input, output));
     auto source = open_mosaic_source(input);
     if (!source) return source.error();
     return build_sparse_store(**source, output, opt, progress);

@@ -76,6 +76,10 @@ Result<BuildSummary> build_sparse_store(const SparseSource& source, const std::s
 
 // Checks options on their own (before any input is opened): the message names the flag.
 Status validate(const BuildOptions& options);
+// invalid_argument when `output` is the file `input` names, under any name: a store replaces its
+// output only when complete, so a build over its input would read it whole and then destroy it.
+// The builds from paths check every input; a caller that opens its own source checks it here.
+Status check_output_is_not_input(const std::string& input, const std::string& output);
 
 // Builds `output` from `input` ("procedural:terrain:SIZE" or an image file). On any error
 // nothing is left at `output` (an existing file there is untouched).
