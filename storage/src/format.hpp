@@ -38,6 +38,8 @@ inline constexpr std::uint32_t kMaxTileSize = 4096;
 // stands for 64 x 64 tiles, so this covers a dense level of ~2.7e11 tiles, while a crafted or
 // lying header (a remote origin may report any size) cannot make a reader allocate more.
 inline constexpr std::uint64_t kMaxBlockTableBytes = std::uint64_t(1) << 30;
+// The most distinct uniform values (palette entries) a store holds.
+inline constexpr std::uint32_t kMaxPaletteValues = std::uint32_t(1) << 24;
 
 inline constexpr std::uint8_t kHeaderFlagAlpha = 1;
 inline constexpr std::uint8_t kHeaderFlagSparseIndex = 2;

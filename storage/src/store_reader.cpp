@@ -141,7 +141,7 @@ public:
             return off >= kHeaderBytes && off <= data_offset_ && len <= data_offset_ - off;
         };
         if (!inside_index(lt_off, lt_bytes)) return corrupt("level table outside the index region");
-        if (palette_count_ > (1u << 24) || !inside_index(pal_off, std::uint64_t(palette_count_) * kPaletteValueBytes))
+        if (palette_count_ > kMaxPaletteValues || !inside_index(pal_off, std::uint64_t(palette_count_) * kPaletteValueBytes))
             return corrupt("palette outside the index region");
 
         // The level table and the palette are copied (small), then verified.

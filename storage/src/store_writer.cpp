@@ -218,6 +218,11 @@ Status Writer::finish(const Progress& progress) {
         }
         level_data_bytes[li] = data_cursor - level_data_start[li];
     }
+    // Refused here, before anything is written: a store past the limit would be unreadable, and
+    // it would replace whatever is at the output.
+    if (palette.size() > kMaxPaletteValues)
+        return make_error(Errc::invalid_argument, std::to_string(palette.size()) + " distinct uniform tile values; a store holds at most " +
+                                                      std::to_string(kMaxPaletteValues) + " (add the rest as present tiles)");
 
     // 3. Index region layout: header | level table | palette | per level: block table, entry blocks.
     std::uint64_t pos = kHeaderBytes;
