@@ -14,6 +14,7 @@
 
 #include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/runtime.hpp"
+#include "page_loader.hpp"
 #include "residency.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"
@@ -615,6 +616,58 @@ TEST_F(RuntimeSim, AReplacedStoreIsNotAskedForEveryFrame) {
     EXPECT_EQ(up.pages().size(), uploaded) << "pages uploaded after every request was refused";
     EXPECT_GT(rt->residency().stats().resident_pages, 0u) << "what was resident stays";
     EXPECT_NE(rt->summary().to_json().find("\"other_version_arrivals\""), std::string::npos);
+}
+
+// A view roaming a sparse store meets absent pages without end: the loader remembers them (not
+// asked for again) up to PageLoader::kMaxAbsentPages, then forgets them, so its memory is bounded
+// and a forgotten page is asked for once more.
+TEST_F(RuntimeSim, AbsentPagesAreRememberedWithinABound) {
+    const std::string store = tessera::test::cached_store("procedural:coords-sparse:1048576", "coords.tsr");
+    FakeUploader up;
+    DelayedSource src(store, 1);
+    RuntimeConfig c;
+    c.residency.pool_slots = 64;
+    c.transcode_threads = 0;
+    c.ram_cache_bytes = 0;
+    auto created = Runtime::create(c, up);
+    ASSERT_TRUE(created.ok());
+    auto& rt = **created;
+    ASSERT_TRUE(rt.add_texture(src, "coords").ok());
+    // Level-0 pages far from the corners and the centre (the only tiles the pattern writes), 512 a
+    // frame; set k holds pages [512 k, 512 k + 512) of a 2000-wide band.
+    const std::size_t per_set = 512;
+    auto page_set = [&](std::size_t k) {
+        std::vector<FeedbackId> ids;
+        for (std::size_t i = k * per_set; i < (k + 1) * per_set; ++i)
+            ids.push_back(pack_feedback(PageKey{0, 0, std::uint32_t(100 + i % 2000), std::uint32_t(100 + i / 2000)}));
+        return ids;
+    };
+    auto show = [&](const std::vector<FeedbackId>& ids) {
+        for (int f = 0; f < 3; ++f) {
+            src.tick();
+            rt.frame(ids, std::uint32_t(ids.size()), 1, 0);
+        }
+    };
+    // Pages served and not uploaded are the absent ones the loader learned (the view's fallback
+    // ancestors among them, some of which are present).
+    auto absent_learned = [&] { return src.served() - up.pages().size(); };
+    const auto first = page_set(0);
+    show(first);
+    ASSERT_GE(src.served(), per_set);
+    const std::size_t bound = PageLoader::kMaxAbsentPages;
+    std::size_t k = 1;
+    for (; absent_learned() < bound / 2; ++k) show(page_set(k));
+    std::uint64_t before = src.served();
+    show(first);
+    EXPECT_EQ(src.served(), before) << "remembered within the bound: not asked for again";
+    for (; absent_learned() <= bound; ++k) show(page_set(k));  // past the bound: forgotten
+    before = src.served();
+    show(first);
+    EXPECT_GE(src.served(), before + per_set) << "forgotten past the bound: asked for once more";
+    before = src.served();
+    show(first);
+    EXPECT_EQ(src.served(), before) << "and then remembered again";
+    std::printf("  %zu sets of %zu pages; %llu pages served\n", k, per_set, static_cast<unsigned long long>(src.served()));
 }
 
 TEST_F(RuntimeSim, PagesComeInThePoolsFormat) {

@@ -152,6 +152,7 @@ void PageLoader::arrived(const PageKey& page, Work& w, std::shared_ptr<const Til
     ++stats.pages_arrived;
     // A sparse store: nothing to fetch, ever.
     if (tile->kind == TileKind::absent || has_absent_layer(*textures_[page.texture].info, *tile)) {
+        if (absent_.size() >= kMaxAbsentPages) absent_.clear();
         absent_.insert(page);
         work_.erase(page);
         return;

@@ -37,6 +37,10 @@ class PageLoader {
 public:
     using Clock = std::chrono::steady_clock;
     static constexpr std::size_t kStagingBuffers = 64;  // decoded pages waiting for upload, at most
+    // Absent pages remembered, at most (a few MiB): past it they are forgotten at once, and each is
+    // asked for once more if it is wanted again. A view roaming a 2^24 sparse store meets
+    // absent pages without end.
+    static constexpr std::size_t kMaxAbsentPages = std::size_t(1) << 18;
 
     // Uses config's request, cache, transcode and upload-budget settings. `lender`, when not
     // null, lends the staging memory pages are decoded into (else the loader's own buffers).
