@@ -742,6 +742,15 @@ TEST(Builder, SignedIntegerSamplesKeepTheirValues) {
     EXPECT_EQ(refused.error().code, Errc::unsupported);
     EXPECT_NE(refused.error().message.find("uint"), std::string::npos) << refused.error().message;
     EXPECT_FALSE(std::filesystem::exists(d.file("b.tsr")));
+
+    // Signed samples with alpha: refused by name (alpha would not be 0 to 1 as floats).
+    write_raw(d.file("ga.raw"), make_image(2, 1, 4, SampleType::u16));
+    ASSERT_TRUE(run_tool("convert-im6.q16 -size 2x1 -depth 16 -endian LSB -define quantum:format=signed rgba:" + d.file("ga.raw") +
+                         " -define quantum:format=signed " + d.file("alpha.tif")));
+    auto with_alpha = build_store(d.file("alpha.tif"), d.file("c.tsr"), o);
+    ASSERT_FALSE(with_alpha.ok());
+    EXPECT_EQ(with_alpha.error().code, Errc::unsupported);
+    EXPECT_NE(with_alpha.error().message.find("signed samples with an alpha channel"), std::string::npos) << with_alpha.error().message;
 }
 
 // Photos stored sideways or mirrored (EXIF/TIFF orientation, as cameras write them) are built as

@@ -162,6 +162,7 @@ void PageLoader::arrived(const PageKey& page, Work& w, std::shared_ptr<const Til
 }
 
 void PageLoader::request_and_decode(std::uint64_t frame, const WantedPages& wanted, Clock::time_point now, FrameStats& stats) {
+    frame_ = frame;
     issue_requests(wanted, now, stats);
     send_request_sets(frame);
     decode(wanted, stats);
@@ -206,11 +207,13 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
             }
             if (Texture& t = textures_[r.page.texture]; r.store_version != t.info->store_id) {
                 // Another version of the store (rebuilt and reloaded on the server): never mixed
-                // in, and not asked for again either, since every answer would be the new version.
+                // in, and asked for again only now and then (kReplacedRetryFrames).
                 ++stats.other_version_arrivals;
                 t.replaced_by = r.store_version;
                 work_.erase(it);
                 continue;
+            } else {
+                t.replaced_by = 0;  // the bound version is served (a replica, a rollback)
             }
             ++stats.network[r.page.level];
             stats.bytes_received += r.data.payload.size();
@@ -253,7 +256,8 @@ void PageLoader::issue_requests(const WantedPages& wanted, Clock::time_point now
     // Highest priority first, within the in-flight bound.
     order_.clear();
     for (const auto& [k, p] : wanted)
-        if (!work_.contains(k) && !absent_.contains(k) && k.texture < textures_.size() && textures_[k.texture].replaced_by == 0)
+        if (!work_.contains(k) && !absent_.contains(k) && k.texture < textures_.size() &&
+            (textures_[k.texture].replaced_by == 0 || frame_ % kReplacedRetryFrames == 0))
             order_.emplace_back(p, k);
     std::sort(order_.begin(), order_.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
     for (const auto& [priority, key] : order_) {

@@ -41,6 +41,11 @@ public:
     // asked for once more if it is wanted again. A view roaming a 2^24 sparse store meets
     // absent pages without end.
     static constexpr std::size_t kMaxAbsentPages = std::size_t(1) << 18;
+    // A texture whose source delivered another version of its store (replaced_by) asks for its
+    // missing pages only every this many frames (5 s at 60 Hz; an unchanged request set is sent
+    // again every 30 frames otherwise): each answer would be refused again if the store was
+    // replaced for good, but a replica or a rollback may still serve the bound version.
+    static constexpr std::uint64_t kReplacedRetryFrames = 300;
 
     // Uses config's request, cache, transcode and upload-budget settings. `lender`, when not
     // null, lends the staging memory pages are decoded into (else the loader's own buffers).
@@ -95,7 +100,7 @@ private:
         TileSource* source = nullptr;
         std::string store;
         std::shared_ptr<const storage::StoreInfo> info;
-        std::uint64_t replaced_by = 0;  // the store version a source delivered instead (0: none)
+        std::uint64_t replaced_by = 0;  // the store version a source delivered last instead (0: none since the bound one came)
     };
     enum class Stage { disk, source, arrived, decoding, ready };
     struct Work {
@@ -129,6 +134,7 @@ private:
     std::vector<TileSource*> sources_;  // each texture's source, once
     std::size_t page_bytes_ = 0;  // staging buffer size: the largest upload of any texture
     std::uint64_t next_ticket_ = 1;
+    std::uint64_t frame_ = 0;  // of the latest request_and_decode
     std::unordered_map<PageKey, Work, PageKeyHash> work_;
     std::unordered_set<PageKey, PageKeyHash> absent_;
     std::unordered_map<TileSource*, std::vector<SourceRequest>> last_sent_;

@@ -173,8 +173,8 @@ private:
     void upload(Clock::time_point now) {
         // Leaving pages this frame's feedback saw again stay, fading back in. Each was a victim the
         // view still wanted: the bias controller counts it as such an eviction. They are the only
-        // ones: a page this frame's feedback saw is never a victim (acquire_slot), and desired_
-        // holds pages not resident, so no victim is in it.
+        // ones it can see: desired_ holds only pages not resident (a page leaves it as it is
+        // uploaded), so no victim is ever in it.
         stats_.pages_rescued = residency_.take_kept();
         evicted_wanted_ = stats_.pages_rescued;
         stats_.pages_evicted += residency_.take_left();  // faded out this frame (begin_frame)

@@ -93,35 +93,45 @@ private:
 
 // WebP with alpha, decoded by libwebp itself: OpenImageIO's reader multiplies colour by alpha
 // whatever it is asked (so a transparent texel's colour would be lost), while the file's alpha is
-// straight. A WebP is at most 16383 texels a side, so it is decoded whole.
+// straight. A WebP is at most 16383 texels a side, so it is decoded whole, on the first read (a
+// mosaic opens every image to learn its size long before it reads any).
 class WebpSource final : public ImageSource {
 public:
-    WebpSource(SourceInfo info, std::vector<std::uint8_t> rgba) : info_(std::move(info)), rgba_(std::move(rgba)) {}
+    WebpSource(std::string path, SourceInfo info) : path_(std::move(path)), info_(std::move(info)) {}
     const SourceInfo& info() const override { return info_; }
     Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor&) override {
         const std::size_t row = std::size_t(info_.width) * 4;
+        if (rgba_.empty()) {
+            std::ifstream f(path_, std::ios::binary);
+            const std::vector<std::uint8_t> file((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+            if (f.bad() || file.empty()) return make_error(Errc::io_error, info_.description + ": cannot read it");
+            rgba_.resize(row * info_.height);
+            if (!WebPDecodeRGBAInto(file.data(), file.size(), rgba_.data(), rgba_.size(), int(row)))
+                return make_error(Errc::corrupt, info_.description + ": libwebp cannot decode it");
+        }
         std::memcpy(dst, rgba_.data() + y0 * row, count * row);
         if (y0 + count >= info_.height) std::vector<std::uint8_t>().swap(rgba_);  // strips come once each, in order
         return {};
     }
 
 private:
+    std::string path_;
     SourceInfo info_;
     std::vector<std::uint8_t> rgba_;
 };
 
-Result<std::unique_ptr<ImageSource>> open_webp_with_alpha(const std::string& path, SourceInfo info) {
+// A still WebP with alpha whose size libwebp agrees on, else null (OpenImageIO reads it: an
+// animation's first frame, premultiplied).
+std::unique_ptr<ImageSource> open_webp_with_alpha(const std::string& path, const SourceInfo& info) {
     std::ifstream f(path, std::ios::binary);
-    std::vector<std::uint8_t> file((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-    if (!f.good() && !f.eof()) return make_error(Errc::io_error, "cannot read '" + path + "'");
-    int w = 0, h = 0;
-    std::uint8_t* rgba = WebPDecodeRGBA(file.data(), file.size(), &w, &h);
-    if (!rgba) return make_error(Errc::corrupt, info.description + ": libwebp cannot decode it");
-    std::vector<std::uint8_t> texels(rgba, rgba + std::size_t(w) * h * 4);
-    WebPFree(rgba);
-    if (std::uint32_t(w) != info.width || std::uint32_t(h) != info.height)
-        return make_error(Errc::corrupt, info.description + ": libwebp and OpenImageIO disagree on its size");
-    return std::unique_ptr<ImageSource>(new WebpSource(std::move(info), std::move(texels)));
+    std::vector<std::uint8_t> head(64 * 1024);
+    f.read(reinterpret_cast<char*>(head.data()), std::streamsize(head.size()));
+    head.resize(std::size_t(f.gcount()));
+    WebPBitstreamFeatures features;
+    if (WebPGetFeatures(head.data(), head.size(), &features) != VP8_STATUS_OK || features.has_animation ||
+        std::uint32_t(features.width) != info.width || std::uint32_t(features.height) != info.height)
+        return nullptr;
+    return std::make_unique<WebpSource>(path, info);
 }
 
 std::string oiio_error(std::string msg) {
@@ -173,15 +183,18 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
                      (s.alpha_channel == s.nchannels - 1 || !alpha_index_valid || alpha_named);
     // Associated only when OpenImageIO knows the channel as alpha and did not keep it straight.
     // BMP's alpha is straight and its reader returns it as stored, without saying so.
+    if ((type == OIIO::TypeDesc::INT8 || type == OIIO::TypeDesc::INT16) && info.has_alpha)
+        return make_error(Errc::unsupported, info.description + " has signed samples with an alpha channel "
+                                                                "(alpha is 0 to the type's maximum; convert it to unsigned or float first)");
+    info.orientation = static_cast<std::uint32_t>(std::clamp(s.get_int_attribute("Orientation", 1), 1, 8));
     const std::string format = in->format_name();
     if (format == "webp" && info.has_alpha && info.channels == 4 && type == OIIO::TypeDesc::UINT8) {
         info.colour_space = ColourSpace::srgb;
-        return open_webp_with_alpha(path, std::move(info));
+        if (auto webp = open_webp_with_alpha(path, info)) return webp;
     }
     const bool associated = info.has_alpha && s.alpha_channel == s.nchannels - 1 &&
                             s.get_int_attribute("oiio:UnassociatedAlpha", 0) == 0 && format != "bmp";
     if (associated) info.description.insert(info.description.size() - 1, ", associated alpha made straight");
-    info.orientation = static_cast<std::uint32_t>(std::clamp(s.get_int_attribute("Orientation", 1), 1, 8));
     const std::string cs = s.get_string_attribute("oiio:ColorSpace");
     if (cs == "sRGB" || cs == "srgb" || cs == "srgb_rec709_scene") info.colour_space = ColourSpace::srgb;
     else if (cs == "Linear" || cs == "linear" || cs == "lin_srgb" || cs == "scene_linear") info.colour_space = ColourSpace::linear;

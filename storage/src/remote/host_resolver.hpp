@@ -1,8 +1,9 @@
 #pragma once
 // A host name's addresses for an HTTP client, within a request's deadline. getaddrinfo cannot be
 // cancelled and may wait seconds on a slow or unreachable DNS server, so no request thread calls
-// it: one lookup at a time runs on a thread of its own, requests wait for it only until their
-// deadline, and its answer is kept for a minute, so most requests never wait at all.
+// it: one lookup per origin at a time in the whole process runs on a thread of its own, requests
+// wait for it only until their deadline, and its answer is kept for a minute (and served while a
+// newer one is looked up), so most requests never wait at all.
 #include <chrono>
 #include <functional>
 #include <memory>
@@ -32,8 +33,9 @@ public:
     // thread and is kept for the next request.
     Result<std::vector<std::string>> addresses(std::chrono::steady_clock::time_point until);
 
+    struct State;  // per origin, shared by its resolvers (host_resolver.cpp)
+
 private:
-    struct State;
     std::string host_, port_;
     Lookup lookup_;
     std::shared_ptr<State> state_;  // shared with a running lookup, which may outlive this

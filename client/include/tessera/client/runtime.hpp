@@ -98,10 +98,11 @@ public:
     // A virtual texture: the store `store` of `source` (which must outlive the runtime).
     virtual Result<TextureId> add_texture(TileSource& source, const std::string& store) = 0;
     virtual const storage::StoreInfo* texture_info(TextureId texture) const = 0;
-    // Non-zero once the texture's source delivered tiles of another version of its store (rebuilt
-    // and reloaded on its server): that version. Its tiles are refused, never mixed with the bound
-    // version's, and the texture's missing pages are no longer asked for (each answer would be the
-    // new version); what is resident stays. Add the store again as a new texture to see it.
+    // Non-zero while the texture's source delivers tiles of another version of its store (rebuilt
+    // and reloaded on its server): that version; 0 again once the bound version comes (a replica,
+    // a rollback). Such tiles are refused, never mixed with the bound version's, and the
+    // texture's missing pages are asked for only every 300 frames (each answer would likely be
+    // refused again); what is resident stays. To see the new version, open a new runtime on it.
     virtual std::uint64_t texture_replaced(TextureId texture) const = 0;
 
     // One frame: the feedback buffer of a frame rendered (width*height ids, kNoPage where no
