@@ -61,6 +61,11 @@ Result<std::vector<std::string>> HostResolver::system_lookup(const std::string& 
     return out;
 }
 
+void HostResolver::distrust() {
+    std::lock_guard lock(state_->m);
+    state_->last_good_at = {};
+}
+
 Result<std::vector<std::string>> HostResolver::addresses(std::chrono::steady_clock::time_point until) {
     State& s = *state_;
     std::unique_lock lock(s.m);

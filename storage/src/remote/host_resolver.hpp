@@ -32,6 +32,9 @@ public:
     // io_error when none came before `until`. A lookup outliving its waiters finishes on its own
     // thread and is kept for the next request.
     Result<std::vector<std::string>> addresses(std::chrono::steady_clock::time_point until);
+    // No connection could be made to the addresses: the next addresses() starts a new lookup
+    // (and serves these until it answers).
+    void distrust();
 
     struct State;  // per origin, shared by its resolvers (host_resolver.cpp)
 

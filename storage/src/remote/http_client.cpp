@@ -157,7 +157,10 @@ Result<HttpResponse> HttpClient::request(const std::string& method, const std::s
             }
             c->lowest().expires_after(step_time());
             ec = c->run([&](auto handler) { c->lowest().async_connect(endpoints, handler); });
-            if (ec) return fail("cannot connect", ec);
+            if (ec) {
+                resolver_.distrust();  // the origin may have moved: look it up again
+                return fail("cannot connect", ec);
+            }
             if (origin_.tls) {
                 c->lowest().expires_after(step_time());
                 ec = c->run([&](auto handler) { c->secure->async_handshake(ssl::stream_base::client, handler); });
