@@ -205,16 +205,16 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
                 work_.erase(it);
                 continue;
             }
-            if (Texture& t = textures_[r.page.texture]; r.store_version != t.info->store_id) {
+            Texture& t = textures_[r.page.texture];
+            if (r.store_version != t.info->store_id) {
                 // Another version of the store (rebuilt and reloaded on the server): never mixed
                 // in, and asked for again only now and then (kReplacedRetryFrames).
                 ++stats.other_version_arrivals;
                 t.replaced_by = r.store_version;
                 work_.erase(it);
                 continue;
-            } else {
-                t.replaced_by = 0;  // the bound version is served (a replica, a rollback)
             }
+            t.replaced_by = 0;  // the bound version is served (a replica, a rollback)
             ++stats.network[r.page.level];
             stats.bytes_received += r.data.payload.size();
             std::shared_ptr<const TileData> shared = std::make_shared<TileData>(std::move(r.data));

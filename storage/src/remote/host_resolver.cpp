@@ -40,10 +40,9 @@ std::shared_ptr<HostResolver::State> shared_state(const std::string& host, const
 }  // namespace
 
 HostResolver::HostResolver(std::string host, std::string port, Lookup lookup)
-    : host_(std::move(host)), port_(std::move(port)), lookup_(std::move(lookup)) {
-    // The system's lookups are shared by origin; a caller's own lookup (a test's) is its own.
-    const bool system = lookup_.target<decltype(&system_lookup)>() != nullptr &&
-                        *lookup_.target<decltype(&system_lookup)>() == &system_lookup;
+    : host_(std::move(host)), port_(std::move(port)) {
+    const bool system = !lookup;
+    lookup_ = system ? Lookup(system_lookup) : std::move(lookup);
     state_ = shared_state(host_, port_, system);
 }
 

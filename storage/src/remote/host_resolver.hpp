@@ -23,7 +23,9 @@ public:
 
     static constexpr std::chrono::seconds kKeep{60};  // how long an answer is reused
 
-    HostResolver(std::string host, std::string port, Lookup lookup = system_lookup);
+    // No `lookup`: the system's, shared per origin across the process; a caller's own (a test's)
+    // is this resolver's alone.
+    HostResolver(std::string host, std::string port, Lookup lookup = {});
     ~HostResolver();
     HostResolver(const HostResolver&) = delete;
     HostResolver& operator=(const HostResolver&) = delete;

@@ -40,7 +40,7 @@ public:
     // (tests give a slow one); each lookup runs apart, so a request waits for it only until its
     // deadline (host_resolver.hpp).
     HttpClient(Origin origin, unsigned max_connections, std::chrono::milliseconds timeout, std::string ca_file,
-               HostResolver::Lookup lookup = HostResolver::system_lookup);
+               HostResolver::Lookup lookup = {});
     ~HttpClient();
     HttpClient(const HttpClient&) = delete;
     HttpClient& operator=(const HttpClient&) = delete;
