@@ -7,16 +7,19 @@
 // response (a head with the same header fields as tessera's, then the payload) in one buffer.
 // A request is found by its target in a hash map; the loops do one recv and one send per request
 // (epoll, edge-triggered) or batch both through io_uring (--uring, when built with liburing: one
-// io_uring_enter per loop pass). No timeouts, no limits, no metrics, no auth: a measuring
-// instrument, not a server to deploy.
+// io_uring_enter per loop pass). --sendfile sends the head with MSG_MORE and the payload with
+// sendfile(2) from the tile's file, as nginx does: whether skipping the copy into the socket pays
+// for the second call (docs/benchmarks.md, "sendfile and speculative reads"). No timeouts, no
+// limits, no metrics, no auth: a measuring instrument, not a server to deploy.
 //
-//   floor_server DIR [--port N] [--threads N] [--uring]
+//   floor_server DIR [--port N] [--threads N] [--uring] [--sendfile]
 //   prints "listening 127.0.0.1:PORT" once every loop listens
 #include <arpa/inet.h>
 #include <fcntl.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <sys/epoll.h>
+#include <sys/sendfile.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -43,9 +46,17 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// target -> the whole response, head and payload.
-std::unordered_map<std::string, std::string> g_responses;
-const std::string kNotFound = "HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\n\r\n";
+// A prepared response: the whole of it (head and payload) in memory, and for --sendfile the head
+// alone and the payload's file, sent from the page cache without a copy into the socket.
+struct Response {
+    std::string whole;
+    std::size_t head_size = 0;
+    int fd = -1;  // --sendfile: the tile's file, held open
+};
+// target -> its response.
+std::unordered_map<std::string, Response> g_responses;
+const Response kNotFound{"HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\n\r\n", 0, -1};
+bool g_sendfile = false;
 
 bool load(const fs::path& dir) {
     std::ifstream urls(dir / "urls.txt");
@@ -66,14 +77,22 @@ bool load(const fs::path& dir) {
                                  "X-Tessera-Store-Version: 0123456789abcdef\r\nX-Tessera-Kind: present\r\n"
                                  "X-Tessera-Codec: jpeg\r\nX-Tessera-Checksum: 0123456789abcdef\r\nServer: floor\r\n"
                                  "Content-Length: " + std::to_string(body.size()) + "\r\n\r\n";
-        g_responses.emplace(url, head + body);
+        Response r{head + body, head.size(), -1};
+        if (g_sendfile) {
+            r.fd = open((dir / url.substr(prefix.size())).c_str(), O_RDONLY | O_CLOEXEC);
+            if (r.fd < 0) {
+                std::perror("floor_server: open");
+                return false;
+            }
+        }
+        g_responses.emplace(url, std::move(r));
     }
     return !g_responses.empty();
 }
 
 // The response to the next complete request in [data, data + n), and how many bytes it took;
 // 0 when the request is not complete yet.
-std::size_t next_request(const char* data, std::size_t n, const std::string*& response) {
+std::size_t next_request(const char* data, std::size_t n, const Response*& response) {
     const std::string_view s(data, n);
     const std::size_t end = s.find("\r\n\r\n");
     if (end == std::string_view::npos) return 0;
@@ -112,7 +131,7 @@ int port_of(int fd) {
 struct Conn {
     int fd = -1;
     std::string in;                           // bytes of a request not yet complete
-    std::vector<const std::string*> pending;  // responses not yet sent, in order
+    std::vector<const Response*> pending;  // responses not yet sent, in order
     std::size_t sent = 0;                     // bytes of pending.front() already sent
     char buf[4096];
 };
@@ -122,7 +141,7 @@ bool take(Conn& c, const char* data, std::size_t n) {
     c.in.append(data, n);
     std::size_t at = 0;
     for (;;) {
-        const std::string* response = nullptr;
+        const Response* response = nullptr;
         const std::size_t used = next_request(c.in.data() + at, c.in.size() - at, response);
         if (used == 0) break;
         at += used;
@@ -135,8 +154,16 @@ bool take(Conn& c, const char* data, std::size_t n) {
 // Sends what is queued until done or the socket is full. False: the connection failed.
 bool flush(Conn& c) {
     while (!c.pending.empty()) {
-        const std::string& r = *c.pending.front();
-        const ssize_t w = send(c.fd, r.data() + c.sent, r.size() - c.sent, MSG_NOSIGNAL);
+        const std::string& r = c.pending.front()->whole;
+        ssize_t w;
+        if (c.pending.front()->fd < 0) {
+            w = send(c.fd, r.data() + c.sent, r.size() - c.sent, MSG_NOSIGNAL);
+        } else if (const std::size_t head = c.pending.front()->head_size; c.sent < head) {
+            w = send(c.fd, r.data() + c.sent, head - c.sent, MSG_NOSIGNAL | MSG_MORE);
+        } else {
+            off_t at = static_cast<off_t>(c.sent - head);
+            w = sendfile(c.fd, c.pending.front()->fd, &at, r.size() - c.sent);
+        }
         if (w < 0 && errno == EAGAIN) return true;  // EPOLLOUT's edge resumes it
         if (w <= 0) return false;
         c.sent += static_cast<std::size_t>(w);
@@ -218,7 +245,7 @@ void uring_loop(int listener) {
         io_uring_sqe_set_data64(s, tag(c, kRecv));
     };
     auto post_send = [&](UringConn* c) {
-        const std::string& r = *c->pending.front();
+        const std::string& r = c->pending.front()->whole;
         io_uring_sqe* s = sqe();
         io_uring_prep_send(s, c->fd, r.data() + c->sent, r.size() - c->sent, MSG_NOSIGNAL);
         io_uring_sqe_set_data64(s, tag(c, kSend));
@@ -258,7 +285,7 @@ void uring_loop(int listener) {
                     continue;
                 }
                 c->sent += static_cast<std::size_t>(cqe->res);
-                if (c->sent == c->pending.front()->size()) {
+                if (c->sent == c->pending.front()->whole.size()) {
                     c->pending.erase(c->pending.begin());
                     c->sent = 0;
                 }
@@ -283,14 +310,19 @@ int main(int argc, char** argv) {
         if (a == "--port" && i + 1 < argc) port = std::atoi(argv[++i]);
         else if (a == "--threads" && i + 1 < argc) threads = static_cast<unsigned>(std::max(1, std::atoi(argv[++i])));
         else if (a == "--uring") uring = true;
+        else if (a == "--sendfile") g_sendfile = true;
         else if (dir.empty() && a[0] != '-') dir = a;
         else {
-            std::fprintf(stderr, "usage: floor_server DIR [--port N] [--threads N] [--uring]\n");
+            std::fprintf(stderr, "usage: floor_server DIR [--port N] [--threads N] [--uring] [--sendfile]\n");
             return 2;
         }
     }
     if (dir.empty()) {
-        std::fprintf(stderr, "usage: floor_server DIR [--port N] [--threads N] [--uring]\n");
+        std::fprintf(stderr, "usage: floor_server DIR [--port N] [--threads N] [--uring] [--sendfile]\n");
+        return 2;
+    }
+    if (uring && g_sendfile) {
+        std::fprintf(stderr, "floor_server: --sendfile is for the epoll loops; not with --uring\n");
         return 2;
     }
 #if !defined(TESSERA_FLOOR_URING)

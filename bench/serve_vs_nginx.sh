@@ -24,7 +24,8 @@
 #
 #   bench/serve_vs_nginx.sh [ROUNDS] [SECONDS] [WORKDIR]      defaults: 3 10 build/bench-serve
 #   env: PEAK_VIEWERS (4), WINDOW (512), VIEWERS (16), CONNECTIONS (64), TESSERA, SERVE_LOAD, EXPORT_TILES,
-#        FLOOR_SERVER, FLOOR_ARGS (e.g. --uring: the floor through io_uring, where built with liburing)
+#        FLOOR_SERVER, FLOOR_ARGS (e.g. --uring: the floor through io_uring, where built with liburing;
+#        --sendfile: payloads by sendfile(2))
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rounds=${1:-3}
