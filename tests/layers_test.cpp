@@ -18,6 +18,7 @@
 #include "procedural_layers.hpp"
 #include "procedural_terrain.hpp"
 #include "reference_pyramid.hpp"
+#include "sources_internal.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/layers.hpp"
@@ -697,6 +698,57 @@ RefImage image(std::uint32_t w, std::uint32_t h, std::uint32_t c, SampleType t) 
 }
 
 }  // namespace
+
+// A photo stored turned is held whole while its strips are read, and a layered build reads its
+// layers side by side: the process-wide budget for turned images bounds their sum. A build that
+// would pass it is refused when its sources are opened, and every source gives its share back.
+TEST(LayerBuild, TurnedLayersShareOneMemoryBudget) {
+    ScratchDir d;
+    const int W = 200, H = 120;  // as stored; shown 120 x 200 (orientation 6: turned a quarter)
+    std::vector<std::uint8_t> texels(std::size_t(W) * H * 3);
+    for (std::size_t i = 0; i < texels.size(); ++i) texels[i] = static_cast<std::uint8_t>(i * 7 % 251);
+    for (const char* name : {"a.tif", "b.tif"}) {
+        auto out = OIIO::ImageOutput::create(d.file(name));
+        ASSERT_TRUE(out);
+        OIIO::ImageSpec spec(W, H, 3, OIIO::TypeDesc::UINT8);
+        spec.attribute("Orientation", 6);
+        ASSERT_TRUE(out->open(d.file(name), spec)) << out->geterror();
+        ASSERT_TRUE(out->write_image(OIIO::TypeDesc::UINT8, texels.data())) << out->geterror();
+        ASSERT_TRUE(out->close());
+    }
+    const std::uint64_t one = std::uint64_t(W) * H * 3;
+    struct Restore {
+        std::uint64_t old;
+        ~Restore() { set_turned_image_budget(old); }
+    } restore{set_turned_image_budget(one + one / 2)};
+
+    BuildOptions o = small_build();
+    o.tile_size = 64;
+    const std::vector<LayerInput> layers = {{"a", d.file("a.tif"), {}}, {"b", d.file("b.tif"), {}}};
+    auto refused = build_layered_store(layers, d.file("both.tsr"), o);
+    ASSERT_FALSE(refused.ok());
+    EXPECT_EQ(refused.error().code, Errc::unsupported);
+    const std::string& why = refused.error().message;
+    EXPECT_NE(why.find("layer 'b'"), std::string::npos) << why;
+    EXPECT_NE(why.find("orientation 6"), std::string::npos) << why;
+    EXPECT_NE(why.find("vips autorot"), std::string::npos) << why;
+    EXPECT_FALSE(std::filesystem::exists(d.file("both.tsr")));
+
+    // One at a time fits, build after build: the refused build and each of these gave back
+    // what they took.
+    for (int i = 0; i < 3; ++i) {
+        auto single = build_store(d.file("a.tif"), d.file("a.tsr"), o);
+        ASSERT_TRUE(single.ok()) << single.error().message;
+        EXPECT_EQ(single->info.width, std::uint32_t(H));
+        EXPECT_EQ(single->info.height, std::uint32_t(W));
+    }
+    // With room for both, the same layered build is made, upright.
+    set_turned_image_budget(2 * one);
+    auto built = build_layered_store(layers, d.file("both.tsr"), o);
+    ASSERT_TRUE(built.ok()) << built.error().message;
+    EXPECT_EQ(built->info.width, std::uint32_t(H));
+    EXPECT_EQ(built->info.height, std::uint32_t(W));
+}
 
 TEST(LayerBuild, ImageFilesRgbAndSixteenBitHeightmap) {
     ScratchDir d;

@@ -2,6 +2,7 @@
 // Image sources behind open_image_source(): TIFF through libtiff, everything else through the
 // OpenImageIO plugin (a separate module, loaded on first use: Debian's OpenImageIO pulls in ~260
 // shared libraries and ~100 MiB of resident memory, which no store that does not need it should pay).
+#include <cstdint>
 #include <memory>
 #include <string>
 
@@ -17,7 +18,12 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path);
 Result<std::unique_ptr<ImageSource>> open_oiio_source(const std::string& path);
 
 // `stored` as it is meant to be seen: its info().orientation (EXIF/TIFF, 2..8) undone; orientation 1
-// is returned as is. Errors name the input when a turn would not fit in memory.
+// is returned as is. A turn (3..8) holds the stored image whole while its strips are read; the
+// images held so, in the whole process, may take set_turned_image_budget() bytes together (2 GiB
+// by default). Each source takes its share when it is opened and gives it back once its last
+// strip is read or it is destroyed. Errors (unsupported) name the input when its turn would not fit.
 Result<std::unique_ptr<ImageSource>> make_upright_source(std::unique_ptr<ImageSource> stored);
+// Sets the bytes the turned images held at once may take together; returns the previous limit.
+std::uint64_t set_turned_image_budget(std::uint64_t bytes);
 
 }  // namespace tessera::storage

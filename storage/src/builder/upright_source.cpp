@@ -2,6 +2,8 @@
 // orientation 2..8, as cameras and phones write them) served as it is meant to be seen, the way
 // every viewer shows it. A mirror of each row streams; the other orientations read rows bottom up
 // or turn columns into rows, so the stored image is read whole first.
+#include <atomic>
+#include <cstdio>
 #include <cstring>
 #include <string>
 #include <vector>
@@ -11,13 +13,45 @@
 namespace tessera::storage {
 namespace {
 
-// Past this a turn is refused rather than held in memory: such images come from cameras, and a
-// tool that streams the turn (vips autorot) makes an upright file first.
-constexpr std::uint64_t kMaxWholeBytes = std::uint64_t(2) << 30;
+// Turned images held whole at once in this process, bytes together (set_turned_image_budget):
+// past it a turn is refused rather than held in memory. A layered build reads its layers side by
+// side, so a turned layer each holds its image at the same time: the limit is on their sum.
+// Such images come from cameras; a tool that streams the turn (vips autorot) makes an upright
+// file first.
+constexpr std::uint64_t kDefaultTurnedBytes = std::uint64_t(2) << 30;
+std::atomic<std::uint64_t> g_turned_limit{kDefaultTurnedBytes};
+std::atomic<std::uint64_t> g_turned_held{0};
+
+bool take_turned(std::uint64_t bytes) {
+    std::uint64_t held = g_turned_held.load();
+    do {
+        if (bytes > g_turned_limit.load() || held > g_turned_limit.load() - bytes) return false;
+    } while (!g_turned_held.compare_exchange_weak(held, held + bytes));
+    return true;
+}
+void give_turned(std::uint64_t bytes) { g_turned_held.fetch_sub(bytes); }
+
+std::string size_text(std::uint64_t bytes) {
+    char buf[32];
+    if (bytes < (std::uint64_t(1) << 20)) std::snprintf(buf, sizeof buf, "%.0f KiB", double(bytes) / 1024);
+    else if (bytes < (std::uint64_t(1) << 30)) std::snprintf(buf, sizeof buf, "%.1f MiB", double(bytes) / (1 << 20));
+    else std::snprintf(buf, sizeof buf, "%.2f GiB", double(bytes) / (1 << 30));
+    return buf;
+}
+
+// The error for a turn that does not fit: the input, what it needs, the limit.
+std::string too_large(const SourceInfo& s, std::uint64_t bytes) {
+    return s.description + " is stored turned (orientation " + std::to_string(s.orientation) + "): turning it takes " +
+           size_text(bytes) + " in memory, and the turned images held at once may take " + size_text(g_turned_limit.load()) +
+           " together (" + size_text(g_turned_held.load()) + " held now); make upright copies first, e.g. vips autorot";
+}
+
 
 class UprightSource final : public ImageSource {
 public:
-    explicit UprightSource(std::unique_ptr<ImageSource> stored) : stored_(std::move(stored)) {
+    // whole_bytes: taken from the turned-image budget by the caller (0 for a mirror, which streams).
+    UprightSource(std::unique_ptr<ImageSource> stored, std::uint64_t whole_bytes)
+        : stored_(std::move(stored)), reserved_(whole_bytes) {
         const SourceInfo& s = stored_->info();
         info_ = s;
         info_.orientation = 1;
@@ -25,6 +59,9 @@ public:
         info_.description = s.description + " turned upright (orientation " + std::to_string(s.orientation) + ")";
         texel_ = s.channels * sample_bytes(s.sample_type);
     }
+    ~UprightSource() override { give_turned(reserved_); }
+    UprightSource(const UprightSource&) = delete;
+    UprightSource& operator=(const UprightSource&) = delete;
     const SourceInfo& info() const override { return info_; }
 
     Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor& parallel) override {
@@ -41,7 +78,12 @@ public:
             return {};
         }
         if (whole_.empty()) {
-            whole_.resize(std::size_t(W) * H * texel_);
+            const std::uint64_t bytes = std::uint64_t(W) * H * texel_;
+            if (reserved_ == 0) {  // read again after the last strip gave its share back
+                if (!take_turned(bytes)) return make_error(Errc::unsupported, too_large(s, bytes));
+                reserved_ = bytes;
+            }
+            whole_.resize(bytes);
             TESSERA_TRY(stored_->read_rows(0, H, whole_.data(), parallel));
         }
         const std::uint32_t w = info_.width;
@@ -65,7 +107,11 @@ public:
                 }
             }
         });
-        if (y0 + count >= info_.height) std::vector<std::uint8_t>().swap(whole_);  // strips come once each, in order
+        if (y0 + count >= info_.height) {  // strips come once each, in order
+            std::vector<std::uint8_t>().swap(whole_);
+            give_turned(reserved_);
+            reserved_ = 0;
+        }
         return {};
     }
 
@@ -73,20 +119,23 @@ private:
     std::unique_ptr<ImageSource> stored_;
     SourceInfo info_;
     std::size_t texel_ = 0;
+    std::uint64_t reserved_ = 0;  // bytes of the turned-image budget this source holds
     std::vector<std::uint8_t> whole_;
 };
 
 }  // namespace
 
+std::uint64_t set_turned_image_budget(std::uint64_t bytes) { return g_turned_limit.exchange(bytes); }
+
 Result<std::unique_ptr<ImageSource>> make_upright_source(std::unique_ptr<ImageSource> stored) {
     const SourceInfo& s = stored->info();
     if (s.orientation <= 1 || s.orientation > 8) return stored;
+    if (s.orientation == 2) return std::unique_ptr<ImageSource>(new UprightSource(std::move(stored), 0));
+    // Taken now, when the source is opened: a build that cannot hold its turned inputs fails
+    // before it reads anything.
     const std::uint64_t bytes = std::uint64_t(s.width) * s.height * s.channels * sample_bytes(s.sample_type);
-    if (s.orientation != 2 && bytes > kMaxWholeBytes)
-        return make_error(Errc::unsupported, s.description + " is stored turned (orientation " + std::to_string(s.orientation) +
-                                                 ") and too large (" + std::to_string(bytes >> 20) +
-                                                 " MiB) to turn in memory; make an upright copy first, e.g. vips autorot");
-    return std::unique_ptr<ImageSource>(new UprightSource(std::move(stored)));
+    if (!take_turned(bytes)) return make_error(Errc::unsupported, too_large(s, bytes));
+    return std::unique_ptr<ImageSource>(new UprightSource(std::move(stored), bytes));
 }
 
 }  // namespace tessera::storage
