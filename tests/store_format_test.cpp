@@ -302,6 +302,39 @@ void reseal(std::vector<std::uint8_t>& b, std::uint32_t l, std::uint64_t table_b
 
 }  // namespace
 
+// Two block records naming the same entry block, every checksum made to match: each record's
+// block is held once read, so a file of many such records would cost memory by its record count
+// (about 6 000 times its size). The reader refuses the overlap when it opens the store.
+TEST(StoreFormat, SharedEntryBlocksAreRefused) {
+    ScratchDir d;
+    const std::size_t n = 16 * 16;
+    {
+        auto w = StoreWriter::create(d.file("two.tsr"), raw_spec(12 * 128, 12 * 64, 12, 2));  // 2 x 1 blocks at level 0
+        ASSERT_TRUE(w.ok());
+        ASSERT_TRUE((*w)->add_present({0, 0, 0}, tile_bytes(n, 1)).ok());
+        ASSERT_TRUE((*w)->add_present({0, 64, 0}, tile_bytes(n, 2)).ok());
+        ASSERT_TRUE((*w)->finish().ok());
+    }
+    std::vector<std::uint8_t> b = test::read_file(d.file("two.tsr"));
+    ASSERT_TRUE(StoreReader::open_memory(b).ok());
+    const std::uint64_t rec0 = load_at<std::uint64_t>(b, 40);
+    const std::uint64_t bt = load_at<std::uint64_t>(b, std::size_t(rec0) + 24);
+    ASSERT_EQ(load_at<std::uint32_t>(b, std::size_t(rec0) + 16), 2u);  // blocks_x
+    const std::uint64_t first = load_at<std::uint64_t>(b, std::size_t(bt)), second = load_at<std::uint64_t>(b, std::size_t(bt) + 16);
+    ASSERT_NE(first, 0u);
+    ASSERT_NE(second, 0u);
+    for (const std::uint64_t at : {first, first + 24 * 64}) {  // the same block, then one overlapping it
+        std::vector<std::uint8_t> c = b;
+        store_at<std::uint64_t>(c, std::size_t(bt) + 16, at);
+        store_at<std::uint64_t>(c, std::size_t(bt) + 24, XXH3_64bits(c.data() + at, 98304));
+        reseal(c, 0, 2 * 16);
+        auto r = StoreReader::open_memory(c);
+        ASSERT_FALSE(r.ok()) << "entry block at " << at;
+        EXPECT_EQ(r.error().code, Errc::corrupt);
+        EXPECT_NE(r.error().message.find("entry blocks overlap"), std::string::npos) << r.error().message;
+    }
+}
+
 TEST(StoreFormat, SparseIndexReadsBackAndRefusesBadTables) {
     ScratchDir d;
     StoreSpec spec = raw_spec(16384, 16384, 12, 2);  // 1366 x 1366 tiles, 22 x 22 blocks at level 0

@@ -157,6 +157,7 @@ public:
 
         index_.resize(level_count);
         std::uint64_t block_table_bytes = 0;
+        std::vector<std::uint64_t> entry_blocks;  // offsets of every level's entry blocks
         for (std::uint32_t l = 0; l < level_count; ++l) {
             const std::uint8_t* r = level_table.data() + std::size_t(l) * kLevelRecordBytes;
             LevelInfo& li = levels[l];
@@ -233,9 +234,17 @@ public:
                 const std::uint64_t eo = ix.offsets[b];
                 if (eo != 0 && !inside_index(eo, kEntryBlockBytes))
                     return corrupt("level " + std::to_string(l) + " index block " + std::to_string(b) + " outside the index");
-                if (eo != 0) li.index_bytes += kEntryBlockBytes;
+                if (eo != 0) {
+                    li.index_bytes += kEntryBlockBytes;
+                    entry_blocks.push_back(eo);
+                }
             }
         }
+        // Each entry block is held once read, per record: records sharing or overlapping blocks
+        // would make a small file cost memory by the index's record count, not its size.
+        if (!std::is_sorted(entry_blocks.begin(), entry_blocks.end())) std::sort(entry_blocks.begin(), entry_blocks.end());
+        for (std::size_t i = 1; i < entry_blocks.size(); ++i)
+            if (entry_blocks[i] - entry_blocks[i - 1] < kEntryBlockBytes) return corrupt("index entry blocks overlap");
         info_.levels = std::move(levels);
         max_payload_ = info_.tile_bytes() * 2 + 65536;  // no codec expands a tile beyond this
         if (info_.layered()) {  // a bundle: its table, then each layer's part, bounded likewise
