@@ -892,6 +892,27 @@ TEST_F(HandlerTest, BearerTokenWhenConfigured) {
               std::string::npos);
 }
 
+// ?access_token= as URL encoders write it: a token may hold any printable ASCII, and
+// encodeURIComponent, URLSearchParams and Python's urlencode escape '/' and '%'. Paths still refuse
+// those escapes. The browser's cookie is set only from a query token that is itself right.
+TEST_F(HandlerTest, QueryTokenAsUrlEncodersWriteIt) {
+    config_.auth_token = "a/b.c%d";
+    EXPECT_EQ(get("/v1/stores?access_token=a%2Fb%2Ec%25d").status, 200u);
+    EXPECT_EQ(get("/v1/stores?access_token=a/b.c%25d").status, 200u);
+    EXPECT_EQ(get("/v1/stores?access_token=a%2Fb.c%25e").status, 401u);
+    EXPECT_EQ(get("/v1/stores/a%2fb", {}, "Bearer a/b.c%d").status, 400u);
+    EXPECT_EQ(get("/v1/stores?access_token=a%01b", {}, "Bearer a/b.c%d").status, 400u);
+
+    const HttpResponse set = get("/view/rgb?access_token=a%2Fb.c%25d");
+    ASSERT_EQ(set.status, 200u);
+    ASSERT_NE(set.header("Set-Cookie"), nullptr);
+    EXPECT_EQ(std::string_view(*set.header("Set-Cookie")).substr(0, 23), "tessera_token=a/b.c%d; ");
+    // The header lets it in; the query's wrong token must not become the browser's cookie.
+    const HttpResponse kept = get("/view/rgb?access_token=wrong", {}, "Bearer a/b.c%d");
+    ASSERT_EQ(kept.status, 200u);
+    EXPECT_EQ(kept.header("Set-Cookie"), nullptr);
+}
+
 // ---- Corruption -------------------------------------------------------------------------------------
 
 TEST_F(HandlerTest, CorruptTileIs500AndNeverItsBytes) {

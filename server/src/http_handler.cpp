@@ -283,10 +283,12 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
     }
     // A browser that came to a page with ?access_token= keeps the token as a cookie for the
     // page's own requests (docs/server.md, "Browsers"): only when a token is required and it
-    // was right, and only a token that cannot smuggle cookie attributes.
+    // was right (the query's token itself: an Authorization header, which request_token
+    // prefers, may be what let the request in), and only a token that cannot smuggle cookie
+    // attributes.
     const bool cookie_safe = query_token.find_first_of(";, \t\"\\") == std::string::npos;
     if (!query_token.empty() && cookie_safe && !ctx_.auth_token()->empty() && route_label == HttpRoute::viewer &&
-        res.status == 200)
+        res.status == 200 && authorized("Bearer " + query_token, *ctx_.auth_token()))
         res.headers.emplace_back("Set-Cookie", "tessera_token=" + query_token + "; Path=/; HttpOnly; SameSite=Strict" +
                                                    (req.secure ? "; Secure" : ""));
     return res;

@@ -17,10 +17,12 @@ int hex_value(char c) {
     return -1;
 }
 
-// Percent-decodes one path segment or query component. Escapes that decode to '/', '.', '\',
-// '%', a control character or a non-ASCII byte are refused: nothing Tessera serves needs them,
-// and they are how path tricks ("%2e%2e", "a%2fb") get past a router.
-bool percent_decode(std::string_view in, std::string& out, std::string& why) {
+// Percent-decodes one path segment or query component. Escapes that decode to a control
+// character or a non-ASCII byte are refused everywhere. In a path segment so are '/', '.', '\'
+// and '%': nothing Tessera serves needs them, and they are how path tricks ("%2e%2e", "a%2fb")
+// get past a router. A query value is never a path, and an access token may hold any printable
+// ASCII, which URL encoders escape ('/' as %2F): `query` lets those through.
+bool percent_decode(std::string_view in, std::string& out, std::string& why, bool query = false) {
     out.clear();
     for (std::size_t i = 0; i < in.size(); ++i) {
         const char c = in[i];
@@ -38,8 +40,12 @@ bool percent_decode(std::string_view in, std::string& out, std::string& why) {
             return false;
         }
         const auto d = static_cast<unsigned char>(hi * 16 + lo);
-        if (d == '/' || d == '.' || d == '\\' || d == '%' || d < 0x20 || d >= 0x7f) {
-            why = "percent-encoded '/', '.', '\\', '%', control or non-ASCII characters are not allowed";
+        if (d < 0x20 || d >= 0x7f) {
+            why = "percent-encoded control or non-ASCII characters are not allowed";
+            return false;
+        }
+        if (!query && (d == '/' || d == '.' || d == '\\' || d == '%')) {
+            why = "percent-encoded '/', '.', '\\' or '%' is not allowed in a path";
             return false;
         }
         out += static_cast<char>(d);
@@ -148,8 +154,8 @@ bool parse_request(const HttpRequestView& req, ParsedRequest& out, std::string& 
         if (!pair.empty()) {
             const std::size_t eq = pair.find('=');
             std::string key, value;
-            if (!percent_decode(pair.substr(0, eq), key, why) ||
-                !percent_decode(eq == std::string_view::npos ? std::string_view() : pair.substr(eq + 1), value, why)) {
+            if (!percent_decode(pair.substr(0, eq), key, why, true) ||
+                !percent_decode(eq == std::string_view::npos ? std::string_view() : pair.substr(eq + 1), value, why, true)) {
                 error = "bad query: " + why;
                 return false;
             }
