@@ -913,6 +913,54 @@ TEST_F(HandlerTest, QueryTokenAsUrlEncodersWriteIt) {
     EXPECT_EQ(kept.header("Set-Cookie"), nullptr);
 }
 
+// IIIF Image API 3.0, 4.2: !w,h and ^!w,h are confined by the server's limits too (a wide image
+// asked for at more than maxWidth is answered at the largest size allowed, not refused); a size
+// that rounds to zero texels is 400; pct:n over 100 upscales and needs ^.
+TEST_F(HandlerTest, IiifSizesWithinLimitsAndNeverZero) {
+    write_store(dir_.file("wide.tsr"), spec_of(5000, 300, 256, 0, 1, SampleType::u8, ColourSpace::linear, Codec::jpeg));
+    for (const char* size : {"!6000,6000", "^!9000,9000", "!4096,4096"}) {
+        SCOPED_TRACE(size);
+        const HttpResponse r = get(std::string("/iiif/wide/full/") + size + "/0/default.png");
+        ASSERT_EQ(r.status, 200u) << r.body;
+        const Png png = decode_png(r.body);
+        EXPECT_EQ(png.width, 4096u);
+        EXPECT_EQ(png.height, 245u);  // floor(300 * 4096 / 5000)
+    }
+    EXPECT_EQ(get("/iiif/wide/full/6000,/0/default.png").status, 400u);  // asked for exactly: over the limit
+    for (const char* path : {"/iiif/rgb/0,0,40,1/10,/0/default.png", "/iiif/rgb/full/pct:0.001/0/default.png",
+                             "/iiif/rgb/0,0,1,30/,10/0/default.png", "/iiif/rgb/0,0,40,1/!10,10/0/default.png",
+                             "/iiif/rgb/full/pct:100.4/0/default.png"}) {
+        SCOPED_TRACE(path);
+        EXPECT_EQ(get(path).status, 400u);
+    }
+    const HttpResponse up = get("/iiif/rgb/full/^pct:150/0/default.png");
+    ASSERT_EQ(up.status, 200u) << up.body;
+    EXPECT_EQ(decode_png(up.body).width, 60u);
+}
+
+// RFC 9112 3.2: a Host that is not a host and port is 400; IIIF's info.json would write it into
+// its id (a value that is not UTF-8 made it fail as a 500).
+TEST_F(HandlerTest, HostHeaderMustBeAHost) {
+    start();
+    auto info = [&](std::string_view host) {
+        HttpRequestView req;
+        req.method = "GET";
+        req.target = "/iiif/rgb/info.json";
+        req.host = host;
+        return handler_->handle_http_request(req);
+    };
+    for (const std::string_view bad : {std::string_view("\xff"), std::string_view("a b"), std::string_view("h/x"),
+                                       std::string_view("h\"x"), std::string_view("h<x>")}) {
+        const HttpResponse r = info(bad);
+        EXPECT_EQ(r.status, 400u) << bad;
+    }
+    const HttpResponse ok = info("tiles.example.org:8080");
+    ASSERT_EQ(ok.status, 200u) << ok.body;
+    EXPECT_NE(ok.body.find("\"http://tiles.example.org:8080/iiif/rgb\""), std::string::npos) << ok.body;
+    EXPECT_EQ(info("[::1]:8080").status, 200u);
+    EXPECT_EQ(info("").status, 200u);  // HTTP/1.0 sends none: the server's own address
+}
+
 // ---- Corruption -------------------------------------------------------------------------------------
 
 TEST_F(HandlerTest, CorruptTileIs500AndNeverItsBytes) {

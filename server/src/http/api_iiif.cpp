@@ -111,7 +111,11 @@ std::optional<std::pair<std::uint32_t, std::uint32_t>> parse_size(std::string_vi
             why = "size pct:n needs a positive number";
             return std::nullopt;
         }
-        w = std::max(1.0, std::round(rw * *p / 100.0)), h = std::max(1.0, std::round(rh * *p / 100.0));
+        if (!up && *p > 100) {
+            why = "size pct:n over 100 upscales: ask with ^pct:n";
+            return std::nullopt;
+        }
+        w = std::round(rw * *p / 100.0), h = std::round(rh * *p / 100.0);
     } else {
         const bool confined = s.starts_with("!");
         if (confined) s.remove_prefix(1);
@@ -126,16 +130,25 @@ std::optional<std::pair<std::uint32_t, std::uint32_t>> parse_size(std::string_vi
             why = "size width and height must be positive integers";
             return std::nullopt;
         }
-        if (confined) {  // the largest size within w, h (and, without ^, within the region)
-            const double f = up ? std::min(*pw / rw, *ph / rh) : std::min({1.0, *pw / rw, *ph / rh});
-            w = std::max(1.0, std::floor(rw * f + 1e-9)), h = std::max(1.0, std::floor(rh * f + 1e-9));
+        if (confined) {
+            // The largest size within w, h, the server's limits (IIIF 3.0, 4.2: "not larger than
+            // ... w or h, or server-imposed limits") and, without ^, the region.
+            const double f = std::min({up ? *pw / rw : std::min(1.0, *pw / rw), *ph / rh, kMaxSide / rw, kMaxSide / rh,
+                                       std::sqrt(double(kMaxArea) / (rw * rh))});
+            w = std::floor(rw * f + 1e-9), h = std::floor(rh * f + 1e-9);
         } else if (parts[1].empty()) {
-            w = *pw, h = std::max(1.0, std::round(rh * *pw / rw));
+            w = *pw, h = std::round(rh * *pw / rw);
         } else if (parts[0].empty()) {
-            h = *ph, w = std::max(1.0, std::round(rw * *ph / rh));
+            h = *ph, w = std::round(rw * *ph / rh);
         } else {
             w = *pw, h = *ph;
         }
+    }
+    // IIIF 3.0, 4.2: "If the resulting height or width is zero, then the server should return a
+    // 400 (Bad Request) status code." (max keeps at least one texel a side: it names no size.)
+    if (w < 1 || h < 1) {
+        why = "size is zero texels wide or high for this region";
+        return std::nullopt;
     }
     if (!up && (w > rw || h > rh)) {
         why = "size is larger than the region: ask with ^ to upscale";

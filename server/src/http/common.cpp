@@ -104,6 +104,23 @@ std::string ParsedRequest::unknown_params(std::initializer_list<std::string_view
     return out;
 }
 
+namespace {
+
+// RFC 9110 7.2 / RFC 3986 3.2.2: a Host value is a host (a name of unreserved, sub-delims and
+// percent escapes, or a bracketed IP literal) and an optional port. The IIIF API writes it into
+// URLs it returns (`id`, Location), so anything else is refused (RFC 9112 3.2: 400) rather than
+// echoed into a URL or, as bytes that are not UTF-8, into JSON.
+bool host_ok(std::string_view host) {
+    for (const char c : host) {
+        const auto u = static_cast<unsigned char>(c);
+        if ((u >= 'a' && u <= 'z') || (u >= 'A' && u <= 'Z') || (u >= '0' && u <= '9')) continue;
+        if (std::string_view("-._~!$&'()*+,;=%:[]").find(c) == std::string_view::npos) return false;
+    }
+    return true;
+}
+
+}  // namespace
+
 bool parse_request(const HttpRequestView& req, ParsedRequest& out, std::string& token, std::string& error) {
     const std::size_t q = req.target.find('?');
     const std::string_view raw_path = req.target.substr(0, q);
@@ -120,6 +137,10 @@ bool parse_request(const HttpRequestView& req, ParsedRequest& out, std::string& 
             error = "request target has a character that must be percent-encoded";
             return false;
         }
+    if (!host_ok(req.host)) {
+        error = "Host header is not a host and port";
+        return false;
+    }
     std::string why;
     out.segments.reserve(8);  // /v1/stores/{name}/tiles/{level}/{x}/{y}: one allocation
     if (raw_path != "/") {
