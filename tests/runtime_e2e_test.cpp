@@ -100,6 +100,43 @@ TEST(RuntimeEndToEnd, FetchesFromARealServerAndSurvivesItsRestart) {
 }
 
 
+// One store behind two textures of one gRPC source (an engine that adds the same texture twice):
+// the server's replies name the store, so each texture bound to it must get them. Before, the
+// second binding took the store over and the first texture's pages never arrived.
+TEST(RuntimeEndToEnd, OneStoreBehindTwoTexturesLoadsBoth) {
+    ScratchDir dir;
+    const std::string store = dir.file("terrain.tsr");
+    auto built = tessera::test::run_tessera("build procedural:terrain:1024 --quiet -o " + store);
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    ServerProcess srv({"--store", store}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    TileStreamOptions net;
+    net.target = srv.grpc_address();
+    auto source = make_grpc_source(net);
+    FakeUploader uploader;
+    RuntimeConfig config;
+    config.residency.pool_slots = 128;
+    config.transcode_threads = 1;
+    auto created = Runtime::create(config, uploader);
+    ASSERT_TRUE(created.ok()) << created.error().message;
+    auto& rt = **created;
+    auto a = rt.add_texture(*source, "terrain");
+    auto b = rt.add_texture(*source, "terrain");
+    ASSERT_TRUE(a.ok() && b.ok());
+    ASSERT_NE(*a, *b);
+    const auto& info = *rt.texture_info(*a);
+    std::vector<FeedbackId> both = whole_texture(info, 1);  // texture 0's level 1
+    for (const auto id : whole_texture(info, 1)) {
+        PageKey k = unpack_feedback(id);
+        k.texture = *b;
+        both.push_back(pack_feedback(k));
+    }
+    ASSERT_TRUE(frames_until(rt, both, [&] { return rt.frame(both, std::uint32_t(both.size()), 1).fallback_estimate == 0.0f; }, 60s))
+        << "resident: " << rt.residency().stats().resident_pages;
+    for (const auto id : both) EXPECT_TRUE(rt.residency().is_resident(unpack_feedback(id)));
+    EXPECT_EQ(uploader.malformed(), 0u);
+}
+
 // The sum of a Prometheus counter's samples (every label set) in a /metrics body.
 double metric_sum(const std::string& body, const std::string& name) {
     std::istringstream in(body);

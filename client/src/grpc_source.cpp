@@ -1,7 +1,9 @@
 // TileSource over a Tessera server: TileStreamClient does the connection, the replace-semantics
 // batches, the bounded receive buffer and the reconnects; this maps textures to store names.
+#include <algorithm>
 #include <map>
 #include <mutex>
+#include <vector>
 
 #include "tessera/client/tile_source.hpp"
 
@@ -17,8 +19,11 @@ public:
         auto meta = client_->get_store(store, std::chrono::seconds(10));
         if (!meta) return meta.error();
         std::lock_guard lock(mu_);
+        // A texture bound again (its id reused after a refused add_texture) leaves its old store.
+        if (auto old = names_.find(texture); old != names_.end()) std::erase(textures_[old->second], texture);
         names_[texture] = store;
-        textures_[store] = texture;
+        if (std::find(textures_[store].begin(), textures_[store].end(), texture) == textures_[store].end())
+            textures_[store].push_back(texture);
         scenes_[store] = {meta->info.store_id, meta->has_scene};
         return std::move(meta->info);
     }
@@ -58,8 +63,15 @@ public:
         for (auto& r : received_) {
             auto it = textures_.find(r.store);
             if (it == textures_.end()) continue;
-            out.push_back(SourceTile{PageKey{it->second, static_cast<std::uint8_t>(r.key.level), r.key.x, r.key.y},
-                                     r.store_version, r.status, std::move(r.message), std::move(r.data), r.received});
+            // Replies name the store, not the texture: each texture bound to it gets one (one that
+            // did not ask counts it stale and drops it).
+            const std::vector<TextureId>& bound = it->second;
+            for (std::size_t i = 0; i < bound.size(); ++i) {
+                const bool last = i + 1 == bound.size();
+                out.push_back(SourceTile{PageKey{bound[i], static_cast<std::uint8_t>(r.key.level), r.key.x, r.key.y},
+                                         r.store_version, r.status, last ? std::move(r.message) : r.message,
+                                         last ? std::move(r.data) : r.data, r.received});
+            }
         }
         return n;
     }
@@ -75,7 +87,7 @@ private:
     std::unique_ptr<TileStreamClient> client_;
     std::mutex mu_;
     std::map<TextureId, std::string> names_;
-    std::map<std::string, TextureId> textures_;
+    std::map<std::string, std::vector<TextureId>> textures_;  // a store may back several textures
     std::map<std::string, std::pair<std::uint64_t, bool>> scenes_;  // store -> (version bound, has a scene)
     std::vector<ReceivedTile> received_;  // poll() is called from one thread (the runtime's)
 };

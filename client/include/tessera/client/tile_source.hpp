@@ -52,7 +52,8 @@ public:
     virtual Result<storage::StoreInfo> bind(TextureId texture, const std::string& store) = 0;
     // Replaces the outstanding request set (the newest frame wins).
     virtual void set_requests(std::uint64_t frame, std::span<const SourceRequest> requests) = 0;
-    // Moves up to max arrived tiles into out (appending); returns how many.
+    // Moves up to max arrived tiles into out (appending); returns how many it took. A reply for a
+    // store bound to several textures is appended once per texture.
     virtual std::size_t poll(std::vector<SourceTile>& out, std::size_t max = SIZE_MAX) = 0;
     // False while a remote source is disconnected (rendering goes on with what is resident).
     virtual bool available() const = 0;
