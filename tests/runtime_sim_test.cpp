@@ -42,7 +42,9 @@ public:
         if (!ignore_cancel_) std::erase_if(pending_, [&](const auto& p) { return !now.contains(page_hash_key(p.page)); });
         for (const auto& r : requests) {
             const bool known = std::any_of(pending_.begin(), pending_.end(), [&](const auto& p) { return p.page == r.page; });
-            if (!known) pending_.push_back({r.page, frame_ + latency_});
+            if (known) continue;
+            const auto slow = fail_next_.find(page_hash_key(r.page));
+            pending_.push_back({r.page, frame_ + latency_ + (slow == fail_next_.end() ? 0 : slow->second)});
         }
         ++sets_;
     }
@@ -57,12 +59,20 @@ public:
             SourceTile t;
             t.page = it->page;
             t.store_version = reader_->info().store_id + version_offset_;
-            t.data.kind = tile->kind;
-            t.data.codec = reader_->info().codec;
-            t.data.checksum = tile->checksum;
-            t.data.payload = std::move(tile->bytes);
+            if (fail_next_.erase(page_hash_key(it->page)) > 0) {
+                t.status = tessera::TileStatus::unavailable;
+                t.message = "queue full; retry later";
+            } else {
+                t.data.kind = tile->kind;
+                t.data.codec = reader_->info().codec;
+                t.data.checksum = tile->checksum;
+                t.data.payload = std::move(tile->bytes);
+                // A payload that passed every check on its way and still does not decode.
+                if (undecodable_.contains(page_hash_key(it->page))) t.data.payload.assign(16, 0x42);
+            }
             out.push_back(std::move(t));
             ++served_;
+            ++served_pages_[page_hash_key(it->page)];
             it = pending_.erase(it);
             ++n;
         }
@@ -76,6 +86,15 @@ public:
     void replace_store() { version_offset_ = 1; }
     void restore_store() { version_offset_ = 0; }
     std::uint64_t served() const { return served_; }
+    // This page is served, from now on, as bytes its codec refuses.
+    void undecodable(const PageKey& page) { undecodable_.insert(page_hash_key(page)); }
+    // This page's next delivery is an error (a server's "queue full; retry later"), `later` frames
+    // after the source's usual latency.
+    void fail_next(const PageKey& page, unsigned later) { fail_next_[page_hash_key(page)] = later; }
+    std::uint64_t served(const PageKey& page) const {
+        auto it = served_pages_.find(page_hash_key(page));
+        return it == served_pages_.end() ? 0 : it->second;
+    }
 
 private:
     struct Pending {
@@ -91,6 +110,9 @@ private:
     std::uint64_t frame_ = 0;
     std::uint64_t sets_ = 0, served_ = 0;
     std::uint64_t version_offset_ = 0;
+    std::set<std::uint64_t> undecodable_;
+    std::map<std::uint64_t, unsigned> fail_next_;  // page -> extra frames before its error
+    std::map<std::uint64_t, std::uint64_t> served_pages_;
 };
 
 // A camera over the ground plane: a 1280x720 view with feedback at 1/8 resolution (160x90). Row r
@@ -587,6 +609,55 @@ TEST_F(RuntimeSim, PagesWithAnAbsentLayerAreAskedForOnce) {
 // pages are asked for only now and then (PageLoader::kReplacedRetryFrames), not on every frame,
 // keeping what is resident. When the bound version is served again (a rollback, a replica), the
 // view loads again.
+// A tile that arrives whole but does not decode: asking again brings the same bytes, so the page
+// stands absent (its parent shown), is counted, and is not fetched and decoded frame after frame.
+TEST_F(RuntimeSim, ATileThatDoesNotDecodeIsAskedForOnce) {
+    FakeUploader up;
+    DelayedSource src(path_, 1);
+    auto rt = make(256, up, src);
+    const auto& info = *rt->texture_info(0);
+    const std::uint8_t top = std::uint8_t(info.level_count() - 1);
+    const PageKey bad{0, std::uint8_t(top - 2), 1, 1};
+    src.undecodable(bad);
+    const std::vector<FeedbackId> ids = {pack_feedback(bad)};
+    for (int f = 0; f < 60; ++f) {
+        src.tick();
+        rt->frame(ids, 1, 1, 0);
+    }
+    EXPECT_EQ(src.served(bad), 1u) << "fetched again after it failed to decode";
+    EXPECT_EQ(rt->summary().decode_failures(), 1u);
+    EXPECT_FALSE(rt->residency().is_resident(bad));
+    EXPECT_TRUE(rt->residency().is_resident(PageKey{0, std::uint8_t(top - 1), 0, 0})) << "its parent stands in";
+    EXPECT_EQ(rt->in_flight(), 0u);
+    EXPECT_NE(rt->summary().to_json().find("\"decode_failures\":1"), std::string::npos) << rt->summary().to_json();
+    EXPECT_EQ(up.malformed(), 0u);
+}
+
+// An error reply (a server's "retry later") ends the request at the source: the page is asked
+// again at once, even though the set that asks is the one sent last.
+TEST_F(RuntimeSim, AnErrorReplyIsAskedAgainAtOnce) {
+    FakeUploader up;
+    DelayedSource src(path_, 3);
+    auto rt = make(256, up, src);
+    const auto& info = *rt->texture_info(0);
+    const std::uint8_t top = std::uint8_t(info.level_count() - 1);
+    const PageKey page{0, std::uint8_t(top - 2), 1, 1};
+    const std::vector<FeedbackId> ids = {pack_feedback(page)};
+    // The error comes 5 frames after the page's ancestors have arrived: nothing else changes in
+    // the request set when it does.
+    src.fail_next(page, 5);
+    int frames = 0;
+    while (!rt->residency().is_resident(page) && frames < 60) {
+        src.tick();
+        rt->frame(ids, 1, 1, 0);
+        ++frames;
+    }
+    EXPECT_TRUE(rt->residency().is_resident(page));
+    EXPECT_EQ(src.served(page), 2u);  // the error, then the tile
+    // Asked at frame 1, the error at 1 + 3 + 5, asked again at once, the tile 3 frames later.
+    EXPECT_LE(frames, 1 + 3 + 5 + 3 + 2) << "the retry waited for the periodic resend";
+}
+
 TEST_F(RuntimeSim, AReplacedStoreIsNotAskedForEveryFrame) {
     FakeUploader up;
     DelayedSource src(path_, 2);

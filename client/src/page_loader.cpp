@@ -130,6 +130,11 @@ void PageLoader::add_texture(TileSource& source, const std::string& store, const
     page_bytes_ = std::max(page_bytes_, pool_format_.upload_bytes(info.tile_size()));
 }
 
+void PageLoader::remember_absent(const PageKey& page) {
+    if (absent_.size() >= kMaxAbsentPages) absent_.clear();
+    absent_.insert(page);
+}
+
 TileId PageLoader::tile_id(const PageKey& p) const {
     const auto& t = textures_[p.texture];
     return TileId{t.store, t.info->store_id, p.tile()};
@@ -142,7 +147,7 @@ namespace {
 bool has_absent_layer(const storage::StoreInfo& info, const TileData& tile) {
     if (!info.layered() || tile.kind != TileKind::present || tile.codec != Codec::layers) return false;
     auto parts = storage::split_layers(info, tile.payload);
-    if (!parts) return false;  // a malformed bundle fails its decode, and is counted there
+    if (!parts) return false;  // a malformed bundle fails its decode: FrameStats::decode_failures
     return std::any_of(parts->begin(), parts->end(), [](const storage::LayerPart& p) { return p.kind == TileKind::absent; });
 }
 
@@ -152,9 +157,8 @@ void PageLoader::arrived(const PageKey& page, Work& w, std::shared_ptr<const Til
     ++stats.pages_arrived;
     // A sparse store: nothing to fetch, ever.
     if (tile->kind == TileKind::absent || has_absent_layer(*textures_[page.texture].info, *tile)) {
-        if (absent_.size() >= kMaxAbsentPages) absent_.clear();
-        absent_.insert(page);
         work_.erase(page);
+        remember_absent(page);
         return;
     }
     w.stage = Stage::arrived;
@@ -198,7 +202,11 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
                 continue;
             }
             if (r.status != TileStatus::ok) {
-                work_.erase(it);  // asked again next frame if still wanted
+                // Asked again next frame if still wanted. The set that asks may equal the one sent
+                // last (the same page, the same priority), but the source has dropped the request:
+                // it is sent regardless.
+                work_.erase(it);
+                resend_.insert(source);
                 continue;
             }
             if (r.page.texture >= textures_.size()) {
@@ -295,7 +303,8 @@ void PageLoader::send_request_sets(std::uint64_t frame) {
                           });
         // An unchanged set is sent again now and then: a source that reconnected or dropped a
         // request gets it back.
-        if (same && frame % 30 != 0) continue;
+        if (same && frame % 30 != 0 && !resend_.contains(source)) continue;
+        resend_.erase(source);
         source->set_requests(frame, requests_);
         last = requests_;
     }
@@ -383,8 +392,17 @@ void PageLoader::decode(const WantedPages& wanted, FrameStats& stats) {
 
 void PageLoader::finish_decode(const PageKey& key, bool ok, const WantedPages& wanted, FrameStats& stats) {
     auto& w = work_.at(key);
-    if (!ok || !wanted.contains(key)) {
-        if (ok) ++stats.cancelled_decoded;  // decoded, then found unwanted
+    if (!ok) {
+        // The payload is what the store holds (the source checked it): asking again brings the
+        // same bytes. The page stands absent, its parent shown, like a tile the store lacks.
+        ++stats.decode_failures;
+        free_staging(w);
+        work_.erase(key);
+        remember_absent(key);
+        return;
+    }
+    if (!wanted.contains(key)) {
+        ++stats.cancelled_decoded;  // decoded, then found unwanted
         free_staging(w);
         work_.erase(key);
         return;

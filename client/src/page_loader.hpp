@@ -113,6 +113,9 @@ private:
     };
 
     TileId tile_id(const PageKey& p) const;
+    // A page that stands absent (a tile the store lacks, a bundle without a layer, a payload that
+    // does not decode): not asked for again while remembered (kMaxAbsentPages).
+    void remember_absent(const PageKey& page);
     void arrived(const PageKey& page, Work& w, std::shared_ptr<const TileData> tile, FrameStats& stats);
     void issue_requests(const WantedPages& wanted, Clock::time_point now, FrameStats& stats);
     void send_request_sets(std::uint64_t frame);
@@ -138,6 +141,7 @@ private:
     std::unordered_map<PageKey, Work, PageKeyHash> work_;
     std::unordered_set<PageKey, PageKeyHash> absent_;
     std::unordered_map<TileSource*, std::vector<SourceRequest>> last_sent_;
+    std::unordered_set<TileSource*> resend_;  // answered an error: its next set goes even if unchanged
     // A decoded page's memory: lent by the uploader (one copy fewer) or the loader's own.
     struct Staging {
         std::span<std::uint8_t> bytes;     // while taken

@@ -171,6 +171,7 @@ void StatsSummary::add_frame(const FrameStats& f) {
     stale_arrivals_ += f.stale_arrivals;
     other_version_arrivals_ += f.other_version_arrivals;
     duplicate_arrivals_ += f.duplicate_arrivals;
+    decode_failures_ += f.decode_failures;
 }
 
 void StatsSummary::reset() { *this = StatsSummary{}; }
@@ -213,6 +214,7 @@ std::string StatsSummary::to_json() const {
                         {"cancelled_decoded", cancelled_decoded_}, {"decodes_dropped", decodes_dropped_},
                         {"stale_arrivals", stale_arrivals_},       {"duplicate_arrivals", duplicate_arrivals_},
                         {"other_version_arrivals", other_version_arrivals_}};
+    j["errors"] = Json{{"decode_failures", decode_failures_}};
     return j.dump();
 }
 

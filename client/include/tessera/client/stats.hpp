@@ -86,6 +86,9 @@ struct FrameStats {
     // Tiles of another version of a texture's store (rebuilt and reloaded on its server): refused,
     // never mixed in (Runtime::texture_replaced).
     std::uint32_t other_version_arrivals = 0;
+    // Tiles that arrived whole but did not decode (a payload its codec refuses): the page stands
+    // absent, its parent shown, and is not asked for again.
+    std::uint32_t decode_failures = 0;
 
     std::uint32_t total_ram_hits() const;
     std::uint32_t total_disk_hits() const;
@@ -139,12 +142,14 @@ public:
     std::uint64_t stale_arrivals() const { return stale_arrivals_; }
     std::uint64_t duplicate_arrivals() const { return duplicate_arrivals_; }
     std::uint64_t other_version_arrivals() const { return other_version_arrivals_; }
+    std::uint64_t decode_failures() const { return decode_failures_; }
     const std::array<std::uint64_t, kMaxLevels>& ram_hits() const { return ram_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& disk_hits() const { return disk_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& network() const { return network_; }
 
     // One JSON object: frames, page totals and means, hits per level, bytes, latency (count, mean,
-    // p50, p90, p99, max in ms), LoD bias (last, mean, max), mean fallback estimate, skipped work.
+    // p50, p90, p99, max in ms), LoD bias (last, mean, max), mean fallback estimate, skipped work,
+    // errors (tiles that did not decode).
     std::string to_json() const;
 
 private:
@@ -157,7 +162,7 @@ private:
     float bias_max_ = 0.0f, bias_last_ = 0.0f;
     double fallback_sum_ = 0.0;
     std::uint64_t cancelled_waiting_ = 0, cancelled_arrived_ = 0, cancelled_decoded_ = 0, decodes_dropped_ = 0,
-                  stale_arrivals_ = 0, duplicate_arrivals_ = 0, other_version_arrivals_ = 0;
+                  stale_arrivals_ = 0, duplicate_arrivals_ = 0, other_version_arrivals_ = 0, decode_failures_ = 0;
     LatencyHistogram latency_;
     LogLinearHistogram<4, 32> time_to_detail_;
 };
