@@ -9,7 +9,11 @@
 
 #include <atomic>
 #include <chrono>
+#include <functional>
+#include <mutex>
+#include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "remote/http_client.hpp"
@@ -144,4 +148,127 @@ TEST(RemoteHttpClient, ASlowLookupHoldsNoRequestPastItsDeadline) {
     EXPECT_EQ(lookups.load(), 2);
     EXPECT_EQ(most_running.load(), 1);
     while (running.load() > 0) std::this_thread::sleep_for(milliseconds(10));  // the lookup holds references to this test
+}
+
+namespace {
+
+// An origin on loopback that answers every request with what `answer` makes of its head (keep-
+// alive: several requests a connection, one at a time). A thread per connection; stopped and
+// joined by the destructor.
+class CannedOrigin {
+public:
+    explicit CannedOrigin(std::function<std::string(const std::string& head)> answer) : answer_(std::move(answer)) {
+        fd_ = ::socket(AF_INET, SOCK_STREAM, 0);
+        sockaddr_in addr{};
+        addr.sin_family = AF_INET;
+        addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+        EXPECT_EQ(::bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
+        EXPECT_EQ(::listen(fd_, 16), 0);
+        socklen_t len = sizeof addr;
+        ::getsockname(fd_, reinterpret_cast<sockaddr*>(&addr), &len);
+        port_ = ntohs(addr.sin_port);
+        accepter_ = std::thread([this] {
+            for (;;) {
+                const int c = ::accept(fd_, nullptr, nullptr);
+                if (c < 0) return;
+                std::lock_guard lock(mu_);
+                conns_.push_back(c);
+                threads_.emplace_back([this, c] { serve(c); });
+            }
+        });
+    }
+    ~CannedOrigin() {
+        ::shutdown(fd_, SHUT_RDWR);
+        ::close(fd_);
+        accepter_.join();
+        std::lock_guard lock(mu_);
+        for (int c : conns_) ::shutdown(c, SHUT_RDWR);
+        for (auto& t : threads_) t.join();
+        for (int c : conns_) ::close(c);
+    }
+    std::string url(const std::string& path) const { return "http://127.0.0.1:" + std::to_string(port_) + path; }
+
+private:
+    void serve(int c) {
+        std::string in;
+        char buf[4096];
+        for (;;) {
+            const auto end = in.find("\r\n\r\n");
+            if (end != std::string::npos) {
+                const std::string out = answer_(in.substr(0, end + 4));
+                in.erase(0, end + 4);
+                if (::send(c, out.data(), out.size(), MSG_NOSIGNAL) != ssize_t(out.size())) return;
+                continue;
+            }
+            const ssize_t n = ::recv(c, buf, sizeof buf, 0);
+            if (n <= 0) return;
+            in.append(buf, std::size_t(n));
+        }
+    }
+
+    std::function<std::string(const std::string&)> answer_;
+    int fd_ = -1;
+    unsigned short port_ = 0;
+    std::thread accepter_;
+    std::mutex mu_;
+    std::vector<int> conns_;
+    std::vector<std::thread> threads_;
+};
+
+// "bytes=A-B" of a request head's Range header: {A, B}.
+std::pair<std::uint64_t, std::uint64_t> range_of(const std::string& head) {
+    const auto at = head.find("bytes=");
+    if (at == std::string::npos) return {0, 0};
+    const auto dash = head.find('-', at);
+    return {std::stoull(head.substr(at + 6, dash - at - 6)), std::stoull(head.substr(dash + 1))};
+}
+
+}  // namespace
+
+// A 206 must be the range asked for (RFC 9110 14.4: Content-Range names it). A proxy or cache
+// that answers another range, or leaves Content-Range out, gives bytes that would be taken for
+// the ones asked: an io_error, never the wrong bytes.
+TEST(RemoteSource, A206OfAnotherRangeIsRefused) {
+    const std::string object(1000, 'x');
+    enum class Mode { right, shifted, no_header };
+    std::atomic<Mode> mode{Mode::right};  // read by the origin's thread
+    CannedOrigin origin([&](const std::string& head) {
+        if (head.starts_with("HEAD"))
+            return std::string("HTTP/1.1 200 OK\r\nContent-Length: 1000\r\nETag: \"v1\"\r\n\r\n");
+        auto [a, b] = range_of(head);
+        const std::string body = object.substr(a, b - a + 1);
+        const Mode m = mode.load();
+        const std::uint64_t from = m == Mode::shifted ? 0 : a;
+        std::string r = "HTTP/1.1 206 Partial Content\r\nContent-Length: " + std::to_string(body.size()) + "\r\n";
+        if (m != Mode::no_header)
+            r += "Content-Range: bytes " + std::to_string(from) + "-" + std::to_string(from + body.size() - 1) + "/1000\r\n";
+        return r + "\r\n" + body;
+    });
+    RemoteOptions o;
+    o.attempts = 1;
+    auto src = open_remote_source(origin.url("/s.tsr"), o);
+    ASSERT_TRUE(src.ok()) << src.error().message;
+    std::vector<std::uint8_t> buf(28);
+    ASSERT_TRUE((*src)->read(100, 28, buf.data()).ok());
+    mode = Mode::shifted;
+    auto shifted = (*src)->read(100, 28, buf.data());
+    ASSERT_FALSE(shifted.ok());
+    EXPECT_EQ(shifted.error().code, Errc::io_error);
+    EXPECT_NE(shifted.error().message.find("Content-Range bytes 0-27/1000"), std::string::npos) << shifted.error().message;
+    mode = Mode::no_header;
+    auto bare = (*src)->read(100, 28, buf.data());
+    ASSERT_FALSE(bare.ok());
+    EXPECT_NE(bare.error().message.find("without Content-Range"), std::string::npos) << bare.error().message;
+}
+
+// A signed URL's query (an Azure SAS, a CDN token) is a credential: errors and logs show the URL
+// without it.
+TEST(RemoteSource, ErrorsDoNotShowTheUrlsQuery) {
+    CannedOrigin origin([](const std::string&) { return std::string("HTTP/1.1 403 Forbidden\r\nContent-Length: 0\r\n\r\n"); });
+    RemoteOptions o;
+    o.attempts = 1;
+    auto r = open_remote_source(origin.url("/s.tsr?sv=2024&sig=SECRET"), o);
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().message.find("SECRET"), std::string::npos) << r.error().message;
+    EXPECT_NE(r.error().message.find("/s.tsr?..."), std::string::npos) << r.error().message;
 }

@@ -190,12 +190,13 @@ Result<HttpResponse> HttpClient::request(const std::string& method, const std::s
                 c->close();
                 continue;
             }
-            return fail(ec == http::error::body_limit ? "answer larger than expected" : method + " " + target, ec);
+            return fail(ec == http::error::body_limit ? "answer larger than expected" : method + " " + without_query(target), ec);
         }
         auto res = parser.release();
         if (res.result_int() < 200) {  // an interim answer (100, 103): its final one would follow on this connection
             c->close();
-            return Error{Errc::io_error, where + ": interim answer " + std::to_string(res.result_int()) + " to " + method + " " + target};
+            return Error{Errc::io_error, where + ": interim answer " + std::to_string(res.result_int()) + " to " + method + " " +
+                                             without_query(target)};
         }
         HttpResponse out;
         out.status = res.result_int();

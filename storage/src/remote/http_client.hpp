@@ -34,6 +34,14 @@ struct HttpResponse {
     }
 };
 
+// A URL or request target as errors and logs show it: without its query, which may carry a
+// credential (a signed URL, an access token, an Azure SAS): "https://h/s.tsr?..." for
+// "https://h/s.tsr?sig=SECRET".
+inline std::string without_query(const std::string& url) {
+    const auto q = url.find_first_of("?#");
+    return q == std::string::npos ? url : url.substr(0, q) + "?...";
+}
+
 class HttpClient {
 public:
     // ca_file: PEM roots for TLS ("" = the system's). lookup: how the host's addresses are found

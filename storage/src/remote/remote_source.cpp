@@ -28,6 +28,7 @@ bool is_remote_location(std::string_view location) {
 namespace {
 
 using remote::HttpClient;
+using remote::without_query;
 using remote::HttpResponse;
 using remote::Origin;
 using remote::S3Credentials;
@@ -55,17 +56,17 @@ Result<Origin> parse_origin(const std::string& url, std::string& rest) {
     } else if (v.starts_with("http://")) {
         v.remove_prefix(7);
     } else {
-        return make_error(Errc::invalid_argument, "'" + url + "' is not an http:// or https:// URL");
+        return make_error(Errc::invalid_argument, "'" + without_query(url) + "' is not an http:// or https:// URL");
     }
     const std::size_t slash = v.find('/');
     std::string authority(v.substr(0, slash));
     rest = slash == std::string_view::npos ? "/" : std::string(v.substr(slash));
     if (authority.empty() || authority.find('@') != std::string::npos)
-        return make_error(Errc::invalid_argument, "'" + url + "': no host (user information is not supported)");
+        return make_error(Errc::invalid_argument, "'" + without_query(url) + "': no host (user information is not supported)");
     o.port = o.tls ? "443" : "80";
     if (authority.front() == '[') {  // [v6]:port
         const std::size_t close = authority.find(']');
-        if (close == std::string::npos) return make_error(Errc::invalid_argument, "'" + url + "': bad IPv6 host");
+        if (close == std::string::npos) return make_error(Errc::invalid_argument, "'" + without_query(url) + "': bad IPv6 host");
         o.host = authority.substr(1, close - 1);
         if (close + 1 < authority.size() && authority[close + 1] == ':') o.port = authority.substr(close + 2);
     } else if (const std::size_t colon = authority.rfind(':'); colon != std::string::npos) {
@@ -75,7 +76,7 @@ Result<Origin> parse_origin(const std::string& url, std::string& rest) {
         o.host = authority;
     }
     if (o.host.empty() || o.port.empty() || o.port.find_first_not_of("0123456789") != std::string::npos)
-        return make_error(Errc::invalid_argument, "'" + url + "': bad host or port");
+        return make_error(Errc::invalid_argument, "'" + without_query(url) + "': bad host or port");
     return o;
 }
 
@@ -155,7 +156,7 @@ bool retryable(unsigned status) { return status == 408 || status == 429 || statu
 class RemoteSource final : public ByteSource {
 public:
     RemoteSource(std::string location, Target target, const RemoteOptions& options)
-        : location_(std::move(location)),
+        : location_(without_query(location)),
           target_(std::move(target)),
           options_(options),
           client_(target_.origin, options.max_concurrency, options.timeout, options.ca_file) {}
@@ -216,10 +217,18 @@ public:
             return make_error(Errc::io_error, location_ + ": the object changed since it was opened (412)");
         }
         if (r->status == 206 && r->body.size() == length) {
-            // Content-Range: bytes A-B/TOTAL; another total is another object.
+            // Content-Range: bytes A-B/TOTAL (RFC 9110 14.4: a 206 to one range must carry it).
+            // The bytes must be the ones asked for (a proxy or cache that answers another range
+            // gives bytes that would be taken for these), and another total is another object.
             const std::string cr = r->header("content-range");
+            const std::string asked = "bytes " + std::to_string(offset) + "-" + std::to_string(offset + length - 1) + "/";
             const auto slash = cr.rfind('/');
-            if (slash != std::string::npos && cr.substr(slash + 1) != "*" && cr.substr(slash + 1) != std::to_string(size_)) {
+            if (slash == std::string::npos || cr.compare(0, slash + 1, asked) != 0) {
+                remote_counters().failures.fetch_add(1, std::memory_order_relaxed);
+                return make_error(Errc::io_error, location_ + ": asked for " + asked.substr(0, asked.size() - 1) + ", the answer is " +
+                                                      (cr.empty() ? std::string("a 206 without Content-Range") : "Content-Range " + cr));
+            }
+            if (cr.substr(slash + 1) != "*" && cr.substr(slash + 1) != std::to_string(size_)) {
                 changed_.store(true);
                 return make_error(Errc::io_error, location_ + ": the object changed since it was opened (now " + cr.substr(slash + 1) +
                                                       " bytes, was " + std::to_string(size_) + ")");
@@ -316,7 +325,7 @@ private:
                                               std::to_string(options_.deadline.count()) + " ms deadline)");
     }
 
-    std::string location_;
+    std::string location_;  // as errors show it: without its query (it may hold a credential)
     Target target_;
     RemoteOptions options_;
     mutable HttpClient client_;
