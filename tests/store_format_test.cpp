@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <filesystem>
 #include <random>
 
 #include <xxhash.h>
@@ -305,6 +306,34 @@ void reseal(std::vector<std::uint8_t>& b, std::uint32_t l, std::uint64_t table_b
 // Two block records naming the same entry block, every checksum made to match: each record's
 // block is held once read, so a file of many such records would cost memory by its record count
 // (about 6 000 times its size). The reader refuses the overlap when it opens the store.
+// Geometries whose dense index no reader would hold (block tables over kMaxBlockTableBytes) are
+// refused when the writer is created, with the reason; finish() used to throw std::bad_alloc for
+// the first (an index region of about 2^54 bytes) and write a 1 GiB file the reader refuses for
+// the second. The same geometry with a sparse index is fine.
+TEST(StoreFormat, GeometriesNoReaderWouldHoldAreRefused) {
+    ScratchDir d;
+    for (const auto& [w, h] : {std::pair{0xffffffffu, 0xffffffffu}, std::pair{0xffffffffu, 1u}}) {
+        SCOPED_TRACE(std::to_string(w) + " x " + std::to_string(h));
+        StoreSpec spec = raw_spec(w, h, 2, 0);
+        const Status v = validate(spec);
+        ASSERT_FALSE(v.ok());
+        EXPECT_EQ(v.error().code, Errc::invalid_argument);
+        EXPECT_NE(v.error().message.find("block tables"), std::string::npos) << v.error().message;
+        auto writer = StoreWriter::create(d.file("huge.tsr"), spec);
+        ASSERT_FALSE(writer.ok());
+        EXPECT_FALSE(std::filesystem::exists(d.file("huge.tsr")));
+
+        spec.sparse_index = true;
+        auto sparse = StoreWriter::create(d.file("sparse.tsr"), spec);
+        ASSERT_TRUE(sparse.ok()) << sparse.error().message;
+        ASSERT_TRUE((*sparse)->add_present({0, 5, 0}, tile_bytes(4, 1)).ok());
+        ASSERT_TRUE((*sparse)->finish().ok());
+        auto r = StoreReader::open(d.file("sparse.tsr"));
+        ASSERT_TRUE(r.ok()) << r.error().message;
+        EXPECT_EQ((*r)->read_tile({0, 5, 0})->bytes, tile_bytes(4, 1));
+    }
+}
+
 TEST(StoreFormat, SharedEntryBlocksAreRefused) {
     ScratchDir d;
     const std::size_t n = 16 * 16;

@@ -265,7 +265,22 @@ Status Writer::finish(const Progress& progress) {
     const std::uint64_t data_offset = pos;
     const std::uint64_t file_size = data_offset + data_cursor;
 
-    std::vector<std::uint8_t> idx(data_offset, 0);
+    // Sparse block tables follow the tiles; readers hold them whole, so they are bounded like
+    // dense ones (validate). The index region is held whole while it is written.
+    if (sparse_index) {
+        std::uint64_t table_bytes = 0;
+        for (const LevelBlocks& L : lb) table_bytes += L.keys.size() * kSparseBlockRecordBytes;
+        if (table_bytes > kMaxBlockTableBytes)
+            return make_error(Errc::invalid_argument, "the store's block tables would take " + std::to_string(table_bytes >> 20) +
+                                                          " MiB, more than readers hold (" +
+                                                          std::to_string(kMaxBlockTableBytes >> 20) + " MiB)");
+    }
+    std::vector<std::uint8_t> idx;
+    try {
+        idx.assign(data_offset, 0);
+    } catch (const std::bad_alloc&) {
+        return make_error(Errc::resource_exhausted, "no memory for the store's index (" + std::to_string(data_offset >> 20) + " MiB)");
+    }
     std::uint8_t* base = idx.data();
     for (std::size_t p = 0; p < palette.size(); ++p)
         std::copy(palette[p].begin(), palette[p].end(), base + palette_offset + p * kPaletteValueBytes);
@@ -411,8 +426,21 @@ Status validate(const StoreSpec& s) {
     if (s.channels < 1 || s.channels > 4) return make_error(Errc::invalid_argument, "channels must be 1 to 4");
     if (s.has_alpha && s.channels != 2 && s.channels != 4)
         return make_error(Errc::invalid_argument, "alpha needs 2 or 4 channels");
-    if (level_geometry(s.width, s.height, s.tile_payload).size() > kMaxLevels)
+    const std::vector<LevelInfo> levels = level_geometry(s.width, s.height, s.tile_payload);
+    if (levels.size() > kMaxLevels)
         return make_error(Errc::invalid_argument, "image too large for the tile size (more than 32 levels)");
+    // A dense index holds a record for every block of every level, and readers hold the block
+    // tables whole (kMaxBlockTableBytes): a store no reader would open is not written.
+    if (!s.sparse_index || !s.layers.empty()) {
+        std::uint64_t table_bytes = 0;
+        for (const LevelInfo& l : levels)
+            table_bytes += std::uint64_t(ceil_div(l.tiles_x, kBlockSide)) * ceil_div(l.tiles_y, kBlockSide) * kBlockRecordBytes;
+        if (table_bytes > kMaxBlockTableBytes)
+            return make_error(Errc::invalid_argument, "image too large for the tile size: its index's block tables would take " +
+                                                          std::to_string(table_bytes >> 20) + " MiB, more than readers hold (" +
+                                                          std::to_string(kMaxBlockTableBytes >> 20) +
+                                                          " MiB); use larger tiles, or a sparse index for a sparse source");
+    }
     if (!s.layers.empty()) {
         if (const std::string why = layers_misfit(s.layers, static_cast<std::uint32_t>(tile), s.border); !why.empty())
             return make_error(Errc::invalid_argument, why);
