@@ -2,6 +2,7 @@
 // and corruption anywhere in the file always detected.
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cstring>
 #include <filesystem>
 #include <random>
@@ -332,6 +333,42 @@ TEST(StoreFormat, GeometriesNoReaderWouldHoldAreRefused) {
         ASSERT_TRUE(r.ok()) << r.error().message;
         EXPECT_EQ((*r)->read_tile({0, 5, 0})->bytes, tile_bytes(4, 1));
     }
+}
+
+// verify walks the blocks that hold data: a sparse store of 2^31 x 2^31 one-texel tiles (2^50
+// blocks at level 0) with three tiles is checked in moments, every tile counted, and a damaged
+// tile in it is still found.
+TEST(StoreFormat, VerifyOfAHugeSparseStoreVisitsOnlyItsData) {
+    ScratchDir d;
+    StoreSpec spec = raw_spec(0x80000000u, 0x80000000u, 1, 0);
+    spec.sparse_index = true;
+    const TileKey keys[] = {{0, 0, 0}, {0, 0x7fffffffu, 0x7fffffffu}, {5, 12345, 67}};
+    {
+        auto w = StoreWriter::create(d.file("vast.tsr"), spec);
+        ASSERT_TRUE(w.ok()) << w.error().message;
+        for (std::size_t i = 0; i < std::size(keys); ++i) ASSERT_TRUE((*w)->add_present(keys[i], tile_bytes(1, std::uint32_t(i))).ok());
+        ASSERT_TRUE((*w)->finish().ok());
+    }
+    auto r = StoreReader::open(d.file("vast.tsr"));
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    const auto t0 = std::chrono::steady_clock::now();
+    const VerifyReport rep = verify_store(**r);
+    EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(20));
+    EXPECT_TRUE(rep.ok()) << (rep.problems.empty() ? std::string() : rep.problems.front());
+    EXPECT_EQ(rep.payloads_checked, 3u);
+    std::uint64_t tiles = 0;
+    for (const auto& l : (*r)->info().levels) tiles += std::uint64_t(l.tiles_x) * l.tiles_y;
+    EXPECT_EQ(rep.tiles_checked, tiles);
+    EXPECT_EQ((*r)->data_blocks(0).size(), 2u);
+
+    // The far corner's payload damaged: found.
+    std::vector<std::uint8_t> b = test::read_file(d.file("vast.tsr"));
+    const auto loc = (*r)->locate(keys[1]);
+    ASSERT_TRUE(loc.ok());
+    b[loc->offset] ^= 0xff;
+    auto damaged = StoreReader::open_memory(b);
+    ASSERT_TRUE(damaged.ok());
+    EXPECT_FALSE(verify_store(**damaged).ok());
 }
 
 TEST(StoreFormat, SharedEntryBlocksAreRefused) {

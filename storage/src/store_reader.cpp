@@ -306,6 +306,18 @@ public:
         return ix.entries_offset(ix.record(bx, by)) == 0;
     }
 
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> data_blocks(std::uint32_t level) const override {
+        std::vector<std::pair<std::uint32_t, std::uint32_t>> out;
+        if (level >= index_.size()) return out;
+        const LevelIndex& ix = index_[level];
+        for (std::size_t r = 0; r < ix.count(); ++r) {
+            if (ix.offsets[r] == 0) continue;
+            const std::uint64_t key = ix.sparse ? ix.keys[r] : r;
+            out.emplace_back(std::uint32_t(key % ix.blocks_x), std::uint32_t(key / ix.blocks_x));
+        }
+        return out;
+    }
+
     Result<TileLocation> locate(const TileKey& key) const override {
         if (!info_.contains(key))
             return make_error(Errc::out_of_range, key_name(key) + " is outside the store");

@@ -73,49 +73,48 @@ VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& option
             }
             batch.clear();
         };
-        // Walk the index block by block (an all-absent block costs nothing), tiles in Morton order
-        // within a block: that follows the file layout, so batches coalesce into few reads, and
-        // memory stays bounded whatever the geometry claims.
+        // Walk the blocks that hold data (the empty ones, all their tiles absent, cost nothing:
+        // a sparse level may have 2^50 of them), tiles in Morton order within a block: that
+        // follows the file layout, so batches coalesce into few reads, and memory stays bounded
+        // whatever the geometry claims.
         constexpr std::uint32_t S = StoreReader::kIndexBlockSide;
-        const std::uint32_t bxs = (L.tiles_x + S - 1) / S, bys = (L.tiles_y + S - 1) / S;
         std::vector<TileKey> keys;
-        for (std::uint32_t by = 0; by < bys; ++by)
-            for (std::uint32_t bx = 0; bx < bxs; ++bx) {
-                const std::uint64_t in_block = std::uint64_t(std::min(S, L.tiles_x - bx * S)) * std::min(S, L.tiles_y - by * S);
-                if (reader.index_block_empty(lv, bx, by)) {
-                    absent += in_block;
-                    rep.tiles_checked += in_block;
-                    done += in_block;
+        const std::uint64_t level_tiles = std::uint64_t(L.tiles_x) * L.tiles_y;
+        std::uint64_t in_data_blocks = 0;
+        for (const auto& [bx, by] : reader.data_blocks(lv)) {
+            in_data_blocks += std::uint64_t(std::min(S, L.tiles_x - bx * S)) * std::min(S, L.tiles_y - by * S);
+            keys.clear();
+            for (std::uint32_t y = by * S; y < std::min(L.tiles_y, (by + 1) * S); ++y)
+                for (std::uint32_t x = bx * S; x < std::min(L.tiles_x, (bx + 1) * S); ++x) keys.push_back({lv, x, y});
+            std::sort(keys.begin(), keys.end(), [](const TileKey& a, const TileKey& b) {
+                return format::morton(a.x, a.y) < format::morton(b.x, b.y);
+            });
+            for (const TileKey& k : keys) {
+                ++rep.tiles_checked;
+                auto loc = reader.locate(k);
+                if (!loc) {
+                    problem("level " + std::to_string(k.level) + " tile (" + std::to_string(k.x) + "," + std::to_string(k.y) +
+                            "): " + loc.error().message);
                     continue;
                 }
-                keys.clear();
-                for (std::uint32_t y = by * S; y < std::min(L.tiles_y, (by + 1) * S); ++y)
-                    for (std::uint32_t x = bx * S; x < std::min(L.tiles_x, (bx + 1) * S); ++x) keys.push_back({lv, x, y});
-                std::sort(keys.begin(), keys.end(), [](const TileKey& a, const TileKey& b) {
-                    return format::morton(a.x, a.y) < format::morton(b.x, b.y);
-                });
-                for (const TileKey& k : keys) {
-                    ++rep.tiles_checked;
-                    auto loc = reader.locate(k);
-                    if (!loc) {
-                        problem("level " + std::to_string(k.level) + " tile (" + std::to_string(k.x) + "," + std::to_string(k.y) +
-                                "): " + loc.error().message);
-                        continue;
-                    }
-                    switch (loc->kind) {
-                        case TileKind::absent: ++absent; break;
-                        case TileKind::uniform: ++uniform; batch.push_back(k); break;
-                        case TileKind::present:
-                            ++present;
-                            if (loc->deduplicated) ++dedup;
-                            else ranges.emplace_back(loc->offset, loc->offset + loc->length);
-                            batch.push_back(k);
-                            break;
-                    }
-                    if (batch.size() >= 256) flush();
-                    if (options.progress && (++done & 1023) == 0) options.progress(done, total);
+                switch (loc->kind) {
+                    case TileKind::absent: ++absent; break;
+                    case TileKind::uniform: ++uniform; batch.push_back(k); break;
+                    case TileKind::present:
+                        ++present;
+                        if (loc->deduplicated) ++dedup;
+                        else ranges.emplace_back(loc->offset, loc->offset + loc->length);
+                        batch.push_back(k);
+                        break;
                 }
+                if (batch.size() >= 256) flush();
+                if (options.progress && (++done & 1023) == 0) options.progress(done, total);
             }
+        }
+        // Every tile outside those blocks is absent.
+        absent += level_tiles - in_data_blocks;
+        rep.tiles_checked += level_tiles - in_data_blocks;
+        done += level_tiles - in_data_blocks;
         flush();
         if (present != L.present || uniform != L.uniform || absent != L.absent || dedup != L.deduplicated)
             problem("level " + std::to_string(lv) + ": tile counts in the level table do not match the index");

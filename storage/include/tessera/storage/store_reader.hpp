@@ -8,6 +8,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "tessera/result.hpp"
@@ -59,6 +60,10 @@ public:
     // costs nothing. True when block (bx, by) of `level` holds no data (or lies outside the level).
     static constexpr std::uint32_t kIndexBlockSide = 64;
     virtual bool index_block_empty(std::uint32_t level, std::uint32_t bx, std::uint32_t by) const = 0;
+    // The blocks of `level` that are not empty, as (bx, by), row by row: what a walk over every
+    // tile with data visits, without a step for each empty block (a sparse store's level may
+    // have 2^50 blocks). Empty for a level out of range.
+    virtual std::vector<std::pair<std::uint32_t, std::uint32_t>> data_blocks(std::uint32_t level) const = 0;
     // One tile, checksum verified. An absent tile is a success with kind == absent.
     virtual Result<Tile> read_tile(const TileKey& key) const = 0;
     // Many tiles; payloads adjacent (or nearly) in the file are fetched with one read.
