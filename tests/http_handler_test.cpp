@@ -938,6 +938,37 @@ TEST_F(HandlerTest, IiifSizesWithinLimitsAndNeverZero) {
     EXPECT_EQ(decode_png(up.body).width, 60u);
 }
 
+// IIIF's info.json picks its Content-Type from Accept (JSON-LD when asked for with a quality
+// above 0), so caches must key on it: Vary: Accept.
+TEST_F(HandlerTest, IiifInfoFollowsAcceptAndSaysSo) {
+    start();
+    auto info = [&](std::string_view accept) {
+        HttpRequestView req;
+        req.method = "GET";
+        req.target = "/iiif/rgb/info.json";
+        req.accept = accept;
+        return handler_->handle_http_request(req);
+    };
+    const std::pair<std::string_view, bool> cases[] = {
+        {"", false},
+        {"application/json", false},
+        {"application/ld+json", true},
+        {"application/ld+json;profile=\"http://iiif.io/api/image/3/context.json\"", true},
+        {"text/html, Application/LD+JSON; q=0.5", true},
+        {"application/ld+json;q=0, application/json", false},
+        {"application/ld+json; q=0.0", false},
+    };
+    for (const auto& [accept, ld] : cases) {
+        SCOPED_TRACE(accept);
+        const HttpResponse r = info(accept);
+        ASSERT_EQ(r.status, 200u);
+        EXPECT_EQ(r.content_type.starts_with("application/ld+json"), ld) << r.content_type;
+        bool vary_accept = false;
+        for (const auto& [name, value] : r.headers) vary_accept |= name == "Vary" && std::string_view(value) == "Accept";
+        EXPECT_TRUE(vary_accept);
+    }
+}
+
 // RFC 9112 3.2: a Host that is not a host and port is 400; IIIF's info.json would write it into
 // its id (a value that is not UTF-8 made it fail as a 500).
 TEST_F(HandlerTest, HostHeaderMustBeAHost) {

@@ -635,6 +635,31 @@ TEST_F(HttpServerTest, CorsPreflightAndOriginHeaders) {
     EXPECT_EQ((*plain)[http::field::access_control_allow_origin], "");
 }
 
+// Answers the transport makes itself carry CORS headers as every other answer does, so a page's
+// script can read them: a 413 to a request that came with an Origin, and the 503 past the
+// connection limit (its request never read) with its Retry-After exposed.
+TEST_F(HttpServerTest, TransportAnswersCarryCors) {
+    config_.max_connections = 1;
+    start();
+    PlainClient held;
+    ASSERT_FALSE(held.connect(server_->port()));
+    ASSERT_TRUE(held.request(http::verb::get, "/healthz"));
+    PlainClient extra;
+    ASSERT_FALSE(extra.connect(server_->port()));
+    auto r = extra.request(http::verb::get, "/v1/stores", {{"Origin", "https://viewer.example"}});
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->result_int(), 503);
+    EXPECT_EQ((*r)[http::field::access_control_allow_origin], "*");
+    EXPECT_NE(std::string((*r)[http::field::access_control_expose_headers]).find("Retry-After"), std::string::npos);
+
+    ASSERT_FALSE(held.write_raw("GET /v1/stores HTTP/1.1\r\nHost: x\r\nOrigin: https://viewer.example\r\n"
+                                "Content-Length: 5\r\n\r\nhello"));
+    PlainClient::Response refused;
+    ASSERT_FALSE(held.read(refused));
+    EXPECT_EQ(refused.result_int(), 413);
+    EXPECT_EQ(refused[http::field::access_control_allow_origin], "*");
+}
+
 TEST_F(HttpServerTest, IdleConnectionsTimeOut) {
     config_.idle_timeout = std::chrono::milliseconds(200);
     start();

@@ -125,6 +125,12 @@ void HttpHandler::record_transport_response(unsigned status, std::size_t body_by
     record(HttpRoute::other, status, body_bytes, 0.0);
 }
 
+void HttpHandler::finish_transport_response(HttpResponse& r, bool head, std::optional<std::string_view> origin) {
+    const ServerConfig& config = ctx_.config;
+    httpapi::add_cors_headers(r, config, origin ? *origin : std::string_view(config.cors_origin));
+    record_transport_response(r.status, head ? 0 : r.body.size());
+}
+
 namespace {
 
 // The target as logs may hold it: an access_token's value replaced (logs outlive secrets).

@@ -40,8 +40,8 @@ struct HttpRequestView {
     std::string_view target;         // origin-form: path and optional ?query
     std::string_view authorization;  // Authorization header ("" if none)
     std::string_view if_none_match;  // If-None-Match header(s), comma-joined ("" if none)
-    std::string_view accept;         // Accept header; not used for negotiation (the URL picks the
-                                     // representation, so caches need no Vary)
+    std::string_view accept;         // Accept header: only IIIF's info.json follows it (its
+                                     // Content-Type, with Vary: Accept); elsewhere the URL picks
     std::string_view cookie = {};    // Cookie header: a browser's token (tessera_token)
     std::string_view origin = {};    // Origin header: CORS
     std::string_view host = {};      // Host header: absolute URLs in IIIF's info.json
@@ -147,6 +147,11 @@ public:
 
     // Counts a response the transport produced on its own (route "other").
     void record_transport_response(unsigned status, std::size_t body_bytes);
+    // A response the transport makes itself (a malformed request, one over the connection limit):
+    // CORS headers as every response gets them, then counted. origin: the request's Origin
+    // header; nullopt when the request was never read (answered as to the allowed origin, so a
+    // page's script can still read the 503 and its Retry-After). head: no body will be sent.
+    void finish_transport_response(HttpResponse& r, bool head, std::optional<std::string_view> origin);
 
     // Tile requests being served right now (bounded by config.max_http_inflight: beyond it, 503).
     std::size_t tiles_in_flight() const { return tiles_in_flight_.load(std::memory_order_relaxed); }

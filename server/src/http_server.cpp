@@ -410,7 +410,7 @@ private:
         begin_request();
         HttpResponse r = http_error_response(503, "too many connections");
         r.headers.emplace_back("Retry-After", "1");
-        shared_.handler.record_transport_response(503, r.body.size());
+        shared_.handler.finish_transport_response(r, false, std::nullopt);
         send(std::move(r), 11, false, false);
     }
 
@@ -419,7 +419,10 @@ private:
     void write_error(unsigned status, const std::string& message, bool head = false) {
         begin_request();
         HttpResponse r = http_error_response(status, message);
-        shared_.handler.record_transport_response(status, head ? 0 : r.body.size());
+        // The Origin header, when the request's header was read whole.
+        std::optional<std::string_view> origin;
+        if (parser_ && parser_->is_header_done()) origin = sv(parser_->get()[http::field::origin]);
+        shared_.handler.finish_transport_response(r, head, origin);
         send(std::move(r), 11, head, false);
     }
 

@@ -7,6 +7,8 @@
 // color, gray; format: jpg, png. Tiles have no overlap, so every tile is cut from the interior
 // of a stored tile; any other request is assembled from the pyramid level just finer than the
 // output (docs/server.md, "Browsers").
+#include <algorithm>
+#include <cctype>
 #include <cmath>
 
 #include <nlohmann/json.hpp>
@@ -162,6 +164,30 @@ std::optional<std::pair<std::uint32_t, std::uint32_t>> parse_size(std::string_vi
     return std::pair{std::uint32_t(w), std::uint32_t(h)};
 }
 
+// Whether an Accept header (RFC 9110 12.5.1) names `type` with a quality above 0.
+bool accepts(std::string_view accept, std::string_view type) {
+    for (const std::string_view range : split(accept, ',')) {
+        const std::size_t semi = range.find(';');
+        std::string_view name = range.substr(0, semi);
+        while (!name.empty() && (name.front() == ' ' || name.front() == '\t')) name.remove_prefix(1);
+        while (!name.empty() && (name.back() == ' ' || name.back() == '\t')) name.remove_suffix(1);
+        if (name.size() != type.size() || !std::equal(name.begin(), name.end(), type.begin(), [](char a, char b) {
+                return std::tolower(static_cast<unsigned char>(a)) == b;
+            }))
+            continue;
+        double q = 1;
+        for (std::size_t at = semi; at != std::string_view::npos;) {
+            const std::size_t next = range.find(';', at + 1);
+            std::string_view p = range.substr(at + 1, next == std::string_view::npos ? std::string_view::npos : next - at - 1);
+            while (!p.empty() && (p.front() == ' ' || p.front() == '\t')) p.remove_prefix(1);
+            if (p.size() > 2 && (p[0] == 'q' || p[0] == 'Q') && p[1] == '=') q = parse_decimal(p.substr(2)).value_or(1);
+            at = next;
+        }
+        return q > 0;
+    }
+    return false;
+}
+
 // Where this image service is, as clients reach it: config.public_url, else the Host they used.
 std::string base_url(HttpHandler& handler, const HttpRequestView& req) {
     const std::string& configured = handler.context().config.public_url;
@@ -218,9 +244,10 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
     }
     if (seg.size() == 3) {
         if (seg[2] != "info.json") return error(404, "no such IIIF resource: " + seg[2], false);
-        const bool ld = req.raw->accept.find("application/ld+json") != std::string_view::npos;
+        const bool ld = accepts(req.raw->accept, "application/ld+json");
         HttpResponse r = json_response(info_json(h, id), ld ? "application/ld+json;profile=\"http://iiif.io/api/image/3/context.json\""
                                                             : "application/json");
+        r.headers.emplace_back("Vary", "Accept");  // the Content-Type follows it
         r.headers.emplace_back("Link", "<http://iiif.io/api/image/3/level2.json>;rel=\"profile\"");
         r.headers.emplace_back("X-Tessera-Store-Version", hex16(h.version));
         return r;

@@ -328,8 +328,8 @@ void add_cors_headers(HttpResponse& r, const ServerConfig& config, std::string_v
     r.headers.emplace_back("Access-Control-Allow-Origin", config.cors_origin);
     // The headers a script may read besides the safelisted ones.
     r.headers.emplace_back("Access-Control-Expose-Headers",
-                           "ETag, X-Tessera-Store-Version, X-Tessera-Kind, X-Tessera-Codec, X-Tessera-Checksum, "
-                           "X-Tessera-Layer");
+                           "ETag, Retry-After, X-Tessera-Store-Version, X-Tessera-Kind, X-Tessera-Codec, "
+                           "X-Tessera-Checksum, X-Tessera-Layer");
 }
 
 HttpResponse preflight(const ServerConfig& config, const HttpRequestView& req) {
