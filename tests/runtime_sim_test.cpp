@@ -5,15 +5,18 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <deque>
 #include <map>
 #include <set>
+#include <thread>
 #include <vector>
 
 #include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/runtime.hpp"
+#include "tessera/storage/store_writer.hpp"
 #include "page_loader.hpp"
 #include "residency.hpp"
 #include "tessera/storage/store_reader.hpp"
@@ -656,6 +659,78 @@ TEST_F(RuntimeSim, AnErrorReplyIsAskedAgainAtOnce) {
     EXPECT_EQ(src.served(page), 2u);  // the error, then the tile
     // Asked at frame 1, the error at 1 + 3 + 5, asked again at once, the tile 3 frames later.
     EXPECT_LE(frames, 1 + 3 + 5 + 3 + 2) << "the retry waited for the periodic resend";
+}
+
+// The disk cache keys tiles by store name. A texture over a local file (named by its path) skips
+// it: its pages take as many frames as without a disk cache, not one more through the disk lookup.
+// A server's absent tiles (checksum 0, no payload) are kept like any other, so a second run
+// over a sparse store does not ask for them again.
+TEST_F(RuntimeSim, TheDiskCacheTakesServerStoresAbsentTilesIncluded) {
+    tessera::test::ScratchDir d;
+    auto frames_to_detail = [&](bool with_disk) {
+        FakeUploader up;
+        DelayedSource src(path_, 2);
+        RuntimeConfig c;
+        c.residency.pool_slots = 64;
+        c.transcode_threads = 0;
+        c.ram_cache_bytes = 0;
+        if (with_disk) c.disk_cache_dir = d.file("local-cache");
+        auto rt = Runtime::create(c, up);
+        EXPECT_TRUE(rt.ok());
+        auto id = (*rt)->add_texture(src, path_);  // a local file: named by its path
+        EXPECT_TRUE(id.ok());
+        const auto& info = *(*rt)->texture_info(0);
+        const PageKey page{0, std::uint8_t(info.level_count() - 3), 1, 1};
+        const std::vector<FeedbackId> ids = {pack_feedback(page)};
+        int f = 0;
+        for (; f < 100 && !(*rt)->residency().is_resident(page); ++f) {
+            src.tick();
+            (*rt)->frame(ids, 1, 1, 0);
+        }
+        return f;
+    };
+    EXPECT_EQ(frames_to_detail(true), frames_to_detail(false));
+
+    // A sparse store, served under a store name: 4 x 4 tiles at level 0, one present.
+    tessera::storage::StoreSpec spec;
+    spec.width = spec.height = 256;
+    spec.tile_payload = 64;
+    spec.channels = 1;
+    spec.codec = tessera::Codec::raw;
+    spec.colour_space = tessera::storage::ColourSpace::linear;
+    {
+        auto w = tessera::storage::StoreWriter::create(d.file("sparse.tsr"), spec);
+        ASSERT_TRUE(w.ok());
+        ASSERT_TRUE((*w)->add_present({0, 0, 0}, std::vector<std::uint8_t>(64 * 64, 9)).ok());
+        ASSERT_TRUE((*w)->add_present({1, 0, 0}, std::vector<std::uint8_t>(64 * 64, 9)).ok());
+        ASSERT_TRUE((*w)->add_present({2, 0, 0}, std::vector<std::uint8_t>(64 * 64, 9)).ok());
+        ASSERT_TRUE((*w)->finish().ok());
+    }
+    std::vector<FeedbackId> level0;
+    for (std::uint32_t y = 0; y < 4; ++y)
+        for (std::uint32_t x = 0; x < 4; ++x) level0.push_back(pack_feedback(PageKey{0, 0, x, y}));
+    std::uint64_t served[2] = {};
+    for (int run = 0; run < 2; ++run) {
+        FakeUploader up;
+        DelayedSource src(d.file("sparse.tsr"), 1);
+        RuntimeConfig c;
+        c.residency.pool_slots = 32;
+        c.transcode_threads = 0;
+        c.ram_cache_bytes = 0;
+        c.disk_cache_dir = d.file("server-cache");
+        auto rt = Runtime::create(c, up);
+        ASSERT_TRUE(rt.ok());
+        ASSERT_TRUE((*rt)->add_texture(src, "sparse").ok());
+        for (int f = 0; f < 200 && (f < 5 || (*rt)->in_flight() > 0); ++f) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(2));  // the disk lookups run on their own thread
+            src.tick();
+            (*rt)->frame(level0, std::uint32_t(level0.size()), 1, 0);
+        }
+        EXPECT_EQ((*rt)->in_flight(), 0u) << "run " << run;
+        served[run] = src.served();
+    }
+    EXPECT_GT(served[0], 15u) << "the first run asks for every page";
+    EXPECT_EQ(served[1], 0u) << "the second run has them all on disk, the absent ones too";
 }
 
 TEST_F(RuntimeSim, AReplacedStoreIsNotAskedForEveryFrame) {

@@ -302,7 +302,9 @@ struct DiskTileCache::Impl {
         const ssize_t pgot = pread_full(fd, out.payload.data(), len, static_cast<off_t>(hs));
         if (pgot < 0) return ReadOutcome::io_error;
         if (static_cast<std::uint64_t>(pgot) != len) return ReadOutcome::corrupt;
-        if (XXH3_64bits(out.payload.data(), out.payload.size()) != out.checksum) return ReadOutcome::corrupt;
+        // An absent tile as sources send it: no payload, checksum 0 (write_entry).
+        const bool absent_zero = out.kind == TileKind::absent && out.payload.empty() && out.checksum == 0;
+        if (XXH3_64bits(out.payload.data(), out.payload.size()) != out.checksum && !absent_zero) return ReadOutcome::corrupt;
         return ReadOutcome::ok;
     }
 
@@ -466,11 +468,15 @@ struct DiskTileCache::Impl {
     void write_entry(const TileId& id, const TileData& tile) {
         if (opt.before_write_for_testing) opt.before_write_for_testing(id);
         const std::uint64_t sum = XXH3_64bits(tile.payload.data(), tile.payload.size());
-        if (sum != tile.checksum) {
+        // An absent tile as servers and stores send it has no payload and checksum 0, not the
+        // empty payload's hash: kept as it is, so a sparse store's absent pages are remembered
+        // across runs too.
+        const bool absent_zero = tile.kind == TileKind::absent && tile.payload.empty() && tile.checksum == 0;
+        if (sum != tile.checksum && !absent_zero) {
             ++rejected;
             return;
         }
-        const std::vector<std::uint8_t> header = encode_header(id, tile, sum);
+        const std::vector<std::uint8_t> header = encode_header(id, tile, tile.checksum);
         const std::string final_path = entry_path(id);
         const std::string tmp = final_path + kTempMarker + std::to_string(pid) + '-' + std::to_string(temp_seq++);
         int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);

@@ -124,9 +124,10 @@ void PageLoader::add_texture(TileSource& source, const std::string& store, const
     t.source = &source;
     t.store = store;
     t.info = std::make_shared<const storage::StoreInfo>(info);
+    t.disk_cached = disk_ && DiskTileCache::valid_store_name(store);
     textures_.push_back(std::move(t));
     if (std::find(sources_.begin(), sources_.end(), &source) == sources_.end()) sources_.push_back(&source);
-    if (disk_) disk_->drop_other_versions(store, info.store_id);
+    if (textures_.back().disk_cached) disk_->drop_other_versions(store, info.store_id);
     page_bytes_ = std::max(page_bytes_, pool_format_.upload_bytes(info.tile_size()));
 }
 
@@ -228,7 +229,7 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
             std::shared_ptr<const TileData> shared = std::make_shared<TileData>(std::move(r.data));
             const TileId id = tile_id(r.page);
             ram_.put(id, shared);
-            if (disk_) disk_->put(id, shared);
+            if (t.disk_cached) disk_->put(id, shared);
             arrived(r.page, it->second, std::move(shared), stats);
         }
     }
@@ -282,9 +283,10 @@ void PageLoader::issue_requests(const WantedPages& wanted, Clock::time_point now
             arrived(key, slot, std::move(hit), stats);
             continue;
         }
-        w.stage = disk_loader_ ? Stage::disk : Stage::source;
+        const bool disk = disk_loader_ && textures_[key.texture].disk_cached;
+        w.stage = disk ? Stage::disk : Stage::source;
         work_[key] = w;
-        if (disk_loader_) disk_loader_->lookup(key, id);
+        if (disk) disk_loader_->lookup(key, id);
     }
 }
 
