@@ -371,6 +371,45 @@ TEST(StoreFormat, VerifyOfAHugeSparseStoreVisitsOnlyItsData) {
     EXPECT_FALSE(verify_store(**damaged).ok());
 }
 
+// docs/store-format.md, "Index": a reader refuses an entry with fields it should not have, even
+// with every checksum made to match: reserved bits, flags other than deduplicated, a flag on a
+// tile that is not present, a checksum on an absent tile.
+TEST(StoreFormat, EntriesWithFieldsTheyShouldNotHaveAreRefused) {
+    ScratchDir d;
+    const std::vector<std::uint8_t> good = test::read_file(write_small_store(d).path);
+    const std::uint64_t rec0 = load_at<std::uint64_t>(good, 40);
+    const std::uint64_t bt = load_at<std::uint64_t>(good, std::size_t(rec0) + 24);
+    const std::uint64_t eb = load_at<std::uint64_t>(good, std::size_t(bt));
+    auto entry = [&](std::uint32_t x, std::uint32_t y) { return std::size_t(eb + (std::uint64_t(y) * 64 + x) * 24); };
+    struct Case {
+        const char* what;
+        TileKey key;
+        std::size_t field;
+        std::uint64_t value;
+        std::size_t bytes;
+    };
+    const Case cases[] = {
+        {"reserved bits of a present tile", {0, 0, 0}, 14, 1, 2},
+        {"an unknown flag of a present tile", {0, 1, 0}, 13, 2, 1},
+        {"the deduplicated flag on a uniform tile", {0, 2, 2}, 13, 1, 1},
+        {"a checksum on an absent tile", {0, 3, 2}, 16, 0x1234, 8},
+    };
+    for (const Case& c : cases) {
+        SCOPED_TRACE(c.what);
+        std::vector<std::uint8_t> b = good;
+        std::memcpy(b.data() + entry(c.key.x, c.key.y) + c.field, &c.value, c.bytes);
+        store_at<std::uint64_t>(b, std::size_t(bt) + 8, XXH3_64bits(b.data() + eb, 98304));
+        reseal(b, 0, 16);
+        auto r = StoreReader::open_memory(b);
+        ASSERT_TRUE(r.ok()) << r.error().message;
+        auto t = (*r)->read_tile(c.key);
+        ASSERT_FALSE(t.ok());
+        EXPECT_EQ(t.error().code, Errc::corrupt) << t.error().message;
+        EXPECT_FALSE(verify_store(**r).ok());
+        EXPECT_TRUE((*r)->read_tile({0, 0, 1}).ok()) << "the rest of the store reads";
+    }
+}
+
 TEST(StoreFormat, SharedEntryBlocksAreRefused) {
     ScratchDir d;
     const std::size_t n = 16 * 16;

@@ -126,7 +126,8 @@ namespace entry {
 inline constexpr std::size_t offset = 0;     // u64: payload file offset, or palette index (uniform)
 inline constexpr std::size_t length = 8;     // u32: payload bytes (present only)
 inline constexpr std::size_t kind = 12;      // u8: TileKind
-inline constexpr std::size_t flags = 13;     // u8
+inline constexpr std::size_t flags = 13;     // u8: bit 0 deduplicated (present tiles only)
+inline constexpr std::size_t reserved = 14;  // u16: 0
 inline constexpr std::size_t checksum = 16;  // u64: XXH3-64 of the payload or of the uniform value
 }  // namespace entry
 

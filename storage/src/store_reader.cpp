@@ -335,10 +335,15 @@ public:
         loc.length = load<std::uint32_t>(p, entry::length);
         loc.checksum = load<std::uint64_t>(p, entry::checksum);
         loc.deduplicated = (p[entry::flags] & kEntryFlagDeduplicated) != 0;
+        // docs/store-format.md: a reader refuses an entry with fields it should not have.
+        if (load<std::uint16_t>(p, entry::reserved) != 0 || (p[entry::flags] & ~kEntryFlagDeduplicated) != 0 ||
+            (kind != 1 && p[entry::flags] != 0))
+            return corrupt("index entry of " + key_name(key) + " has reserved bits or flags set");
         switch (kind) {
             case 0:
                 loc.kind = TileKind::absent;
-                if (loc.offset != 0 || loc.length != 0) return corrupt("index entry of absent " + key_name(key) + " is not empty");
+                if (loc.offset != 0 || loc.length != 0 || loc.checksum != 0)
+                    return corrupt("index entry of absent " + key_name(key) + " is not empty");
                 break;
             case 1:
                 loc.kind = TileKind::present;
