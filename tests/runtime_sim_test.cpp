@@ -733,6 +733,78 @@ TEST_F(RuntimeSim, TheDiskCacheTakesServerStoresAbsentTilesIncluded) {
     EXPECT_EQ(served[1], 0u) << "the second run has them all on disk, the absent ones too";
 }
 
+// kept_frames keeps the pages of the last N feedbacks. A frame without feedback (a readback gap)
+// saw nothing: it must not age the view's pages. Before, it advanced residency's frame number, so
+// with motion prefetch (N = 2: the view, then the view ahead) a gap let the view ahead's tiles
+// evict pages on screen.
+TEST_F(RuntimeSim, AFrameWithoutFeedbackDoesNotAgeTheView) {
+    auto make_rt = [&](std::uint32_t pool, FakeUploader& up, DelayedSource& src) {
+        RuntimeConfig c;
+        c.residency.pool_slots = pool;
+        c.residency.kept_frames = 2;
+        c.keep_unwanted_frames = 8;  // the view ahead's requests outlive the frames that see the view
+        // Only the 1 x 1 level pinned: a pinned page's upload may evict anything, which is not
+        // what this is about.
+        c.residency.auto_pin_max_pages = 1;
+        c.transcode_threads = 0;
+        c.ram_cache_bytes = 0;
+        c.upload_pages_per_frame = 64;
+        auto rt = Runtime::create(c, up);
+        EXPECT_TRUE(rt.ok());
+        EXPECT_TRUE((*rt)->add_texture(src, "terrain").ok());
+        return std::move(*rt);
+    };
+    std::vector<FeedbackId> view, ahead;
+    std::uint8_t level = 0;
+    std::uint32_t tiles_x = 0, tiles_y = 0;
+    {
+        FakeUploader up;
+        DelayedSource src(path_, 3);
+        auto probe = make_rt(1024, up, src);
+        const auto& info = *probe->texture_info(0);
+        level = std::uint8_t(info.level_count() - 5);
+        tiles_x = info.levels[level].tiles_x, tiles_y = info.levels[level].tiles_y;
+    }
+    ASSERT_GE(tiles_x, 8u);
+    ASSERT_GE(tiles_y, 4u);
+    for (std::uint32_t y = 0; y < 2; ++y)
+        for (std::uint32_t x = 0; x < 4; ++x) {
+            view.push_back(pack_feedback(PageKey{0, level, x, y}));
+            ahead.push_back(pack_feedback(PageKey{0, level, tiles_x - 4 + x, tiles_y - 2 + y}));
+        }
+    // The pool: exactly what the view needs (its pages and their ancestors).
+    std::uint32_t needed = 0;
+    {
+        FakeUploader up;
+        DelayedSource src(path_, 3);
+        auto probe = make_rt(1024, up, src);
+        for (int f = 0; f < 40; ++f) {
+            src.tick();
+            probe->frame(view, std::uint32_t(view.size()), 1, 0);
+        }
+        needed = std::uint32_t(probe->residency().stats().resident_pages);
+    }
+    FakeUploader up;
+    DelayedSource src(path_, 3);
+    auto rt = make_rt(needed, up, src);
+    for (int f = 0; f < 40; ++f) {
+        src.tick();
+        rt->frame(view, std::uint32_t(view.size()), 1, 0);
+    }
+    for (const auto id : view) ASSERT_TRUE(rt->residency().is_resident(unpack_feedback(id)));
+    // Motion prefetch: the view ahead asks, the view is seen, a readback gap, the view ahead
+    // again as its tiles arrive.
+    src.tick();
+    ASSERT_GT(rt->frame(ahead, std::uint32_t(ahead.size()), 1, 0).pages_requested, 0u);
+    src.tick();
+    rt->frame(view, std::uint32_t(view.size()), 1, 0);
+    src.tick();
+    rt->frame_without_feedback();
+    src.tick();
+    EXPECT_GT(rt->frame(ahead, std::uint32_t(ahead.size()), 1, 0).pages_arrived, 0u) << "the view ahead's tiles came";
+    for (const auto id : view) EXPECT_TRUE(rt->residency().is_resident(unpack_feedback(id))) << "a page on screen was evicted";
+}
+
 TEST_F(RuntimeSim, AReplacedStoreIsNotAskedForEveryFrame) {
     FakeUploader up;
     DelayedSource src(path_, 2);

@@ -61,7 +61,10 @@ public:
         stats_ = FrameStats{};
         stats_.frame = frame_no_;
         tick_clock();
-        (void)residency_.begin_frame(frame_no_, clock_);
+        // Residency counts feedbacks, not runtime frames: kept_frames keeps the pages of the last
+        // N feedbacks (with motion prefetch, the view's own among the views ahead), and a frame
+        // without feedback saw nothing.
+        (void)residency_.begin_frame(++feedback_frames_, clock_);
 
         // What the view wants, by priority; resident pages are touched.
         const auto wanted = analyzer_.analyse(feedback, width, height, view_);
@@ -256,6 +259,7 @@ private:
     std::function<bool(const PageKey&)> resident_ = [this](const PageKey& p) { return residency_.is_resident(p); };
 
     std::uint64_t frame_no_ = 0;
+    std::uint64_t feedback_frames_ = 0;  // frames with feedback: residency's frame numbers
     WantedPages desired_;
     // Wanted, not resident: the frames it was first and last seen wanted (first: time to detail).
     struct Seen {

@@ -43,13 +43,14 @@ struct ResidencyConfig {
     // A texture whose dense table is over the bound (or over the renderer's dense packing) gets a
     // sparse (two-level) table instead of an error.
     bool sparse_tables = true;
-    // Pages seen in the last `kept_frames` runtime frames (1: the current one) are never evicted
+    // Pages seen in the last `kept_frames` feedbacks (1: the current one; frames without feedback
+    // do not count) are never evicted
     // for an ordinary page. When every N-th feedback sees a view ahead (motion prefetch), N keeps
     // the pages of the last feedback of the view itself, so a page on screen is not evicted for
     // one the view ahead wants. 1 .. 64.
     std::uint32_t kept_frames = 1;
-    // Fading out (docs/client.md, "A slot's life"): a victim seen within `fade_out_frames` runtime
-    // frames before the kept ones may still be on screen, so it leaves over a fade instead of at
+    // Fading out (docs/client.md, "A slot's life"): a victim seen within `fade_out_frames`
+    // feedbacks before the kept ones may still be on screen, so it leaves over a fade instead of at
     // once: it stays mapped and drawn while its weight falls, and its slot is reused once it has
     // faded out. At most `max_leaving` pages leave at once (further victims go at once). 0: evict
     // at once. The runtime sets it from RuntimeConfig::fade_out_frames when RuntimeConfig::fade_ms
