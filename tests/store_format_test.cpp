@@ -410,6 +410,50 @@ TEST(StoreFormat, EntriesWithFieldsTheyShouldNotHaveAreRefused) {
     }
 }
 
+// verify checks the data section against the index's end (data_offset) and each level's data
+// range: bytes no tile references after the index, or levels whose ranges are swapped, are
+// problems even with every checksum made to match.
+TEST(StoreFormat, VerifyChecksTheDataSectionAndTheLevelsRanges) {
+    ScratchDir d;
+    {
+        auto w = StoreWriter::create(d.file("flat.tsr"), raw_spec(40, 30, 12, 2));
+        ASSERT_TRUE(w.ok());
+        const std::uint8_t v = 7;
+        ASSERT_TRUE((*w)->add_uniform({0, 1, 1}, std::span(&v, 1)).ok());
+        ASSERT_TRUE((*w)->finish().ok());
+    }
+    std::vector<std::uint8_t> flat = test::read_file(d.file("flat.tsr"));
+    ASSERT_TRUE(verify_store(**StoreReader::open_memory(flat)).ok());
+    flat.resize(flat.size() + 4096, 0x5a);  // bytes no tile references
+    store_at<std::uint64_t>(flat, 80, flat.size());
+    store_at<std::uint64_t>(flat, 120, XXH3_64bits(flat.data(), 120));
+    auto padded = StoreReader::open_memory(flat);
+    ASSERT_TRUE(padded.ok()) << padded.error().message;
+    const VerifyReport pr = verify_store(**padded);
+    EXPECT_FALSE(pr.ok());
+    EXPECT_FALSE(pr.problems.empty() || pr.problems.front().find("data section") == std::string::npos)
+        << (pr.problems.empty() ? std::string() : pr.problems.front());
+
+    // Levels 0 and 2 with each other's data range.
+    std::vector<std::uint8_t> b = test::read_file(write_small_store(d).path);
+    ASSERT_TRUE(verify_store(**StoreReader::open_memory(b)).ok());
+    const std::size_t lt = std::size_t(load_at<std::uint64_t>(b, 40)), r0 = lt, r2 = lt + 2 * 96;
+    for (const std::size_t f : {40, 48}) {
+        const std::uint64_t a = load_at<std::uint64_t>(b, r0 + f), c = load_at<std::uint64_t>(b, r2 + f);
+        store_at<std::uint64_t>(b, r0 + f, c);
+        store_at<std::uint64_t>(b, r2 + f, a);
+    }
+    store_at<std::uint64_t>(b, 96, XXH3_64bits(b.data() + lt, std::size_t(b[30]) * 96));
+    store_at<std::uint64_t>(b, 120, XXH3_64bits(b.data(), 120));
+    auto swapped = StoreReader::open_memory(b);
+    ASSERT_TRUE(swapped.ok()) << swapped.error().message;
+    const VerifyReport sr = verify_store(**swapped);
+    EXPECT_FALSE(sr.ok());
+    bool named = false;
+    for (const auto& p : sr.problems) named |= p.find("outside the level's data range") != std::string::npos;
+    EXPECT_TRUE(named);
+}
+
 TEST(StoreFormat, SharedEntryBlocksAreRefused) {
     ScratchDir d;
     const std::size_t n = 16 * 16;

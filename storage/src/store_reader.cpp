@@ -131,6 +131,7 @@ public:
         if (levels.size() != level_count || level_count > kMaxLevels) return corrupt("level count does not match geometry");
 
         data_offset_ = load<std::uint64_t>(h, header::data_offset);
+        info_.data_offset = data_offset_;
         const std::uint64_t lt_off = load<std::uint64_t>(h, header::level_table_offset);
         const std::uint64_t lt_bytes = load<std::uint32_t>(h, header::level_table_bytes);
         palette_count_ = load<std::uint32_t>(h, header::palette_count);
@@ -220,6 +221,7 @@ public:
             li.absent = load<std::uint64_t>(r, level::absent);
             li.deduplicated = load<std::uint64_t>(r, level::deduplicated);
             li.payload_bytes = ix.data_bytes;
+            li.payload_offset = ix.data_offset;
             const std::uint64_t ntiles = std::uint64_t(li.tiles_x) * li.tiles_y;
             if (li.present > ntiles || li.uniform > ntiles || li.absent > ntiles || li.deduplicated > li.present ||
                 li.present + li.uniform + li.absent != ntiles)

@@ -102,8 +102,15 @@ VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& option
                     case TileKind::uniform: ++uniform; batch.push_back(k); break;
                     case TileKind::present:
                         ++present;
-                        if (loc->deduplicated) ++dedup;
-                        else ranges.emplace_back(loc->offset, loc->offset + loc->length);
+                        if (loc->deduplicated) {
+                            ++dedup;
+                        } else {
+                            ranges.emplace_back(loc->offset, loc->offset + loc->length);
+                            // A payload first stored here lies in the level's data range.
+                            if (loc->offset < L.payload_offset || loc->offset + loc->length > L.payload_offset + L.payload_bytes)
+                                problem("level " + std::to_string(k.level) + " tile (" + std::to_string(k.x) + "," +
+                                        std::to_string(k.y) + "): payload outside the level's data range");
+                        }
                         batch.push_back(k);
                         break;
                 }
@@ -127,10 +134,16 @@ VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& option
             problem("layer " + info.layers[i].name + ": the layer table says " + std::to_string(info.layers[i].payload_bytes) +
                     " payload bytes, the bundles hold " + std::to_string(layer_bytes[i]));
 
-    // Every data byte belongs to exactly one stored payload.
+    // Every data byte, from the index's end (data_offset) to the file's, belongs to exactly one
+    // stored payload, and the levels' data ranges add up to them.
     std::sort(ranges.begin(), ranges.end());
-    std::uint64_t expect = info.file_size;
-    for (const auto& l : info.levels) expect -= l.payload_bytes;
+    std::uint64_t level_bytes = 0;
+    for (const auto& l : info.levels) level_bytes += l.payload_bytes;
+    std::uint64_t expect = info.data_offset;
+    if (expect == 0 || expect > info.file_size) expect = info.file_size - level_bytes;  // not from a reader
+    else if (info.file_size - expect != level_bytes)
+        problem("data section: " + std::to_string(info.file_size - expect) + " bytes, the levels' payloads " +
+                std::to_string(level_bytes));
     for (const auto& [b, e] : ranges) {
         if (b != expect) {
             problem("data section: " + std::string(b < expect ? "overlapping payloads" : "unreferenced bytes") +

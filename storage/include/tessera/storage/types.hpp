@@ -29,6 +29,7 @@ struct LevelInfo {
     std::uint64_t absent = 0;        // tiles with no data
     std::uint64_t deduplicated = 0;  // present tiles whose payload is shared with an earlier tile
     std::uint64_t payload_bytes = 0; // bytes of distinct payloads first stored in this level
+    std::uint64_t payload_offset = 0; // where those bytes start in the file (a reader fills it)
     // The level's index as stored (a reader fills these; a spec leaves them 0): its block table's
     // bytes plus its entry blocks' (docs/store-format.md), and whether the block table is sparse.
     std::uint64_t index_bytes = 0;
@@ -64,6 +65,7 @@ struct StoreInfo {
     std::uint16_t version_minor = 0;
     std::uint64_t store_id = 0;      // content hash of the index: changes whenever any tile changes
     std::uint64_t file_size = 0;
+    std::uint64_t data_offset = 0;  // where the payloads start, the index's end (a reader fills it)
     std::vector<LevelInfo> levels;
     // A multi-layer store's layers, in stored order; empty for a single-layer store. When present,
     // codec is Codec::layers and channels, sample_type, colour_space and has_alpha repeat layer 0's.
