@@ -805,6 +805,66 @@ TEST_F(RuntimeSim, AFrameWithoutFeedbackDoesNotAgeTheView) {
     for (const auto id : view) EXPECT_TRUE(rt->residency().is_resident(unpack_feedback(id))) << "a page on screen was evicted";
 }
 
+// A replaced store's missing pages are asked for only every kReplacedRetryFrames, but those the
+// RAM cache still holds (tiles of the bound version) come from it at once.
+TEST_F(RuntimeSim, AReplacedStoresCachedPagesComeFromRam) {
+    auto make_rt = [&](std::uint32_t pool, FakeUploader& up, DelayedSource& src) {
+        RuntimeConfig c;
+        c.residency.pool_slots = pool;
+        c.residency.auto_pin_max_pages = 1;
+        c.transcode_threads = 0;
+        c.ram_cache_bytes = 64u << 20;
+        c.keep_unwanted_frames = 2;
+        auto rt = Runtime::create(c, up);
+        EXPECT_TRUE(rt.ok());
+        EXPECT_TRUE((*rt)->add_texture(src, "terrain").ok());
+        return std::move(*rt);
+    };
+    FakeUploader probe_up;
+    DelayedSource probe_src(path_, 2);
+    auto probe = make_rt(1024, probe_up, probe_src);
+    const auto& info = *probe->texture_info(0);
+    const std::uint8_t level = std::uint8_t(info.level_count() - 5);
+    const std::uint32_t tx = info.levels[level].tiles_x, ty = info.levels[level].tiles_y;
+    ASSERT_GE(tx, 8u);
+    ASSERT_GE(ty, 6u);
+    auto block = [&](std::uint32_t x0, std::uint32_t y0) {
+        std::vector<FeedbackId> ids;
+        for (std::uint32_t y = 0; y < 2; ++y)
+            for (std::uint32_t x = 0; x < 4; ++x) ids.push_back(pack_feedback(PageKey{0, level, x0 + x, y0 + y}));
+        return ids;
+    };
+    const auto view = block(0, 0), other = block(tx - 4, ty - 2), third = block(tx - 4, 2);
+    auto run = [&](Runtime& rt, DelayedSource& src, const std::vector<FeedbackId>& ids, int frames) {
+        for (int f = 0; f < frames; ++f) {
+            src.tick();
+            rt.frame(ids, std::uint32_t(ids.size()), 1, 0);
+        }
+    };
+    run(*probe, probe_src, view, 30);
+    const auto pool = std::uint32_t(probe->residency().stats().resident_pages);
+
+    FakeUploader up;
+    DelayedSource src(path_, 2);
+    auto rt = make_rt(pool, up, src);
+    run(*rt, src, view, 30);
+    run(*rt, src, other, 30);  // the view's pages leave the pool; the RAM cache keeps them
+    ASSERT_FALSE(rt->residency().is_resident(unpack_feedback(view.front())));
+    src.replace_store();
+    run(*rt, src, third, 10);  // missing pages: the other version arrives, the store is replaced
+    ASSERT_NE(rt->texture_replaced(0), 0u);
+    const std::uint64_t served = src.served();
+    int frames = 0;
+    while (frames < 20 && !std::all_of(view.begin(), view.end(), [&](FeedbackId id) {
+               return rt->residency().is_resident(unpack_feedback(id));
+           })) {
+        run(*rt, src, view, 1);
+        ++frames;
+    }
+    EXPECT_LE(frames, 3) << "pages the RAM cache holds waited for the replaced store's retry";
+    EXPECT_EQ(src.served(), served) << "they came from the RAM cache";
+}
+
 TEST_F(RuntimeSim, AReplacedStoreIsNotAskedForEveryFrame) {
     FakeUploader up;
     DelayedSource src(path_, 2);

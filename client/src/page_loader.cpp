@@ -265,19 +265,22 @@ void PageLoader::issue_requests(const WantedPages& wanted, Clock::time_point now
     // Highest priority first, within the in-flight bound.
     order_.clear();
     for (const auto& [k, p] : wanted)
-        if (!work_.contains(k) && !absent_.contains(k) && k.texture < textures_.size() &&
-            (textures_[k.texture].replaced_by == 0 || frame_ % kReplacedRetryFrames == 0))
-            order_.emplace_back(p, k);
+        if (!work_.contains(k) && !absent_.contains(k) && k.texture < textures_.size()) order_.emplace_back(p, k);
     std::sort(order_.begin(), order_.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
     for (const auto& [priority, key] : order_) {
         if (work_.size() >= config_.max_requests_in_flight) break;
+        // A replaced store's missing pages are asked for only now and then (kReplacedRetryFrames);
+        // those its RAM cache still holds (the bound version's) are at hand meanwhile.
+        const bool held_back = textures_[key.texture].replaced_by != 0 && frame_ % kReplacedRetryFrames != 0;
+        const TileId id = tile_id(key);
+        auto hit = ram_.get(id);
+        if (held_back && !hit) continue;
         Work w;
         w.priority = priority;
         w.requested = now;
         w.ticket = next_ticket_++;
         ++stats.pages_requested;
-        const TileId id = tile_id(key);
-        if (auto hit = ram_.get(id)) {
+        if (hit) {
             ++stats.ram_hits[key.level];
             auto& slot = work_[key] = w;
             arrived(key, slot, std::move(hit), stats);
