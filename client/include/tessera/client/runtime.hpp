@@ -61,7 +61,9 @@ struct ResidencyConfig {
 
 struct RuntimeConfig {
     ResidencyConfig residency;                     // pool_slots is required
-    std::size_t max_requests_in_flight = 512;      // disk lookups + source requests outstanding
+    // Pages in the loader at once: disk lookups and source requests, and pages arrived, decoding
+    // or decoded and waiting for their upload.
+    std::size_t max_requests_in_flight = 512;
     std::uint64_t ram_cache_bytes = 128ull << 20;  // 0: no RAM cache
     std::string disk_cache_dir;                    // empty: no disk cache
     std::uint64_t disk_cache_bytes = 1ull << 30;
