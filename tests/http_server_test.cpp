@@ -660,6 +660,27 @@ TEST_F(HttpServerTest, TransportAnswersCarryCors) {
     EXPECT_EQ(refused[http::field::access_control_allow_origin], "*");
 }
 
+// RFC 9112 3.2.2: a server must accept a request target in absolute form, its authority taking
+// the Host header's place.
+TEST_F(HttpServerTest, AbsoluteFormTargetsAreServed) {
+    start();
+    PlainClient c;
+    ASSERT_FALSE(c.connect(server_->port()));
+    for (const std::string target : {"http://127.0.0.1/healthz", "HTTP://tiles.example:8080/v1/stores", "http://h"}) {
+        SCOPED_TRACE(target);
+        ASSERT_FALSE(c.write_raw("GET " + target + " HTTP/1.1\r\nHost: other\r\n\r\n"));
+        PlainClient::Response r;
+        ASSERT_FALSE(c.read(r));
+        EXPECT_EQ(r.result_int(), 200);
+    }
+    PlainClient bad;
+    ASSERT_FALSE(bad.connect(server_->port()));
+    ASSERT_FALSE(bad.write_raw("GET http://h?x HTTP/1.1\r\nHost: h\r\n\r\n"));
+    PlainClient::Response r;
+    ASSERT_FALSE(bad.read(r));
+    EXPECT_EQ(r.result_int(), 400);
+}
+
 TEST_F(HttpServerTest, IdleConnectionsTimeOut) {
     config_.idle_timeout = std::chrono::milliseconds(200);
     start();

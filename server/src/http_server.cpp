@@ -79,6 +79,30 @@ constexpr std::size_t kMaxRejectSessions = 1024;
 
 std::string_view sv(beast::string_view s) { return {s.data(), s.size()}; }
 
+// RFC 9112 3.2.2: a server must accept a request target in absolute form ("GET http://h/p"), and
+// then use its authority as the host, ignoring the Host header. Rewrites such a target to its
+// path and query (origin form), `host` to its authority; false when it has no path ("http://h?q").
+bool origin_form(std::string_view& target, std::string_view& host) {
+    const auto starts = [&](std::string_view prefix) {
+        const std::string_view head = target.substr(0, prefix.size());
+        return beast::iequals(beast::string_view(head.data(), head.size()), beast::string_view(prefix.data(), prefix.size()));
+    };
+    std::size_t scheme = 0;
+    if (starts("http://")) scheme = 7;
+    else if (starts("https://")) scheme = 8;
+    if (scheme == 0) return true;
+    const std::string_view rest = target.substr(scheme);
+    const std::size_t path = rest.find_first_of("/?#");
+    host = rest.substr(0, path);
+    if (path == std::string_view::npos) {
+        target = "/";
+        return true;
+    }
+    if (rest[path] != '/') return false;
+    target = rest.substr(path);
+    return true;
+}
+
 struct SessionBase;
 
 // State the sessions share with the server. Declared before the io_context in the server, so it
@@ -311,9 +335,11 @@ private:
             if (!if_none_match.empty()) if_none_match += ", ";
             if_none_match.append(it->value().data(), it->value().size());
         }
-        const HttpRequestView view{sv(req.method_string()), sv(req.target()), sv(req[http::field::authorization]),
+        std::string_view target = sv(req.target()), host = sv(req[http::field::host]);
+        if (!origin_form(target, host)) return write_error(400, "malformed absolute-form request target");
+        const HttpRequestView view{sv(req.method_string()), target, sv(req[http::field::authorization]),
                                    if_none_match,         sv(req[http::field::accept]), sv(req[http::field::cookie]),
-                                   sv(req[http::field::origin]), sv(req[http::field::host]), Tls};
+                                   sv(req[http::field::origin]), host, Tls};
         HttpResponse r;
         try {
             r = shared_.handler.start(view, /*borrow_payload=*/true);
