@@ -607,11 +607,6 @@ TEST_F(RuntimeSim, PagesWithAnAbsentLayerAreAskedForOnce) {
     EXPECT_EQ(both, 4u);
 }
 
-// The store is rebuilt and reloaded on its server while a view runs: its tiles are refused (never
-// mixed with the bound version's), counted, the texture says it was replaced, and its missing
-// pages are asked for only now and then (PageLoader::kReplacedRetryFrames), not on every frame,
-// keeping what is resident. When the bound version is served again (a rollback, a replica), the
-// view loads again.
 // A tile that arrives whole but does not decode: asking again brings the same bytes, so the page
 // stands absent (its parent shown), is counted, and is not fetched and decoded frame after frame.
 TEST_F(RuntimeSim, ATileThatDoesNotDecodeIsAskedForOnce) {
@@ -865,6 +860,11 @@ TEST_F(RuntimeSim, AReplacedStoresCachedPagesComeFromRam) {
     EXPECT_EQ(src.served(), served) << "they came from the RAM cache";
 }
 
+// The store is rebuilt and reloaded on its server while a view runs: its tiles are refused (never
+// mixed with the bound version's), counted, the texture says it was replaced, and its missing
+// pages are asked for only now and then (PageLoader::kReplacedRetryFrames), not on every frame,
+// keeping what is resident. When the bound version is served again (a rollback, a replica), the
+// view loads again.
 TEST_F(RuntimeSim, AReplacedStoreIsNotAskedForEveryFrame) {
     FakeUploader up;
     DelayedSource src(path_, 2);

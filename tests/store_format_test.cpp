@@ -304,9 +304,6 @@ void reseal(std::vector<std::uint8_t>& b, std::uint32_t l, std::uint64_t table_b
 
 }  // namespace
 
-// Two block records naming the same entry block, every checksum made to match: each record's
-// block is held once read, so a file of many such records would cost memory by its record count
-// (about 6 000 times its size). The reader refuses the overlap when it opens the store.
 // Geometries whose dense index no reader would hold (block tables over kMaxBlockTableBytes) are
 // refused when the writer is created, with the reason; finish() used to throw std::bad_alloc for
 // the first (an index region of about 2^54 bytes) and write a 1 GiB file the reader refuses for
@@ -454,6 +451,9 @@ TEST(StoreFormat, VerifyChecksTheDataSectionAndTheLevelsRanges) {
     EXPECT_TRUE(named);
 }
 
+// Two block records naming the same entry block, every checksum made to match: each record's
+// block is held once read, so a file of many such records would cost memory by its record count
+// (about 6 000 times its size). The reader refuses the overlap when it opens the store.
 TEST(StoreFormat, SharedEntryBlocksAreRefused) {
     ScratchDir d;
     const std::size_t n = 16 * 16;

@@ -101,8 +101,9 @@ private:
         std::string store;
         std::shared_ptr<const storage::StoreInfo> info;
         std::uint64_t replaced_by = 0;  // the store version a source delivered last instead (0: none since the bound one came)
-        // The disk cache keys by store name: a server's stores. A local file's path or a
-        // procedural source's spec is no such name, and its tiles are at hand anyway.
+        // The disk cache keys by store name (DiskTileCache::valid_store_name): a server's stores.
+        // A local file named by a path with a directory, or a procedural source's spec, is no
+        // such name (a bare file name is, and is cached like a server's store).
         bool disk_cached = false;
     };
     enum class Stage { disk, source, arrived, decoding, ready };

@@ -149,8 +149,9 @@ public:
     void record_transport_response(unsigned status, std::size_t body_bytes);
     // A response the transport makes itself (a malformed request, one over the connection limit):
     // CORS headers as every response gets them, then counted. origin: the request's Origin
-    // header; nullopt when the request was never read (answered as to the allowed origin, so a
-    // page's script can still read the 503 and its Retry-After). head: no body will be sent.
+    // header; nullopt when it is not known (the request was never read, or not its whole header):
+    // answered as to the allowed origin, so a page's script can still read the 503 and its
+    // Retry-After. head: no body will be sent.
     void finish_transport_response(HttpResponse& r, bool head, std::optional<std::string_view> origin);
 
     // Tile requests being served right now (bounded by config.max_http_inflight: beyond it, 503).
