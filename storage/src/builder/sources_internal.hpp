@@ -20,8 +20,9 @@ Result<std::unique_ptr<ImageSource>> open_oiio_source(const std::string& path);
 // `stored` as it is meant to be seen: its info().orientation (EXIF/TIFF, 2..8) undone; orientation 1
 // is returned as is. A turn (3..8) holds the stored image whole while its strips are read; the
 // images held so, in the whole process, may take set_turned_image_budget() bytes together (2 GiB
-// by default). Each source takes its share when it is opened and gives it back once its last
-// strip is read or it is destroyed. Errors (unsupported) name the input when its turn would not fit.
+// by default). Each source takes its share at its first read and gives it back once its last
+// strip is read or it is destroyed; one larger than the whole budget is refused when opened.
+// Errors (unsupported) name the input when its turn would not fit.
 Result<std::unique_ptr<ImageSource>> make_upright_source(std::unique_ptr<ImageSource> stored);
 // Sets the bytes the turned images held at once may take together; returns the previous limit.
 std::uint64_t set_turned_image_budget(std::uint64_t bytes);

@@ -49,9 +49,7 @@ std::string too_large(const SourceInfo& s, std::uint64_t bytes) {
 
 class UprightSource final : public ImageSource {
 public:
-    // whole_bytes: taken from the turned-image budget by the caller (0 for a mirror, which streams).
-    UprightSource(std::unique_ptr<ImageSource> stored, std::uint64_t whole_bytes)
-        : stored_(std::move(stored)), reserved_(whole_bytes) {
+    explicit UprightSource(std::unique_ptr<ImageSource> stored) : stored_(std::move(stored)) {
         const SourceInfo& s = stored_->info();
         info_ = s;
         info_.orientation = 1;
@@ -79,10 +77,8 @@ public:
         }
         if (whole_.empty()) {
             const std::uint64_t bytes = std::uint64_t(W) * H * texel_;
-            if (reserved_ == 0) {  // read again after the last strip gave its share back
-                if (!take_turned(bytes)) return make_error(Errc::unsupported, too_large(s, bytes));
-                reserved_ = bytes;
-            }
+            if (!take_turned(bytes)) return make_error(Errc::unsupported, too_large(s, bytes));
+            reserved_ = bytes;
             whole_.resize(bytes);
             TESSERA_TRY(stored_->read_rows(0, H, whole_.data(), parallel));
         }
@@ -130,12 +126,11 @@ std::uint64_t set_turned_image_budget(std::uint64_t bytes) { return g_turned_lim
 Result<std::unique_ptr<ImageSource>> make_upright_source(std::unique_ptr<ImageSource> stored) {
     const SourceInfo& s = stored->info();
     if (s.orientation <= 1 || s.orientation > 8) return stored;
-    if (s.orientation == 2) return std::unique_ptr<ImageSource>(new UprightSource(std::move(stored), 0));
-    // Taken now, when the source is opened: a build that cannot hold its turned inputs fails
-    // before it reads anything.
+    // An image that could never be held is refused when opened. The budget itself is taken at
+    // the first read: an atlas opens all its textures first and reads them one shelf at a time.
     const std::uint64_t bytes = std::uint64_t(s.width) * s.height * s.channels * sample_bytes(s.sample_type);
-    if (!take_turned(bytes)) return make_error(Errc::unsupported, too_large(s, bytes));
-    return std::unique_ptr<ImageSource>(new UprightSource(std::move(stored), bytes));
+    if (s.orientation != 2 && bytes > g_turned_limit.load()) return make_error(Errc::unsupported, too_large(s, bytes));
+    return std::unique_ptr<ImageSource>(new UprightSource(std::move(stored)));
 }
 
 }  // namespace tessera::storage
