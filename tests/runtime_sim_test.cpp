@@ -632,7 +632,8 @@ TEST_F(RuntimeSim, ATileThatDoesNotDecodeIsAskedForOnce) {
 }
 
 // An error reply (a server's "retry later") ends the request at the source: the page is asked
-// again at once, even though the set that asks is the one sent last.
+// again PageLoader::kErrorRetryFrames later, not on every frame, and not only at the next
+// 30-frame resend of an unchanged request set.
 TEST_F(RuntimeSim, AnErrorReplyIsAskedAgainAtOnce) {
     FakeUploader up;
     DelayedSource src(path_, 3);
@@ -652,8 +653,11 @@ TEST_F(RuntimeSim, AnErrorReplyIsAskedAgainAtOnce) {
     }
     EXPECT_TRUE(rt->residency().is_resident(page));
     EXPECT_EQ(src.served(page), 2u);  // the error, then the tile
-    // Asked at frame 1, the error at 1 + 3 + 5, asked again at once, the tile 3 frames later.
-    EXPECT_LE(frames, 1 + 3 + 5 + 3 + 2) << "the retry waited for the periodic resend";
+    // Asked at frame 1, the error at 1 + 3 + 5, asked again kErrorRetryFrames later, the tile 3
+    // frames after that.
+    const int retry = int(PageLoader::kErrorRetryFrames);
+    EXPECT_GE(frames, 1 + 3 + 5 + retry) << "asked again before the back-off";
+    EXPECT_LE(frames, 1 + 3 + 5 + retry + 3 + 2) << "the retry waited for the periodic resend";
 }
 
 // The disk cache keys tiles by store name. A texture over a local file (named by its path) skips

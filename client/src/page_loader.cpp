@@ -203,11 +203,13 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
                 continue;
             }
             if (r.status != TileStatus::ok) {
-                // Asked again next frame if still wanted. The set that asks may equal the one sent
-                // last (the same page, the same priority), but the source has dropped the request:
-                // it is sent regardless.
+                // The source has dropped the request. Asked again, if still wanted, after
+                // kErrorRetryFrames: an overloaded server ("retry later") or a tile it cannot read
+                // is not asked on every frame. Leaving the set now and rejoining it then, the page
+                // changes the set both times, so each change is sent.
                 work_.erase(it);
-                resend_.insert(source);
+                if (retry_at_.size() >= kMaxAbsentPages) retry_at_.clear();
+                retry_at_[r.page] = frame_ + kErrorRetryFrames;
                 continue;
             }
             if (r.page.texture >= textures_.size()) {
@@ -271,7 +273,11 @@ void PageLoader::issue_requests(const WantedPages& wanted, Clock::time_point now
         if (work_.size() >= config_.max_requests_in_flight) break;
         // A replaced store's missing pages are asked for only now and then (kReplacedRetryFrames);
         // those its RAM cache still holds (the bound version's) are at hand meanwhile.
-        const bool held_back = textures_[key.texture].replaced_by != 0 && frame_ % kReplacedRetryFrames != 0;
+        bool held_back = textures_[key.texture].replaced_by != 0 && frame_ % kReplacedRetryFrames != 0;
+        if (const auto retry = retry_at_.find(key); retry != retry_at_.end()) {
+            if (frame_ < retry->second) held_back = true;
+            else retry_at_.erase(retry);
+        }
         const TileId id = tile_id(key);
         auto hit = ram_.get(id);
         if (held_back && !hit) continue;
@@ -308,8 +314,7 @@ void PageLoader::send_request_sets(std::uint64_t frame) {
                           });
         // An unchanged set is sent again now and then: a source that reconnected or dropped a
         // request gets it back.
-        if (same && frame % 30 != 0 && !resend_.contains(source)) continue;
-        resend_.erase(source);
+        if (same && frame % 30 != 0) continue;
         source->set_requests(frame, requests_);
         last = requests_;
     }

@@ -46,6 +46,10 @@ public:
     // again every 30 frames otherwise): each answer would be refused again if the store was
     // replaced for good, but a replica or a rollback may still serve the bound version.
     static constexpr std::uint64_t kReplacedRetryFrames = 300;
+    // A page whose request ended in an error (a server's "retry later", a deadline, a tile it
+    // could not read) is asked for again this many frames later (about 130 ms at 60 Hz), not on
+    // the next frame, and not at the next 30-frame resend of an unchanged set.
+    static constexpr std::uint64_t kErrorRetryFrames = 8;
 
     // Uses config's request, cache, transcode and upload-budget settings. `lender`, when not
     // null, lends the staging memory pages are decoded into (else the loader's own buffers).
@@ -145,7 +149,8 @@ private:
     std::unordered_map<PageKey, Work, PageKeyHash> work_;
     std::unordered_set<PageKey, PageKeyHash> absent_;
     std::unordered_map<TileSource*, std::vector<SourceRequest>> last_sent_;
-    std::unordered_set<TileSource*> resend_;  // answered an error: its next set goes even if unchanged
+    // Pages a source answered with an error: the frame from which they are asked again.
+    std::unordered_map<PageKey, std::uint64_t, PageKeyHash> retry_at_;
     // A decoded page's memory: lent by the uploader (one copy fewer) or the loader's own.
     struct Staging {
         std::span<std::uint8_t> bytes;     // while taken
