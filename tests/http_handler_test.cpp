@@ -992,6 +992,29 @@ TEST_F(HandlerTest, HostHeaderMustBeAHost) {
     EXPECT_EQ(info("").status, 200u);  // HTTP/1.0 sends none: the server's own address
 }
 
+// A signed URL (an Azure SAS, a CDN token) names its store by its path, and its query, a
+// credential, never reaches an error or a log line.
+TEST(StoreRegistrySigned, AUrlsQueryIsNeitherItsNameNorShown) {
+    tessera::test::ScratchDir d;
+    const std::string log_file = d.file("log");
+    const int fd = ::open(log_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    ASSERT_GE(fd, 0);
+    {
+        Logger log(LogFormat::json, LogLevel::debug, fd);
+        MetricsRegistry metrics;
+        StoreRegistry stores({"https://tiles.example/maps/terrain.tsr?sv=2024&sig=SECRET"}, {}, log, metrics);
+        const Status st = stores.open();  // no remote stores in this program: refused, by name
+        ASSERT_FALSE(st.ok());
+        EXPECT_EQ(st.error().message.find("SECRET"), std::string::npos) << st.error().message;
+        EXPECT_NE(st.error().message.find("terrain.tsr?..."), std::string::npos) << st.error().message;
+        EXPECT_EQ(st.error().message.find("the name must be"), std::string::npos) << "named by its path: " << st.error().message;
+    }
+    ::close(fd);
+    std::ifstream in(log_file);
+    const std::string logged((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(logged.find("SECRET"), std::string::npos) << logged;
+}
+
 // ---- Corruption -------------------------------------------------------------------------------------
 
 TEST_F(HandlerTest, CorruptTileIs500AndNeverItsBytes) {

@@ -69,6 +69,18 @@ Status StoreRegistry::open() {
 
 ReloadReport StoreRegistry::reload() { return scan(false, nullptr); }
 
+namespace {
+
+// A location as logs and errors show it: a remote one without its query, which may hold a
+// credential (a signed URL, an Azure SAS), as the remote source's own errors show it.
+std::string shown(const std::string& location) {
+    if (!location.starts_with("s3://") && !location.starts_with("http://") && !location.starts_with("https://")) return location;
+    const auto q = location.find_first_of("?#");
+    return q == std::string::npos ? location : location.substr(0, q) + "?...";
+}
+
+}  // namespace
+
 bool StoreRegistry::is_remote(const std::string& location) {
     return location.starts_with("s3://") || location.starts_with("http://") || location.starts_with("https://");
 }
@@ -80,7 +92,7 @@ void StoreRegistry::scan_remote(const std::string& name, const std::string& loca
                                 bool first, std::vector<std::shared_ptr<const StoreHandle>>& next, ReloadReport& report,
                                 const std::function<void(Error)>& fail) {
     if (!remote_.open || !remote_.version) {
-        fail(Error{Errc::unsupported, "store " + location + ": remote stores are not available in this program"});
+        fail(Error{Errc::unsupported, "store " + shown(location) + ": remote stores are not available in this program"});
         ++report.failed;
         return;
     }
@@ -88,7 +100,7 @@ void StoreRegistry::scan_remote(const std::string& name, const std::string& loca
         auto v = remote_.version(location);
         if (!v && v.error().code == Errc::not_found) {  // deleted: dropped, as a vanished file
             ++report.removed;
-            log_.info("store removed", {{"store", name}, {"path", location}});
+            log_.info("store removed", {{"store", name}, {"path", shown(location)}});
             return;
         }
         if (!v) {
@@ -103,9 +115,10 @@ void StoreRegistry::scan_remote(const std::string& name, const std::string& loca
     }
     auto src = remote_.open(location);
     std::string version = src ? (*src)->version() : std::string();
-    auto reader = src ? storage::StoreReader::open_source(std::move(*src), location) : Result<std::shared_ptr<storage::StoreReader>>(src.error());
+    auto reader = src ? storage::StoreReader::open_source(std::move(*src), shown(location))
+                      : Result<std::shared_ptr<storage::StoreReader>>(src.error());
     if (!reader) {
-        fail(Error{reader.error().code, "store " + name + " (" + location + "): " + reader.error().message});
+        fail(Error{reader.error().code, "store " + name + " (" + shown(location) + "): " + reader.error().message});
         ++report.failed;
         if (prev) next.push_back(prev);
         return;
@@ -137,11 +150,11 @@ void StoreRegistry::announce(const StoreHandle& h, bool replaced, ReloadReport& 
     std::snprintf(id, sizeof id, "%016llx", static_cast<unsigned long long>(h.version));
     if (!replaced) {
         ++report.added;
-        log_.info("store added", {{"store", h.name}, {"path", h.path}, {"version", id}, {"etag", h.remote_version},
+        log_.info("store added", {{"store", h.name}, {"path", shown(h.path)}, {"version", id}, {"etag", h.remote_version},
                                   {"width", h.info().width}, {"height", h.info().height}});
     } else {
         ++report.replaced;
-        log_.info("store replaced", {{"store", h.name}, {"path", h.path}, {"version", id}, {"etag", h.remote_version}});
+        log_.info("store replaced", {{"store", h.name}, {"path", shown(h.path)}, {"version", id}, {"etag", h.remote_version}});
     }
 }
 
@@ -175,12 +188,13 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         }
     }
     for (const auto& file : files_) {
-        // A remote location's name is its last path segment, as a file's.
-        const std::string leaf = is_remote(file) ? file.substr(file.find_last_of('/') + 1) : fs::path(file).filename().string();
+        // A remote location's name is its last path segment (its query aside), as a file's.
+        const std::string path = is_remote(file) ? file.substr(0, file.find_first_of("?#")) : file;
+        const std::string leaf = is_remote(file) ? path.substr(path.find_last_of('/') + 1) : fs::path(file).filename().string();
         const std::string name = protocol::store_name_of_file(leaf);
         if (name.empty()) {
             fail(Error{Errc::invalid_argument,
-                       "store file " + file + ": the name must be <identifier>.tsr (letters, digits, _ . -)"});
+                       "store file " + shown(file) + ": the name must be <identifier>.tsr (letters, digits, _ . -)"});
             continue;
         }
         wanted[name] = file;
@@ -242,7 +256,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
     for (const auto& [name, h] : old) {
         if (!wanted.contains(name)) {
             ++report.removed;
-            log_.info("store removed", {{"store", name}, {"path", h->path}});
+            log_.info("store removed", {{"store", name}, {"path", shown(h->path)}});
         }
     }
     std::sort(next->begin(), next->end(), [](const auto& a, const auto& b) { return a->name < b->name; });
