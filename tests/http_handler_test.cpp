@@ -176,6 +176,16 @@ protected:
         return handler_->handle_http_request(req);
     }
 
+    // A GET of `target` whose request `adjust` changes first (the headers get() does not take).
+    HttpResponse get_with(std::string_view target, const std::function<void(HttpRequestView&)>& adjust) {
+        if (!handler_) start();
+        HttpRequestView req;
+        req.method = "GET";
+        req.target = target;
+        adjust(req);
+        return handler_->handle_http_request(req);
+    }
+
     std::shared_ptr<storage::StoreReader> reader(const std::string& name) {
         auto r = storage::StoreReader::open(dir_.file(name + ".tsr"));
         EXPECT_TRUE(r.ok());
@@ -941,13 +951,8 @@ TEST_F(HandlerTest, IiifSizesWithinLimitsAndNeverZero) {
 // IIIF's info.json picks its Content-Type from Accept (JSON-LD when asked for with a quality
 // above 0), so caches must key on it: Vary: Accept.
 TEST_F(HandlerTest, IiifInfoFollowsAcceptAndSaysSo) {
-    start();
     auto info = [&](std::string_view accept) {
-        HttpRequestView req;
-        req.method = "GET";
-        req.target = "/iiif/rgb/info.json";
-        req.accept = accept;
-        return handler_->handle_http_request(req);
+        return get_with("/iiif/rgb/info.json", [&](HttpRequestView& req) { req.accept = accept; });
     };
     const std::pair<std::string_view, bool> cases[] = {
         {"", false},
@@ -972,13 +977,8 @@ TEST_F(HandlerTest, IiifInfoFollowsAcceptAndSaysSo) {
 // RFC 9112 3.2: a Host that is not a host and port is 400; IIIF's info.json would write it into
 // its id (a value that is not UTF-8 made it fail as a 500).
 TEST_F(HandlerTest, HostHeaderMustBeAHost) {
-    start();
     auto info = [&](std::string_view host) {
-        HttpRequestView req;
-        req.method = "GET";
-        req.target = "/iiif/rgb/info.json";
-        req.host = host;
-        return handler_->handle_http_request(req);
+        return get_with("/iiif/rgb/info.json", [&](HttpRequestView& req) { req.host = host; });
     };
     for (const std::string_view bad : {std::string_view("\xff"), std::string_view("a b"), std::string_view("h/x"),
                                        std::string_view("h\"x"), std::string_view("h<x>")}) {
