@@ -30,6 +30,23 @@ std::vector<FeedbackId> whole_texture(const tessera::storage::StoreInfo& info, s
     return ids;
 }
 
+// `tessera build BUILD_ARGS -o DIR/NAME`, then a `tessera serve` of it; null (a test failure
+// added) when either fails.
+std::unique_ptr<ServerProcess> built_and_served(const ScratchDir& dir, const std::string& name, const std::string& build_args) {
+    const std::string store = dir.file(name);
+    auto built = tessera::test::run_tessera("build " + build_args + " --quiet -o " + store);
+    if (built.exit_code != 0) {
+        ADD_FAILURE() << built.out;
+        return nullptr;
+    }
+    auto srv = std::make_unique<ServerProcess>(std::vector<std::string>{"--store", store}, dir.file("log"));
+    if (!srv->running()) {
+        ADD_FAILURE() << srv->log();
+        return nullptr;
+    }
+    return srv;
+}
+
 // Runs frames until pred() or the timeout; returns whether pred() held.
 template <class Pred>
 bool frames_until(Runtime& rt, const std::vector<FeedbackId>& ids, Pred pred, std::chrono::seconds timeout) {
@@ -105,13 +122,10 @@ TEST(RuntimeEndToEnd, FetchesFromARealServerAndSurvivesItsRestart) {
 // second binding took the store over and the first texture's pages never arrived.
 TEST(RuntimeEndToEnd, OneStoreBehindTwoTexturesLoadsBoth) {
     ScratchDir dir;
-    const std::string store = dir.file("terrain.tsr");
-    auto built = tessera::test::run_tessera("build procedural:terrain:1024 --quiet -o " + store);
-    ASSERT_EQ(built.exit_code, 0) << built.out;
-    ServerProcess srv({"--store", store}, dir.file("log"));
-    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto srv = built_and_served(dir, "terrain.tsr", "procedural:terrain:1024");
+    ASSERT_TRUE(srv);
     TileStreamOptions net;
-    net.target = srv.grpc_address();
+    net.target = srv->grpc_address();
     auto source = make_grpc_source(net);
     FakeUploader uploader;
     RuntimeConfig config;
@@ -154,15 +168,12 @@ double metric_sum(const std::string& body, const std::string& name) {
 // (per-layer requests would triple it).
 TEST(RuntimeEndToEnd, ALayeredStoreComesInOneRequestPerPage) {
     ScratchDir dir;
-    const std::string store = dir.file("layers.tsr");
-    auto built = tessera::test::run_tessera("build --layer colour=procedural:terrain:1024 --layer normal:bc5=procedural:terrain-normal:1024 "
-                                            "--layer height=procedural:terrain-height:1024 --tile-size 128 --quiet -o " + store);
-    ASSERT_EQ(built.exit_code, 0) << built.out;
-    ServerProcess srv({"--store", store}, dir.file("log"));
-    ASSERT_TRUE(srv.running()) << srv.log();
-
+    const auto srv = built_and_served(dir, "layers.tsr",
+                                      "--layer colour=procedural:terrain:1024 --layer normal:bc5=procedural:terrain-normal:1024 "
+                                      "--layer height=procedural:terrain-height:1024 --tile-size 128");
+    ASSERT_TRUE(srv);
     TileStreamOptions net;
-    net.target = srv.grpc_address();
+    net.target = srv->grpc_address();
     auto source = make_grpc_source(net);
     PagePoolFormat pool;
     pool.format = PageFormat::rgba8;
@@ -191,7 +202,7 @@ TEST(RuntimeEndToEnd, ALayeredStoreComesInOneRequestPerPage) {
     const std::size_t uploaded = uploader.pages().size();
     ASSERT_GE(uploaded, level0.size());
 
-    tessera::test::HttpConnection http(srv.http_port());
+    tessera::test::HttpConnection http(srv->http_port());
     const auto metrics = http.get("/metrics");
     ASSERT_EQ(metrics.status, 200);
     const double sent = metric_sum(metrics.body, "tessera_tiles_sent_total");
