@@ -11,6 +11,7 @@
 #pragma GCC diagnostic ignored "-Wtsan"
 #endif
 #include <fcntl.h>
+#include <sys/resource.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -1038,6 +1039,40 @@ TEST_F(HttpServerTest, EveryConnectionBeyondTheLimitGets503) {
     auto still = admitted.request(http::verb::get, "/healthz");
     ASSERT_TRUE(still);
     EXPECT_EQ(still->result_int(), 200);
+}
+
+// Past the reject sessions' own bound (1 024 pending 503s) a plain connection is answered on the
+// spot without a session; that answer carries CORS and Retry-After like a reject session's, so a
+// page's script can still read how long to back off.
+TEST_F(HttpServerTest, AFloodPastTheRejectSessionsStillGetsCors) {
+    constexpr int kSilent = 1100;  // more than the server's 1 024 reject sessions
+    rlimit lim{};
+    ASSERT_EQ(getrlimit(RLIMIT_NOFILE, &lim), 0);
+    const rlim_t need = 2 * kSilent + 256;  // both ends of every connection live in this process
+    if (lim.rlim_cur < need) {
+        lim.rlim_cur = std::min<rlim_t>(lim.rlim_max, need);
+        ASSERT_EQ(setrlimit(RLIMIT_NOFILE, &lim), 0);
+    }
+    ASSERT_GE(lim.rlim_cur, need) << "this test needs " << need << " file descriptors";
+    config_.max_connections = 1;
+    start();
+    PlainClient admitted;
+    ASSERT_FALSE(admitted.connect(server_->port()));
+    ASSERT_TRUE(admitted.request(http::verb::get, "/healthz"));
+    net::io_context ioc;
+    const auto silent = silent_connections(ioc, server_->port(), kSilent);
+    tcp::socket late(ioc);
+    error_code ec;
+    late.connect(tcp::endpoint(net::ip::make_address("127.0.0.1"), server_->port()), ec);
+    ASSERT_FALSE(ec) << ec.message();
+    std::string answer;
+    char buf[1024];
+    while (!ec) answer.append(buf, late.read_some(net::buffer(buf), ec));
+    EXPECT_EQ(answer.substr(0, 12), "HTTP/1.1 503");
+    EXPECT_NE(answer.find("\r\nRetry-After: 1\r\n"), std::string::npos) << answer;
+    EXPECT_NE(answer.find("\r\nAccess-Control-Allow-Origin: *\r\n"), std::string::npos) << answer;
+    EXPECT_NE(answer.find("Access-Control-Expose-Headers: ETag, Retry-After"), std::string::npos) << answer;
+    EXPECT_TRUE(answer.ends_with("\r\n\r\ntoo many connections\n")) << answer;
 }
 
 TEST_F(HttpServerTest, EveryTlsConnectionBeyondTheLimitGets503) {

@@ -50,6 +50,7 @@
 #include <boost/beast/http.hpp>
 #include <boost/beast/ssl.hpp>
 
+#include "http/common.hpp"
 #include "http_handler.hpp"
 #include "http_response_head.hpp"
 #include "thread_slice.hpp"
@@ -78,6 +79,24 @@ constexpr std::chrono::seconds kRejectTimeout{5};  // an over-limit TLS connecti
 constexpr std::size_t kMaxRejectSessions = 1024;
 
 std::string_view sv(beast::string_view s) { return {s.data(), s.size()}; }
+
+// The answer past --max-connections, before its CORS headers (which the caller adds).
+HttpResponse too_many_connections() {
+    HttpResponse r = http_error_response(503, "too many connections");
+    r.headers.emplace_back("Retry-After", "1");
+    return r;
+}
+
+// The same answer as bytes, for a flood past kMaxRejectSessions, written on the spot without a
+// session: the request is never read, so CORS is as to the allowed origin (as a reject
+// session's is).
+std::string canned_reject(const ServerConfig& config) {
+    HttpResponse r = too_many_connections();
+    httpapi::add_cors_headers(r, config, config.cors_origin);
+    std::string out;
+    write_response_head(out, r, 11, false, r.body.size());
+    return out + r.body;
+}
 
 // RFC 9112 3.2.2: a server must accept a request target in absolute form ("GET http://h/p"), and
 // then use its authority as the host, ignoring the Host header. Rewrites such a target to its
@@ -141,7 +160,14 @@ struct Shared {
     // Reads and renders, off the loops. After the handler: destroyed (stopped) before it.
     WorkExecutor executor;
 
-    explicit Shared(ServerContext& c) : ctx(c), handler(c), executor(work_limits(c.config), c.metrics) {}
+    // What a connection past kMaxRejectSessions is sent (plain HTTP), and its body's size.
+    const std::string canned_reject;
+    const std::size_t canned_reject_body;
+
+    explicit Shared(ServerContext& c)
+        : ctx(c), handler(c), executor(work_limits(c.config), c.metrics),
+          canned_reject(tessera::server::canned_reject(c.config)),
+          canned_reject_body(too_many_connections().body.size()) {}
 
     static WorkLimits work_limits(const ServerConfig& config) {
         WorkLimits l;
@@ -434,8 +460,7 @@ private:
     // drained by the close. A reject costs a small session for a few seconds at most.
     void send_reject() {
         begin_request();
-        HttpResponse r = http_error_response(503, "too many connections");
-        r.headers.emplace_back("Retry-After", "1");
+        HttpResponse r = too_many_connections();
         shared_.handler.finish_transport_response(r, false, std::nullopt);
         send(std::move(r), 11, false, false);
     }
@@ -769,14 +794,11 @@ private:
             // into the new socket's empty send buffer without waiting; TLS cannot answer without
             // a handshake, so it is closed.
             if (!shared_.tls()) {
-                static const std::string canned = "HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\n"
-                                                  "Retry-After: 1\r\nConnection: close\r\nContent-Length: 21\r\n\r\n"
-                                                  "too many connections\n";
                 socket.non_blocking(true, ignored);
-                socket.write_some(net::buffer(canned), ignored);
+                socket.write_some(net::buffer(shared_.canned_reject), ignored);
                 socket.shutdown(tcp::socket::shutdown_send, ignored);
             }
-            shared_.handler.record_transport_response(503, 21);
+            shared_.handler.record_transport_response(503, shared_.canned_reject_body);
             socket.close(ignored);
             return do_accept();
         }
