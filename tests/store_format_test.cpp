@@ -446,9 +446,34 @@ TEST(StoreFormat, VerifyChecksTheDataSectionAndTheLevelsRanges) {
     ASSERT_TRUE(swapped.ok()) << swapped.error().message;
     const VerifyReport sr = verify_store(**swapped);
     EXPECT_FALSE(sr.ok());
-    bool named = false;
-    for (const auto& p : sr.problems) named |= p.find("outside the level's data range") != std::string::npos;
+    bool named = false, id = false;
+    for (const auto& p : sr.problems) {
+        named |= p.find("outside the level's data range") != std::string::npos;
+        id |= p.find("store id") != std::string::npos;
+    }
     EXPECT_TRUE(named);
+    EXPECT_TRUE(id) << "the level table changed, the store id did not";
+}
+
+// The store id is the index's content hash, which caches key tiles by: verify recomputes it, so
+// an id that is not the index's (an index edited after writing, every checksum made to match)
+// is a problem, where open alone cannot tell.
+TEST(StoreFormat, VerifyRecomputesTheStoreId) {
+    ScratchDir d;
+    std::vector<std::uint8_t> b = test::read_file(write_small_store(d).path);
+    auto good = StoreReader::open_memory(b);
+    ASSERT_TRUE(good.ok());
+    ASSERT_TRUE((*good)->index_hash().ok());
+    EXPECT_EQ(*(*good)->index_hash(), (*good)->info().store_id);
+    ASSERT_TRUE(verify_store(**good).ok());
+
+    store_at<std::uint64_t>(b, 88, load_at<std::uint64_t>(b, 88) ^ 1);
+    store_at<std::uint64_t>(b, 120, XXH3_64bits(b.data(), 120));
+    auto changed = StoreReader::open_memory(b);
+    ASSERT_TRUE(changed.ok()) << changed.error().message;
+    const VerifyReport rep = verify_store(**changed);
+    ASSERT_EQ(rep.problem_count, 1u);
+    EXPECT_NE(rep.problems.front().find("store id"), std::string::npos) << rep.problems.front();
 }
 
 // Two block records naming the same entry block, every checksum made to match: each record's

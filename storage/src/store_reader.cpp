@@ -460,6 +460,21 @@ public:
 
     bool file_changed() const override { return src_->changed(); }
 
+    Result<std::uint64_t> index_hash() const override {
+        // In pieces: a sparse store's index may be a gigabyte.
+        constexpr std::uint64_t kPiece = 1u << 20;
+        std::unique_ptr<XXH3_state_t, decltype(&XXH3_freeState)> state(XXH3_createState(), &XXH3_freeState);
+        if (!state || XXH3_64bits_reset(state.get()) == XXH_ERROR) return make_error(Errc::resource_exhausted, "no memory to hash the index");
+        std::vector<std::uint8_t> piece(static_cast<std::size_t>(std::min(kPiece, data_offset_ - kHeaderBytes)));
+        for (std::uint64_t at = kHeaderBytes; at < data_offset_; at += kPiece) {
+            const std::uint64_t n = std::min(kPiece, data_offset_ - at);
+            if (Status st = src_->read(at, n, piece.data()); !st)
+                return make_error(st.error().code, "the index cannot be read: " + st.error().message);
+            XXH3_64bits_update(state.get(), piece.data(), static_cast<std::size_t>(n));
+        }
+        return static_cast<std::uint64_t>(XXH3_64bits_digest(state.get()));
+    }
+
 private:
     // Entry block b of a level (at file offset eo), read and verified on first use.
     Result<const EntryBlock*> entry_block(const LevelIndex& ix, std::size_t b, std::uint64_t eo) const {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 
+#include "tessera/hex.hpp"
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/layers.hpp"
 #include "format.hpp"
@@ -39,6 +40,14 @@ VerifyReport verify_store(const StoreReader& reader, const VerifyOptions& option
     };
     std::uint64_t total = 0;
     for (const auto& l : info.levels) total += std::uint64_t(l.tiles_x) * l.tiles_y;
+
+    // The store id is the index's content hash: caches (the server's, a viewer's disk cache) key
+    // tiles by it, so an index changed after writing must not keep the old id.
+    if (auto h = reader.index_hash(); !h)
+        problem("index: " + h.error().message);
+    else if (*h != info.store_id)
+        problem("header: store id " + hex16(info.store_id) + " is not the index's hash (" + hex16(*h) +
+                "): the index was changed after the store was written");
 
     // Distinct payload ranges, to check that the data section is exactly covered.
     std::vector<std::pair<std::uint64_t, std::uint64_t>> ranges;

@@ -73,6 +73,10 @@ public:
     // True when the file was changed since it was opened (size or modification time): reads that
     // fail now may be the file's fault, not the store's. One fstat; false for stores in memory.
     virtual bool file_changed() const = 0;
+    // The content hash of the index as the file holds it now (every byte between the header and
+    // the data section), computed the way the writer computes StoreInfo::store_id: equal to it
+    // unless the index was changed after the store was written. Reads the whole index.
+    virtual Result<std::uint64_t> index_hash() const = 0;
     // The uniform value at a palette index (texel_bytes() bytes).
     virtual Result<std::vector<std::uint8_t>> palette_value(std::uint64_t index) const = 0;
 
