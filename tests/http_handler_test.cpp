@@ -21,6 +21,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "http/web_image.hpp"
 #include "http_handler.hpp"
 #include "log.hpp"
 #include "metrics.hpp"
@@ -946,6 +947,54 @@ TEST_F(HandlerTest, IiifSizesWithinLimitsAndNeverZero) {
     const HttpResponse up = get("/iiif/rgb/full/^pct:150/0/default.png");
     ASSERT_EQ(up.status, 200u) << up.body;
     EXPECT_EQ(decode_png(up.body).width, 60u);
+}
+
+// A canvas 2^32 - 1 texels wide: its last tile ends past 2^32. The part of a tile a region covers
+// is worked out in 64 bits (a 32-bit end wrapped, and the render copied a whole tile's row into a
+// region a few texels wide, past its buffer).
+TEST_F(HandlerTest, RegionsAtTheEdgeOfTheWidestCanvas) {
+    constexpr std::uint32_t P = 12;
+    using httpapi::tile_span;
+    using httpapi::TileSpan;
+    const TileSpan last = tile_span(0xFFFFFFF0u, 0xF, 0xFFFFFFFFu / P, P);  // the last tile holds 3 texels
+    EXPECT_EQ(last.begin, 0xFFFFFFFCu);
+    EXPECT_EQ(last.end, 0xFFFFFFFFu);
+    const TileSpan before = tile_span(0xFFFFFFF0u, 0xF, 0xFFFFFFFFu / P - 1, P);
+    EXPECT_EQ(before.begin, 0xFFFFFFF0u);
+    EXPECT_EQ(before.end, 0xFFFFFFFCu);
+    EXPECT_EQ(tile_span(5, 10, 3, P).begin, tile_span(5, 10, 3, P).end);  // no texel of the range in tile 3
+
+    // End to end: a sparse store of that width, its last level-0 tile present; the region over
+    // the last 5 texels of its first row comes back as those texels.
+    StoreSpec spec = spec_of(0xFFFFFFFFu, 12, P, 2, 3, SampleType::u8, ColourSpace::srgb, Codec::raw);
+    spec.sparse_index = true;
+    const storage::StoreInfo info = storage::store_info(spec);
+    const std::vector<std::uint8_t> texels = random_bytes(info.tile_bytes(), 5);
+    {
+        auto w = storage::StoreWriter::create(dir_.file("vast.tsr"), spec);
+        ASSERT_TRUE(w.ok()) << w.error().message;
+        auto payload = storage::encode_tile(info, texels, {});
+        ASSERT_TRUE(payload.ok());
+        ASSERT_TRUE((*w)->add_present({0, info.levels[0].tiles_x - 1, 0}, *payload).ok());
+        ASSERT_TRUE((*w)->finish().ok());
+    }
+    const HttpResponse r = get("/iiif/vast/4294967290,0,5,12/max/0/default.png");
+    ASSERT_EQ(r.status, 200u) << r.body;
+    const Png png = decode_png(r.body);
+    ASSERT_EQ(png.width, 5u);
+    ASSERT_EQ(png.height, 12u);
+    const std::size_t c = png.colour_type == 6 ? 4 : 3, T = info.tile_size();
+    for (std::uint32_t y = 0; y < 12; ++y)
+        for (std::uint32_t x = 0; x < 5; ++x) {
+            const std::uint32_t cx = 0xFFFFFFFAu + x;  // canvas texel
+            const std::uint8_t* px = &png.pixels[(std::size_t(y) * 5 + x) * c];
+            if (cx < 0xFFFFFFFCu) {  // in the absent tile before the last: transparent black (or black)
+                EXPECT_EQ(px[0] + px[1] + px[2], 0) << x << "," << y;
+                continue;
+            }
+            const std::uint8_t* want = &texels[((std::size_t(y) + 2) * T + (cx - 0xFFFFFFFCu) + 2) * 3];
+            EXPECT_EQ(std::vector<std::uint8_t>(px, px + 3), std::vector<std::uint8_t>(want, want + 3)) << x << "," << y;
+        }
 }
 
 // IIIF's info.json picks its Content-Type from Accept (JSON-LD when asked for with a quality

@@ -274,11 +274,11 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
             }
             if (!decode_web_tile(store, look, *fetched[i].tile, tiles.tile(i), tiles.samples(), failure)) return std::nullopt;
         }
-        const std::uint32_t y0 = std::max(r.y, ty * P), y1 = std::min(r.y + r.h, (ty + 1) * P);
+        const auto [y0, y1] = tile_span(r.y, r.h, ty, P);
         for (std::uint32_t y = y0; y < y1; ++y) {
             std::uint8_t* dst = copy ? &out.texels[std::size_t(y - r.y) * r.w * c] : row.data();
             for (std::uint32_t tx = tx0; tx <= tx1; ++tx) {
-                const std::uint32_t x0 = std::max(r.x, tx * P), x1 = std::min(r.x + r.w, (tx + 1) * P);
+                const auto [x0, x1] = tile_span(r.x, r.w, tx, P);
                 const std::uint8_t* src =
                     &tiles.tile(tx - tx0)[(std::size_t(y - ty * P + B) * T + (x0 - tx * P + B)) * c];
                 std::memcpy(dst + std::size_t(x0 - r.x) * c, src, std::size_t(x1 - x0) * c);
@@ -287,6 +287,12 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
         }
     }
     return copy ? std::move(out) : resampler->take();
+}
+
+TileSpan tile_span(std::uint32_t start, std::uint32_t length, std::uint32_t tile, std::uint32_t payload) {
+    const std::uint64_t b = std::max<std::uint64_t>(start, std::uint64_t(tile) * payload);
+    const std::uint64_t e = std::min<std::uint64_t>(std::uint64_t(start) + length, (std::uint64_t(tile) + 1) * payload);
+    return e > b ? TileSpan{std::uint32_t(b), std::uint32_t(e)} : TileSpan{std::uint32_t(b), std::uint32_t(b)};
 }
 
 std::optional<WebImage> render_scaled(TileFetcher& fetcher, const StoreHandle& store, const WebLook& look,

@@ -73,6 +73,14 @@ std::optional<WebImage> render_scaled(TileFetcher& fetcher, const StoreHandle& s
 std::size_t render_memory(const storage::StoreInfo& info, const WebLook& look, std::uint32_t region_w,
                           std::uint32_t out_w, std::uint32_t out_h);
 
+// The texels [begin, end) of the range [start, start + length) that tile `tile` holds (tiles of
+// `payload` texels), in 64-bit arithmetic: a canvas may be 2^32 - 1 texels wide, and the end of
+// its last tile is past 2^32. Empty (begin == end) when the tile holds none of them.
+struct TileSpan {
+    std::uint32_t begin = 0, end = 0;
+};
+TileSpan tile_span(std::uint32_t start, std::uint32_t length, std::uint32_t tile, std::uint32_t payload);
+
 // Width or height of the image at scale 1/2^k, as the store's levels round: ceil(size / 2^k).
 std::uint32_t scaled_size(std::uint32_t size, std::uint32_t k);
 
