@@ -679,6 +679,34 @@ TEST_F(ServerGrpc, OverloadIsRefusedAndTheServerStaysUp) {
     }));
 }
 
+// Streams that send batches and never read fill only their own share of --total-buffer: a
+// viewer that reads is still served (a shared ceiling let four such streams stop every other
+// viewer's tiles for as long as they stayed open).
+TEST_F(ServerGrpc, ViewersThatStopReadingCannotStallTheOthers) {
+    ServerProcess srv({"--store", Stores::jpeg(), "--viewer-buffer", "256KiB", "--total-buffer", "1MiB", "--cache-size", "0",
+                       "--io-threads", "1", "--max-viewers", "8"},
+                      dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto keys = level_keys(Stores::jpeg(), 0);
+    std::vector<std::unique_ptr<Viewer>> stalled;
+    for (int i = 0; i < 5; ++i) {
+        stalled.push_back(std::make_unique<Viewer>(srv.grpc_address(), "", /*small_window=*/true));
+        ASSERT_TRUE(stalled.back()->send(batch(1, "terrain", keys)));
+    }
+    std::this_thread::sleep_for(1500ms);  // their outboxes fill (each read chunk adds ~16 tiles)
+    Viewer reader(srv.grpc_address());
+    const std::vector<Req> few(keys.begin(), keys.begin() + 40);
+    ASSERT_TRUE(reader.send(batch(1, "terrain", few)));
+    const auto t0 = std::chrono::steady_clock::now();
+    ASSERT_TRUE(reader.read_until([&] { return reader.tiles.size() == few.size(); }));
+    EXPECT_LT(std::chrono::steady_clock::now() - t0, 10s);
+    for (const auto& t : reader.tiles) EXPECT_EQ(t.status(), v1::TILE_OK) << t.message();
+    // Once the stalled streams leave, nothing of theirs is held.
+    stalled.clear();
+    std::this_thread::sleep_for(500ms);
+    EXPECT_EQ(stats(srv.grpc_address()).viewers(), 1u);
+}
+
 TEST_F(ServerGrpc, BadRequestsGetClearErrors) {
     ServerProcess srv({"--store", Stores::small(), "--max-message", "64KiB"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();

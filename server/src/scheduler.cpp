@@ -143,14 +143,18 @@ std::optional<Scheduler::ViewerId> Scheduler::add_viewer(std::shared_ptr<ViewerS
 }
 
 void Scheduler::remove_viewer(ViewerId id) {
-    std::lock_guard lock(mu_);
-    auto it = viewers_.find(id);
-    if (it == viewers_.end()) return;
-    Viewer& v = *it->second;
-    total_pending_ -= v.pending.size();
-    total_outbox_bytes_ -= v.outbox_bytes;
-    // In-flight chunks find the viewer gone and drop their replies (and their in-flight count).
-    viewers_.erase(it);
+    {
+        std::lock_guard lock(mu_);
+        auto it = viewers_.find(id);
+        if (it == viewers_.end()) return;
+        Viewer& v = *it->second;
+        total_pending_ -= v.pending.size();
+        total_outbox_bytes_ -= v.outbox_bytes;
+        // In-flight chunks find the viewer gone and drop their replies (and their in-flight count).
+        viewers_.erase(it);
+    }
+    // One viewer fewer: every other viewer's share of --total-buffer grew.
+    work_cv_.notify_all();
 }
 
 // The reply to a pending request, its payload and status still to be filled in.
@@ -437,15 +441,19 @@ void Scheduler::serve_cached_locked(Viewer& v) {
     inline_served_->inc(served);
 }
 
-bool Scheduler::eligible_locked(const Viewer& v) const {
-    return !v.pending.empty() && v.chunks_in_flight < kMaxChunksInFlight &&
-           v.outbox_bytes < ctx_.config.viewer_buffer_bytes && total_outbox_bytes_ < ctx_.config.total_buffer_bytes;
+// Each viewer's outbox holds at most --viewer-buffer and its share of --total-buffer: viewers
+// that stop reading fill their own shares, never the total that the viewers who read need (a
+// shared ceiling let a few streams that never read stop every other viewer's tiles).
+std::uint64_t Scheduler::outbox_limit_locked() const {
+    const std::uint64_t share = ctx_.config.total_buffer_bytes / std::max<std::size_t>(1, viewers_.size());
+    return std::max<std::uint64_t>(1, std::min<std::uint64_t>(ctx_.config.viewer_buffer_bytes, share));
 }
 
-bool Scheduler::full_locked(const Viewer& v) const {
-    return v.outbox_bytes >= ctx_.config.viewer_buffer_bytes ||
-           (v.outbox_bytes > 0 && total_outbox_bytes_ >= ctx_.config.total_buffer_bytes);
+bool Scheduler::eligible_locked(const Viewer& v) const {
+    return !v.pending.empty() && v.chunks_in_flight < kMaxChunksInFlight && v.outbox_bytes < outbox_limit_locked();
 }
+
+bool Scheduler::full_locked(const Viewer& v) const { return v.outbox_bytes >= outbox_limit_locked(); }
 
 Scheduler::Viewer* Scheduler::pick_locked() {
     // Fair between viewers: among those within kFairnessSlack of the least-served eligible viewer,
@@ -629,11 +637,11 @@ bool Scheduler::next_messages(ViewerId id, std::vector<OutMessage>& out, std::si
 }
 
 void Scheduler::written_locked(Viewer& v, const OutMessage& msg, bool& wake_workers) {
-    const bool was_full = v.outbox_bytes >= ctx_.config.viewer_buffer_bytes;
+    const bool was_full = full_locked(v);
     v.outbox_bytes -= msg.bytes;
     total_outbox_bytes_ -= msg.bytes;
     if (msg.is_tile && !msg.left_in_flight) v.in_flight.erase(FullKey{msg.store.get(), msg.packed_key});
-    wake_workers = wake_workers || was_full || total_outbox_bytes_ + msg.bytes >= ctx_.config.total_buffer_bytes;
+    wake_workers = wake_workers || was_full;
 }
 
 void Scheduler::account_written(const OutMessage& msg, bool ok) {

@@ -16,7 +16,7 @@
 //
 // Owner: the Server. Threads: io_threads workers, owned here. Every queue is bounded: pending
 // by max_pending (over all viewers) and max_batch (per viewer), outboxes by viewer_buffer_bytes
-// and total_buffer_bytes, in-flight reads by kMaxChunksInFlight chunks per viewer.
+// and each viewer's share of total_buffer_bytes, in-flight reads by kMaxChunksInFlight chunks per viewer.
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -117,10 +117,10 @@ public:
     // One message at a time (tests).
     bool next_message(ViewerId id, OutMessage& out);
     void message_written(ViewerId id, const OutMessage& msg, bool ok);
-    // The stream stops reading batches while this holds: the viewer's outbox is at
-    // --viewer-buffer, or it holds anything while all outboxes together are at --total-buffer
-    // (acks and error replies are charged like tiles, so a viewer that sends without reading
-    // stops being read instead of growing the server).
+    // The stream stops reading batches while this holds: the viewer's outbox is at its limit,
+    // --viewer-buffer or its share of --total-buffer (the total over the viewers connected),
+    // whichever is smaller (acks and error replies are charged like tiles, so a viewer that sends
+    // without reading stops being read instead of growing the server).
     bool outbox_full(ViewerId id) const;
     // Nothing pending, being read or waiting to be written for this viewer.
     bool viewer_idle(ViewerId id) const;
@@ -146,6 +146,7 @@ private:
     Viewer* pick_locked();
     bool eligible_locked(const Viewer& v) const;
     bool full_locked(const Viewer& v) const;
+    std::uint64_t outbox_limit_locked() const;
     void push_locked(Viewer& v, OutMessage msg);
     void written_locked(Viewer& v, const OutMessage& msg, bool& wake_workers);
     void account_written(const OutMessage& msg, bool ok);
