@@ -707,6 +707,30 @@ TEST_F(ServerGrpc, ViewersThatStopReadingCannotStallTheOthers) {
     EXPECT_EQ(stats(srv.grpc_address()).viewers(), 1u);
 }
 
+// A viewer that stopped reading is never given more work, so its pending requests would never
+// be answered, not even as expired: past their deadline they no longer hold --max-pending from
+// a viewer that reads.
+TEST_F(ServerGrpc, ExpiredRequestsOfAStalledViewerFreeThePendingQueue) {
+    ServerProcess srv({"--store", Stores::jpeg(), "--max-pending", "64", "--max-batch", "64", "--viewer-buffer", "64KiB",
+                       "--cache-size", "0", "--io-threads", "1"},
+                      dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto keys = level_keys(Stores::jpeg(), 0);
+    const std::vector<Req> first(keys.begin(), keys.begin() + 64), second(keys.begin() + 64, keys.begin() + 128);
+    Viewer stalled(srv.grpc_address(), "", /*small_window=*/true);
+    ASSERT_TRUE(stalled.send(batch(1, "terrain", first, /*deadline_ms=*/50)));
+    std::this_thread::sleep_for(500ms);  // a chunk or two read into its outbox, the rest pending and expired
+    ASSERT_GT(stats(srv.grpc_address()).pending(), 0u) << "the stalled viewer's outbox should hold it back";
+    Viewer reader(srv.grpc_address());
+    ASSERT_TRUE(reader.send(batch(1, "terrain", second)));
+    ASSERT_TRUE(reader.read_until([&] { return !reader.acks.empty(); }));
+    EXPECT_EQ(reader.acks[0].admitted(), 64u);
+    EXPECT_EQ(reader.acks[0].refused(), 0u);
+    ASSERT_TRUE(reader.read_until([&] { return reader.tiles.size() == second.size(); }));
+    for (const auto& t : reader.tiles) EXPECT_EQ(t.status(), v1::TILE_OK) << t.message();
+    EXPECT_GT(stats(srv.grpc_address()).deadline_exceeded(), 0u);
+}
+
 TEST_F(ServerGrpc, BadRequestsGetClearErrors) {
     ServerProcess srv({"--store", Stores::small(), "--max-message", "64KiB"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();

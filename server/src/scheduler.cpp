@@ -342,6 +342,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
 
     // Admission: the pending queue over all viewers is bounded; the lowest priorities are refused.
     std::stable_sort(next.begin(), next.end(), [](const Pending& a, const Pending& b) { return a.priority > b.priority; });
+    if (next.size() + total_pending_ - v.pending.size() > ctx_.config.max_pending) reclaim_expired_locked(v, now);
     const std::uint64_t others = total_pending_ - v.pending.size();
     const std::uint64_t room = ctx_.config.max_pending > others ? ctx_.config.max_pending - others : 0;
     std::uint32_t refused = 0;
@@ -409,6 +410,20 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     lock.unlock();
     if (for_workers) work_cv_.notify_all();
     notify(wake);
+}
+
+// Other viewers' pending requests past their deadline, dropped (counted as deadline_exceeded,
+// with no reply each: their viewers list what they still want in their next batch). A worker
+// answers an expired request when it takes it, but a viewer whose outbox is full (it stopped
+// reading) is never taken, and its expired requests would hold --max-pending from the viewers
+// that read. A viewer's pending requests come from one batch and share its deadline.
+void Scheduler::reclaim_expired_locked(const Viewer& asking, Clock::time_point now) {
+    for (auto& [id, o] : viewers_) {
+        if (o.get() == &asking || o->pending.empty() || o->pending.front().deadline >= now) continue;
+        total_pending_ -= o->pending.size();
+        deadline_exceeded_->inc(o->pending.size());
+        o->pending.clear();
+    }
 }
 
 // While no other viewer waits, the first requests of a batch whose tiles are in the RAM cache

@@ -152,6 +152,7 @@ private:
     void account_written(const OutMessage& msg, bool ok);
     void notify(std::vector<std::shared_ptr<ViewerSink>>& sinks);
     void serve_cached_locked(Viewer& v);
+    void reclaim_expired_locked(const Viewer& asking, Clock::time_point now);
     static OutMessage tile_reply(const Pending& p);
 
     ServerContext& ctx_;
