@@ -997,6 +997,26 @@ TEST_F(HandlerTest, RegionsAtTheEdgeOfTheWidestCanvas) {
         }
 }
 
+// A DZI tile served as stored whose read fails is answered with that failure: it is not tried
+// again as a render, which would read the tile and its eight neighbours (with their retries,
+// against a remote store) only to fail the same way.
+TEST_F(HandlerTest, AFailedDziReadIsNotRetriedAsARender) {
+    write_store(dir_.file("dz.tsr"), spec_of(64, 64, 16, 4, 3, SampleType::u8, ColourSpace::srgb, Codec::jpeg));
+    {
+        auto r = reader("dz");
+        const auto loc = r->locate({0, 1, 1});
+        ASSERT_TRUE(loc.ok());
+        ASSERT_EQ(loc->kind, TileKind::present);
+        std::fstream f(dir_.file("dz.tsr"), std::ios::in | std::ios::out | std::ios::binary);
+        f.seekp(std::streamoff(loc->offset + loc->length / 2));
+        f.put('\x5a');
+    }
+    const HttpResponse r = get("/dzi/dz_files/6/1_1.jpg");
+    EXPECT_EQ(r.status, 500u) << r.body;
+    EXPECT_NE(r.body.find("checksum"), std::string::npos) << r.body;
+    EXPECT_EQ(fetcher_->reads(), 1u) << "the failed tile was read again for a render";
+}
+
 // IIIF's info.json picks its Content-Type from Accept (JSON-LD when asked for with a quality
 // above 0), so caches must key on it: Vary: Accept.
 TEST_F(HandlerTest, IiifInfoFollowsAcceptAndSaysSo) {

@@ -116,9 +116,12 @@ HttpResponse api_dzi(HttpHandler& handler, const ParsedRequest& req, HttpRoute& 
         const bool pinned = version.has_value();
         const std::string if_none_match(req.raw->if_none_match);
         const TileKey key{k, *x, *y};
-        // The stored tile's answer, or nullopt when it has to be rendered (uniform, absent, unreadable).
+        // The stored tile's answer, or nullopt when it has to be rendered (uniform or absent). A
+        // failed read is the answer too: the render would read the same tile and its neighbours
+        // again, nine reads (with their retries) against a store that is failing.
         auto stored = [hp, hs, head, pinned, if_none_match, borrow_payload](const FetchedTile& f) -> std::optional<HttpResponse> {
-            if (f.status != TileStatus::ok || !f.tile || f.tile->kind != TileKind::present) return std::nullopt;
+            if (f.status != TileStatus::ok) return failure_response(fetch_failure(f));
+            if (!f.tile || f.tile->kind != TileKind::present) return std::nullopt;
             const WebAnswer as_stored{"s" + hex16(f.tile->checksum) + ".jpg", "jpg", pinned};
             if (!if_none_match.empty() && if_none_match_matches(if_none_match, web_etag(*hs, as_stored)))
                 return web_body_response(*hp, head, *hs, as_stored, nullptr);

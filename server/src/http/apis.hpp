@@ -45,6 +45,12 @@ inline WorkKind web_work_kind(std::size_t memory) {
     return memory <= kWebTileWorkBytes ? WorkKind::read : WorkKind::render;
 }
 
+// A web image's failure as the answer: 503 with Retry-After when it may pass, else the error.
+inline HttpResponse failure_response(const WebFailure& failure) {
+    if (failure.status == 503) return retry_later(failure.message, false);
+    return error(failure.status, failure.message, false);
+}
+
 template <class Render>
 HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req, std::shared_ptr<const StoreHandle> store,
                                  const WebAnswer& answer, std::size_t memory, Render render);
@@ -86,10 +92,7 @@ HttpResponse web_image_response(HttpHandler& handler, const HttpRequestView& req
         if (!slot.ok()) return retry_later("too many tile requests in flight; retry", false);
         WebFailure failure;
         std::optional<WebImage> image = render(failure);
-        if (!image) {
-            if (failure.status == 503) return retry_later(failure.message, false);
-            return error(failure.status, failure.message, false);
-        }
+        if (!image) return failure_response(failure);
         std::optional<std::string> encoded = encode_web(*image, answer.format, failure);
         image.reset();
         if (!encoded) return error(failure.status, failure.message, false);

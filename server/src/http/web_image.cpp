@@ -17,18 +17,6 @@ namespace {
 
 using storage::SampleType;
 
-// The status a failed tile read answers with.
-WebFailure fetch_failure(const FetchedTile& f) {
-    switch (f.status) {
-        case TileStatus::data_loss: return {500, "tile failed its checksum"};
-        case TileStatus::not_found: return {404, "store not found"};
-        case TileStatus::out_of_range: return {404, "tile out of range: " + f.message};
-        case TileStatus::deadline_exceeded: return {504, "tile unavailable: " + f.message};
-        case TileStatus::resource_exhausted:
-        case TileStatus::unavailable: return {503, "tile unavailable: " + f.message};
-        default: return {500, "tile read failed: " + f.message};
-    }
-}
 
 // One stored tile as web texels (T x T x look.channels); an absent tile (or layer) is zeros.
 // 8-bit samples shown as they are decode straight into `out`; others go through `samples`.
@@ -208,6 +196,19 @@ private:
 };
 
 }  // namespace
+
+// The status a failed tile read answers with.
+WebFailure fetch_failure(const FetchedTile& f) {
+    switch (f.status) {
+        case TileStatus::data_loss: return {500, "tile failed its checksum"};
+        case TileStatus::not_found: return {404, "store not found"};
+        case TileStatus::out_of_range: return {404, "tile out of range: " + f.message};
+        case TileStatus::deadline_exceeded: return {504, "tile unavailable: " + f.message};
+        case TileStatus::resource_exhausted:
+        case TileStatus::unavailable: return {503, "tile unavailable: " + f.message};
+        default: return {500, "tile read failed: " + f.message};
+    }
+}
 
 WebLook web_look(const storage::StoreInfo& info) {
     WebLook look;

@@ -46,6 +46,9 @@ struct WebFailure {
     std::string message;
 };
 
+// The status and message a failed tile read answers with.
+WebFailure fetch_failure(const FetchedTile& f);
+
 // The texels [x, x + w) x [y, y + h) of pyramid level `level` (in that level's texels, inside
 // it), scaled to out_w x out_h: a copy when the sizes match, area-averaging (alpha-weighted)
 // when smaller, bilinear when larger. Absent tiles of a sparse store are transparent black.
