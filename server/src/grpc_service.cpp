@@ -297,6 +297,7 @@ grpc::ServerUnaryReactor* GrpcService::GetStats(grpc::CallbackServerContext* con
     reply->set_cache_bytes(c.bytes);
     reply->set_reads(ctx_.fetcher.reads());
     reply->set_tiles_read(ctx_.fetcher.tiles_read());
+    reply->set_store_reloads(ctx_.stores.reloads());
     for (const auto& h : ctx_.stores.list()) {
         auto* st = reply->add_stores();
         st->set_name(h->name);

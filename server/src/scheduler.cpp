@@ -31,6 +31,9 @@ std::size_t message_bytes(const OutMessage& m) {
     return n;
 }
 
+// A tile reply (read, or an error reply), not an ack.
+bool is_reply(const OutMessage& m) { return m.is_tile || m.message.has_tile(); }
+
 }  // namespace
 
 struct Scheduler::Pending {
@@ -70,6 +73,7 @@ struct Scheduler::Viewer {
     std::deque<OutMessage> outbox;
     std::uint64_t outbox_bytes = 0;
     bool writing = false;
+    std::size_t writing_replies = 0;  // tile replies in the write under way (stats)
     std::uint64_t served = 0;  // tiles dispatched: the fairness clock
 };
 
@@ -98,6 +102,9 @@ Scheduler::Scheduler(ServerContext& ctx) : ctx_(ctx) {
                           "Requests answered with an error (unknown store, out of range, malformed)");
     deadline_exceeded_ = &m.counter("tessera_grpc_requests_deadline_exceeded_total",
                                     "Requests not started before their deadline");
+    expired_dropped_ = &m.counter("tessera_grpc_requests_expired_dropped_total",
+                                  "Requests past their deadline dropped unanswered: their viewer had stopped reading and "
+                                  "--max-pending was needed");
     inline_served_ = &m.counter("tessera_grpc_tiles_inline_total",
                                 "Tiles answered from the RAM cache on the stream's thread (no I/O thread woken)");
     data_loss_ = &m.counter("tessera_grpc_data_loss_total", "Requests answered DATA_LOSS (tile failed its checksum)");
@@ -412,8 +419,8 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     notify(wake);
 }
 
-// Other viewers' pending requests past their deadline, dropped (counted as deadline_exceeded,
-// with no reply each: their viewers list what they still want in their next batch). A worker
+// Other viewers' pending requests past their deadline, dropped with no reply each (counted in
+// expired_dropped; their viewers list what they still want in their next batch). A worker
 // answers an expired request when it takes it, but a viewer whose outbox is full (it stopped
 // reading) is never taken, and its expired requests would hold --max-pending from the viewers
 // that read. A viewer's pending requests come from one batch and share its deadline.
@@ -421,7 +428,7 @@ void Scheduler::reclaim_expired_locked(const Viewer& asking, Clock::time_point n
     for (auto& [id, o] : viewers_) {
         if (o.get() == &asking || o->pending.empty() || o->pending.front().deadline >= now) continue;
         total_pending_ -= o->pending.size();
-        deadline_exceeded_->inc(o->pending.size());
+        expired_dropped_->inc(o->pending.size());
         o->pending.clear();
     }
 }
@@ -648,6 +655,7 @@ bool Scheduler::next_messages(ViewerId id, std::vector<OutMessage>& out, std::si
         v.outbox.pop_front();
     }
     v.writing = true;
+    v.writing_replies = std::size_t(std::count_if(out.begin(), out.end(), is_reply));
     return true;
 }
 
@@ -679,6 +687,7 @@ bool Scheduler::messages_written(ViewerId id, const std::vector<OutMessage>& msg
         if (it != viewers_.end()) {
             Viewer& v = *it->second;
             v.writing = false;
+            v.writing_replies = 0;
             for (const auto& m : msgs) written_locked(v, m, wake_workers);
             full = full_locked(v);
         }
@@ -703,6 +712,7 @@ void Scheduler::message_written(ViewerId id, const OutMessage& msg, bool ok) {
         if (it != viewers_.end()) {
             Viewer& v = *it->second;
             v.writing = false;
+            v.writing_replies = 0;
             written_locked(v, msg, wake_workers);
         }
     }
@@ -769,7 +779,9 @@ SchedulerStats Scheduler::stats() const {
         s.viewers = static_cast<std::uint32_t>(viewers_.size());
         s.pending = total_pending_;
         s.in_flight = total_in_flight_;
-        for (const auto& [id, v] : viewers_) s.in_flight += v->outbox.size() + (v->writing ? 1 : 0);
+        // Tile replies waiting to be written or being written (acks are not requests).
+        for (const auto& [id, v] : viewers_)
+            s.in_flight += std::size_t(std::count_if(v->outbox.begin(), v->outbox.end(), is_reply)) + v->writing_replies;
         s.outbox_bytes = total_outbox_bytes_;
     }
     s.batches = batches_->value();
@@ -780,6 +792,7 @@ SchedulerStats Scheduler::stats() const {
     s.refused = refused_->value();
     s.invalid = invalid_->value();
     s.deadline_exceeded = deadline_exceeded_->value();
+    s.expired_dropped = expired_dropped_->value();
     s.data_loss = data_loss_->value();
     return s;
 }

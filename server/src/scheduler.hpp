@@ -76,6 +76,7 @@ struct SchedulerStats {
     std::uint64_t pending = 0, in_flight = 0;
     std::uint64_t batches = 0, requests = 0, tiles_sent = 0, bytes_sent = 0;
     std::uint64_t cancelled = 0, refused = 0, invalid = 0, deadline_exceeded = 0, data_loss = 0;
+    std::uint64_t expired_dropped = 0;  // expired requests of stalled viewers dropped unanswered
     std::uint64_t outbox_bytes = 0;
 };
 
@@ -169,7 +170,7 @@ private:
 
     // Metrics (owned by ctx_.metrics).
     Counter *batches_, *requests_, *tiles_sent_, *bytes_sent_, *cancelled_, *refused_, *invalid_,
-        *deadline_exceeded_, *data_loss_, *batches_refused_, *inline_served_;
+        *deadline_exceeded_, *expired_dropped_, *data_loss_, *batches_refused_, *inline_served_;
     Histogram* latency_;
     Histogram* batch_size_;
 

@@ -85,6 +85,7 @@ public:
     // nullptr for unknown (or invalid) names. Never touches the file system.
     std::shared_ptr<const StoreHandle> find(std::string_view name) const;
     std::vector<std::shared_ptr<const StoreHandle>> list() const;  // sorted by name
+    std::uint64_t reloads() const { return reloads_->value(); }      // rescans so far (start, SIGHUP, watch)
 
 private:
     struct Scan;
