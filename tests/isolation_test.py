@@ -5,7 +5,8 @@ stall what the server does for everyone else.
 1. Slow origin. One store is served from an HTTP range origin that, once the store is open,
    answers every request only after SLOW_S seconds; another store is a local file (the server's
    RAM cache off, so every local tile is a read on the executor). While 64 clients ask for the
-   slow store's tiles, the local store's tiles over HTTP and over gRPC (`tessera loadtest`) keep
+   slow store's tiles (and 8 gRPC viewers ask for them too, in closed loop, `bench/serve_load`),
+   the local store's tiles over HTTP and over gRPC (`tessera loadtest`) keep
    p99 <= 25 ms and <= 5x their own baseline measured in the same run; every slow request ends
    with data, 503 or 504, none later than --request-timeout + 1 s; the server's threads and RSS
    stay bounded.
@@ -237,6 +238,14 @@ def loadtest_p99(p, out_json):
     return float(lat["p99"]), tiles, run
 
 
+def serve_load_binary(tessera):
+    """bench/serve_load beside the tessera binary (the build makes both)."""
+    path = os.path.join(os.path.dirname(os.path.abspath(tessera)), "bench", "serve_load")
+    if not os.access(path, os.X_OK):
+        fail(f"{path} is missing: build the serve_load target")
+    return path
+
+
 def slow_origin(tessera, tmp):
     local = os.path.join(tmp, "local.tsr")
     remote_file = os.path.join(tmp, "remote.tsr")
@@ -286,14 +295,27 @@ def slow_origin(tessera, tmp):
         clients = [threading.Thread(target=slow_client, args=(i,), daemon=True) for i in range(64)]
         for c in clients:
             c.start()
-        time.sleep(1.0)  # the slow store's lane fills
+        # gRPC viewers of the slow store too: their reads may hold only the remote store's share
+        # of the gRPC I/O threads, never the threads the local store's viewers need.
         load_seconds = 2 * TIMEOUT_MS / 1000 + 2
+        slow_grpc = subprocess.Popen([serve_load_binary(tessera), "--grpc", f"127.0.0.1:{grpc_port}", "--store", "slow",
+                                      "--store-file", remote_file, "--rate", "0", "--viewers", "8", "--window", "64",
+                                      "--duration", str(load_seconds + 2), "--warmup", "0", "--json", os.devnull],
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        time.sleep(1.0)  # the slow store's lane fills
         load_http = []
         lt_json = os.path.join(tmp, "load.json")
         lt = loadtest(tessera, grpc_port, "local", load_seconds, lt_json)
         probe(http_port, "local", local_keys, load_seconds, load_http, errors)
         load_grpc, load_tiles, _ = loadtest_p99(lt, lt_json)
         stop.set()
+        try:
+            _, slow_err = slow_grpc.communicate(timeout=load_seconds + TIMEOUT_MS / 1000 + 30)
+        except subprocess.TimeoutExpired:
+            slow_grpc.kill()
+            fail("the slow store's gRPC viewers did not end")
+        if slow_grpc.returncode != 0:
+            fail(f"serve_load on the slow store exited {slow_grpc.returncode}: {slow_err[-500:]}")
         for c in clients:
             c.join(timeout=TIMEOUT_MS / 1000 + 10)
         sampler.stop.set()

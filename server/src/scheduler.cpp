@@ -74,6 +74,9 @@ struct Scheduler::Viewer {
     std::uint64_t outbox_bytes = 0;
     bool writing = false;
     std::size_t writing_replies = 0;  // tile replies in the write under way (stats)
+    // Set while every request a worker could take waits for room in a remote store's reads:
+    // until when at most (the earliest deadline among them). See take_chunk_locked.
+    std::optional<Clock::time_point> remote_blocked_until;
     std::uint64_t served = 0;  // tiles dispatched: the fairness clock
 };
 
@@ -120,8 +123,8 @@ Scheduler::Scheduler(ServerContext& ctx) : ctx_(ctx) {
     m.gauge_callback("tessera_queue_outbox_bytes", "Reply bytes waiting to be sent, all viewers", {},
                      [this] { return double(stats().outbox_bytes); });
 
-    unsigned n = ctx.config.io_threads ? ctx.config.io_threads : std::max(1u, std::thread::hardware_concurrency());
-    for (unsigned i = 0; i < n; ++i) workers_.emplace_back([this] { worker(); });
+    io_threads_ = ctx.config.io_threads ? ctx.config.io_threads : std::max(1u, std::thread::hardware_concurrency());
+    for (unsigned i = 0; i < io_threads_; ++i) workers_.emplace_back([this] { worker(); });
 }
 
 Scheduler::~Scheduler() {
@@ -157,6 +160,7 @@ void Scheduler::remove_viewer(ViewerId id) {
         Viewer& v = *it->second;
         total_pending_ -= v.pending.size();
         total_outbox_bytes_ -= v.outbox_bytes;
+        if (v.remote_blocked_until) --blocked_viewers_;
         // In-flight chunks find the viewer gone and drop their replies (and their in-flight count).
         viewers_.erase(it);
     }
@@ -386,6 +390,10 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     total_pending_ = total_pending_ - v.pending.size() + next.size();
     const bool was_idle = v.pending.empty();
     v.pending = std::move(next);
+    if (v.remote_blocked_until) {  // a new set: it may hold requests a worker can take
+        v.remote_blocked_until.reset();
+        --blocked_viewers_;
+    }
     v.wanted = std::move(wanted);
     if (was_idle && !v.pending.empty()) v.served = std::max(v.served, virtual_time_);
 
@@ -472,7 +480,8 @@ std::uint64_t Scheduler::outbox_limit_locked() const {
 }
 
 bool Scheduler::eligible_locked(const Viewer& v) const {
-    return !v.pending.empty() && v.chunks_in_flight < kMaxChunksInFlight && v.outbox_bytes < outbox_limit_locked();
+    return !v.pending.empty() && !v.remote_blocked_until && v.chunks_in_flight < kMaxChunksInFlight &&
+           v.outbox_bytes < outbox_limit_locked();
 }
 
 bool Scheduler::full_locked(const Viewer& v) const { return v.outbox_bytes >= outbox_limit_locked(); }
@@ -495,6 +504,72 @@ Scheduler::Viewer* Scheduler::pick_locked() {
     return best;
 }
 
+// A remote store's reads hold an I/O thread for as long as its origin takes (up to the
+// requests' deadline), so they are bounded: per store by --remote-concurrency (more would only
+// wait for its connections), and over all remote stores by what leaves local stores at least
+// one thread per core (or half the threads, when there are fewer).
+bool Scheduler::remote_room_locked(const StoreHandle& store) const {
+    const unsigned threads = io_threads_;
+    const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+    const unsigned reserve = threads > 1 ? std::max(1u, std::min(cores, threads / 2)) : 0;
+    const std::size_t budget = std::max(1u, threads - reserve);
+    const auto it = remote_reading_.find(&store);
+    const std::size_t reading = it == remote_reading_.end() ? 0 : it->second;
+    return reading < std::max(1u, ctx_.config.remote_concurrency) && remote_reading_total_ < budget;
+}
+
+// Up to kChunk of v's pending requests, highest priority first, skipping (they stay pending, in
+// order) those of a remote store with no room for another read: the viewer's requests of other
+// stores go ahead of them. An expired request is always taken: it is answered without a read.
+// Looks at most kRemoteScan requests; when it takes none, the viewer is blocked until a remote
+// read ends, a new batch comes, or its earliest skipped request expires.
+void Scheduler::take_chunk_locked(Viewer& v, Clock::time_point now, std::vector<Pending>& chunk,
+                                  std::vector<const StoreHandle*>& remotes) {
+    auto& pend = v.pending;
+    std::size_t i = pend.size(), scanned = 0;
+    skipped_.clear();
+    Clock::time_point earliest_skipped = Clock::time_point::max();
+    while (i > 0 && chunk.size() < kChunk && scanned < kRemoteScan) {
+        Pending& p = pend[--i];
+        ++scanned;
+        const StoreHandle* st = p.store.get();
+        if (st->remote() && p.deadline >= now && std::find(remotes.begin(), remotes.end(), st) == remotes.end()) {
+            if (!remote_room_locked(*st)) {
+                earliest_skipped = std::min(earliest_skipped, p.deadline);
+                skipped_.push_back(std::move(p));
+                continue;
+            }
+            remotes.push_back(st);
+            ++remote_reading_[st];
+            ++remote_reading_total_;
+        }
+        chunk.push_back(std::move(p));
+    }
+    // pend[0, i) is untouched; the skipped ones go back above it, lowest priority first.
+    pend.resize(i);
+    for (auto it = skipped_.rbegin(); it != skipped_.rend(); ++it) pend.push_back(std::move(*it));
+    if (chunk.empty()) {
+        v.remote_blocked_until = earliest_skipped == Clock::time_point::max() ? now : earliest_skipped;
+        ++blocked_viewers_;
+    }
+}
+
+// Unblocks the viewers whose wait is over (all of them: a remote read ended).
+void Scheduler::unblock_locked(Clock::time_point now, bool all) {
+    for (auto& [id, v] : viewers_)
+        if (v->remote_blocked_until && (all || *v->remote_blocked_until <= now)) {
+            v->remote_blocked_until.reset();
+            --blocked_viewers_;
+        }
+}
+
+Clock::time_point Scheduler::earliest_unblock_locked() const {
+    Clock::time_point t = Clock::time_point::max();
+    for (const auto& [id, v] : viewers_)
+        if (v->remote_blocked_until) t = std::min(t, *v->remote_blocked_until);
+    return t;
+}
+
 void Scheduler::worker() {
     pthread_setname_np(pthread_self(), "grpc-io");
     std::vector<Pending> chunk;
@@ -503,25 +578,33 @@ void Scheduler::worker() {
     std::vector<TileKey> keys;
     std::vector<std::size_t> index;
     std::vector<std::shared_ptr<ViewerSink>> wake;
+    std::vector<const StoreHandle*> remotes;  // remote stores the chunk reads, each counted once
     for (;;) {
         ViewerId vid = 0;
+        remotes.clear();
         {
             std::unique_lock lock(mu_);
-            Viewer* v = nullptr;
-            work_cv_.wait(lock, [&] { return stopping_ || (v = pick_locked()) != nullptr; });
-            if (stopping_) return;
-            vid = v->id;
-            chunk.clear();
-            while (chunk.size() < kChunk && !v->pending.empty()) {
-                Pending p = std::move(v->pending.back());
-                v->pending.pop_back();
-                v->in_flight.insert(FullKey{p.store.get(), p.packed});
-                chunk.push_back(std::move(p));
+            for (;;) {
+                if (stopping_) return;
+                if (blocked_viewers_ > 0) unblock_locked(Clock::now(), false);
+                Viewer* v = pick_locked();
+                if (!v) {
+                    const auto until = blocked_viewers_ > 0 ? earliest_unblock_locked() : Clock::time_point::max();
+                    if (until == Clock::time_point::max()) work_cv_.wait(lock);
+                    else work_cv_.wait_until(lock, until);
+                    continue;
+                }
+                chunk.clear();
+                take_chunk_locked(*v, Clock::now(), chunk, remotes);
+                if (chunk.empty()) continue;  // all it could take waits for a remote store (v is blocked now)
+                vid = v->id;
+                for (const Pending& p : chunk) v->in_flight.insert(FullKey{p.store.get(), p.packed});
+                total_pending_ -= chunk.size();
+                total_in_flight_ += chunk.size();
+                v->served += chunk.size();
+                ++v->chunks_in_flight;
+                break;
             }
-            total_pending_ -= chunk.size();
-            total_in_flight_ += chunk.size();
-            v->served += chunk.size();
-            ++v->chunks_in_flight;
         }
 
         // Read: deadlines first, then one fetch per store (cache, then coalesced file reads).
@@ -618,7 +701,19 @@ void Scheduler::worker() {
             }
         }
         if (!part.empty() || handed < chunk.size()) hand_over(part);
-        work_cv_.notify_one();  // this viewer may be eligible again (chunks in flight went down)
+        if (!remotes.empty()) {
+            // Those stores' reads are done: viewers waiting for room in them may go on.
+            std::lock_guard lock(mu_);
+            for (const StoreHandle* st : remotes) {
+                if (--remote_reading_[st] == 0) remote_reading_.erase(st);
+                --remote_reading_total_;
+            }
+            unblock_locked(Clock::now(), true);
+        }
+        // This viewer may be eligible again (chunks in flight went down); with remote room freed,
+        // so may others.
+        if (remotes.empty()) work_cv_.notify_one();
+        else work_cv_.notify_all();
         notify(wake);
     }
 }

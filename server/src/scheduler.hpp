@@ -87,6 +87,8 @@ public:
     static constexpr unsigned kMaxChunksInFlight = 2;      // per viewer
     static constexpr std::uint64_t kFairnessSlack = kChunk; // tiles of service a priority may jump
     static constexpr std::size_t kInlineTiles = kChunk * kMaxChunksInFlight;  // cache hits answered in submit()
+    // Pending requests a worker looks through for ones it may take past a remote store's bound.
+    static constexpr std::size_t kRemoteScan = 1024;
     // What one batch can make the server hold is bounded by constants, not by what it carries:
     // a batch listing more stores, or a name longer than any store name can be
     // (protocol::kMaxStoreNameLength bytes), is refused whole with one small ack; at most
@@ -154,6 +156,11 @@ private:
     void notify(std::vector<std::shared_ptr<ViewerSink>>& sinks);
     void serve_cached_locked(Viewer& v);
     void reclaim_expired_locked(const Viewer& asking, Clock::time_point now);
+    bool remote_room_locked(const StoreHandle& store) const;
+    void take_chunk_locked(Viewer& v, Clock::time_point now, std::vector<Pending>& chunk,
+                           std::vector<const StoreHandle*>& remotes);
+    void unblock_locked(Clock::time_point now, bool all);
+    Clock::time_point earliest_unblock_locked() const;
     static OutMessage tile_reply(const Pending& p);
 
     ServerContext& ctx_;
@@ -167,6 +174,11 @@ private:
     std::uint64_t total_in_flight_ = 0;
     std::uint64_t total_outbox_bytes_ = 0;
     std::uint64_t virtual_time_ = 0;  // service level of the least-served active viewer
+    // Chunks reading each remote store now, and in all (see remote_room_locked).
+    std::unordered_map<const StoreHandle*, std::size_t> remote_reading_;
+    std::size_t remote_reading_total_ = 0;
+    std::size_t blocked_viewers_ = 0;  // viewers with remote_blocked_until set
+    std::vector<Pending> skipped_;     // take_chunk_locked's scratch
 
     // Metrics (owned by ctx_.metrics).
     Counter *batches_, *requests_, *tiles_sent_, *bytes_sent_, *cancelled_, *refused_, *invalid_,
@@ -174,6 +186,7 @@ private:
     Histogram* latency_;
     Histogram* batch_size_;
 
+    unsigned io_threads_ = 0;  // set before the workers start
     std::vector<std::thread> workers_;
 };
 
