@@ -883,6 +883,54 @@ TEST_F(ServerGrpc, CorruptTileIsNeverServed) {
 // a batch whose every request needs an error reply gets at most a bounded number of them, and a
 // batch listing thousands of stores is refused whole. Viewers that send such batches and never
 // read cannot grow the server by more than 64 MiB; it gives the memory back when they leave.
+// An empty request or store name is 2 bytes on the wire and over 50 once parsed, and a parsed
+// batch keeps its cleared entries for reuse: batches of empty entries past the limits are
+// refused from their wire bytes, unparsed, so they make the server hold nothing (parsed, each
+// 256 KiB batch of them held about 7 MiB for the stream's life).
+TEST_F(ServerGrpc, BatchesOfEmptyEntriesAreRefusedUnparsed) {
+    ServerProcess srv({"--store", Stores::small()}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    {
+        Viewer w(srv.grpc_address());
+        ASSERT_TRUE(w.send(batch(1, "small", {{0, 0, 0, 1}})));
+        ASSERT_TRUE(w.read_until([&] { return w.tiles.size() == 1; }));
+        EXPECT_TRUE(w.finish().ok());
+    }
+    const long rss_start = srv.rss_kib();
+    v1::TileBatch empty_requests, empty_stores;
+    empty_requests.set_frame(7);
+    empty_requests.add_stores("small");
+    for (int i = 0; i < 130000; ++i) empty_requests.add_requests();  // 260 KB on the wire
+    empty_stores.set_frame(8);
+    for (int i = 0; i < 100000; ++i) empty_stores.add_stores();
+    constexpr int kViewers = 16;
+    std::vector<std::unique_ptr<Viewer>> viewers;
+    for (int i = 0; i < kViewers; ++i) {
+        viewers.push_back(std::make_unique<Viewer>(srv.grpc_address()));
+        ASSERT_TRUE(viewers.back()->send(empty_requests));
+        ASSERT_TRUE(viewers.back()->send(empty_stores));
+    }
+    for (auto& v : viewers) {
+        ASSERT_TRUE(v->read_until([&] { return v->acks.size() == 2; }));
+        EXPECT_EQ(v->acks[0].frame(), 7u);
+        EXPECT_EQ(v->acks[0].status(), v1::TILE_RESOURCE_EXHAUSTED);
+        EXPECT_NE(v->acks[0].message().find("batch of 130000 requests exceeds the limit"), std::string::npos)
+            << v->acks[0].message();
+        EXPECT_EQ(v->acks[1].frame(), 8u);
+        EXPECT_EQ(v->acks[1].status(), v1::TILE_INVALID_ARGUMENT);
+        EXPECT_NE(v->acks[1].message().find("lists 100000 stores"), std::string::npos) << v->acks[1].message();
+    }
+    const long rss_after = srv.rss_kib();
+    std::printf("  RSS %ld -> %ld KiB with %d streams open\n", rss_start, rss_after, kViewers);
+#if !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
+    EXPECT_LT(rss_after - rss_start, 32 * 1024) << "RSS grew from " << rss_start << " to " << rss_after << " KiB";
+#endif
+    // The streams still work.
+    ASSERT_TRUE(viewers[0]->send(batch(9, "small", {{0, 0, 0, 1}})));
+    ASSERT_TRUE(viewers[0]->read_until([&] { return viewers[0]->tiles.size() == 1; }));
+    EXPECT_EQ(viewers[0]->tiles[0].status(), v1::TILE_OK);
+}
+
 TEST_F(ServerGrpc, OversizedFieldsCannotGrowTheServer) {
     ServerProcess srv({"--store", Stores::small()}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();

@@ -3,6 +3,11 @@
 #include <mutex>
 
 #include <atomic>
+#include <climits>
+
+#include <google/protobuf/io/coded_stream.h>
+#include <google/protobuf/wire_format_lite.h>
+#include <grpcpp/support/proto_buffer_reader.h>
 
 #include "auth.hpp"
 #include "grpc_handoff.hpp"
@@ -15,6 +20,39 @@ namespace tessera::server {
 namespace {
 
 constexpr std::size_t kKeepBatchBytes = 256 * 1024;
+// Nor one of more requests: a parsed batch keeps its cleared requests for reuse, about 56 bytes
+// each whatever they took on the wire.
+constexpr int kKeepBatchRequests = 4096;
+
+// What a batch holds, read from its wire bytes without parsing it.
+struct BatchShape {
+    bool ok = true;  // well-formed as far as the walk goes (else parsing reports it)
+    std::uint64_t frame = 0;
+    std::uint32_t revision = 0;
+    std::size_t stores = 0, requests = 0;
+};
+
+BatchShape batch_shape(grpc::ByteBuffer& buf) {
+    using google::protobuf::internal::WireFormatLite;
+    BatchShape s;
+    grpc::ProtoBufferReader reader(&buf);
+    google::protobuf::io::CodedInputStream in(&reader);
+    for (std::uint32_t tag; (tag = in.ReadTag()) != 0;) {
+        const int field = WireFormatLite::GetTagFieldNumber(tag);
+        const bool varint = WireFormatLite::GetTagWireType(tag) == WireFormatLite::WIRETYPE_VARINT;
+        std::uint64_t value = 0;
+        if (varint && (field == 1 || field == 5)) {
+            if (!in.ReadVarint64(&value)) return BatchShape{.ok = false};
+            if (field == 1) s.frame = value;
+            else s.revision = static_cast<std::uint32_t>(std::min<std::uint64_t>(value, UINT32_MAX));
+            continue;
+        }
+        if (field == 2) ++s.stores;
+        else if (field == 3) ++s.requests;
+        if (!WireFormatLite::SkipField(&in, tag)) return BatchShape{.ok = false};
+    }
+    return s;
+}
 
 // Connects the scheduler (which may outlive a stream's reactor by a few microseconds on an I/O
 // thread) to the reactor: the reactor detaches itself in OnDone, under the link's lock.
@@ -76,6 +114,15 @@ public:
             return;
         }
         const std::size_t wire_bytes = read_buf_.Length();
+        // Over the limits: refused from its wire bytes, never parsed.
+        const BatchShape shape = batch_shape(read_buf_);
+        if (auto refusal = shape.ok ? scheduler_.oversized(shape.requests, shape.stores) : std::nullopt) {
+            read_buf_.Clear();
+            multi_.store(shape.revision >= 1, std::memory_order_relaxed);
+            scheduler_.refuse_batch(id_, shape.frame, shape.requests, refusal->first, std::move(refusal->second));
+            continue_reading();
+            return;
+        }
         if (!grpc::SerializationTraits<v1::TileBatch>::Deserialize(&read_buf_, &batch_).ok()) {
             std::unique_lock lock(mu_);
             broken_ = true;
@@ -86,10 +133,15 @@ public:
         scheduler_.submit(id_, batch_);
         // The parsed batch is reused for the next one (its allocations with it), unless it was
         // large: then it is freed, so an idle stream does not keep a --max-message batch alive.
-        if (wire_bytes > kKeepBatchBytes) v1::TileBatch().Swap(&batch_);
+        if (wire_bytes > kKeepBatchBytes || batch_.requests_size() > kKeepBatchRequests) v1::TileBatch().Swap(&batch_);
+        continue_reading();
+    }
+
+    // The next batch is read, unless the viewer sends batches but does not read replies: then
+    // it stops being read too.
+    void continue_reading() {
         std::lock_guard lock(mu_);
         if (finished_) return;
-        // A viewer that sends batches but does not read replies stops being read too.
         if (scheduler_.outbox_full(id_)) {
             read_paused_ = true;
         } else {

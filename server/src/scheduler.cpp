@@ -187,6 +187,37 @@ void Scheduler::notify(std::vector<std::shared_ptr<ViewerSink>>& sinks) {
     sinks.clear();
 }
 
+std::optional<std::pair<TileStatus, std::string>> Scheduler::oversized(std::size_t requests, std::size_t stores) const {
+    if (stores > kMaxBatchStores)
+        return std::pair{TileStatus::invalid_argument, "the batch lists " + std::to_string(stores) + " stores (the limit is " +
+                                                           std::to_string(kMaxBatchStores) + "); it was refused whole"};
+    if (requests > ctx_.config.max_batch)
+        return std::pair{TileStatus::resource_exhausted, "batch of " + std::to_string(requests) +
+                                                             " requests exceeds the limit of " +
+                                                             std::to_string(ctx_.config.max_batch) + "; it was refused whole"};
+    return std::nullopt;
+}
+
+void Scheduler::refuse_batch(ViewerId id, std::uint64_t frame, std::size_t requests, TileStatus status, std::string message) {
+    batches_->inc();
+    requests_->inc(requests);
+    batch_size_->observe(double(requests));
+    batches_refused_->inc();
+    std::shared_ptr<ViewerSink> sink;
+    {
+        std::lock_guard lock(mu_);
+        auto it = viewers_.find(id);
+        if (it == viewers_.end()) return;
+        OutMessage m;
+        m.message.mutable_ack()->set_frame(frame);
+        m.message.mutable_ack()->set_status(protocol::to_proto(status));
+        m.message.mutable_ack()->set_message(std::move(message));
+        push_locked(*it->second, std::move(m));
+        sink = it->second->sink;
+    }
+    if (sink) sink->on_outbox_ready();
+}
+
 void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     const auto now = Clock::now();
     batches_->inc();
@@ -196,9 +227,10 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     // The store list is checked first: a name over the limit refuses the batch once, in a reply
     // of fixed size, instead of being copied into a reply per request.
     std::string bad_list;
-    if (static_cast<std::size_t>(batch.stores_size()) > kMaxBatchStores) {
-        bad_list = "the batch lists " + std::to_string(batch.stores_size()) + " stores (the limit is " +
-                   std::to_string(kMaxBatchStores) + "); it was refused whole";
+    auto too_big = oversized(std::size_t(batch.requests_size()), std::size_t(batch.stores_size()));
+    if (too_big && too_big->first == TileStatus::invalid_argument) {
+        bad_list = std::move(too_big->second);
+        too_big.reset();
     } else {
         for (int i = 0; i < batch.stores_size() && bad_list.empty(); ++i)
             if (batch.stores(i).size() > protocol::kMaxStoreNameLength)
@@ -259,12 +291,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     };
     if (draining_) return refuse_whole(TileStatus::unavailable, "the server is shutting down; reconnect elsewhere");
     if (!bad_list.empty()) return refuse_whole(TileStatus::invalid_argument, std::move(bad_list));
-    if (static_cast<std::size_t>(batch.requests_size()) > ctx_.config.max_batch) {
-        char buf[128];
-        std::snprintf(buf, sizeof buf, "batch of %d requests exceeds the limit of %zu; it was refused whole",
-                      batch.requests_size(), ctx_.config.max_batch);
-        return refuse_whole(TileStatus::resource_exhausted, buf);
-    }
+    if (too_big) return refuse_whole(too_big->first, std::move(too_big->second));
 
     // Validate, and collect the new wanted set.
     const auto deadline =

@@ -109,6 +109,12 @@ public:
     // One batch from a viewer: validates it, replaces the pending set, queues the ack (and error
     // replies) in the outbox. Wakes the I/O threads.
     void submit(ViewerId id, const v1::TileBatch& batch);
+    // A batch over the limits (more than kMaxBatchStores stores or config.max_batch requests):
+    // the status and message of its refusal, else nullopt. The stream counts a batch's entries
+    // on the wire first and refuses it with refuse_batch without parsing it (an empty request
+    // is 2 bytes on the wire, over 50 once parsed).
+    std::optional<std::pair<TileStatus, std::string>> oversized(std::size_t requests, std::size_t stores) const;
+    void refuse_batch(ViewerId id, std::uint64_t frame, std::size_t requests, TileStatus status, std::string message);
 
     // Stream side. next_messages moves the next outbox messages into out (cleared first; false:
     // none): an ack alone, or the replies at the front, as many as fit in max_bytes (at least
