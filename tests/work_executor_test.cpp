@@ -182,6 +182,30 @@ TEST(WorkExecutor, RendersAreAdmittedAgainstMemoryAndQueue) {
     EXPECT_EQ(ex.stats().render_memory, 0u);
 }
 
+// One store's renders wait in at most half its lane and three quarters of the render queue: its
+// own reads and other stores' renders are still admitted (renders had filled the lane, so the
+// store's reads were refused, and the render queue, so every other store's were).
+TEST(WorkExecutor, OneStoresRendersLeaveRoomForItsReadsAndOtherStores) {
+    MetricsRegistry metrics;
+    WorkLimits limits;
+    limits.threads = 1;
+    limits.render_concurrency = 1;
+    limits.store_inflight = 8;
+    limits.store_queue = 4;
+    limits.render_queue = 4;
+    Gate gate;
+    WorkExecutor ex(limits, metrics);
+    const Release release{gate};
+    ASSERT_EQ(ex.submit(job(WorkKind::render, "a", [&](bool) { gate.wait(); })), Admission::admitted);
+    ASSERT_TRUE(gate.wait_for_waiting(1, 5s));  // running; the next ones wait
+    std::vector<Admission> more;
+    for (int i = 0; i < 4; ++i) more.push_back(ex.submit(job(WorkKind::render, "a", [](bool) {})));
+    EXPECT_EQ(more, (std::vector<Admission>{Admission::admitted, Admission::admitted, Admission::store_full,
+                                            Admission::store_full}));
+    EXPECT_EQ(ex.submit(job(WorkKind::read, "a", [](bool) {})), Admission::admitted);
+    EXPECT_EQ(ex.submit(job(WorkKind::render, "b", [](bool) {})), Admission::admitted);
+}
+
 TEST(WorkExecutor, StopAnswersEveryWaitingJob) {
     MetricsRegistry metrics;
     WorkLimits limits;

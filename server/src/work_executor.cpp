@@ -134,7 +134,12 @@ Admission WorkExecutor::submit(WorkJob job) {
         if (stopping_) {
             verdict = Admission::stopped;
         } else {
-            if (lane.queued() >= limits_.store_queue) {
+            // One store's renders wait in at most half its lane (its reads keep the rest) and
+            // three quarters of the render queue (other stores' renders keep the rest).
+            const std::size_t lane_render_queue = std::max<std::size_t>(
+                1, std::min(limits_.store_queue / 2, limits_.render_queue - limits_.render_queue / 4));
+            if (lane.queued() >= limits_.store_queue ||
+                (job.kind == WorkKind::render && lane.renders.size() >= lane_render_queue)) {
                 verdict = Admission::store_full;
                 lane.rejected->inc();
             } else if (job.kind == WorkKind::render) {

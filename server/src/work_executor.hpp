@@ -12,7 +12,8 @@
 //   of the next lane in turn; renders run on `render_concurrency` workers of their own, at a
 //   lower CPU priority (nice 5), so a flood of renders never holds a read or an event loop.
 // - A render is admitted against `render_queue` (waiting) and `render_memory`, the bytes its
-//   estimate says the renders running and waiting may hold.
+//   estimate says the renders running and waiting may hold; one store's renders wait in at most
+//   half its lane and three quarters of `render_queue`.
 // - A job whose deadline passes while it waits is taken out and answered (expired) within
 //   kExpiryTick (the expiry thread sleeps while nothing waits); a running job's remote reads end
 //   at its deadline (storage::ReadDeadlineScope).
