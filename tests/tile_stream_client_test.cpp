@@ -392,6 +392,28 @@ TEST(TileStreamClient, PollMovesAtMostMaxInArrivalOrder) {
     EXPECT_EQ(client->stats().buffered_bytes, 0u);
 }
 
+// A batch says how many tile replies the application has polled, not how many the client holds:
+// tiles received but not yet polled are still on their way to the application, which lists them
+// again, and the server must not send them twice (docs/protocol.md, "Re-listed tiles").
+TEST(TileStreamClient, RepliesReceivedCountsWhatWasPolled) {
+    FakeTileService service;
+    FakeServer server(service);
+    ASSERT_TRUE(server.ok());
+    auto client = TileStreamClient::create(fast_options(server.target()));
+    client->send_batch(1, requests(1, 4));
+    ASSERT_TRUE(eventually([&] { return client->stats().buffered_items == 5; }));  // ack + 4 tiles, unpolled
+    client->send_batch(2, requests(1, 4));
+    ASSERT_TRUE(eventually([&] { return service.batches().size() == 2; }));
+    EXPECT_EQ(service.batches()[1].replies_received(), 0u) << "tiles not yet polled were counted as read";
+    ASSERT_TRUE(eventually([&] { return client->stats().buffered_items == 10; }));
+    std::vector<ReceivedTile> tiles;
+    std::vector<BatchAckInfo> acks;
+    EXPECT_EQ(client->poll(tiles, &acks, 4), 4u);  // the first ack and three tiles
+    client->send_batch(3, requests(1, 4));
+    ASSERT_TRUE(eventually([&] { return service.batches().size() == 3; }));
+    EXPECT_EQ(service.batches()[2].replies_received(), 3u);
+}
+
 // (b) Two batches in quick succession: the server sees the newest (maybe the first too, never after).
 TEST(TileStreamClient, NewestBatchWins) {
     FakeTileService service;

@@ -123,6 +123,7 @@ int clamp_ms(milliseconds d) {
 struct Item {
     std::variant<ReceivedTile, BatchAckInfo> body;
     std::size_t bytes = 0;
+    std::uint64_t stream = 0;  // the stream it came on (replies_polled_ counts the current one's)
 };
 
 std::size_t accounted_bytes(const ReceivedTile& t) {
@@ -243,8 +244,10 @@ public:
         }
         {
             std::lock_guard lk(mu_);
-            // What has arrived so far: the server tells tiles on the wire from tiles asked for again.
-            batch->set_replies_received(replies_on_stream_);
+            // What the application has taken so far: the server tells tiles still on their way (on
+            // the wire, or here unpolled, which the application lists again) from tiles asked for
+            // again after they arrived.
+            batch->set_replies_received(replies_polled_);
             if (batch_ && written_gen_ != batch_gen_) ++stats_.batches_superseded;
             batch_ = std::move(batch);
             ++batch_gen_;
@@ -262,6 +265,7 @@ public:
                 if (auto* tile = std::get_if<ReceivedTile>(&item.body)) {
                     tiles.push_back(std::move(*tile));
                     ++moved;
+                    if (item.stream == stream_gen_) ++replies_polled_;
                 } else if (acks != nullptr) {
                     acks->push_back(std::move(std::get<BatchAckInfo>(item.body)));
                     ++moved;
@@ -412,7 +416,8 @@ private:
             ++stats_.connects;
             if (stats_.connects > 1) ++stats_.reconnects;
             written_gen_ = 0;  // the newest batch goes out again on this stream
-            replies_on_stream_ = 0;
+            replies_polled_ = 0;
+            ++stream_gen_;
             stream_live_ = true;
             read_ended_ = false;
             half_closed_ = false;
@@ -516,7 +521,6 @@ private:
         {
             std::lock_guard lk(mu_);
             if (decoder_.kind() == protocol::ServerMessageDecoder::Kind::tiles) {
-                replies_on_stream_ += tiles;
                 stats_.tiles_received += tiles;
                 stats_.bytes_received += payload_bytes;
                 stats_.checksum_failures += bad_checksums;
@@ -524,6 +528,7 @@ private:
                 ++stats_.acks_received;
             }
             for (auto& item : items_) {
+                item.stream = stream_gen_;
                 buffered_bytes_ += item.bytes;
                 queue_.push_back(std::move(item));
             }
@@ -551,7 +556,8 @@ private:
     std::shared_ptr<const v1::TileBatch> batch_;  // the newest batch (the one-slot outgoing queue)
     std::uint64_t batch_gen_ = 0;                 // bumped by every send_batch
     std::uint64_t written_gen_ = 0;               // the generation written on the current stream
-    std::uint64_t replies_on_stream_ = 0;         // tile replies read on the current stream
+    std::uint64_t stream_gen_ = 0;                // bumped by every stream opened
+    std::uint64_t replies_polled_ = 0;            // tile replies of the current stream polled
     grpc::ClientContext* ctx_ = nullptr;          // the current stream's context, owned by the session thread
     bool stream_live_ = false;                    // a stream is open (between open and Finish)
     bool read_ended_ = false;                     // the current stream's read side is done
