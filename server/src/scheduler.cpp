@@ -270,38 +270,18 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
         errors.push_back(std::move(m));
     };
 
-    std::vector<std::shared_ptr<ViewerSink>> wake;
-    std::unique_lock lock(mu_);
-    auto vit = viewers_.find(id);
-    if (vit == viewers_.end()) return;
-    Viewer& v = *vit->second;
-    v.track_sent = batch.protocol_revision() >= 1;
-    if (!v.track_sent) v.sent.clear();
-
-    auto refuse_whole = [&](TileStatus status, std::string message) {
-        batches_refused_->inc();
-        ack.set_status(protocol::to_proto(status));
-        ack.set_message(std::move(message));
-        OutMessage m;
-        *m.message.mutable_ack() = std::move(ack);
-        push_locked(v, std::move(m));
-        wake.push_back(v.sink);
-        lock.unlock();
-        notify(wake);
-    };
-    if (draining_) return refuse_whole(TileStatus::unavailable, "the server is shutting down; reconnect elsewhere");
-    if (!bad_list.empty()) return refuse_whole(TileStatus::invalid_argument, std::move(bad_list));
-    if (too_big) return refuse_whole(too_big->first, std::move(too_big->second));
-
-    // Validate, and collect the new wanted set.
+    // Validate, and collect the new wanted set (outside the lock: nothing here is the viewer's).
     const auto deadline =
         now + (batch.deadline_ms() ? std::chrono::milliseconds(batch.deadline_ms()) : ctx_.config.request_timeout);
-    std::vector<Pending> next;
-    next.reserve(static_cast<std::size_t>(batch.requests_size()));
+    static const google::protobuf::RepeatedPtrField<v1::TileRequest> kNone;
+    const bool refused_whole = !bad_list.empty() || too_big.has_value();  // below, under the lock
+    const auto& requests = refused_whole ? kNone : batch.requests();
+    std::vector<Pending> candidates;
+    candidates.reserve(static_cast<std::size_t>(requests.size()));
     absl::flat_hash_set<FullKey, FullKeyHash> wanted;
-    wanted.reserve(static_cast<std::size_t>(batch.requests_size()));
+    wanted.reserve(static_cast<std::size_t>(requests.size()));
     std::uint32_t invalid = 0, already = 0, already_sent = 0;
-    for (const auto& r : batch.requests()) {
+    for (const auto& r : requests) {
         if (r.store() >= static_cast<std::uint32_t>(batch.stores_size())) {
             error_reply(r, TileStatus::invalid_argument, "store index " + std::to_string(r.store()) + " is not in the batch's store list");
             ++invalid;
@@ -337,8 +317,56 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
             continue;
         }
         const FullKey fk{store.get(), pack_key(key)};
-        if (!wanted.insert(fk).second || v.in_flight.contains(fk)) {
-            ++already;  // a duplicate in this batch, or already being served: sent once
+        if (!wanted.insert(fk).second) {
+            ++already;  // a duplicate in this batch: sent once
+            continue;
+        }
+        Pending p;
+        p.priority = r.priority();
+        p.packed = fk.packed;
+        p.key = key;
+        p.store = store;
+        p.frame = batch.frame();
+        p.received = now;
+        p.deadline = deadline;
+        candidates.push_back(std::move(p));
+    }
+    // Highest priority first (ties in the batch's order). Validation and the sort happen before
+    // the lock: for a batch of thousands of requests they would hold every stream and worker.
+    std::stable_sort(candidates.begin(), candidates.end(),
+                     [](const Pending& a, const Pending& b) { return a.priority > b.priority; });
+
+    std::vector<std::shared_ptr<ViewerSink>> wake;
+    std::unique_lock lock(mu_);
+    auto vit = viewers_.find(id);
+    if (vit == viewers_.end()) return;
+    Viewer& v = *vit->second;
+    v.track_sent = batch.protocol_revision() >= 1;
+    if (!v.track_sent) v.sent.clear();
+
+    auto refuse_whole = [&](TileStatus status, std::string message) {
+        batches_refused_->inc();
+        ack.set_status(protocol::to_proto(status));
+        ack.set_message(std::move(message));
+        OutMessage m;
+        *m.message.mutable_ack() = std::move(ack);
+        push_locked(v, std::move(m));
+        wake.push_back(v.sink);
+        lock.unlock();
+        notify(wake);
+    };
+    if (draining_) return refuse_whole(TileStatus::unavailable, "the server is shutting down; reconnect elsewhere");
+    if (!bad_list.empty()) return refuse_whole(TileStatus::invalid_argument, std::move(bad_list));
+    if (too_big) return refuse_whole(too_big->first, std::move(too_big->second));
+
+    // What this viewer is already being served: being read or in its outbox (in_flight), or on
+    // the wire and not yet read by it (the sent set). Such a request is served once, not again.
+    std::vector<Pending> next;
+    next.reserve(candidates.size());
+    for (Pending& p : candidates) {
+        const FullKey fk{p.store.get(), p.packed};
+        if (v.in_flight.contains(fk)) {
+            ++already;
             continue;
         }
         if (auto s = v.sent.find(fk); s != v.sent.end()) {
@@ -350,14 +378,6 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
             }
             v.sent.erase(s);
         }
-        Pending p;
-        p.priority = r.priority();
-        p.packed = fk.packed;
-        p.key = key;
-        p.store = store;
-        p.frame = batch.frame();
-        p.received = now;
-        p.deadline = deadline;
         next.push_back(std::move(p));
     }
 
@@ -379,7 +399,6 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     }
 
     // Admission: the pending queue over all viewers is bounded; the lowest priorities are refused.
-    std::stable_sort(next.begin(), next.end(), [](const Pending& a, const Pending& b) { return a.priority > b.priority; });
     if (next.size() + total_pending_ - v.pending.size() > ctx_.config.max_pending) reclaim_expired_locked(v, now);
     const std::uint64_t others = total_pending_ - v.pending.size();
     const std::uint64_t room = ctx_.config.max_pending > others ? ctx_.config.max_pending - others : 0;
