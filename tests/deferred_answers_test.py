@@ -11,12 +11,18 @@ reach the client, and each kind of work is admitted as its kind.
    rendered from three rows of 1024² tiles (about 30 MiB estimated). With --render-memory 16MiB
    that render is refused 503 + Retry-After; with the defaults it is rendered by a render worker
    (tessera_work_wait_seconds_count{kind="render"} counts it) and is a 1024² JPEG.
+3. The stop cuts what waits on an origin. With the origin at 20 s, --request-timeout 8000 and
+   --drain-timeout 1000, a SIGTERM while a tile request waits ends the process with 0 within the
+   drain timeout + 1 s: the drain waits its 1 s, then the remote read is cancelled, not waited for
+   until its deadline (which overran the stop's watchdog: exit 1 after 2.5 s).
 """
 import argparse
 import http.client
 import os
 import re
+import signal
 import struct
+import subprocess
 import sys
 import tempfile
 import threading
@@ -67,6 +73,51 @@ def slow_answers(tessera, tmp):
     finally:
         iso.RangeOrigin.delay = 0
         iso.stop_server(p)
+        origin.shutdown()
+
+
+def stop_cuts_slow_reads(tessera, tmp):
+    remote_file = os.path.join(tmp, "remote-stop.tsr")
+    iso.build(tessera, "procedural:terrain:1024", remote_file)
+    with open(remote_file, "rb") as f:
+        iso.RangeOrigin.data = f.read()
+    origin = iso.ThreadingServer(("127.0.0.1", 0), iso.RangeOrigin)
+    threading.Thread(target=origin.serve_forever, daemon=True).start()
+    url = f"http://127.0.0.1:{origin.server_address[1]}/slow.tsr"
+    p, (_, port) = iso.start_server(tessera, ["--store", url, "--cache-size", "0", "--request-timeout", "8000",
+                                              "--drain-timeout", "1000"])
+    try:
+        iso.RangeOrigin.delay = 20.0
+
+        def ask():
+            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+            try:
+                conn.request("GET", "/v1/stores/slow/tiles/0/3/3")
+                conn.getresponse().read()
+            except (http.client.HTTPException, OSError):
+                pass  # cut with the server: either way is fine here
+            finally:
+                conn.close()
+
+        asker = threading.Thread(target=ask, daemon=True)
+        asker.start()
+        time.sleep(0.5)  # the read is waiting on the origin
+        t0 = time.perf_counter()
+        p.send_signal(signal.SIGTERM)
+        try:
+            rc = p.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            fail("the server did not stop within 30 s of SIGTERM")
+        s = time.perf_counter() - t0
+        err = p.stderr.read() if p.stderr else ""
+        print(f"SIGTERM with a read waiting on a 20 s origin: exit {rc} after {s:.2f} s", flush=True)
+        if rc != 0 or s > 2.0:
+            fail(f"expected exit 0 within the 1 s drain + 1 s, got {rc} after {s:.2f} s: {err[-400:]}")
+    finally:
+        iso.RangeOrigin.delay = 0
+        if p.poll() is None:
+            p.kill()
         origin.shutdown()
 
 
@@ -157,6 +208,7 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         slow_answers(a.tessera, tmp)
         uniform_interior_render(a.tessera, tmp)
+        stop_cuts_slow_reads(a.tessera, tmp)
     print("PASS", flush=True)
 
 

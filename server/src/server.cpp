@@ -219,6 +219,9 @@ public:
             std::this_thread::sleep_for(std::chrono::milliseconds(5));
         const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
         if (http_) http_->wait_idle(std::max(left, std::chrono::milliseconds(0)));
+        // The drain is over: what still waits on a remote store's origin is cut, not waited for
+        // (HTTP jobs and gRPC reads would otherwise hold the stop until their own deadlines).
+        for (const auto& h : stores_.list()) h->reader->cancel_reads();
         const auto s = scheduler_ ? scheduler_->stats() : SchedulerStats{};
         if (grpc_server_) grpc_server_->Shutdown(std::chrono::system_clock::now() + std::chrono::milliseconds(200));
         if (http_) http_->stop();

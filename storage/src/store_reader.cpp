@@ -459,6 +459,7 @@ public:
     }
 
     bool file_changed() const override { return src_->changed(); }
+    void cancel_reads() const override { src_->cancel(); }
 
     Result<std::uint64_t> index_hash() const override {
         // In pieces: a sparse store's index may be a gigabyte.

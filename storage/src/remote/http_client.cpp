@@ -75,23 +75,40 @@ std::string HttpClient::host_header() const {
 
 std::unique_ptr<HttpClient::Connection> HttpClient::take(Deadline deadline) {
     std::unique_lock lock(m_);
-    if (!cv_.wait_until(lock, deadline, [&] { return busy_ < max_connections_; })) return nullptr;
+    if (!cv_.wait_until(lock, deadline, [&] { return busy_ < max_connections_ || cancelled(); }) || cancelled())
+        return nullptr;
     ++busy_;
+    std::unique_ptr<Connection> c;
     if (!idle_.empty()) {
-        auto c = std::move(idle_.back());
+        c = std::move(idle_.back());
         idle_.pop_back();
-        return c;
+    } else {
+        c = std::make_unique<Connection>();
     }
-    return std::make_unique<Connection>();
+    active_.push_back(c.get());
+    return c;
 }
 
 void HttpClient::give_back(std::unique_ptr<Connection> c) {
     {
         std::lock_guard lock(m_);
         --busy_;
-        if (c && c->open) idle_.push_back(std::move(c));
+        std::erase(active_, c.get());
+        if (c && c->open && !cancelled()) idle_.push_back(std::move(c));
     }
     cv_.notify_one();
+}
+
+void HttpClient::cancel() {
+    std::lock_guard lock(m_);
+    cancelled_.store(true, std::memory_order_relaxed);
+    // Each connection runs its operations on its own io_context, in the requesting thread: the
+    // cancel is posted there (it runs before, or ends, the operation under way).
+    for (Connection* c : active_)
+        asio::post(c->ioc, [c] {
+            if (c->plain || c->secure) c->lowest().cancel();
+        });
+    cv_.notify_all();  // requests waiting for a connection give up
 }
 
 Result<HttpResponse> HttpClient::request(const std::string& method, const std::string& target,
@@ -99,6 +116,8 @@ Result<HttpResponse> HttpClient::request(const std::string& method, const std::s
                                          Deadline deadline) {
     const std::string where = (origin_.tls ? "https://" : "http://") + host_header();
     std::unique_ptr<Connection> c = take(deadline);
+    const auto cancelled_error = [&] { return Error{Errc::cancelled, where + ": reads cancelled (the server is stopping)"}; };
+    if (!c && cancelled()) return cancelled_error();
     if (!c) return Error{Errc::io_error, where + ": no connection free before the read's deadline"};
     struct Return {
         HttpClient& client;
@@ -118,6 +137,10 @@ Result<HttpResponse> HttpClient::request(const std::string& method, const std::s
     };
 
     for (int attempt = 0;; ++attempt) {
+        if (cancelled()) {
+            c->close();
+            return cancelled_error();
+        }
         const bool reused = c->open;
         if (!c->open) {
             // The addresses within this step's time: a slow DNS server holds no request past it.
@@ -183,6 +206,10 @@ Result<HttpResponse> HttpClient::request(const std::string& method, const std::s
             c->lowest().expires_after(step_time());
             ec = c->secure ? c->run([&](auto handler) { http::async_read(*c->secure, c->buffer, parser, handler); })
                            : c->run([&](auto handler) { http::async_read(*c->plain, c->buffer, parser, handler); });
+        }
+        if (ec && cancelled()) {
+            c->close();
+            return cancelled_error();
         }
         if (ec) {
             // A kept-alive connection the server closed meanwhile: once more on a fresh one.

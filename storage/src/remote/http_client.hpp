@@ -3,6 +3,7 @@
 // keep-alive connections to one origin, at most `max_connections` requests at once (callers
 // beyond wait), a deadline per request. Retries are the caller's (remote_source.cpp), which knows
 // which answers are worth retrying.
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -62,6 +63,11 @@ public:
                                  const std::vector<std::pair<std::string, std::string>>& headers, std::uint64_t max_body,
                                  Deadline deadline = Deadline::max());
 
+    // Ends the requests in progress at once (they fail) and fails every later one: for a server
+    // that is stopping and will not wait for a slow origin. Thread-safe; for good.
+    void cancel();
+    bool cancelled() const { return cancelled_.load(std::memory_order_relaxed); }
+
     const Origin& origin() const { return origin_; }
     std::string host_header() const;  // "host" or "host:port" when the port is not the default
 
@@ -80,6 +86,8 @@ private:
     std::condition_variable cv_;
     unsigned busy_ = 0;
     std::vector<std::unique_ptr<Connection>> idle_;
+    std::vector<Connection*> active_;  // taken by a request now (cancel() reaches them)
+    std::atomic<bool> cancelled_{false};
 };
 
 }  // namespace tessera::storage::remote

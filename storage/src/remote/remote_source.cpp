@@ -246,6 +246,8 @@ public:
                                               ", got " + std::to_string(r->body.size()) + " (status " + std::to_string(r->status) + ")");
     }
 
+    void cancel() const override { client_.cancel(); }
+
     bool changed() const override {
         if (changed_.load()) return true;
         // After a failure: has the object been replaced? One HEAD at most per second.
@@ -284,6 +286,7 @@ private:
         const auto deadline = std::min(std::chrono::steady_clock::now() + options_.deadline, read_deadline());
         unsigned tries = 0;
         for (unsigned attempt = 0; attempt < std::max(1u, options_.attempts); ++attempt) {
+            if (client_.cancelled()) break;
             if (attempt > 0) {
                 // Full jitter: uniform in [0, backoff * 2^(attempt-1)]; no retry that the
                 // deadline would cut short before it starts.
@@ -314,6 +317,7 @@ private:
             }
             remote_counters().requests.fetch_add(1, std::memory_order_relaxed);
             last = client_.request(method, target_.path, headers, max_body, deadline);
+            if (!last && last.error().code == Errc::cancelled) return last.error();
             if (last && !retryable(last->status)) {
                 if (method == "GET") remote_counters().bytes.fetch_add(last->body.size(), std::memory_order_relaxed);
                 return last;

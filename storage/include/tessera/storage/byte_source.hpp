@@ -25,6 +25,10 @@ public:
     virtual bool changed() const { return false; }
     // The version of the bytes where the source knows one (a remote object's ETag); "" otherwise.
     virtual std::string version() const { return {}; }
+    // Ends the reads that wait on a network at once (they fail with Errc::cancelled) and fails
+    // every later one: for a server that is stopping. Nothing for local sources (a pread is not
+    // interrupted). For good: the source is not read again.
+    virtual void cancel() const {}
 };
 
 // The deadline of the request this thread is reading for (a server's HTTP request or gRPC

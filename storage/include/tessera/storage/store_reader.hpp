@@ -73,6 +73,9 @@ public:
     // True when the file was changed since it was opened (size or modification time): reads that
     // fail now may be the file's fault, not the store's. One fstat; false for stores in memory.
     virtual bool file_changed() const = 0;
+    // Cancels the reads of a source that waits on a network (ByteSource::cancel): reads in
+    // progress fail at once, later ones too. For a server that is stopping.
+    virtual void cancel_reads() const = 0;
     // The content hash of the index as the file holds it now (every byte between the header and
     // the data section), computed the way the writer computes StoreInfo::store_id: equal to it
     // unless the index was changed after the store was written. Reads the whole index.
