@@ -2,10 +2,15 @@
 // its inspect and verify commands (the level table, JSON totals, every corrupted byte detected).
 #include <OpenImageIO/imageio.h>
 #include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <array>
+#include <cerrno>
 #include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -43,6 +48,8 @@ std::set<std::string> entries(const ScratchDir& dir) {
     const auto v = dir.entries();
     return {v.begin(), v.end()};
 }
+
+bool has(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
 
 std::size_t line_count(const std::string& s) { return static_cast<std::size_t>(std::count(s.begin(), s.end(), '\n')); }
 
@@ -288,6 +295,52 @@ TEST(CliBuildOutput, ExistingFileUntouchedWhenBuildFails) {
         expect_build_fails(d, args + " -o " + q(d.file("out.tsr")), keep);
         EXPECT_EQ(read_file(d.file("out.tsr")), old);
     }
+}
+
+// Outputs are renamed into place, which replaces whatever is at the path: a device, a FIFO or a
+// symbolic link there is refused before any work, for every command that writes a file, and is
+// left as it was. (.png: a name `source` can write.)
+TEST(CliOutput, OnlyARegularFileIsReplaced) {
+    ScratchDir d;
+    write_file(d.file("target"), {7, 7, 7});
+    ASSERT_EQ(::mkfifo(d.file("fifo.png").c_str(), 0644), 0);
+    fs::create_symlink(d.file("target"), d.file("link.png"));
+    std::vector<std::pair<std::string, std::string>> paths = {{"fifo.png", "a FIFO"}, {"link.png", "symbolic link"}};
+    if (::geteuid() == 0) {  // a character device like /dev/null (1, 3), made here so that a failure destroys nothing
+        ASSERT_EQ(::mknod(d.file("null.png").c_str(), S_IFCHR | 0666, ::makedev(1, 3)), 0) << std::strerror(errno);
+        paths.emplace_back("null.png", "a device");
+    }
+    const std::set<std::string> keep = [&] {
+        std::set<std::string> k = {"target"};
+        for (const auto& p : paths) k.insert(p.first);
+        return k;
+    }();
+    for (const auto& [name, what] : paths) {
+        const std::string out = q(d.file(name));
+        for (const std::string& args :
+             {"build procedural:terrain:64 --quiet -o " + out, "source procedural:terrain:64 --quiet -o " + out,
+              "build --atlas " + q(d.file("nosuch.obj")) + " -o " + q(d.file("atlas.tsr")) + " --obj-out " + out,
+              "loadtest --server 127.0.0.1:1 --connect-timeout 0.2 --store terrain --json " + out,
+              "loadtest --server 127.0.0.1:1 --connect-timeout 0.2 --store terrain --plot " + out,
+              "view --headless --store " + q(d.file("nosuch.tsr")) + " --stats " + out,
+              "view --headless --store " + q(d.file("nosuch.tsr")) + " --trace " + out}) {
+            SCOPED_TRACE(args);
+            const RunResult r = run_tessera(args);
+            expect_one_line_error(r);
+            EXPECT_EQ(r.exit_code, 2) << r.out;
+            EXPECT_TRUE(has(r.out, name) && has(r.out, what)) << r.out;
+            if (name == "link.png") {
+                EXPECT_TRUE(has(r.out, "name the file itself")) << r.out;
+            }
+            EXPECT_EQ(entries(d), keep) << r.out;
+        }
+    }
+    EXPECT_TRUE(fs::is_fifo(fs::symlink_status(d.file("fifo.png"))));
+    EXPECT_TRUE(fs::is_symlink(fs::symlink_status(d.file("link.png"))));
+    if (fs::exists(fs::symlink_status(d.file("null.png")))) {
+        EXPECT_TRUE(fs::is_character_file(fs::symlink_status(d.file("null.png"))));
+    }
+    EXPECT_EQ(read_file(d.file("target")), (std::vector<std::uint8_t>{7, 7, 7}));
 }
 
 // ---- build: invalid flags ----------------------------------------------------------------------------
@@ -667,7 +720,6 @@ TEST(CliVerify, EveryFlippedByteIsDetected) {
 // `tessera-server ARGS`, as run_tessera runs `tessera ARGS`.
 RunResult run_server_binary(const std::string& args) { return tessera::test::run_program(TESSERA_SERVER_EXE, args); }
 
-bool has(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
 
 // A help screen's entry for an option or command: from "  NAME" to the next entry (a long one's
 // description is on the lines below it).

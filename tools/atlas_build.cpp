@@ -11,6 +11,7 @@
 
 #include "tessera/scene/atlas.hpp"
 #include "tessera/storage/image_source.hpp"
+#include "tessera/storage/output_file.hpp"
 
 namespace tessera::tools {
 namespace fs = std::filesystem;
@@ -221,6 +222,10 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
     }
 
     std::error_code ec;
+    if (Status st = storage::check_output_file(obj_out); !st) {  // something may have appeared there during the build
+        fs::remove(store, ec);
+        return st.error();
+    }
     fs::rename(tmp.path(), obj_out, ec);
     if (ec) {
         fs::remove(store, ec);

@@ -2,6 +2,8 @@
 
 #include <cstdio>
 
+#include "tessera/storage/output_file.hpp"
+
 namespace tessera::tools {
 
 std::string bytes_text(std::uint64_t bytes) {
@@ -20,6 +22,15 @@ CLI::Validator bytes_transform() {
     CLI::Validator v = CLI::AsSizeValue(false);
     v.description("");
     return v;
+}
+
+CLI::Validator output_file() {
+    return CLI::Validator(
+        [](std::string& path) -> std::string {
+            const Status st = storage::check_output_file(path);
+            return st ? std::string() : st.error().message;
+        },
+        "", "output file");
 }
 
 CLI::Option* add_texels_option(CLI::App& app, std::uint32_t& texels, const std::string& help, const CLI::Validator& check) {

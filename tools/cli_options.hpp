@@ -26,6 +26,10 @@ CLI::Option* add_bytes_option(CLI::App& app, const std::string& name, T& bytes, 
         ->default_str(bytes_text(static_cast<std::uint64_t>(bytes)));
 }
 
+// An output file option: refuses, as the command line is read (before any work), a path that
+// holds something other than a regular file (storage::check_output_file).
+CLI::Validator output_file();
+
 // `--texels N`: texels per side of the procedural terrain (`bench`, `demo`), checked by `check`.
 // `--size N`, its former name, still works: hidden from the help, it prints a one-line notice on
 // stderr once the command line is accepted (this sets the subcommand's final callback), and a

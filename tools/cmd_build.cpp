@@ -13,6 +13,7 @@
 #include "tessera/scene/visibility.hpp"
 #include "tessera/storage/builder.hpp"
 #include "tessera/storage/layers.hpp"
+#include "tessera/storage/output_file.hpp"
 #include "tessera/storage/store_writer.hpp"
 
 namespace tessera::tools {
@@ -87,6 +88,9 @@ int run_build(BuildArgs& a) {
         throw Failure(fmt::format("--atlas-padding must be at most 4096, got {}", a.pack.padding), 2);
     if (!a.atlas.empty() && a.obj_out.empty())
         a.obj_out = std::filesystem::path(a.output).replace_extension(".obj").string();
+    // Before any work: the outputs are renamed into place, which would replace a device or a link.
+    for (const std::string& path : {a.output, a.obj_out})
+        if (Status st = storage::check_output_file(path); !st) throw Failure(st.error().message, 2);
 
     const bool visibility_given =
         a.visibility_options_given;

@@ -40,8 +40,8 @@ Command add_loadtest(CLI::App& app) {
     c->add_option("--bandwidth", o->bandwidth_mbit, "emulated link: bandwidth cap per viewer, Mbit/s (0: none)")->check(CLI::Range(0.0, 1e6));
     c->add_option("--threads", o->threads, "driver threads (0: min(viewers, cores))")->capture_default_str();
     c->add_option("--connect-timeout", o->connect_timeout, "seconds to wait for the server before giving up")->capture_default_str()->check(CLI::PositiveNumber);
-    c->add_option("--json", o->json, "write the results as JSON");
-    c->add_option("--plot", o->plot, "write a plot (SVG): fallback and p99 over time, or vs viewers");
+    c->add_option("--json", o->json, "write the results as JSON")->check(output_file());
+    c->add_option("--plot", o->plot, "write a plot (SVG): fallback and p99 over time, or vs viewers")->check(output_file());
     c->add_flag("-q,--quiet", o->quiet, "no progress lines");
     c->add_option("--server-pid", o->server_pid,
                   "the server's process id on this machine: its CPU time per viewer-second is measured (/proc), and "

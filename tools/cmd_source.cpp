@@ -11,6 +11,7 @@
 #include "gallery_scene.hpp"
 #include "progress.hpp"
 #include "tessera/storage/image_source.hpp"
+#include "tessera/storage/output_file.hpp"
 
 namespace tessera::tools {
 
@@ -37,6 +38,8 @@ Command add_source(CLI::App& app) {
             if (!a->quiet) fmt::print("wrote the gallery scene to {} (gallery.obj, gallery.mtl, textures/)\n", a->output);
             return 0;
         }
+        // Before any work: the image is renamed into place, which would replace a device or a link.
+        if (Status st = storage::check_output_file(a->output); !st) throw Failure(st.error().message, 2);
         ProgressBar bar("source", !a->quiet);
         StderrCapture library_messages;  // libpng prints its own copy of errors we report (see cmd_build.cpp)
         auto src = storage::open_image_source(a->spec);

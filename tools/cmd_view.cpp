@@ -37,8 +37,9 @@ Command add_view(CLI::App& app) {
     c->add_flag("--pace", o->pace, "headless: hold each frame to at least 1/fps of wall time, like a display");
     c->add_option("--out", o->out_dir, "directory for PNG frames");
     c->add_option("--png-count", o->png_count, "PNG frames to write with --out, spread over the run")->capture_default_str();
-    c->add_option("--stats", o->stats_file, "per-frame stats, .csv or .json");
-    c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`");
+    c->add_option("--stats", o->stats_file, "per-frame stats, .csv or .json")->check(output_file());
+    c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`")
+        ->check(output_file());
     c->add_option("--pool", o->pool, "physical pages in the GPU pool (default: 2048, or every page of a store that has fewer)");
     c->add_option("--page-format", o->page_format,
                   "how the GPU pool holds pages: auto (a block-codec store's own blocks, else rgba8), rgba8, or "

@@ -7,12 +7,14 @@
 #include <system_error>
 
 #include "failure.hpp"
+#include "tessera/storage/output_file.hpp"
 
 namespace tessera::tools {
 
 void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write) {
     namespace fs = std::filesystem;
     const fs::path target(path);
+    if (Status st = storage::check_output_file(path); !st) throw Failure(st.error().message);
     const fs::path temp = target.parent_path() / ("." + target.filename().string() + ".tmp");
     {
         std::ofstream out(temp, std::ios::binary | std::ios::trunc);

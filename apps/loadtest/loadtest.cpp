@@ -31,6 +31,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "atomic_file.hpp"
 #include "failure.hpp"
 #include "loadtest.hpp"
 #include "server_credentials.hpp"
@@ -726,13 +727,7 @@ int run_loadtest(LoadTestOptions o) {
                          {"max_viewers", o.max_viewers},
                          {"best_viewers", best ? nlohmann::json(*best) : nlohmann::json(nullptr)}};
         }
-        const std::string tmp = o.json + ".tmp";
-        {
-            std::ofstream f(tmp, std::ios::trunc);
-            f << j.dump(2) << "\n";
-            if (!f) throw Failure("--json " + o.json + ": cannot write");
-        }
-        if (std::rename(tmp.c_str(), o.json.c_str()) != 0) throw Failure("--json " + o.json + ": cannot write");
+        write_file_atomically(o.json, [&](std::ostream& f) { f << j.dump(2) << "\n"; });
     }
     if (!o.plot.empty()) write_plot(o, runs, o.plot);
     return 0;

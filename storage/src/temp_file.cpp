@@ -1,5 +1,7 @@
 #include "temp_file.hpp"
 
+#include "tessera/storage/output_file.hpp"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -14,14 +16,28 @@ namespace {
 std::string errno_text() { return std::strerror(errno); }
 }  // namespace
 
+Status check_output_file(const std::string& path) {
+    struct stat st {};
+    if (::lstat(path.c_str(), &st) != 0) {
+        if (errno == ENOENT || errno == ENOTDIR) return {};  // nothing to replace; creating the file says what is wrong
+        return make_error(Errc::io_error, "cannot check output path '" + path + "': " + errno_text());
+    }
+    if (S_ISREG(st.st_mode)) return {};
+    if (S_ISDIR(st.st_mode)) return make_error(Errc::invalid_argument, "output path '" + path + "' is a directory");
+    if (S_ISLNK(st.st_mode))
+        return make_error(Errc::invalid_argument, "output path '" + path +
+                                                      "' is a symbolic link, which writing would replace; name the file itself");
+    const char* what = S_ISFIFO(st.st_mode) ? "a FIFO" : S_ISSOCK(st.st_mode) ? "a socket" : "a device";
+    return make_error(Errc::invalid_argument, "output path '" + path + "' is " + what +
+                                                  ", not a regular file; the output replaces its path whole, so name a file");
+}
+
 Result<TempFile> TempFile::create_beside(const std::string& final_path, const std::string& tag) {
     static std::atomic<unsigned> counter{0};
     const std::filesystem::path p(final_path);
     if (p.filename().empty()) return make_error(Errc::invalid_argument, "output path '" + final_path + "' names no file");
     const std::filesystem::path dir = p.has_parent_path() ? p.parent_path() : std::filesystem::path(".");
-    struct stat st {};
-    if (::stat(final_path.c_str(), &st) == 0 && S_ISDIR(st.st_mode))
-        return make_error(Errc::invalid_argument, "output path '" + final_path + "' is a directory");
+    TESSERA_TRY(check_output_file(final_path));
     for (int attempt = 0; attempt < 100; ++attempt) {
         const std::string name = "." + p.filename().string() + "." + tag + "-" + std::to_string(::getpid()) + "-" +
                                  std::to_string(counter.fetch_add(1));
@@ -84,6 +100,7 @@ Status TempFile::pread_all(std::uint64_t offset, std::span<std::uint8_t> bytes) 
 }
 
 Status TempFile::commit(const std::string& final_path) {
+    TESSERA_TRY(check_output_file(final_path));  // something may have appeared there since create_beside
     if (::fsync(fd_) != 0) return make_error(Errc::io_error, "fsync of '" + path_ + "' failed: " + errno_text());
     if (::rename(path_.c_str(), final_path.c_str()) != 0)
         return make_error(Errc::io_error, "cannot rename into '" + final_path + "': " + errno_text());
