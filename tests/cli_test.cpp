@@ -343,6 +343,28 @@ TEST(CliOutput, OnlyARegularFileIsReplaced) {
     EXPECT_EQ(read_file(d.file("target")), (std::vector<std::uint8_t>{7, 7, 7}));
 }
 
+// An image write that fails part way (here the file-size limit, as a full disk would: the writes
+// fail, EFBIG instead of ENOSPC) is an error naming the output, and leaves neither the output nor
+// its temporary file. Every format: some writers ignore failed writes, libjpeg exits.
+TEST(CliSourceOutput, FailedWriteLeavesNothing) {
+    ScratchDir d;
+    // 64 blocks (32 or 64 KiB, as the shell counts) against images of a few hundred KiB or more;
+    // SIGXFSZ ignored so that a write past the limit fails rather than killing the process.
+    const std::string limited = "ulimit -f 64 && trap '' XFSZ && " + std::string(TESSERA_BINARY);
+    for (const char* ext : {"png", "jpg", "tif", "exr", "bmp", "tga", "hdr"}) {
+        SCOPED_TRACE(ext);
+        const std::string out = std::string("s.") + ext;
+        const RunResult r = tessera::test::run_program(limited, "source procedural:terrain:1024 --quiet -o " + q(d.file(out)));
+        expect_one_line_error(r);
+        EXPECT_TRUE(has(r.out, "cannot write") && has(r.out, out)) << r.out;
+        EXPECT_EQ(entries(d), std::set<std::string>{}) << r.out;
+    }
+    // The same command without the limit writes the file.
+    const RunResult ok = run_tessera("source procedural:terrain:256 --quiet -o " + q(d.file("s.png")));
+    ASSERT_EQ(ok.exit_code, 0) << ok.out;
+    EXPECT_EQ(entries(d), std::set<std::string>{"s.png"});
+}
+
 // ---- build: invalid flags ----------------------------------------------------------------------------
 
 TEST(CliBuildFlags, InvalidValues) {

@@ -2,9 +2,7 @@
 // strip by strip, so other tools (libvips, image viewers) can read exactly what the builder reads.
 // tessera source scene:gallery -o DIR: writes the sample OBJ scene (gallery_scene.hpp).
 #include <fmt/format.h>
-#include <unistd.h>
 
-#include <filesystem>
 #include <thread>
 
 #include "commands.hpp"
@@ -45,10 +43,6 @@ Command add_source(CLI::App& app) {
         auto src = storage::open_image_source(a->spec);
         if (!src) throw Failure(src.error().message);
         const storage::SourceInfo& si = (*src)->info();
-        namespace fs = std::filesystem;
-        const fs::path out(a->output);
-        const fs::path tmp = (out.has_parent_path() ? out.parent_path() : fs::path(".")) /
-                             fmt::format(".tmp-{}-{}", ::getpid(), out.filename().string());
         const unsigned threads = std::max(1u, std::thread::hardware_concurrency());
         // A small fork-join over std::thread is enough here: one strip at a time.
         const storage::ParallelFor parallel = [threads](std::size_t n, const std::function<void(std::size_t, std::size_t)>& fn) {
@@ -57,23 +51,14 @@ Command add_source(CLI::App& app) {
             for (std::size_t b = 0; b < n; b += per) ts.emplace_back([&fn, b, e = std::min(n, b + per)] { fn(b, e); });
             for (auto& t : ts) t.join();
         };
-        const Status st = storage::write_image(tmp.string(), **src, parallel, [&](std::uint32_t rows) {
+        // write_image writes a temporary file and renames it into place once it is whole.
+        const Status st = storage::write_image(a->output, **src, parallel, [&](std::uint32_t rows) {
             bar.update(double(rows) / si.height, fmt::format("rows {}/{}", rows, si.height));
         });
         bar.finish();
         const std::string messages = library_messages.release();
-        if (!st) {
-            std::error_code ec;
-            fs::remove(tmp, ec);
-            throw Failure(st.error().message);
-        }
+        if (!st) throw Failure(st.error().message);
         std::fputs(messages.c_str(), stderr);
-        std::error_code ec;
-        fs::rename(tmp, out, ec);
-        if (ec) {
-            fs::remove(tmp, ec);
-            throw Failure(fmt::format("cannot rename into '{}'", a->output));
-        }
         if (!a->quiet) fmt::print("wrote {} ({}x{}, {} channels)\n", a->output, si.width, si.height, si.channels);
         return 0;
     };

@@ -102,11 +102,13 @@ Status TempFile::pread_all(std::uint64_t offset, std::span<std::uint8_t> bytes) 
 Status TempFile::commit(const std::string& final_path) {
     TESSERA_TRY(check_output_file(final_path));  // something may have appeared there since create_beside
     if (::fsync(fd_) != 0) return make_error(Errc::io_error, "fsync of '" + path_ + "' failed: " + errno_text());
+    // close reports write-back errors too (NFS): checked before the file takes the output's place.
+    const int closed = ::close(fd_);
+    fd_ = -1;
+    if (closed != 0) return make_error(Errc::io_error, "closing '" + path_ + "' failed: " + errno_text());
     if (::rename(path_.c_str(), final_path.c_str()) != 0)
         return make_error(Errc::io_error, "cannot rename into '" + final_path + "': " + errno_text());
     path_.clear();  // the file is no longer ours to remove
-    ::close(fd_);
-    fd_ = -1;
     const std::filesystem::path dir = std::filesystem::path(final_path).has_parent_path()
                                           ? std::filesystem::path(final_path).parent_path()
                                           : std::filesystem::path(".");

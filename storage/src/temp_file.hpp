@@ -26,7 +26,8 @@ public:
 
     Status pwrite_all(std::uint64_t offset, std::span<const std::uint8_t> bytes) const;
     Status pread_all(std::uint64_t offset, std::span<std::uint8_t> bytes) const;
-    // fsync, rename over `final_path`, fsync the directory. The file then belongs to final_path.
+    // fsync, close, rename over `final_path`, fsync the directory; any failure before the rename
+    // is an error (the destructor then removes the file). The file then belongs to final_path.
     Status commit(const std::string& final_path);
 
 private:

@@ -8,6 +8,7 @@
 
 #include "oiio_plugin_abi.hpp"
 #include "sources_internal.hpp"
+#include "temp_file.hpp"
 
 namespace tessera::storage {
 namespace {
@@ -71,13 +72,18 @@ Status write_image(const std::string& path, ImageSource& source, const ParallelF
                    const std::function<void(std::uint32_t)>& progress) {
     const Plugin& p = plugin();
     if (!p.write) return make_error(Errc::unsupported, p.error);
-    ImageWriteRequest req{&path, &source, &parallel, nullptr, nullptr};
+    // A temporary file renamed into place once every byte is on disk: a failed write (a full
+    // disk) leaves nothing at `path`, and the destructor removes the temporary file.
+    auto temp = TempFile::create_beside(path, "tmp");
+    if (!temp) return temp.error();
+    ImageWriteRequest req{&path, &temp->path(), temp->fd(), &source, &parallel, nullptr, nullptr};
     if (progress) {
         req.progress = [](void* ctx, std::uint32_t rows) { (*static_cast<const std::function<void(std::uint32_t)>*>(ctx))(rows); };
         req.progress_ctx = const_cast<std::function<void(std::uint32_t)>*>(&progress);
     }
     std::string error;
     if (!p.write(&req, &error)) return make_error(Errc::io_error, error);
+    if (Status st = temp->commit(path); !st) return make_error(Errc::io_error, "cannot write '" + path + "': " + st.error().message);
     return {};
 }
 

@@ -7,7 +7,9 @@
 
 namespace tessera::storage {
 struct ImageWriteRequest {
-    const std::string* path;           // output file; the format follows the extension
+    const std::string* path;           // output file; the format follows the extension; errors name it
+    const std::string* temp_path;      // where the bytes go: a temporary file beside `path`, open as temp_fd
+    int temp_fd;
     ImageSource* source;               // rows to write, top to bottom
     const ParallelFor* parallel;
     void (*progress)(void* ctx, std::uint32_t rows_done);

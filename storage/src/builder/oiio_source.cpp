@@ -1,10 +1,15 @@
 // The OpenImageIO plugin (libtessera_oiio.so): image files in and out through OpenImageIO.
 // Loaded on demand by oiio_plugin.cpp; see sources_internal.hpp for why it is a separate module.
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <webp/decode.h>
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cstring>
+#include <mutex>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -134,6 +139,53 @@ std::unique_ptr<ImageSource> open_webp_with_alpha(const std::string& path, const
     return std::make_unique<WebpSource>(path, info);
 }
 
+// Writes to the temporary file's descriptor, remembering the first failure (a full disk) for the
+// caller to report after close(), and telling the format writer every write succeeded: libjpeg's
+// error handler, for one, ends the process on a failed write, and the PNG writer ignores it.
+class FdOutput final : public OIIO::Filesystem::IOProxy {
+public:
+    FdOutput(int fd, const std::string& path) : IOProxy(path, Write), fd_(fd) {}
+    const char* proxytype() const override { return "tessera-fd"; }
+    size_t write(const void* buf, size_t size) override {
+        pwrite(buf, size, m_pos);
+        m_pos += int64_t(size);
+        return size;
+    }
+    size_t pwrite(const void* buf, size_t size, int64_t offset) override {
+        std::lock_guard lock(mu_);
+        end_ = std::max(end_, offset + int64_t(size));
+        const auto* p = static_cast<const std::uint8_t*>(buf);
+        for (size_t done = 0; done < size && errno_ == 0;) {
+            const ssize_t n = ::pwrite(fd_, p + done, size - done, off_t(offset + int64_t(done)));
+            if (n < 0 && errno == EINTR) continue;
+            if (n <= 0) errno_ = n < 0 ? errno : EIO;
+            else done += size_t(n);
+        }
+        return size;
+    }
+    size_t read(void* buf, size_t size) override {
+        const size_t n = pread(buf, size, m_pos);
+        m_pos += int64_t(n);
+        return n;
+    }
+    size_t pread(void* buf, size_t size, int64_t offset) override {
+        const ssize_t n = ::pread(fd_, buf, size, off_t(offset));
+        return n < 0 ? 0 : size_t(n);
+    }
+    size_t size() const override { return size_t(end_); }
+    // 0, or the errno of the first write that failed.
+    int failed() const {
+        std::lock_guard lock(mu_);
+        return errno_;
+    }
+
+private:
+    int fd_;
+    mutable std::mutex mu_;
+    int64_t end_ = 0;
+    int errno_ = 0;
+};
+
 std::string oiio_error(std::string msg) {
     if (msg.empty()) msg = OIIO::geterror();
     std::replace(msg.begin(), msg.end(), '\n', ' ');
@@ -224,6 +276,7 @@ extern "C" __attribute__((visibility("default"))) bool tessera_oiio_write(const 
     const SourceInfo& si = req->source->info();
     namespace fs = std::filesystem;
     const std::string& path = *req->path;
+    std::unique_ptr<FdOutput> proxy;  // outlives `out`, which refers to it
     auto out = OIIO::ImageOutput::create(path);
     if (!out) {
         *error = "cannot write '" + path + "': " + oiio_error({});
@@ -238,7 +291,16 @@ extern "C" __attribute__((visibility("default"))) bool tessera_oiio_write(const 
     }
     spec.attribute("oiio:ColorSpace", si.colour_space == ColourSpace::srgb ? "sRGB" : "Linear");
     spec.attribute("compression", "none");
-    if (!out->open(path, spec)) {
+    // Through the proxy where the writer takes one: by name, several writers drop write errors (a
+    // PNG, WebP, BMP or Targa cut short, exit 0) or end the process (libjpeg). The rest write the
+    // temporary file by name (the same file: opening it truncates it) and report their own
+    // errors; TIFF must, as OpenImageIO 2.4's TIFF writer through a proxy writes a broken file.
+    const std::string format = out->format_name();
+    if (format != "tiff" && out->supports("ioproxy")) {
+        proxy = std::make_unique<FdOutput>(req->temp_fd, *req->temp_path);
+        if (!out->set_ioproxy(proxy.get())) proxy.reset();
+    }
+    if (!out->open(*req->temp_path, spec)) {
         *error = "cannot write '" + path + "': " + oiio_error(out->geterror());
         return false;
     }
@@ -261,6 +323,10 @@ extern "C" __attribute__((visibility("default"))) bool tessera_oiio_write(const 
     }
     if (!out->close()) {
         *error = "cannot write '" + path + "': " + oiio_error(out->geterror());
+        return false;
+    }
+    if (proxy && proxy->failed() != 0) {
+        *error = "cannot write '" + path + "': " + std::strerror(proxy->failed());
         return false;
     }
     return true;

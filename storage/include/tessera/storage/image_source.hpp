@@ -41,7 +41,9 @@ public:
 Result<std::unique_ptr<ImageSource>> open_image_source(const std::string& spec);
 
 // Writes `source` to an image file whose format follows the extension (.tif, .png, .exr ...),
-// strip by strip, through OpenImageIO. `progress` gets the rows written so far.
+// strip by strip, through OpenImageIO. `progress` gets the rows written so far. The file is
+// written beside `path` under a temporary name, synced and renamed into place only when whole: on
+// any error (a full disk among them) nothing is left at `path` or beside it.
 Status write_image(const std::string& path, ImageSource& source, const ParallelFor& parallel,
                    const std::function<void(std::uint32_t rows_done)>& progress = {});
 
