@@ -922,4 +922,37 @@ TEST(CliView, LosslessPsnrIsSaidInWords) {
     EXPECT_EQ(stats["settled"]["psnr_db"].get<double>(), 999.0) << stats["settled"];
 }
 
+// ---- serve: options checked before it starts ------------------------------------------------------
+
+// Thread counts past 1024 are refused on the command line; threads that cannot be created at start
+// (here a 4 GB address space against 1000 stacks of 8 MiB) are an error, not std::terminate.
+TEST(CliServe, ThreadCountsAreBoundedAndAFailedStartIsAnError) {
+    ScratchDir d;
+    ASSERT_EQ(run_tessera("build procedural:terrain:64 --quiet -o " + q(d.file("s.tsr"))).exit_code, 0);
+    const std::string serve = "serve --store " + q(d.file("s.tsr")) + " --grpc 127.0.0.1:0 --http 127.0.0.1:0 --log-format text ";
+    // A server that did start is killed after 60 s: the test then fails, it does not hang.
+    const std::string bounded = "timeout -s KILL 60 " + std::string(TESSERA_BINARY);
+    for (const std::string flag : {"--io-threads", "--http-threads"}) {
+        for (const char* n : {"1025", "100000"}) {
+            SCOPED_TRACE(flag + " " + n);
+            const RunResult r = tessera::test::run_program(bounded, serve + flag + " " + n);
+            expect_one_line_error(r);
+            EXPECT_EQ(r.exit_code, 2) << r.out;
+            EXPECT_TRUE(has(r.out, flag) && has(r.out, "1024")) << r.out;
+        }
+        const RunResult help = run_tessera("serve --help");
+        EXPECT_TRUE(has(help_line(help.out, flag), "at most 1024")) << help.out;
+    }
+#if !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)  // sanitizers reserve terabytes: no ulimit -v
+    const std::string limited = "ulimit -s 8192 && ulimit -v 4000000 && " + bounded;
+    for (const char* flags : {"--io-threads 1000", "--http-threads 1000", "--work-threads 1000"}) {
+        SCOPED_TRACE(flags);
+        const RunResult r = tessera::test::run_program(limited, serve + flags);
+        EXPECT_EQ(r.exit_code, 1) << r.out;
+        EXPECT_TRUE(has(r.out, "tessera: error: cannot start the server's threads")) << r.out;
+        EXPECT_FALSE(has(r.out, "terminate")) << r.out;
+    }
+#endif
+}
+
 }  // namespace

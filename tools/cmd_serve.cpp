@@ -151,8 +151,12 @@ Command add_serve(CLI::App& app) {
     s->add_option("--auth-token-file", a->auth_token_file,
                   "Require \"authorization: Bearer <token>\" with the token in this file (not /healthz, /readyz)");
     add_bytes_option(*s, "--cache-size", a->cache_bytes, "RAM tile cache budget, e.g. 256MiB (0: off)");
-    s->add_option("--io-threads", c.io_threads, "Tile reader threads (0: all cores; at least 16 with a remote store)")->capture_default_str();
-    s->add_option("--http-threads", c.http_threads, "HTTP event-loop threads (0: all cores); they never read or render (--work-threads do)")->capture_default_str();
+    s->add_option("--io-threads", c.io_threads,
+                  "Tile reader threads, at most 1024 (0: all cores; at least 16 with a remote store)")
+        ->capture_default_str()->check(CLI::Range(0u, server::kMaxThreads));
+    s->add_option("--http-threads", c.http_threads,
+                  "HTTP event-loop threads, at most 1024 (0: all cores); they never read or render (--work-threads do)")
+        ->capture_default_str()->check(CLI::Range(0u, server::kMaxThreads));
     s->add_option("--http-loop-slice-us", a->slice_us,
                   "Time slice, us, the HTTP event loops ask of the kernel (Linux 6.12+: a loop woken by a request "
                   "preempts longer-running work; 0: the kernel's default)")
@@ -178,13 +182,13 @@ Command add_serve(CLI::App& app) {
                   "(past it: 504)")
         ->capture_default_str()->check(CLI::Range(1LL, 3600000LL));
     s->add_option("--work-threads", c.work_threads, "HTTP workers for tile reads and web renders (off the event loops)")
-        ->capture_default_str()->check(CLI::Range(1u, 1024u));
+        ->capture_default_str()->check(CLI::Range(1u, server::kMaxThreads));
     s->add_option("--store-inflight", c.store_inflight, "HTTP reads and renders of one store running at once")
         ->capture_default_str()->check(CLI::Range(std::size_t(1), std::size_t(1024)));
     s->add_option("--store-queue", c.store_queue, "HTTP reads and renders of one store waiting; beyond: 503")
         ->capture_default_str()->check(CLI::Range(std::size_t(1), std::size_t(1) << 20));
     s->add_option("--render-concurrency", c.render_concurrency, "Web renders (DZI/IIIF/XYZ, PNG tiles) at once (0: hardware threads)")
-        ->capture_default_str()->check(CLI::Range(0u, 1024u));
+        ->capture_default_str()->check(CLI::Range(0u, server::kMaxThreads));
     s->add_option("--render-queue", c.render_queue, "Web renders waiting; beyond: 503")
         ->capture_default_str()->check(CLI::Range(std::size_t(1), std::size_t(1) << 16));
     add_bytes_option(*s, "--render-memory", c.render_memory_bytes,

@@ -124,21 +124,29 @@ Scheduler::Scheduler(ServerContext& ctx) : ctx_(ctx) {
                      [this] { return double(stats().outbox_bytes); });
 
     io_threads_ = ctx.config.io_threads ? ctx.config.io_threads : std::max(1u, std::thread::hardware_concurrency());
-    for (unsigned i = 0; i < io_threads_; ++i) workers_.emplace_back([this] { worker(); });
+    try {
+        for (unsigned i = 0; i < io_threads_; ++i) workers_.emplace_back([this] { worker(); });
+    } catch (...) {  // no thread left (a joinable std::thread destroyed ends the process); Server::start reports it
+        stop_workers();
+        throw;
+    }
 }
 
-Scheduler::~Scheduler() {
+void Scheduler::stop_workers() {
     {
         std::lock_guard lock(mu_);
         stopping_ = true;
     }
     work_cv_.notify_all();
     for (auto& t : workers_) t.join();
+    workers_.clear();
     ctx_.metrics.remove_callbacks("tessera_grpc_viewers");
     ctx_.metrics.remove_callbacks("tessera_queue_pending");
     ctx_.metrics.remove_callbacks("tessera_queue_in_flight");
     ctx_.metrics.remove_callbacks("tessera_queue_outbox_bytes");
 }
+
+Scheduler::~Scheduler() { stop_workers(); }
 
 std::optional<Scheduler::ViewerId> Scheduler::add_viewer(std::shared_ptr<ViewerSink> sink) {
     std::lock_guard lock(mu_);

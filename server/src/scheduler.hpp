@@ -194,6 +194,10 @@ private:
 
     unsigned io_threads_ = 0;  // set before the workers start
     std::vector<std::thread> workers_;
+
+    // Stops and joins the workers, removes the gauges: the destructor, and a constructor that
+    // could not start every worker.
+    void stop_workers();
 };
 
 }  // namespace tessera::server

@@ -19,6 +19,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <system_error>
 #include <thread>
 
 #include "grpc_service.hpp"
@@ -120,6 +121,11 @@ Status validate(const ServerConfig& c) {
     if (c.grpc_message_bytes < 1024 || c.grpc_message_bytes > (64u << 20))
         return Error{Errc::invalid_argument, "--reply-message must be between 1KiB and 64MiB"};
     if (c.max_header_bytes < 1024) return Error{Errc::invalid_argument, "--max-header must be at least 1KiB"};
+    for (const auto& [n, flag] : {std::pair{c.io_threads, "--io-threads"}, std::pair{c.http_threads, "--http-threads"},
+                                  std::pair{c.work_threads, "--work-threads"}, std::pair{c.render_concurrency, "--render-concurrency"}})
+        if (n > kMaxThreads)
+            return Error{Errc::invalid_argument, std::string(flag) + " must be at most " + std::to_string(kMaxThreads) + ", got " +
+                                                     std::to_string(n)};
     return Status();
 }
 
@@ -347,7 +353,13 @@ private:
 Result<std::unique_ptr<Server>> Server::start(const ServerConfig& config) {
     TESSERA_TRY(validate(config));
     auto server = std::make_unique<ServerImpl>(config);
-    if (auto s = server->start(); !s) return s.error();
+    try {
+        if (auto s = server->start(); !s) return s.error();
+    } catch (const std::system_error& e) {  // a thread that could not start (the others are stopped)
+        return Error{Errc::io_error, std::string("cannot start the server's threads: ") + e.what() +
+                                         " (fewer --io-threads, --http-threads, --work-threads or --render-concurrency, "
+                                         "or a higher ulimit -u / -v)"};
+    }
     return std::unique_ptr<Server>(std::move(server));
 }
 

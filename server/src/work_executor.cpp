@@ -74,10 +74,17 @@ WorkExecutor::WorkExecutor(const WorkLimits& limits, MetricsRegistry& metrics) :
         std::lock_guard lock(mu_);
         return double(stats_.render_memory);
     });
-    for (unsigned i = 0; i < std::max(1u, limits_.threads); ++i) workers_.emplace_back([this] { worker(WorkKind::read); });
-    for (unsigned i = 0; i < std::max(1u, limits_.render_concurrency); ++i)
-        workers_.emplace_back([this] { worker(WorkKind::render); });
-    expiry_thread_ = std::thread([this] { expiry(); });
+    try {
+        for (unsigned i = 0; i < std::max(1u, limits_.threads); ++i) workers_.emplace_back([this] { worker(WorkKind::read); });
+        for (unsigned i = 0; i < std::max(1u, limits_.render_concurrency); ++i)
+            workers_.emplace_back([this] { worker(WorkKind::render); });
+        expiry_thread_ = std::thread([this] { expiry(); });
+    } catch (...) {  // no thread left (a joinable std::thread destroyed ends the process); Server::start reports it
+        stop();
+        for (const char* name : {kQueuedName, kRunningName, kMemoryName, kStoreQueuedName, kStoreRunningName})
+            metrics_.remove_callbacks(name);
+        throw;
+    }
 }
 
 WorkExecutor::~WorkExecutor() {

@@ -12,6 +12,10 @@
 
 namespace tessera::server {
 
+// The most threads of one kind (io_threads, http_threads, work_threads, render_concurrency): far
+// above what helps, well below what exhausts a machine's threads or address space.
+inline constexpr unsigned kMaxThreads = 1024;
+
 struct ServerConfig {
     // Stores: single files, and directories whose *.tsr files are all served. A store is named by
     // its file name without ".tsr"; files whose names are not identifiers are skipped (logged).
@@ -33,8 +37,8 @@ struct ServerConfig {
                                 // (HTTP /healthz and /readyz excepted)
 
     std::size_t cache_bytes = std::size_t(256) << 20;  // RAM tile cache; 0 disables it
-    unsigned io_threads = 0;    // tile readers; 0: hardware threads
-    unsigned http_threads = 0;  // HTTP event loops; 0: hardware threads
+    unsigned io_threads = 0;    // tile readers; 0: hardware threads; at most kMaxThreads
+    unsigned http_threads = 0;  // HTTP event loops; 0: hardware threads; at most kMaxThreads
     // The time slice the HTTP event loops ask of the kernel's fair scheduler, so that a loop
     // woken by a request preempts longer-running work instead of waiting for its slice to end
     // (docs/server.md, "Short slices"; Linux 6.12+, ignored elsewhere). 0: the kernel's default.
