@@ -18,6 +18,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "tessera/storage/store_reader.hpp"
@@ -827,6 +828,30 @@ TEST(CliVocabulary, ByteCountsTakeUnitsEverywhere) {
     expect_one_line_error(r);
     EXPECT_EQ(r.exit_code, 2) << r.out;
     EXPECT_TRUE(has(r.out, "--ram-cache")) << r.out;
+}
+
+// A negative byte count or one past the option's type is an error naming the option, not a huge
+// budget (CLI11 alone reads -1 as 2^64-1 and lets a long number overflow).
+TEST(CliVocabulary, ByteCountsAreNeitherNegativeNorOverflowing) {
+    ScratchDir d;
+    ASSERT_EQ(run_tessera("build procedural:terrain:64 --quiet -o " + q(d.file("s.tsr"))).exit_code, 0);
+    const std::string serve = "serve --store " + q(d.file("s.tsr")) + " --grpc 127.0.0.1:0 --http 127.0.0.1:0 ";
+    // A server that did start is killed after 30 s: the test then fails, it does not hang.
+    const std::string bounded = "timeout -s KILL 30 " + std::string(TESSERA_BINARY);
+    const std::vector<std::tuple<std::string, std::string, std::string>> cases = {
+        {serve, "--cache-size -1", "negative"},
+        {serve, "--cache-size 99999999999999999999", "too large"},
+        {serve, "--web-cache -5", "negative"},
+        {serve, "--max-header -1KiB", "negative"},
+        {"view --headless --store " + q(d.file("s.tsr")) + " ", "--ram-cache -1", "negative"},
+        {"loadtest --server 127.0.0.1:1 --store s ", "--ram-cache 99999999999999999999", "too large"}};
+    for (const auto& [command, option, why] : cases) {
+        SCOPED_TRACE(option);
+        const RunResult r = tessera::test::run_program(bounded, command + option);
+        expect_one_line_error(r);
+        EXPECT_EQ(r.exit_code, 2) << r.out;
+        EXPECT_TRUE(has(r.out, option.substr(0, option.find(' ')) + ":") && has(r.out, why)) << r.out;
+    }
 }
 
 TEST(CliHelp, ConfigTakesAFile) {

@@ -18,10 +18,29 @@ std::string bytes_text(std::uint64_t bytes) {
     return std::to_string(bytes) + unit;
 }
 
-CLI::Validator bytes_transform() {
-    CLI::Validator v = CLI::AsSizeValue(false);
-    v.description("");
-    return v;
+CLI::Validator bytes_transform(std::uint64_t max) {
+    const CLI::Validator units = CLI::AsSizeValue(false);
+    return CLI::Validator(
+        [units, max](std::string& value) -> std::string {
+            const std::string given = value;
+            const std::size_t first = value.find_first_not_of(" \t");
+            if (first != std::string::npos && value[first] == '-') return "'" + given + "': a byte count cannot be negative";
+            if (std::string error = units(value); !error.empty()) return error;
+            // The units applied; a number without one is left as given: whole decimal digits only.
+            const std::size_t b = value.find_first_not_of(" \t"), e = value.find_last_not_of(" \t");
+            const std::string digits = b == std::string::npos ? std::string() : value.substr(b, e - b + 1);
+            if (digits.empty() || digits.find_first_not_of("0123456789") != std::string::npos)
+                return "'" + given + "' is not a byte count (a whole number, optionally with a unit: 64k, 256MiB, 1g)";
+            std::uint64_t n = 0;
+            for (const char c : digits) {
+                const unsigned d = unsigned(c - '0');
+                if (n > (max - d) / 10) return "'" + given + "' is too large: at most " + std::to_string(max) + " bytes";
+                n = n * 10 + d;
+            }
+            value = std::to_string(n);
+            return {};
+        },
+        "", "bytes");
 }
 
 CLI::Validator output_file() {

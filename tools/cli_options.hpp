@@ -5,6 +5,7 @@
 #include <CLI/CLI.hpp>
 
 #include <cstdint>
+#include <limits>
 #include <string>
 
 namespace tessera::tools {
@@ -12,16 +13,18 @@ namespace tessera::tools {
 // A byte count as "256MiB" when it is a whole number of KiB, MiB, GiB or TiB, else as a number.
 std::string bytes_text(std::uint64_t bytes);
 
-// CLI11's AsSizeValue, as `serve` has always read its sizes: a number of bytes, optionally with a
-// unit, case-insensitive, every unit a power of 1024: b, k/kb/kib, m/mb/mib, g/gb/gib, t/tb/tib
-// (256MiB, 64k, 1g). Its description is left out of the help, which shows `SIZE=DEFAULT`.
-CLI::Validator bytes_transform();
+// CLI11's AsSizeValue, as `serve` has always read its sizes: a whole number of bytes, optionally
+// with a unit, case-insensitive, every unit a power of 1024: b, k/kb/kib, m/mb/mib, g/gb/gib,
+// t/tb/tib (256MiB, 64k, 1g). A negative count, or one above `max` (the option's type), is an
+// error: CLI11 alone reads -1 as 2^64-1 and lets a long number overflow. Its description is left
+// out of the help, which shows `SIZE=DEFAULT`.
+CLI::Validator bytes_transform(std::uint64_t max);
 
 // A byte-count option (bytes_transform), its default shown in units.
 template <class T>
 CLI::Option* add_bytes_option(CLI::App& app, const std::string& name, T& bytes, const std::string& help) {
     return app.add_option(name, bytes, help)
-        ->transform(bytes_transform())
+        ->transform(bytes_transform(static_cast<std::uint64_t>(std::numeric_limits<T>::max())))
         ->type_name("SIZE")
         ->default_str(bytes_text(static_cast<std::uint64_t>(bytes)));
 }
