@@ -854,6 +854,29 @@ TEST(CliVocabulary, ByteCountsAreNeitherNegativeNorOverflowing) {
     }
 }
 
+// nan and infinities are refused by every floating-point option, naming it (CLI11 reads them, and
+// its range checks let nan through: a load test at --fps nan reported a clean, meaningless run).
+TEST(CliVocabulary, FloatingPointOptionsAreFinite) {
+    ScratchDir d;
+    const std::string loadtest = "loadtest --server 127.0.0.1:1 --store s --connect-timeout 0.2 ";
+    const std::string view = "view --headless --store " + q(d.file("missing.tsr")) + " ";
+    // A run that did start is killed after 30 s: the test then fails, it does not hang.
+    const std::string bounded = "timeout -s KILL 30 " + std::string(TESSERA_BINARY);
+    const std::vector<std::pair<std::string, std::string>> cases = {
+        {loadtest, "--fps nan"},           {loadtest, "--latency nan"},      {loadtest, "--bandwidth nan"},
+        {loadtest, "--ramp-p99-ms nan"},   {loadtest, "--ramp-fallback nan"}, {loadtest, "--jitter nan"},
+        {loadtest, "--duration nan"},      {loadtest, "--warmup NaN"},       {loadtest, "--ramp-p99-ms inf"},
+        {view, "--fps nan"},               {view, "--fps -inf"},             {view, "--fade-ms nan"},
+        {view, "--link-latency-ms inf"},   {view, "--guard-band nan"}};
+    for (const auto& [command, option] : cases) {
+        SCOPED_TRACE(command + option);
+        const RunResult r = tessera::test::run_program(bounded, command + option);
+        expect_one_line_error(r);
+        EXPECT_EQ(r.exit_code, 2) << r.out;
+        EXPECT_TRUE(has(r.out, option.substr(0, option.find(' ')) + ": '") && has(r.out, "is not a finite number")) << r.out;
+    }
+}
+
 TEST(CliHelp, ConfigTakesAFile) {
     for (const bool server : {false, true}) {
         SCOPED_TRACE(server ? "tessera-server" : "tessera");

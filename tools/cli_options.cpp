@@ -1,5 +1,6 @@
 #include "cli_options.hpp"
 
+#include <cmath>
 #include <cstdio>
 
 #include "tessera/storage/output_file.hpp"
@@ -50,6 +51,19 @@ CLI::Validator output_file() {
             return st ? std::string() : st.error().message;
         },
         "", "output file");
+}
+
+void require_finite_numbers(CLI::App& app) {
+    const CLI::Validator finite(
+        [](std::string& value) -> std::string {
+            double v = 0;
+            if (CLI::detail::lexical_cast(value, v) && !std::isfinite(v)) return "'" + value + "' is not a finite number";
+            return {};  // a value that is not a number at all: CLI11's own conversion reports it
+        },
+        "", "finite");
+    for (CLI::Option* opt : app.get_options())
+        if (opt->get_type_name().rfind("FLOAT", 0) == 0) opt->transform(finite);  // first: before the option's own range check
+    for (CLI::App* sub : app.get_subcommands([](CLI::App*) { return true; })) require_finite_numbers(*sub);
 }
 
 CLI::Option* add_texels_option(CLI::App& app, std::uint32_t& texels, const std::string& help, const CLI::Validator& check) {

@@ -33,6 +33,11 @@ CLI::Option* add_bytes_option(CLI::App& app, const std::string& name, T& bytes, 
 // holds something other than a regular file (storage::check_output_file).
 CLI::Validator output_file();
 
+// Every floating-point option of `app` and its subcommands (CLI11's type name FLOAT), present and
+// future, refuses nan and infinities: CLI11 reads them, and its Range and PositiveNumber checks
+// let nan through (every comparison with it is false). Called once every command is registered.
+void require_finite_numbers(CLI::App& app);
+
 // `--texels N`: texels per side of the procedural terrain (`bench`, `demo`), checked by `check`.
 // `--size N`, its former name, still works: hidden from the help, it prints a one-line notice on
 // stderr once the command line is accepted (this sets the subcommand's final callback), and a

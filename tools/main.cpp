@@ -9,6 +9,7 @@
 #include <map>
 #include <string>
 
+#include "cli_options.hpp"
 #include "commands.hpp"
 
 #if defined(__SANITIZE_ADDRESS__)
@@ -76,6 +77,7 @@ int main(int argc, char** argv) {
     reg(add_bench);
     reg(add_demo);
 #endif
+    require_finite_numbers(app);
     try {
         app.parse(argc, argv);
     } catch (const CLI::CallForHelp& e) {
