@@ -50,13 +50,7 @@ def get(port, path, timeout=30):
 
 
 def slow_answers(tessera, tmp):
-    remote_file = os.path.join(tmp, "remote.tsr")
-    iso.build(tessera, "procedural:terrain:1024", remote_file)
-    with open(remote_file, "rb") as f:
-        iso.RangeOrigin.data = f.read()
-    origin = iso.ThreadingServer(("127.0.0.1", 0), iso.RangeOrigin)
-    threading.Thread(target=origin.serve_forever, daemon=True).start()
-    url = f"http://127.0.0.1:{origin.server_address[1]}/slow.tsr"
+    origin, url = iso.serve_from_origin(tessera, "procedural:terrain:1024", os.path.join(tmp, "remote.tsr"))
     p, (_, port) = iso.start_server(tessera, ["--store", url, "--cache-size", "0", "--idle-timeout", "500",
                                               "--request-timeout", "3000"])
     try:
@@ -77,13 +71,7 @@ def slow_answers(tessera, tmp):
 
 
 def stop_cuts_slow_reads(tessera, tmp):
-    remote_file = os.path.join(tmp, "remote-stop.tsr")
-    iso.build(tessera, "procedural:terrain:1024", remote_file)
-    with open(remote_file, "rb") as f:
-        iso.RangeOrigin.data = f.read()
-    origin = iso.ThreadingServer(("127.0.0.1", 0), iso.RangeOrigin)
-    threading.Thread(target=origin.serve_forever, daemon=True).start()
-    url = f"http://127.0.0.1:{origin.server_address[1]}/slow.tsr"
+    origin, url = iso.serve_from_origin(tessera, "procedural:terrain:1024", os.path.join(tmp, "remote-stop.tsr"))
     p, (_, port) = iso.start_server(tessera, ["--store", url, "--cache-size", "0", "--request-timeout", "8000",
                                               "--drain-timeout", "1000"])
     try:

@@ -238,6 +238,17 @@ def loadtest_p99(p, out_json):
     return float(lat["p99"]), tiles, run
 
 
+def serve_from_origin(tessera, spec, path):
+    """Builds `spec` into `path` and serves its bytes from a RangeOrigin on a free port:
+    (origin, the store's URL). RangeOrigin.delay sets how slow it answers."""
+    build(tessera, spec, path)
+    with open(path, "rb") as f:
+        RangeOrigin.data = f.read()
+    origin = ThreadingServer(("127.0.0.1", 0), RangeOrigin)
+    threading.Thread(target=origin.serve_forever, daemon=True).start()
+    return origin, f"http://127.0.0.1:{origin.server_address[1]}/slow.tsr"
+
+
 def serve_load_binary(tessera):
     """bench/serve_load beside the tessera binary (the build makes both)."""
     path = os.path.join(os.path.dirname(os.path.abspath(tessera)), "bench", "serve_load")
@@ -250,12 +261,7 @@ def slow_origin(tessera, tmp):
     local = os.path.join(tmp, "local.tsr")
     remote_file = os.path.join(tmp, "remote.tsr")
     build(tessera, "procedural:terrain:8192", local)
-    build(tessera, "procedural:terrain:2048", remote_file)
-    with open(remote_file, "rb") as f:
-        RangeOrigin.data = f.read()
-    origin = ThreadingServer(("127.0.0.1", 0), RangeOrigin)
-    threading.Thread(target=origin.serve_forever, daemon=True).start()
-    remote_url = f"http://127.0.0.1:{origin.server_address[1]}/slow.tsr"
+    origin, remote_url = serve_from_origin(tessera, "procedural:terrain:2048", remote_file)
 
     p, (grpc_port, http_port) = start_server(tessera, ["--store", local, "--store", remote_url, "--cache-size", "0",
                                                        "--request-timeout", str(TIMEOUT_MS)])

@@ -79,7 +79,23 @@ def main():
     ap.add_argument("--out", help="write the result table (markdown) here")
     ap.add_argument("--goal", type=float, default=90.0, help="kill percentage needed for exit 0")
     ap.add_argument("--timeout", type=int, default=600, help="seconds per build and per test run")
+    ap.add_argument("--check", action="store_true",
+                    help="only check that every snippet occurs exactly once in its file (a ctest: the catalogue follows the code)")
     args = ap.parse_args()
+    if args.check:
+        muts = load(os.path.join(ROOT, args.catalogue), args.only)
+        stale = []
+        for m in muts:
+            path = os.path.join(ROOT, m["file"])
+            n = open(path).read().count(m["find"]) if os.path.isfile(path) else -1
+            if n != 1:
+                stale.append(f"{m['id']}: " + (f"no file {m['file']}" if n < 0 else f"the snippet occurs {n} times in {m['file']}"))
+        for line in stale:
+            print("stale: " + line, flush=True)
+        if stale:
+            fail(f"{len(stale)} of {len(muts)} mutations no longer match the code: update tests/mutations.json")
+        print(f"all {len(muts)} mutation snippets occur exactly once", flush=True)
+        return
     build = os.path.join(ROOT, args.build) if not os.path.isabs(args.build) else args.build
     if not os.path.isfile(os.path.join(build, "build.ninja")):
         fail(f"{build} is not a configured ninja build directory")
