@@ -11,10 +11,12 @@ reach the client, and each kind of work is admitted as its kind.
    rendered from three rows of 1024² tiles (about 30 MiB estimated). With --render-memory 16MiB
    that render is refused 503 + Retry-After; with the defaults it is rendered by a render worker
    (tessera_work_wait_seconds_count{kind="render"} counts it) and is a 1024² JPEG.
-3. The stop cuts what waits on an origin. With the origin at 20 s, --request-timeout 8000 and
-   --drain-timeout 1000, a SIGTERM while a tile request waits ends the process with 0 within the
-   drain timeout + 1 s: the drain waits its 1 s, then the remote read is cancelled, not waited for
-   until its deadline (which overran the stop's watchdog: exit 1 after 2.5 s).
+3. The stop cuts what waits on an origin. With the origin at 20 s, --request-timeout 8000,
+   --drain-timeout 1000 and --store-inflight 1, a SIGTERM while one tile request waits on the
+   origin and two more wait in the store's lane ends the process with 0 within the drain timeout
+   + 1 s: the drain waits its 1 s, then the remote read is cancelled, not waited for until its
+   deadline (which overran the stop's watchdog: exit 1 after 2.5 s), and the waiting requests
+   are answered as the stop ends.
 """
 import argparse
 import http.client
@@ -73,23 +75,23 @@ def slow_answers(tessera, tmp):
 def stop_cuts_slow_reads(tessera, tmp):
     origin, url = iso.serve_from_origin(tessera, "procedural:terrain:1024", os.path.join(tmp, "remote-stop.tsr"))
     p, (_, port) = iso.start_server(tessera, ["--store", url, "--cache-size", "0", "--request-timeout", "8000",
-                                              "--drain-timeout", "1000"])
+                                              "--drain-timeout", "1000", "--store-inflight", "1"])
     try:
         iso.RangeOrigin.delay = 20.0
 
-        def ask():
+        def ask(x):
             conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
             try:
-                conn.request("GET", "/v1/stores/slow/tiles/0/3/3")
+                conn.request("GET", f"/v1/stores/slow/tiles/0/{x}/3")
                 conn.getresponse().read()
             except (http.client.HTTPException, OSError):
                 pass  # cut with the server: either way is fine here
             finally:
                 conn.close()
 
-        asker = threading.Thread(target=ask, daemon=True)
-        asker.start()
-        time.sleep(0.5)  # the read is waiting on the origin
+        for x in (1, 2, 3):  # one read, two waiting in the lane (--store-inflight 1)
+            threading.Thread(target=ask, args=(x,), daemon=True).start()
+        time.sleep(0.5)  # the first read is waiting on the origin
         t0 = time.perf_counter()
         p.send_signal(signal.SIGTERM)
         try:
@@ -99,8 +101,8 @@ def stop_cuts_slow_reads(tessera, tmp):
             fail("the server did not stop within 30 s of SIGTERM")
         s = time.perf_counter() - t0
         err = p.stderr.read() if p.stderr else ""
-        print(f"SIGTERM with a read waiting on a 20 s origin: exit {rc} after {s:.2f} s", flush=True)
-        if rc != 0 or s > 2.0:
+        print(f"SIGTERM with a read waiting on a 20 s origin and two in the lane: exit {rc} after {s:.2f} s", flush=True)
+        if rc != 0 or s > 2.0:  # the 1 s drain + 1 s
             fail(f"expected exit 0 within the 1 s drain + 1 s, got {rc} after {s:.2f} s: {err[-400:]}")
     finally:
         iso.RangeOrigin.delay = 0
