@@ -221,6 +221,33 @@ TEST(SparseBuild, MosaicAtTheFarCornersOfATwoToTheTwentyFourCanvas) {
     EXPECT_TRUE(verify_store(**r).ok());
 }
 
+// The widest canvas the format allows, 2^32 - 1 texels a side, with an image at each end of its
+// diagonal: a mosaic is a sparse source, so its index follows the data and is not refused for
+// the dense block tables such a canvas would need (several GiB).
+TEST(SparseBuild, MosaicOnTheWidestCanvas) {
+    ScratchDir d;
+    constexpr std::uint32_t S = 0xFFFFFFFFu, N = 64;
+    const std::vector<Placed> placed = {{"tl.png", pattern(N, N, 4, 1), 0, 0}, {"br.png", pattern(N, N, 4, 2), S - N, S - N}};
+    for (const Placed& p : placed) write_png(d.file(p.name), p.image);
+    write_manifest(d.file("widest.json"), S, S, placed);
+    BuildOptions opt;
+    opt.threads = 2;
+    auto built = build_sparse_store(d.file("widest.json"), d.file("widest.tsr"), opt);
+    ASSERT_TRUE(built.ok()) << built.error().message;
+    auto r = StoreReader::open(d.file("widest.tsr"));
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    const StoreInfo& info = (*r)->info();
+    EXPECT_EQ(info.width, S);
+    EXPECT_EQ(info.height, S);
+    EXPECT_TRUE(info.levels[0].sparse_block_table);
+    const std::uint32_t P = info.tile_payload;
+    EXPECT_EQ((*r)->read_tile({0, 0, 0})->kind, TileKind::present);
+    EXPECT_EQ((*r)->read_tile({0, (S - 1) / P, (S - 1) / P})->kind, TileKind::present);
+    EXPECT_EQ((*r)->read_tile({0, 12345, 67890})->kind, TileKind::absent);
+    EXPECT_LT(info.file_size, 64u << 20);
+    EXPECT_TRUE(verify_store(**r).ok());
+}
+
 TEST(SparseBuild, BadManifestsAreClearErrorsAndLeaveNothingBehind) {
     ScratchDir d;
     write_png(d.file("a.png"), pattern(40, 30, 4, 1));

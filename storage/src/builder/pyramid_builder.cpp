@@ -169,8 +169,9 @@ Codec default_codec(const SourceInfo& si) {
     return si.sample_type == SampleType::u8 && (si.channels == 1 || si.channels == 3) ? Codec::jpeg : Codec::zstd;
 }
 
-Result<StoreSpec> store_spec(const SourceInfo& si, const BuildOptions& opt) {
+Result<StoreSpec> store_spec(const SourceInfo& si, const BuildOptions& opt, bool sparse_index) {
     StoreSpec spec;
+    spec.sparse_index = sparse_index;  // before validate: a dense index's size is bounded, a sparse one's is not
     spec.width = si.width;
     spec.height = si.height;
     spec.tile_payload = opt.tile_size - 2 * opt.border;

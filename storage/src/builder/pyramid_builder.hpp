@@ -111,7 +111,7 @@ Codec default_codec(const SourceInfo& source);
 
 // The store a build of `source` with `opt` writes (geometry, samples, colour space, alpha, codec),
 // checked: a codec that cannot hold the source's samples, or an invalid spec, is an error.
-Result<StoreSpec> store_spec(const SourceInfo& source, const BuildOptions& opt);
+Result<StoreSpec> store_spec(const SourceInfo& source, const BuildOptions& opt, bool sparse_index = false);
 
 // Streams the sources top to bottom, strip by strip and in step (strip k of every source before
 // strip k+1 of any), each into its pyramid, until all rows are in or `error` is set; then waits for

@@ -214,11 +214,11 @@ Result<BuildSummary> build_sparse_store(const SparseSource& source, const std::s
         if (std::uint64_t(r.x) + r.width > si.width || std::uint64_t(r.y) + r.height > si.height)
             return make_error(Errc::invalid_argument, si.description + ": a present rectangle lies outside the canvas");
 
-    auto made_spec = build::store_spec(si, opt);  // has_alpha: checked above
+    // Block tables of the non-empty blocks only: the index follows the data, so a canvas of any
+    // size the format allows (2^32 - 1 a side) is not refused for the dense tables it would need.
+    auto made_spec = build::store_spec(si, opt, /*sparse_index=*/true);  // has_alpha: checked above
     if (!made_spec) return made_spec.error();
-    StoreSpec spec = *made_spec;
-    spec.sparse_index = true;  // block tables of the non-empty blocks: the index follows the data
-    TESSERA_TRY(validate(spec));
+    const StoreSpec spec = *made_spec;
     const StoreInfo store = store_info(spec);
     const std::uint32_t P = store.tile_payload, B = store.border, T = store.tile_size();
     const std::size_t sb = sample_bytes(store.sample_type), tb = store.texel_bytes(), core_bytes = std::size_t(P) * P * tb;
