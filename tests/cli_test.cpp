@@ -366,6 +366,40 @@ TEST(CliSourceOutput, FailedWriteLeavesNothing) {
     EXPECT_EQ(entries(d), std::set<std::string>{"s.png"});
 }
 
+// ---- build --atlas: inputs ---------------------------------------------------------------------------
+
+// A one-triangle OBJ scene in `d`: s.obj using material 'paint' of s.mtl, whose map_Kd is `texture`.
+void write_atlas_scene(const ScratchDir& d, const std::string& texture) {
+    const std::string obj = "mtllib s.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nusemtl paint\nf 1/1 2/2 3/3\n";
+    const std::string mtl = "newmtl paint\nKd 0.5 0.2 0.1\nmap_Kd " + texture + "\n";
+    write_file(d.file("s.obj"), std::vector<std::uint8_t>(obj.begin(), obj.end()));
+    write_file(d.file("s.mtl"), std::vector<std::uint8_t>(mtl.begin(), mtl.end()));
+}
+
+// A texture a material names that cannot be read is an error naming the material, the file and
+// why (never a solid colour in its place), and nothing is written.
+TEST(CliAtlasInput, ATextureThatCannotBeReadIsAnError) {
+    ScratchDir d;
+    fs::create_directory(d.file("folder.png"));
+    const std::string text = "not an image\n";
+    write_file(d.file("text.png"), std::vector<std::uint8_t>(text.begin(), text.end()));
+    write_image(d.file("good.png"), 32, 32, 3, OIIO::TypeDesc::UINT8);
+    const std::set<std::string> inputs = {"s.obj", "s.mtl", "folder.png", "text.png", "good.png"};
+    const std::string args = "--atlas " + q(d.file("s.obj")) + " -o " + q(d.file("o.tsr"));
+    for (const auto& [texture, why] : std::vector<std::pair<std::string, std::string>>{
+             {"missing.png", "does not exist"}, {"folder.png", "is a directory"}, {"text.png", "as an image"}}) {
+        SCOPED_TRACE(texture);
+        write_atlas_scene(d, texture);
+        const RunResult r = expect_build_fails(d, args, inputs);
+        EXPECT_TRUE(has(r.out, "'paint'") && has(r.out, texture) && has(r.out, why)) << r.out;
+    }
+    // The control: the same scene with a readable texture builds.
+    write_atlas_scene(d, "good.png");
+    const RunResult ok = run_tessera("build -q " + args);
+    ASSERT_EQ(ok.exit_code, 0) << ok.out;
+    EXPECT_TRUE(fs::exists(d.file("o.tsr")) && fs::exists(d.file("o.obj"))) << ok.out;
+}
+
 // ---- build: invalid flags ----------------------------------------------------------------------------
 
 TEST(CliBuildFlags, InvalidValues) {

@@ -104,9 +104,16 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
             if (!written) return written.error();
             file = *written;
         }
+        // Say why the file cannot be a texture: "does not exist" for a folder sends the user
+        // looking for the wrong mistake.
         std::error_code ec;
-        if (!fs::is_regular_file(file, ec))
+        const fs::file_status st = fs::status(file, ec);
+        if (!fs::exists(st))
             return make_error(Errc::not_found, material_list(r) + ": texture '" + m.texture + "' does not exist");
+        if (fs::is_directory(st))
+            return make_error(Errc::invalid_argument, material_list(r) + ": texture '" + m.texture + "' is a directory, not an image");
+        if (!fs::is_regular_file(st))
+            return make_error(Errc::invalid_argument, material_list(r) + ": texture '" + m.texture + "' is not a regular file");
         auto src = storage::open_image_source(file);
         if (!src) {
             std::string message = src.error().message;
