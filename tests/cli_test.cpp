@@ -400,6 +400,36 @@ TEST(CliAtlasInput, ATextureThatCannotBeReadIsAnError) {
     EXPECT_TRUE(fs::exists(d.file("o.tsr")) && fs::exists(d.file("o.obj"))) << ok.out;
 }
 
+// No output of an atlas build may replace a file the scene is read from: the OBJ, its material
+// library, a texture (under any spelling of the path, or a hard link to it), nor may the store and
+// the OBJ be one file. Refused before anything is written, every input left as it was.
+TEST(CliAtlasInput, OutputsNeverReplaceTheInputs) {
+    ScratchDir d;
+    write_image(d.file("tex.png"), 32, 32, 3, OIIO::TypeDesc::UINT8);
+    write_atlas_scene(d, "tex.png");
+    fs::create_hard_link(d.file("tex.png"), d.file("link.png"));
+    const std::set<std::string> inputs = {"s.obj", "s.mtl", "tex.png", "link.png"};
+    const std::map<std::string, std::vector<std::uint8_t>> before = {
+        {"s.obj", read_file(d.file("s.obj"))}, {"s.mtl", read_file(d.file("s.mtl"))}, {"tex.png", read_file(d.file("tex.png"))}};
+    const std::string scene = "--atlas " + q(d.file("s.obj"));
+    const std::string dot = d.path().string() + "/./";
+    for (const auto& [args, mention] : std::vector<std::pair<std::string, std::string>>{
+             {"-o " + q(d.file("tex.png")), "is the input texture"},
+             {"-o " + q(dot + "tex.png") + " --obj-out " + q(d.file("o.obj")), "is the input texture"},
+             {"-o " + q(d.file("o.tsr")) + " --obj-out " + q(d.file("tex.png")), "is the input texture"},
+             {"-o " + q(d.file("o.tsr")) + " --obj-out " + q(d.file("link.png")), "is the input texture"},
+             {"-o " + q(d.file("o.tsr")) + " --obj-out " + q(d.file("s.mtl")), "is the input material library"},
+             {"-o " + q(d.file("s.mtl")) + " --obj-out " + q(d.file("o.obj")), "is the input material library"},
+             {"-o " + q(d.file("s.obj")) + " --obj-out " + q(d.file("o.obj")), "is the input scene"},
+             {"-o " + q(d.file("s.tsr")), "is the input scene"},  // --obj-out defaults to s.obj
+             {"-o " + q(d.file("o.tsr")) + " --obj-out " + q(dot + "o.tsr"), "the same file"}}) {
+        SCOPED_TRACE(args);
+        const RunResult r = expect_build_fails(d, scene + " " + args, inputs);
+        EXPECT_TRUE(has(r.out, mention)) << r.out;
+        for (const auto& [name, bytes] : before) EXPECT_EQ(read_file(d.file(name)), bytes) << name;
+    }
+}
+
 // ---- build: invalid flags ----------------------------------------------------------------------------
 
 TEST(CliBuildFlags, InvalidValues) {

@@ -70,7 +70,11 @@ private:
     int count_ = 0;
 };
 
+// Whether two paths name one file: the same file (hard links too) where both exist, else the same
+// path once `..`, `.` and symbolic links are resolved.
 bool same_file(const std::string& a, const std::string& b) {
+    std::error_code ec;
+    if (fs::exists(a, ec) && fs::exists(b, ec)) return fs::equivalent(a, b, ec) && !ec;
     std::error_code ec1, ec2;
     return fs::weakly_canonical(a, ec1) == fs::weakly_canonical(b, ec2) && !ec1 && !ec2;
 }
@@ -89,11 +93,26 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
     TESSERA_TRY(storage::validate(options));
     if (obj_out.empty()) return make_error(Errc::invalid_argument, "--obj-out: no file given");
     if (same_file(obj_out, store)) return make_error(Errc::invalid_argument, "--obj-out and --output name the same file");
-    if (same_file(obj_out, obj)) return make_error(Errc::invalid_argument, "--obj-out would overwrite the input scene");
 
     auto input = scene::AtlasSceneInput::load(obj, up);
     if (!input) return input.error();
     const auto& refs = input->images();
+    // Before anything is written: no output may replace a file the scene is read from (the store
+    // and the OBJ are renamed into place, which would destroy the input without a word).
+    {
+        std::vector<std::pair<std::string, std::string>> inputs;  // path, what it is
+        for (const auto& f : input->input_files()) inputs.emplace_back(f.path, f.role + " '" + f.path + "'");
+        for (const auto& r : refs) {
+            if (!r.texture.empty() && !r.embedded) inputs.emplace_back(r.texture, "texture '" + r.texture + "' of " + material_list(r));
+            for (const auto& m : r.maps)
+                if (!m.texture.empty() && !m.embedded) inputs.emplace_back(m.texture, "texture '" + m.texture + "' of " + material_list(r));
+        }
+        for (const auto& [out, flag] : {std::pair{store, "output"}, std::pair{obj_out, "--obj-out"}})
+            for (const auto& [path, what] : inputs)
+                if (same_file(out, path))
+                    return make_error(Errc::invalid_argument, std::string(flag) + " '" + out + "' is the input " + what +
+                                                                  "; choose another output path");
+    }
     TempFolder embedded_images(store);
 
     // Open every texture and map now: a missing or unreadable one fails before any work is done.

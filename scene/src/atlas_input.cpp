@@ -242,6 +242,7 @@ std::size_t AtlasSceneInput::repeat_piece_count() const { return impl_->cut_piec
 UpAxis AtlasSceneInput::up_axis() const { return impl_->up; }
 std::array<double, 3> AtlasSceneInput::extent() const { return impl_->extent; }
 const std::vector<std::string>& AtlasSceneInput::warnings() const { return impl_->warnings; }
+const std::vector<AtlasSceneInput::InputFile>& AtlasSceneInput::input_files() const { return impl_->input_files; }
 
 Result<AtlasSceneInput> AtlasSceneInput::load(const std::string& path, UpAxis up) {
     std::string ext = path.size() >= 4 ? path.substr(path.size() - 4) : std::string();
@@ -256,6 +257,7 @@ Result<AtlasSceneInput> AtlasSceneInput::load(const std::string& path, UpAxis up
     if (!std::filesystem::exists(path, ec)) return make_error(Errc::not_found, kind + " file '" + path + "' does not exist");
     if (std::filesystem::is_directory(path, ec)) return make_error(Errc::invalid_argument, kind + " file '" + path + "' is a directory");
     auto impl = std::make_unique<Impl>();
+    impl->input_files.push_back({path, "scene"});
     if (gltf) {
         TESSERA_TRY(detail::read_gltf(path, up, *impl));
     } else {

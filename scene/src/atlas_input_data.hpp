@@ -39,6 +39,7 @@ struct AtlasInputData {
     UpAxis up = UpAxis::y;
     std::array<double, 3> extent{0, 0, 0};
     std::vector<std::string> warnings;
+    std::vector<AtlasSceneInput::InputFile> input_files;  // the scene file, material libraries, buffers
 
     // Positions (normals) made by cutting, one per distinct value: the pieces on both sides of a
     // cut share them.

@@ -242,6 +242,12 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
                                                      "e.g. with gltf-transform)");
     const bool ok = ext == ".glb" ? loader.LoadBinaryFromFile(&model, &err, &warn, path) : loader.LoadASCIIFromFile(&model, &err, &warn, path);
     if (!ok) return make_error(Errc::corrupt, "cannot read glTF '" + path + "': " + trim_newlines(err.empty() ? warn : err));
+    for (const tinygltf::Buffer& b : model.buffers)  // external buffer files: inputs the build must not overwrite
+        if (!b.uri.empty() && b.uri.rfind("data:", 0) != 0) {
+            fs::path p = uri_decode(b.uri);
+            if (p.is_relative()) p = folder / p;
+            data.input_files.push_back({p.lexically_normal().string(), "buffer"});
+        }
     if (!model.asset.version.empty() && model.asset.version[0] != '2')
         return make_error(Errc::unsupported, "glTF '" + path + "' is version " + model.asset.version + "; only glTF 2.0 is read");
     for (const std::string& e : model.extensionsRequired)

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <unordered_map>
 
@@ -19,18 +20,38 @@ constexpr std::uint8_t kDefaultGrey = 204;  // faces with no material: a light g
 
 std::uint8_t to_byte(double v) { return static_cast<std::uint8_t>(std::lround(std::clamp(v, 0.0, 1.0) * 255.0)); }
 
+// tinyobj's reader of material libraries, noting each file it reads: the build must not write
+// over them.
+class RecordingMaterialReader : public tinyobj::MaterialFileReader {
+public:
+    explicit RecordingMaterialReader(const std::string& folder) : tinyobj::MaterialFileReader(folder), folder_(folder) {}
+    bool operator()(const std::string& name, std::vector<tinyobj::material_t>* materials, std::map<std::string, int>* by_name,
+                    std::string* warn, std::string* err) override {
+        const bool read = tinyobj::MaterialFileReader::operator()(name, materials, by_name, warn, err);
+        if (read) files.push_back(folder_ + name);  // the path tinyobj opened (folder_ ends in '/')
+        return read;
+    }
+    std::vector<std::string> files;
+
+private:
+    std::string folder_;
+};
+
 }  // namespace
 
 Status read_obj(const std::string& obj_path, UpAxis up, AtlasInputData& data) {
     const fs::path folder = fs::path(obj_path).parent_path();
-    tinyobj::ObjReaderConfig config;
-    config.triangulate = true;
-    config.vertex_color = false;
-    config.mtl_search_path = folder.empty() ? std::string("./") : folder.string() + "/";
-    tinyobj::ObjReader reader;
-    if (!reader.ParseFromFile(obj_path, config))
-        return make_error(Errc::corrupt, "cannot read OBJ '" + obj_path + "': " + trim_newlines(reader.Error()));
-    const std::string& warn = reader.Warning();
+    std::ifstream file(obj_path, std::ios::binary);
+    if (!file) return make_error(Errc::io_error, "cannot read OBJ '" + obj_path + "': cannot open the file");
+    RecordingMaterialReader mtl_reader(folder.empty() ? std::string("./") : folder.string() + "/");
+    tinyobj::attrib_t attrib;
+    std::vector<tinyobj::shape_t> obj_shapes;
+    std::vector<tinyobj::material_t> materials;
+    std::string warn, err;
+    if (!tinyobj::LoadObj(&attrib, &obj_shapes, &materials, &warn, &err, &file, &mtl_reader, /*triangulate=*/true,
+                          /*default_vcols_fallback=*/false))
+        return make_error(Errc::corrupt, "cannot read OBJ '" + obj_path + "': " + trim_newlines(err));
+    for (const std::string& mtl : mtl_reader.files) data.input_files.push_back({mtl, "material library"});
     // tinyobj only warns about these; for an atlas they are fatal. Report the first such line.
     for (const char* fatal : {"Material file [", "not found in .mtl", "indices out of bounds", "invalid vertex index"}) {
         const std::size_t at = warn.find(fatal);
@@ -41,8 +62,6 @@ Status read_obj(const std::string& obj_path, UpAxis up, AtlasInputData& data) {
         return make_error(Errc::invalid_argument, "OBJ '" + obj_path + "': " + trim_newlines(line));
     }
 
-    const tinyobj::attrib_t& attrib = reader.GetAttrib();
-    const auto& materials = reader.GetMaterials();
     data.positions = attrib.vertices;
     data.normals = attrib.normals;
 
@@ -83,7 +102,7 @@ Status read_obj(const std::string& obj_path, UpAxis up, AtlasInputData& data) {
         return index;
     };
 
-    for (const tinyobj::shape_t& s : reader.GetShapes()) {
+    for (const tinyobj::shape_t& s : obj_shapes) {
         Shape shape;
         shape.name = s.name;
         std::size_t offset = 0;

@@ -98,6 +98,12 @@ public:
     // What of the scene the atlas does not keep, one line each (e.g. a colour factor on a
     // textured glTF material, lines and points): the build prints them.
     const std::vector<std::string>& warnings() const;
+    // The files read besides the textures, each with what it is ("scene", "material library",
+    // "buffer"), so that a build can refuse an output that would overwrite one of them.
+    struct InputFile {
+        std::string path, role;
+    };
+    const std::vector<InputFile>& input_files() const;
 
     // The rewritten OBJ text: positions and normals as they were, texture coordinates mapped into
     // rects[i] for images()[i] (a solid image's texels all map to its middle texel's centre), one
