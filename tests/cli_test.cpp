@@ -4,10 +4,13 @@
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 #include <sys/sysmacros.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <array>
+#include <chrono>
+#include <csignal>
 #include <cerrno>
 #include <cstdint>
 #include <cstring>
@@ -18,6 +21,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <tuple>
 #include <vector>
 
@@ -427,6 +431,62 @@ TEST(CliAtlasInput, OutputsNeverReplaceTheInputs) {
         const RunResult r = expect_build_fails(d, scene + " " + args, inputs);
         EXPECT_TRUE(has(r.out, mention)) << r.out;
         for (const auto& [name, bytes] : before) EXPECT_EQ(read_file(d.file(name)), bytes) << name;
+    }
+}
+
+// ---- interrupted ---------------------------------------------------------------------------------
+
+// Interrupted while it writes (Ctrl-C's SIGINT, SIGTERM, SIGHUP), a command that writes files
+// removes its temporary files and ends by that signal (status 128 + signal): the output folder is
+// left empty, with neither the output nor a hidden temporary file in it.
+TEST(CliInterrupt, TemporaryFilesAreRemoved) {
+    struct Case {
+        std::vector<std::string> args;  // after the binary; OUT is replaced by the output path
+        int sig;
+    };
+    const std::vector<Case> cases = {
+        {{"build", "procedural:terrain:16384", "--threads", "1", "-q", "-o", "OUT/new.tsr"}, SIGINT},
+        {{"build", "procedural:terrain:16384", "--threads", "1", "-q", "-o", "OUT/new.tsr"}, SIGTERM},
+        {{"build", "procedural:terrain:16384", "--threads", "1", "-q", "-o", "OUT/new.tsr"}, SIGHUP},
+        {{"source", "procedural:terrain:16384", "-q", "-o", "OUT/s.tif"}, SIGINT},
+    };
+    for (const Case& c : cases) {
+        ScratchDir d;
+        std::vector<std::string> args = {TESSERA_BINARY};
+        for (std::string a : c.args) {
+            if (a.rfind("OUT/", 0) == 0) a = d.file(a.substr(4));
+            args.push_back(a);
+        }
+        SCOPED_TRACE(args[1] + " " + args.back() + ", signal " + std::to_string(c.sig));
+        std::vector<char*> argv;
+        for (std::string& a : args) argv.push_back(a.data());
+        argv.push_back(nullptr);
+        const pid_t pid = ::fork();
+        ASSERT_GE(pid, 0);
+        if (pid == 0) {
+            std::freopen("/dev/null", "w", stdout);
+            std::freopen("/dev/null", "w", stderr);
+            // As from a terminal, whatever this test inherited (a background job ignores SIGINT).
+            sigset_t none;
+            sigemptyset(&none);
+            ::sigprocmask(SIG_SETMASK, &none, nullptr);
+            for (int sig : {SIGINT, SIGTERM, SIGHUP}) std::signal(sig, SIG_DFL);
+            ::execv(argv[0], argv.data());
+            ::_exit(127);
+        }
+        // Signalled once it writes: as soon as a temporary (hidden) file appears beside the output.
+        bool writing = false;
+        for (auto until = std::chrono::steady_clock::now() + std::chrono::seconds(60); !writing && std::chrono::steady_clock::now() < until;) {
+            for (const std::string& e : d.entries()) writing = writing || e.rfind('.', 0) == 0;
+            if (!writing) std::this_thread::sleep_for(std::chrono::milliseconds(2));
+        }
+        EXPECT_TRUE(writing) << "no temporary file appeared";
+        ::kill(pid, c.sig);
+        int status = 0;
+        ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+        const int code = WIFEXITED(status) ? WEXITSTATUS(status) : WIFSIGNALED(status) ? 128 + WTERMSIG(status) : -1;
+        EXPECT_EQ(code, 128 + c.sig);
+        EXPECT_EQ(entries(d), std::set<std::string>{}) << "left behind";
     }
 }
 

@@ -23,12 +23,15 @@ class TempFile {
 public:
     explicit TempFile(const fs::path& target)
         : path_((target.has_parent_path() ? target.parent_path() : fs::path(".")) /
-                (".tmp-" + std::to_string(::getpid()) + "-" + target.filename().string())) {}
+                (".tmp-" + std::to_string(::getpid()) + "-" + target.filename().string())) {
+        storage::track_temp_path(path_.string());  // removed if the build is interrupted
+    }
     ~TempFile() {
         if (!released_) {
             std::error_code ec;
             fs::remove(path_, ec);
         }
+        storage::untrack_temp_path(path_.string());
     }
     TempFile(const TempFile&) = delete;
     TempFile& operator=(const TempFile&) = delete;
@@ -46,10 +49,13 @@ class TempFolder {
 public:
     explicit TempFolder(const fs::path& target)
         : path_((target.has_parent_path() ? target.parent_path() : fs::path(".")) /
-                (".tmp-" + std::to_string(::getpid()) + "-" + target.filename().string() + "-images")) {}
+                (".tmp-" + std::to_string(::getpid()) + "-" + target.filename().string() + "-images")) {
+        storage::track_temp_path(path_.string());  // removed if the build is interrupted
+    }
     ~TempFolder() {
         std::error_code ec;
         fs::remove_all(path_, ec);
+        storage::untrack_temp_path(path_.string());
     }
     TempFolder(const TempFolder&) = delete;
     TempFolder& operator=(const TempFolder&) = delete;

@@ -8,6 +8,7 @@
 
 #include "atlas_build.hpp"
 #include "commands.hpp"
+#include "interrupt.hpp"
 #include "progress.hpp"
 #include "store_summary.hpp"
 #include "tessera/scene/visibility.hpp"
@@ -276,6 +277,7 @@ Command add_build(CLI::App& app) {
         ->capture_default_str();
 
     return [a, c]() -> int {
+        remove_temp_files_on_interrupt();  // before the build starts any thread
         a->visibility_options_given = c->get_option("--visibility-view")->count() + c->get_option("--visibility-fps")->count() > 0;
         return run_build(*a);
     };

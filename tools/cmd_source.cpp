@@ -7,6 +7,7 @@
 
 #include "commands.hpp"
 #include "gallery_scene.hpp"
+#include "interrupt.hpp"
 #include "progress.hpp"
 #include "tessera/storage/image_source.hpp"
 #include "tessera/storage/output_file.hpp"
@@ -26,6 +27,7 @@ Command add_source(CLI::App& app) {
         ->required();
     c->add_flag("-q,--quiet", a->quiet, "No progress bar");
     return [a]() -> int {
+        remove_temp_files_on_interrupt();  // before any thread is started
         if (a->spec.rfind("scene:", 0) == 0) {
             if (a->spec != "scene:gallery") throw Failure("unknown scene '" + a->spec + "' (expected scene:gallery)", 2);
             StderrCapture library_messages;

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "tessera/storage/image_source.hpp"
+#include "tessera/storage/output_file.hpp"
 
 namespace tessera::tools {
 namespace fs = std::filesystem;
@@ -244,12 +245,14 @@ Status write_gallery_scene(const std::string& dir) {
     const fs::path parent = out.has_parent_path() ? out.parent_path() : fs::path(".");
     if (!fs::is_directory(parent, ec)) return make_error(Errc::not_found, "folder '" + parent.string() + "' does not exist");
     const fs::path tmp = parent / (".tmp-" + std::to_string(::getpid()) + "-" + out.filename().string());
+    storage::track_temp_path(tmp.string());  // removed if the command is interrupted
     struct Cleanup {
         fs::path p;
         bool armed = true;
         ~Cleanup() {
             std::error_code e;
             if (armed) fs::remove_all(p, e);
+            storage::untrack_temp_path(p.string());
         }
     } cleanup{tmp};
     fs::remove_all(tmp, ec);

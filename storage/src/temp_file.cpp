@@ -10,11 +10,44 @@
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
+#include <mutex>
+#include <set>
 
 namespace tessera::storage {
 namespace {
 std::string errno_text() { return std::strerror(errno); }
+
+struct TempRegistry {
+    std::mutex mutex;
+    std::multiset<std::string> paths;
+};
+TempRegistry& registry() {
+    static auto* r = new TempRegistry;  // never destroyed: usable by threads still running at exit
+    return *r;
+}
 }  // namespace
+
+void track_temp_path(const std::string& path) {
+    TempRegistry& r = registry();
+    std::lock_guard lock(r.mutex);
+    r.paths.insert(path);
+}
+
+void untrack_temp_path(const std::string& path) {
+    TempRegistry& r = registry();
+    std::lock_guard lock(r.mutex);
+    if (auto it = r.paths.find(path); it != r.paths.end()) r.paths.erase(it);
+}
+
+void remove_temp_paths_for_exit() {
+    TempRegistry& r = registry();
+    r.mutex.lock();  // not unlocked: a thread creating or committing a file waits until the process ends
+    for (const std::string& p : r.paths) {
+        std::error_code ec;
+        std::filesystem::remove_all(p, ec);
+    }
+    r.paths.clear();
+}
 
 Status check_output_file(const std::string& path) {
     struct stat st {};
@@ -42,8 +75,10 @@ Result<TempFile> TempFile::create_beside(const std::string& final_path, const st
         const std::string name = "." + p.filename().string() + "." + tag + "-" + std::to_string(::getpid()) + "-" +
                                  std::to_string(counter.fetch_add(1));
         const std::string path = (dir / name).string();
+        track_temp_path(path);  // before the file exists: an interrupt never misses it
         int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
         if (fd >= 0) return TempFile(fd, path);
+        untrack_temp_path(path);
         if (errno != EEXIST)
             return make_error(Errc::io_error, "cannot write to '" + dir.string() + "': " + errno_text());
     }
@@ -67,7 +102,10 @@ TempFile::~TempFile() { discard(); }
 
 void TempFile::discard() {
     if (fd_ >= 0) ::close(fd_);
-    if (!path_.empty()) ::unlink(path_.c_str());
+    if (!path_.empty()) {
+        ::unlink(path_.c_str());
+        untrack_temp_path(path_);
+    }
     fd_ = -1;
     path_.clear();
 }
@@ -108,6 +146,7 @@ Status TempFile::commit(const std::string& final_path) {
     if (closed != 0) return make_error(Errc::io_error, "closing '" + path_ + "' failed: " + errno_text());
     if (::rename(path_.c_str(), final_path.c_str()) != 0)
         return make_error(Errc::io_error, "cannot rename into '" + final_path + "': " + errno_text());
+    untrack_temp_path(path_);
     path_.clear();  // the file is no longer ours to remove
     const std::filesystem::path dir = std::filesystem::path(final_path).has_parent_path()
                                           ? std::filesystem::path(final_path).parent_path()

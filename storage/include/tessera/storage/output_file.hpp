@@ -13,4 +13,13 @@ namespace tessera::storage {
 // there yet, or a parent that is missing (the write reports it), passes.
 Status check_output_file(const std::string& path);
 
+// Temporary files and folders being written, process-wide, so that a command interrupted by a
+// signal can remove them before it dies (tools/interrupt.cpp). Track a path before creating it;
+// untrack it once it is renamed into place or removed.
+void track_temp_path(const std::string& path);
+void untrack_temp_path(const std::string& path);
+// Removes every tracked path (a folder with its contents) and keeps the registry locked for good,
+// so no thread can create or commit a temporary file afterwards: for a process about to die.
+void remove_temp_paths_for_exit();
+
 }  // namespace tessera::storage
