@@ -11,7 +11,9 @@
 # decoded, cropped and encoded again per request, as IIPImage does with its cached raw tiles.
 # Both servers, wrk and serve_load share this machine's cores; compare the ratio, not absolutes.
 # Each server keeps its own caches at their defaults (Tessera: --web-cache 64 MiB; IIPImage:
-# MAX_IMAGE_CACHE_SIZE 10 MB of tiles, here 256 MB so both hold every tile of this image).
+# MAX_IMAGE_CACHE_SIZE 10 MB of tiles, here 256 MB so both hold every tile of this image), except
+# that the decoded tiles both keep get the same 256 MB (IIPImage's MAX_IMAGE_CACHE_SIZE, Tessera's
+# --web-decoded-cache, whose default is 128 MiB).
 #
 #   bench/iiif_vs_iipimage.sh [ROUNDS] [SECONDS] [SIZE] [WORKDIR]   defaults: 3 10 8192 build/bench-iiif
 #   env: CONNECTIONS (32), TESSERA, SERVE_LOAD
@@ -66,7 +68,7 @@ lighttpd -D -f "$work/lighttpd/lighttpd.conf" &
 ipp_pid=$!
 "$tessera" serve --store "$work/img.tsr" --grpc "" --http 127.0.0.1:0 2> "$work/tessera.log" &
 tsr_pid=$!
-"$tessera" serve --store "$work/img.tsr" --grpc "" --http 127.0.0.1:0 --web-cache 0 2> "$work/tessera_nocache.log" &
+"$tessera" serve --store "$work/img.tsr" --grpc "" --http 127.0.0.1:0 --web-cache 0 --web-decoded-cache 256MiB 2> "$work/tessera_nocache.log" &
 tnc_pid=$!
 stop() { kill "$1" 2>/dev/null || true; wait "$1" 2>/dev/null || true; }
 trap 'stop $tsr_pid; stop $tnc_pid; stop $ipp_pid' EXIT

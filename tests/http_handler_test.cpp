@@ -149,7 +149,7 @@ protected:
         stores_ = std::make_unique<StoreRegistry>(config_.store_files, config_.store_dirs, *log_, *metrics_);
         ASSERT_TRUE(stores_->open().ok());
         cache_ = std::make_unique<TileCache>(config_.cache_bytes);
-        fetcher_ = std::make_unique<TileFetcher>(*cache_, *metrics_, *log_);
+        fetcher_ = std::make_unique<TileFetcher>(*cache_, *metrics_, *log_, decoded_bytes_);
         ctx_.reset(new ServerContext{config_, *log_, *metrics_, *stores_, *fetcher_});
         ctx_->ready = true;
         handler_ = std::make_unique<HttpHandler>(*ctx_);
@@ -195,6 +195,7 @@ protected:
 
     ScratchDir dir_;
     ServerConfig config_;
+    std::size_t decoded_bytes_ = 0;  // the fetcher's cache of tiles decoded for web images
     int null_fd_ = -1;
     std::unique_ptr<Logger> log_;
     std::unique_ptr<MetricsRegistry> metrics_;
@@ -1015,6 +1016,31 @@ TEST_F(HandlerTest, AFailedDziReadIsNotRetriedAsARender) {
     EXPECT_EQ(r.status, 500u) << r.body;
     EXPECT_NE(r.body.find("checksum"), std::string::npos) << r.body;
     EXPECT_EQ(fetcher_->reads(), 1u) << "the failed tile was read again for a render";
+}
+
+// With tiles kept decoded, a web tile cut again from the same stored tiles is made from the
+// decoded texels, and is the same image, byte for byte, as the one made by decoding them. A
+// large render uses what is kept but keeps nothing itself (it would sweep the viewers' tiles out).
+TEST_F(HandlerTest, WebTilesFromDecodedTilesAreTheSame) {
+    config_.web_cache_bytes = 0;  // every request renders
+    decoded_bytes_ = 8 << 20;
+    write_store(dir_.file("wide.tsr"), spec_of(400, 240, 60, 4, 3, SampleType::u8, ColourSpace::srgb, Codec::jpeg));
+    for (const char* path : {"/iiif/wide/60,60,60,60/max/0/default.jpg", "/iiif/wide/50,20,40,30/40,/90/default.png",
+                             "/iiif/wide/120,0,100,100/50,/0/default.png"}) {
+        SCOPED_TRACE(path);
+        const HttpResponse first = get(path);
+        ASSERT_EQ(first.status, 200u) << first.body;
+        const std::uint64_t hits = fetcher_->decoded_hits();
+        const HttpResponse again = get(path);
+        ASSERT_EQ(again.status, 200u) << again.body;
+        EXPECT_GT(fetcher_->decoded_hits(), hits) << "the second render found no tile decoded";
+        EXPECT_EQ(again.body, first.body);
+    }
+    // The whole image at level 0 (28 stored tiles): nothing of it is kept.
+    ASSERT_EQ(get("/iiif/wide/0,0,400,240/max/0/default.png").status, 200u);
+    const std::uint64_t hits = fetcher_->decoded_hits();
+    ASSERT_EQ(get("/iiif/wide/300,180,60,60/max/0/default.png").status, 200u);
+    EXPECT_EQ(fetcher_->decoded_hits(), hits) << "a large render kept its tiles decoded";
 }
 
 // IIIF's info.json picks its Content-Type from Accept (JSON-LD when asked for with a quality

@@ -208,6 +208,8 @@ Command add_serve(CLI::App& app) {
     s->add_option("--public-url", c.public_url,
                   "URL clients reach this server at, e.g. https://tiles.example.org (IIIF ids; default: the request's Host)");
     add_bytes_option(*s, "--web-cache", c.web_cache_bytes, "RAM for encoded DZI/IIIF/XYZ images, e.g. 64MiB (0: off)");
+    add_bytes_option(*s, "--web-decoded-cache", c.web_decoded_bytes,
+                     "RAM for stored tiles decoded for web images, e.g. 128MiB (0: off)");
     s->add_option("--log-format", a->log_format, "Log lines: json or text")->capture_default_str()
         ->check(CLI::IsMember({"json", "text"}));
     s->add_option("--log-level", a->log_level, "info or debug")->capture_default_str()

@@ -136,7 +136,7 @@ public:
           log_(config.log_json ? LogFormat::json : LogFormat::text, config.log_debug ? LogLevel::debug : config.log_quiet ? LogLevel::warn : LogLevel::info),
           stores_(config.store_files, config.store_dirs, log_, metrics_, remote_stores(config)),
           cache_(config.cache_bytes),
-          fetcher_(cache_, metrics_, log_),
+          fetcher_(cache_, metrics_, log_, config_.web_decoded_bytes),
           ctx_{config_, log_, metrics_, stores_, fetcher_} {}
 
     ~ServerImpl() override {

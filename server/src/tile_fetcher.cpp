@@ -9,8 +9,12 @@
 
 namespace tessera::server {
 
-TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log)
-    : cache_(cache), metrics_(metrics), log_(log) {
+TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log, std::size_t decoded_bytes)
+    : cache_(cache), decoded_budget_(decoded_bytes), decoded_(decoded_bytes), metrics_(metrics), log_(log) {
+    decoded_hits_ = &metrics.counter("tessera_web_decoded_hits_total", "Web image tiles found decoded in RAM");
+    decoded_misses_ = &metrics.counter("tessera_web_decoded_misses_total", "Web image tiles decoded (not found decoded in RAM)");
+    metrics.gauge_callback("tessera_web_decoded_bytes", "Bytes held by the RAM cache of tiles decoded for web images", {},
+                           [this] { return double(decoded_.stats().bytes); });
     reads_ = &metrics.counter("tessera_store_reads_total", "File reads issued, after coalescing adjacent tiles");
     tiles_read_ = &metrics.counter("tessera_store_tiles_read_total", "Tiles returned by file reads");
     read_bytes_ = &metrics.counter("tessera_store_read_bytes_total", "Bytes read from store files, gaps included");
@@ -29,7 +33,7 @@ TileFetcher::TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log
 }
 
 TileFetcher::~TileFetcher() {
-    for (const char* name : {"tessera_cache_bytes", "tessera_cache_budget_bytes", "tessera_cache_hit_ratio"})
+    for (const char* name : {"tessera_cache_bytes", "tessera_cache_budget_bytes", "tessera_cache_hit_ratio", "tessera_web_decoded_bytes"})
         metrics_.remove_callbacks(name);
 }
 
@@ -68,6 +72,30 @@ std::size_t TileFetcher::CacheKeyHash::operator()(const CacheKey& k) const noexc
     h ^= h >> 33;
     h *= 0xc4ceb9fe1a85ec53ULL;
     return static_cast<std::size_t>(h ^ (h >> 33));
+}
+
+namespace {
+// The decoded cache's key: the store's version and the view (a layer) folded together, so a
+// replaced store, or another layer of it, never finds these texels.
+CacheKey decoded_key(const StoreHandle& store, const TileKey& key, std::uint32_t look) {
+    return CacheKey{store.info().store_id ^ ((std::uint64_t(look) + 1) * 0x9E3779B97F4A7C15ULL), key};
+}
+}  // namespace
+
+std::shared_ptr<const storage::Tile> TileFetcher::decoded(const StoreHandle& store, const TileKey& key, std::uint32_t look) {
+    if (!decoded_budget_) return nullptr;
+    auto t = decoded_.get(decoded_key(store, key, look));
+    (t ? decoded_hits_ : decoded_misses_)->inc();
+    return t;
+}
+
+void TileFetcher::keep_decoded(const StoreHandle& store, const TileKey& key, std::uint32_t look, std::vector<std::uint8_t> texels) {
+    if (!decoded_budget_) return;
+    auto t = std::make_shared<storage::Tile>();
+    t->key = key;
+    t->kind = TileKind::present;
+    t->bytes = std::move(texels);
+    decoded_.put(decoded_key(store, key, look), std::move(t));
 }
 
 void TileFetcher::fetch(const StoreHandle& store, std::span<const TileKey> keys,

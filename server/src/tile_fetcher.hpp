@@ -27,7 +27,8 @@ struct FetchedTile {
 
 class TileFetcher {
 public:
-    TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log);
+    // decoded_bytes: the budget of a second RAM cache, of tiles decoded for web images (0: none).
+    TileFetcher(TileCache& cache, MetricsRegistry& metrics, Logger& log, std::size_t decoded_bytes = 0);
     ~TileFetcher();  // removes its gauge callbacks from the registry
     TileFetcher(const TileFetcher&) = delete;
     TileFetcher& operator=(const TileFetcher&) = delete;
@@ -39,6 +40,14 @@ public:
     std::shared_ptr<const storage::Tile> cached(const StoreHandle& store, const TileKey& key);
 
     TileCache& cache() { return cache_; }
+    // Tiles decoded for web images (http/web_image.cpp), keyed by the store's version, the tile
+    // and the view of it (`look`: a layered store's layer): a web tile cut from a decoded tile
+    // costs one encode instead of a decode and an encode, as IIPImage keeps decoded tiles too.
+    // null when not held (or the cache is off); counted as a hit or miss.
+    std::shared_ptr<const storage::Tile> decoded(const StoreHandle& store, const TileKey& key, std::uint32_t look);
+    void keep_decoded(const StoreHandle& store, const TileKey& key, std::uint32_t look, std::vector<std::uint8_t> texels);
+    bool keeps_decoded() const { return decoded_budget_ > 0; }
+    std::uint64_t decoded_hits() const { return decoded_hits_->value(); }
     std::uint64_t reads() const { return reads_->value(); }
     std::uint64_t tiles_read() const { return tiles_read_->value(); }
     std::uint64_t reads_saved() const { return reads_saved_->value(); }
@@ -53,6 +62,8 @@ private:
                      std::vector<FetchedTile>& out);
 
     TileCache& cache_;
+    std::size_t decoded_budget_;
+    TileCache decoded_;
     MetricsRegistry& metrics_;
     Logger& log_;
     Counter* reads_;       // file reads after coalescing
@@ -61,6 +72,8 @@ private:
     Counter* cache_hits_;
     Counter* cache_misses_;
     Counter* reads_saved_;  // misses that joined a read already in flight
+    Counter* decoded_hits_;
+    Counter* decoded_misses_;
     std::mutex flights_mutex_;
     std::unordered_map<CacheKey, std::shared_ptr<Flight>, CacheKeyHash> flights_;  // bounded by reads in progress
 };

@@ -263,6 +263,11 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
     std::vector<FetchedTile> fetched;
     TileScratch tiles(tx1 - tx0 + 1, std::size_t(T) * T * (c + look.info.texel_bytes()));
     std::vector<std::uint8_t> row(copy ? 0 : std::size_t(r.w) * c);
+    // Only a web tile's stored tiles (a few) are kept decoded: a large render, which sweeps many
+    // once, uses those kept but does not push the viewers' working set out.
+    const bool web_tile = std::uint64_t(tx1 - tx0 + 1) * (ty1 - ty0 + 1) <= 4;
+    std::vector<std::shared_ptr<const storage::Tile>> held(tx1 - tx0 + 1);  // decoded tiles from the cache, this row
+    std::vector<const std::uint8_t*> texels(tx1 - tx0 + 1);                 // each tile's texels, T x T x c
     for (std::uint32_t ty = ty0; ty <= ty1; ++ty) {
         keys.clear();
         for (std::uint32_t tx = tx0; tx <= tx1; ++tx) keys.push_back(TileKey{r.level, tx, ty});
@@ -273,15 +278,25 @@ std::optional<WebImage> render_region(TileFetcher& fetcher, const StoreHandle& s
                 failure = fetch_failure(fetched[i]);
                 return std::nullopt;
             }
-            if (!decode_web_tile(store, look, *fetched[i].tile, tiles.tile(i), tiles.samples(), failure)) return std::nullopt;
+            // A stored tile decoded before is taken as decoded (its bytes are the texels); one
+            // decoded now is kept for the next request.
+            const bool look_up = fetched[i].tile->kind == TileKind::present && fetcher.keeps_decoded();
+            held[i] = look_up ? fetcher.decoded(store, keys[i], std::uint32_t(look.layer)) : nullptr;
+            if (held[i]) {
+                texels[i] = held[i]->bytes.data();
+                continue;
+            }
+            std::vector<std::uint8_t>& decoded = tiles.tile(i);
+            if (!decode_web_tile(store, look, *fetched[i].tile, decoded, tiles.samples(), failure)) return std::nullopt;
+            texels[i] = decoded.data();
+            if (look_up && web_tile) fetcher.keep_decoded(store, keys[i], std::uint32_t(look.layer), decoded);
         }
         const auto [y0, y1] = tile_span(r.y, r.h, ty, P);
         for (std::uint32_t y = y0; y < y1; ++y) {
             std::uint8_t* dst = copy ? &out.texels[std::size_t(y - r.y) * r.w * c] : row.data();
             for (std::uint32_t tx = tx0; tx <= tx1; ++tx) {
                 const auto [x0, x1] = tile_span(r.x, r.w, tx, P);
-                const std::uint8_t* src =
-                    &tiles.tile(tx - tx0)[(std::size_t(y - ty * P + B) * T + (x0 - tx * P + B)) * c];
+                const std::uint8_t* src = texels[tx - tx0] + (std::size_t(y - ty * P + B) * T + (x0 - tx * P + B)) * c;
                 std::memcpy(dst + std::size_t(x0 - r.x) * c, src, std::size_t(x1 - x0) * c);
             }
             if (!copy) resampler->push(y - r.y, row.data());

@@ -85,6 +85,9 @@ struct ServerConfig {
     std::string cors_origin = "*";
     std::string public_url;
     std::size_t web_cache_bytes = std::size_t(64) << 20;
+    // RAM for stored tiles decoded for web images (a web tile cut from one is then an encode,
+    // not a decode and an encode); 0: off.
+    std::size_t web_decoded_bytes = std::size_t(128) << 20;
 
     bool log_json = true;
     bool log_debug = false;
