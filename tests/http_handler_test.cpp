@@ -1043,6 +1043,28 @@ TEST_F(HandlerTest, WebTilesFromDecodedTilesAreTheSame) {
     EXPECT_EQ(fetcher_->decoded_hits(), hits) << "a large render kept its tiles decoded";
 }
 
+// A render that needs more than --render-memory would be refused however idle the server is: max
+// and !w,h shrink to what the budget holds (the largest size this server can give), and an exact
+// size that cannot fit is a 400, not a 503 to be retried for ever.
+TEST_F(HandlerTest, IiifSizesShrinkToTheRenderBudget) {
+    config_.render_memory_bytes = 4 << 20;
+    write_store(dir_.file("big.tsr"), spec_of(1000, 600, 248, 4, 3, SampleType::u8, ColourSpace::srgb, Codec::jpeg));
+    for (const char* size : {"max", "!1000,1000", "^max"}) {
+        SCOPED_TRACE(size);
+        const HttpResponse r = get(std::string("/iiif/big/full/") + size + "/0/default.png");
+        ASSERT_EQ(r.status, 200u) << r.body;
+        const Png png = decode_png(r.body);
+        EXPECT_LT(png.width, 1000u);
+        EXPECT_GT(png.width, 100u);
+        EXPECT_NEAR(double(png.height), png.width * 0.6, 1.0);
+    }
+    const HttpResponse exact = get("/iiif/big/full/1000,600/0/default.png");
+    EXPECT_EQ(exact.status, 400u) << exact.body;
+    EXPECT_NE(exact.body.find("--render-memory"), std::string::npos) << exact.body;
+    EXPECT_EQ(exact.header("Retry-After"), nullptr);
+    EXPECT_EQ(get("/iiif/big/0,0,248,248/248,/0/default.png").status, 200u);  // a web tile fits
+}
+
 // IIIF's info.json picks its Content-Type from Accept (JSON-LD when asked for with a quality
 // above 0), so caches must key on it: Vary: Accept.
 TEST_F(HandlerTest, IiifInfoFollowsAcceptAndSaysSo) {

@@ -276,7 +276,32 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
         return error(501, "format " + format + " is not supported (jpg, png)", false);
     if (format != "jpg" && format != "png") return error(400, "format must be jpg or png", false);
 
-    const std::uint32_t ow = size->first, oh = size->second;
+    std::uint32_t ow = size->first, oh = size->second;
+    const WebLook& shown = store->look;
+    const auto reg = *region;
+    const auto memory_for = [&](std::uint32_t w, std::uint32_t hh) {
+        return render_memory(info, shown, std::min<std::uint32_t>(reg.w, 4 * w + 2), w, hh);
+    };
+    // A render needing more than --render-memory would be refused however idle the server is.
+    // `max` and `!w,h` name the largest size the server can give (IIIF 3.0, 4.2: within its
+    // limits), so they shrink to what the budget holds; an exact size that cannot fit is a 400
+    // (as one past maxArea is), not a 503 to retry forever.
+    const std::size_t budget = handler.context().config.render_memory_bytes;
+    if (memory_for(ow, oh) > budget) {
+        std::string_view spec = seg[3];
+        if (spec.starts_with("^")) spec.remove_prefix(1);
+        if (spec == "max" || spec.starts_with("!")) {
+            const std::uint32_t w0 = ow, h0 = oh;
+            for (double f = 0.9; memory_for(ow, oh) > budget && (ow > 1 || oh > 1); f *= 0.9) {
+                ow = std::max(1u, std::uint32_t(w0 * f));
+                oh = std::max(1u, std::uint32_t(h0 * f));
+            }
+        }
+        if (memory_for(ow, oh) > budget)
+            return error(400, "size " + std::to_string(ow) + "x" + std::to_string(oh) +
+                                  " needs more memory than this server renders at once (--render-memory); ask a smaller size",
+                         false);
+    }
     const WebAnswer answer{"iiif-" + std::to_string(region->x) + "," + std::to_string(region->y) + "," +
                                std::to_string(region->w) + "," + std::to_string(region->h) + "-" + std::to_string(ow) +
                                "," + std::to_string(oh) + "-" + (mirrored ? "!" : "") + std::to_string(int(*degrees)) +
@@ -285,9 +310,8 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
     const std::shared_ptr<const StoreHandle> hs = store->handle;
     TileFetcher* fetcher = &handler.context().fetcher;
     const WebLook look = store->look;
-    const auto reg = *region;
     const double deg = *degrees;
-    const std::size_t memory = render_memory(info, look, std::min<std::uint32_t>(reg.w, 4 * ow + 2), ow, oh);
+    const std::size_t memory = memory_for(ow, oh);
     auto render = [fetcher, hs, look, reg, ow, oh, deg, mirrored, quality](WebFailure& failure) -> std::optional<WebImage> {
         const storage::StoreInfo& si = hs->info();
         // The coarsest level that still has the output's resolution along both axes' larger
