@@ -17,7 +17,6 @@ namespace {
 
 using storage::SampleType;
 
-
 // One stored tile as web texels (T x T x look.channels); an absent tile (or layer) is zeros.
 // 8-bit samples shown as they are decode straight into `out`; others go through `samples`.
 bool decode_web_tile(const StoreHandle& store, const WebLook& look, const storage::Tile& t, std::vector<std::uint8_t>& out,
