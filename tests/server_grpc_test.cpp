@@ -428,6 +428,71 @@ TEST_F(ServerGrpc, NewBatchCancelsSupersededRequests) {
     EXPECT_TRUE(v.finish().ok());
 }
 
+// A viewer lists everything it still wants in every batch. While its pending set is large, a
+// large batch is held, and the next one replaces it unread: an overloaded server serves lists
+// instead of re-reading them (docs/protocol.md, "Held batches").
+TEST_F(ServerGrpc, LargeBatchesOfABusyViewerAreHeldAndTheNewestWins) {
+    ServerProcess srv({"--store", Stores::jpeg(), "--cache-size", "0", "--io-threads", "1", "--batch-hold", "5000"},
+                      dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto keys = level_keys(Stores::jpeg(), 0);
+    ASSERT_GE(keys.size(), 4400u);
+    const std::vector<Req> a(keys.begin(), keys.begin() + 2000), b(keys.begin() + 2000, keys.begin() + 4000),
+        c(keys.begin() + 4000, keys.begin() + 4400);
+    Viewer v(srv.grpc_address());
+    // Back to back: the server cannot have served 1 744 of the first batch's tiles when the
+    // second arrives, nor applied the second (held) when the third does.
+    ASSERT_TRUE(v.send(batch(1, "terrain", a)));
+    ASSERT_TRUE(v.send(batch(2, "terrain", b)));
+    ASSERT_TRUE(v.send(batch(3, "terrain", c)));
+    auto count = [&](std::uint64_t frame) {
+        return static_cast<std::size_t>(std::count_if(v.tiles.begin(), v.tiles.end(), [&](const auto& t) { return t.frame() == frame; }));
+    };
+    ASSERT_TRUE(v.read_until([&] { return count(3) == c.size(); }));
+    ASSERT_EQ(v.acks.size(), 3u);
+    EXPECT_EQ(v.acks[0].frame(), 1u);
+    EXPECT_FALSE(v.acks[0].superseded());
+    EXPECT_EQ(v.acks[0].admitted(), a.size());
+    EXPECT_EQ(v.acks[1].frame(), 2u);
+    EXPECT_TRUE(v.acks[1].superseded()) << "the second batch was applied, not replaced by the third";
+    EXPECT_EQ(v.acks[1].admitted(), 0u);
+    EXPECT_EQ(v.acks[2].frame(), 3u);
+    EXPECT_FALSE(v.acks[2].superseded());
+    EXPECT_EQ(v.acks[2].admitted(), c.size());
+    EXPECT_EQ(count(2), 0u) << "a superseded batch's tiles were sent";
+    // Held until the first batch was mostly served (at most 256 pending, plus what was read into
+    // the 4 MiB reply buffer), not for --batch-hold: what was left of it the third cancels.
+    EXPECT_LT(v.acks[2].cancelled(), a.size() / 2);
+    // Every request of the first was sent or cancelled, except those being read when the third
+    // was applied (at most two chunks of 16), which are dropped when read.
+    EXPECT_LE(count(1) + v.acks[2].cancelled(), a.size());
+    EXPECT_GE(count(1) + v.acks[2].cancelled(), a.size() - 32);
+    EXPECT_TRUE(v.finish().ok());
+}
+
+// A held batch is applied --batch-hold after the viewer's last one at the latest, even when
+// nothing is served meanwhile (this viewer reads nothing, so its buffer is full).
+TEST_F(ServerGrpc, AHeldBatchIsAppliedWhenTheHoldEnds) {
+    ServerProcess srv({"--store", Stores::jpeg(), "--cache-size", "0", "--viewer-buffer", "64KiB", "--batch-hold", "300"},
+                      dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    const auto keys = level_keys(Stores::jpeg(), 0);
+    const std::vector<Req> a(keys.begin(), keys.begin() + 2000), b(keys.begin() + 2000, keys.begin() + 2600);
+    Viewer v(srv.grpc_address(), "", /*small_window=*/true);
+    ASSERT_TRUE(v.send(batch(1, "terrain", a)));
+    ASSERT_TRUE(v.send(batch(2, "terrain", b)));
+    std::this_thread::sleep_for(1500ms);  // held for 300 ms, then applied while nothing moves
+    ASSERT_TRUE(v.read_until([&] { return v.acks.size() == 2; }));
+    EXPECT_FALSE(v.acks[1].superseded());
+    EXPECT_EQ(v.acks[1].admitted(), b.size());
+    // Applied while the first batch still had nearly all of its requests pending.
+    EXPECT_GT(v.acks[1].cancelled(), 1500u);
+    ASSERT_TRUE(v.read_until([&] {
+        return static_cast<std::size_t>(std::count_if(v.tiles.begin(), v.tiles.end(), [](const auto& t) { return t.frame() == 2; })) == b.size();
+    }));
+    EXPECT_TRUE(v.finish().ok());
+}
+
 TEST_F(ServerGrpc, SeveralTilesPerMessageCarryExactBytes) {
     // Protocol revision 1: the replies ready when the stream can write go out in one message.
     // Every tile's bytes must be exactly the stored payload, whichever message carried it.

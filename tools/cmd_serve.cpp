@@ -28,7 +28,7 @@ struct ServeArgs {
     std::string auth_token_file;
     std::string log_format = "json";
     std::string log_level = "info";
-    long long watch_ms = 2000, timeout_ms = 5000, drain_ms = 10000, idle_ms = 60000, slice_us = 100;
+    long long watch_ms = 2000, timeout_ms = 5000, batch_hold_ms = 100, drain_ms = 10000, idle_ms = 60000, slice_us = 100;
     std::size_t cache_bytes = std::size_t(256) << 20;
     std::size_t viewer_buffer = std::size_t(4) << 20, total_buffer = std::size_t(512) << 20;
     std::size_t max_message = std::size_t(4) << 20;
@@ -53,6 +53,7 @@ int run_serve(ServeArgs& a) {
     auto& c = a.config;
     c.watch_interval = std::chrono::milliseconds(a.watch_ms);
     c.request_timeout = std::chrono::milliseconds(a.timeout_ms);
+    c.batch_hold = std::chrono::milliseconds(a.batch_hold_ms);
     c.drain_timeout = std::chrono::milliseconds(a.drain_ms);
     c.idle_timeout = std::chrono::milliseconds(a.idle_ms);
     if (a.slice_us != 0 && a.slice_us < 100) throw Failure("--http-loop-slice-us must be 0 or 100..100000 (the kernel's bounds)");
@@ -167,6 +168,10 @@ Command add_serve(CLI::App& app) {
         ->capture_default_str();
     s->add_option("--max-pending", c.max_pending, "Admitted requests waiting over all viewers; beyond: RESOURCE_EXHAUSTED")
         ->capture_default_str();
+    s->add_option("--batch-hold", a->batch_hold_ms,
+                  "While a viewer has more than 256 requests pending, hold its next large batch up to this long, ms "
+                  "(a newer batch replaces it unread; 0: apply every batch as it arrives)")
+        ->capture_default_str()->check(CLI::Range(0LL, 60000LL));
     add_bytes_option(*s, "--max-message", a->max_message, "Largest gRPC message accepted, e.g. 4MiB");
     add_bytes_option(*s, "--reply-message", c.grpc_message_bytes,
                      "Tile replies packed into one gRPC message up to this size (revision 1 viewers), e.g. 64KiB");

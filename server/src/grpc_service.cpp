@@ -7,6 +7,7 @@
 
 #include <google/protobuf/io/coded_stream.h>
 #include <google/protobuf/wire_format_lite.h>
+#include <grpcpp/alarm.h>
 #include <grpcpp/support/proto_buffer_reader.h>
 
 #include "auth.hpp"
@@ -18,6 +19,8 @@
 namespace tessera::server {
 
 namespace {
+
+using Clock = std::chrono::steady_clock;
 
 constexpr std::size_t kKeepBatchBytes = 256 * 1024;
 // Nor one of more requests: a parsed batch keeps its cleared requests for reuse, about 56 bytes
@@ -61,13 +64,16 @@ class ReactorLink final : public ViewerSink {
 public:
     explicit ReactorLink(StreamReactor* r) : reactor_(r) {}
     void on_outbox_ready() override;
+    void on_hold_over();  // the timer of a held batch fired
     void detach() {
         std::lock_guard lock(mu_);
         reactor_ = nullptr;
     }
 
 private:
-    std::mutex mu_;
+    // Recursive: applying a held batch (on_hold_over) queues its ack, which calls on_outbox_ready
+    // on the same thread.
+    std::recursive_mutex mu_;
     StreamReactor* reactor_;
 };
 
@@ -108,12 +114,13 @@ public:
     void OnReadDone(bool ok) override {
         reaction_from_grpc(this);
         if (!ok) {  // the viewer half-closed (or left): finish once its admitted work is sent
+            if (!apply_held(true)) return;  // its last batch is applied, held or not
             std::unique_lock lock(mu_);
             read_closed_ = true;
             maybe_finish_locked(lock);
             return;
         }
-        const std::size_t wire_bytes = read_buf_.Length();
+        const auto received = Clock::now();
         // Over the limits: refused from its wire bytes, never parsed.
         const BatchShape shape = batch_shape(read_buf_);
         if (auto refusal = shape.ok ? scheduler_.oversized(shape.requests, shape.stores) : std::nullopt) {
@@ -123,18 +130,76 @@ public:
             continue_reading();
             return;
         }
-        if (!grpc::SerializationTraits<v1::TileBatch>::Deserialize(&read_buf_, &batch_).ok()) {
-            std::unique_lock lock(mu_);
-            broken_ = true;
-            finish_locked(lock, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "malformed TileBatch"));
-            return;
+        // The newest batch waits in the hold slot; an older one still there was never applied and
+        // never will be (the newer lists everything the viewer still wants).
+        // (The superseded ack is queued outside the slot's lock: queueing wakes this stream,
+        // and the hold timer takes the link's lock before the slot's.)
+        std::optional<BatchShape> superseded;
+        {
+            std::lock_guard hold(hold_mu_);
+            if (held_) superseded = held_shape_;
+            held_buf_.Swap(&read_buf_);
+            held_shape_ = shape;
+            held_received_ = received;
+            held_ = true;
         }
-        multi_.store(batch_.protocol_revision() >= 1, std::memory_order_relaxed);
-        scheduler_.submit(id_, batch_);
-        // The parsed batch is reused for the next one (its allocations with it), unless it was
-        // large: then it is freed, so an idle stream does not keep a --max-message batch alive.
-        if (wire_bytes > kKeepBatchBytes || batch_.requests_size() > kKeepBatchRequests) v1::TileBatch().Swap(&batch_);
+        if (superseded) scheduler_.batch_superseded(id_, superseded->frame, superseded->requests);
+        read_buf_.Clear();
+        if (!apply_held(false)) return;
         continue_reading();
+    }
+
+    // Applies the held batch if the scheduler says it is due (or `force`); otherwise sets the
+    // timer for when it will be. One thread applies at a time, oldest first, so a newer batch
+    // is never overtaken by an older one. False: the batch was malformed and the stream ends.
+    bool apply_held(bool force) {
+        {
+            std::lock_guard hold(hold_mu_);
+            if (applying_) return true;  // that thread looks at the slot again before it stops
+            applying_ = true;
+        }
+        for (bool first = true;; first = false) {
+            Clock::time_point received{};
+            {
+                std::lock_guard hold(hold_mu_);
+                const auto now = Clock::now();
+                Clock::time_point retry_at{};
+                if (!held_ || (!(force && first) && !scheduler_.batch_due(id_, held_shape_.requests, now, retry_at))) {
+                    if (held_) arm_timer_locked(retry_at);
+                    applying_ = false;
+                    return true;
+                }
+                apply_buf_.Swap(&held_buf_);
+                held_buf_.Clear();
+                held_ = false;
+                received = held_received_;
+            }
+            if (Clock::now() - received > std::chrono::milliseconds(1)) scheduler_.batch_held();
+            const std::size_t wire_bytes = apply_buf_.Length();
+            if (!grpc::SerializationTraits<v1::TileBatch>::Deserialize(&apply_buf_, &batch_).ok()) {
+                {
+                    std::lock_guard hold(hold_mu_);
+                    applying_ = false;
+                }
+                std::unique_lock lock(mu_);
+                broken_ = true;
+                finish_locked(lock, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, "malformed TileBatch"));
+                return false;
+            }
+            multi_.store(batch_.protocol_revision() >= 1, std::memory_order_relaxed);
+            scheduler_.submit(id_, batch_, received);
+            // The parsed batch is reused for the next one (its allocations with it), unless it was
+            // large: then it is freed, so an idle stream does not keep a --max-message batch alive.
+            if (wire_bytes > kKeepBatchBytes || batch_.requests_size() > kKeepBatchRequests) v1::TileBatch().Swap(&batch_);
+        }
+    }
+
+    void on_hold_over() {
+        {
+            std::lock_guard hold(hold_mu_);
+            timer_set_ = false;
+        }
+        apply_held(false);
     }
 
     // The next batch is read, unless the viewer sends batches but does not read replies: then
@@ -168,6 +233,13 @@ public:
                 StartRead(&read_buf_);
             }
         }
+        // Tiles went out: the pending set may now be small enough for a held batch.
+        bool held;
+        {
+            std::lock_guard hold(hold_mu_);
+            held = held_;
+        }
+        if (held && !apply_held(false)) return;
         kick();
     }
 
@@ -203,6 +275,22 @@ public:
     }
 
 private:
+    // One timer at a time; a fired one is replaced (gRPC keeps its state alive until its callback
+    // returns, so this is safe from within that callback too). The callback holds the link, which
+    // the reactor detaches in OnDone: a timer that fires after the stream ended does nothing.
+    void arm_timer_locked(Clock::time_point at) {
+        if (timer_set_ || !link_) return;
+        timer_set_ = true;
+        timer_ = std::make_unique<grpc::Alarm>();
+        handoff_to_grpc(link_.get());
+        const auto wait = std::max(at - Clock::now(), Clock::duration(std::chrono::microseconds(100)));
+        timer_->Set(std::chrono::system_clock::now() + std::chrono::duration_cast<std::chrono::system_clock::duration>(wait),
+                    [link = link_](bool ok) {
+                        reaction_from_grpc(link.get());
+                        if (ok) link->on_hold_over();
+                    });
+    }
+
     void maybe_finish_locked(std::unique_lock<std::recursive_mutex>& lock) {
         if (finished_ || writing_) return;
         const bool draining = scheduler_.draining();
@@ -224,6 +312,15 @@ private:
     std::shared_ptr<ReactorLink> link_;
     Scheduler::ViewerId id_ = 0;
     grpc::ByteBuffer read_buf_;  // only touched by the read path (one read at a time)
+    // The hold slot (Scheduler::batch_due): the newest batch read and not yet applied.
+    std::mutex hold_mu_;
+    grpc::ByteBuffer held_buf_;
+    BatchShape held_shape_;
+    Clock::time_point held_received_{};
+    bool held_ = false, applying_ = false, timer_set_ = false;
+    std::unique_ptr<grpc::Alarm> timer_;
+    // Only touched by the thread applying (applying_).
+    grpc::ByteBuffer apply_buf_;
     v1::TileBatch batch_;
     std::atomic<bool> multi_{false};  // the latest batch's protocol_revision >= 1
     std::vector<OutMessage> current_;  // only touched by the write path (one write at a time)
@@ -238,6 +335,11 @@ private:
 void ReactorLink::on_outbox_ready() {
     std::lock_guard lock(mu_);
     if (reactor_) reactor_->kick();
+}
+
+void ReactorLink::on_hold_over() {
+    std::lock_guard lock(mu_);
+    if (reactor_) reactor_->on_hold_over();
 }
 
 }  // namespace

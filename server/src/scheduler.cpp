@@ -78,6 +78,7 @@ struct Scheduler::Viewer {
     // until when at most (the earliest deadline among them). See take_chunk_locked.
     std::optional<Clock::time_point> remote_blocked_until;
     std::uint64_t served = 0;  // tiles dispatched: the fairness clock
+    Clock::time_point applied_at{};  // when its latest batch was applied (batch_due)
 };
 
 std::size_t Scheduler::FullKeyHash::operator()(const FullKey& k) const noexcept {
@@ -94,6 +95,11 @@ Scheduler::Scheduler(ServerContext& ctx) : ctx_(ctx) {
     batches_ = &m.counter("tessera_grpc_batches_total", "Request batches received on StreamTiles");
     batches_refused_ = &m.counter("tessera_grpc_batches_refused_total",
                                   "Batches refused whole (too large, or the server is draining)");
+    batches_superseded_ = &m.counter("tessera_grpc_batches_superseded_total",
+                                     "Batches held while their viewer's pending set was large and replaced by its next "
+                                     "batch before they were applied");
+    batches_held_ = &m.counter("tessera_grpc_batches_held_total",
+                               "Batches applied after waiting for their viewer's pending set to shrink");
     requests_ = &m.counter("tessera_grpc_requests_total", "Tile requests received on StreamTiles");
     tiles_sent_ = &m.counter("tessera_tiles_sent_total", "Tile replies with data handed to the transport", grpc);
     bytes_sent_ = &m.counter("tessera_bytes_sent_total", "Tile payload bytes handed to the transport", grpc);
@@ -226,7 +232,42 @@ void Scheduler::refuse_batch(ViewerId id, std::uint64_t frame, std::size_t reque
     if (sink) sink->on_outbox_ready();
 }
 
-void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
+bool Scheduler::batch_due(ViewerId id, std::size_t requests, Clock::time_point now, Clock::time_point& retry_at) const {
+    const auto hold = ctx_.config.batch_hold;
+    if (hold.count() <= 0 || requests <= kHoldAbove) return true;
+    std::lock_guard lock(mu_);
+    auto it = viewers_.find(id);
+    if (it == viewers_.end()) return true;
+    const Viewer& v = *it->second;
+    if (v.pending.size() <= kHoldAbove || now - v.applied_at >= hold) return true;
+    retry_at = v.applied_at + hold;
+    return false;
+}
+
+void Scheduler::batch_superseded(ViewerId id, std::uint64_t frame, std::size_t requests) {
+    batches_->inc();
+    requests_->inc(requests);
+    batch_size_->observe(double(requests));
+    batches_superseded_->inc();
+    std::shared_ptr<ViewerSink> sink;
+    {
+        std::lock_guard lock(mu_);
+        auto it = viewers_.find(id);
+        if (it == viewers_.end()) return;
+        OutMessage m;
+        auto* ack = m.message.mutable_ack();
+        ack->set_frame(frame);
+        ack->set_status(protocol::to_proto(TileStatus::ok));
+        ack->set_superseded(true);
+        push_locked(*it->second, std::move(m));
+        sink = it->second->sink;
+    }
+    if (sink) sink->on_outbox_ready();
+}
+
+void Scheduler::batch_held() { batches_held_->inc(); }
+
+void Scheduler::submit(ViewerId id, const v1::TileBatch& batch, Clock::time_point received) {
     const auto now = Clock::now();
     batches_->inc();
     requests_->inc(static_cast<std::uint64_t>(batch.requests_size()));
@@ -280,7 +321,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
 
     // Validate, and collect the new wanted set (outside the lock: nothing here is the viewer's).
     const auto deadline =
-        now + (batch.deadline_ms() ? std::chrono::milliseconds(batch.deadline_ms()) : ctx_.config.request_timeout);
+        received + (batch.deadline_ms() ? std::chrono::milliseconds(batch.deadline_ms()) : ctx_.config.request_timeout);
     static const google::protobuf::RepeatedPtrField<v1::TileRequest> kNone;
     const bool refused_whole = !bad_list.empty() || too_big.has_value();  // below, under the lock
     const auto& requests = refused_whole ? kNone : batch.requests();
@@ -335,7 +376,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
         p.key = key;
         p.store = store;
         p.frame = batch.frame();
-        p.received = now;
+        p.received = received;
         p.deadline = deadline;
         candidates.push_back(std::move(p));
     }
@@ -349,6 +390,7 @@ void Scheduler::submit(ViewerId id, const v1::TileBatch& batch) {
     auto vit = viewers_.find(id);
     if (vit == viewers_.end()) return;
     Viewer& v = *vit->second;
+    v.applied_at = now;
     v.track_sent = batch.protocol_revision() >= 1;
     if (!v.track_sent) v.sent.clear();
 

@@ -108,7 +108,21 @@ public:
 
     // One batch from a viewer: validates it, replaces the pending set, queues the ack (and error
     // replies) in the outbox. Wakes the I/O threads.
-    void submit(ViewerId id, const v1::TileBatch& batch);
+    // `received`: when the batch arrived (its deadline and its tiles' latency count from then).
+    void submit(ViewerId id, const v1::TileBatch& batch, Clock::time_point received = Clock::now());
+    // Whether a batch of `requests` requests from this viewer is applied now (submit) or held:
+    // held while the viewer's pending set is large and its last batch was applied less than
+    // config.batch_hold ago (then `retry_at` is when it is due at the latest). A held batch is
+    // replaced by the viewer's next one unread (batch_superseded). Small batches, and any batch
+    // of a viewer whose pending set is small, are due at once. See docs/protocol.md, "Held
+    // batches": without it, a viewer that lists its whole wanted set every frame makes an
+    // overloaded server spend its time re-reading lists instead of serving them.
+    static constexpr std::size_t kHoldAbove = 256;
+    bool batch_due(ViewerId id, std::size_t requests, Clock::time_point now, Clock::time_point& retry_at) const;
+    // A held batch replaced by a newer one before it was applied: acked as superseded.
+    void batch_superseded(ViewerId id, std::uint64_t frame, std::size_t requests);
+    // A batch that waited before it was applied (counted).
+    void batch_held();
     // A batch over the limits (more than kMaxBatchStores stores or config.max_batch requests):
     // the status and message of its refusal, else nullopt. The stream counts a batch's entries
     // on the wire first and refuses it with refuse_batch without parsing it (an empty request
@@ -188,7 +202,8 @@ private:
 
     // Metrics (owned by ctx_.metrics).
     Counter *batches_, *requests_, *tiles_sent_, *bytes_sent_, *cancelled_, *refused_, *invalid_,
-        *deadline_exceeded_, *expired_dropped_, *data_loss_, *batches_refused_, *inline_served_;
+        *deadline_exceeded_, *expired_dropped_, *data_loss_, *batches_refused_, *inline_served_,
+        *batches_superseded_, *batches_held_;
     Histogram* latency_;
     Histogram* batch_size_;
 

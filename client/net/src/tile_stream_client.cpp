@@ -163,6 +163,7 @@ BatchAckInfo decode(v1::BatchAck& a) {
     info.invalid = a.invalid();
     info.already_queued = a.already_queued();
     info.cancelled = a.cancelled();
+    info.superseded = a.superseded();
     return info;
 }
 

@@ -73,6 +73,11 @@ struct ServerConfig {
     // A tile sent to a viewer and listed by every batch since is not sent again for this long
     // (it is still on its way); see docs/protocol.md, "Re-listed tiles".
     std::chrono::milliseconds resend_after{2000};
+    // A viewer's batch that arrives while its pending set is large is held, not applied at once:
+    // a newer batch replaces it unread, and it is applied when the pending set has shrunk or this
+    // long after the viewer's last applied batch (docs/protocol.md, "Held batches"). 0: every
+    // batch is applied as it arrives.
+    std::chrono::milliseconds batch_hold{100};
     // Replies coalesced into one message (revision 1). 64 KiB, not more: with 256 KiB messages
     // about 1% of tiles reached a gRPC 1.51 client one viewer frame late (docs/benchmarks.md).
     std::size_t grpc_message_bytes = 64u << 10;

@@ -75,6 +75,9 @@ struct BatchAckInfo {
     std::uint32_t invalid = 0;
     std::uint32_t already_queued = 0;
     std::uint32_t cancelled = 0;
+    // The server replaced this batch with a newer one before applying it (docs/protocol.md,
+    // "Held batches"); the newer one has its own ack.
+    bool superseded = false;
 };
 
 // A store as the server describes it (StoreMetadata): info.store_id is its version.
