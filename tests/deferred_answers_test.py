@@ -9,7 +9,8 @@ reach the client, and each kind of work is admitted as its kind.
 2. A render found by a read is admitted as a render. A JPEG store of 1024-texel tiles whose
    interior tile (1, 1) is uniform: its DZI tile is read, found uniform, and then has to be
    rendered from three rows of 1024² tiles (about 30 MiB estimated). With --render-memory 16MiB
-   that render is refused 503 + Retry-After; with the defaults it is rendered by a render worker
+   that render can never be admitted: 500 naming --render-memory, no Retry-After; with the
+   defaults it is rendered by a render worker
    (tessera_work_wait_seconds_count{kind="render"} counts it) and is a 1024² JPEG.
 3. The stop cuts what waits on an origin. With the origin at 20 s, --request-timeout 8000,
    --drain-timeout 1000 and --store-inflight 1, a SIGTERM while one tile request waits on the
@@ -171,8 +172,11 @@ def uniform_interior_render(tessera, tmp):
             fail(f"the test store's tile (1, 1) should be stored uniform: {status}, {headers.get('X-Tessera-Kind')}")
         status, headers, body, s = get(port, dzi_tile)
         print(f"--render-memory 16MiB: {status} after {s:.2f} s, Retry-After {headers.get('Retry-After')}", flush=True)
-        if status != 503 or "Retry-After" not in headers or b"render-memory" not in body:
-            fail(f"expected 503 + Retry-After (the render needs more than --render-memory), got {status}: {body[:200]!r}")
+        # A DZI tile's size is fixed: waiting cannot make it fit, so no Retry-After (clients
+        # would retry it for ever), and a 500 that names the option the operator must raise.
+        if status != 500 or "Retry-After" in headers or b"--render-memory" not in body:
+            fail(f"expected 500 without Retry-After (the render needs more than --render-memory), got {status} "
+                 f"{headers.get('Retry-After')}: {body[:200]!r}")
     finally:
         iso.stop_server(p)
 

@@ -204,7 +204,14 @@ HttpResponse HttpHandler::refused(const DeferredAnswer& d, Admission why) {
         case Admission::store_full: message = "too many requests for this store are waiting; retry"; break;
         case Admission::render_busy: message = "too many images are being rendered; retry"; break;
         case Admission::render_memory: message = "the memory for rendering images is in use; retry"; break;
-        case Admission::render_too_large: message = "this image needs more memory than --render-memory allows"; break;
+        case Admission::render_too_large: {
+            // Never fits, however idle the server: waiting cannot help (IIIF sizes that can
+            // shrink were shrunk before admission; a DZI or XYZ tile's size is fixed).
+            HttpResponse r = httpapi::error(
+                500, "this image needs more memory to render than this server's --render-memory allows; its operator must raise it",
+                d.target.starts_with("/v1/"));
+            return complete(d, std::move(r));
+        }
         default: message = "the server is stopping"; break;
     }
     HttpResponse r = httpapi::retry_later(message, d.target.starts_with("/v1/"));
