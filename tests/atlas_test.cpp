@@ -281,6 +281,35 @@ bool find_piece(const tinyobj::ObjReader& r, double x, double z, std::array<doub
 
 }  // namespace
 
+// MTL keywords in another case ("map_kd", as some exporters write) name the texture as
+// "map_Kd" does; a map_Kd that names no file is an error, not a silently solid tile.
+TEST_F(AtlasBuild, MapKdInAnyCaseIsTheTextureAndAnEmptyOneIsAnError) {
+    const std::string obj =
+        "mtllib s.mtl\nv 0 0 0\nv 4 0 0\nv 4 0 -4\nv 0 0 -4\nvt -1.25 -0.5\nvt 2.5 -0.5\nvt 2.5 1.75\nvt -1.25 1.75\n"
+        "usemtl tiles\nf 1/1 2/2 3/3 4/4\n";
+    auto scene = [&](const std::string& name, const std::string& mtl) {
+        fs::create_directory(dir_.file(name));
+        fs::copy_file(gallery_ + "/textures/box_2.png", dir_.file(name + "/tile.png"));
+        write_file(dir_.file(name + "/s.mtl"), std::vector<std::uint8_t>(mtl.begin(), mtl.end()));
+        write_file(dir_.file(name + "/s.obj"), std::vector<std::uint8_t>(obj.begin(), obj.end()));
+        return run_tessera("build --codec zstd --atlas " + q(dir_.file(name + "/s.obj")) + " -o " + q(dir_.file(name + "/out.tsr")) +
+                           " --obj-out " + q(dir_.file(name + "/out.obj")));
+    };
+    const RunResult lower = scene("lower", "newmtl tiles\nmap_kd -s 1 1 1 tile.png\n");
+    ASSERT_EQ(lower.exit_code, 0) << lower.out;
+    EXPECT_NE(lower.out.find("1 repeating textures"), std::string::npos) << "the texture was not used:\n" << lower.out;
+
+    for (const char* line : {"map_Kd\n", "map_Kd   \r\n", "MAP_KD -s 1 1 1\n"}) {
+        SCOPED_TRACE(line);
+        fs::remove_all(dir_.file("empty"));
+        const RunResult empty = scene("empty", std::string("newmtl tiles\nKd 0.5 0.5 0.5\n") + line);
+        EXPECT_NE(empty.exit_code, 0) << empty.out;
+        EXPECT_NE(empty.out.find("material 'tiles' has a"), std::string::npos) << empty.out;
+        EXPECT_NE(empty.out.find("names no texture file"), std::string::npos) << empty.out;
+        EXPECT_FALSE(fs::exists(dir_.file("empty/out.tsr")));
+    }
+}
+
 // Real exports tile brick and concrete across faces (SketchUp writes u from -721 to 316): such
 // triangles are cut where the texture repeats, each piece samples one copy, and the texture's
 // atlas padding continues it around (docs/atlas.md, "Repeating textures"). Also: a colour-only

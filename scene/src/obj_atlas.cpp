@@ -3,10 +3,13 @@
 #include <tiny_obj_loader.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <sstream>
+#include <string_view>
 #include <unordered_map>
 
 #include "atlas_input_data.hpp"
@@ -37,6 +40,51 @@ private:
     std::string folder_;
 };
 
+bool equals_ignoring_case(std::string_view a, std::string_view b) {
+    return a.size() == b.size() && std::equal(a.begin(), a.end(), b.begin(), [](char x, char y) {
+               return std::tolower(static_cast<unsigned char>(x)) == std::tolower(static_cast<unsigned char>(y));
+           });
+}
+
+// tinyobj matches MTL keywords case-sensitively; other readers (Assimp) take any case, and some
+// exporters write "map_kd". tinyobj keeps such a line as an unknown parameter: it is read here.
+std::string diffuse_texture(const tinyobj::material_t& m) {
+    if (!m.diffuse_texname.empty()) return m.diffuse_texname;
+    for (const auto& [key, value] : m.unknown_parameter) {
+        if (!equals_ignoring_case(key, "map_kd")) continue;
+        std::string name;
+        tinyobj::texture_option_t option;
+        if (tinyobj::ParseTextureNameAndOption(&name, &option, value.c_str()) && !name.empty()) return name;
+    }
+    return {};
+}
+
+// A map_Kd line (any case) that names no file: tinyobj drops it, and the material would become
+// a solid tile without a word. The first such line of a material library, as an error message.
+std::string empty_diffuse_map(const std::string& mtl_path) {
+    std::ifstream in(mtl_path);
+    std::string line, material = "(before any newmtl)";
+    for (int number = 1; std::getline(in, line); ++number) {
+        std::istringstream words(line);
+        std::string keyword;
+        if (!(words >> keyword)) continue;
+        if (keyword == "newmtl") {
+            std::getline(words >> std::ws, material);
+            continue;
+        }
+        if (!equals_ignoring_case(keyword, "map_kd")) continue;
+        std::string rest;
+        std::getline(words >> std::ws, rest);
+        while (!rest.empty() && (rest.back() == '\r' || rest.back() == ' ' || rest.back() == '\t')) rest.pop_back();
+        std::string name;
+        tinyobj::texture_option_t option;
+        if (rest.empty() || !tinyobj::ParseTextureNameAndOption(&name, &option, rest.c_str()) || name.empty())
+            return "material library '" + mtl_path + "' line " + std::to_string(number) + ": material '" + material +
+                   "' has a " + keyword + " that names no texture file";
+    }
+    return {};
+}
+
 }  // namespace
 
 Status read_obj(const std::string& obj_path, UpAxis up, AtlasInputData& data) {
@@ -51,7 +99,10 @@ Status read_obj(const std::string& obj_path, UpAxis up, AtlasInputData& data) {
     if (!tinyobj::LoadObj(&attrib, &obj_shapes, &materials, &warn, &err, &file, &mtl_reader, /*triangulate=*/true,
                           /*default_vcols_fallback=*/false))
         return make_error(Errc::corrupt, "cannot read OBJ '" + obj_path + "': " + trim_newlines(err));
-    for (const std::string& mtl : mtl_reader.files) data.input_files.push_back({mtl, "material library"});
+    for (const std::string& mtl : mtl_reader.files) {
+        data.input_files.push_back({mtl, "material library"});
+        if (std::string e = empty_diffuse_map(mtl); !e.empty()) return make_error(Errc::invalid_argument, e);
+    }
     // tinyobj only warns about these; for an atlas they are fatal. Report the first such line.
     for (const char* fatal : {"Material file [", "not found in .mtl", "indices out of bounds", "invalid vertex index"}) {
         const std::size_t at = warn.find(fatal);
@@ -80,7 +131,7 @@ Status read_obj(const std::string& obj_path, UpAxis up, AtlasInputData& data) {
         if (material >= 0 && static_cast<std::size_t>(material) < materials.size()) {
             const tinyobj::material_t& m = materials[static_cast<std::size_t>(material)];
             name = m.name;
-            tex = m.diffuse_texname;
+            tex = diffuse_texture(m);
             colour = {to_byte(m.diffuse[0]), to_byte(m.diffuse[1]), to_byte(m.diffuse[2])};
         }
         std::uint32_t index;
