@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <climits>
+#include <utility>
 
 #include <google/protobuf/io/coded_stream.h>
 #include <google/protobuf/wire_format_lite.h>
@@ -155,16 +156,21 @@ public:
     bool apply_held(bool force) {
         {
             std::lock_guard hold(hold_mu_);
-            if (applying_) return true;  // that thread looks at the slot again before it stops
+            if (applying_) {  // that thread looks at the slot again before it stops
+                force_ = force_ || force;
+                return true;
+            }
             applying_ = true;
+            force_ = force_ || force;
         }
-        for (bool first = true;; first = false) {
+        for (;;) {
             Clock::time_point received{};
             {
                 std::lock_guard hold(hold_mu_);
                 const auto now = Clock::now();
                 Clock::time_point retry_at{};
-                if (!held_ || (!(force && first) && !scheduler_.batch_due(id_, held_shape_.requests, now, retry_at))) {
+                const bool forced = std::exchange(force_, false) && held_;
+                if (!held_ || (!forced && !scheduler_.batch_due(id_, held_shape_.requests, now, retry_at))) {
                     if (held_) arm_timer_locked(retry_at);
                     applying_ = false;
                     return true;
@@ -317,7 +323,8 @@ private:
     grpc::ByteBuffer held_buf_;
     BatchShape held_shape_;
     Clock::time_point held_received_{};
-    bool held_ = false, applying_ = false, timer_set_ = false;
+    // force_: apply what is held whether due or not (the viewer closed its side).
+    bool held_ = false, applying_ = false, timer_set_ = false, force_ = false;
     std::unique_ptr<grpc::Alarm> timer_;
     // Only touched by the thread applying (applying_).
     grpc::ByteBuffer apply_buf_;
