@@ -212,24 +212,31 @@ std::optional<std::pair<TileStatus, std::string>> Scheduler::oversized(std::size
     return std::nullopt;
 }
 
-void Scheduler::refuse_batch(ViewerId id, std::uint64_t frame, std::size_t requests, TileStatus status, std::string message) {
+// A batch answered by its ack alone: refused whole, or superseded before it was applied.
+void Scheduler::ack_only(ViewerId id, std::size_t requests, Counter& outcome, v1::BatchAck ack) {
     batches_->inc();
     requests_->inc(requests);
     batch_size_->observe(double(requests));
-    batches_refused_->inc();
+    outcome.inc();
     std::shared_ptr<ViewerSink> sink;
     {
         std::lock_guard lock(mu_);
         auto it = viewers_.find(id);
         if (it == viewers_.end()) return;
         OutMessage m;
-        m.message.mutable_ack()->set_frame(frame);
-        m.message.mutable_ack()->set_status(protocol::to_proto(status));
-        m.message.mutable_ack()->set_message(std::move(message));
+        *m.message.mutable_ack() = std::move(ack);
         push_locked(*it->second, std::move(m));
         sink = it->second->sink;
     }
     if (sink) sink->on_outbox_ready();
+}
+
+void Scheduler::refuse_batch(ViewerId id, std::uint64_t frame, std::size_t requests, TileStatus status, std::string message) {
+    v1::BatchAck ack;
+    ack.set_frame(frame);
+    ack.set_status(protocol::to_proto(status));
+    ack.set_message(std::move(message));
+    ack_only(id, requests, *batches_refused_, std::move(ack));
 }
 
 bool Scheduler::batch_due(ViewerId id, std::size_t requests, Clock::time_point now, Clock::time_point& retry_at) const {
@@ -245,24 +252,11 @@ bool Scheduler::batch_due(ViewerId id, std::size_t requests, Clock::time_point n
 }
 
 void Scheduler::batch_superseded(ViewerId id, std::uint64_t frame, std::size_t requests) {
-    batches_->inc();
-    requests_->inc(requests);
-    batch_size_->observe(double(requests));
-    batches_superseded_->inc();
-    std::shared_ptr<ViewerSink> sink;
-    {
-        std::lock_guard lock(mu_);
-        auto it = viewers_.find(id);
-        if (it == viewers_.end()) return;
-        OutMessage m;
-        auto* ack = m.message.mutable_ack();
-        ack->set_frame(frame);
-        ack->set_status(protocol::to_proto(TileStatus::ok));
-        ack->set_superseded(true);
-        push_locked(*it->second, std::move(m));
-        sink = it->second->sink;
-    }
-    if (sink) sink->on_outbox_ready();
+    v1::BatchAck ack;
+    ack.set_frame(frame);
+    ack.set_status(protocol::to_proto(TileStatus::ok));
+    ack.set_superseded(true);
+    ack_only(id, requests, *batches_superseded_, std::move(ack));
 }
 
 void Scheduler::batch_held() { batches_held_->inc(); }

@@ -166,6 +166,7 @@ private:
     };
 
     void worker();
+    void ack_only(ViewerId id, std::size_t requests, Counter& outcome, v1::BatchAck ack);
     Viewer* pick_locked();
     bool eligible_locked(const Viewer& v) const;
     bool full_locked(const Viewer& v) const;
