@@ -20,8 +20,9 @@
 //          the tick that first asked for it to its arrival. The set is bounded (--max-outstanding);
 //          tiles that do not fit are dropped and counted. Closed: the set is topped up to --window
 //          whenever half of it has arrived (and at least every tick). A batch due while the
-//          previous one is still being written goes out when that write completes, built from the
-//          set as it is then. The streams are driven asynchronously: --client-threads (1)
+//          previous one is still being written, or while --batches-in-flight (1) batches await
+//          their ack, goes out when that write completes or that ack arrives (or 250 ms after the
+//          last write), built from the set as it is then; as client/net does. 0: no ack wait. The streams are driven asynchronously: --client-threads (1)
 //          completion-queue threads and one tick thread. Batches ask for protocol
 //          revision --protocol-revision (default 1: several tiles per message; 0: one per message);
 //          replies are decoded straight from gRPC's receive slices (tessera/protocol/stream_codec.hpp),
@@ -118,6 +119,7 @@ struct Options {
     double tick_hz = 60;
     std::size_t window = 512;            // gRPC closed loop: outstanding tiles per viewer
     std::size_t max_outstanding = 4096;  // gRPC open model: bound of a viewer's outstanding set
+    std::size_t batches_in_flight = 1;   // gRPC: batches written and not yet acked (0: no bound)
     std::uint32_t protocol_revision = tessera::protocol::kProtocolRevision;
     std::uint64_t seed = 1;
 };
@@ -126,7 +128,7 @@ void usage() {
     std::fprintf(stderr,
                  "usage: serve_load (--http HOST:PORT --url-file FILE [--prefix P] [--connections C]\n"
                  "                  | --grpc HOST:PORT --store NAME (--url-file FILE | --store-file S.tsr) [--viewers V]\n"
-                 "                    [--tick-hz HZ] [--window W] [--max-outstanding N] [--protocol-revision R]\n"
+                 "                    [--tick-hz HZ] [--window W] [--max-outstanding N] [--batches-in-flight B] [--protocol-revision R]\n"
                  "                    [--client-threads T])\n"
                  "                  [--rate TILES_PER_S (0: closed loop)] [--duration S] [--warmup S] [--drain S]\n"
                  "                  [--seed N] [--json FILE]\n");
@@ -164,6 +166,7 @@ Options parse(int argc, char** argv) {
         else if (a == "--tick-hz") o.tick_hz = number();
         else if (a == "--window") o.window = std::size_t(number());
         else if (a == "--max-outstanding") o.max_outstanding = std::size_t(number());
+        else if (a == "--batches-in-flight") o.batches_in_flight = std::size_t(number());
         else if (a == "--seed") o.seed = std::uint64_t(number());
         else if (a == "--protocol-revision") o.protocol_revision = std::uint32_t(number());
         else if (a == "-h" || a == "--help") { usage(); std::exit(0); }
@@ -821,6 +824,8 @@ private:
         Clock::time_point next_tick{};
         Clock::time_point cancel_at = Clock::time_point::max();  // leaving: cancel if not done by then
         bool started = false, writing = false, want_send = false;
+        std::uint64_t batches_written = 0, acks_read = 0;  // --batches-in-flight
+        Clock::time_point written_at{};
         bool ticking = true;        // false once the viewer has begun to leave
         bool leaving = false;       // the empty batch is due or out: late tiles are neither counted nor duplicates
         bool goodbye_sent = false;  // the empty batch is written (WritesDone follows)
@@ -1001,6 +1006,11 @@ private:
     // batch due meanwhile goes out when the write completes, built from the set as it is then).
     void send(Viewer& v) {
         if (!v.started || v.writing || v.finishing) return;
+        // As client/net: the next batch waits for the previous one's ack (a server that holds
+        // batches while it is behind thereby paces the viewer), unless no ack came for 250 ms.
+        if (o_.batches_in_flight && !v.leaving && v.batches_written - v.acks_read >= o_.batches_in_flight &&
+            Clock::now() - v.written_at < std::chrono::milliseconds(250))
+            return;
         if (v.leaving && !v.goodbye_sent) {  // the way a viewer leaves: an empty batch, then a half-close
             v.batch.Clear();
             v.batch.set_frame(~std::uint64_t(0));
@@ -1016,6 +1026,8 @@ private:
         if (!grpc::SerializationTraits<v1::TileBatch>::Serialize(v.batch, &v.write_buf, &own).ok())
             die("cannot serialize a TileBatch");
         v.writing = true;
+        ++v.batches_written;
+        v.written_at = Clock::now();
         v.call->Write(v.write_buf, &v.ops[Op::write]);
     }
 
@@ -1073,6 +1085,8 @@ private:
                 ++v.r.errors;
                 ++v.r.error_kinds["batch_" + std::string(to_string(tessera::protocol::from_proto(d.ack().status())))];
             }
+            ++v.acks_read;
+            if (v.want_send) send(v);  // it waited for this ack
             return;
         }
         if (d.kind() != Kind::tiles) return;

@@ -5,8 +5,11 @@
 //     is the stream's reader (blocking Read loop); when the stream ends it takes the final status,
 //     backs off and reconnects. It is the only thread that creates or destroys a ClientContext.
 //   - the writer thread (at most one, per open stream, owned and joined by the session thread):
-//     waits for a batch newer than the last one it wrote on this stream, writes it, and half-closes
-//     (WritesDone) when the client closes.
+//     waits for a batch newer than the last one it wrote on this stream and for the last one's
+//     ack (or 250 ms: kAckWait), writes it, and half-closes (WritesDone) when the client closes.
+//     Waiting for the ack paces the viewer by the server: a server that is behind holds large
+//     batches (docs/protocol.md, "Held batches"), so the viewer does not build and send lists
+//     60 times a second that the server would only replace unread.
 // Queues (all owned by Impl, guarded by mu_):
 //   - the outgoing "queue" is one slot: the newest batch. send_batch replaces it; the writer sends
 //     it once per stream. Bound: one batch.
@@ -417,6 +420,8 @@ private:
             ++stats_.connects;
             if (stats_.connects > 1) ++stats_.reconnects;
             written_gen_ = 0;  // the newest batch goes out again on this stream
+            stream_batches_written_ = 0;
+            stream_acks_ = 0;
             replies_polled_ = 0;
             ++stream_gen_;
             stream_live_ = true;
@@ -459,11 +464,17 @@ private:
         return served;
     }
 
-    // The writer thread of one stream: writes each newer batch once; half-closes on close().
+    // The writer thread of one stream: writes each newer batch once, after the previous one's ack
+    // (or kAckWait); half-closes on close().
     void run_writer(RawStream& stream) {
         std::unique_lock lk(mu_);
         for (;;) {
-            batch_cv_.wait(lk, [&] { return closing_ || read_ended_ || (batch_ && written_gen_ != batch_gen_); });
+            const auto newer = [&] { return batch_ && written_gen_ != batch_gen_; };
+            const auto acked = [&] { return stream_acks_ >= stream_batches_written_ || Clock::now() - last_write_ >= kAckWait; };
+            while (!(closing_ || read_ended_ || (newer() && acked()))) {
+                if (newer()) batch_cv_.wait_until(lk, last_write_ + kAckWait);
+                else batch_cv_.wait(lk);
+            }
             if (closing_ || read_ended_) break;
             std::shared_ptr<const v1::TileBatch> batch = batch_;
             const std::uint64_t gen = batch_gen_;
@@ -472,6 +483,8 @@ private:
             lk.lock();
             if (!ok) return;  // the call is over; Read fails too and Finish has the status
             written_gen_ = gen;
+            ++stream_batches_written_;
+            last_write_ = Clock::now();
             ++stats_.batches_sent;
         }
         if (!closing_) return;
@@ -527,6 +540,7 @@ private:
                 stats_.checksum_failures += bad_checksums;
             } else {
                 ++stats_.acks_received;
+                ++stream_acks_;
             }
             for (auto& item : items_) {
                 item.stream = stream_gen_;
@@ -536,7 +550,11 @@ private:
             stats_.peak_buffered_bytes = std::max(stats_.peak_buffered_bytes, buffered_bytes_);
         }
         data_cv_.notify_all();
+        if (decoder_.kind() == protocol::ServerMessageDecoder::Kind::ack) batch_cv_.notify_all();  // the writer may go on
     }
+
+    // The longest the writer waits for the previous batch's ack before writing the newest anyway.
+    static constexpr std::chrono::milliseconds kAckWait{250};
 
     TileStreamOptions opts_;
     std::shared_ptr<grpc::Channel> channel_;
@@ -557,6 +575,9 @@ private:
     std::shared_ptr<const v1::TileBatch> batch_;  // the newest batch (the one-slot outgoing queue)
     std::uint64_t batch_gen_ = 0;                 // bumped by every send_batch
     std::uint64_t written_gen_ = 0;               // the generation written on the current stream
+    std::uint64_t stream_batches_written_ = 0;    // batches written on the current stream
+    std::uint64_t stream_acks_ = 0;               // acks read on the current stream
+    Clock::time_point last_write_{};              // the current stream's last batch write
     std::uint64_t stream_gen_ = 0;                // bumped by every stream opened
     std::uint64_t replies_polled_ = 0;            // tile replies of the current stream polled
     grpc::ClientContext* ctx_ = nullptr;          // the current stream's context, owned by the session thread
