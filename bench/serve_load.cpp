@@ -1011,6 +1011,7 @@ private:
         if (o_.batches_in_flight && !v.leaving && v.batches_written - v.acks_read >= o_.batches_in_flight &&
             Clock::now() - v.written_at < std::chrono::milliseconds(250))
             return;
+        v.acks_read = v.batches_written;  // any batch still unacked no longer holds the next
         if (v.leaving && !v.goodbye_sent) {  // the way a viewer leaves: an empty batch, then a half-close
             v.batch.Clear();
             v.batch.set_frame(~std::uint64_t(0));
@@ -1085,7 +1086,7 @@ private:
                 ++v.r.errors;
                 ++v.r.error_kinds["batch_" + std::string(to_string(tessera::protocol::from_proto(d.ack().status())))];
             }
-            ++v.acks_read;
+            v.acks_read = std::min(v.acks_read + 1, v.batches_written);  // a late ack of a forgiven one
             if (v.want_send) send(v);  // it waited for this ack
             return;
         }

@@ -444,6 +444,44 @@ TEST(TileStreamClient, NewestBatchWins) {
     }
 }
 
+// The next batch goes out once the last one is acknowledged, or 250 ms after it was written: a
+// server that holds batches while it is behind paces the viewer (docs/protocol.md, "Held
+// batches"), and a server that never acks still gets the newest batch four times a second.
+TEST(TileStreamClient, TheNextBatchWaitsForTheLastOnesAck) {
+    FakeTileService service;
+    std::atomic<bool> acking{false};
+    service.respond = [&](const v1::TileBatch& batch, Stream& stream) {
+        return !acking.load() || default_respond(batch, stream);
+    };
+    FakeServer server(service);
+    ASSERT_TRUE(server.ok());
+    auto client = TileStreamClient::create(fast_options(server.target()));
+    ASSERT_TRUE(eventually([&] { return client->state() == ConnectionState::connected; }));
+    // 60 batches over 600 ms, none acknowledged: the first, then one per 250 ms.
+    for (std::uint64_t f = 1; f <= 60; ++f) {
+        client->send_batch(f, requests(f, 2));
+        std::this_thread::sleep_for(10ms);
+    }
+    const std::size_t unacked = service.batches().size();
+    EXPECT_GE(unacked, 2u);
+    EXPECT_LE(unacked, 5u) << "batches went out without waiting for the previous one's ack";
+    ASSERT_TRUE(service.wait_for_frame(60, 2s)) << "the newest batch never went out";
+
+    // Acknowledged at once: each batch goes out as it comes.
+    acking = true;
+    client->send_batch(61, requests(61, 2));  // its ack lets the next go at once
+    ASSERT_TRUE(service.wait_for_frame(61, 2s));
+    const std::size_t before = service.batches().size();
+    std::vector<ReceivedTile> tiles;
+    for (std::uint64_t f = 62; f <= 81; ++f) {
+        client->send_batch(f, requests(f, 2));
+        std::this_thread::sleep_for(10ms);
+        client->poll(tiles, nullptr, 1000);  // as a viewer does every frame: the acks are read
+    }
+    ASSERT_TRUE(service.wait_for_frame(81, 2s));
+    EXPECT_GE(service.batches().size() - before, 15u) << "acknowledged batches were held back";
+}
+
 // (c) The server goes away: the client backs off, finds the new server on the same port, and
 // resends its newest batch there.
 TEST(TileStreamClient, ReconnectsAndResendsTheNewestBatch) {

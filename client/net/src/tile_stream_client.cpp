@@ -476,15 +476,17 @@ private:
                 else batch_cv_.wait(lk);
             }
             if (closing_ || read_ended_) break;
+            // Written after kAckWait without its ack: the batches before no longer hold the next.
+            stream_acks_ = stream_batches_written_;
             std::shared_ptr<const v1::TileBatch> batch = batch_;
             const std::uint64_t gen = batch_gen_;
+            ++stream_batches_written_;  // before the write: its ack may be read before it returns
+            last_write_ = Clock::now();
             lk.unlock();
             const bool ok = stream.Write(*batch);
             lk.lock();
             if (!ok) return;  // the call is over; Read fails too and Finish has the status
             written_gen_ = gen;
-            ++stream_batches_written_;
-            last_write_ = Clock::now();
             ++stats_.batches_sent;
         }
         if (!closing_) return;
@@ -540,7 +542,7 @@ private:
                 stats_.checksum_failures += bad_checksums;
             } else {
                 ++stats_.acks_received;
-                ++stream_acks_;
+                stream_acks_ = std::min(stream_acks_ + 1, stream_batches_written_);  // a late ack of a forgiven one
             }
             for (auto& item : items_) {
                 item.stream = stream_gen_;
