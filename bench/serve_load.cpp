@@ -824,7 +824,7 @@ private:
         Clock::time_point next_tick{};
         Clock::time_point cancel_at = Clock::time_point::max();  // leaving: cancel if not done by then
         bool started = false, writing = false, want_send = false;
-        std::uint64_t batches_written = 0, acks_read = 0;  // --batches-in-flight
+        std::deque<std::uint64_t> unacked;  // frames of the batches written and not yet acked (--batches-in-flight)
         Clock::time_point written_at{};
         bool ticking = true;        // false once the viewer has begun to leave
         bool leaving = false;       // the empty batch is due or out: late tiles are neither counted nor duplicates
@@ -1008,10 +1008,10 @@ private:
         if (!v.started || v.writing || v.finishing) return;
         // As client/net: the next batch waits for the previous one's ack (a server that holds
         // batches while it is behind thereby paces the viewer), unless no ack came for 250 ms.
-        if (o_.batches_in_flight && !v.leaving && v.batches_written - v.acks_read >= o_.batches_in_flight &&
+        if (o_.batches_in_flight && !v.leaving && v.unacked.size() >= o_.batches_in_flight &&
             Clock::now() - v.written_at < std::chrono::milliseconds(250))
             return;
-        v.acks_read = v.batches_written;  // any batch still unacked no longer holds the next
+        if (!v.unacked.empty() && v.unacked.size() >= o_.batches_in_flight) v.unacked.clear();  // waited 250 ms: given up
         if (v.leaving && !v.goodbye_sent) {  // the way a viewer leaves: an empty batch, then a half-close
             v.batch.Clear();
             v.batch.set_frame(~std::uint64_t(0));
@@ -1027,7 +1027,7 @@ private:
         if (!grpc::SerializationTraits<v1::TileBatch>::Serialize(v.batch, &v.write_buf, &own).ok())
             die("cannot serialize a TileBatch");
         v.writing = true;
-        ++v.batches_written;
+        if (o_.batches_in_flight) v.unacked.push_back(v.batch.frame());
         v.written_at = Clock::now();
         v.call->Write(v.write_buf, &v.ops[Op::write]);
     }
@@ -1086,7 +1086,9 @@ private:
                 ++v.r.errors;
                 ++v.r.error_kinds["batch_" + std::string(to_string(tessera::protocol::from_proto(d.ack().status())))];
             }
-            v.acks_read = std::min(v.acks_read + 1, v.batches_written);  // a late ack of a forgiven one
+            // Acks come in the order batches were written; one of a batch given up on matches nothing.
+            if (auto it = std::find(v.unacked.begin(), v.unacked.end(), d.ack().frame()); it != v.unacked.end())
+                v.unacked.erase(v.unacked.begin(), it + 1);
             if (v.want_send) send(v);  // it waited for this ack
             return;
         }

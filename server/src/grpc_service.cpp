@@ -65,7 +65,7 @@ class ReactorLink final : public ViewerSink {
 public:
     explicit ReactorLink(StreamReactor* r) : reactor_(r) {}
     void on_outbox_ready() override;
-    void on_hold_over();  // the timer of a held batch fired
+    void on_hold_over(bool fired);  // the timer of a held batch fired (or was cancelled)
     void detach() {
         std::lock_guard lock(mu_);
         reactor_ = nullptr;
@@ -132,19 +132,19 @@ public:
             return;
         }
         // The newest batch waits in the hold slot; an older one still there was never applied and
-        // never will be (the newer lists everything the viewer still wants).
-        // (The superseded ack is queued outside the slot's lock: queueing wakes this stream,
-        // and the hold timer takes the link's lock before the slot's.)
-        std::optional<BatchShape> superseded;
+        // never will be (the newer lists everything the viewer still wants). Its ack is queued
+        // under the slot's lock (so before anything of the newer one), and the stream woken after
+        // it: waking takes the link's lock, which the hold timer takes before the slot's.
+        std::shared_ptr<ViewerSink> wake;
         {
             std::lock_guard hold(hold_mu_);
-            if (held_) superseded = held_shape_;
+            if (held_) wake = scheduler_.batch_superseded(id_, held_shape_.frame, held_shape_.requests);
             held_buf_.Swap(&read_buf_);
             held_shape_ = shape;
             held_received_ = received;
             held_ = true;
         }
-        if (superseded) scheduler_.batch_superseded(id_, superseded->frame, superseded->requests);
+        if (wake) wake->on_outbox_ready();
         read_buf_.Clear();
         if (!apply_held(false)) return;
         continue_reading();
@@ -163,16 +163,20 @@ public:
             applying_ = true;
             force_ = force_ || force;
         }
-        for (;;) {
+        for (bool applied = false;; applied = true) {
             Clock::time_point received{};
             {
-                std::lock_guard hold(hold_mu_);
+                std::unique_lock hold(hold_mu_);
                 const auto now = Clock::now();
                 Clock::time_point retry_at{};
                 const bool forced = std::exchange(force_, false) && held_;
                 if (!held_ || (!forced && !scheduler_.batch_due(id_, held_shape_.requests, now, retry_at))) {
                     if (held_) arm_timer_locked(retry_at);
                     applying_ = false;
+                    hold.unlock();
+                    // A viewer that closed its side meanwhile finishes once what was applied is
+                    // sent (maybe_finish_locked waits for the slot).
+                    if (applied) kick();
                     return true;
                 }
                 apply_buf_.Swap(&held_buf_);
@@ -200,12 +204,12 @@ public:
         }
     }
 
-    void on_hold_over() {
+    void on_hold_over(bool fired) {
         {
             std::lock_guard hold(hold_mu_);
             timer_set_ = false;
         }
-        apply_held(false);
+        if (fired) apply_held(false);
     }
 
     // The next batch is read, unless the viewer sends batches but does not read replies: then
@@ -293,12 +297,18 @@ private:
         timer_->Set(std::chrono::system_clock::now() + std::chrono::duration_cast<std::chrono::system_clock::duration>(wait),
                     [link = link_](bool ok) {
                         reaction_from_grpc(link.get());
-                        if (ok) link->on_hold_over();
+                        link->on_hold_over(ok);  // ok false: cancelled (the stream ended, or shutdown)
                     });
     }
 
     void maybe_finish_locked(std::unique_lock<std::recursive_mutex>& lock) {
         if (finished_ || writing_) return;
+        {
+            // A batch held or being applied is the viewer's too: it is applied (and sent) first.
+            // (The slot's lock under the reactor's: nothing takes them the other way round.)
+            std::lock_guard hold(hold_mu_);
+            if (held_ || applying_) return;
+        }
         const bool draining = scheduler_.draining();
         if ((read_closed_ || draining) && scheduler_.viewer_idle(id_))
             finish_locked(lock, draining && !read_closed_
@@ -344,9 +354,9 @@ void ReactorLink::on_outbox_ready() {
     if (reactor_) reactor_->kick();
 }
 
-void ReactorLink::on_hold_over() {
+void ReactorLink::on_hold_over(bool fired) {
     std::lock_guard lock(mu_);
-    if (reactor_) reactor_->on_hold_over();
+    if (reactor_) reactor_->on_hold_over(fired);
 }
 
 }  // namespace

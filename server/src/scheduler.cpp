@@ -213,7 +213,8 @@ std::optional<std::pair<TileStatus, std::string>> Scheduler::oversized(std::size
 }
 
 // A batch answered by its ack alone: refused whole, or superseded before it was applied.
-void Scheduler::ack_only(ViewerId id, std::size_t requests, Counter& outcome, v1::BatchAck ack) {
+// Returns the sink to wake.
+std::shared_ptr<ViewerSink> Scheduler::ack_only(ViewerId id, std::size_t requests, Counter& outcome, v1::BatchAck ack) {
     batches_->inc();
     requests_->inc(requests);
     batch_size_->observe(double(requests));
@@ -222,13 +223,13 @@ void Scheduler::ack_only(ViewerId id, std::size_t requests, Counter& outcome, v1
     {
         std::lock_guard lock(mu_);
         auto it = viewers_.find(id);
-        if (it == viewers_.end()) return;
+        if (it == viewers_.end()) return nullptr;
         OutMessage m;
         *m.message.mutable_ack() = std::move(ack);
         push_locked(*it->second, std::move(m));
         sink = it->second->sink;
     }
-    if (sink) sink->on_outbox_ready();
+    return sink;
 }
 
 void Scheduler::refuse_batch(ViewerId id, std::uint64_t frame, std::size_t requests, TileStatus status, std::string message) {
@@ -236,7 +237,7 @@ void Scheduler::refuse_batch(ViewerId id, std::uint64_t frame, std::size_t reque
     ack.set_frame(frame);
     ack.set_status(protocol::to_proto(status));
     ack.set_message(std::move(message));
-    ack_only(id, requests, *batches_refused_, std::move(ack));
+    if (auto sink = ack_only(id, requests, *batches_refused_, std::move(ack))) sink->on_outbox_ready();
 }
 
 bool Scheduler::batch_due(ViewerId id, std::size_t requests, Clock::time_point now, Clock::time_point& retry_at) const {
@@ -251,12 +252,12 @@ bool Scheduler::batch_due(ViewerId id, std::size_t requests, Clock::time_point n
     return false;
 }
 
-void Scheduler::batch_superseded(ViewerId id, std::uint64_t frame, std::size_t requests) {
+std::shared_ptr<ViewerSink> Scheduler::batch_superseded(ViewerId id, std::uint64_t frame, std::size_t requests) {
     v1::BatchAck ack;
     ack.set_frame(frame);
     ack.set_status(protocol::to_proto(TileStatus::ok));
     ack.set_superseded(true);
-    ack_only(id, requests, *batches_superseded_, std::move(ack));
+    return ack_only(id, requests, *batches_superseded_, std::move(ack));
 }
 
 void Scheduler::batch_held() { batches_held_->inc(); }

@@ -119,8 +119,10 @@ public:
     // overloaded server spend its time re-reading lists instead of serving them.
     static constexpr std::size_t kHoldAbove = 256;
     bool batch_due(ViewerId id, std::size_t requests, Clock::time_point now, Clock::time_point& retry_at) const;
-    // A held batch replaced by a newer one before it was applied: acked as superseded.
-    void batch_superseded(ViewerId id, std::uint64_t frame, std::size_t requests);
+    // A held batch replaced by a newer one before it was applied: acked as superseded. Returns
+    // the viewer's sink, which the caller wakes (on_outbox_ready) once it holds no lock of its
+    // own: the ack is queued where it is called, in order with the viewer's other batches.
+    [[nodiscard]] std::shared_ptr<ViewerSink> batch_superseded(ViewerId id, std::uint64_t frame, std::size_t requests);
     // A batch that waited before it was applied (counted).
     void batch_held();
     // A batch over the limits (more than kMaxBatchStores stores or config.max_batch requests):
@@ -166,7 +168,7 @@ private:
     };
 
     void worker();
-    void ack_only(ViewerId id, std::size_t requests, Counter& outcome, v1::BatchAck ack);
+    std::shared_ptr<ViewerSink> ack_only(ViewerId id, std::size_t requests, Counter& outcome, v1::BatchAck ack);
     Viewer* pick_locked();
     bool eligible_locked(const Viewer& v) const;
     bool full_locked(const Viewer& v) const;

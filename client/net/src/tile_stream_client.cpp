@@ -420,8 +420,7 @@ private:
             ++stats_.connects;
             if (stats_.connects > 1) ++stats_.reconnects;
             written_gen_ = 0;  // the newest batch goes out again on this stream
-            stream_batches_written_ = 0;
-            stream_acks_ = 0;
+            last_acked_ = true;
             replies_polled_ = 0;
             ++stream_gen_;
             stream_live_ = true;
@@ -470,17 +469,17 @@ private:
         std::unique_lock lk(mu_);
         for (;;) {
             const auto newer = [&] { return batch_ && written_gen_ != batch_gen_; };
-            const auto acked = [&] { return stream_acks_ >= stream_batches_written_ || Clock::now() - last_write_ >= kAckWait; };
+            const auto acked = [&] { return last_acked_ || Clock::now() - last_write_ >= kAckWait; };
             while (!(closing_ || read_ended_ || (newer() && acked()))) {
                 if (newer()) batch_cv_.wait_until(lk, last_write_ + kAckWait);
                 else batch_cv_.wait(lk);
             }
             if (closing_ || read_ended_) break;
-            // Written after kAckWait without its ack: the batches before no longer hold the next.
-            stream_acks_ = stream_batches_written_;
             std::shared_ptr<const v1::TileBatch> batch = batch_;
             const std::uint64_t gen = batch_gen_;
-            ++stream_batches_written_;  // before the write: its ack may be read before it returns
+            // Before the write: its ack may be read before Write returns.
+            last_frame_ = batch->frame();
+            last_acked_ = false;
             last_write_ = Clock::now();
             lk.unlock();
             const bool ok = stream.Write(*batch);
@@ -500,6 +499,7 @@ private:
     // Decodes one message (a tile, several tiles, or an ack) and queues its items, under one lock.
     void deliver(const grpc::ByteBuffer& msg, Clock::time_point received) {
         items_.clear();
+        std::uint64_t acked_frame = 0;
         std::size_t tiles = 0, payload_bytes = 0, bad_checksums = 0;
         if (!decoder_.decode(msg)) {
             std::lock_guard lk(mu_);
@@ -527,6 +527,7 @@ private:
             }
         } else if (decoder_.kind() == protocol::ServerMessageDecoder::Kind::ack) {
             BatchAckInfo a = decode(decoder_.mutable_ack());
+            acked_frame = a.frame;
             Item item;
             item.bytes = accounted_bytes(a);
             item.body = std::move(a);
@@ -542,7 +543,7 @@ private:
                 stats_.checksum_failures += bad_checksums;
             } else {
                 ++stats_.acks_received;
-                stream_acks_ = std::min(stream_acks_ + 1, stream_batches_written_);  // a late ack of a forgiven one
+                if (acked_frame == last_frame_) last_acked_ = true;  // a late ack of an earlier batch is not it
             }
             for (auto& item : items_) {
                 item.stream = stream_gen_;
@@ -577,9 +578,9 @@ private:
     std::shared_ptr<const v1::TileBatch> batch_;  // the newest batch (the one-slot outgoing queue)
     std::uint64_t batch_gen_ = 0;                 // bumped by every send_batch
     std::uint64_t written_gen_ = 0;               // the generation written on the current stream
-    std::uint64_t stream_batches_written_ = 0;    // batches written on the current stream
-    std::uint64_t stream_acks_ = 0;               // acks read on the current stream
-    Clock::time_point last_write_{};              // the current stream's last batch write
+    std::uint64_t last_frame_ = 0;                // the frame of the current stream's last batch written
+    bool last_acked_ = true;                      // and whether its ack has been read
+    Clock::time_point last_write_{};              // when it was written
     std::uint64_t stream_gen_ = 0;                // bumped by every stream opened
     std::uint64_t replies_polled_ = 0;            // tile replies of the current stream polled
     grpc::ClientContext* ctx_ = nullptr;          // the current stream's context, owned by the session thread
