@@ -449,12 +449,21 @@ TEST(CliInterrupt, TemporaryFilesAreRemoved) {
         {{"build", "procedural:terrain:16384", "--threads", "1", "-q", "-o", "OUT/new.tsr"}, SIGTERM},
         {{"build", "procedural:terrain:16384", "--threads", "1", "-q", "-o", "OUT/new.tsr"}, SIGHUP},
         {{"source", "procedural:terrain:16384", "-q", "-o", "OUT/s.tif"}, SIGINT},
+        // The viewer writes its feedback trace for the whole run, paced to 60 Hz over a path of
+        // thousands of frames: it is still writing when signalled.
+        {{"view", "--store", "STORE", "--headless", "--size", "64x64", "--pace", "--no-warmup", "-q", "--trace",
+          "OUT/t.trace", "--stats", "OUT/s.csv"},
+         SIGTERM},
     };
+    ScratchDir stores;  // the viewer's input, outside the folder that must be left empty
+    const std::string store = stores.file("view.tsr");
+    ASSERT_EQ(run_tessera("build -q procedural:terrain:1024 -o " + q(store)).exit_code, 0);
     for (const Case& c : cases) {
         ScratchDir d;
         std::vector<std::string> args = {TESSERA_BINARY};
         for (std::string a : c.args) {
             if (a.rfind("OUT/", 0) == 0) a = d.file(a.substr(4));
+            if (a == "STORE") a = store;
             args.push_back(a);
         }
         SCOPED_TRACE(args[1] + " " + args.back() + ", signal " + std::to_string(c.sig));

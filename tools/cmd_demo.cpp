@@ -10,6 +10,7 @@
 
 #include "cli_options.hpp"
 #include "commands.hpp"
+#include "interrupt.hpp"
 #include "path_option.hpp"
 #include "progress.hpp"
 #include "store_summary.hpp"
@@ -66,6 +67,7 @@ Command add_demo(CLI::App& app) {
     c->add_flag("--no-pace", a->no_pace,
                 "render as fast as the GPU can (default: each frame held to 1/60 s of wall time, as a display would)");
     return [a]() -> int {
+        remove_temp_files_on_interrupt();  // before any thread is started
         namespace fs = std::filesystem;
         std::error_code ec;
         fs::create_directories(a->dir, ec);

@@ -1,6 +1,7 @@
 // tessera loadtest: the command line (docs/loadtest.md). The application is apps/loadtest.
 #include "cli_options.hpp"
 #include "commands.hpp"
+#include "interrupt.hpp"
 #include "loadtest.hpp"
 #include "path_option.hpp"
 
@@ -51,7 +52,10 @@ Command add_loadtest(CLI::App& app) {
         ->check(CLI::Range(1u, 100000000u));
     c->add_option("--replica-cores", o->replica_cores, "capacity plan: cores per server replica (0: this machine's)")
         ->capture_default_str();
-    return [o]() -> int { return run_loadtest(*o); };
+    return [o]() -> int {
+        remove_temp_files_on_interrupt();  // before any thread is started
+        return run_loadtest(*o);
+    };
 }
 
 }  // namespace tessera::tools

@@ -7,6 +7,7 @@
 
 #include "cli_options.hpp"
 #include "commands.hpp"
+#include "interrupt.hpp"
 #include "path_option.hpp"
 #include "viewer_session.hpp"
 
@@ -93,6 +94,7 @@ Command add_view(CLI::App& app) {
     c->add_flag("--no-warmup", *no_warmup, "headless: start the path from an empty pool (default: wait until its first view is at full detail)");
     c->add_flag("-q,--quiet", *quiet, "no progress, no summary");
     return [o, size, filter, quiet, no_warmup, max_outage]() -> int {
+        remove_temp_files_on_interrupt();  // before any thread is started
         o->warmup = !*no_warmup;
         unsigned w = 0, h = 0;
         char x = 0, extra = 0;

@@ -1,5 +1,6 @@
 #pragma once
-// Commands that write files (build, source) remove their temporary files when interrupted.
+// Commands that write files (build, source, view, loadtest, demo) remove their temporary files
+// when interrupted.
 
 namespace tessera::tools {
 
@@ -8,7 +9,7 @@ namespace tessera::tools {
 // that signal, as its default action would (status 128 + signal). Call it at the start of a
 // command, before any thread is started: the signals are blocked in the calling thread and in
 // every thread it starts, and one thread of its own waits for them. Not for commands that handle
-// these signals themselves (serve, view, demo).
+// these signals themselves (serve).
 void remove_temp_files_on_interrupt();
 
 }  // namespace tessera::tools

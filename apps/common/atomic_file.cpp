@@ -6,6 +6,8 @@
 #include <fstream>
 #include <system_error>
 
+#include <unistd.h>
+
 #include "failure.hpp"
 #include "tessera/storage/output_file.hpp"
 
@@ -15,7 +17,14 @@ void write_file_atomically(const std::string& path, const std::function<void(std
     namespace fs = std::filesystem;
     const fs::path target(path);
     if (Status st = storage::check_output_file(path); !st) throw Failure(st.error().message);
-    const fs::path temp = target.parent_path() / ("." + target.filename().string() + ".tmp");
+    // The process id keeps two writers of one path apart; tracked, so an interrupted command
+    // (tools/interrupt.hpp) removes it.
+    const fs::path temp = target.parent_path() / ("." + target.filename().string() + ".tmp" + std::to_string(::getpid()));
+    storage::track_temp_path(temp.string());
+    struct Untrack {
+        std::string path;
+        ~Untrack() { storage::untrack_temp_path(path); }
+    } untrack{temp.string()};
     {
         std::ofstream out(temp, std::ios::binary | std::ios::trunc);
         if (out) write(out);

@@ -8,6 +8,8 @@
 #include <cstring>
 #include <filesystem>
 
+#include "tessera/storage/output_file.hpp"
+
 namespace tessera::client {
 namespace {
 
@@ -40,6 +42,7 @@ Result<std::unique_ptr<TraceWriter>> TraceWriter::create(const std::string& path
     w->temp_ = (p.parent_path() / ("." + p.filename().string() + ".tmp" + std::to_string(::getpid()))).string();
     std::error_code ec;
     if (fs::is_directory(p, ec)) return make_error(Errc::invalid_argument, "trace: '" + path + "' is a directory");
+    storage::track_temp_path(w->temp_);  // an interrupted command removes it (tools/interrupt.hpp)
     w->file_ = std::fopen(w->temp_.c_str(), "wb");
     if (!w->file_) return make_error(Errc::io_error, "trace: cannot write '" + path + "': " + std::strerror(errno));
     std::vector<std::uint8_t> head(kMagic, kMagic + 8);
@@ -56,6 +59,7 @@ TraceWriter::~TraceWriter() {
         std::error_code ec;
         std::filesystem::remove(temp_, ec);
     }
+    if (!temp_.empty()) storage::untrack_temp_path(temp_);
 }
 
 Status TraceWriter::write(const TraceFrame& f) {
