@@ -609,9 +609,9 @@ bool Scheduler::remote_room_locked(const StoreHandle& store) const {
     return reading < std::max(1u, ctx_.config.remote_concurrency) && remote_reading_total_ < budget;
 }
 
-// Up to kChunk of v's pending requests, highest priority first, skipping (they stay pending, in
-// order) those of a remote store with no room for another read: the viewer's requests of other
-// stores go ahead of them. An expired request is always taken: it is answered without a read.
+// Up to kChunk of v's pending requests, highest priority first, those of remote stores only
+// among the first kRemoteChunk, skipping (they stay pending, in order) those of a remote store
+// with no room for another read: the viewer's requests of other stores go ahead of them. An expired request is always taken: it is answered without a read.
 // Looks at most kRemoteScan requests; when it takes none, the viewer is blocked until a remote
 // read ends, a new batch comes, or its earliest skipped request expires.
 void Scheduler::take_chunk_locked(Viewer& v, Clock::time_point now, std::vector<Pending>& chunk,
@@ -621,9 +621,10 @@ void Scheduler::take_chunk_locked(Viewer& v, Clock::time_point now, std::vector<
     skipped_.clear();
     Clock::time_point earliest_skipped = Clock::time_point::max();
     while (i > 0 && chunk.size() < kChunk && scanned < kRemoteScan) {
+        const StoreHandle* st = pend[i - 1].store.get();
+        if (st->remote() && chunk.size() >= kRemoteChunk) break;  // it stays pending, in order
         Pending& p = pend[--i];
         ++scanned;
-        const StoreHandle* st = p.store.get();
         if (st->remote() && p.deadline >= now && std::find(remotes.begin(), remotes.end(), st) == remotes.end()) {
             if (!remote_room_locked(*st)) {
                 earliest_skipped = std::min(earliest_skipped, p.deadline);
