@@ -611,7 +611,8 @@ bool Scheduler::remote_room_locked(const StoreHandle& store) const {
 
 // Up to kChunk of v's pending requests, highest priority first, those of remote stores only
 // among the first kRemoteChunk, skipping (they stay pending, in order) those of a remote store
-// with no room for another read: the viewer's requests of other stores go ahead of them. An expired request is always taken: it is answered without a read.
+// with no room for another read: the viewer's requests of other stores go ahead of them. An
+// expired request is always taken: it is answered without a read.
 // Looks at most kRemoteScan requests; when it takes none, the viewer is blocked until a remote
 // read ends, a new batch comes, or its earliest skipped request expires.
 void Scheduler::take_chunk_locked(Viewer& v, Clock::time_point now, std::vector<Pending>& chunk,
