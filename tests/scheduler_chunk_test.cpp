@@ -19,9 +19,8 @@
 #include "server_context.hpp"
 #include "store_registry.hpp"
 #include "tessera/storage/byte_source.hpp"
-#include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
-#include "tessera/storage/store_writer.hpp"
+#include "raw_store_util.hpp"
 #include "test_util.hpp"
 #include "tile_cache.hpp"
 #include "tile_fetcher.hpp"
@@ -76,27 +75,6 @@ public:
     void on_outbox_ready() override {}
 };
 
-// A 128x128 RGB raw store, tiles of 16 (8 x 8 at level 0), every tile present; its bytes.
-std::vector<std::uint8_t> store_bytes(const test::ScratchDir& dir) {
-    storage::StoreSpec s;
-    s.width = s.height = 128;
-    s.tile_payload = 16;
-    s.channels = 3;
-    s.codec = Codec::raw;
-    const std::string path = dir.file("s.tsr");
-    auto w = storage::StoreWriter::create(path, s);
-    EXPECT_TRUE(w.ok());
-    const storage::StoreInfo info = storage::store_info(s);
-    for (std::uint32_t l = 0; l < info.level_count(); ++l)
-        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
-            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
-                std::vector<std::uint8_t> texels(info.tile_bytes(), static_cast<std::uint8_t>(l * 50 + y * 8 + x));
-                auto payload = storage::encode_tile(info, texels, {});
-                EXPECT_TRUE((*w)->add_present({l, x, y}, *payload).ok());
-            }
-    EXPECT_TRUE((*w)->finish().ok());
-    return test::read_file(path);
-}
 
 }  // namespace
 
@@ -106,7 +84,7 @@ std::vector<std::uint8_t> store_bytes(const test::ScratchDir& dir) {
 TEST(SchedulerChunks, ARemoteStoresRequestsFillOnlyTheFirstSixteenOfAChunk) {
     static_assert(Scheduler::kChunk >= 48 && Scheduler::kRemoteChunk == 16);
     test::ScratchDir dir;
-    auto bytes = std::make_shared<const std::vector<std::uint8_t>>(store_bytes(dir));
+    auto bytes = std::make_shared<const std::vector<std::uint8_t>>(test::raw_store_bytes(dir, 128, 16, 8));
     const std::uint64_t payloads = (*storage::StoreReader::open_memory(*bytes))->locate({0, 0, 0})->offset;
     auto gate = std::make_shared<Gate>();
     RemoteStores remote{[&](const std::string&) -> Result<std::unique_ptr<storage::ByteSource>> {

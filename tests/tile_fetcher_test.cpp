@@ -18,6 +18,7 @@
 #include "tessera/storage/codec.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "tessera/storage/store_writer.hpp"
+#include "raw_store_util.hpp"
 #include "test_util.hpp"
 #include "tile_cache.hpp"
 #include "tile_fetcher.hpp"
@@ -66,26 +67,7 @@ private:
 };
 
 // A 64x64 RGB raw store, tiles of 16, every tile present; its bytes.
-std::vector<std::uint8_t> small_store(const test::ScratchDir& dir) {
-    storage::StoreSpec s;
-    s.width = s.height = 64;
-    s.tile_payload = 16;
-    s.channels = 3;
-    s.codec = Codec::raw;
-    const std::string path = dir.file("s.tsr");
-    auto w = storage::StoreWriter::create(path, s);
-    EXPECT_TRUE(w.ok());
-    const storage::StoreInfo info = storage::store_info(s);
-    for (std::uint32_t l = 0; l < info.level_count(); ++l)
-        for (std::uint32_t y = 0; y < info.levels[l].tiles_y; ++y)
-            for (std::uint32_t x = 0; x < info.levels[l].tiles_x; ++x) {
-                std::vector<std::uint8_t> texels(info.tile_bytes(), static_cast<std::uint8_t>(l * 50 + y * 4 + x));
-                auto payload = storage::encode_tile(info, texels, {});
-                EXPECT_TRUE((*w)->add_present({l, x, y}, *payload).ok());
-            }
-    EXPECT_TRUE((*w)->finish().ok());
-    return test::read_file(path);
-}
+std::vector<std::uint8_t> small_store(const test::ScratchDir& dir) { return test::raw_store_bytes(dir, 64, 16, 4); }
 
 // A fetcher over the small store read through a gate (closed by the test), with its own log,
 // metrics and cache of `cache_bytes`.
