@@ -22,8 +22,9 @@
 //          whenever half of it has arrived (and at least every tick). A batch due while the
 //          previous one is still being written, or while --batches-in-flight (1) batches await
 //          their ack, goes out when that write completes or that ack arrives (or 250 ms after the
-//          last write), built from the set as it is then; as client/net does. 0: no ack wait. The streams are driven asynchronously: --client-threads (1)
-//          completion-queue threads and one tick thread. Batches ask for protocol
+//          last write), built from the set as it is then; as client/net does (0: no ack wait).
+//          The streams are driven asynchronously: --client-threads (1) completion-queue threads
+//          and one tick thread. Batches ask for protocol
 //          revision --protocol-revision (default 1: several tiles per message; 0: one per message);
 //          replies are decoded straight from gRPC's receive slices (tessera/protocol/stream_codec.hpp),
 //          payloads counted, not copied.
