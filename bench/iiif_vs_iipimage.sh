@@ -6,7 +6,9 @@
 #
 #  1. peak: wrk -t2 -cCONNECTIONS, random tiles from the list, ROUNDS interleaved rounds of SECONDS;
 #  2. latency at half of each one's own median peak (open model, serve_load --http --rate), and
-#     at one common rate (IIPImage's half peak) for all.
+#     at one common rate (IIPImage's half peak) for all: ROUNDS interleaved rounds of SECONDS, the
+#     medians of the rounds' percentiles reported (on a shared 2-core VM one run's p99 can move 2x
+#     from run to run: a few ms stalls of the machine land in ~1% of the requests).
 # Tessera runs twice: as deployed (encoded web tiles cached) and with --web-cache 0, every tile
 # decoded, cropped and encoded again per request, as IIPImage does with its cached raw tiles.
 # Both servers, wrk and serve_load share this machine's cores; compare the ratio, not absolutes.
@@ -132,19 +134,25 @@ print(round(statistics.median(r["requests"] / (r["duration_us"] / 1e6) for r in 
 declare -A pk
 for n in "${names[@]}"; do pk[$n]=$(peak "$n"); done
 common=$((pk[iip] / 2))
-for n in "${names[@]}"; do
-  "$load" --http "${host[$n]}" --url-file "${list[$n]}" --connections "$conns" --rate $((pk[$n] / 2)) --duration "$secs" \
-    --json "$work/runs/half-$n.json" > /dev/null
-  "$load" --http "${host[$n]}" --url-file "${list[$n]}" --connections "$conns" --rate "$common" --duration "$secs" \
-    --json "$work/runs/common-$n.json" > /dev/null
+for r in $(seq 1 "$rounds"); do  # interleaved like the peaks: one run's p99 here swings with the machine
+  for i in 0 1 2; do
+    n=${names[$(((i + r) % 3))]}
+    "$load" --http "${host[$n]}" --url-file "${list[$n]}" --connections "$conns" --rate $((pk[$n] / 2)) --duration "$secs" \
+      --seed "$r" --json "$work/runs/half-$n-$r.json" > /dev/null
+    "$load" --http "${host[$n]}" --url-file "${list[$n]}" --connections "$conns" --rate "$common" --duration "$secs" \
+      --seed "$r" --json "$work/runs/common-$n-$r.json" > /dev/null
+  done
 done
-python3 - "$work" "${pk[tessera]}" "${pk[tessera-nocache]}" "${pk[iip]}" "$common" <<'PY'
-import json, sys
+python3 - "$work" "${pk[tessera]}" "${pk[tessera-nocache]}" "${pk[iip]}" "$common" "$rounds" <<'PY'
+import json, statistics, sys
 work = sys.argv[1]
 peaks = dict(zip(["tessera", "tessera-nocache", "iip"], map(int, sys.argv[2:5])))
-common = int(sys.argv[5])
-def run(kind, name):
-    return json.load(open(f"{work}/runs/{kind}-{name}.json"))
+common, rounds = int(sys.argv[5]), int(sys.argv[6])
+def run(kind, name):  # the rounds' medians, each percentile on its own; the rounds' p99s kept
+    runs = [json.load(open(f"{work}/runs/{kind}-{name}-{r}.json")) for r in range(1, rounds + 1)]
+    lat = {q: statistics.median(x["latency_ms"][q] for x in runs) for q in runs[0]["latency_ms"]}
+    return {"latency_ms": lat, "errors": sum(x["errors"] for x in runs),
+            "p99_per_round": [x["latency_ms"]["p99"] for x in runs]}
 print(f"{'server':<16} {'peak tiles/s':>13} {'p50 / p99 @ half peak':>24} {'p50 / p99 @ ' + str(common) + '/s':>24}")
 rows = {}
 for name, peak in peaks.items():
@@ -153,6 +161,8 @@ for name, peak in peaks.items():
     rows[name] = {"peak": peak, "half": h, "common": c}
     print(f"{name:<16} {peak:>13} {hl['p50']:>10.2f} / {hl['p99']:>7.2f} ms {cl['p50']:>10.2f} / {cl['p99']:>7.2f} ms"
           + (f"  errors {h['errors'] + c['errors']}" if h["errors"] + c["errors"] else ""))
+print(f"p99 at {common}/s, round by round: " + "; ".join(
+    f"{n} {' '.join(f'{v:.2f}' for v in rows[n]['common']['p99_per_round'])}" for n in peaks))
 for name in ["tessera", "tessera-nocache"]:
     r = rows[name]
     print(f"{name} / iipimage: peak {r['peak'] / peaks['iip']:.2f}x; p99 at {common}/s "

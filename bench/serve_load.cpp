@@ -34,6 +34,8 @@
 // Output: a one-line summary, and JSON (stdout, or --json FILE): offered and achieved tiles/s,
 // payload MB/s (10^6 bytes), errors, latency percentiles in ms from a log-linear histogram
 // (64 buckets per power of two: percentiles are at most 1.6% high).
+// --trace FILE (HTTP): a line per measured 200 reply: its scheduled time and latency (µs) and the URL
+// line asked, to tell stalls (tail replies close in time) from slow URLs.
 #include <arpa/inet.h>
 #include <malloc.h>
 #include <fcntl.h>
@@ -109,7 +111,7 @@ public:
 // ---- Options ----------------------------------------------------------------------------------
 
 struct Options {
-    std::string grpc, http, store, url_file, store_file, prefix, json_path;
+    std::string grpc, http, store, url_file, store_file, prefix, json_path, trace_path;
     double rate = 0;          // tiles/s offered; 0: closed loop
     double duration = 10;     // measured seconds
     double warmup = 1;        // unmeasured seconds before
@@ -132,7 +134,7 @@ void usage() {
                  "                    [--tick-hz HZ] [--window W] [--max-outstanding N] [--batches-in-flight B] [--protocol-revision R]\n"
                  "                    [--client-threads T])\n"
                  "                  [--rate TILES_PER_S (0: closed loop)] [--duration S] [--warmup S] [--drain S]\n"
-                 "                  [--seed N] [--json FILE]\n");
+                 "                  [--seed N] [--json FILE] [--trace FILE (HTTP: one line per measured reply)]\n");
 }
 
 Options parse(int argc, char** argv) {
@@ -157,6 +159,7 @@ Options parse(int argc, char** argv) {
         else if (a == "--store-file") o.store_file = value();
         else if (a == "--prefix") o.prefix = value();
         else if (a == "--json") o.json_path = value();
+        else if (a == "--trace") o.trace_path = value();
         else if (a == "--rate") o.rate = number();
         else if (a == "--duration") o.duration = number();
         else if (a == "--warmup") o.warmup = number();
@@ -345,6 +348,10 @@ public:
     }
 
     Results run() {
+        if (!o_.trace_path.empty()) {
+            trace_.open(o_.trace_path, std::ios::trunc);
+            if (!trace_) die("cannot write " + o_.trace_path);
+        }
         epfd_ = epoll_create1(EPOLL_CLOEXEC);
         timerfd_ = timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC);
         if (epfd_ < 0 || timerfd_ < 0) die("epoll/timerfd: " + std::string(std::strerror(errno)));
@@ -358,6 +365,9 @@ public:
         start_ = Clock::now() + std::chrono::milliseconds(50);
         measure_start_ = start_ + to_nanos(o_.warmup);
         end_ = measure_start_ + to_nanos(o_.duration);
+        if (trace_.is_open())
+            trace_ << "# scheduled_us latency_us url_line (0-based), one line per measured 200 reply; start "
+                   << std::chrono::duration_cast<Nanos>(start_.time_since_epoch()).count() << " ns (CLOCK_MONOTONIC)\n";
         total_ = open ? std::uint64_t(std::floor((o_.warmup + o_.duration) * o_.rate)) : 0;
         first_measured_ = open ? std::uint64_t(std::ceil(o_.warmup * o_.rate)) : 0;
         for (auto& c : conns_) idle_.push_back(c.index);
@@ -439,6 +449,7 @@ private:
         std::size_t out_off = 0;
         std::string head;            // response head being assembled
         std::uint64_t body_left = 0, body_bytes = 0;
+        std::size_t url = 0;         // index of the URL asked
         int status = 0;
         bool want_out = false;
     };
@@ -509,7 +520,8 @@ private:
         c.body_bytes = 0;
         ++busy_;
         if (measured) ++results_.sent;
-        c.out = requests_[pick_(rng_)];
+        c.url = pick_(rng_);
+        c.out = requests_[c.url];
         c.out_off = 0;
         flush(c);
     }
@@ -642,6 +654,8 @@ private:
                 ++results_.ok;
                 results_.bytes += c.body_bytes;
                 results_.latency.record(std::uint64_t(std::chrono::duration_cast<Nanos>(now - c.origin).count()));
+                if (trace_.is_open()) trace_ << std::chrono::duration_cast<Nanos>(c.origin - start_).count() / 1000 << ' '
+                                   << std::chrono::duration_cast<Nanos>(now - c.origin).count() / 1000 << ' ' << c.url << '\n';
                 if (open) last_completion_ = std::max(last_completion_, now);
             } else {
                 ++results_.errors;
@@ -704,6 +718,7 @@ private:
     std::uint64_t next_ = 0, total_ = 0, first_measured_ = 0, failures_ = 0;
     Clock::time_point start_{}, measure_start_{}, end_{}, last_completion_{};
     Results results_;
+    std::ofstream trace_;  // --trace
     char buf_[256 * 1024];
 };
 
@@ -1153,6 +1168,7 @@ int main(int argc, char** argv) {
     if (!o.http.empty()) {
         r = HttpLoad(o, read_urls(o.url_file)).run();
     } else {
+        if (!o.trace_path.empty()) die("--trace is for --http");
         auto keys = o.url_file.empty() ? keys_from_store(o.store_file) : keys_from_urls(read_urls(o.url_file));
         r = GrpcLoad(o, std::move(keys)).run();
     }
