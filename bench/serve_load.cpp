@@ -34,8 +34,9 @@
 // Output: a one-line summary, and JSON (stdout, or --json FILE): offered and achieved tiles/s,
 // payload MB/s (10^6 bytes), errors, latency percentiles in ms from a log-linear histogram
 // (64 buckets per power of two: percentiles are at most 1.6% high).
-// --trace FILE (HTTP): a line per measured 200 reply: its scheduled time and latency (µs) and the URL
-// line asked, to tell stalls (tail replies close in time) from slow URLs.
+// --trace FILE (HTTP): a line per measured 200 reply: its scheduled send time (closed loop: its send)
+// and latency in µs, and the URL line asked, to tell stalls (tail replies close in time) from slow
+// URLs.
 #include <arpa/inet.h>
 #include <malloc.h>
 #include <fcntl.h>
@@ -366,7 +367,7 @@ public:
         measure_start_ = start_ + to_nanos(o_.warmup);
         end_ = measure_start_ + to_nanos(o_.duration);
         if (trace_.is_open())
-            trace_ << "# scheduled_us latency_us url_line (0-based), one line per measured 200 reply; start "
+            trace_ << "# sent_us (scheduled; closed loop: sent) latency_us url_line (0-based), one line per measured 200 reply; start "
                    << std::chrono::duration_cast<Nanos>(start_.time_since_epoch()).count() << " ns (CLOCK_MONOTONIC)\n";
         total_ = open ? std::uint64_t(std::floor((o_.warmup + o_.duration) * o_.rate)) : 0;
         first_measured_ = open ? std::uint64_t(std::ceil(o_.warmup * o_.rate)) : 0;
@@ -419,6 +420,10 @@ public:
                 if (events[std::size_t(i)].events & EPOLLOUT) flush(c);
                 if (events[std::size_t(i)].events & (EPOLLIN | EPOLLERR | EPOLLHUP)) read_conn(c);
             }
+        }
+        if (trace_.is_open()) {
+            trace_.close();
+            if (!trace_) die("cannot write " + o_.trace_path);
         }
         // Anything still outstanding never got a reply.
         for (auto& c : conns_)
