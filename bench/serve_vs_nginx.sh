@@ -25,13 +25,19 @@
 #   bench/serve_vs_nginx.sh [ROUNDS] [SECONDS] [WORKDIR]      defaults: 3 10 build/bench-serve
 #   env: PEAK_VIEWERS (4), WINDOW (512), VIEWERS (16), CONNECTIONS (64), TESSERA, SERVE_LOAD, EXPORT_TILES,
 #        FLOOR_SERVER, FLOOR_ARGS (e.g. --uring: the floor through io_uring, where built with liburing;
-#        --sendfile: payloads by sendfile(2))
+#        --sendfile: payloads by sendfile(2)),
+#        SERVER_CPUS and LOAD_CPUS (taskset CPU lists, both or neither; e.g. 0-1 and 2-15): on a
+#        machine with cores to spare, the servers run on the first and wrk and serve_load on the
+#        second, so that the load tools take no CPU from the servers; each server then runs one
+#        loop (nginx: one worker) per server CPU and wrk one thread per load CPU (at most 16)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rounds=${1:-3}
 secs=${2:-10}
 work=$(realpath -m "${3:-build/bench-serve}")
 peak_viewers=${PEAK_VIEWERS:-4}
+server_cpus=${SERVER_CPUS:-}
+load_cpus=${LOAD_CPUS:-}
 viewers=${VIEWERS:-16}
 window=${WINDOW:-512}
 conns=${CONNECTIONS:-64}
@@ -40,6 +46,43 @@ load=${SERVE_LOAD:-build/bench/serve_load}
 exporter=${EXPORT_TILES:-build/bench/export_tiles}
 floor=${FLOOR_SERVER:-build/bench/floor_server}
 read -r -a floor_args <<< "${FLOOR_ARGS:-}"
+# Unpinned (the default): servers and load tools share every core. Pinned: taskset prefixes, and
+# thread counts from the CPU lists (nproc under taskset counts the CPUs a list allows).
+server_pin=(); load_pin=(); server_threads=$(nproc); ngx_workers=auto; wrk_threads=2; grpc_client_threads=1
+tsr_threads=()  # unpinned: tessera's own defaults (one loop and one reader per core)
+placement="$(nproc) cores; servers, wrk and serve_load all share them"
+if [ -n "$server_cpus$load_cpus" ]; then
+  [ -n "$server_cpus" ] && [ -n "$load_cpus" ] || { echo "SERVER_CPUS and LOAD_CPUS go together" >&2; exit 2; }
+  # Each list: CPUs this process may use, none in both (taskset itself drops CPUs that do not exist).
+  read -r server_threads load_threads < <(python3 - "$server_cpus" "$load_cpus" <<'PY'
+import os, sys
+def cpus(name, text):
+    out = set()
+    try:
+        for part in text.split(","):
+            lo, _, hi = part.partition("-")
+            out |= set(range(int(lo), int(hi or lo) + 1))
+    except ValueError:
+        sys.exit(f"{name}: not a CPU list (like 0-1,4): {text}")
+    missing = sorted(out - os.sched_getaffinity(0))
+    if missing:
+        sys.exit(f"{name}: CPUs {missing} are not among this machine's usable CPUs {sorted(os.sched_getaffinity(0))}")
+    return out
+s, l = cpus("SERVER_CPUS", sys.argv[1]), cpus("LOAD_CPUS", sys.argv[2])
+if s & l:
+    sys.exit(f"SERVER_CPUS and LOAD_CPUS share CPUs {sorted(s & l)}: the point is to keep them apart")
+print(len(s), len(l))
+PY
+  ) || true
+  [ -n "${load_threads:-}" ] || exit 2
+  server_pin=(taskset -c "$server_cpus"); load_pin=(taskset -c "$load_cpus")
+  ngx_workers=$server_threads
+  wrk_threads=$(( load_threads < 16 ? load_threads : 16 ))
+  wrk_threads=$(( wrk_threads < conns ? wrk_threads : conns ))  # wrk needs a connection per thread
+  tsr_threads=(--http-threads "$server_threads" --io-threads "$server_threads")
+  grpc_client_threads=$load_threads
+  placement="servers on CPUs $server_cpus ($server_threads), wrk and serve_load on CPUs $load_cpus ($load_threads)"
+fi
 for b in "$tessera" "$load" "$exporter" "$floor"; do
   [ -x "$b" ] || { echo "build first: ninja -C build tessera serve_load export_tiles floor_server ($b missing)" >&2; exit 1; }
 done
@@ -62,7 +105,7 @@ free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",
 # ---- nginx: a minimal static file server on 127.0.0.1 -------------------------------------------
 ngx_port=$(free_port)
 cat > "$work/nginx/nginx.conf" <<EOF
-worker_processes auto;
+worker_processes $ngx_workers;
 user root;
 daemon off;
 pid $work/nginx/nginx.pid;
@@ -90,13 +133,14 @@ http {
   }
 }
 EOF
-nginx -c "$work/nginx/nginx.conf" -e "$work/nginx/error.log" &
+"${server_pin[@]}" nginx -c "$work/nginx/nginx.conf" -e "$work/nginx/error.log" &
 ngx_pid=$!
 
 # ---- tessera serve --------------------------------------------------------------------------------
-"$tessera" serve --store "$store" --grpc 127.0.0.1:0 --http 127.0.0.1:0 2> "$work/tessera.log" &
+"${server_pin[@]}" "$tessera" serve --store "$store" --grpc 127.0.0.1:0 --http 127.0.0.1:0 "${tsr_threads[@]}" \
+  2> "$work/tessera.log" &
 tsr_pid=$!
-"$floor" "$static" --threads "$(nproc)" "${floor_args[@]}" > "$work/floor.log" 2>&1 &
+"${server_pin[@]}" "$floor" "$static" --threads "$server_threads" "${floor_args[@]}" > "$work/floor.log" 2>&1 &
 floor_pid=$!
 # SIGTERM; SIGKILL (said so) if one is still there 15 s later (tessera drains for up to 10 s).
 stop() {  # pid name
@@ -134,7 +178,7 @@ for u in $(shuf -n 20 --random-source=<(yes) "$urls"); do
   cmp -s <(curl -sf "http://$ngx_http$u") <(curl -sf "http://$floor_http$u") || { echo "nginx and floor_server differ on $u" >&2; exit 1; }
 done
 echo "nginx $ngx_http (pid $ngx_pid), tessera serve http $tsr_http grpc $tsr_grpc (pid $tsr_pid), floor $floor_http (pid $floor_pid); $(wc -l < "$urls") tiles"
-echo "$(nproc) cores; servers, wrk and serve_load all share them"
+echo "$placement"
 
 # CPU seconds (user + system) used so far by a process and its children's threads (nginx: workers).
 cpu_of() {
@@ -173,19 +217,20 @@ PY
   echo "  $name: $(grep -v '^{' <<< "$log" | grep -E 'tiles/s|Requests/sec' | head -1 | sed 's/^ *//')"
 }
 wrk_run() {  # name pid host:port
-  run "$1" "$2" wrk -t2 -c"$conns" -d"${secs}s" -s bench/wrk_tiles.lua "http://$3" -- "$urls" "$r"
+  run "$1" "$2" "${load_pin[@]}" wrk -t"$wrk_threads" -c"$conns" -d"${secs}s" -s bench/wrk_tiles.lua "http://$3" -- "$urls" "$r"
 }
 grpc_peak() {
-  run "$1" "$tsr_pid" "$load" --grpc "$tsr_grpc" --store terrain --url-file "$urls" --rate 0 --duration "$secs" \
-    --warmup 1 --viewers "$peak_viewers" --window "$window" --seed "$r" --json "$work/runs/$1.json.tmp"
+  run "$1" "$tsr_pid" "${load_pin[@]}" "$load" --grpc "$tsr_grpc" --store terrain --url-file "$urls" --rate 0 --duration "$secs" \
+    --warmup 1 --viewers "$peak_viewers" --window "$window" --client-threads "$grpc_client_threads" --seed "$r" \
+    --json "$work/runs/$1.json.tmp"
 }
 
 echo "warm-up (page cache, open file cache, tessera's tile cache)"
 r=0
-wrk -t2 -c"$conns" -d3s -s bench/wrk_tiles.lua "http://$ngx_http" -- "$urls" 0 >/dev/null
-wrk -t2 -c"$conns" -d3s -s bench/wrk_tiles.lua "http://$tsr_http" -- "$urls" 0 >/dev/null
-wrk -t2 -c"$conns" -d1s -s bench/wrk_tiles.lua "http://$floor_http" -- "$urls" 0 >/dev/null
-"$load" --grpc "$tsr_grpc" --store terrain --url-file "$urls" --rate 0 --duration 2 --warmup 0 --json /dev/null >/dev/null
+"${load_pin[@]}" wrk -t"$wrk_threads" -c"$conns" -d3s -s bench/wrk_tiles.lua "http://$ngx_http" -- "$urls" 0 >/dev/null
+"${load_pin[@]}" wrk -t"$wrk_threads" -c"$conns" -d3s -s bench/wrk_tiles.lua "http://$tsr_http" -- "$urls" 0 >/dev/null
+"${load_pin[@]}" wrk -t"$wrk_threads" -c"$conns" -d1s -s bench/wrk_tiles.lua "http://$floor_http" -- "$urls" 0 >/dev/null
+"${load_pin[@]}" "$load" --grpc "$tsr_grpc" --store terrain --url-file "$urls" --rate 0 --duration 2 --warmup 0 --json /dev/null >/dev/null
 
 echo "peak throughput: $rounds rounds of ${secs}s, interleaved"
 for r in $(seq 1 "$rounds"); do
@@ -212,12 +257,12 @@ print(*(round(peak(k) / 2) for k in ("nginx", "tessera-http", "tessera-grpc")))
 PY
 )
 http_open() {  # name pid host:port rate
-  run "$1" "$2" "$load" --http "$3" --url-file "$urls" --rate "$4" --duration "$secs" --warmup 1 \
+  run "$1" "$2" "${load_pin[@]}" "$load" --http "$3" --url-file "$urls" --rate "$4" --duration "$secs" --warmup 1 \
     --connections "$conns" --seed "$r" --json "$work/runs/$1.json.tmp"
 }
 grpc_open() {  # name rate [viewers]
-  run "$1" "$tsr_pid" "$load" --grpc "$tsr_grpc" --store terrain --url-file "$urls" --rate "$2" --duration "$secs" \
-    --warmup 1 --viewers "${3:-$viewers}" --seed "$r" --json "$work/runs/$1.json.tmp"
+  run "$1" "$tsr_pid" "${load_pin[@]}" "$load" --grpc "$tsr_grpc" --store terrain --url-file "$urls" --rate "$2" --duration "$secs" \
+    --warmup 1 --viewers "${3:-$viewers}" --client-threads "$grpc_client_threads" --seed "$r" --json "$work/runs/$1.json.tmp"
 }
 echo "open-model latency at half of each peak (nginx $half_ngx/s, tessera HTTP $half_http/s, gRPC $half_grpc/s)"
 for r in $(seq 1 "$rounds"); do
@@ -242,9 +287,9 @@ for r in $(seq 1 "$rounds"); do
   fi
 done
 
-python3 - "$work" "$static" "$(git rev-parse --short HEAD)" "$rounds" "$secs" "$viewers" "$window" "$conns" "$peak_viewers" "$(head -1 "$work/floor.log")" <<'PY'
+python3 - "$work" "$static" "$(git rev-parse --short HEAD)" "$rounds" "$secs" "$viewers" "$window" "$conns" "$peak_viewers" "$(head -1 "$work/floor.log")" "$placement" <<'PY'
 import glob, json, os, platform, statistics, subprocess, sys
-work, static, commit, rounds, secs, viewers, window, conns, peak_viewers, floor_banner = sys.argv[1:11]
+work, static, commit, rounds, secs, viewers, window, conns, peak_viewers, floor_banner, placement = sys.argv[1:12]
 runs = os.path.join(work, "runs")
 sizes = [os.path.getsize(os.path.join(dp, f)) for dp, _, fs in os.walk(os.path.join(static)) for f in fs if f != "urls.txt"]
 mean_tile = sum(sizes) / len(sizes)
@@ -273,7 +318,7 @@ try:
     model = next((l.split(":", 1)[1].strip() for l in model.splitlines() if l.startswith("Model name")), platform.processor())
 except OSError:
     model = platform.processor()
-res = {"commit": commit, "machine": f"{os.cpu_count()} cores, {model}, {platform.machine()}",
+res = {"commit": commit, "machine": f"{os.cpu_count()} cores, {model}, {platform.machine()}", "placement": placement,
        "store": "procedural:terrain:16384, JPEG q90, 256^2 tiles", "tiles": len(sizes), "mean_tile_bytes": mean_tile,
        "rounds": int(rounds), "seconds_per_run": float(secs), "viewers": int(viewers), "peak_viewers": int(peak_viewers), "window": int(window),
        "connections": int(conns), "peers": {}}
@@ -336,7 +381,7 @@ res["ratios"] = {
     "grpc_over_nginx_tiles_per_server_cpu_s": res["peers"]["tessera-grpc"]["peak_tiles_per_server_cpu_s"] / ng["peak_tiles_per_server_cpu_s"],
     "http_over_nginx_tiles_per_server_cpu_s": res["peers"]["tessera-http"]["peak_tiles_per_server_cpu_s"] / ng["peak_tiles_per_server_cpu_s"],
 }
-print(f"\n{res['machine']}, commit {commit}; medians of {rounds} interleaved rounds of {secs}s; "
+print(f"\n{res['machine']} ({placement}), commit {commit}; medians of {rounds} interleaved rounds of {secs}s; "
       f"gRPC peak {peak_viewers} viewers x {window} outstanding, open model {viewers} viewers at 60 Hz")
 print(f"{'server':22} {'peak tiles/s':>12} {'MB/s':>7} {'tiles/CPU-s':>11} | {'half: offered':>13} {'achieved':>9} {'p50 ms':>7} {'p99 ms':>7} {'p99.9 ms':>8} {'errors':>6}")
 for label, p in rows:
@@ -358,7 +403,7 @@ r = res["ratios"]
 print(f"\nfloor ({fl['server']}): peak {fl['peak_tiles_per_s']:.0f} tiles/s (runs {', '.join('%.0f' % x['tiles_per_s'] for x in fl['peak_runs'])}), "
       f"{fl['peak_tiles_per_server_cpu_s']:.0f} tiles per server CPU-s, cores server / wrk {fl['peak_server_cores']:.2f} / {fl['peak_client_cores']:.2f}, errors {fl['peak_errors']}")
 print(f"peak tiles/s against the floor: tessera HTTP {r['http_over_floor_tiles_per_s']:.2f}x, nginx {r['nginx_over_floor_tiles_per_s']:.2f}x "
-      f"(the floor is {r['floor_over_nginx_tiles_per_s']:.2f}x nginx: no HTTP server can pass that ratio here)")
+      f"(the floor is {r['floor_over_nginx_tiles_per_s']:.2f}x nginx: what one receive and one send per request reach here)")
 print(f"tessera/nginx peak tiles/s: gRPC {r['grpc_over_nginx_tiles_per_s']:.2f}x (target >= 2.5), HTTP {r['http_over_nginx_tiles_per_s']:.2f}x (target >= 1.3)")
 print(f"tessera/nginx tiles per server CPU-second: gRPC {r['grpc_over_nginx_tiles_per_server_cpu_s']:.2f}x, HTTP {r['http_over_nginx_tiles_per_server_cpu_s']:.2f}x")
 print(f"p99 at half peak: gRPC {res['peers']['tessera-grpc']['half_p99_ms']:.2f} ms, HTTP {res['peers']['tessera-http']['half_p99_ms']:.2f} ms, "
