@@ -191,7 +191,9 @@ cpu_of() {
 }
 hz=$(getconf CLK_TCK)
 busy_all() { awk '/^cpu /{print $2 + $3 + $4 + $7 + $8 + $9; exit}' /proc/stat; }  # every process, in ticks
-command -v /usr/bin/time >/dev/null || { apt-get update -qq && apt-get install -y -qq time >/dev/null; }
+# GNU time on PATH (type -P skips the shell's keyword), else Debian's package.
+timer=$(type -P time || true)
+[ -n "$timer" ] || { apt-get update -qq && apt-get install -y -qq time >/dev/null && timer=/usr/bin/time; }
 
 # run NAME SERVER_PID COMMAND...: runs it, saves its JSON as runs/NAME.json with the CPU seconds
 # the server, the load tool and everything else on the machine (other_cpu_s: noise) used meanwhile.
@@ -199,7 +201,7 @@ run() {
   local name=$1 pid=$2; shift 2
   local out="$work/runs/$name.json" c0 c1 b0 b1 t0 t1 log
   c0=$(cpu_of "$pid"); b0=$(busy_all); t0=$(date +%s.%N)
-  log=$(/usr/bin/time -f 'CLIENT_CPU %U %S' "$@" 2>&1) || { echo "$log" >&2; exit 1; }
+  log=$("$timer" -f 'CLIENT_CPU %U %S' "$@" 2>&1) || { echo "$log" >&2; exit 1; }
   c1=$(cpu_of "$pid"); b1=$(busy_all); t1=$(date +%s.%N)
   local json client
   if grep -q '^WRK_JSON ' <<< "$log"; then json=$(grep -m1 '^WRK_JSON ' <<< "$log" | cut -d' ' -f2-); else json=$(cat "$out.tmp"); rm -f "$out.tmp"; fi
