@@ -47,7 +47,7 @@ exporter=${EXPORT_TILES:-build/bench/export_tiles}
 floor=${FLOOR_SERVER:-build/bench/floor_server}
 read -r -a floor_args <<< "${FLOOR_ARGS:-}"
 # Unpinned (the default): servers and load tools share every core. Pinned: taskset prefixes, and
-# thread counts from the CPU lists (nproc under taskset counts the CPUs a list allows).
+# thread counts from the sizes of the CPU lists.
 server_pin=(); load_pin=(); server_threads=$(nproc); ngx_workers=auto; wrk_threads=2; grpc_client_threads=1
 tsr_threads=()  # unpinned: tessera's own defaults (one loop and one reader per core)
 placement="$(nproc) cores; servers, wrk and serve_load all share them"
@@ -64,6 +64,8 @@ def cpus(name, text):
             out |= set(range(int(lo), int(hi or lo) + 1))
     except ValueError:
         sys.exit(f"{name}: not a CPU list (like 0-1,4): {text}")
+    if not out:
+        sys.exit(f"{name}: no CPUs in {text}")
     missing = sorted(out - os.sched_getaffinity(0))
     if missing:
         sys.exit(f"{name}: CPUs {missing} are not among this machine's usable CPUs {sorted(os.sched_getaffinity(0))}")
