@@ -6,7 +6,7 @@
 # Such a machine reaches no package registry, so nginx, wrk and GNU time come as Debian packages
 # downloaded beforehand into build/device-debs and are unpacked there into a private prefix (not
 # into /). The binaries are the ones built here: carry build/tessera, build/bench/serve_load,
-# build/bench/export_tiles, build/bench/floor_server and build/device-debs (about 54 MB).
+# build/bench/export_tiles, build/bench/floor_server and build/device-debs (about 52 MB).
 #
 #   bench/device_serve.sh --fetch                  here: download the packages into build/device-debs
 #   bench/device_serve.sh [OUT] [ROUNDS] [SECS]    there: run; defaults /tmp/tessera-serve 2 6

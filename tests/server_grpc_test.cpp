@@ -17,6 +17,7 @@
 #include <tuple>
 
 #include "prometheus_text.hpp"
+#include "scheduler.hpp"
 #include "server_process.hpp"
 #include "tessera.grpc.pb.h"
 #include "tessera/client/net/tile_stream_client.hpp"
@@ -464,11 +465,12 @@ TEST_F(ServerGrpc, LargeBatchesOfABusyViewerAreHeldAndTheNewestWins) {
     // the 4 MiB reply buffer), not for --batch-hold: what was left of it the third cancels.
     EXPECT_LT(v.acks[2].cancelled(), a.size() / 2);
     // Every request of the first was sent or cancelled, except those being read when the third
-    // was applied, which are dropped when read: at most the viewer's two chunks in flight of up
-    // to 48 requests each (docs/server.md, "Parts" and "Scheduling").
-    constexpr std::size_t kChunksInFlight = 2, kChunkRequests = 48;
+    // was applied, which are dropped when read: at most the viewer's chunks in flight (the
+    // scheduler's own bounds, so the test follows them; docs/server.md, "Scheduling").
+    using tessera::server::Scheduler;
+    constexpr std::size_t kMaxBeingRead = Scheduler::kMaxChunksInFlight * Scheduler::kChunk;
     EXPECT_LE(count(1) + v.acks[2].cancelled(), a.size());
-    EXPECT_GE(count(1) + v.acks[2].cancelled(), a.size() - kChunksInFlight * kChunkRequests);
+    EXPECT_GE(count(1) + v.acks[2].cancelled(), a.size() - kMaxBeingRead);
     EXPECT_TRUE(v.finish().ok());
 }
 
