@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Serving benchmark: `tessera serve` (gRPC StreamTiles and HTTP) against nginx serving the same
 # tiles as static files, on this machine, in one run, interleaved (the machine is shared and
-# noisy: compare ratios, not absolute numbers). Both servers, wrk and the load generator share the
-# same cores; nothing is pinned.
+# noisy: compare ratios, not absolute numbers). By default both servers, wrk and the load
+# generator share the same cores, unpinned; SERVER_CPUS and LOAD_CPUS (below) keep them apart.
 #
 #  1. peak throughput, ROUNDS interleaved rounds of SECONDS each:
 #       nginx        wrk -t2 -c64 (random tile URLs, bench/wrk_tiles.lua)
