@@ -753,6 +753,52 @@ TEST(Builder, SignedIntegerSamplesKeepTheirValues) {
     EXPECT_NE(with_alpha.error().message.find("signed samples with an alpha channel"), std::string::npos) << with_alpha.error().message;
 }
 
+// TIFF layouts ImageMagick writes that the builder reads a few rows at a time: doubles in
+// compressed strips (OpenImageIO 2.4 returned zeros for a strip read in part: the store was black
+// and verified) and separate planes in compressed strips (libtiff refused a strip read in part).
+// Each builds the store its whole-image conversion by oiiotool builds; CIELab is refused by name.
+TEST(Builder, TiffStripsAndPlanesFromImageMagickAreReadWhole) {
+    ScratchDir d;
+    const std::string im = "convert-im6.q16 ";
+    ASSERT_TRUE(run_tool(im + "-size 300x200 plasma:fractal -seed 3 -depth 16 PNG48:" + d.file("src16.png")));
+    ASSERT_TRUE(run_tool(im + d.file("src16.png") + " -depth 8 " + d.file("src8.png")));
+    ASSERT_TRUE(run_tool(im + d.file("src16.png") + " -define quantum:format=floating-point -depth 64 -compress zip "
+                              "-define tiff:rows-per-strip=80 " + d.file("double.tif")));
+    ASSERT_TRUE(run_tool(im + d.file("src8.png") + " -interlace plane -compress zip -define tiff:rows-per-strip=200 " +
+                         d.file("planar.tif")));
+    // The references: the same samples converted whole by oiiotool (float; interleaved 8-bit).
+    ASSERT_TRUE(run_tool("oiiotool " + d.file("double.tif") + " -d float -o " + d.file("double_ref.tif")));
+    ASSERT_TRUE(run_tool("oiiotool " + d.file("planar.tif") + " -o " + d.file("planar_ref.png")));
+    {
+        auto in = OIIO::ImageInput::open(d.file("double.tif"));
+        ASSERT_TRUE(in);
+        ASSERT_EQ(in->spec().format, OIIO::TypeDesc::DOUBLE) << "the tool did not write doubles";
+        ASSERT_EQ(in->spec().get_int_attribute("tiff:RowsPerStrip"), 80);
+        auto planar = OIIO::ImageInput::open(d.file("planar.tif"));
+        ASSERT_TRUE(planar);
+        ASSERT_EQ(planar->spec().get_int_attribute("tiff:PlanarConfiguration"), 2) << "the tool did not write planes";
+    }
+    BuildOptions o = small_tiles(Codec::zstd);
+    for (const auto& [file, ref] : {std::pair{"double.tif", "double_ref.tif"}, std::pair{"planar.tif", "planar_ref.png"}}) {
+        auto r = build_store(d.file(file), d.file("a.tsr"), o);
+        ASSERT_TRUE(r.ok()) << file << ": " << r.error().message;
+        auto e = build_store(d.file(ref), d.file("b.tsr"), o);
+        ASSERT_TRUE(e.ok()) << ref << ": " << e.error().message;
+        EXPECT_TRUE(test::read_file(d.file("a.tsr")) == test::read_file(d.file("b.tsr"))) << file;
+        auto reader = StoreReader::open(d.file("a.tsr"));
+        ASSERT_TRUE(reader.ok());
+        EXPECT_EQ((*reader)->info().levels[0].present, (*reader)->info().levels[0].tiles_x * (*reader)->info().levels[0].tiles_y)
+            << file << ": a plasma has no uniform tile";
+    }
+
+    ASSERT_TRUE(run_tool(im + d.file("src8.png") + " -colorspace Lab " + d.file("lab.tif")));
+    auto lab = build_store(d.file("lab.tif"), d.file("c.tsr"), o);
+    ASSERT_FALSE(lab.ok());
+    EXPECT_EQ(lab.error().code, Errc::unsupported);
+    EXPECT_NE(lab.error().message.find("CIELab"), std::string::npos) << lab.error().message;
+    EXPECT_FALSE(std::filesystem::exists(d.file("c.tsr")));
+}
+
 // Photos stored sideways or mirrored (EXIF/TIFF orientation, as cameras write them) are built as
 // every viewer shows them: the same texels as ImageMagick's -auto-orient gives.
 TEST(Builder, OrientedPhotosAreBuiltUpright) {

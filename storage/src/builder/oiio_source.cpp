@@ -22,15 +22,31 @@ namespace {
 
 class OiioSource final : public ImageSource {
 public:
-    // type: the samples as read from the file; signed integers are widened to the f32 of info.
-    OiioSource(std::unique_ptr<OIIO::ImageInput> in, SourceInfo info, OIIO::TypeDesc type, bool associated)
-        : in_(std::move(in)), info_(std::move(info)), type_(type), associated_(associated) {}
+    // type: the samples as read from the file; signed integers are widened to the f32 of info,
+    // doubles narrowed to it. band_rows: rows read at once and kept (0: read as asked).
+    OiioSource(std::unique_ptr<OIIO::ImageInput> in, SourceInfo info, OIIO::TypeDesc type, bool associated,
+               std::uint32_t band_rows)
+        : in_(std::move(in)), info_(std::move(info)), type_(type), associated_(associated), band_rows_(band_rows) {}
     ~OiioSource() override { in_->close(); }
     const SourceInfo& info() const override { return info_; }
 
     Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor&) override {
-        Status st = read_file_rows(y0, count, dst);
         const std::size_t samples = std::size_t(info_.width) * count * info_.channels;
+        Status st;
+        if (type_ == OIIO::TypeDesc::DOUBLE) {
+            // Read as the file's own doubles and narrowed here: OpenImageIO 2.4 converting a TIFF's
+            // doubles to float while reading part of a strip returns zeros, with no error.
+            wide_.resize(samples * sizeof(double));
+            st = read_file_rows(y0, count, wide_.data());
+            for (std::size_t i = 0; st && i < samples; ++i) {
+                double v;
+                std::memcpy(&v, wide_.data() + i * sizeof v, sizeof v);
+                const float f = float(v);
+                std::memcpy(dst + i * sizeof f, &f, sizeof f);
+            }
+        } else {
+            st = read_file_rows(y0, count, dst);
+        }
         if (st && type_ == OIIO::TypeDesc::INT16) widen<std::int16_t>(dst, samples);
         if (st && type_ == OIIO::TypeDesc::INT8) widen<std::int8_t>(dst, samples);
         if (st && associated_) build::make_alpha_straight(dst, std::size_t(info_.width) * count, info_);
@@ -54,23 +70,27 @@ private:
     Status read_file_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst) {
         const OIIO::ImageSpec& s = in_->spec();
         const std::size_t row = std::size_t(info_.width) * info_.channels * type_.size();
-        if (s.tile_width == 0) {
+        if (band_rows_ == 0) {
             if (!in_->read_scanlines(0, 0, s.y + int(y0), s.y + int(y0 + count), 0, 0, int(info_.channels), type_, dst) ||
                 in_->has_error())
                 return failure();
             return {};
         }
-        // Tiled file: read whole bands of tiles and copy the wanted rows out of them.
-        const std::uint32_t th = static_cast<std::uint32_t>(s.tile_height);
+        // Read whole bands (of tiles, or of strips that cannot be read in part) and copy the
+        // wanted rows out of them.
+        const std::uint32_t th = band_rows_;
         for (std::uint32_t y = y0; y < y0 + count;) {
             const std::uint32_t band = y / th;
             if (band != band_index_ || band_.empty()) {
                 const std::uint32_t b0 = band * th, b1 = std::min(info_.height, b0 + th);
                 band_.resize(row * (b1 - b0));
-                if (!in_->read_tiles(0, 0, s.x, s.x + int(info_.width), s.y + int(b0), s.y + int(b1), s.z, s.z + 1, 0,
-                                     int(info_.channels), type_, band_.data()) ||
-                    in_->has_error())
-                    return failure();
+                const bool read =
+                    s.tile_width > 0
+                        ? in_->read_tiles(0, 0, s.x, s.x + int(info_.width), s.y + int(b0), s.y + int(b1), s.z, s.z + 1, 0,
+                                          int(info_.channels), type_, band_.data())
+                        : in_->read_scanlines(0, 0, s.y + int(b0), s.y + int(b1), 0, 0, int(info_.channels), type_,
+                                              band_.data());
+                if (!read || in_->has_error()) return failure();
                 band_index_ = band;
             }
             const std::uint32_t in_band_end = std::min(y0 + count, (band + 1) * th);
@@ -92,6 +112,8 @@ private:
     SourceInfo info_;
     OIIO::TypeDesc type_;
     bool associated_;  // the file's alpha is associated: made straight as read
+    std::uint32_t band_rows_;
+    std::vector<std::uint8_t> wide_;  // doubles as read, before they are narrowed
     std::vector<std::uint8_t> band_;
     std::uint32_t band_index_ = 0;
 };
@@ -219,8 +241,8 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
         // would drop the negatives and scale the rest.
         case OIIO::TypeDesc::INT8: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::INT8; break;
         case OIIO::TypeDesc::INT16: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::INT16; break;
-        case OIIO::TypeDesc::FLOAT:
-        case OIIO::TypeDesc::DOUBLE: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::FLOAT; break;
+        case OIIO::TypeDesc::FLOAT: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::FLOAT; break;
+        case OIIO::TypeDesc::DOUBLE: info.sample_type = SampleType::f32; type = OIIO::TypeDesc::DOUBLE; break;
         default:  // 32- and 64-bit integers: as floats they would lose their low bits or be rescaled
             return make_error(Errc::unsupported, info.description + " has " + std::string(s.format.c_str()) +
                                                      " samples; 8- and 16-bit integers, half and float are supported "
@@ -240,6 +262,35 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
                                                                 "(alpha is 0 to the type's maximum; convert it to unsigned or float first)");
     info.orientation = static_cast<std::uint32_t>(std::clamp(s.get_int_attribute("Orientation", 1), 1, 8));
     const std::string format = in->format_name();
+    // CIELab (and ICC or ITU Lab) TIFFs come as their L, a and b numbers: stored as RGB they would
+    // be the wrong colours, so they are refused by name.
+    if (const int photometric = s.get_int_attribute("tiff:PhotometricInterpretation", -1);
+        format == "tiff" && (photometric == 8 || photometric == 9 || photometric == 10))
+        return make_error(Errc::unsupported, info.description + " holds CIELab colour (L*a*b*), which is not converted; convert it "
+                                                                "to sRGB first (e.g. vips colourspace IN OUT srgb)");
+    // A TIFF's compressed strips are read a whole strip at a time, within a bound on the memory one
+    // strip takes. Read a few rows at a time, strips that hold one plane each (PlanarConfiguration 2)
+    // fail (libtiff: "does not support random access"), and OpenImageIO 2.4 returns zeros for
+    // the doubles of a strip read in part, with no error.
+    std::uint32_t band_rows = 0;
+    if (format == "tiff" && s.tile_width > 0 && type == OIIO::TypeDesc::DOUBLE)
+        return make_error(Errc::unsupported, info.description + " stores doubles in tiles, which OpenImageIO 2.4 reads as zeros; "
+                                                                "convert it to float first (e.g. vips cast IN OUT.tif float)");
+    if (s.tile_width > 0) {
+        band_rows = static_cast<std::uint32_t>(s.tile_height);
+    } else if (format == "tiff" && s.get_int_attribute("tiff:Compression", 1) != 1) {
+        const bool planes = s.get_int_attribute("tiff:PlanarConfiguration", 1) == 2;
+        const auto rows = static_cast<std::uint32_t>(std::clamp(s.get_int_attribute("tiff:RowsPerStrip", 1), 1, s.height));
+        const std::uint64_t strip_bytes = std::uint64_t(info.width) * info.channels * type.size() * rows;
+        constexpr std::uint64_t kMaxStripBytes = std::uint64_t(1) << 30;
+        if (strip_bytes > kMaxStripBytes && (planes || type == OIIO::TypeDesc::DOUBLE))
+            return make_error(Errc::unsupported,
+                              info.description + (planes ? " stores its channels as separate planes in" : " stores doubles in") + " compressed strips of " +
+                                  std::to_string(rows) + " rows (" + std::to_string(strip_bytes >> 20) +
+                                  " MiB each, over the 1024 MiB read at once); rewrite it in smaller strips or tiles "
+                                  "first (e.g. tiffcp -p contig -r 64 IN OUT)");
+        if (rows > 1 && strip_bytes <= kMaxStripBytes) band_rows = rows;
+    }
     if (format == "webp" && info.has_alpha && info.channels == 4 && type == OIIO::TypeDesc::UINT8) {
         info.colour_space = ColourSpace::srgb;
         if (auto webp = open_webp_with_alpha(path, info)) return webp;
@@ -253,7 +304,7 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
     else
         info.colour_space = (info.sample_type == SampleType::u8 || info.sample_type == SampleType::u16) ? ColourSpace::srgb
                                                                                                          : ColourSpace::linear;
-    return std::unique_ptr<ImageSource>(new OiioSource(std::move(in), std::move(info), type, associated));
+    return std::unique_ptr<ImageSource>(new OiioSource(std::move(in), std::move(info), type, associated, band_rows));
 }
 
 }  // namespace
