@@ -936,8 +936,11 @@ TEST_F(HandlerTest, IiifSizesWithinLimitsAndNeverZero) {
         ASSERT_EQ(r.status, 200u) << r.body;
         const Png png = decode_png(r.body);
         EXPECT_EQ(png.width, 4096u);
-        EXPECT_EQ(png.height, 245u);  // floor(300 * 4096 / 5000)
+        EXPECT_EQ(png.height, 246u);  // round(300 * 4096 / 5000 = 245.76), as 4096, gives
     }
+    const HttpResponse exact = get("/iiif/wide/full/4096,/0/default.png");
+    ASSERT_EQ(exact.status, 200u) << exact.body;
+    EXPECT_EQ(decode_png(exact.body).height, 246u);
     EXPECT_EQ(get("/iiif/wide/full/6000,/0/default.png").status, 400u);  // asked for exactly: over the limit
     for (const char* path : {"/iiif/rgb/0,0,40,1/10,/0/default.png", "/iiif/rgb/full/pct:0.001/0/default.png",
                              "/iiif/rgb/0,0,1,30/,10/0/default.png", "/iiif/rgb/0,0,40,1/!10,10/0/default.png",
@@ -948,6 +951,51 @@ TEST_F(HandlerTest, IiifSizesWithinLimitsAndNeverZero) {
     const HttpResponse up = get("/iiif/rgb/full/^pct:150/0/default.png");
     ASSERT_EQ(up.status, 200u) << up.body;
     EXPECT_EQ(decode_png(up.body).width, 60u);
+}
+
+// A level rounds its size up; its last texel covers less of the image than the others and must
+// weigh only for what it covers. A 6x3 image, rows black, black, white: level 1 (3x2) is a black
+// row and a white one that stands for the image's last row alone. Asked at 3x1 or 6x1, which read
+// level 1, every texel is the image's average, a third white (85), not half (128).
+TEST_F(HandlerTest, IiifRegionsToTheEdgeWeighTheLastTexelForWhatItCovers) {
+    const StoreSpec spec = spec_of(6, 3, 2, 0, 1, SampleType::u8, ColourSpace::linear, Codec::raw);
+    const storage::StoreInfo info = storage::store_info(spec);
+    ASSERT_GE(info.level_count(), 2u);
+    ASSERT_EQ(info.levels[1].height, 2u);
+    {
+        auto w = storage::StoreWriter::create(dir_.file("rows.tsr"), spec);
+        ASSERT_TRUE(w.ok()) << w.error().message;
+        const std::uint32_t side = info.tile_size();
+        for (std::uint32_t l = 0; l < info.level_count(); ++l) {
+            // The builder's rule: a missing edge texel repeats the last one, so each level's last
+            // row is white (the image's last row) and the others black; a level one row high is
+            // what the mip filter made of the two above it.
+            const auto& L = info.levels[l];
+            const auto texel = [&](std::uint32_t y) -> std::uint8_t {
+                if (L.height == 1) return 128;
+                return std::min(y, L.height - 1) == L.height - 1 ? 255 : 0;
+            };
+            for (std::uint32_t ty = 0; ty < L.tiles_y; ++ty)
+                for (std::uint32_t tx = 0; tx < L.tiles_x; ++tx) {
+                    std::vector<std::uint8_t> texels(std::size_t(side) * side);
+                    for (std::uint32_t y = 0; y < side; ++y)
+                        for (std::uint32_t x = 0; x < side; ++x) texels[std::size_t(y) * side + x] = texel(ty * side + y);
+                    auto payload = storage::encode_tile(info, texels, {});
+                    ASSERT_TRUE(payload.ok()) << payload.error().message;
+                    ASSERT_TRUE((*w)->add_present(TileKey{l, tx, ty}, *payload).ok());
+                }
+        }
+        ASSERT_TRUE((*w)->finish().ok());
+    }
+    for (const char* size : {"3,1", "6,1"}) {  // both read level 1: its rows over image rows [0, 2) and [2, 3)
+        SCOPED_TRACE(size);
+        const HttpResponse r = get(std::string("/iiif/rows/full/") + size + "/0/default.png");
+        ASSERT_EQ(r.status, 200u) << r.body;
+        const Png png = decode_png(r.body);
+        ASSERT_EQ(png.height, 1u);
+        ASSERT_EQ(png.colour_type, 0u);  // grey
+        for (std::uint32_t x = 0; x < png.width; ++x) EXPECT_NEAR(int(png.pixels[x]), 85, 1) << "texel " << x;
+    }
 }
 
 // A canvas 2^32 - 1 texels wide: its last tile ends past 2^32. The part of a tile a region covers
@@ -1043,12 +1091,33 @@ TEST_F(HandlerTest, WebTilesFromDecodedTilesAreTheSame) {
     EXPECT_EQ(fetcher_->decoded_hits(), hits) << "a large render kept its tiles decoded";
 }
 
+// IIIF 3.0, 4.3: rotation runs "from 0 up to 360" (360 is a whole turn); 4.1: a pct: region that
+// starts inside the image is served (99% of 40 is texel 39.6: it starts at 39, not rounded out
+// of the image to 40).
+TEST_F(HandlerTest, IiifWholeTurnsAndPercentRegionsAtTheEdge) {
+    const HttpResponse none = get("/iiif/rgb/full/max/0/default.png");
+    ASSERT_EQ(none.status, 200u) << none.body;
+    for (const char* rotation : {"360", "360.0"}) {
+        const HttpResponse turned = get(std::string("/iiif/rgb/full/max/") + rotation + "/default.png");
+        ASSERT_EQ(turned.status, 200u) << rotation << ": " << turned.body;
+        EXPECT_EQ(turned.body, none.body) << rotation;
+    }
+    EXPECT_EQ(get("/iiif/rgb/full/max/360.5/default.png").status, 400u);
+    const HttpResponse corner = get("/iiif/rgb/pct:99,99,50,50/max/0/default.png");
+    ASSERT_EQ(corner.status, 200u) << corner.body;
+    const Png png = decode_png(corner.body);
+    EXPECT_EQ(png.width, 1u);  // texel 39 to the right edge (40)
+    EXPECT_EQ(png.height, 1u);  // texel 29 to the bottom (30)
+    EXPECT_EQ(get("/iiif/rgb/pct:100,0,10,10/max/0/default.png").status, 400u);  // starts at the edge: empty
+}
+
 // A render that needs more than --render-memory would be refused however idle the server is: max
 // and !w,h shrink to what the budget holds (the largest size this server can give), and an exact
 // size that cannot fit is a 400, not a 503 to be retried for ever.
 TEST_F(HandlerTest, IiifSizesShrinkToTheRenderBudget) {
     config_.render_memory_bytes = 4 << 20;
     write_store(dir_.file("big.tsr"), spec_of(1000, 600, 248, 4, 3, SampleType::u8, ColourSpace::srgb, Codec::jpeg));
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> sizes;
     for (const char* size : {"max", "!1000,1000", "^max"}) {
         SCOPED_TRACE(size);
         const HttpResponse r = get(std::string("/iiif/big/full/") + size + "/0/default.png");
@@ -1057,7 +1126,12 @@ TEST_F(HandlerTest, IiifSizesShrinkToTheRenderBudget) {
         EXPECT_LT(png.width, 1000u);
         EXPECT_GT(png.width, 100u);
         EXPECT_NEAR(double(png.height), png.width * 0.6, 1.0);
+        sizes.emplace_back(png.width, png.height);
     }
+    // The largest that fits, whichever size it shrank from (^max starts larger than max).
+    EXPECT_EQ(sizes[1], sizes[0]);
+    EXPECT_EQ(sizes[2], sizes[0]);
+    EXPECT_EQ(get("/iiif/big/full/" + std::to_string(sizes[0].first) + ",/0/default.png").status, 200u);
     const HttpResponse exact = get("/iiif/big/full/1000,600/0/default.png");
     EXPECT_EQ(exact.status, 400u) << exact.body;
     EXPECT_NE(exact.body.find("--render-memory"), std::string::npos) << exact.body;
@@ -1098,7 +1172,9 @@ TEST_F(HandlerTest, HostHeaderMustBeAHost) {
         return get_with("/iiif/rgb/info.json", [&](HttpRequestView& req) { req.host = host; });
     };
     for (const std::string_view bad : {std::string_view("\xff"), std::string_view("a b"), std::string_view("h/x"),
-                                       std::string_view("h\"x"), std::string_view("h<x>")}) {
+                                       std::string_view("h\"x"), std::string_view("h<x>"), std::string_view(":80"),
+                                       std::string_view("a:99999"), std::string_view("a:8x"), std::string_view("[zz]:1"),
+                                       std::string_view("[::1"), std::string_view("[::1]x"), std::string_view("a:b:c")}) {
         const HttpResponse r = info(bad);
         EXPECT_EQ(r.status, 400u) << bad;
     }
@@ -1106,6 +1182,8 @@ TEST_F(HandlerTest, HostHeaderMustBeAHost) {
     ASSERT_EQ(ok.status, 200u) << ok.body;
     EXPECT_NE(ok.body.find("\"http://tiles.example.org:8080/iiif/rgb\""), std::string::npos) << ok.body;
     EXPECT_EQ(info("[::1]:8080").status, 200u);
+    EXPECT_EQ(info("[::1]").status, 200u);
+    EXPECT_EQ(info("192.0.2.7:65535").status, 200u);
     EXPECT_EQ(info("").status, 200u);  // HTTP/1.0 sends none: the server's own address
 }
 

@@ -929,6 +929,40 @@ TEST_F(HttpServerTest, PlainResponsesOfEveryRouteAndSizeArriveWhole) {
     }
 }
 
+// RFC 9112 3.2: an HTTP/1.1 request without Host, any request with two, and a Host that is not
+// a host and port are 400. An HTTP/1.0 request without one is taken to name the address it
+// reached: IIIF writes it into the URLs it answers with, where the configured --http (port 0
+// here) is no address to come back to.
+TEST_F(HttpServerTest, HostIsRequiredOnceAndDefaultsToTheAddressReached) {
+    start();
+    const std::string port = std::to_string(server_->port());
+    for (const std::string request :
+         {"GET /healthz HTTP/1.1\r\n\r\n", "GET /healthz HTTP/1.1\r\nHost: a\r\nHost: b\r\n\r\n",
+          "GET /healthz HTTP/1.0\r\nHost: a\r\nHost: a\r\n\r\n", "GET /iiif/rgb HTTP/1.1\r\nHost: :80\r\n\r\n",
+          "GET /iiif/rgb HTTP/1.1\r\nHost: a:99999\r\n\r\n", "GET /iiif/rgb HTTP/1.1\r\nHost: [::1\r\n\r\n"}) {
+        SCOPED_TRACE(request);
+        PlainClient c;
+        ASSERT_FALSE(c.connect(server_->port()));
+        ASSERT_FALSE(c.write_raw(request));
+        PlainClient::Response r;
+        ASSERT_FALSE(c.read(r));
+        EXPECT_EQ(r.result_int(), 400) << r.body();
+    }
+    const auto location = [&](const std::string& request) {
+        PlainClient c;
+        EXPECT_FALSE(c.connect(server_->port()));
+        EXPECT_FALSE(c.write_raw(request));
+        PlainClient::Response r;
+        EXPECT_FALSE(c.read(r));
+        EXPECT_EQ(r.result_int(), 303) << request << r.body();
+        return std::string(r[http::field::location]);
+    };
+    EXPECT_EQ(location("GET /iiif/rgb HTTP/1.0\r\n\r\n"), "http://127.0.0.1:" + port + "/iiif/rgb/info.json");
+    EXPECT_EQ(location("GET /iiif/rgb HTTP/1.1\r\nHost: tiles.example:8080\r\n\r\n"),
+              "http://tiles.example:8080/iiif/rgb/info.json");
+    EXPECT_EQ(location("GET /iiif/rgb HTTP/1.1\r\nHost: [::1]:8080\r\n\r\n"), "http://[::1]:8080/iiif/rgb/info.json");
+}
+
 // docs/protocol.md: a request body is 413 (no route takes one), whatever its size; an empty one
 // is no body.
 TEST_F(HttpServerTest, AnyRequestBodyIs413) {

@@ -282,6 +282,24 @@ private:
         return reject_ ? std::min<std::chrono::steady_clock::duration>(idle, kRejectTimeout) : idle;
     }
 
+    // The address this connection reached, as a Host value ("127.0.0.1:8080", "[::1]:8080"):
+    // the authority of a request that names none, for the URLs IIIF answers with.
+    std::string_view reached_address() {
+        if (reached_.empty()) {
+            error_code ec;
+            const tcp::endpoint ep = tcp().local_endpoint(ec);
+            if (ec) return reached_;
+            if (ep.address().is_v6()) {
+                auto v6 = ep.address().to_v6();
+                v6.scope_id(0);  // a zone ("%eth0") is not part of a URL's host
+                reached_ = "[" + v6.to_string() + "]:" + std::to_string(ep.port());
+            } else {
+                reached_ = ep.address().to_string() + ":" + std::to_string(ep.port());
+            }
+        }
+        return reached_;
+    }
+
     void first_step() {
         if (reject_) send_reject();
         else do_read();
@@ -352,9 +370,14 @@ private:
                 return write_error(400, "malformed request: " + ec.message());
             return close();  // timeout, reset, TLS error, aborted by close()
         }
+        const auto& req = parser_->get();
+        // RFC 9112 3.2: an HTTP/1.1 request without Host, or any with two, is 400.
+        const auto hosts = req.equal_range(http::field::host);
+        const auto host_fields = std::distance(hosts.first, hosts.second);
+        if (host_fields > 1) return write_error(400, "more than one Host header");
+        if (host_fields == 0 && req.version() >= 11) return write_error(400, "an HTTP/1.1 request needs a Host header");
         ++requests_;
         begin_request();
-        const auto& req = parser_->get();
         std::string if_none_match;
         const auto range = req.equal_range(http::field::if_none_match);
         for (auto it = range.first; it != range.second; ++it) {
@@ -363,6 +386,7 @@ private:
         }
         std::string_view target = sv(req.target()), host = sv(req[http::field::host]);
         if (!origin_form(target, host)) return write_error(400, "malformed absolute-form request target");
+        if (host.empty()) host = reached_address();  // HTTP/1.0 without Host: what it connected to
         const HttpRequestView view{sv(req.method_string()), target, sv(req[http::field::authorization]),
                                    if_none_match,         sv(req[http::field::accept]), sv(req[http::field::cookie]),
                                    sv(req[http::field::origin]), host, Tls};
@@ -556,6 +580,7 @@ private:
     std::shared_ptr<ssl::context> tls_;  // the context this session's TLS stream was made from
     Stream stream_;
     net::basic_waitable_timer<Clock, net::wait_traits<Clock>, net::io_context::executor_type> timer_;
+    std::string reached_;  // reached_address(), once asked
     Clock::time_point deadline_ = Clock::time_point::max();
     Clock::time_point timer_at_ = Clock::time_point::max();  // when the timer wakes next
     const bool reject_;

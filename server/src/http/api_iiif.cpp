@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <tuple>
 
 #include <nlohmann/json.hpp>
 
@@ -82,9 +83,9 @@ std::optional<Rect> parse_region(std::string_view s, std::uint32_t W, std::uint3
         }
         v[i] = *d;
     }
-    if (pct) {
-        v[0] = std::round(v[0] * W / 100.0), v[2] = std::round(v[2] * W / 100.0);
-        v[1] = std::round(v[1] * H / 100.0), v[3] = std::round(v[3] * H / 100.0);
+    if (pct) {  // a start inside the image stays inside it (99.99% of 3000 is texel 2999)
+        v[0] = std::floor(v[0] * W / 100.0), v[2] = std::round(v[2] * W / 100.0);
+        v[1] = std::floor(v[1] * H / 100.0), v[3] = std::round(v[3] * H / 100.0);
     }
     if (v[2] <= 0 || v[3] <= 0 || v[0] >= W || v[1] >= H) {
         why = "region is empty or outside the image";
@@ -97,6 +98,14 @@ std::optional<Rect> parse_region(std::string_view s, std::uint32_t W, std::uint3
     return r;
 }
 
+// The region's sides scaled by f, rounded to nearest as w, and ,h round (so the side f was
+// taken from comes out exact), or down where rounding would pass the area limit.
+std::pair<double, double> scaled_sides(double rw, double rh, double f) {
+    const double w = std::round(rw * f), h = std::round(rh * f);
+    if (w * h <= double(kMaxArea)) return {w, h};
+    return {std::floor(rw * f + 1e-9), std::floor(rh * f + 1e-9)};
+}
+
 // The output size for a region. Sets `why` (400) when invalid or over the limits.
 std::optional<std::pair<std::uint32_t, std::uint32_t>> parse_size(std::string_view s, const Rect& r, std::string& why) {
     const bool up = s.starts_with("^");
@@ -106,7 +115,8 @@ std::optional<std::pair<std::uint32_t, std::uint32_t>> parse_size(std::string_vi
     if (s == "max") {
         const double f = std::min({1.0, kMaxSide / rw, kMaxSide / rh, std::sqrt(double(kMaxArea) / (rw * rh))});
         const double g = up ? std::min({kMaxSide / rw, kMaxSide / rh, std::sqrt(double(kMaxArea) / (rw * rh))}) : f;
-        w = std::max(1.0, std::floor(rw * g)), h = std::max(1.0, std::floor(rh * g));
+        std::tie(w, h) = scaled_sides(rw, rh, g);
+        w = std::max(1.0, w), h = std::max(1.0, h);
     } else if (s.starts_with("pct:")) {
         const auto p = parse_decimal(s.substr(4));
         if (!p || *p <= 0) {
@@ -137,7 +147,7 @@ std::optional<std::pair<std::uint32_t, std::uint32_t>> parse_size(std::string_vi
             // ... w or h, or server-imposed limits") and, without ^, the region.
             const double f = std::min({up ? *pw / rw : std::min(1.0, *pw / rw), *ph / rh, kMaxSide / rw, kMaxSide / rh,
                                        std::sqrt(double(kMaxArea) / (rw * rh))});
-            w = std::floor(rw * f + 1e-9), h = std::floor(rh * f + 1e-9);
+            std::tie(w, h) = scaled_sides(rw, rh, f);
         } else if (parts[1].empty()) {
             w = *pw, h = std::round(rh * *pw / rw);
         } else if (parts[0].empty()) {
@@ -263,8 +273,9 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
     std::string_view rot = seg[4];
     const bool mirrored = rot.starts_with("!");
     if (mirrored) rot.remove_prefix(1);
-    const auto degrees = parse_decimal(rot);
-    if (!degrees || *degrees >= 360) return error(400, "rotation must be a number of degrees from 0 to 360, maybe after !", false);
+    auto degrees = parse_decimal(rot);
+    if (!degrees || *degrees > 360) return error(400, "rotation must be a number of degrees from 0 to 360, maybe after !", false);
+    if (*degrees == 360) degrees = 0.0;  // a whole turn
     if (std::fmod(*degrees, 90.0) != 0) return error(501, "only rotations by multiples of 90 degrees are supported", false);
     const std::size_t dot = seg[5].rfind('.');
     if (dot == std::string::npos) return error(400, "quality and format: {quality}.{format}", false);
@@ -291,11 +302,18 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
         std::string_view spec = seg[3];
         if (spec.starts_with("^")) spec.remove_prefix(1);
         if (spec == "max" || spec.starts_with("!")) {
-            const std::uint32_t w0 = ow, h0 = oh;
-            for (double f = 0.9; memory_for(ow, oh) > budget && (ow > 1 || oh > 1); f *= 0.9) {
-                ow = std::max(1u, std::uint32_t(w0 * f));
-                oh = std::max(1u, std::uint32_t(h0 * f));
+            // The largest scale of the size asked that fits (memory grows with the size).
+            const double w0 = ow, h0 = oh;
+            const auto at = [&](double f) {
+                return std::pair{std::max(1u, std::uint32_t(std::round(w0 * f))), std::max(1u, std::uint32_t(std::round(h0 * f)))};
+            };
+            double lo = 0, hi = 1;
+            for (int i = 0; i < 40; ++i) {
+                const double mid = (lo + hi) / 2;
+                const auto [mw, mh] = at(mid);
+                (memory_for(mw, mh) <= budget ? lo : hi) = mid;
             }
+            std::tie(ow, oh) = at(lo);
         }
         if (memory_for(ow, oh) > budget)
             return error(400, "size " + std::to_string(ow) + "x" + std::to_string(oh) +
@@ -324,12 +342,10 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
         const double f = double(std::uint64_t(1) << k);
         // The level-k texels the region touches, and where in them it starts and ends.
         const double fx0 = reg.x / f, fy0 = reg.y / f;
-        // A region to the image's edge ends at the level's edge (levels round their size up).
-        const double fx1 = reg.x + reg.w == si.width ? double(lk.width)
-                                                                : std::min((double(reg.x) + reg.w) / f, double(lk.width));
-        const double fy1 = reg.y + reg.h == si.height
-                               ? double(lk.height)
-                               : std::min((double(reg.y) + reg.h) / f, double(lk.height));
+        // Where the region ends, exactly: a level rounds its size up, and its last texel, which
+        // covers less of the image than the others, weighs only for what it covers.
+        const double fx1 = std::min((double(reg.x) + reg.w) / f, double(lk.width));
+        const double fy1 = std::min((double(reg.y) + reg.h) / f, double(lk.height));
         const auto x0 = std::uint32_t(fx0), y0 = std::uint32_t(fy0);
         const std::uint32_t x1 = std::max(x0 + 1, std::uint32_t(std::ceil(fx1 - 1e-9)));
         const std::uint32_t y1 = std::max(y0 + 1, std::uint32_t(std::ceil(fy1 - 1e-9)));

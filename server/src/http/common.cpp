@@ -1,6 +1,7 @@
 #include "common.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <cstdio>
 
@@ -107,16 +108,42 @@ std::string ParsedRequest::unknown_params(std::initializer_list<std::string_view
 namespace {
 
 // RFC 9110 7.2 / RFC 3986 3.2.2: a Host value is a host (a name of unreserved, sub-delims and
-// percent escapes, or a bracketed IP literal) and an optional port. The IIIF API writes it into
-// URLs it returns (`id`, Location), so anything else is refused (RFC 9112 3.2: 400) rather than
-// echoed into a URL or, as bytes that are not UTF-8, into JSON.
+// percent escapes, or a bracketed IP literal) and an optional port (at most 65535). The IIIF API
+// writes it into URLs it returns (`id`, Location), so anything else is refused (RFC 9112 3.2:
+// 400) rather than echoed into a URL or, as bytes that are not UTF-8, into JSON. Empty is no
+// Host at all (HTTP/1.0): the transport puts the address the client reached in its place.
 bool host_ok(std::string_view host) {
-    for (const char c : host) {
-        const auto u = static_cast<unsigned char>(c);
-        if ((u >= 'a' && u <= 'z') || (u >= 'A' && u <= 'Z') || (u >= '0' && u <= '9')) continue;
-        if (std::string_view("-._~!$&'()*+,;=%:[]").find(c) == std::string_view::npos) return false;
+    if (host.empty()) return true;
+    std::string_view name = host, port;
+    if (host.front() == '[') {
+        const std::size_t close = host.find(']');
+        if (close == std::string_view::npos || close < 3) return false;
+        for (const char c : host.substr(1, close - 1))
+            if (!std::isxdigit(static_cast<unsigned char>(c)) && c != ':' && c != '.') return false;
+        name = host.substr(0, close + 1);
+        const std::string_view rest = host.substr(close + 1);
+        if (!rest.empty() && rest.front() != ':') return false;
+        port = rest.empty() ? rest : rest.substr(1);
+    } else {
+        const std::size_t colon = host.rfind(':');
+        if (colon != std::string_view::npos) {
+            name = host.substr(0, colon);
+            port = host.substr(colon + 1);
+        }
+        if (name.empty()) return false;
+        for (const char c : name) {
+            const auto u = static_cast<unsigned char>(c);
+            if ((u >= 'a' && u <= 'z') || (u >= 'A' && u <= 'Z') || (u >= '0' && u <= '9')) continue;
+            if (std::string_view("-._~!$&'()*+,;=%").find(c) == std::string_view::npos) return false;
+        }
     }
-    return true;
+    if (port.size() > 5) return false;
+    std::uint32_t value = 0;
+    for (const char c : port) {
+        if (c < '0' || c > '9') return false;
+        value = value * 10 + std::uint32_t(c - '0');
+    }
+    return value <= 65535;
 }
 
 }  // namespace
