@@ -1210,6 +1210,43 @@ TEST(StoreRegistrySigned, AUrlsQueryIsNeitherItsNameNorShown) {
     EXPECT_EQ(logged.find("SECRET"), std::string::npos) << logged;
 }
 
+// A file in a store directory whose name is no store name is skipped with a warning when it
+// appears, at the first scan or a later one, and not again at every rescan while it stays.
+TEST(StoreRegistryDir, ABadlyNamedFileIsWarnedAboutWhenItAppears) {
+    tessera::test::ScratchDir d;
+    const std::string dir = d.file("stores");
+    std::filesystem::create_directories(dir);
+    const std::string log_file = d.file("log");
+    const int fd = ::open(log_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    ASSERT_GE(fd, 0);
+    const auto warnings = [&] {
+        std::ifstream in(log_file);
+        const std::string logged((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+        std::size_t n = 0;
+        for (std::size_t at = 0; (at = logged.find("its name is not an identifier", at)) != std::string::npos; ++at) ++n;
+        return n;
+    };
+    {
+        Logger log(LogFormat::json, LogLevel::info, fd);
+        MetricsRegistry metrics;
+        StoreRegistry stores({}, {dir}, log, metrics);
+        ASSERT_TRUE(stores.open().ok());
+        EXPECT_EQ(warnings(), 0u);
+        std::ofstream(dir + "/bad name.tsr") << "x";
+        stores.reload();
+        EXPECT_EQ(warnings(), 1u) << "a file that appears after the first scan is warned about";
+        stores.reload();
+        stores.reload();
+        EXPECT_EQ(warnings(), 1u) << "and only once while it stays";
+        std::filesystem::remove(dir + "/bad name.tsr");
+        stores.reload();
+        std::ofstream(dir + "/bad name.tsr") << "x";
+        stores.reload();
+        EXPECT_EQ(warnings(), 2u) << "gone and back: warned again";
+    }
+    ::close(fd);
+}
+
 // ---- Corruption -------------------------------------------------------------------------------------
 
 TEST_F(HandlerTest, CorruptTileIs500AndNeverItsBytes) {

@@ -168,6 +168,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
 
     // What the configuration names now: name -> path. Explicit files win over directory entries.
     std::map<std::string, std::string> wanted;
+    std::set<std::string> skipped;
     for (const auto& dir : dirs_) {
         std::error_code ec;
         fs::directory_iterator it(dir, ec), end;
@@ -181,7 +182,10 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
             if (!file.ends_with(".tsr")) continue;
             const std::string name = protocol::store_name_of_file(file);
             if (name.empty()) {
-                if (first) log_.warn("skipping store file: its name is not an identifier", {{"path", it->path().string()}});
+                const std::string path = it->path().string();
+                if (!skipped_files_.contains(path))
+                    log_.warn("skipping store file: its name is not an identifier (letters, digits, _ . -)", {{"path", path}});
+                skipped.insert(path);
                 continue;
             }
             wanted[name] = it->path().string();
@@ -199,6 +203,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         }
         wanted[name] = file;
     }
+    skipped_files_ = std::move(skipped);
 
     auto current = [&] {
         std::lock_guard lock(mutex_);

@@ -15,6 +15,7 @@
 #include <memory>
 #include <optional>
 #include <mutex>
+#include <set>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -107,6 +108,9 @@ private:
     MetricsRegistry& metrics_;
     Counter* reloads_ = nullptr;
     std::mutex reload_mutex_;  // one scan at a time
+    // Files in the store directories skipped for their names at the last scan (under
+    // reload_mutex_): each is warned about when it first appears, not at every scan.
+    std::set<std::string> skipped_files_;
     mutable std::mutex mutex_; // guards stores_ (a sorted snapshot, replaced whole)
     std::shared_ptr<const std::vector<std::shared_ptr<const StoreHandle>>> stores_;
 };
