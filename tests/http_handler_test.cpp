@@ -1137,6 +1137,47 @@ TEST_F(HandlerTest, IiifSizesShrinkToTheRenderBudget) {
     EXPECT_NE(exact.body.find("--render-memory"), std::string::npos) << exact.body;
     EXPECT_EQ(exact.header("Retry-After"), nullptr);
     EXPECT_EQ(get("/iiif/big/0,0,248,248/248,/0/default.png").status, 200u);  // a web tile fits
+
+    // info.json advertises only what renders within the budget: every size and tile it lists
+    // is served; the full size, which is not, is not listed.
+    const HttpResponse info = get("/iiif/big/info.json");
+    ASSERT_EQ(info.status, 200u) << info.body;
+    const auto j = nlohmann::json::parse(info.body);
+    ASSERT_FALSE(j["sizes"].empty());
+    for (const auto& sz : j["sizes"]) {
+        const std::string w = std::to_string(sz["width"].get<int>()), h = std::to_string(sz["height"].get<int>());
+        EXPECT_NE(w + "x" + h, "1000x600");
+        EXPECT_EQ(get("/iiif/big/full/" + w + "," + h + "/0/default.png").status, 200u) << w << "x" << h;
+    }
+    ASSERT_TRUE(j.contains("tiles"));
+    const int t = j["tiles"][0]["width"].get<int>();
+    for (const auto& f : j["tiles"][0]["scaleFactors"]) {
+        const int span = t * f.get<int>();
+        const std::string region = "0,0," + std::to_string(std::min(span, 1000)) + "," + std::to_string(std::min(span, 600));
+        const int out_w = (std::min(span, 1000) + f.get<int>() - 1) / f.get<int>();
+        EXPECT_EQ(get("/iiif/big/" + region + "/" + std::to_string(out_w) + ",/0/default.png").status, 200u) << region;
+    }
+}
+
+// With a budget too small for one web tile, info.json lists no tiles (a viewer then asks for
+// whole images, which shrink to the budget) rather than tiles that are all refused.
+TEST_F(HandlerTest, IiifInfoListsNoTileThatCannotRender) {
+    const StoreSpec spec = spec_of(1000, 600, 248, 4, 3, SampleType::u8, ColourSpace::srgb, Codec::jpeg);
+    const storage::StoreInfo si = storage::store_info(spec);
+    // One byte short of what a full web tile read from 4x its width is charged.
+    config_.render_memory_bytes = httpapi::render_memory(si, httpapi::web_look(si), 4 * 248 + 2, 248, 248) - 1;
+    ASSERT_LT(httpapi::render_memory(si, httpapi::web_look(si), 1000, 125, 75), config_.render_memory_bytes);
+    write_store(dir_.file("big.tsr"), spec);
+    const HttpResponse info = get("/iiif/big/info.json");
+    ASSERT_EQ(info.status, 200u) << info.body;
+    const auto j = nlohmann::json::parse(info.body);
+    EXPECT_FALSE(j.contains("tiles")) << info.body;
+    for (const auto& sz : j["sizes"]) {  // what it lists renders
+        const std::string w = std::to_string(sz["width"].get<int>()), h = std::to_string(sz["height"].get<int>());
+        EXPECT_EQ(get("/iiif/big/full/" + w + "," + h + "/0/default.png").status, 200u) << w << "x" << h;
+    }
+    EXPECT_FALSE(j["sizes"].empty()) << info.body;
+    EXPECT_EQ(get("/iiif/big/full/max/0/default.png").status, 200u);
 }
 
 // IIIF's info.json picks its Content-Type from Accept (JSON-LD when asked for with a quality

@@ -206,16 +206,29 @@ std::string base_url(HttpHandler& handler, const HttpRequestView& req) {
     return std::string(req.secure ? "https://" : "http://") + host;
 }
 
-nlohmann::json info_json(const StoreHandle& h, const std::string& id) {
+// The image information. `sizes` and `tiles` list only what this server renders within one
+// render's memory (`render_budget`, --render-memory): a viewer asks for what they advertise, and a
+// size that cannot fit is refused (400) however idle the server is.
+nlohmann::json info_json(const StoreHandle& h, const WebLook& look, const std::string& id, std::size_t render_budget) {
     const storage::StoreInfo& info = h.info();
+    // As the image request charges a render: the region's texels read are about 4x the output's.
+    const auto fits = [&](std::uint32_t region_w, std::uint32_t w, std::uint32_t hh) {
+        return render_memory(info, look, std::min<std::uint32_t>(region_w, 4 * w + 2), w, hh) <= render_budget;
+    };
     nlohmann::json factors = nlohmann::json::array(), sizes = nlohmann::json::array();
     for (std::uint32_t k = 0; k < info.level_count(); ++k) factors.push_back(std::uint64_t(1) << k);
     for (std::uint32_t k = info.level_count(); k-- > 0;) {
         const auto& l = info.levels[k];
-        if (l.width <= kMaxSide && l.height <= kMaxSide && std::uint64_t(l.width) * l.height <= kMaxArea)
+        if (l.width <= kMaxSide && l.height <= kMaxSide && std::uint64_t(l.width) * l.height <= kMaxArea &&
+            fits(info.width, l.width, l.height))
             sizes.push_back({{"width", l.width}, {"height", l.height}});
     }
-    return {{"@context", "http://iiif.io/api/image/3/context.json"},
+    // The dearest tile: a full one at a scale factor of 4 or more (its source charged 4x its width).
+    const std::uint32_t p = info.tile_payload;
+    nlohmann::json tiles = nlohmann::json::array();
+    if (fits(info.width, std::min(p, info.width), std::min(p, info.height)))
+        tiles.push_back({{"width", p}, {"height", p}, {"scaleFactors", factors}});
+    nlohmann::json j = {{"@context", "http://iiif.io/api/image/3/context.json"},
             {"id", id},
             {"type", "ImageService3"},
             {"protocol", "http://iiif.io/api/image"},
@@ -226,10 +239,10 @@ nlohmann::json info_json(const StoreHandle& h, const std::string& id) {
             {"maxHeight", kMaxSide},
             {"maxArea", kMaxArea},
             {"sizes", sizes},
-            {"tiles", nlohmann::json::array({{{"width", info.tile_payload}, {"height", info.tile_payload},
-                                              {"scaleFactors", factors}}})},
             {"extraQualities", {"color", "gray"}},
             {"extraFeatures", {"mirroring", "sizeUpscaling"}}};
+    if (!tiles.empty()) j["tiles"] = std::move(tiles);
+    return j;
 }
 
 }  // namespace
@@ -255,7 +268,7 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
     if (seg.size() == 3) {
         if (seg[2] != "info.json") return error(404, "no such IIIF resource: " + seg[2], false);
         const bool ld = accepts(req.raw->accept, "application/ld+json");
-        HttpResponse r = json_response(info_json(h, id), ld ? "application/ld+json;profile=\"http://iiif.io/api/image/3/context.json\""
+        HttpResponse r = json_response(info_json(h, store->look, id, handler.context().config.render_memory_bytes), ld ? "application/ld+json;profile=\"http://iiif.io/api/image/3/context.json\""
                                                             : "application/json");
         r.headers.emplace_back("Vary", "Accept");  // the Content-Type follows it
         r.headers.emplace_back("Link", "<http://iiif.io/api/image/3/level2.json>;rel=\"profile\"");
