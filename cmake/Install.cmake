@@ -25,6 +25,14 @@ foreach(pair IN LISTS tessera_exported)
   list(GET pair 0 target)
   list(GET pair 1 name)
   set_target_properties(${target} PROPERTIES EXPORT_NAME ${name})
+  # The public headers are C++20 (defaulted comparisons, std::span): a consumer gets the standard
+  # with the target, whatever its own default.
+  get_target_property(type ${target} TYPE)
+  if(type STREQUAL "INTERFACE_LIBRARY")
+    target_compile_features(${target} INTERFACE cxx_std_20)
+  else()
+    target_compile_features(${target} PUBLIC cxx_std_20)
+  endif()
   list(APPEND tessera_export_targets ${target})
 endforeach()
 install(TARGETS ${tessera_export_targets} EXPORT TesseraTargets
@@ -32,13 +40,16 @@ install(TARGETS ${tessera_export_targets} EXPORT TesseraTargets
   INCLUDES DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
 
 # Public headers only. The protocol's headers stay out: they include the generated protobuf and
-# gRPC code, which no embedding program should have to see. So do the builder's, the remote
-# stores' and the JSON description's, whose libraries are not part of the package.
+# gRPC code, which no embedding program should have to see. So do the builder's (its image and
+# sparse sources too), the remote stores' and the JSON description's, whose libraries are not
+# part of the package: an installed header declares nothing an installed library lacks.
 install(DIRECTORY core/include/ storage/include/ storage/blocks/include/ client/include/ client/net/include/
                   scene/include/ client/gl/include/
   DESTINATION ${CMAKE_INSTALL_INCLUDEDIR} COMPONENT dev
   FILES_MATCHING PATTERN "*.hpp"
   PATTERN "builder.hpp" EXCLUDE
+  PATTERN "image_source.hpp" EXCLUDE
+  PATTERN "sparse_source.hpp" EXCLUDE
   PATTERN "atlas.hpp" EXCLUDE
   PATTERN "remote_source.hpp" EXCLUDE
   PATTERN "store_json.hpp" EXCLUDE)

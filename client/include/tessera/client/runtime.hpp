@@ -76,8 +76,8 @@ struct RuntimeConfig {
     std::size_t max_feedback_pages = 1 << 16;
     // A page the feedback stops seeing stays wanted (its request alive) until it was unseen for
     // more than this many frames: jittered feedback sees small pages only in some frames
-    // (docs/client.md, "Cancellation"). Counted in frames, not time: an unpaced run moves its
-    // camera per frame, however fast the frames come.
+    // (docs/client.md, "Inside `Runtime::frame`", Cancellation). Counted in frames, not time:
+    // an unpaced run moves its camera per frame, however fast the frames come.
     std::uint32_t keep_unwanted_frames = 8;
     // Fades (docs/client.md, "A slot's life"; docs/renderer.md, "Blending in"), on the runtime's
     // clock (set_time): an arriving page blends from what was drawn before it (its nearest
