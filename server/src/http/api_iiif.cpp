@@ -83,9 +83,10 @@ std::optional<Rect> parse_region(std::string_view s, std::uint32_t W, std::uint3
         }
         v[i] = *d;
     }
-    if (pct) {  // a start inside the image stays inside it (99.99% of 3000 is texel 2999)
-        v[0] = std::floor(v[0] * W / 100.0), v[2] = std::round(v[2] * W / 100.0);
-        v[1] = std::floor(v[1] * H / 100.0), v[3] = std::round(v[3] * H / 100.0);
+    if (pct) {  // to the nearest texel; a start inside the image stays inside it (99.99% of 3000: 2999)
+        const double x = v[0] * W / 100.0, y = v[1] * H / 100.0;
+        v[0] = x < W ? std::min(std::round(x), W - 1.0) : x, v[2] = std::round(v[2] * W / 100.0);
+        v[1] = y < H ? std::min(std::round(y), H - 1.0) : y, v[3] = std::round(v[3] * H / 100.0);
     }
     if (v[2] <= 0 || v[3] <= 0 || v[0] >= W || v[1] >= H) {
         why = "region is empty or outside the image";
