@@ -287,6 +287,13 @@ protected:
 
     void TearDown() override { reset_context(); }
 
+    // Sends `request` as it is on a new connection of `c` and reads one response into `r`.
+    void exchange(PlainClient& c, const std::string& request, PlainClient::Response& r) {
+        ASSERT_FALSE(c.connect(server_->port()));
+        ASSERT_FALSE(c.write_raw(request));
+        ASSERT_FALSE(c.read(r));
+    }
+
     void reset_context() {
         server_.reset();
         ctx_.reset();
@@ -942,18 +949,14 @@ TEST_F(HttpServerTest, HostIsRequiredOnceAndDefaultsToTheAddressReached) {
           "GET /iiif/rgb HTTP/1.1\r\nHost: a:99999\r\n\r\n", "GET /iiif/rgb HTTP/1.1\r\nHost: [::1\r\n\r\n"}) {
         SCOPED_TRACE(request);
         PlainClient c;
-        ASSERT_FALSE(c.connect(server_->port()));
-        ASSERT_FALSE(c.write_raw(request));
         PlainClient::Response r;
-        ASSERT_FALSE(c.read(r));
+        exchange(c, request, r);
         EXPECT_EQ(r.result_int(), 400) << r.body();
     }
     const auto location = [&](const std::string& request) {
         PlainClient c;
-        EXPECT_FALSE(c.connect(server_->port()));
-        EXPECT_FALSE(c.write_raw(request));
         PlainClient::Response r;
-        EXPECT_FALSE(c.read(r));
+        exchange(c, request, r);
         EXPECT_EQ(r.result_int(), 303) << request << r.body();
         return std::string(r[http::field::location]);
     };
@@ -1013,10 +1016,8 @@ TEST_F(HttpServerTest, TransferCodingsOtherThanChunkedAreRefused) {
     for (const auto& [request, status] : cases) {
         SCOPED_TRACE(request);
         PlainClient c;
-        ASSERT_FALSE(c.connect(server_->port()));
-        ASSERT_FALSE(c.write_raw(request));
         PlainClient::Response r;
-        ASSERT_FALSE(c.read(r));
+        exchange(c, request, r);
         EXPECT_EQ(r.result_int(), status) << r.body();
         EXPECT_FALSE(r.keep_alive());
         EXPECT_TRUE(c.closed_by_peer());  // nothing more: no answer to a smuggled request
