@@ -21,6 +21,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "http/common.hpp"
 #include "http/web_image.hpp"
 #include "http_handler.hpp"
 #include "log.hpp"
@@ -1226,6 +1227,34 @@ TEST_F(HandlerTest, HostHeaderMustBeAHost) {
     EXPECT_EQ(info("[::1]").status, 200u);
     EXPECT_EQ(info("192.0.2.7:65535").status, 200u);
     EXPECT_EQ(info("").status, 200u);  // HTTP/1.0 sends none: the server's own address
+}
+
+// Behind a proxy that serves the server under a path (--public-url https://example.org/tiles/),
+// every URL an answer carries reaches it: IIIF ids are absolute, the store JSON's url and tiles
+// start with the path, and the web pages link relatively.
+TEST_F(HandlerTest, PublicUrlWithAPathPrefixesTheUrlsAnswersCarry) {
+    EXPECT_EQ(httpapi::public_path("https://example.org"), "");
+    EXPECT_EQ(httpapi::public_path("https://example.org/"), "");
+    EXPECT_EQ(httpapi::public_path("https://example.org/a/b/"), "/a/b");
+    EXPECT_EQ(httpapi::public_path(""), "");
+    config_.public_url = "https://example.org/tiles/";
+    const HttpResponse store = get("/v1/stores/rgb");
+    ASSERT_EQ(store.status, 200u) << store.body;
+    const auto j = nlohmann::json::parse(store.body);
+    EXPECT_EQ(j["url"], "/tiles/v1/stores/rgb");
+    EXPECT_TRUE(j["tiles"].get<std::string>().starts_with("/tiles/v1/stores/rgb/tiles/{level}/{x}/{y}?v=")) << j["tiles"];
+    const HttpResponse info = get("/iiif/rgb/info.json");
+    ASSERT_EQ(info.status, 200u) << info.body;
+    EXPECT_EQ(nlohmann::json::parse(info.body)["id"], "https://example.org/tiles/iiif/rgb");
+    const HttpResponse index = get("/");
+    ASSERT_EQ(index.status, 200u) << index.body;
+    EXPECT_NE(index.body.find("href=\"view/rgb\""), std::string::npos) << index.body;
+    EXPECT_EQ(index.body.find("href=\"/"), std::string::npos) << "a root-relative link: " << index.body;
+    const HttpResponse page = get("/view/rgb");
+    ASSERT_EQ(page.status, 200u) << page.body;
+    EXPECT_NE(page.body.find("'../dzi/rgb.dzi?v="), std::string::npos) << page.body;
+    EXPECT_EQ(page.body.find("\"/static"), std::string::npos) << page.body;
+    EXPECT_EQ(page.body.find("'/"), std::string::npos) << page.body;
 }
 
 // A signed URL (an Azure SAS, a CDN token) names its store by its path, and its query, a

@@ -211,7 +211,8 @@ Command add_serve(CLI::App& app) {
                   "for none")
         ->capture_default_str();
     s->add_option("--public-url", c.public_url,
-                  "URL clients reach this server at, e.g. https://tiles.example.org (IIIF ids; default: the request's Host)");
+                  "URL clients reach this server at, e.g. https://tiles.example.org or https://example.org/tiles behind a proxy "
+                  "(IIIF ids, and the path the store JSON's url and tiles start with; default: the request's Host)");
     add_bytes_option(*s, "--web-cache", c.web_cache_bytes, "RAM for encoded DZI/IIIF/XYZ images, e.g. 64MiB (0: off)");
     add_bytes_option(*s, "--web-decoded-cache", c.web_decoded_bytes,
                      "RAM for stored tiles decoded for web images, e.g. 128MiB (0: off)");

@@ -29,9 +29,9 @@ std::string_view content_type_of(Codec c) {
 }
 
 // The store's description (storage::store_json), and where the API serves it and its tiles.
-nlohmann::json store_entry(const StoreHandle& h) {
+nlohmann::json store_entry(const StoreHandle& h, const std::string& prefix) {
     nlohmann::json j = storage::store_json(h.name, h.info());
-    const std::string url = "/v1/stores/" + h.name;
+    const std::string url = prefix + "/v1/stores/" + h.name;
     j["url"] = url;
     j["tiles"] = url + "/tiles/{level}/{x}/{y}?v=" + hex16(h.version);
     j["scene"] = h.has_scene.load(std::memory_order_relaxed);  // an atlas OBJ travels with it (gRPC GetStoreScene)
@@ -292,7 +292,7 @@ HttpResponse api_v1(HttpHandler& handler, const ParsedRequest& req, HttpRoute& r
         route_label = HttpRoute::stores;
         if (format || version || layer) return error(400, "query parameters 'format', 'v' and 'layer' apply to tiles only", api);
         nlohmann::json list = nlohmann::json::array();
-        for (const auto& h : ctx.stores.list()) list.push_back(store_entry(*h));
+        for (const auto& h : ctx.stores.list()) list.push_back(store_entry(*h, public_path(ctx.config.public_url)));
         return json_response(nlohmann::json{{"stores", std::move(list)}});
     }
     const std::string& name = seg[2];
@@ -302,7 +302,7 @@ HttpResponse api_v1(HttpHandler& handler, const ParsedRequest& req, HttpRoute& r
         if (format || version || layer) return error(400, "query parameters 'format', 'v' and 'layer' apply to tiles only", api);
         const auto h = ctx.stores.find(name);
         if (!h) return error(404, "unknown store '" + name + "'", api);
-        return json_response(store_entry(*h));
+        return json_response(store_entry(*h, public_path(ctx.config.public_url)));
     }
     if (seg[3] != "tiles") {
         route_label = HttpRoute::other;

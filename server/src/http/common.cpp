@@ -148,6 +148,17 @@ bool host_ok(std::string_view host) {
 
 }  // namespace
 
+std::string public_path(std::string_view public_url) {
+    const std::size_t scheme = public_url.find("://");
+    if (scheme == std::string_view::npos) return {};
+    const std::size_t slash = public_url.find('/', scheme + 3);
+    if (slash == std::string_view::npos) return {};
+    std::string_view path = public_url.substr(slash);
+    path = path.substr(0, path.find_first_of("?#"));
+    while (!path.empty() && path.back() == '/') path.remove_suffix(1);
+    return std::string(path);
+}
+
 bool parse_request(const HttpRequestView& req, ParsedRequest& out, std::string& token, std::string& error) {
     const std::size_t q = req.target.find('?');
     const std::string_view raw_path = req.target.substr(0, q);

@@ -60,6 +60,11 @@ HttpResponse defer(WorkKind kind, std::shared_ptr<const StoreHandle> store, std:
 // store version (a year).
 HeaderValue cache_control(const ServerContext& ctx, bool immutable);
 
+// The path of --public-url without its trailing '/' ("https://example.org/tiles/" -> "/tiles"; ""
+// when unset or at the root): what root-relative URLs in answers start with behind a proxy that
+// serves this server under a path.
+std::string public_path(std::string_view public_url);
+
 // A strict decimal: digits only, no sign, no leading zeros (one URL per resource), below 2^32.
 std::optional<std::uint32_t> parse_u32(std::string_view s);
 // 1 to 16 hex digits.
