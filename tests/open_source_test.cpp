@@ -52,6 +52,21 @@ TEST(SourceUrl, ErrorsNameTheSpecAndWhatIsMissing) {
     EXPECT_NE(message("grpc://host:1").find("HOST:PORT/NAME"), std::string::npos);
     EXPECT_NE(message("grpc:///name").find("HOST:PORT/NAME"), std::string::npos);
     EXPECT_NE(message("grpc://host/name").find("needs a port"), std::string::npos);
+    // Ports gRPC would take modulo 65536, or as 0 (112407 is 46871: another server's port).
+    for (const char* spec : {"grpc://127.0.0.1:112407/t", "grpc://h:0/t", "grpc://h:-1/t", "grpc://h:abc/t", "grpc://h:1,/t",
+                             "grpc://h:1,h:70000/t", "grpc://h:/t"}) {
+        EXPECT_NE(message(spec).find("with a port from 1 to 65535"), std::string::npos) << spec;
+    }
+}
+
+TEST(GrpcTarget, EveryEntryNeedsAPortFrom1To65535) {
+    for (const char* ok : {"h:1", "tiles.example:65535", "10.0.0.1:1,10.0.0.2:2", "[::1]:50051", "dns:///tiles.example:443"})
+        EXPECT_TRUE(check_grpc_target(ok).ok()) << ok;
+    for (const char* bad : {"", "h", "h:", ":1", "h:65536", "h:99999", "h:123456", "h:0", "h:1x", "h:1,", ",h:1", "h:1,,h:2"}) {
+        const auto st = check_grpc_target(bad);
+        EXPECT_FALSE(st.ok()) << bad;
+    }
+    EXPECT_NE(check_grpc_target("a:1,b:99999").error().message.find("'b:99999'"), std::string::npos);
 }
 
 TEST(OpenSource, ALocalStoreBindsAndServesAndBadOptionsAreErrors) {

@@ -196,6 +196,17 @@ protected:
     ScratchDir dir;
 };
 
+// A second server on a gRPC port in use fails to start, as one on an HTTP port in use does:
+// gRPC's default SO_REUSEPORT let both listen, and viewers landed on either.
+TEST_F(ServerGrpc, APortInUseIsRefused) {
+    ServerProcess first({"--store", Stores::small()}, dir.file("log1"), "127.0.0.1:0", false);
+    ASSERT_TRUE(first.running()) << first.log();
+    ServerProcess second({"--store", Stores::small()}, dir.file("log2"), first.grpc_address(), false);
+    EXPECT_FALSE(second.running()) << "two servers listen on " << first.grpc_address();
+    EXPECT_EQ(second.wait_exit(std::chrono::seconds(10)), std::optional<int>(1)) << second.log();
+    EXPECT_NE(second.log().find("cannot listen for gRPC"), std::string::npos) << second.log();
+}
+
 TEST_F(ServerGrpc, ListAndDescribeStores) {
     ServerProcess srv({"--store", Stores::jpeg(), "--store", Stores::small()}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();

@@ -37,6 +37,7 @@
 #include "server_credentials.hpp"
 #include "svg_plot.hpp"
 #include "tessera/client/emulated_source.hpp"
+#include "tessera/client/open_source.hpp"
 #include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/feedback_trace.hpp"
 #include "tessera/client/runtime.hpp"
@@ -605,6 +606,7 @@ int run_loadtest(LoadTestOptions o) {
     } else if (o.server.rfind("grpc://", 0) == 0) {
         o.server = o.server.substr(7);
     }
+    if (Status st = client::check_grpc_target(o.server); !st) throw Failure("--server " + st.error().message, 2);
     if (!o.tls_ca.empty()) o.tls = true;
     o.token = bearer_token(o.token, o.token_file);
     o.token_file.clear();

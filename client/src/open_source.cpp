@@ -10,6 +10,27 @@ bool starts_with(std::string_view s, std::string_view prefix) { return s.substr(
 
 }  // namespace
 
+Status check_grpc_target(std::string_view target) {
+    const std::string all = target.find(',') == std::string_view::npos ? std::string() : "'" + std::string(target) + "': ";
+    if (target.empty()) return Error{Errc::invalid_argument, "no server address (HOST:PORT)"};
+    for (std::size_t start = 0;;) {
+        const std::size_t comma = target.find(',', start);
+        const std::string_view entry = target.substr(start, comma == std::string_view::npos ? std::string_view::npos : comma - start);
+        const std::size_t colon = entry.rfind(':');
+        const std::string_view port = colon == std::string_view::npos ? std::string_view() : entry.substr(colon + 1);
+        std::uint32_t value = 0;
+        bool digits = !port.empty() && port.size() <= 5;
+        for (const char c : port) {
+            digits = digits && c >= '0' && c <= '9';
+            if (digits) value = value * 10 + std::uint32_t(c - '0');
+        }
+        if (entry.empty() || colon == 0 || !digits || value == 0 || value > 65535)
+            return Error{Errc::invalid_argument, all + "'" + std::string(entry) + "' is not HOST:PORT with a port from 1 to 65535"};
+        if (comma == std::string_view::npos) return Status();
+        start = comma + 1;
+    }
+}
+
 Result<SourceUrl> parse_source_url(std::string_view spec) {
     namespace fs = std::filesystem;
     SourceUrl url;
@@ -39,6 +60,7 @@ Result<SourceUrl> parse_source_url(std::string_view spec) {
     url.store = std::string(rest.substr(slash + 1));
     if (url.target.find(':') == std::string::npos)
         return Error{Errc::invalid_argument, quoted + ": the server address needs a port (HOST:PORT/NAME)"};
+    if (Status st = check_grpc_target(url.target); !st) return st.error();
     return url;
 }
 

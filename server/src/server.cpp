@@ -307,6 +307,9 @@ private:
         builder.AddChannelArgument(GRPC_ARG_MAX_CONCURRENT_STREAMS, static_cast<int>(std::min<std::size_t>(
                                                                         config_.max_viewers + 64, 1u << 20)));
         builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_PERMIT_WITHOUT_CALLS, 1);
+        // gRPC sets SO_REUSEPORT by default: a second server on a port in use would start and
+        // share it, viewers landing on either. Bound alone, it fails as the HTTP port does.
+        builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
         builder.AddChannelArgument(GRPC_ARG_HTTP2_MIN_RECV_PING_INTERVAL_WITHOUT_DATA_MS, 5000);
         grpc_server_ = builder.BuildAndStart();
         if (!grpc_server_ || grpc_port_ == 0)

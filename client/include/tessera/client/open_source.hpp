@@ -26,8 +26,13 @@ struct SourceUrl {
 };
 
 // Errors (invalid_argument), each naming the spec: a local spec that is no file, a remote one
-// without a store name or without a port.
+// without a store name, or whose server is no gRPC target (check_grpc_target).
 Result<SourceUrl> parse_source_url(std::string_view spec);
+
+// A server as gRPC takes it: HOST:PORT, replicas as HOST:PORT,HOST:PORT,... or dns:///NAME:PORT;
+// every entry with a port from 1 to 65535 (gRPC would take 112407 as 46871). The error says
+// which entry is wrong.
+Status check_grpc_target(std::string_view target);
 
 struct SourceOptions {
     std::string auth_token;     // remote: sent as a bearer token when non-empty
