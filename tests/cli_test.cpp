@@ -1010,6 +1010,38 @@ TEST(CliVocabulary, FloatingPointOptionsAreFinite) {
     }
 }
 
+// Values that would make a run do nothing, or do it against the wrong server, are refused before
+// any work: a page budget of 0, every 0th frame, a port gRPC would take modulo 65536, an output
+// the run could not write at its end, an empty output directory, a PSNR reference of another
+// image.
+TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
+    ScratchDir d;
+    const std::string bounded = "timeout -s KILL 30 " + std::string(TESSERA_BINARY);
+    const std::string view = "view --headless --store " + q(d.file("missing.tsr")) + " ";
+    const std::vector<std::tuple<std::string, int, std::string>> cases = {
+        {view + "--upload-pages 0", 2, "--upload-pages"},
+        {view + "--motion-prefetch-every 0", 2, "--motion-prefetch-every"},
+        {view + "--transcode-threads 999", 2, "--transcode-threads"},
+        {"view --headless --store grpc://127.0.0.1:112407/t", 1, "with a port from 1 to 65535"},
+        {"loadtest --store t --server 127.0.0.1:112407", 2, "with a port from 1 to 65535"},
+        {"loadtest --store t --server 127.0.0.1:1, --connect-timeout 0.2", 2, "with a port from 1 to 65535"},
+        {"loadtest --store t --server 127.0.0.1:1 --connect-timeout 0.2 --json " + q(d.file("no/such/dir/r.json")), 1,
+         "cannot write"},
+        {"bench --out ''", 2, "--out"},
+        {"view --headless --frames 2 --size 64x36 --psnr-every 1 --store " +
+             q(tessera::test::cached_store("procedural:terrain:1024 --codec zstd", "t1024.tsr")) + " --reference-store " +
+             q(tessera::test::cached_store("procedural:terrain:512 --codec zstd", "t512.tsr")),
+         1, "not a copy of it"},
+    };
+    for (const auto& [args, code, says] : cases) {
+        SCOPED_TRACE(args);
+        const RunResult r = tessera::test::run_program(bounded, args);
+        expect_one_line_error(r);
+        EXPECT_EQ(r.exit_code, code) << r.out;
+        EXPECT_TRUE(has(r.out, says)) << r.out;
+    }
+}
+
 TEST(CliHelp, ConfigTakesAFile) {
     for (const bool server : {false, true}) {
         SCOPED_TRACE(server ? "tessera-server" : "tessera");

@@ -22,7 +22,10 @@ Command add_bench(CLI::App& app) {
         ->capture_default_str();
     c->add_option("--resolution", a->resolution, "WIDTHxHEIGHT of the viewer")->capture_default_str();
     c->add_option("--path", a->path, camera_path_help())->capture_default_str();
-    c->add_option("--out", a->out, "directory for stores, bench.csv, bench.json and pareto_*.svg")->capture_default_str();
+    c->add_option("--out", a->out, "directory for stores, bench.csv, bench.json and pareto_*.svg")
+        ->capture_default_str()
+        ->check(CLI::Validator([](std::string& v) { return v.empty() ? std::string("an empty path names no directory") : std::string(); },
+                               "", "directory"));
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference every N frames")
         ->check(CLI::Range(1u, 100000u))
         ->capture_default_str();

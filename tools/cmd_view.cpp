@@ -41,7 +41,7 @@ Command add_view(CLI::App& app) {
     c->add_option("--stats", o->stats_file, "per-frame stats, .csv or .json")->check(output_file());
     c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`")
         ->check(output_file());
-    c->add_option("--pool", o->pool, "physical pages in the GPU pool (default: 2048, or every page of a store that has fewer)");
+    c->add_option("--pool", o->pool, "physical pages in the GPU pool, at least 16 (0, the default: 2048, or every page of a store that has fewer)");
     c->add_option("--page-format", o->page_format,
                   "how the GPU pool holds pages: auto (a block-codec store's own blocks, else rgba8), rgba8, or "
                   "block-compressed (a store of that codec: its blocks as they are; any other store: encoded on the transcode "
@@ -70,16 +70,22 @@ Command add_view(CLI::App& app) {
                   "milliseconds ahead, extrapolated from the camera's motion (0: off)")
         ->capture_default_str();
     c->add_option("--motion-prefetch-every", o->motion_prefetch_every, "motion prefetch: every N-th frame's feedback (>= 1)")
-        ->capture_default_str();
+        ->capture_default_str()
+        ->check(CLI::Range(1u, 1000000u));
     c->add_option("--link-latency-ms", o->link_latency_ms,
                   "emulate a network link to the source: this one-way delay per request, milliseconds (0: none)");
     c->add_option("--link-jitter-ms", o->link_jitter_ms, "emulated link: random extra delay up to this, milliseconds");
     c->add_option("--link-bandwidth", o->link_bandwidth_bits_per_s, "emulated link: bits per second (0: unlimited)");
-    c->add_option("--upload-pages", o->upload_pages_per_frame, "pages uploaded per frame at most")->capture_default_str();
+    c->add_option("--upload-pages", o->upload_pages_per_frame, "pages uploaded per frame at most (>= 1)")
+        ->capture_default_str()
+        ->check(CLI::Range(1u, 1u << 20));
     add_bytes_option(*c, "--ram-cache", o->ram_cache_bytes, "RAM tile cache, e.g. 256MiB (0: off)");
     c->add_option("--disk-cache", o->disk_cache_dir, "disk tile cache directory (persists across runs)");
     add_bytes_option(*c, "--disk-cache-size", o->disk_cache_bytes, "disk cache bound, e.g. 1GiB");
-    c->add_option("--transcode-threads", o->transcode_threads, "decoder threads")->capture_default_str();
+    c->add_option("--transcode-threads", o->transcode_threads,
+                  "decoder threads (0: decode on the render thread, deterministic, for measurements)")
+        ->capture_default_str()
+        ->check(CLI::Range(0u, 256u));
     c->add_option("--psnr-every", o->psnr_every, "compare against the reference renderer every N frames (0: never)")
         ->capture_default_str();
     c->add_option("--reference-store", o->reference_store, "local copy of the store for the reference (remote stores)");

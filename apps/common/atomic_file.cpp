@@ -13,6 +13,24 @@
 
 namespace tessera::tools {
 
+void check_writable(const std::string& path) {
+    namespace fs = std::filesystem;
+    const fs::path target(path);
+    if (Status st = storage::check_output_file(path); !st) throw Failure(st.error().message);
+    const fs::path probe = target.parent_path() / ("." + target.filename().string() + ".probe" + std::to_string(::getpid()));
+    storage::track_temp_path(probe.string());
+    const bool made = std::ofstream(probe, std::ios::binary | std::ios::trunc).good();
+    std::error_code ec;
+    fs::remove(probe, ec);
+    storage::untrack_temp_path(probe.string());
+    if (!made) {
+        const fs::path dir = target.parent_path().empty() ? fs::path(".") : target.parent_path();
+        throw Failure(fmt::format("cannot write '{}': {}", path,
+                                  fs::is_directory(dir, ec) ? "no permission to create files in " + dir.string()
+                                                            : "no directory " + dir.string()));
+    }
+}
+
 void write_file_atomically(const std::string& path, const std::function<void(std::ostream&)>& write) {
     namespace fs = std::filesystem;
     const fs::path target(path);

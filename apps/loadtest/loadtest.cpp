@@ -598,6 +598,9 @@ int run_loadtest(LoadTestOptions o) {
     if (o.server_pid > 0 && !process_cpu_s(o.server_pid))
         throw Failure(fmt::format("--server-pid {}: no such process here (/proc/{}/stat)", o.server_pid, o.server_pid), 2);
     if (o.path.empty() && o.trace.empty()) o.path = "flyover";
+    // The outputs before the run, which may take minutes: a path that cannot be written fails now.
+    if (!o.json.empty()) check_writable(o.json);
+    if (!o.plot.empty()) check_writable(o.plot);
     // Credentials once (a bad file fails here), then reach the server first: a clear error
     // instead of N viewers timing out.
     if (o.server.rfind("grpcs://", 0) == 0) {

@@ -34,6 +34,7 @@
 #include "tessera/client/open_source.hpp"
 #include "tessera/client/runtime.hpp"
 #include "tessera/client/tile_source.hpp"
+#include "tessera/storage/store_reader.hpp"
 #include "tessera/scene/path.hpp"
 #include "tessera/scene/scene.hpp"
 
@@ -480,6 +481,16 @@ void ViewerRun::make_reference() {
     if (o.psnr_every == 0) return;
     const std::string ref_store = !o.reference_store.empty() ? o.reference_store : loc_.remote ? std::string() : loc_.store;
     if (ref_store.empty()) throw Failure("PSNR needs a local copy of the store: --reference-store FILE (the store is remote)");
+    if (!o.reference_store.empty()) {
+        // Any build of the same image will do (a lossless one measures the codec's error too),
+        // but another image gives a PSNR of nothing: its size must be the store's.
+        auto reader = storage::StoreReader::open(ref_store);
+        if (!reader) throw Failure(fmt::format("--reference-store: {}", reader.error().message));
+        const storage::StoreInfo& ri = (*reader)->info();
+        if (ri.width != info_.width || ri.height != info_.height)
+            throw Failure(fmt::format("--reference-store {} is {}x{}, the store viewed {}x{}: not a copy of it", ref_store, ri.width,
+                                      ri.height, info_.width, info_.height));
+    }
     if (o.progress) fmt::print("reference: decoding {} ...\n", ref_store);
     std::fflush(stdout);
     auto levels = client::decode_store_levels(ref_store, 16384, client::PageFormat::rgba8, rc_.show_layer);
