@@ -275,6 +275,15 @@ TEST(Loadtest, BadFlags) {
     r = run_tessera(base + "--trace /nonexistent/trace --duration 0.5 --warmup 0");
     EXPECT_EQ(r.exit_code, 1) << r.out;
     EXPECT_NE(r.out.find("--trace"), std::string::npos) << r.out;
+    {  // a trace recorded on a larger store: its pages are outside this one (it would run clean, asking nothing)
+        const std::string big = tessera::test::cached_store("procedural:terrain:8192", "terrain.tsr");
+        const std::string trace = s.file("big.trace");
+        auto v = run_tessera("view --headless --frames 20 --size 64x36 --store " + big + " --trace " + trace);
+        ASSERT_EQ(v.exit_code, 0) << v.out;
+        r = run_tessera(base + "--trace " + trace + " --duration 0.5 --warmup 0");
+        EXPECT_EQ(r.exit_code, 2) << r.out;
+        EXPECT_NE(r.out.find("recorded on another store"), std::string::npos) << r.out;
+    }
     r = run_tessera("loadtest --server " + s.address() + " --store nosuchstore --duration 0.5");
     EXPECT_EQ(r.exit_code, 1) << r.out;
     EXPECT_NE(r.out.find("nosuchstore"), std::string::npos) << r.out;

@@ -638,6 +638,22 @@ int run_loadtest(LoadTestOptions o) {
         auto t = client::read_trace(o.trace);
         if (!t) throw Failure(fmt::format("--trace {}: {}", o.trace, t.error().message));
         if (t->empty()) throw Failure(fmt::format("--trace {}: no frames", o.trace));
+        // A trace names pages of the store it was recorded on; replayed on another, its pages
+        // fall outside this one (and would be refused, never requested: a perfect-looking run).
+        std::uint64_t pages = 0, outside = 0;
+        for (const client::TraceFrame& f : *t)
+            for (const FeedbackId id : f.ids) {
+                if (id == kNoPage) continue;
+                const PageKey k = unpack_feedback(id);
+                ++pages;
+                outside += k.level >= info->level_count() || k.x >= info->levels[k.level].tiles_x ||
+                           k.y >= info->levels[k.level].tiles_y;
+            }
+        if (outside > 0)
+            throw Failure(fmt::format("--trace {}: {} of its {} page requests are outside store {} ({}x{}, {} levels): it was "
+                                      "recorded on another store",
+                                      o.trace, outside, pages, o.store, info->width, info->height, info->level_count()),
+                          2);
         trace_frames = std::move(*t);
         feedback_name = "trace:" + o.trace;
     } else {
