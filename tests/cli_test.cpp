@@ -1013,7 +1013,7 @@ TEST(CliVocabulary, FloatingPointOptionsAreFinite) {
 // Values that would make a run do nothing, or do it against the wrong server, are refused before
 // any work: a page budget of 0, every 0th frame, a port gRPC would take modulo 65536, an output
 // the run could not write at its end, an empty output directory, a PSNR reference of another
-// image.
+// image, a demo resolution, path or page format that does not exist.
 TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
     ScratchDir d;
     const std::string bounded = "timeout -s KILL 30 " + std::string(TESSERA_BINARY);
@@ -1028,6 +1028,11 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
         {"loadtest --store t --server 127.0.0.1:1 --connect-timeout 0.2 --json " + q(d.file("no/such/dir/r.json")), 1,
          "cannot write"},
         {"bench --out ''", 2, "--out"},
+        // demo: before it builds its 16384^2 store (seconds), not after.
+        {"demo --dir " + q(d.file("demo")) + " --resolution 0x0", 2, "--resolution"},
+        {"demo --dir " + q(d.file("demo")) + " --path nosuch", 2, "--path"},
+        {"demo --dir " + q(d.file("demo")) + " --page-format foo", 2, "--page-format"},
+        {"demo --dir " + q(d.file("demo")) + " --prefetch-lod 9", 2, "--prefetch-lod"},
         {"view --headless --frames 2 --size 64x36 --psnr-every 1 --store " +
              q(tessera::test::cached_store("procedural:terrain:1024 --codec zstd", "t1024.tsr")) + " --reference-store " +
              q(tessera::test::cached_store("procedural:terrain:512 --codec zstd", "t512.tsr")),
@@ -1040,6 +1045,7 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
         EXPECT_EQ(r.exit_code, code) << r.out;
         EXPECT_TRUE(has(r.out, says)) << r.out;
     }
+    EXPECT_FALSE(std::filesystem::exists(d.file("demo"))) << "demo started its work";
 }
 
 TEST(CliHelp, ConfigTakesAFile) {

@@ -4,6 +4,7 @@
 // tile latency, bytes, cache hits) with the PNG frames and the fallback/bias plot it wrote.
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -14,6 +15,8 @@
 #include "path_option.hpp"
 #include "progress.hpp"
 #include "store_summary.hpp"
+#include "tessera/client/page.hpp"
+#include "tessera/scene/path.hpp"
 #include "tessera/server/server.hpp"
 #include "viewer_session.hpp"
 #include "tessera/storage/builder.hpp"
@@ -48,14 +51,44 @@ Command add_demo(CLI::App& app) {
     add_texels_option(*c, a->texels, "Texels per side of the procedural terrain",
                       CLI::Range(1u, std::uint32_t(storage::kMaxProceduralSize)));
     c->add_flag("--rebuild", a->rebuild, "Build the store even if it exists");
-    c->add_option("--resolution", a->resolution, "WIDTHxHEIGHT of the viewer")->capture_default_str();
-    c->add_option("--path", a->path, camera_path_help())->capture_default_str();
+    // Checked as parsed, so that a mistyped value fails before the store is built (seconds).
+    c->add_option("--resolution", a->resolution, "WIDTHxHEIGHT of the viewer")
+        ->capture_default_str()
+        ->check(CLI::Validator(
+            [](std::string& v) -> std::string {
+                unsigned w = 0, h = 0;
+                char x = 0, extra = 0;
+                if (std::sscanf(v.c_str(), "%u%c%u%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w == 0 || h == 0 ||
+                    w > 16384 || h > 16384)
+                    return "'" + v + "': expected WIDTHxHEIGHT, each 1 to 16384";
+                return {};
+            },
+            "WIDTHxHEIGHT", "resolution"));
+    c->add_option("--path", a->path, camera_path_help())
+        ->capture_default_str()
+        ->check(CLI::Validator(
+            [](std::string& v) -> std::string {
+                const auto names = scene::CameraPath::builtin_names();
+                if (std::find(names.begin(), names.end(), v) != names.end()) return {};
+                std::error_code ec;
+                return std::filesystem::is_regular_file(v, ec) ? std::string()
+                                                               : "'" + v + "' is neither a built-in path nor a path file";
+            },
+            "PATH", "camera path"));
     c->add_option("--frames", a->frames, "frames to render (0: the whole path at 60 frames per second)")->capture_default_str();
     c->add_option("--psnr-every", a->psnr_every, "compare with the reference renderer every N frames (0: never)")
         ->capture_default_str();
-    c->add_option("--pool", a->pool, "physical pages in the GPU pool")->capture_default_str();
-    c->add_option("--page-format", a->page_format, "auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f (tessera view --help)")->capture_default_str();
-    c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")->capture_default_str();
+    c->add_option("--pool", a->pool, "physical pages in the GPU pool (at least 16)")->capture_default_str()->check(CLI::Range(16u, 1u << 24));
+    c->add_option("--page-format", a->page_format, "auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f (tessera view --help)")
+        ->capture_default_str()
+        ->check(CLI::Validator(
+            [](std::string& v) -> std::string {
+                return v == "auto" || client::parse_page_format(v) ? std::string() : "'" + v + "' is not a page format";
+            },
+            "FORMAT", "page format"));
+    c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0f, 2.0f));
     c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
     c->add_option("--fade-ms", a->fade_ms, "arriving pages blend in, and evicted pages in view fade out, over this many milliseconds (0: off)")->capture_default_str();
     c->add_option("--motion-prefetch-ms", a->motion_prefetch_ms,
