@@ -658,6 +658,11 @@ TEST_F(RuntimeSim, AnErrorReplyIsAskedAgainAtOnce) {
     const int retry = int(PageLoader::kErrorRetryFrames);
     EXPECT_GE(frames, 1 + 3 + 5 + retry) << "asked again before the back-off";
     EXPECT_LE(frames, 1 + 3 + 5 + retry + 3 + 2) << "the retry waited for the periodic resend";
+    // Counted, with the first one's page and message, for the viewer's summary to say.
+    EXPECT_EQ(rt->summary().source_errors(), 1u);
+    EXPECT_EQ(rt->summary().first_source_error(),
+              "level " + std::to_string(page.level) + " (1, 1): queue full; retry later");
+    EXPECT_NE(rt->summary().to_json().find("\"source_errors\":1"), std::string::npos) << rt->summary().to_json();
 }
 
 // The disk cache keys tiles by store name. A texture over a local file (named by its path) skips

@@ -1031,6 +1031,10 @@ std::string summary_text(const ViewerReport& rep) {
                                                                rep.summary.pages_rescued())
                                                  : "",
                      pct(rep.cache_hit_ratio()));
+    if (rep.summary.source_errors() > 0 || rep.summary.decode_failures() > 0)
+        s += fmt::format("errors        {} tile answers were errors{}, {} tiles did not decode\n", rep.summary.source_errors(),
+                         rep.summary.first_source_error().empty() ? "" : " (first: " + rep.summary.first_source_error() + ")",
+                         rep.summary.decode_failures());
     if (rep.remote) {
         if (rep.unserved_s == 0 && rep.outages == 0)
             s += fmt::format("server        0.0 s unserved of {:.1f} s (connected throughout)\n", rep.run_s);

@@ -203,6 +203,9 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
                 continue;
             }
             if (r.status != TileStatus::ok) {
+                if (stats.source_errors++ == 0)
+                    stats.first_source_error = "level " + std::to_string(r.page.level) + " (" + std::to_string(r.page.x) + ", " +
+                                               std::to_string(r.page.y) + "): " + r.message;
                 // The source has dropped the request. Asked again, if still wanted, after
                 // kErrorRetryFrames: an overloaded server ("retry later") or a tile it cannot read
                 // is not asked on every frame. Leaving the set now and rejoining it then, the page

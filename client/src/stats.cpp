@@ -172,6 +172,8 @@ void StatsSummary::add_frame(const FrameStats& f) {
     other_version_arrivals_ += f.other_version_arrivals;
     duplicate_arrivals_ += f.duplicate_arrivals;
     decode_failures_ += f.decode_failures;
+    source_errors_ += f.source_errors;
+    if (first_source_error_.empty()) first_source_error_ = f.first_source_error;
 }
 
 void StatsSummary::reset() { *this = StatsSummary{}; }
@@ -214,7 +216,7 @@ std::string StatsSummary::to_json() const {
                         {"cancelled_decoded", cancelled_decoded_}, {"decodes_dropped", decodes_dropped_},
                         {"stale_arrivals", stale_arrivals_},       {"duplicate_arrivals", duplicate_arrivals_},
                         {"other_version_arrivals", other_version_arrivals_}};
-    j["errors"] = Json{{"decode_failures", decode_failures_}};
+    j["errors"] = Json{{"decode_failures", decode_failures_}, {"source_errors", source_errors_}};
     return j.dump();
 }
 

@@ -89,6 +89,10 @@ struct FrameStats {
     // Tiles that arrived whole but did not decode (a payload its codec refuses): the page stands
     // absent, its parent shown, and is not asked for again.
     std::uint32_t decode_failures = 0;
+    // Tiles the source answered with an error (data loss, not found, overloaded ...): each is
+    // asked for again after a pause while still wanted. The first one's page and message.
+    std::uint32_t source_errors = 0;
+    std::string first_source_error;
 
     std::uint32_t total_ram_hits() const;
     std::uint32_t total_disk_hits() const;
@@ -143,6 +147,9 @@ public:
     std::uint64_t duplicate_arrivals() const { return duplicate_arrivals_; }
     std::uint64_t other_version_arrivals() const { return other_version_arrivals_; }
     std::uint64_t decode_failures() const { return decode_failures_; }
+    std::uint64_t source_errors() const { return source_errors_; }
+    // The first source error of the run ("level 3 (0, 0): TILE_DATA_LOSS ..."), empty when none.
+    const std::string& first_source_error() const { return first_source_error_; }
     const std::array<std::uint64_t, kMaxLevels>& ram_hits() const { return ram_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& disk_hits() const { return disk_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& network() const { return network_; }
@@ -162,7 +169,9 @@ private:
     float bias_max_ = 0.0f, bias_last_ = 0.0f;
     double fallback_sum_ = 0.0;
     std::uint64_t cancelled_waiting_ = 0, cancelled_arrived_ = 0, cancelled_decoded_ = 0, decodes_dropped_ = 0,
-                  stale_arrivals_ = 0, duplicate_arrivals_ = 0, other_version_arrivals_ = 0, decode_failures_ = 0;
+                  stale_arrivals_ = 0, duplicate_arrivals_ = 0, other_version_arrivals_ = 0, decode_failures_ = 0,
+                  source_errors_ = 0;
+    std::string first_source_error_;
     LatencyHistogram latency_;
     LogLinearHistogram<4, 32> time_to_detail_;
 };
