@@ -1317,6 +1317,28 @@ TEST(StoreRegistryDir, ABadlyNamedFileIsWarnedAboutWhenItAppears) {
     ::close(fd);
 }
 
+// Two --store locations that give one name: refused, naming both (the last one used to win in
+// silence, and a client asking for the name got whichever that was).
+TEST(StoreRegistryDir, TwoStoresOfOneNameAreRefused) {
+    tessera::test::ScratchDir d;
+    std::filesystem::create_directories(d.file("www"));
+    write_store(d.file("t.tsr"), spec_of(8, 8, 8, 0, 1, SampleType::u8, ColourSpace::linear, Codec::raw));
+    std::filesystem::copy_file(d.file("t.tsr"), d.file("www/t.tsr"));
+    const int fd = ::open("/dev/null", O_WRONLY | O_CLOEXEC);
+    ASSERT_GE(fd, 0);
+    Status st;
+    {
+        Logger log(LogFormat::json, LogLevel::info, fd);
+        MetricsRegistry metrics;
+        StoreRegistry stores({d.file("t.tsr"), d.file("www/t.tsr")}, {}, log, metrics);
+        st = stores.open();
+    }
+    ::close(fd);
+    ASSERT_FALSE(st.ok());
+    EXPECT_NE(st.error().message.find("two stores named 't'"), std::string::npos) << st.error().message;
+    EXPECT_NE(st.error().message.find(d.file("www/t.tsr")), std::string::npos) << st.error().message;
+}
+
 // ---- Corruption -------------------------------------------------------------------------------------
 
 TEST_F(HandlerTest, CorruptTileIs500AndNeverItsBytes) {

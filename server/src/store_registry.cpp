@@ -191,6 +191,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
             wanted[name] = it->path().string();
         }
     }
+    std::map<std::string, std::string> named;  // name -> the --store that gave it
     for (const auto& file : files_) {
         // A remote location's name is its last path segment (its query aside), as a file's.
         const std::string path = is_remote(file) ? file.substr(0, file.find_first_of("?#")) : file;
@@ -199,6 +200,12 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         if (name.empty()) {
             fail(Error{Errc::invalid_argument,
                        "store file " + shown(file) + ": the name must be <identifier>.tsr (letters, digits, _ . -)"});
+            continue;
+        }
+        if (const auto [it, fresh] = named.emplace(name, file); !fresh) {
+            // Two --store locations of one name: a client could not say which it means.
+            fail(Error{Errc::invalid_argument, "two stores named '" + name + "': " + shown(it->second) + " and " + shown(file) +
+                                                   " (a store is named by its file name)"});
             continue;
         }
         wanted[name] = file;
