@@ -151,6 +151,23 @@ TEST(CliBuildInput, OutputIsTheInput) {
     EXPECT_EQ(read_file(d.file("in.png")), before);
 }
 
+// A FIFO blocked build, source, inspect and verify until a writer came: refused at once.
+TEST(CliBuildInput, AFifoIsNoInput) {
+    ScratchDir d;
+    const std::string fifo = d.file("in.png");
+    ASSERT_EQ(::mkfifo(fifo.c_str(), 0644), 0);
+    const std::string bounded = "timeout -s KILL 20 " + std::string(TESSERA_BINARY);
+    for (const std::string& args : {"build " + q(fifo) + " -o " + q(d.file("o.tsr")), "source " + q(fifo) + " -o " + q(d.file("o.png")),
+                                    "inspect " + q(fifo), "verify " + q(fifo)}) {
+        SCOPED_TRACE(args);
+        const RunResult r = tessera::test::run_program(bounded, args);
+        EXPECT_EQ(r.exit_code, 1) << r.out;
+        EXPECT_TRUE(has(r.out, "not a regular file")) << r.out;
+    }
+    EXPECT_FALSE(std::filesystem::exists(d.file("o.tsr")));
+    EXPECT_FALSE(std::filesystem::exists(d.file("o.png")));
+}
+
 TEST(CliBuildInput, DirectoryAsInput) {
     ScratchDir d;
     fs::create_directory(d.file("images"));

@@ -84,6 +84,9 @@ Result<std::unique_ptr<ImageSource>> open_image_source(const std::string& spec) 
     std::error_code ec;
     if (!std::filesystem::exists(spec, ec)) return make_error(Errc::not_found, "input '" + spec + "' does not exist");
     if (std::filesystem::is_directory(spec, ec)) return make_error(Errc::invalid_argument, "input '" + spec + "' is a directory");
+    // A FIFO would block the reader until some writer came; a device or socket never ends.
+    if (!std::filesystem::is_regular_file(spec, ec))
+        return make_error(Errc::invalid_argument, "input '" + spec + "' is not a regular file (a FIFO, socket or device)");
     if (looks_like_tiff(spec)) {
         auto tiff = open_tiff_source(spec);
         if (!tiff.ok() && tiff.error().code != Errc::unsupported) return tiff;
