@@ -1065,6 +1065,16 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
     EXPECT_FALSE(std::filesystem::exists(d.file("demo"))) << "demo started its work";
 }
 
+// A mistyped command is named, not answered "A subcommand is required".
+TEST(CliHelp, AnUnknownCommandIsNamed) {
+    RunResult r = run_tessera("frobnicate");
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_TRUE(has(r.out, "'frobnicate' is not a command")) << r.out;
+    r = run_tessera("--bogus");
+    EXPECT_EQ(r.exit_code, 2) << r.out;
+    EXPECT_TRUE(has(r.out, "--bogus")) << r.out;
+}
+
 TEST(CliHelp, ConfigTakesAFile) {
     for (const bool server : {false, true}) {
         SCOPED_TRACE(server ? "tessera-server" : "tessera");

@@ -95,6 +95,11 @@ int main(int argc, char** argv) {
         // An error of a hidden option starts ": " (CLI11 2.1 leaves its name out; its message names it).
         std::string what = e.what();
         if (what.rfind(": ", 0) == 0) what.erase(0, 2);
+        // No command parsed and a first word that is none: name it, not "a subcommand is required".
+        if (parsed.empty() && argc > 1 && argv[1][0] != '-')
+            what = std::string("'") + argv[1] + "' is not a command";
+        else if (parsed.empty() && argc > 1 && what.find("subcommand is required") != std::string::npos)
+            what = std::string("no command before '") + argv[1] + "'";
         std::fprintf(stderr, "%s: error: %s (%s)\n", name.c_str(), what.c_str(), help.c_str());
         return 2;
     }
