@@ -1039,6 +1039,9 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
         {view + "--upload-pages 0", 2, "--upload-pages"},
         {view + "--motion-prefetch-every 0", 2, "--motion-prefetch-every"},
         {view + "--transcode-threads 999", 2, "--transcode-threads"},
+        {view + "--pool 99999999", 2, "--pool"},  // named as the flag, not as the renderer's field
+        {view + "--prefetch-lod 5", 2, "--prefetch-lod"},
+        {view + "--guard-band -1", 2, "--guard-band"},
         {"view --headless --store grpc://127.0.0.1:112407/t", 1, "with a port from 1 to 65535"},
         {"loadtest --store t --server 127.0.0.1:112407", 2, "with a port from 1 to 65535"},
         {"loadtest --store t --server 127.0.0.1:1, --connect-timeout 0.2", 2, "with a port from 1 to 65535"},

@@ -41,7 +41,8 @@ Command add_view(CLI::App& app) {
     c->add_option("--stats", o->stats_file, "per-frame stats, .csv or .json")->check(output_file());
     c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`")
         ->check(output_file());
-    c->add_option("--pool", o->pool, "physical pages in the GPU pool, at least 16 (0, the default: 2048, or every page of a store that has fewer)");
+    c->add_option("--pool", o->pool, "physical pages in the GPU pool, at least 16 (0, the default: 2048, or every page of a store that has fewer)")
+        ->check(CLI::Range(0u, 1u << 24));
     c->add_option("--page-format", o->page_format,
                   "how the GPU pool holds pages: auto (a block-codec store's own blocks, else rgba8), rgba8, or "
                   "block-compressed (a store of that codec: its blocks as they are; any other store: encoded on the transcode "
@@ -58,9 +59,11 @@ Command add_view(CLI::App& app) {
     c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();
     c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size")->capture_default_str();
     c->add_option("--prefetch-lod", o->prefetch_lod, "feedback asks for pages this many levels finer than sampled (0..2)")
-        ->capture_default_str();
+        ->capture_default_str()
+        ->check(CLI::Range(0.0f, 2.0f));
     c->add_option("--guard-band", o->guard_band, "feedback sees this fraction more of the scene on each side (0..1)")
-        ->capture_default_str();
+        ->capture_default_str()
+        ->check(CLI::Range(0.0f, 1.0f));
     c->add_option("--fade-ms", o->fade_ms,
                   "arriving pages blend in from what was drawn before them over this many milliseconds, evicted pages "
                   "still in view fade out, and LoD-bias changes spread over as long (0: off, pages show and go at once)")
