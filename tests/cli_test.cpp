@@ -1050,6 +1050,9 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
         {"bench --out ''", 2, "--out"},
         // demo: before it builds its 16384^2 store (seconds), not after.
         {"demo --dir " + q(d.file("demo")) + " --resolution 0x0", 2, "--resolution"},
+        {"demo --dir " + q(d.file("demo")) + " --resolution 8x8", 2, "--resolution"},  // the viewer's bounds: 16 to 8192
+        {"demo --dir " + q(d.file("demo")) + " --guard-band 5", 2, "--guard-band"},
+        {"serve --store " + q(d.file("missing.tsr")) + " --public-url example.org", 2, "--public-url"},
         {"demo --dir " + q(d.file("demo")) + " --path nosuch", 2, "--path"},
         {"demo --dir " + q(d.file("demo")) + " --page-format foo", 2, "--page-format"},
         {"demo --dir " + q(d.file("demo")) + " --prefetch-lod 9", 2, "--prefetch-lod"},

@@ -964,6 +964,15 @@ TEST_F(HttpServerTest, HostIsRequiredOnceAndDefaultsToTheAddressReached) {
     EXPECT_EQ(location("GET /iiif/rgb HTTP/1.1\r\nHost: tiles.example:8080\r\n\r\n"),
               "http://tiles.example:8080/iiif/rgb/info.json");
     EXPECT_EQ(location("GET /iiif/rgb HTTP/1.1\r\nHost: [::1]:8080\r\n\r\n"), "http://[::1]:8080/iiif/rgb/info.json");
+    // A HEAD refused for its Host gets the head of the 400 and no body.
+    PlainClient c;
+    ASSERT_FALSE(c.connect(server_->port()));
+    ASSERT_FALSE(c.write_raw("HEAD /healthz HTTP/1.1\r\n\r\n"));
+    PlainClient::Response r;
+    ASSERT_FALSE(c.read(r, /*head=*/true));
+    EXPECT_EQ(r.result_int(), 400);
+    EXPECT_TRUE(r.body().empty()) << r.body();
+    EXPECT_TRUE(c.closed_by_peer()) << "a body after the head";
 }
 
 // docs/protocol.md: a request body is 413 (no route takes one), whatever its size; an empty one

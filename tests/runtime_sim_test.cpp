@@ -661,7 +661,7 @@ TEST_F(RuntimeSim, AnErrorReplyIsAskedAgainAtOnce) {
     // Counted, with the first one's page and message, for the viewer's summary to say.
     EXPECT_EQ(rt->summary().source_errors(), 1u);
     EXPECT_EQ(rt->summary().first_source_error(),
-              "level " + std::to_string(page.level) + " (1, 1): queue full; retry later");
+              "level " + std::to_string(page.level) + " (1, 1): UNAVAILABLE queue full; retry later");
     EXPECT_NE(rt->summary().to_json().find("\"source_errors\":1"), std::string::npos) << rt->summary().to_json();
 }
 

@@ -295,7 +295,7 @@ def main():
         check(st == 204 and hd.get("Access-Control-Allow-Origin") == "*" and "Authorization" in
               hd.get("Access-Control-Allow-Headers", ""), f"preflight: {st} {hd}")
         st, _, body = get(port, "/")
-        check(st == 200 and b'href="view/pic"' in body, "the store list links the viewer")
+        check(st == 200 and b'href="/view/pic"' in body, "the store list links the viewer")
 
         # The viewer in Chromium: 1:1, 1:2 and the home view, each against ImageMagick's resampling.
         views = [{"zoom": 1, "cx": 980, "cy": 640}, {"zoom": 0.5, "cx": 950, "cy": 650}, {"zoom": "home"}]

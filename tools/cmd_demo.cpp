@@ -58,9 +58,10 @@ Command add_demo(CLI::App& app) {
             [](std::string& v) -> std::string {
                 unsigned w = 0, h = 0;
                 char x = 0, extra = 0;
-                if (std::sscanf(v.c_str(), "%u%c%u%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w == 0 || h == 0 ||
-                    w > 16384 || h > 16384)
-                    return "'" + v + "': expected WIDTHxHEIGHT, each 1 to 16384";
+                // The viewer's bounds (tessera view --size): each side 16 to 8192.
+                if (std::sscanf(v.c_str(), "%u%c%u%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 16 || h < 16 ||
+                    w > 8192 || h > 8192)
+                    return "'" + v + "': expected WIDTHxHEIGHT, each side 16 to 8192";
                 return {};
             },
             "WIDTHxHEIGHT", "resolution"));
@@ -89,7 +90,9 @@ Command add_demo(CLI::App& app) {
     c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")
         ->capture_default_str()
         ->check(CLI::Range(0.0f, 2.0f));
-    c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")->capture_default_str();
+    c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0f, 1.0f));
     c->add_option("--fade-ms", a->fade_ms, "arriving pages blend in, and evicted pages in view fade out, over this many milliseconds (0: off)")->capture_default_str();
     c->add_option("--motion-prefetch-ms", a->motion_prefetch_ms,
                   "every other frame's feedback sees the view this far ahead, from the camera's motion (0: off)")

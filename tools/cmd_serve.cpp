@@ -212,7 +212,17 @@ Command add_serve(CLI::App& app) {
         ->capture_default_str();
     s->add_option("--public-url", c.public_url,
                   "URL clients reach this server at, e.g. https://tiles.example.org or https://example.org/tiles behind a proxy "
-                  "(IIIF ids, and the path the store JSON's url and tiles start with; default: the request's Host)");
+                  "(IIIF ids, and the path the store JSON's url and tiles and the viewer's links start with; default: the "
+                  "request's Host)")
+        ->check(CLI::Validator(
+            [](std::string& v) -> std::string {
+                // Written into JSON, HTML and JavaScript: a URL, with nothing that could end a string there.
+                const bool scheme = v.rfind("http://", 0) == 0 || v.rfind("https://", 0) == 0;
+                const bool plain = v.find_first_of(" \t\"'<>\\`") == std::string::npos;
+                return v.empty() || (scheme && plain && v.size() > v.find("://") + 3) ? std::string()
+                                                                                        : "'" + v + "' is not an http:// or https:// URL";
+            },
+            "URL", "public URL"));
     add_bytes_option(*s, "--web-cache", c.web_cache_bytes, "RAM for encoded DZI/IIIF/XYZ images, e.g. 64MiB (0: off)");
     add_bytes_option(*s, "--web-decoded-cache", c.web_decoded_bytes,
                      "RAM for stored tiles decoded for web images, e.g. 128MiB (0: off)");

@@ -205,7 +205,8 @@ void PageLoader::collect_arrivals(FrameStats& stats, const std::function<bool(co
             if (r.status != TileStatus::ok) {
                 if (stats.source_errors++ == 0)
                     stats.first_source_error = "level " + std::to_string(r.page.level) + " (" + std::to_string(r.page.x) + ", " +
-                                               std::to_string(r.page.y) + "): " + r.message;
+                                               std::to_string(r.page.y) + "): " + std::string(to_string(r.status)) +
+                                               (r.message.empty() ? "" : " " + r.message);
                 // The source has dropped the request. Asked again, if still wanted, after
                 // kErrorRetryFrames: an overloaded server ("retry later") or a tile it cannot read
                 // is not asked on every frame. Leaving the set now and rejoining it then, the page

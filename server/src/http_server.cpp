@@ -374,8 +374,9 @@ private:
         // RFC 9112 3.2: an HTTP/1.1 request without Host, or any with two, is 400.
         const auto hosts = req.equal_range(http::field::host);
         const auto host_fields = std::distance(hosts.first, hosts.second);
-        if (host_fields > 1) return write_error(400, "more than one Host header");
-        if (host_fields == 0 && req.version() >= 11) return write_error(400, "an HTTP/1.1 request needs a Host header");
+        if (host_fields != 1 && (host_fields > 1 || req.version() >= 11))
+            return write_error(400, host_fields > 1 ? "more than one Host header" : "an HTTP/1.1 request needs a Host header",
+                               req.method() == http::verb::head);
         ++requests_;
         begin_request();
         std::string if_none_match;
@@ -384,7 +385,7 @@ private:
             if (!if_none_match.empty()) if_none_match += ", ";
             if_none_match.append(it->value().data(), it->value().size());
         }
-        std::string_view target = sv(req.target()), host = sv(req[http::field::host]);
+        std::string_view target = sv(req.target()), host = host_fields == 1 ? sv(hosts.first->value()) : std::string_view();
         if (!origin_form(target, host)) return write_error(400, "malformed absolute-form request target");
         if (host.empty()) host = reached_address();  // HTTP/1.0 without Host: what it connected to
         const HttpRequestView view{sv(req.method_string()), target, sv(req[http::field::authorization]),

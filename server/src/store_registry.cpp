@@ -203,6 +203,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
             continue;
         }
         if (const auto [it, fresh] = named.emplace(name, file); !fresh) {
+            if (it->second == file) continue;  // the same location twice (overlapping globs): one store
             // Two --store locations of one name: a client could not say which it means.
             fail(Error{Errc::invalid_argument, "two stores named '" + name + "': " + shown(it->second) + " and " + shown(file) +
                                                    " (a store is named by its file name)"});

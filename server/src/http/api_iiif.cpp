@@ -207,14 +207,20 @@ std::string base_url(HttpHandler& handler, const HttpRequestView& req) {
     return std::string(req.secure ? "https://" : "http://") + host;
 }
 
+// What admission charges a render of a region `region_w` texels wide at w x h: the texels read
+// stay within about 4x the output's (the level chosen reads at most 2x per axis past it).
+std::size_t render_charge(const storage::StoreInfo& info, const WebLook& look, std::uint32_t region_w, std::uint32_t w,
+                          std::uint32_t h) {
+    return render_memory(info, look, std::min<std::uint32_t>(region_w, 4 * w + 2), w, h);
+}
+
 // The image information. `sizes` and `tiles` list only what this server renders within one
 // render's memory (`render_budget`, --render-memory): a viewer asks for what they advertise, and a
 // size that cannot fit is refused (400) however idle the server is.
 nlohmann::json info_json(const StoreHandle& h, const WebLook& look, const std::string& id, std::size_t render_budget) {
     const storage::StoreInfo& info = h.info();
-    // As the image request charges a render: the region's texels read are about 4x the output's.
     const auto fits = [&](std::uint32_t region_w, std::uint32_t w, std::uint32_t hh) {
-        return render_memory(info, look, std::min<std::uint32_t>(region_w, 4 * w + 2), w, hh) <= render_budget;
+        return render_charge(info, look, region_w, w, hh) <= render_budget;
     };
     nlohmann::json factors = nlohmann::json::array(), sizes = nlohmann::json::array();
     for (std::uint32_t k = 0; k < info.level_count(); ++k) factors.push_back(std::uint64_t(1) << k);
@@ -239,9 +245,9 @@ nlohmann::json info_json(const StoreHandle& h, const WebLook& look, const std::s
             {"maxWidth", kMaxSide},
             {"maxHeight", kMaxSide},
             {"maxArea", kMaxArea},
-            {"sizes", sizes},
             {"extraQualities", {"color", "gray"}},
             {"extraFeatures", {"mirroring", "sizeUpscaling"}}};
+    if (!sizes.empty()) j["sizes"] = std::move(sizes);  // IIIF: present only with at least one size
     if (!tiles.empty()) j["tiles"] = std::move(tiles);
     return j;
 }
@@ -304,9 +310,7 @@ HttpResponse api_iiif(HttpHandler& handler, const ParsedRequest& req, HttpRoute&
     std::uint32_t ow = size->first, oh = size->second;
     const WebLook& shown = store->look;
     const auto reg = *region;
-    const auto memory_for = [&](std::uint32_t w, std::uint32_t hh) {
-        return render_memory(info, shown, std::min<std::uint32_t>(reg.w, 4 * w + 2), w, hh);
-    };
+    const auto memory_for = [&](std::uint32_t w, std::uint32_t hh) { return render_charge(info, shown, reg.w, w, hh); };
     // A render needing more than --render-memory would be refused however idle the server is.
     // `max` and `!w,h` name the largest size the server can give (IIIF 3.0, 4.2: within its
     // limits), so they shrink to what the budget holds; an exact size that cannot fit is a 400

@@ -56,15 +56,17 @@ const char* const kPageStyle =
 HttpResponse viewer_index(HttpHandler& handler, const ParsedRequest& req, HttpRoute& route, bool) {
     route = HttpRoute::viewer;
     if (!req.query.empty()) return error(400, "the store list takes no query parameters", false);
+    // Behind a proxy serving the server under a path (--public-url), links start with it.
+    const std::string at = public_path(handler.context().config.public_url);
     std::string rows;
     for (const auto& h : handler.context().stores.list()) {
         const storage::StoreInfo& info = h->info();
         const WebLook look = web_look(info);
-        rows += "<tr><td>" + (look.refused.empty() ? "<a href=\"view/" + h->name + "\">" + h->name + "</a>" : h->name) +
+        rows += "<tr><td>" + (look.refused.empty() ? "<a href=\"" + at + "/view/" + h->name + "\">" + h->name + "</a>" : h->name) +
                 "</td><td>" + std::to_string(info.width) + " &times; " + std::to_string(info.height) + "</td><td>" +
                 std::string(tessera::to_string(info.codec)) + "</td><td>" +
-                (look.refused.empty() ? "<a href=\"dzi/" + h->name + ".dzi\">DZI</a> &middot; <a href=\"iiif/" + h->name +
-                                            "/info.json\">IIIF</a> &middot; <a href=\"v1/stores/" + h->name + "\">JSON</a>"
+                (look.refused.empty() ? "<a href=\"" + at + "/dzi/" + h->name + ".dzi\">DZI</a> &middot; <a href=\"" + at + "/iiif/" + h->name +
+                                            "/info.json\">IIIF</a> &middot; <a href=\"" + at + "/v1/stores/" + h->name + "\">JSON</a>"
                                       : "no web view: " + look.refused) +
                 "</td></tr>\n";
     }
@@ -91,18 +93,19 @@ HttpResponse viewer_page(HttpHandler& handler, const ParsedRequest& req, HttpRou
     const storage::StoreInfo& info = h.info();
     const std::string name = h.name;  // [A-Za-z0-9_.-]: safe in HTML and JavaScript strings
     const std::string note = shown_as(info, store->look);
+    const std::string at = public_path(handler.context().config.public_url);  // as in viewer_index
     return html(200, "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>" + name +
                          " - Tessera</title><style>" + kPageStyle +
-                         "</style></head><body><div id=\"viewer\"></div><div id=\"bar\"><a href=\"../\">stores</a> &middot; " +
+                         "</style></head><body><div id=\"viewer\"></div><div id=\"bar\"><a href=\"" + at + "/\">stores</a> &middot; " +
                          name + " &middot; " + std::to_string(info.width) + " &times; " + std::to_string(info.height) +
                          (note.empty() ? "" : " &middot; " + note) +
                          " <span id=\"state\"></span></div>\n"
-                         "<script src=\"../static/openseadragon/openseadragon.min.js\"></script>\n<script>\n"
+                         "<script src=\"" + at + "/static/openseadragon/openseadragon.min.js\"></script>\n<script>\n"
                          "const tessera = window.tessera = {opened: false, fullyLoaded: false, error: null};\n"
                          "const state = document.getElementById('state');\n"
                          "const viewer = tessera.viewer = OpenSeadragon({\n"
-                         "  id: 'viewer', prefixUrl: '../static/openseadragon/images/',\n"
-                         "  tileSources: '../dzi/" + name + ".dzi?v=" + hex16(h.version) + "',\n"
+                         "  id: 'viewer', prefixUrl: '" + at + "/static/openseadragon/images/',\n"
+                         "  tileSources: '" + at + "/dzi/" + name + ".dzi?v=" + hex16(h.version) + "',\n"
                          "  showNavigator: true, maxZoomPixelRatio: 4, visibilityRatio: 0.5, immediateRender: false\n"
                          "});\n"
                          "viewer.addHandler('open', () => {\n"

@@ -268,10 +268,10 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
         format == "tiff" && (photometric == 8 || photometric == 9 || photometric == 10))
         return make_error(Errc::unsupported, info.description + " holds CIELab colour (L*a*b*), which is not converted; convert it "
                                                                 "to sRGB first (e.g. vips colourspace IN OUT srgb)");
-    // A TIFF's compressed strips are read a whole strip at a time, within a bound on the memory one
-    // strip takes. Read a few rows at a time, strips that hold one plane each (PlanarConfiguration 2)
-    // fail (libtiff: "does not support random access"), and OpenImageIO 2.4 returns zeros for
-    // the doubles of a strip read in part, with no error.
+    // Two kinds of compressed TIFF strips are read a whole strip at a time, within a bound on the
+    // memory one strip takes: read a few rows at a time, strips that hold one plane each
+    // (PlanarConfiguration 2) fail (libtiff: "does not support random access"), and OpenImageIO
+    // 2.4 returns zeros for the doubles of a strip read in part, with no error.
     std::uint32_t band_rows = 0;
     if (format == "tiff" && s.tile_width > 0 && type == OIIO::TypeDesc::DOUBLE)
         return make_error(Errc::unsupported, info.description + " stores doubles in tiles, which OpenImageIO 2.4 reads as zeros; "
@@ -289,7 +289,9 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
                                   std::to_string(rows) + " rows (" + std::to_string(strip_bytes >> 20) +
                                   " MiB each, over the 1024 MiB read at once); rewrite it in smaller strips or tiles "
                                   "first (e.g. tiffcp -p contig -r 64 IN OUT)");
-        if (rows > 1 && strip_bytes <= kMaxStripBytes) band_rows = rows;
+        // Other compressed strips read in part fine: they stream a few rows at a time, so that a
+        // file of one huge strip is not held whole.
+        if ((planes || type == OIIO::TypeDesc::DOUBLE) && rows > 1) band_rows = rows;
     }
     if (format == "webp" && info.has_alpha && info.channels == 4 && type == OIIO::TypeDesc::UINT8) {
         info.colour_space = ColourSpace::srgb;

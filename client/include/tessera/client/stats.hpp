@@ -148,7 +148,7 @@ public:
     std::uint64_t other_version_arrivals() const { return other_version_arrivals_; }
     std::uint64_t decode_failures() const { return decode_failures_; }
     std::uint64_t source_errors() const { return source_errors_; }
-    // The first source error of the run ("level 3 (0, 0): TILE_DATA_LOSS ..."), empty when none.
+    // The first source error of the run ("level 3 (0, 0): DATA_LOSS <message>"), empty when none.
     const std::string& first_source_error() const { return first_source_error_; }
     const std::array<std::uint64_t, kMaxLevels>& ram_hits() const { return ram_hits_; }
     const std::array<std::uint64_t, kMaxLevels>& disk_hits() const { return disk_hits_; }
