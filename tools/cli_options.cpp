@@ -66,6 +66,15 @@ void require_finite_numbers(CLI::App& app) {
     for (CLI::App* sub : app.get_subcommands([](CLI::App*) { return true; })) require_finite_numbers(*sub);
 }
 
+void add_feedback_reach_options(CLI::App& app, float& prefetch_lod, float& guard_band) {
+    app.add_option("--prefetch-lod", prefetch_lod, "feedback asks for pages this many levels finer than sampled (0..2)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0f, 2.0f));
+    app.add_option("--guard-band", guard_band, "feedback sees this fraction more of the scene on each side (0..1)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0f, 1.0f));
+}
+
 CLI::Option* add_texels_option(CLI::App& app, std::uint32_t& texels, const std::string& help, const CLI::Validator& check) {
     CLI::Option* opt = app.add_option("--texels", texels, help)->check(check)->capture_default_str();
     // CLI11 leaves a hidden option's name out of its errors: these messages name --size themselves.

@@ -38,6 +38,10 @@ CLI::Validator output_file();
 // let nan through (every comparison with it is false). Called once every command is registered.
 void require_finite_numbers(CLI::App& app);
 
+// How far the feedback reaches, as view and demo take it: --prefetch-lod (0..2 levels finer than
+// sampled) and --guard-band (0..1 of the scene more on each side).
+void add_feedback_reach_options(CLI::App& app, float& prefetch_lod, float& guard_band);
+
 // `--texels N`: texels per side of the procedural terrain (`bench`, `demo`), checked by `check`.
 // `--size N`, its former name, still works: hidden from the help, it prints a one-line notice on
 // stderr once the command line is accepted (this sets the subcommand's final callback), and a

@@ -87,12 +87,7 @@ Command add_demo(CLI::App& app) {
                 return v == "auto" || client::parse_page_format(v) ? std::string() : "'" + v + "' is not a page format";
             },
             "FORMAT", "page format"));
-    c->add_option("--prefetch-lod", a->prefetch_lod, "feedback asks for pages this many levels finer (0..2)")
-        ->capture_default_str()
-        ->check(CLI::Range(0.0f, 2.0f));
-    c->add_option("--guard-band", a->guard_band, "feedback sees this fraction more on each side (0..1)")
-        ->capture_default_str()
-        ->check(CLI::Range(0.0f, 1.0f));
+    add_feedback_reach_options(*c, a->prefetch_lod, a->guard_band);
     c->add_option("--fade-ms", a->fade_ms, "arriving pages blend in, and evicted pages in view fade out, over this many milliseconds (0: off)")->capture_default_str();
     c->add_option("--motion-prefetch-ms", a->motion_prefetch_ms,
                   "every other frame's feedback sees the view this far ahead, from the camera's motion (0: off)")

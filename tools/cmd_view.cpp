@@ -58,12 +58,7 @@ Command add_view(CLI::App& app) {
     c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
     c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();
     c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size")->capture_default_str();
-    c->add_option("--prefetch-lod", o->prefetch_lod, "feedback asks for pages this many levels finer than sampled (0..2)")
-        ->capture_default_str()
-        ->check(CLI::Range(0.0f, 2.0f));
-    c->add_option("--guard-band", o->guard_band, "feedback sees this fraction more of the scene on each side (0..1)")
-        ->capture_default_str()
-        ->check(CLI::Range(0.0f, 1.0f));
+    add_feedback_reach_options(*c, o->prefetch_lod, o->guard_band);
     c->add_option("--fade-ms", o->fade_ms,
                   "arriving pages blend in from what was drawn before them over this many milliseconds, evicted pages "
                   "still in view fade out, and LoD-bias changes spread over as long (0: off, pages show and go at once)")
