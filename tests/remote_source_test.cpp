@@ -50,7 +50,8 @@ TEST(RemoteSource, LocationsAreCheckedBeforeAnyRequest) {
     EXPECT_FALSE(is_remote_location("ftp://h/p.tsr"));
     EXPECT_FALSE(is_remote_location("/srv/p.tsr"));
     for (const char* bad : {"s3://bucket", "s3://bucket/", "s3:///key", "http://", "http://user@host/x.tsr", "http://host:port/x.tsr",
-                            "http://[::1/x.tsr"}) {
+                            "http://[::1/x.tsr", "http://host:99999/x.tsr", "http://host:0/x.tsr", "http://[::1]x/x.tsr",
+                            "http://a:b:80/x.tsr"}) {
         auto r = open_remote_source(bad);
         ASSERT_FALSE(r.ok()) << bad;
         EXPECT_EQ(r.error().code, Errc::invalid_argument) << bad << ": " << r.error().message;

@@ -2,6 +2,8 @@
 
 #include <filesystem>
 
+#include "tessera/host_port.hpp"
+
 namespace tessera::client {
 
 namespace {
@@ -16,15 +18,9 @@ Status check_grpc_target(std::string_view target) {
     for (std::size_t start = 0;;) {
         const std::size_t comma = target.find(',', start);
         const std::string_view entry = target.substr(start, comma == std::string_view::npos ? std::string_view::npos : comma - start);
-        const std::size_t colon = entry.rfind(':');
-        const std::string_view port = colon == std::string_view::npos ? std::string_view() : entry.substr(colon + 1);
-        std::uint32_t value = 0;
-        bool digits = !port.empty() && port.size() <= 5;
-        for (const char c : port) {
-            digits = digits && c >= '0' && c <= '9';
-            if (digits) value = value * 10 + std::uint32_t(c - '0');
-        }
-        if (entry.empty() || colon == 0 || !digits || value == 0 || value > 65535)
+        const auto parts = split_host_port(entry);
+        const auto port = parts && parts->has_port ? parse_port(parts->port) : std::nullopt;
+        if (!port || *port == 0 || (parts->host.empty() && !parts->bracketed))
             return Error{Errc::invalid_argument, all + "'" + std::string(entry) + "' is not HOST:PORT with a port from 1 to 65535"};
         if (comma == std::string_view::npos) return Status();
         start = comma + 1;

@@ -53,6 +53,7 @@
 #include "http/common.hpp"
 #include "http_handler.hpp"
 #include "http_response_head.hpp"
+#include "tessera/host_port.hpp"
 #include "thread_slice.hpp"
 #include "work_executor.hpp"
 
@@ -598,31 +599,19 @@ private:
 
 Result<tcp::endpoint> resolve_endpoint(const std::string& address, net::io_context& ioc) {
     if (address.empty()) return make_error(Errc::invalid_argument, "HTTP address is empty");
-    std::string host, port;
-    if (address.front() == '[') {
-        const std::size_t close = address.find(']');
-        if (close == std::string::npos || close + 1 >= address.size() || address[close + 1] != ':')
-            return make_error(Errc::invalid_argument, "HTTP address '" + address + "': expected [IPV6]:PORT");
-        host = address.substr(1, close - 1);
-        port = address.substr(close + 2);
-    } else {
-        const std::size_t colon = address.rfind(':');
-        if (colon == std::string::npos)
-            return make_error(Errc::invalid_argument, "HTTP address '" + address + "': expected HOST:PORT");
-        host = address.substr(0, colon);
-        port = address.substr(colon + 1);
-        if (host.find(':') != std::string::npos)
-            return make_error(Errc::invalid_argument, "HTTP address '" + address + "': an IPv6 address needs brackets, [ADDR]:PORT");
-    }
+    const auto parts = split_host_port(address);
+    if (!parts || !parts->has_port)
+        return make_error(Errc::invalid_argument, "HTTP address '" + address + "': expected HOST:PORT or [IPV6]:PORT");
+    const std::string host(parts->host), port(parts->port);
+    if (!parts->bracketed && host.find(':') != std::string::npos)
+        return make_error(Errc::invalid_argument, "HTTP address '" + address + "': an IPv6 address needs brackets, [ADDR]:PORT");
     if (host.empty()) return make_error(Errc::invalid_argument, "HTTP address '" + address + "': missing host");
-    unsigned long port_value = 0;
-    if (port.empty() || port.size() > 5 || port.find_first_not_of("0123456789") != std::string::npos ||
-        (port_value = std::stoul(port)) > 65535)
-        return make_error(Errc::invalid_argument, "HTTP address '" + address + "': port must be 0..65535");
+    const auto port_value = parse_port(port);
+    if (!port_value) return make_error(Errc::invalid_argument, "HTTP address '" + address + "': port must be 0..65535");
 
     error_code ec;
     const net::ip::address ip = net::ip::make_address(host, ec);
-    if (!ec) return tcp::endpoint(ip, static_cast<unsigned short>(port_value));
+    if (!ec) return tcp::endpoint(ip, *port_value);
     tcp::resolver resolver(ioc);
     const auto results = resolver.resolve(host, port, ec);
     if (ec || results.empty())

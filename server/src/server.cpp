@@ -29,6 +29,7 @@
 #include "scheduler.hpp"
 #include "server_context.hpp"
 #include "store_registry.hpp"
+#include "tessera/host_port.hpp"
 #include "tessera/server/server.hpp"
 #include "tessera/storage/remote_source.hpp"
 #include "tile_cache.hpp"
@@ -94,11 +95,8 @@ Status check_key_pair(const std::string& cert_pem, const std::string& key_pem, c
 
 // HOST:PORT with a port in 0..65535 (0: any); HOST may be a bracketed IPv6 literal.
 Status check_address(const std::string& address, const char* flag) {
-    const auto colon = address.rfind(':');
-    const std::string port = colon == std::string::npos ? std::string() : address.substr(colon + 1);
-    bool digits = !port.empty() && port.size() <= 5;
-    for (char ch : port) digits = digits && ch >= '0' && ch <= '9';
-    if (colon == 0 || colon == std::string::npos || !digits || std::stoul(port) > 65535)
+    const auto parts = split_host_port(address);
+    if (!parts || !parts->has_port || (parts->host.empty() && !parts->bracketed) || !parse_port(parts->port))
         return Error{Errc::invalid_argument, std::string(flag) + " " + address + ": expected HOST:PORT with a port 0-65535"};
     return Status();
 }

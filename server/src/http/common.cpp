@@ -7,6 +7,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "tessera/host_port.hpp"
+
 namespace tessera::server::httpapi {
 
 namespace {
@@ -114,36 +116,21 @@ namespace {
 // Host at all (HTTP/1.0): the transport puts the address the client reached in its place.
 bool host_ok(std::string_view host) {
     if (host.empty()) return true;
-    std::string_view name = host, port;
-    if (host.front() == '[') {
-        const std::size_t close = host.find(']');
-        if (close == std::string_view::npos || close < 3) return false;
-        for (const char c : host.substr(1, close - 1))
+    const auto parts = split_host_port(host);
+    if (!parts) return false;
+    if (parts->bracketed) {
+        if (parts->host.size() < 2) return false;
+        for (const char c : parts->host)
             if (!std::isxdigit(static_cast<unsigned char>(c)) && c != ':' && c != '.') return false;
-        name = host.substr(0, close + 1);
-        const std::string_view rest = host.substr(close + 1);
-        if (!rest.empty() && rest.front() != ':') return false;
-        port = rest.empty() ? rest : rest.substr(1);
     } else {
-        const std::size_t colon = host.rfind(':');
-        if (colon != std::string_view::npos) {
-            name = host.substr(0, colon);
-            port = host.substr(colon + 1);
-        }
-        if (name.empty()) return false;
-        for (const char c : name) {
+        if (parts->host.empty()) return false;
+        for (const char c : parts->host) {
             const auto u = static_cast<unsigned char>(c);
             if ((u >= 'a' && u <= 'z') || (u >= 'A' && u <= 'Z') || (u >= '0' && u <= '9')) continue;
             if (std::string_view("-._~!$&'()*+,;=%").find(c) == std::string_view::npos) return false;
         }
     }
-    if (port.size() > 5) return false;
-    std::uint32_t value = 0;
-    for (const char c : port) {
-        if (c < '0' || c > '9') return false;
-        value = value * 10 + std::uint32_t(c - '0');
-    }
-    return value <= 65535;
+    return parts->port.empty() || parse_port(parts->port).has_value();  // "HOST:" is allowed (RFC 3986 3.2.3)
 }
 
 }  // namespace

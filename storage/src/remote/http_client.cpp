@@ -11,8 +11,9 @@
 #include <boost/beast/http.hpp>
 #include <boost/beast/ssl.hpp>
 #include <cctype>
-#include <charconv>
 #include <optional>
+
+#include "tessera/host_port.hpp"
 
 namespace tessera::storage::remote {
 
@@ -58,10 +59,7 @@ HttpClient::HttpClient(Origin origin, unsigned max_connections, std::chrono::mil
       timeout_(timeout),
       ca_file_(std::move(ca_file)),
       resolver_(origin_.host, origin_.port, std::move(lookup)) {
-    unsigned port = 0;
-    const auto [end, ec] = std::from_chars(origin_.port.data(), origin_.port.data() + origin_.port.size(), port);
-    if (ec == std::errc() && end == origin_.port.data() + origin_.port.size() && port > 0 && port <= 65535)
-        port_ = static_cast<std::uint16_t>(port);
+    if (const auto port = parse_port(origin_.port); port && *port > 0) port_ = *port;
 }
 
 HttpClient::~HttpClient() = default;

@@ -13,6 +13,7 @@
 
 #include "http_client.hpp"
 #include "s3_sign.hpp"
+#include "tessera/host_port.hpp"
 
 namespace tessera::storage {
 
@@ -63,20 +64,13 @@ Result<Origin> parse_origin(const std::string& url, std::string& rest) {
     rest = slash == std::string_view::npos ? "/" : std::string(v.substr(slash));
     if (authority.empty() || authority.find('@') != std::string::npos)
         return make_error(Errc::invalid_argument, "'" + without_query(url) + "': no host (user information is not supported)");
-    o.port = o.tls ? "443" : "80";
-    if (authority.front() == '[') {  // [v6]:port
-        const std::size_t close = authority.find(']');
-        if (close == std::string::npos) return make_error(Errc::invalid_argument, "'" + without_query(url) + "': bad IPv6 host");
-        o.host = authority.substr(1, close - 1);
-        if (close + 1 < authority.size() && authority[close + 1] == ':') o.port = authority.substr(close + 2);
-    } else if (const std::size_t colon = authority.rfind(':'); colon != std::string::npos) {
-        o.host = authority.substr(0, colon);
-        o.port = authority.substr(colon + 1);
-    } else {
-        o.host = authority;
-    }
-    if (o.host.empty() || o.port.empty() || o.port.find_first_not_of("0123456789") != std::string::npos)
-        return make_error(Errc::invalid_argument, "'" + without_query(url) + "': bad host or port");
+    const auto parts = split_host_port(authority);
+    if (!parts || parts->host.empty() || (!parts->bracketed && parts->host.find(':') != std::string_view::npos))
+        return make_error(Errc::invalid_argument, "'" + without_query(url) + "': bad host (an IPv6 address needs brackets)");
+    o.host = std::string(parts->host);
+    o.port = parts->port.empty() ? (o.tls ? "443" : "80") : std::string(parts->port);  // "HOST:" is the default port too
+    if (const auto port = parse_port(o.port); !port || *port == 0)
+        return make_error(Errc::invalid_argument, "'" + without_query(url) + "': bad port (1 to 65535)");
     return o;
 }
 
