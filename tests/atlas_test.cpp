@@ -245,6 +245,12 @@ TEST_F(AtlasBuild, BadInputFailsAndLeavesNothing) {
     expect_one_line_error(run_tessera("source scene:gallery -o " + q(gallery_)));
     expect_one_line_error(run_tessera("source scene:nosuch -o " + q(dir_.file("x"))));
     EXPECT_FALSE(fs::exists(dir_.file("x")));
+    // "DIR/" is the folder DIR, as docs/atlas.md writes it, new or empty.
+    EXPECT_EQ(run_tessera("source scene:gallery -q -o " + q(dir_.file("g3") + "/")).exit_code, 0);
+    EXPECT_TRUE(fs::is_regular_file(dir_.file("g3/gallery.obj")));
+    fs::create_directory(dir_.file("g4"));
+    EXPECT_EQ(run_tessera("source scene:gallery -q -o " + q(dir_.file("g4") + "//")).exit_code, 0);
+    EXPECT_TRUE(fs::is_regular_file(dir_.file("g4/gallery.mtl")));
 }
 
 }  // namespace

@@ -869,9 +869,87 @@ TEST_F(GltfAtlas, ScenesItCannotReadFailAndLeaveNothing) {
     const std::string bad = j.dump();
     write_file(dir_.file("badimage.gltf"), std::vector<std::uint8_t>(bad.begin(), bad.end()));
     expect_fails(dir_.file("badimage.gltf"), "badimage.gltf image 0");
+    // An image damaged past its header, found only while the store is built: still the material.
+    auto logo = read_file((kSamples / "BoxTextured-glTF/CesiumLogoFlat.png").string());
+    logo.resize(logo.size() / 2);
+    write_file(dir_.file("box/CesiumLogoFlat.png"), logo);
+    expect_fails(dir_.file("box/BoxTextured.gltf"), "material 'Texture': ");
+    // An image or buffer uri that names a folder (tinygltf read it as a file: std::bad_alloc).
+    fs::create_directory(dir_.file("sub"));
+    for (const char* field : {"images", "buffers"}) {
+        nlohmann::json k = j;
+        k[field][0]["uri"] = "sub";
+        const std::string body = k.dump();
+        write_file(dir_.file("folder.gltf"), std::vector<std::uint8_t>(body.begin(), body.end()));
+        expect_fails(dir_.file("folder.gltf"), field == std::string("images") ? "is not an image file" : "cannot read glTF");
+    }
+    // A sampler that is not there, and positions that are not finite numbers.
+    {
+        nlohmann::json k = j;
+        k["textures"][0]["sampler"] = 7;
+        const std::string body = k.dump();
+        write_file(dir_.file("sampler.gltf"), std::vector<std::uint8_t>(body.begin(), body.end()));
+        expect_fails(dir_.file("sampler.gltf"), "sampler 7 does not exist");
+    }
+    expect_fails((kSamples / "BoxWithInfinites-glTF-Binary/BoxWithInfinites.glb").string(), "position is not a finite number");
     // Not a scene file at all.
     write_file(dir_.file("scene.fbx"), std::vector<std::uint8_t>(10, 1));
     expect_fails(dir_.file("scene.fbx"), "not an OBJ (.obj) or glTF 2.0");
+}
+
+// One image under two samplers: where one repeats (its cell's padding wraps around) and the other
+// clamps, each gets a cell of its own, or the clamped one would show the opposite edge at its rim;
+// under the same sampler they share one. Material extensions and vertex colours the atlas does not
+// keep are named.
+TEST_F(GltfAtlas, AnImageRepeatedAndClampedGetsTwoCells) {
+    const float pos[4][3] = {{-1, 0, 1}, {1, 0, 1}, {1, 0, -1}, {-1, 0, -1}};
+    const float uv[4][2] = {{0, 2}, {2, 2}, {2, 0}, {0, 0}};
+    const std::uint16_t idx[6] = {0, 1, 2, 0, 2, 3};
+    const auto primitive = [](int material) {
+        return nlohmann::json{{"primitives", {{{"attributes", {{"POSITION", 0}, {"TEXCOORD_0", 1}}}, {"indices", 2}, {"material", material}}}}};
+    };
+    auto scene = [&](int second_wrap) {
+        nlohmann::json j = {
+            {"asset", {{"version", "2.0"}}},
+            {"scene", 0},
+            {"scenes", {{{"nodes", {0, 1}}}}},
+            {"nodes", {{{"mesh", 0}}, {{"mesh", 1}, {"translation", {3, 0, 0}}}}},
+            {"meshes", {primitive(0), primitive(1)}},
+            {"materials",
+             {{{"name", "tiled"}, {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 0}}}}}},
+              {{"name", "edge"}, {"pbrMetallicRoughness", {{"baseColorTexture", {{"index", 1}}}}}}}},
+            {"samplers", {{{"wrapS", 10497}, {"wrapT", 10497}}, {{"wrapS", second_wrap}, {"wrapT", second_wrap}}}},
+            {"textures", {{{"source", 0}, {"sampler", 0}}, {{"source", 0}, {"sampler", 1}}}},
+            {"images", {{{"uri", solid_png_uri({200, 40, 30})}}}},
+            {"accessors",
+             {{{"bufferView", 0}, {"componentType", 5126}, {"count", 4}, {"type", "VEC3"}, {"min", {-1, 0, -1}}, {"max", {1, 0, 1}}},
+              {{"bufferView", 1}, {"componentType", 5126}, {"count", 4}, {"type", "VEC2"}},
+              {{"bufferView", 2}, {"componentType", 5123}, {"count", 6}, {"type", "SCALAR"}}}}};
+        j.update(quad_buffers(pos, uv, idx));
+        return j;
+    };
+    // Built without -q: the summary says how many images (cells) were packed.
+    auto build_loud = [&](const nlohmann::json& j, const std::string& name) {
+        const std::string file = dir_.file(name + ".gltf"), text = j.dump();
+        write_file(file, std::vector<std::uint8_t>(text.begin(), text.end()));
+        return run_tessera("build --codec zstd --atlas " + q(file) + " -o " + q(dir_.file("out/" + name + ".tsr")) + " --obj-out " +
+                           q(dir_.file("out/" + name + ".obj")));
+    };
+    const RunResult clamped = build_loud(scene(33071), "clamped");
+    ASSERT_EQ(clamped.exit_code, 0) << clamped.out;
+    EXPECT_NE(clamped.out.find(" from 2 images "), std::string::npos) << clamped.out;
+    const RunResult repeated = build_loud(scene(10497), "repeated");
+    ASSERT_EQ(repeated.exit_code, 0) << repeated.out;
+    EXPECT_NE(repeated.out.find(" from 1 images "), std::string::npos) << repeated.out;
+    EXPECT_EQ(repeated.out.find("warning"), std::string::npos) << repeated.out;
+
+    nlohmann::json extras = scene(10497);
+    extras["materials"][1]["extensions"] = {{"KHR_materials_sheen", {{"sheenColorFactor", {1, 1, 1}}}}};
+    extras["meshes"][0]["primitives"][0]["attributes"]["COLOR_0"] = 0;
+    const RunResult warned = build_json(extras, "extras");
+    ASSERT_EQ(warned.exit_code, 0) << warned.out;
+    EXPECT_NE(warned.out.find("warning: material 'edge': KHR_materials_sheen is not kept"), std::string::npos) << warned.out;
+    EXPECT_NE(warned.out.find("warning: 1 primitives' vertex colours (COLOR_0) are not kept"), std::string::npos) << warned.out;
 }
 
 // glTF's alpha modes: an image only OPAQUE materials draw loses its alpha (glTF ignores it there,

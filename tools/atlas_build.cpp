@@ -91,6 +91,28 @@ std::string material_list(const scene::AtlasImageRef& img) {
     return (img.materials.size() > 1 ? "materials " : "material ") + s;
 }
 
+// A texture whose read errors (an image damaged past its header is only found while the store is
+// built) name the materials that use it, and the image in the scene rather than a temporary file.
+class NamedTexture final : public storage::ImageSource {
+public:
+    NamedTexture(std::unique_ptr<storage::ImageSource> inner, std::string materials, std::string file, std::string shown)
+        : inner_(std::move(inner)), materials_(std::move(materials)), file_(std::move(file)), shown_(std::move(shown)) {}
+    const storage::SourceInfo& info() const override { return inner_->info(); }
+    Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const storage::ParallelFor& parallel) override {
+        Status st = inner_->read_rows(y0, count, dst, parallel);
+        if (st) return st;
+        std::string message = st.error().message;
+        if (file_ != shown_)
+            for (auto at = message.find(file_); at != std::string::npos; at = message.find(file_, at + shown_.size()))
+                message.replace(at, file_.size(), shown_);
+        return make_error(st.error().code, materials_ + ": " + message);
+    }
+
+private:
+    std::unique_ptr<storage::ImageSource> inner_;
+    std::string materials_, file_, shown_;
+};
+
 }  // namespace
 
 Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string& store, const std::string& obj_out,
@@ -146,7 +168,7 @@ Result<AtlasBuildSummary> build_atlas(const std::string& obj, const std::string&
                 if (auto at = message.find(file); at != std::string::npos) message.replace(at, file.size(), m.texture);
             return make_error(src.error().code, material_list(r) + ": " + message);
         }
-        return src;
+        return std::unique_ptr<storage::ImageSource>(std::make_unique<NamedTexture>(std::move(*src), material_list(r), file, m.texture));
     };
     // The material layers this scene has: a role any cell has a map for (docs/atlas.md, "Material layers").
     std::vector<std::size_t> roles;

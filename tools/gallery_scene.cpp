@@ -236,7 +236,10 @@ Status write_text(const fs::path& p, const std::string& s) {
 
 Status write_gallery_scene(const std::string& dir) {
     if (dir.empty()) return make_error(Errc::invalid_argument, "no output folder given");
-    const fs::path out(dir);
+    // "gallery/" names the folder "gallery" (its file name would otherwise be empty).
+    std::string trimmed = dir;
+    while (trimmed.size() > 1 && trimmed.back() == '/') trimmed.pop_back();
+    const fs::path out(trimmed);
     std::error_code ec;
     if (fs::exists(out, ec)) {
         if (!fs::is_directory(out, ec)) return make_error(Errc::invalid_argument, "'" + dir + "' exists and is not a folder");

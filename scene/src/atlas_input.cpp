@@ -111,7 +111,7 @@ double map_into_cell(double x, std::int64_t k, Wrap wrap) {
 
 std::string range_text(const double (&lo)[2], const double (&hi)[2]) {
     char range[160];
-    std::snprintf(range, sizeof range, "u from %.6g to %.6g, v from %.6g to %.6g", lo[0], hi[0], lo[1], hi[1]);
+    std::snprintf(range, sizeof range, "u from %.6g to %.6g, v from %.6g to %.6g (v up, OBJ's way)", lo[0], hi[0], lo[1], hi[1]);
     return range;
 }
 

@@ -231,6 +231,24 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
     tinygltf::TinyGLTF loader;
     EmbeddedImages embedded;
     loader.SetImageLoader(keep_embedded_image, &embedded);
+    // tinygltf reads whatever a uri names: a folder was read as a file (std::bad_alloc). For it,
+    // only regular files exist.
+    tinygltf::FsCallbacks regular_files{};
+    regular_files.FileExists = [](const std::string& p, void*) {
+        std::error_code e;
+        return fs::is_regular_file(p, e);
+    };
+    regular_files.ExpandFilePath = tinygltf::ExpandFilePath;
+    regular_files.ReadWholeFile = [](std::vector<unsigned char>* out, std::string* err, const std::string& p, void* user) {
+        std::error_code e;
+        if (!fs::is_regular_file(p, e)) {
+            if (err) *err += "'" + p + "' is not a file\n";
+            return false;
+        }
+        return tinygltf::ReadWholeFile(out, err, p, user);
+    };
+    regular_files.WriteWholeFile = tinygltf::WriteWholeFile;
+    loader.SetFsCallbacks(regular_files);
     tinygltf::Model model;
     std::string err, warn;
     std::string ext = fs::path(path).extension().string();
@@ -285,7 +303,10 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
                                                  " does not exist");
         t.image = tex.source;
         t.texcoord = info.texCoord;
-        if (tex.sampler >= 0 && static_cast<std::size_t>(tex.sampler) < model.samplers.size()) {
+        if (tex.sampler >= 0 && static_cast<std::size_t>(tex.sampler) >= model.samplers.size())
+            return make_error(Errc::corrupt, "glTF '" + path + "', material '" + name + "': sampler " + std::to_string(tex.sampler) +
+                                                 " does not exist");
+        if (tex.sampler >= 0) {
             t.wrap[0] = wrap_of(model.samplers[static_cast<std::size_t>(tex.sampler)].wrapS);
             t.wrap[1] = wrap_of(model.samplers[static_cast<std::size_t>(tex.sampler)].wrapT);
         }
@@ -328,10 +349,15 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
         bool blend = false;  // alphaMode BLEND: its triangles are drawn blended (Triangle::blend)
     };
     // One cell per distinct (colour texture or colour, maps, values where maps are missing).
+    // Wrapping matters too: a cell whose texture repeats has padding that wraps around, which a
+    // clamped or mirrored material of the same image must not sample at its edges.
     using CellKey = std::tuple<int, std::array<std::uint8_t, 3>, std::array<int, kMapRoles>,
-                               std::array<std::array<std::uint8_t, 3>, kMapRoles>>;
+                               std::array<std::array<std::uint8_t, 3>, kMapRoles>, bool>;
     std::map<CellKey, std::uint32_t> cells;
     std::map<int, MaterialImage> material_images;
+    // Material extensions the atlas does not keep (clear coat, sheen, specular-glossiness ...):
+    // the first material that has each, and how many do.
+    std::map<std::string, std::pair<std::string, std::size_t>> unkept_extensions;
     auto material_image = [&](int m) -> Result<MaterialImage> {
         if (auto it = material_images.find(m); it != material_images.end()) return it->second;
         MaterialImage mi;
@@ -344,6 +370,11 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
         if (m >= 0 && static_cast<std::size_t>(m) < model.materials.size()) {
             const tinygltf::Material& mat = model.materials[static_cast<std::size_t>(m)];
             const tinygltf::PbrMetallicRoughness& pbr = mat.pbrMetallicRoughness;
+            for (const auto& extension : mat.extensions)
+                if (extension.first != "KHR_materials_emissive_strength" && extension.first != "KHR_materials_unlit") {
+                    auto& [first, count] = unkept_extensions[extension.first];
+                    if (count++ == 0) first = name;
+                }
             factor = pbr.baseColorFactor;
             auto base = texture_of(pbr.baseColorTexture, name, "base colour");
             if (!base) return base.error();
@@ -423,7 +454,9 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
             cell.colour = {factor.size() >= 3 ? linear_to_srgb_byte(factor[0]) : std::uint8_t(255),
                            factor.size() >= 3 ? linear_to_srgb_byte(factor[1]) : std::uint8_t(255),
                            factor.size() >= 3 ? linear_to_srgb_byte(factor[2]) : std::uint8_t(255)};
-        const CellKey key{colour_image, colour_image < 0 ? cell.colour : std::array<std::uint8_t, 3>{}, map_images, cell.map_values};
+        const bool may_repeat = mi.textured && (mi.texture.wrap[0] == Wrap::repeat || mi.texture.wrap[1] == Wrap::repeat);
+        const CellKey key{colour_image, colour_image < 0 ? cell.colour : std::array<std::uint8_t, 3>{}, map_images, cell.map_values,
+                          may_repeat};
         auto [it, inserted] = cells.emplace(key, static_cast<std::uint32_t>(data.images.size()));
         if (inserted) {
             if (colour_image >= 0) static_cast<AtlasMapRef&>(cell) = map_ref_of(colour_image);
@@ -439,7 +472,7 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
     };
 
     // One primitive of a mesh under `world`: its vertices transformed, its triangles added.
-    std::size_t skipped_primitives = 0;
+    std::size_t skipped_primitives = 0, coloured_primitives = 0, morphed_primitives = 0;
     auto add_primitive = [&](const tinygltf::Primitive& prim, const Mat4& world, const std::string& shape_name, Shape& shape) -> Status {
         const std::string what = "glTF '" + path + "', " + shape_name;
         const int mode = prim.mode < 0 ? TINYGLTF_MODE_TRIANGLES : prim.mode;
@@ -447,6 +480,8 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
             ++skipped_primitives;
             return {};
         }
+        if (prim.attributes.count("COLOR_0")) ++coloured_primitives;
+        if (!prim.targets.empty()) ++morphed_primitives;
         auto pos_it = prim.attributes.find("POSITION");
         if (pos_it == prim.attributes.end()) return make_error(Errc::corrupt, what + ": a primitive has no POSITION");
         auto positions = read_accessor(model, pos_it->second, 3, what + " POSITION");
@@ -495,9 +530,16 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
         const auto nm = normal_matrix(world);
         for (std::size_t i = 0; i < count; ++i) {
             const double* p = &(*positions)[3 * i];
-            for (int row = 0; row < 3; ++row)
-                data.positions.push_back(static_cast<float>(world[static_cast<std::size_t>(row)] * p[0] + world[static_cast<std::size_t>(4 + row)] * p[1] +
-                                                            world[static_cast<std::size_t>(8 + row)] * p[2] + world[static_cast<std::size_t>(12 + row)]));
+            for (int row = 0; row < 3; ++row) {
+                const auto r = static_cast<std::size_t>(row);
+                const float x = static_cast<float>(world[r] * p[0] + world[4 + r] * p[1] + world[8 + r] * p[2] + world[12 + r]);
+                if (!std::isfinite(x))  // infinities and NaN, in the file or made by the node's transform
+                    return make_error(Errc::corrupt, what + ": vertex " + std::to_string(i) + "'s position is not a finite number" +
+                                                         (std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2])
+                                                              ? " once its node's transform is applied"
+                                                              : ""));
+                data.positions.push_back(x);
+            }
             if (!normals.empty()) {
                 const double* n = &normals[3 * i];
                 double o[3];
@@ -607,6 +649,14 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
     for (int r : roots) TESSERA_TRY(visit(r, kIdentity));
     if (skipped_primitives)
         data.warnings.push_back(std::to_string(skipped_primitives) + " primitives of points or lines are left out (the atlas scene holds triangles)");
+    for (const auto& [extension, seen] : unkept_extensions)
+        data.warnings.push_back("material '" + seen.first + "'" +
+                                (seen.second > 1 ? " and " + std::to_string(seen.second - 1) + " more" : std::string()) + ": " + extension +
+                                " is not kept (the atlas keeps the base colour and the core maps)");
+    if (coloured_primitives)
+        data.warnings.push_back(std::to_string(coloured_primitives) + " primitives' vertex colours (COLOR_0) are not kept");
+    if (morphed_primitives || !model.skins.empty() || !model.animations.empty())
+        data.warnings.push_back("skins, morph targets and animations are not applied: the scene is built in its rest pose");
 
     // Every external texture (and map) must exist (tinygltf only warns).
     for (const AtlasImageRef& ref : data.images) {
@@ -616,7 +666,10 @@ Status read_gltf(const std::string& path, UpAxis up, AtlasInputData& data) {
             if (!f->texture.empty() && !f->embedded && !fs::is_regular_file(f->texture, ec)) {
                 std::string mats;
                 for (const auto& m : ref.materials) mats += (mats.empty() ? "'" : ", '") + m + "'";
-                return make_error(Errc::not_found, "glTF '" + path + "', material " + mats + ": texture '" + f->texture + "' does not exist");
+                const bool exists = fs::exists(f->texture, ec);
+                return make_error(exists ? Errc::invalid_argument : Errc::not_found,
+                                  "glTF '" + path + "', material " + mats + ": texture '" + f->texture + "' " +
+                                      (exists ? "is not an image file (an image's uri names a folder or is empty)" : "does not exist"));
             }
     }
     // glTF is Y up: `automatic` is y, not guessed from the shape as for OBJ.
