@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 #include <random>
+#include <set>
 
 #include "reference_pyramid.hpp"
 #include "tessera/storage/builder.hpp"
@@ -855,6 +856,142 @@ TEST(Builder, OrientedPhotosAreBuiltUpright) {
                 }
         }
     EXPECT_LE(worst, 2);
+}
+
+namespace {
+// The largest difference between level 0 of a u8 store and `want` (same size and channels).
+int worst_level0_difference(StoreReader& reader, const RefImage& want) {
+    const StoreInfo& info = reader.info();
+    EXPECT_EQ(info.levels[0].width, want.width);
+    EXPECT_EQ(info.levels[0].height, want.height);
+    if (info.levels[0].width != want.width || info.levels[0].height != want.height) return 255;
+    int worst = 0;
+    for (std::uint32_t ty = 0; ty < info.levels[0].tiles_y; ++ty)
+        for (std::uint32_t tx = 0; tx < info.levels[0].tiles_x; ++tx) {
+            const std::vector<std::uint8_t> t = tile_texels(reader, 0, tx, ty);
+            for (std::uint32_t y = 0; y < info.tile_payload; ++y)
+                for (std::uint32_t x = 0; x < info.tile_payload; ++x) {
+                    const std::uint32_t gx = tx * info.tile_payload + x, gy = ty * info.tile_payload + y;
+                    if (gx >= want.width || gy >= want.height) continue;
+                    for (std::uint32_t c = 0; c < want.channels; ++c) {
+                        const int got = t[(std::size_t(y + info.border) * info.tile_size() + x + info.border) * want.channels + c];
+                        const int expected = want.bytes[(std::size_t(gy) * want.width + gx) * want.channels + c];
+                        worst = std::max(worst, std::abs(got - expected));
+                    }
+                }
+        }
+    return worst;
+}
+
+// A little-endian, uncompressed, one-channel TIFF written by hand: strips of `rows_per_strip`
+// rows, `bits` per sample (1: packed, first texel in the high bit), BitsPerSample left out when
+// `tag_bits` is false (as Pillow writes 1-bit files), and the strips in `empty` given no bytes
+// (as GDAL writes with SPARSE_OK).
+std::vector<std::uint8_t> handmade_grey_tiff(std::uint32_t w, std::uint32_t h, unsigned bits, bool tag_bits, std::uint32_t rows_per_strip,
+                                             const std::vector<std::uint8_t>& packed_rows, const std::set<std::uint32_t>& empty) {
+    const std::uint32_t strips = (h + rows_per_strip - 1) / rows_per_strip, row_bytes = (w * bits + 7) / 8;
+    std::vector<std::uint8_t> out = {'I', 'I', 42, 0, 0, 0, 0, 0};
+    auto u16 = [&](std::uint16_t v) { out.push_back(std::uint8_t(v)), out.push_back(std::uint8_t(v >> 8)); };
+    auto u32 = [&](std::uint32_t v) { for (int k = 0; k < 4; ++k) out.push_back(std::uint8_t(v >> (8 * k))); };
+    std::vector<std::uint32_t> offsets(strips), counts(strips);
+    for (std::uint32_t s = 0; s < strips; ++s) {
+        const std::uint32_t rows = std::min(rows_per_strip, h - s * rows_per_strip);
+        if (empty.count(s)) continue;
+        offsets[s] = std::uint32_t(out.size());
+        counts[s] = rows * row_bytes;
+        out.insert(out.end(), packed_rows.begin() + std::ptrdiff_t(s * rows_per_strip * row_bytes),
+                   packed_rows.begin() + std::ptrdiff_t((s * rows_per_strip + rows) * row_bytes));
+    }
+    const std::uint32_t offsets_at = std::uint32_t(out.size());
+    for (std::uint32_t v : offsets) u32(v);
+    const std::uint32_t counts_at = std::uint32_t(out.size());
+    for (std::uint32_t v : counts) u32(v);
+    if (out.size() % 2) out.push_back(0);
+    const std::uint32_t ifd = std::uint32_t(out.size());
+    for (int k = 0; k < 4; ++k) out[4 + std::size_t(k)] = std::uint8_t(ifd >> (8 * k));
+    struct Entry { std::uint16_t tag, type; std::uint32_t count, value; };
+    std::vector<Entry> entries = {{256, 4, 1, w}, {257, 4, 1, h}};
+    if (tag_bits) entries.push_back({258, 3, 1, bits});
+    entries.push_back({259, 3, 1, 1});
+    entries.push_back({262, 3, 1, 1});  // min-is-black
+    entries.push_back({273, 4, strips, strips == 1 ? offsets[0] : offsets_at});
+    entries.push_back({277, 3, 1, 1});
+    entries.push_back({278, 4, 1, rows_per_strip});
+    entries.push_back({279, 4, strips, strips == 1 ? counts[0] : counts_at});
+    u16(std::uint16_t(entries.size()));
+    for (const Entry& e : entries) {
+        u16(e.tag), u16(e.type), u32(e.count);
+        if (e.type == 3 && e.count == 1) u16(std::uint16_t(e.value)), u16(0);
+        else u32(e.value);
+    }
+    u32(0);
+    return out;
+}
+}  // namespace
+
+// TIFFs other tools write that OpenImageIO 2.4 gets wrong, read by Tessera's own TIFF reader:
+// JPEG-compressed YCbCr as libtiff-tools' tiffcp writes it (OpenImageIO flips it through libtiff's
+// RGBA interface and then reports the orientation too, so a turned file came out mirrored, and a
+// file cut short built with exit 0 and stale rows); 1-bit grey without BitsPerSample (Pillow:
+// OpenImageIO read the packed bits as bytes); strips with no bytes (GDAL's SPARSE_OK: zeros).
+TEST(Builder, TiffsOpenImageIoMisreadsAreReadRight) {
+    ScratchDir d;
+    const RefImage im = test_pattern(150, 110, 3, SampleType::u8, 7);
+    write_raw(d.file("in.rgb"), im);
+    ASSERT_TRUE(run_tool("convert-im6.q16 -size 150x110 -depth 8 rgb:" + d.file("in.rgb") + " -compress none " + d.file("plain.tif")));
+    ASSERT_TRUE(run_tool("tiffcp -c jpeg:95 -r 16 " + d.file("plain.tif") + " " + d.file("ycc.tif")));
+    ASSERT_TRUE(run_tool("tiffinfo " + d.file("ycc.tif") + " | grep -q 'Photometric Interpretation: YCbCr'")) << "tiffcp wrote no YCbCr";
+    // The reference: ImageMagick's decode of the file as stored (orientation 1: no flips), turned.
+    ASSERT_TRUE(run_tool("convert-im6.q16 " + d.file("ycc.tif") + " " + d.file("ycc_ref.png")));
+    BuildOptions o = small_tiles(Codec::zstd);
+    for (const auto& [orientation, turn] : {std::pair{1, ""}, std::pair{3, "-rotate 180"}, std::pair{6, "-rotate 90"}, std::pair{8, "-rotate 270"}}) {
+        SCOPED_TRACE("orientation " + std::to_string(orientation));
+        const std::string tif = d.file("ycc" + std::to_string(orientation) + ".tif"), ref = d.file("ref.png");
+        ASSERT_TRUE(run_tool("cp " + d.file("ycc.tif") + " " + tif + " && tiffset -s 274 " + std::to_string(orientation) + " " + tif));
+        ASSERT_TRUE(run_tool("convert-im6.q16 " + d.file("ycc_ref.png") + " " + turn + " " + ref));
+        auto r = build_store(tif, d.file("a.tsr"), o);
+        ASSERT_TRUE(r.ok()) << r.error().message;
+        auto reader = StoreReader::open(d.file("a.tsr"));
+        ASSERT_TRUE(reader.ok());
+        EXPECT_LE(worst_level0_difference(**reader, read_file_samples(ref)), 3);  // two JPEG decoders
+    }
+    // Cut short: an error naming the file, and no store.
+    auto bytes = test::read_file(d.file("ycc.tif"));
+    bytes.resize(bytes.size() * 6 / 10);
+    test::write_file(d.file("cut.tif"), bytes);
+    auto cut = build_store(d.file("cut.tif"), d.file("cut.tsr"), o);
+    ASSERT_FALSE(cut.ok());
+    EXPECT_NE(cut.error().message.find("cut.tif"), std::string::npos) << cut.error().message;
+    EXPECT_FALSE(std::filesystem::exists(d.file("cut.tsr")));
+
+    // 1-bit grey, 40x20 checks of 4 texels, no BitsPerSample; the bottom strip of an 8-bit file
+    // with no bytes.
+    const std::uint32_t w = 40, h = 20;
+    std::vector<std::uint8_t> packed((w + 7) / 8 * h, 0), grey(std::size_t(w) * h);
+    RefImage checks{w, h, 1, SampleType::u8, {}};
+    checks.bytes.resize(std::size_t(w) * h);
+    for (std::uint32_t y = 0; y < h; ++y)
+        for (std::uint32_t x = 0; x < w; ++x) {
+            const bool on = (x / 4 + y / 4) % 2 == 1;
+            if (on) packed[y * ((w + 7) / 8) + x / 8] |= std::uint8_t(0x80 >> (x % 8));
+            checks.bytes[std::size_t(y) * w + x] = on ? 255 : 0;
+            grey[std::size_t(y) * w + x] = std::uint8_t(x * 5 + y);
+        }
+    test::write_file(d.file("bits.tif"), handmade_grey_tiff(w, h, 1, false, 8, packed, {}));
+    auto bits = build_store(d.file("bits.tif"), d.file("bits.tsr"), o);
+    ASSERT_TRUE(bits.ok()) << bits.error().message;
+    auto bits_reader = StoreReader::open(d.file("bits.tsr"));
+    ASSERT_TRUE(bits_reader.ok());
+    EXPECT_EQ(worst_level0_difference(**bits_reader, checks), 0);
+
+    test::write_file(d.file("sparse.tif"), handmade_grey_tiff(w, h, 8, true, 8, grey, {2}));
+    RefImage sparse{w, h, 1, SampleType::u8, grey};
+    std::fill(sparse.bytes.begin() + std::ptrdiff_t(16 * w), sparse.bytes.end(), std::uint8_t{0});
+    auto sp = build_store(d.file("sparse.tif"), d.file("sparse.tsr"), o);
+    ASSERT_TRUE(sp.ok()) << sp.error().message;
+    auto sparse_reader = StoreReader::open(d.file("sparse.tsr"));
+    ASSERT_TRUE(sparse_reader.ok());
+    EXPECT_EQ(worst_level0_difference(**sparse_reader, sparse), 0);
 }
 
 // Building over the input would read it whole and then replace it with the store.

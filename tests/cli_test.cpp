@@ -1042,6 +1042,14 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
         {view + "--pool 99999999", 2, "--pool"},  // named as the flag, not as the renderer's field
         {view + "--prefetch-lod 5", 2, "--prefetch-lod"},
         {view + "--guard-band -1", 2, "--guard-band"},
+        // Named as the flags, with the help that lists them (not as the runtime's fields).
+        {view + "--fade-ms 20000", 2, "--fade-ms"},
+        {view + "--pool 15", 2, "--pool"},
+        {view + "--anisotropy 9", 2, "--anisotropy"},
+        {view + "--feedback-scale 0", 2, "--feedback-scale"},
+        {view + "--fps 0", 2, "--fps"},
+        {view + "--link-latency-ms -5", 2, "--link-latency-ms"},
+        {"demo --dir " + q(d.file("demo")) + " --fade-ms 20000", 2, "--fade-ms"},
         {"view --headless --store grpc://127.0.0.1:112407/t", 1, "with a port from 1 to 65535"},
         {"loadtest --store t --server 127.0.0.1:112407", 2, "with a port from 1 to 65535"},
         {"loadtest --store t --server 127.0.0.1:1, --connect-timeout 0.2", 2, "with a port from 1 to 65535"},

@@ -88,7 +88,9 @@ Command add_demo(CLI::App& app) {
             },
             "FORMAT", "page format"));
     add_feedback_reach_options(*c, a->prefetch_lod, a->guard_band);
-    c->add_option("--fade-ms", a->fade_ms, "arriving pages blend in, and evicted pages in view fade out, over this many milliseconds (0: off)")->capture_default_str();
+    c->add_option("--fade-ms", a->fade_ms, "arriving pages blend in, and evicted pages in view fade out, over this many milliseconds, 0..10000 (0: off)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0f, 10000.0f));
     c->add_option("--motion-prefetch-ms", a->motion_prefetch_ms,
                   "every other frame's feedback sees the view this far ahead, from the camera's motion (0: off)")
         ->capture_default_str();

@@ -5,6 +5,7 @@
 #include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <fstream>
 #include <memory>
 #include <mutex>
@@ -112,11 +113,18 @@ int run_serve(ServeArgs& a) {
             std::unique_lock lock(m);
             if (cv.wait_for(lock, c.drain_timeout + kStopGrace, [&] { return stopped; })) return;
             const long long ms = c.drain_timeout.count();
+            // The server's log is gone with it: the line is written here, in the log's own form
+            // (docs/server.md, "Logs": ts to the second is enough for the last line).
+            const std::time_t now = std::time(nullptr);
+            std::tm tm{};
+            gmtime_r(&now, &tm);
+            char ts[32];
+            std::strftime(ts, sizeof ts, "%Y-%m-%dT%H:%M:%SZ", &tm);
             if (c.log_json)
-                std::fprintf(stderr, "{\"level\":\"error\",\"msg\":\"stop overran the drain timeout; exiting now\","
-                                     "\"drain_timeout_ms\":%lld}\n", ms);
+                std::fprintf(stderr, "{\"ts\":\"%s\",\"level\":\"error\",\"msg\":\"stop overran the drain timeout; exiting now\","
+                                     "\"drain_timeout_ms\":%lld}\n", ts, ms);
             else
-                std::fprintf(stderr, "error: stop overran the drain timeout (%lld ms); exiting now\n", ms);
+                std::fprintf(stderr, "%s error stop overran the drain timeout; exiting now drain_timeout_ms=%lld\n", ts, ms);
             std::fflush(stderr);
             std::_Exit(1);
         });

@@ -33,8 +33,9 @@ Command add_view(CLI::App& app) {
     c->add_flag("--headless", o->headless, "render offscreen (EGL), no window");
     c->add_flag("!--no-hud", o->hud, "windowed: no statistics overlay (the window title still shows them)");
     c->add_option("--frames", o->frames, "frames to render (0: the whole path; windowed: until closed)")->capture_default_str();
-    c->add_option("--fps", o->fps, "frames per second of path time (headless: the path advances 1/fps per frame)")
-        ->capture_default_str();
+    c->add_option("--fps", o->fps, "frames per second of path time (headless: the path advances 1/fps per frame), 0.001..1000")
+        ->capture_default_str()
+        ->check(CLI::Range(0.001, 1000.0));
     c->add_flag("--pace", o->pace, "headless: hold each frame to at least 1/fps of wall time, like a display");
     c->add_option("--out", o->out_dir, "directory for PNG frames");
     c->add_option("--png-count", o->png_count, "PNG frames to write with --out, spread over the run")->capture_default_str();
@@ -42,7 +43,7 @@ Command add_view(CLI::App& app) {
     c->add_option("--trace", o->trace_file, "record the feedback (per-frame request sets) for `tessera loadtest --trace`")
         ->check(output_file());
     c->add_option("--pool", o->pool, "physical pages in the GPU pool, at least 16 (0, the default: 2048, or every page of a store that has fewer)")
-        ->check(CLI::Range(0u, 1u << 24));
+        ->check(CLI::IsMember({0u}) | CLI::Range(16u, 1u << 24));
     c->add_option("--page-format", o->page_format,
                   "how the GPU pool holds pages: auto (a block-codec store's own blocks, else rgba8), rgba8, or "
                   "block-compressed (a store of that codec: its blocks as they are; any other store: encoded on the transcode "
@@ -56,13 +57,16 @@ Command add_view(CLI::App& app) {
                   "a multi-layer store: NAME=FORMAT, a layer's page format (as --page-format; repeatable; default: its "
                   "block format, or its 16-bit/float samples exactly, else rgba8)");
     c->add_option("--filter", *filter, "bilinear, trilinear or anisotropic")->capture_default_str();
-    c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str();
-    c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size")->capture_default_str();
+    c->add_option("--anisotropy", o->anisotropy, "anisotropic filter: most taps, 1..8")->capture_default_str()->check(CLI::Range(1u, 8u));
+    c->add_option("--feedback-scale", o->feedback_scale, "feedback buffer at 1/N of the image size, 1..64")
+        ->capture_default_str()
+        ->check(CLI::Range(1u, 64u));
     add_feedback_reach_options(*c, o->prefetch_lod, o->guard_band);
     c->add_option("--fade-ms", o->fade_ms,
                   "arriving pages blend in from what was drawn before them over this many milliseconds, evicted pages "
-                  "still in view fade out, and LoD-bias changes spread over as long (0: off, pages show and go at once)")
-        ->capture_default_str();
+                  "still in view fade out, and LoD-bias changes spread over as long, 0..10000 (0: off, pages show and go at once)")
+        ->capture_default_str()
+        ->check(CLI::Range(0.0f, 10000.0f));
     c->add_option("--motion-prefetch-ms", o->motion_prefetch_ms,
                   "motion prefetch: the feedback of every --motion-prefetch-every-th frame sees the view this many "
                   "milliseconds ahead, extrapolated from the camera's motion (0: off)")
@@ -71,9 +75,12 @@ Command add_view(CLI::App& app) {
         ->capture_default_str()
         ->check(CLI::Range(1u, 1000000u));
     c->add_option("--link-latency-ms", o->link_latency_ms,
-                  "emulate a network link to the source: this one-way delay per request, milliseconds (0: none)");
-    c->add_option("--link-jitter-ms", o->link_jitter_ms, "emulated link: random extra delay up to this, milliseconds");
-    c->add_option("--link-bandwidth", o->link_bandwidth_bits_per_s, "emulated link: bits per second (0: unlimited)");
+                  "emulate a network link to the source: this one-way delay per request, milliseconds (0: none)")
+        ->check(CLI::Range(0.0, 1e9));
+    c->add_option("--link-jitter-ms", o->link_jitter_ms, "emulated link: random extra delay up to this, milliseconds")
+        ->check(CLI::Range(0.0, 1e9));
+    c->add_option("--link-bandwidth", o->link_bandwidth_bits_per_s, "emulated link: bits per second (0: unlimited)")
+        ->check(CLI::Range(0.0, 1e15));
     c->add_option("--upload-pages", o->upload_pages_per_frame, "pages uploaded per frame at most (>= 1)")
         ->capture_default_str()
         ->check(CLI::Range(1u, 1u << 20));

@@ -40,6 +40,7 @@ test_build_packages=(
 test_run_packages=(
   xvfb xauth                          # windowed-mode tests on an X server without a display
   imagemagick openimageio-tools webp  # tests read images other tools wrote (alpha conventions, formats)
+  libtiff-tools                       # tiffcp and tiffset: JPEG-compressed YCbCr and oriented TIFFs
   assimp-testmodels gltfpack          # real glTF 2.0 scenes (Khronos samples, meshoptimizer's packer) for the atlas tests
   python3-yaml time systemd           # systemd: systemd-analyze lints deploy/tessera.service
   mmdebstrap                          # deploy/build-image.py: the image's root filesystem

@@ -1,9 +1,12 @@
 // TIFF sources read directly with libtiff: the common container for huge images (BigTIFF,
 // tiled or stripped), read in strips with little memory and no heavyweight dependencies.
-// Layouts this reader does not handle (planar, palette, YCbCr, CMYK, odd bit depths) are
-// reported as unsupported so the caller falls back to OpenImageIO.
+// JPEG-compressed YCbCr is read as RGB (libjpeg converts it), and strips of 1-, 2- or 4-bit grey
+// are expanded to 8 bits. Layouts this reader does not handle (planar, palette, other YCbCr, CMYK,
+// tiles of fewer than 8 bits) are reported as unsupported so the caller falls back to OpenImageIO.
+// Tiles and strips with no bytes (GDAL's SPARSE_OK) read as zeros.
 #include <tiffio.h>
 
+#include <algorithm>
 #include <cstdarg>
 #include <cstdio>
 #include <cstring>
@@ -24,7 +27,9 @@ void tiff_error(const char* module, const char* fmt, va_list ap) {
 
 class TiffSource final : public ImageSource {
 public:
-    TiffSource(TIFF* tif, SourceInfo info, bool associated) : tif_(tif), info_(std::move(info)), associated_(associated) {
+    // `bits`: 1, 2 or 4 for packed grey (expanded to 8 bits; `white_is_zero` inverts), else 0.
+    TiffSource(TIFF* tif, SourceInfo info, bool associated, unsigned bits = 0, bool white_is_zero = false)
+        : tif_(tif), info_(std::move(info)), associated_(associated), bits_(bits), white_is_zero_(white_is_zero) {
         tiled_ = TIFFIsTiled(tif_) != 0;
         if (tiled_) {
             TIFFGetField(tif_, TIFFTAG_TILEWIDTH, &tw_);
@@ -50,9 +55,18 @@ private:
         const std::size_t row = std::size_t(info_.width) * texel;
         tiff_error_text.clear();
         if (!tiled_) {
-            if (std::size_t(TIFFScanlineSize64(tif_)) != row) return make_error(Errc::corrupt, info_.description + ": bad scanline size");
-            for (std::uint32_t y = y0; y < y0 + count; ++y)
-                if (TIFFReadScanline(tif_, dst + std::size_t(y - y0) * row, y, 0) < 0) return failure();
+            const std::size_t packed = bits_ ? (std::size_t(info_.width) * bits_ + 7) / 8 : row;
+            if (std::size_t(TIFFScanlineSize64(tif_)) != packed) return make_error(Errc::corrupt, info_.description + ": bad scanline size");
+            if (bits_) packed_.resize(packed);
+            for (std::uint32_t y = y0; y < y0 + count; ++y) {
+                std::uint8_t* out = dst + std::size_t(y - y0) * row;
+                if (TIFFGetStrileByteCount(tif_, TIFFComputeStrip(tif_, y, 0)) == 0) {  // a strip with no data
+                    std::memset(out, 0, row);
+                    continue;
+                }
+                if (TIFFReadScanline(tif_, bits_ ? packed_.data() : out, y, 0) < 0) return failure();
+                if (bits_) expand_bits(out);
+            }
             return {};
         }
         // Tiled: decode one band of tiles at a time and copy out the wanted rows.
@@ -65,7 +79,10 @@ private:
                 const std::uint32_t b0 = band * th_, rows = std::min(th_, info_.height - b0);
                 band_.resize(row * rows);
                 for (std::uint32_t x = 0; x < info_.width; x += tw_) {
-                    if (TIFFReadTile(tif_, tile_.data(), x, b0, 0, 0) < 0) return failure();
+                    if (TIFFGetStrileByteCount(tif_, TIFFComputeTile(tif_, x, b0, 0, 0)) == 0)  // a tile with no data
+                        std::fill(tile_.begin(), tile_.end(), std::uint8_t{0});
+                    else if (TIFFReadTile(tif_, tile_.data(), x, b0, 0, 0) < 0)
+                        return failure();
                     const std::size_t n = std::size_t(std::min(tw_, info_.width - x)) * texel;
                     for (std::uint32_t j = 0; j < rows; ++j)
                         std::memcpy(band_.data() + j * row + std::size_t(x) * texel, tile_.data() + j * tile_row, n);
@@ -80,12 +97,26 @@ private:
         return {};
     }
 
+    // packed_ (bits_ per texel, first texel in the high bits) to one byte per texel at dst.
+    void expand_bits(std::uint8_t* dst) const {
+        const unsigned mask = (1u << bits_) - 1;
+        for (std::uint32_t x = 0; x < info_.width; ++x) {
+            const std::size_t bit = std::size_t(x) * bits_;
+            const unsigned v = (packed_[bit / 8] >> (8 - bits_ - bit % 8)) & mask;
+            const unsigned grey = v * 255u / mask;
+            dst[x] = static_cast<std::uint8_t>(white_is_zero_ ? 255u - grey : grey);
+        }
+    }
+
     Status failure() const {
         return make_error(Errc::corrupt, info_.description + ": " + (tiff_error_text.empty() ? "read failed" : tiff_error_text));
     }
     TIFF* tif_;
     SourceInfo info_;
     bool associated_;  // ExtraSamples says associated alpha: made straight as read
+    unsigned bits_ = 0;
+    bool white_is_zero_ = false;
+    std::vector<std::uint8_t> packed_;
     bool tiled_ = false;
     std::uint32_t tw_ = 0, th_ = 0;
     std::vector<std::uint8_t> tile_, band_;
@@ -125,13 +156,28 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path) {
     TIFFGetFieldDefaulted(tif, TIFFTAG_SAMPLEFORMAT, &fmt);
     TIFFGetFieldDefaulted(tif, TIFFTAG_PLANARCONFIG, &planar);
     TIFFGetField(tif, TIFFTAG_PHOTOMETRIC, &photo);
+    std::uint16_t compression = COMPRESSION_NONE;
+    TIFFGetFieldDefaulted(tif, TIFFTAG_COMPRESSION, &compression);
+    // JPEG-compressed YCbCr: libjpeg hands out RGB, with the orientation left to the caller
+    // (OpenImageIO reads it through libtiff's RGBA interface, which flips it part of the way).
+    if (photo == PHOTOMETRIC_YCBCR && compression == COMPRESSION_JPEG && spp == 3 && bps == 8 && planar == PLANARCONFIG_CONTIG &&
+        TIFFSetField(tif, TIFFTAG_JPEGCOLORMODE, JPEGCOLORMODE_RGB))
+        photo = PHOTOMETRIC_RGB;
+    // Packed grey of 1, 2 or 4 bits in strips (Pillow writes 1-bit TIFFs with no BitsPerSample,
+    // which OpenImageIO reads as 8 bits): expanded to 8.
+    unsigned bits = 0;
+    if ((bps == 1 || bps == 2 || bps == 4) && spp == 1 && fmt == SAMPLEFORMAT_UINT && !TIFFIsTiled(tif) &&
+        (photo == PHOTOMETRIC_MINISBLACK || photo == PHOTOMETRIC_MINISWHITE)) {
+        bits = bps;
+        bps = 8;
+    }
     SourceInfo info;
     info.description = path + " (TIFF)";
     info.width = w;
     info.height = h;
     info.channels = spp;
     const bool layout_ok = planar == PLANARCONFIG_CONTIG && spp >= 1 && spp <= 4 &&
-                           (photo == PHOTOMETRIC_MINISBLACK || photo == PHOTOMETRIC_RGB) &&
+                           (photo == PHOTOMETRIC_MINISBLACK || photo == PHOTOMETRIC_RGB || (bits && photo == PHOTOMETRIC_MINISWHITE)) &&
                            (photo != PHOTOMETRIC_RGB || spp >= 3);
     if (fmt == SAMPLEFORMAT_UINT && bps == 8) info.sample_type = SampleType::u8;
     else if (fmt == SAMPLEFORMAT_UINT && bps == 16) info.sample_type = SampleType::u16;
@@ -162,7 +208,7 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path) {
         info.orientation = orientation;
     info.colour_space = (info.sample_type == SampleType::u8 || info.sample_type == SampleType::u16) ? ColourSpace::srgb
                                                                                                      : ColourSpace::linear;
-    return std::unique_ptr<ImageSource>(new TiffSource(tif, std::move(info), associated));
+    return std::unique_ptr<ImageSource>(new TiffSource(tif, std::move(info), associated, bits, photo == PHOTOMETRIC_MINISWHITE));
 }
 
 }  // namespace tessera::storage
