@@ -994,6 +994,75 @@ TEST(Builder, TiffsOpenImageIoMisreadsAreReadRight) {
     EXPECT_EQ(worst_level0_difference(**sparse_reader, sparse), 0);
 }
 
+// A WebP's EXIF orientation (OpenImageIO 2.4's WebP reader does not report it): a lossless WebP
+// from cwebp, tagged 6 (and 3) by webpmux, is built as ImageMagick turns the source, texel exact.
+TEST(Builder, WebpExifOrientationIsApplied) {
+    ScratchDir d;
+    const RefImage im = test_pattern(150, 110, 3, SampleType::u8, 5);
+    write_raw(d.file("in.rgb"), im);
+    ASSERT_TRUE(run_tool("convert-im6.q16 -size 150x110 -depth 8 rgb:" + d.file("in.rgb") + " " + d.file("in.png")));
+    ASSERT_TRUE(run_tool("cwebp -quiet -lossless " + d.file("in.png") + " -o " + d.file("in.webp")));
+    BuildOptions o = small_tiles(Codec::zstd);
+    for (const auto& [orientation, turn] : {std::pair{6, "-rotate 90"}, std::pair{3, "-rotate 180"}}) {
+        SCOPED_TRACE("orientation " + std::to_string(orientation));
+        // EXIF as a little-endian TIFF header and one IFD entry: Orientation (0x0112), SHORT.
+        const std::vector<std::uint8_t> exif = {'I', 'I', 42, 0, 8, 0, 0, 0, 1, 0, 0x12, 0x01, 3, 0, 1, 0, 0, 0,
+                                                std::uint8_t(orientation), 0, 0, 0, 0, 0, 0, 0};
+        test::write_file(d.file("exif.bin"), exif);
+        const std::string tagged = d.file("o" + std::to_string(orientation) + ".webp");
+        ASSERT_TRUE(run_tool("webpmux -set exif " + d.file("exif.bin") + " " + d.file("in.webp") + " -o " + tagged + " >/dev/null"));
+        ASSERT_TRUE(run_tool("convert-im6.q16 " + d.file("in.png") + " " + turn + " " + d.file("ref.png")));
+        auto r = build_store(tagged, d.file("a.tsr"), o);
+        ASSERT_TRUE(r.ok()) << r.error().message;
+        auto reader = StoreReader::open(d.file("a.tsr"));
+        ASSERT_TRUE(reader.ok());
+        EXPECT_EQ(worst_level0_difference(**reader, read_file_samples(d.file("ref.png"))), 0);
+    }
+}
+
+// Binary PGM and PPM as ImageMagick writes them keep every sample: OpenImageIO 2.4's PNM reader
+// lost the lowest bit of about half of a 16-bit file's samples. A maxval of 1000 is scaled to
+// the full 16 bits; a file cut short is an error.
+TEST(Builder, PgmAndPpmKeepEverySample) {
+    ScratchDir d;
+    BuildOptions o = small_tiles(Codec::zstd);
+    for (const auto& [channels, type, ext] : {std::tuple{1u, SampleType::u16, "pgm"}, std::tuple{3u, SampleType::u8, "ppm"},
+                                               std::tuple{3u, SampleType::u16, "ppm"}}) {
+        SCOPED_TRACE(std::string(ext) + (type == SampleType::u16 ? " 16-bit" : " 8-bit"));
+        const RefImage im = test_pattern(150, 110, channels, type, 11);
+        write_raw(d.file("in.raw"), im);
+        const std::string file = d.file(std::string("in.") + ext);
+        ASSERT_TRUE(run_tool(std::string("convert-im6.q16 -endian LSB -size 150x110 -depth ") + (type == SampleType::u16 ? "16 " : "8 ") +
+                             (channels == 1 ? "gray:" : "rgb:") + d.file("in.raw") + " " + file));
+        auto r = build_store(file, d.file("a.tsr"), o);
+        ASSERT_TRUE(r.ok()) << r.error().message;
+        auto reader = StoreReader::open(d.file("a.tsr"));
+        ASSERT_TRUE(reader.ok());
+        expect_exact(Built{*reader, test::reference_pyramid(im, ColourSpace::srgb, false, o.tile_size - 2 * o.border)});
+    }
+    // maxval 1000: v -> round(v * 65535 / 1000).
+    std::string pgm = "P5\n# a comment\n3 1\n1000\n";
+    for (const int v : {0, 500, 1000}) pgm += {char(v >> 8), char(v & 255)};
+    test::write_file(d.file("m.pgm"), std::vector<std::uint8_t>(pgm.begin(), pgm.end()));
+    auto m = build_store(d.file("m.pgm"), d.file("m.tsr"), o);
+    ASSERT_TRUE(m.ok()) << m.error().message;
+    auto reader = StoreReader::open(d.file("m.tsr"));
+    ASSERT_TRUE(reader.ok());
+    const std::vector<std::uint8_t> t = tile_texels(**reader, 0, 0, 0);
+    const std::uint32_t b = (*reader)->info().border, ts = (*reader)->info().tile_size();
+    for (const auto& [x, want] : {std::pair{0u, 0u}, std::pair{1u, 32768u}, std::pair{2u, 65535u}}) {
+        std::uint16_t got = 0;
+        std::memcpy(&got, t.data() + (std::size_t(b) * ts + b + x) * 2, 2);
+        EXPECT_EQ(got, want) << "texel " << x;
+    }
+    pgm.resize(pgm.size() - 3);
+    test::write_file(d.file("cut.pgm"), std::vector<std::uint8_t>(pgm.begin(), pgm.end()));
+    auto cut = build_store(d.file("cut.pgm"), d.file("cut.tsr"), o);
+    ASSERT_FALSE(cut.ok());
+    EXPECT_NE(cut.error().message.find("cut.pgm"), std::string::npos) << cut.error().message;
+    EXPECT_FALSE(std::filesystem::exists(d.file("cut.tsr")));
+}
+
 // Building over the input would read it whole and then replace it with the store.
 TEST(Builder, RefusesToWriteOverItsInput) {
     ScratchDir d;

@@ -385,6 +385,16 @@ TEST(CliSourceOutput, FailedWriteLeavesNothing) {
     const RunResult ok = run_tessera("source procedural:terrain:256 --quiet -o " + q(d.file("s.png")));
     ASSERT_EQ(ok.exit_code, 0) << ok.out;
     EXPECT_EQ(entries(d), std::set<std::string>{"s.png"});
+    // Float samples (heights from -500 to 2000) into a format of integers would be clamped to
+    // 0..1: refused, and nothing written; a TIFF keeps them.
+    ASSERT_EQ(std::system(("oiiotool --pattern fill:top=-500:bottom=2000 16x8 1 -d float -o " + q(d.file("dem.tif"))).c_str()), 0);
+    for (const char* ext : {"png", "jpg"}) {
+        const RunResult r = run_tessera("source " + q(d.file("dem.tif")) + " --quiet -o " + q(d.file(std::string("dem.") + ext)));
+        expect_one_line_error(r);
+        EXPECT_TRUE(has(r.out, "holds no floating-point samples")) << r.out;
+    }
+    EXPECT_EQ(entries(d), (std::set<std::string>{"s.png", "dem.tif"}));
+    EXPECT_EQ(run_tessera("source " + q(d.file("dem.tif")) + " --quiet -o " + q(d.file("copy.tif"))).exit_code, 0);
 }
 
 // ---- build --atlas: inputs ---------------------------------------------------------------------------

@@ -147,6 +147,45 @@ private:
     std::vector<std::uint8_t> rgba_;
 };
 
+// The Orientation (EXIF tag 0x0112) of a WebP's EXIF chunk, 1 where there is none: OpenImageIO
+// 2.4's WebP reader does not report it, and a phone's photo would be built on its side.
+int webp_exif_orientation(const std::string& path) {
+    std::ifstream f(path, std::ios::binary);
+    char riff[12];
+    if (!f.read(riff, 12) || std::memcmp(riff, "RIFF", 4) != 0 || std::memcmp(riff + 8, "WEBP", 4) != 0) return 1;
+    for (int chunks = 0; chunks < 64; ++chunks) {  // VP8X, ICCP, ANIM, image, ... EXIF: a handful
+        unsigned char head[8];
+        if (!f.read(reinterpret_cast<char*>(head), 8)) return 1;
+        const std::uint32_t size = head[4] | head[5] << 8 | head[6] << 16 | std::uint32_t(head[7]) << 24;
+        if (std::memcmp(head, "EXIF", 4) != 0) {
+            f.seekg(std::streamoff(size + (size & 1)), std::ios::cur);
+            continue;
+        }
+        if (size < 8 || size > (1u << 20)) return 1;
+        std::vector<unsigned char> exif(size);
+        if (!f.read(reinterpret_cast<char*>(exif.data()), std::streamsize(size))) return 1;
+        std::size_t base = 0;  // some writers keep JPEG's "Exif\0\0" before the TIFF header
+        if (size >= 14 && std::memcmp(exif.data(), "Exif\0\0", 6) == 0) base = 6;
+        const bool le = exif[base] == 'I' && exif[base + 1] == 'I';
+        if (!le && !(exif[base] == 'M' && exif[base + 1] == 'M')) return 1;
+        auto u16 = [&](std::size_t at) -> std::uint32_t {
+            return at + 2 > exif.size() ? 0 : le ? exif[at] | exif[at + 1] << 8 : exif[at] << 8 | exif[at + 1];
+        };
+        auto u32 = [&](std::size_t at) -> std::uint32_t { return le ? u16(at) | u16(at + 2) << 16 : u16(at) << 16 | u16(at + 2); };
+        const std::size_t ifd = base + u32(base + 4);
+        const std::uint32_t entries = u16(ifd);
+        for (std::uint32_t e = 0; e < entries && ifd + 2 + 12 * (e + 1) <= exif.size(); ++e) {
+            const std::size_t at = ifd + 2 + 12 * e;
+            if (u16(at) == 0x0112 && u16(at + 2) == 3) {  // SHORT
+                const std::uint32_t v = u16(at + 8);
+                return v >= 1 && v <= 8 ? int(v) : 1;
+            }
+        }
+        return 1;
+    }
+    return 1;
+}
+
 // A still WebP with alpha whose size libwebp agrees on, else null (OpenImageIO reads it: an
 // animation's first frame, premultiplied).
 std::unique_ptr<ImageSource> open_webp_with_alpha(const std::string& path, const SourceInfo& info) {
@@ -262,6 +301,7 @@ Result<std::unique_ptr<ImageSource>> open_file(const std::string& path) {
                                                                 "(alpha is 0 to the type's maximum; convert it to unsigned or float first)");
     info.orientation = static_cast<std::uint32_t>(std::clamp(s.get_int_attribute("Orientation", 1), 1, 8));
     const std::string format = in->format_name();
+    if (format == "webp" && info.orientation == 1) info.orientation = static_cast<std::uint32_t>(webp_exif_orientation(path));
     // CIELab (and ICC or ITU Lab) TIFFs come as their L, a and b numbers: stored as RGB they would
     // be the wrong colours, so they are refused by name.
     if (const int photometric = s.get_int_attribute("tiff:PhotometricInterpretation", -1);
@@ -355,6 +395,15 @@ extern "C" __attribute__((visibility("default"))) bool tessera_oiio_write(const 
     }
     if (!out->open(*req->temp_path, spec)) {
         *error = "cannot write '" + path + "': " + oiio_error(out->geterror());
+        return false;
+    }
+    // A format of integers only (PNG, JPEG ...) would clamp float samples (heights, radiance) to
+    // 0..1 without a word: refused, naming the formats that keep them.
+    const bool float_source = si.sample_type == SampleType::f16 || si.sample_type == SampleType::f32;
+    if (float_source && !out->spec().format.is_floating_point()) {
+        out->close();
+        *error = "cannot write '" + path + "': " + format + " holds no floating-point samples, and the source's are " +
+                 (si.sample_type == SampleType::f16 ? "half" : "float") + " (write .tif or .exr, which keep them)";
         return false;
     }
     const std::size_t row = std::size_t(si.width) * si.channels * sample_bytes(si.sample_type);

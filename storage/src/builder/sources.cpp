@@ -92,6 +92,11 @@ Result<std::unique_ptr<ImageSource>> open_image_source(const std::string& spec) 
         if (!tiff.ok() && tiff.error().code != Errc::unsupported) return tiff;
         if (tiff.ok()) return make_upright_source(std::move(tiff).value());
     }
+    if (looks_like_binary_pnm(spec)) {
+        auto pnm = open_pnm_source(spec);
+        if (!pnm.ok()) return pnm;
+        return std::move(pnm).value();
+    }
     auto source = open_oiio_source(spec);
     if (!source.ok()) return source;
     return make_upright_source(std::move(source).value());

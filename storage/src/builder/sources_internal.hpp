@@ -1,5 +1,5 @@
 #pragma once
-// Image sources behind open_image_source(): TIFF through libtiff, everything else through the
+// Image sources behind open_image_source(): TIFF through libtiff, binary PGM/PPM by hand, everything else through the
 // OpenImageIO plugin (a separate module, loaded on first use: Debian's OpenImageIO pulls in ~260
 // shared libraries and ~100 MiB of resident memory, which no store that does not need it should pay).
 #include <cstdint>
@@ -13,6 +13,10 @@ namespace tessera::storage {
 bool looks_like_tiff(const std::string& path);
 // unsupported: a TIFF layout this reader leaves to OpenImageIO.
 Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path);
+
+// Binary PGM and PPM (P5, P6), 8 or 16 bits, exactly as stored.
+bool looks_like_binary_pnm(const std::string& path);
+Result<std::unique_ptr<ImageSource>> open_pnm_source(const std::string& path);
 
 // Through the OpenImageIO plugin (loaded on demand).
 Result<std::unique_ptr<ImageSource>> open_oiio_source(const std::string& path);
