@@ -1207,6 +1207,32 @@ TEST_F(HandlerTest, IiifInfoFollowsAcceptAndSaysSo) {
     }
 }
 
+// The documents the server writes revalidate like tiles: an ETag of their bytes (and type: the
+// two forms of info.json differ), and If-None-Match naming it, or *, gets a 304 without a body.
+TEST_F(HandlerTest, DocumentsRevalidate) {
+    for (const std::string target : {"/v1/stores", "/v1/stores/rgb", "/iiif/rgb/info.json", "/dzi/rgb.dzi"}) {
+        SCOPED_TRACE(target);
+        const HttpResponse first = get(target);
+        ASSERT_EQ(first.status, 200u);
+        const HeaderValue* etag = first.header("ETag");
+        ASSERT_NE(etag, nullptr);
+        const std::string tag(*etag);
+        EXPECT_EQ(get(target).header("ETag") ? std::string(*get(target).header("ETag")) : "", tag) << "the same bytes, the same tag";
+        for (const std::string& inm : {tag, "W/" + tag, "\"other\", " + tag, std::string("*")}) {
+            const HttpResponse again = get(target, inm);
+            EXPECT_EQ(again.status, 304u) << inm;
+            EXPECT_TRUE(again.body.empty());
+            ASSERT_NE(again.header("ETag"), nullptr);
+            EXPECT_EQ(std::string(*again.header("ETag")), tag);
+        }
+        EXPECT_EQ(get(target, "\"other\"").status, 200u);
+    }
+    const HttpResponse ld = get_with("/iiif/rgb/info.json", [](HttpRequestView& req) { req.accept = "application/ld+json"; });
+    ASSERT_EQ(ld.status, 200u);
+    ASSERT_NE(ld.header("ETag"), nullptr);
+    EXPECT_NE(std::string(*ld.header("ETag")), std::string(*get("/iiif/rgb/info.json").header("ETag")));
+}
+
 // RFC 9112 3.2: a Host that is not a host and port is 400; IIIF's info.json would write it into
 // its id (a value that is not UTF-8 made it fail as a 500).
 TEST_F(HandlerTest, HostHeaderMustBeAHost) {

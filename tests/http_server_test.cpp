@@ -681,9 +681,19 @@ TEST_F(HttpServerTest, AbsoluteFormTargetsAreServed) {
         ASSERT_FALSE(c.read(r));
         EXPECT_EQ(r.result_int(), 200);
     }
+    // An empty path with a query is "/" with it: the same answer as the origin form.
+    ASSERT_FALSE(c.write_raw("GET /?access_token=x HTTP/1.1\r\nHost: h\r\n\r\n"));
+    PlainClient::Response origin;
+    ASSERT_FALSE(c.read(origin));
+    ASSERT_FALSE(c.write_raw("GET http://h?access_token=x HTTP/1.1\r\nHost: other\r\n\r\n"));
+    PlainClient::Response absolute;
+    ASSERT_FALSE(c.read(absolute));
+    EXPECT_EQ(absolute.result_int(), origin.result_int());
+    EXPECT_EQ(absolute.body(), origin.body());
+    // A fragment belongs to no request target.
     PlainClient bad;
     ASSERT_FALSE(bad.connect(server_->port()));
-    ASSERT_FALSE(bad.write_raw("GET http://h?x HTTP/1.1\r\nHost: h\r\n\r\n"));
+    ASSERT_FALSE(bad.write_raw("GET http://h#x HTTP/1.1\r\nHost: h\r\n\r\n"));
     PlainClient::Response r;
     ASSERT_FALSE(bad.read(r));
     EXPECT_EQ(r.result_int(), 400);

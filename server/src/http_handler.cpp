@@ -294,6 +294,10 @@ HttpResponse HttpHandler::route(const HttpRequestView& req, HttpRoute& route_lab
         if (r == kRoutes.end()) return httpapi::error(404, "no such route: " + std::string(raw_path), api);
         res = r->answer(*this, parsed, route_label, borrow_payload);
     }
+    // Documents revalidate by their bytes (a tile's ETag is its stored checksum; these have none).
+    if (route_label == HttpRoute::stores || route_label == HttpRoute::store || route_label == HttpRoute::dzi_info ||
+        route_label == HttpRoute::iiif_info)
+        httpapi::validate_document(res, req.if_none_match);
     // A browser that came to a page with ?access_token= keeps the token as a cookie for the
     // page's own requests (docs/server.md, "Browsers"): only when a token is required and it
     // was right (the query's token itself: an Authorization header, which request_token

@@ -101,8 +101,9 @@ std::string canned_reject(const ServerConfig& config) {
 
 // RFC 9112 3.2.2: a server must accept a request target in absolute form ("GET http://h/p"), and
 // then use its authority as the host, ignoring the Host header. Rewrites such a target to its
-// path and query (origin form), `host` to its authority; false when it has no path ("http://h?q").
-bool origin_form(std::string_view& target, std::string_view& host) {
+// path and query (origin form), `host` to its authority; an empty path is "/" ("http://h?q" is
+// "/?q", held in `storage`). False for a fragment, which no request target has.
+bool origin_form(std::string_view& target, std::string_view& host, std::string& storage) {
     const auto starts = [&](std::string_view prefix) {
         const std::string_view head = target.substr(0, prefix.size());
         return beast::iequals(beast::string_view(head.data(), head.size()), beast::string_view(prefix.data(), prefix.size()));
@@ -118,7 +119,13 @@ bool origin_form(std::string_view& target, std::string_view& host) {
         target = "/";
         return true;
     }
-    if (rest[path] != '/') return false;
+    if (rest[path] == '#') return false;
+    if (rest[path] == '?') {
+        storage = "/";
+        storage += rest.substr(path);
+        target = storage;
+        return true;
+    }
     target = rest.substr(path);
     return true;
 }
@@ -387,7 +394,8 @@ private:
             if_none_match.append(it->value().data(), it->value().size());
         }
         std::string_view target = sv(req.target()), host = host_fields == 1 ? sv(hosts.first->value()) : std::string_view();
-        if (!origin_form(target, host)) return write_error(400, "malformed absolute-form request target");
+        std::string origin_target;  // an absolute-form target with an empty path, rewritten
+        if (!origin_form(target, host, origin_target)) return write_error(400, "malformed absolute-form request target");
         if (host.empty()) host = reached_address();  // HTTP/1.0 without Host: what it connected to
         const HttpRequestView view{sv(req.method_string()), target, sv(req[http::field::authorization]),
                                    if_none_match,         sv(req[http::field::accept]), sv(req[http::field::cookie]),

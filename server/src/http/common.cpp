@@ -6,7 +6,9 @@
 #include <cstdio>
 
 #include <nlohmann/json.hpp>
+#include <xxhash.h>
 
+#include "tessera/hex.hpp"
 #include "tessera/host_port.hpp"
 
 namespace tessera::server::httpapi {
@@ -313,6 +315,21 @@ bool iequals(std::string_view a, std::string_view b) {
         if (x != y) return false;
     }
     return true;
+}
+
+void validate_document(HttpResponse& r, std::string_view if_none_match) {
+    if (r.status != 200 || r.payload || r.deferred) return;
+    for (const auto& h : r.headers)
+        if (h.first == "ETag") return;
+    // The type seeds the hash: info.json's body is the same under either type Accept picks.
+    const std::uint64_t type_hash = XXH3_64bits(r.content_type.data(), r.content_type.size());
+    const std::string etag = "\"" + hex16(XXH3_64bits_withSeed(r.body.data(), r.body.size(), type_hash)) + "\"";
+    r.headers.emplace_back("ETag", etag);
+    if (!if_none_match.empty() && if_none_match_matches(if_none_match, etag)) {
+        r.status = 304;
+        r.content_type.clear();
+        r.body.clear();
+    }
 }
 
 bool if_none_match_matches(std::string_view header, std::string_view etag_quoted) {

@@ -74,6 +74,11 @@ bool iequals(std::string_view a, std::string_view b);
 // If-None-Match with weak comparison (RFC 9110 13.1.2) against our quoted entity tag.
 bool if_none_match_matches(std::string_view header, std::string_view etag_quoted);
 
+// A document the server writes (store JSON, info.json, a .dzi): an ETag of its type and bytes,
+// and a 304 with its headers and no body when `if_none_match` names it. Only a 200 without an
+// ETag of its own is touched.
+void validate_document(HttpResponse& r, std::string_view if_none_match);
+
 // The bearer token a request carries: the Authorization header, else ?access_token=, else the
 // tessera_token cookie (docs/server.md, "Browsers"). Empty when none.
 std::string request_token(const HttpRequestView& req, const std::string& query_token);
