@@ -1263,7 +1263,11 @@ TEST_F(HandlerTest, PublicUrlWithAPathPrefixesTheUrlsAnswersCarry) {
     EXPECT_EQ(httpapi::public_path("https://example.org/"), "");
     EXPECT_EQ(httpapi::public_path("https://example.org/a/b/"), "/a/b");
     EXPECT_EQ(httpapi::public_path(""), "");
-    config_.public_url = "https://example.org/tiles/";
+    // One normal form for both: every trailing slash, any query or fragment dropped.
+    EXPECT_EQ(httpapi::public_base("https://example.org/tiles//"), "https://example.org/tiles");
+    EXPECT_EQ(httpapi::public_base("https://example.org/?x#y"), "https://example.org");
+    EXPECT_EQ(httpapi::public_path("https://example.org/tiles//?x"), "/tiles");
+    config_.public_url = "https://example.org/tiles//";
     const HttpResponse store = get("/v1/stores/rgb");
     ASSERT_EQ(store.status, 200u) << store.body;
     const auto j = nlohmann::json::parse(store.body);

@@ -202,7 +202,7 @@ bool accepts(std::string_view accept, std::string_view type) {
 // Where this image service is, as clients reach it: config.public_url, else the Host they used.
 std::string base_url(HttpHandler& handler, const HttpRequestView& req) {
     const std::string& configured = handler.context().config.public_url;
-    if (!configured.empty()) return configured.back() == '/' ? configured.substr(0, configured.size() - 1) : configured;
+    if (!configured.empty()) return public_base(configured);
     const std::string host = req.host.empty() ? handler.context().config.http_address : std::string(req.host);
     return std::string(req.secure ? "https://" : "http://") + host;
 }

@@ -137,15 +137,20 @@ bool host_ok(std::string_view host) {
 
 }  // namespace
 
+std::string public_base(std::string_view public_url) {
+    std::string_view base = public_url.substr(0, public_url.find_first_of("?#"));
+    const std::size_t scheme = base.find("://");
+    const std::size_t keep = scheme == std::string_view::npos ? 0 : scheme + 3;  // "http://" itself stays
+    while (base.size() > keep && base.back() == '/') base.remove_suffix(1);
+    return std::string(base);
+}
+
 std::string public_path(std::string_view public_url) {
-    const std::size_t scheme = public_url.find("://");
-    if (scheme == std::string_view::npos) return {};
-    const std::size_t slash = public_url.find('/', scheme + 3);
-    if (slash == std::string_view::npos) return {};
-    std::string_view path = public_url.substr(slash);
-    path = path.substr(0, path.find_first_of("?#"));
-    while (!path.empty() && path.back() == '/') path.remove_suffix(1);
-    return std::string(path);
+    const std::string base = public_base(public_url);
+    const std::size_t scheme = base.find("://");
+    if (scheme == std::string::npos) return {};
+    const std::size_t slash = base.find('/', scheme + 3);
+    return slash == std::string::npos ? std::string() : base.substr(slash);
 }
 
 bool parse_request(const HttpRequestView& req, ParsedRequest& out, std::string& token, std::string& error) {

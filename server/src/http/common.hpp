@@ -60,9 +60,12 @@ HttpResponse defer(WorkKind kind, std::shared_ptr<const StoreHandle> store, std:
 // store version (a year).
 HeaderValue cache_control(const ServerContext& ctx, bool immutable);
 
-// The path of --public-url without its trailing '/' ("https://example.org/tiles/" -> "/tiles"; ""
-// when unset or at the root): what root-relative URLs in answers start with behind a proxy that
-// serves this server under a path.
+// --public-url as answers write it: no query or fragment, no trailing '/'
+// ("https://example.org/tiles/" -> "https://example.org/tiles"): what absolute URLs (IIIF ids)
+// start with.
+std::string public_base(std::string_view public_url);
+// Its path ("/tiles"; "" when unset or at the root): what root-relative URLs in answers start
+// with behind a proxy that serves this server under a path.
 std::string public_path(std::string_view public_url);
 
 // A strict decimal: digits only, no sign, no leading zeros (one URL per resource), below 2^32.
