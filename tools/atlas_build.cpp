@@ -2,7 +2,6 @@
 // one store.
 #include "atlas_build.hpp"
 
-#include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -21,9 +20,7 @@ namespace {
 // A temporary file beside `target`, removed unless released.
 class TempFile {
 public:
-    explicit TempFile(const fs::path& target)
-        : path_((target.has_parent_path() ? target.parent_path() : fs::path(".")) /
-                (".tmp-" + std::to_string(::getpid()) + "-" + target.filename().string())) {
+    explicit TempFile(const fs::path& target) : path_(storage::temp_path_beside(target.string(), "tmp")) {
         storage::track_temp_path(path_.string());  // removed if the build is interrupted
     }
     ~TempFile() {
@@ -47,9 +44,7 @@ private:
 // files), removed with everything in it unless empty of use.
 class TempFolder {
 public:
-    explicit TempFolder(const fs::path& target)
-        : path_((target.has_parent_path() ? target.parent_path() : fs::path(".")) /
-                (".tmp-" + std::to_string(::getpid()) + "-" + target.filename().string() + "-images")) {
+    explicit TempFolder(const fs::path& target) : path_(storage::temp_path_beside(target.string(), "images")) {
         storage::track_temp_path(path_.string());  // removed if the build is interrupted
     }
     ~TempFolder() {

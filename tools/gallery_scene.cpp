@@ -1,7 +1,6 @@
 // The gallery sample scene (gallery_scene.hpp): geometry, materials and labelled textures.
 #include "gallery_scene.hpp"
 
-#include <unistd.h>
 
 #include <algorithm>
 #include <array>
@@ -247,7 +246,7 @@ Status write_gallery_scene(const std::string& dir) {
     }
     const fs::path parent = out.has_parent_path() ? out.parent_path() : fs::path(".");
     if (!fs::is_directory(parent, ec)) return make_error(Errc::not_found, "folder '" + parent.string() + "' does not exist");
-    const fs::path tmp = parent / (".tmp-" + std::to_string(::getpid()) + "-" + out.filename().string());
+    const fs::path tmp = storage::temp_path_beside(out.string(), "tmp");
     storage::track_temp_path(tmp.string());  // removed if the command is interrupted
     struct Cleanup {
         fs::path p;

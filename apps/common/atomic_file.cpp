@@ -6,7 +6,6 @@
 #include <fstream>
 #include <system_error>
 
-#include <unistd.h>
 
 #include "failure.hpp"
 #include "tessera/storage/output_file.hpp"
@@ -17,7 +16,7 @@ void check_writable(const std::string& path) {
     namespace fs = std::filesystem;
     const fs::path target(path);
     if (Status st = storage::check_output_file(path); !st) throw Failure(st.error().message);
-    const fs::path probe = target.parent_path() / ("." + target.filename().string() + ".probe" + std::to_string(::getpid()));
+    const fs::path probe = storage::temp_path_beside(path, "probe");
     storage::track_temp_path(probe.string());
     const bool made = std::ofstream(probe, std::ios::binary | std::ios::trunc).good();
     std::error_code ec;
@@ -37,7 +36,7 @@ void write_file_atomically(const std::string& path, const std::function<void(std
     if (Status st = storage::check_output_file(path); !st) throw Failure(st.error().message);
     // The process id keeps two writers of one path apart; tracked, so an interrupted command
     // (tools/interrupt.hpp) removes it.
-    const fs::path temp = target.parent_path() / ("." + target.filename().string() + ".tmp" + std::to_string(::getpid()));
+    const fs::path temp = storage::temp_path_beside(path, "tmp");
     storage::track_temp_path(temp.string());
     struct Untrack {
         std::string path;

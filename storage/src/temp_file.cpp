@@ -65,16 +65,22 @@ Status check_output_file(const std::string& path) {
                                                   ", not a regular file; the output replaces its path whole, so name a file");
 }
 
-Result<TempFile> TempFile::create_beside(const std::string& final_path, const std::string& tag) {
+std::string temp_path_beside(const std::string& final_path, const std::string& tag) {
     static std::atomic<unsigned> counter{0};
+    const std::filesystem::path p(final_path);
+    const std::filesystem::path dir = p.has_parent_path() ? p.parent_path() : std::filesystem::path(".");
+    return (dir / ("." + p.filename().string() + "." + tag + "-" + std::to_string(::getpid()) + "-" +
+                   std::to_string(counter.fetch_add(1))))
+        .string();
+}
+
+Result<TempFile> TempFile::create_beside(const std::string& final_path, const std::string& tag) {
     const std::filesystem::path p(final_path);
     if (p.filename().empty()) return make_error(Errc::invalid_argument, "output path '" + final_path + "' names no file");
     const std::filesystem::path dir = p.has_parent_path() ? p.parent_path() : std::filesystem::path(".");
     TESSERA_TRY(check_output_file(final_path));
     for (int attempt = 0; attempt < 100; ++attempt) {
-        const std::string name = "." + p.filename().string() + "." + tag + "-" + std::to_string(::getpid()) + "-" +
-                                 std::to_string(counter.fetch_add(1));
-        const std::string path = (dir / name).string();
+        const std::string path = temp_path_beside(final_path, tag);
         track_temp_path(path);  // before the file exists: an interrupt never misses it
         int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
         if (fd >= 0) return TempFile(fd, path);

@@ -13,6 +13,11 @@ namespace tessera::storage {
 // there yet, or a parent that is missing (the write reports it), passes.
 Status check_output_file(const std::string& path);
 
+// The name every temporary file or folder of `final_path` gets: beside it, hidden, tagged, and
+// unique in the process (".NAME.TAG-PID-N"), so two writers of one path never meet. Only a name:
+// the caller tracks it (below) and creates it.
+std::string temp_path_beside(const std::string& final_path, const std::string& tag);
+
 // Temporary files and folders being written, process-wide, so that a command interrupted by a
 // signal can remove them before it dies (tools/interrupt.cpp). Track a path before creating it;
 // untrack it once it is renamed into place or removed.
