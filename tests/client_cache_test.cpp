@@ -272,7 +272,8 @@ std::optional<TileData> must_get(DiskTileCache& c, const TileId& id) {
 }
 
 struct TreeInfo {
-    std::uint64_t bytes = 0;  // regular files other than .lock
+    std::uint64_t bytes = 0;  // disk space of the regular files other than .lock (du's blocks, or the length where more)
+    std::uint64_t lengths = 0;  // their lengths
     std::size_t files = 0;
     std::size_t temps = 0;
 };
@@ -280,7 +281,10 @@ TreeInfo tree_info(const std::string& dir) {
     TreeInfo info;
     for (const auto& e : fs::recursive_directory_iterator(dir)) {
         if (!e.is_regular_file() || e.path().filename() == ".lock") continue;
-        info.bytes += e.file_size();
+        struct stat st {};
+        if (::stat(e.path().c_str(), &st) != 0) continue;
+        info.bytes += std::max<std::uint64_t>(std::uint64_t(st.st_size), std::uint64_t(st.st_blocks) * 512);
+        info.lengths += e.file_size();
         ++info.files;
         if (e.path().filename().string().find(".tmp-") != std::string::npos) ++info.temps;
     }
@@ -452,6 +456,56 @@ TEST(DiskTileCache, NonDrainingCloseDropsQueuedPuts) {
     ASSERT_TRUE(reopened);
     reopened->flush();
     EXPECT_LE(reopened->stats().entries, 1u) << "only the entry being written when the close began";
+}
+
+// The budget is disk space, as du counts it: records of absent tiles (a few dozen bytes each, a
+// block on disk each) kept within it; counted by length they took 66x the budget.
+TEST(DiskTileCache, SmallEntriesAreBoundedByTheirBlocks) {
+    Scratch dir;
+    constexpr std::uint64_t kBudget = 64 * 1024;
+    DiskCacheOptions opt;
+    opt.byte_budget = kBudget;
+    opt.max_queue_entries = 100000;
+    opt.max_queue_bytes = 1ull << 30;
+    auto cache = open_cache(dir.str(), std::move(opt));
+    ASSERT_TRUE(cache);
+    for (std::uint32_t x = 0; x < 200; ++x) {
+        TileData absent;
+        absent.kind = TileKind::absent;
+        ASSERT_TRUE(cache->put(tid(x), absent));
+    }
+    cache->flush();
+    const TreeInfo t = tree_info(dir.str());
+    EXPECT_LE(t.bytes, kBudget) << t.files << " entries of " << t.lengths << " bytes in all";
+    EXPECT_EQ(cache->stats().bytes, t.bytes);
+    EXPECT_GT(t.files, 0u);
+}
+
+// A FIFO in an entry's place (or anything else whose open would wait) is a miss at once and is
+// removed; it blocked the lookup thread for good, and every lookup behind it.
+TEST(DiskTileCache, AFifoInAnEntrysPlaceIsAMiss) {
+    Scratch dir;
+    auto cache = open_cache(dir.str(), 1 << 20);
+    ASSERT_TRUE(cache);
+    ASSERT_TRUE(cache->put(tid(1), make_tile(tid(1), 100)));
+    cache->flush();
+    std::string entry;
+    for (const auto& e : fs::recursive_directory_iterator(dir.str()))
+        if (e.path().filename() == "1_0.tile") entry = e.path().string();
+    ASSERT_FALSE(entry.empty());
+    fs::remove(entry);
+    ASSERT_EQ(::mkfifo(entry.c_str(), 0644), 0);
+    auto got = std::async(std::launch::async, [&] { return cache->get(tid(1)); });
+    if (got.wait_for(std::chrono::seconds(5)) != std::future_status::ready) {
+        const int writer = ::open(entry.c_str(), O_WRONLY | O_NONBLOCK);  // lets the waiting open finish
+        if (writer >= 0) ::close(writer);
+        FAIL() << "the lookup waits on the FIFO";
+    }
+    const auto r = got.get();
+    ASSERT_TRUE(r.ok());
+    EXPECT_EQ(*r, std::nullopt);
+    cache->flush();
+    EXPECT_FALSE(fs::exists(entry)) << "removed as a corrupt entry";
 }
 
 TEST(DiskTileCache, BoundedInBytes) {

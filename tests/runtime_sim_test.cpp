@@ -732,6 +732,26 @@ TEST_F(RuntimeSim, TheDiskCacheTakesServerStoresAbsentTilesIncluded) {
         }
         EXPECT_EQ((*rt)->in_flight(), 0u) << "run " << run;
         served[run] = src.served();
+        // The cache's own counts: written in the first run, found in the second.
+        const auto disk = (*rt)->disk_cache();
+        ASSERT_TRUE(disk.has_value());
+        if (run == 0) {
+            (*rt).reset();  // closing drains the write queue
+        } else {
+            EXPECT_GE(disk->hits, 16u);
+            EXPECT_GE(disk->entries, 16u);
+            EXPECT_GT(disk->bytes, 0u);
+            EXPECT_EQ(disk->write_errors + disk->corrupt + disk->write_drops, 0u);
+        }
+    }
+    {
+        FakeUploader up;
+        RuntimeConfig c;
+        c.residency.pool_slots = 32;
+        c.transcode_threads = 0;
+        auto rt = Runtime::create(c, up);
+        ASSERT_TRUE(rt.ok()) << rt.error().message;
+        EXPECT_FALSE((*rt)->disk_cache().has_value()) << "no disk cache, no counts";
     }
     EXPECT_GT(served[0], 15u) << "the first run asks for every page";
     EXPECT_EQ(served[1], 0u) << "the second run has them all on disk, the absent ones too";

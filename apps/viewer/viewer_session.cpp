@@ -424,6 +424,12 @@ void ViewerRun::make_runtime() {
     runtime_ = std::move(*runtime);
     auto texture = rt().add_texture(*source_, store_name_);
     if (!texture) throw Failure(fmt::format("--store '{}': {}", o.store, texture.error().message));
+    // The disk cache keys tiles by store name (docs/client.md, "Arrivals and decoding"): a store
+    // file named by a path, or a procedural spec, has none, and is read from where it is.
+    if (!o.disk_cache_dir.empty() && store_name_.find_first_of("/:") != std::string::npos)
+        fmt::print(stderr, "note: --disk-cache is not used for '{}': a store named by a path or a procedural spec is read from "
+                           "where it is (the cache keys a server's stores by name)\n",
+                   store_name_);
     texture_ = *texture;
     if (auto st = r().add_texture(texture_, *rt().texture_info(texture_)); !st.ok()) throw Failure(st.error().message);
     loop_.emplace(r(), rt());
@@ -784,6 +790,7 @@ void ViewerRun::finish_report(std::uint32_t done) {
     rep_.down_at_end = !link_monitor_->connected();
     rep_.last_link_error = link_monitor_->last_error();
     rep_.summary = rt().summary();
+    rep_.disk_cache = rt().disk_cache();
     rep_.fade_frames = std::uint32_t(std::ceil(double(o.fade_ms) / 1000.0 * o.fps));
     rep_.predicted_feedback_frames = r().stats().predicted_feedback;
     rep_.page_bytes_copied = r().stats().page_bytes_copied;
@@ -936,6 +943,14 @@ void write_frame_stats(const ViewerReport& rep, const std::string& path) {
                                rep.settled_max_error < 0 ? "null" : std::to_string(rep.settled_max_error), rep.settled_frames,
                                rep.settled_complete ? "true" : "false")
                 << fmt::format("\"fade_frames\": {}, ", rep.fade_frames)
+                << "\"disk_cache\": "
+                << (rep.disk_cache ? fmt::format("{{\"entries\": {}, \"bytes\": {}, \"hits\": {}, \"writes\": {}, \"corrupt\": {}, "
+                                                 "\"write_errors\": {}, \"write_drops\": {}, \"evictions\": {}}}",
+                                                 rep.disk_cache->entries, rep.disk_cache->bytes, rep.disk_cache->hits,
+                                                 rep.disk_cache->writes, rep.disk_cache->corrupt, rep.disk_cache->write_errors,
+                                                 rep.disk_cache->write_drops, rep.disk_cache->evictions)
+                                   : std::string("null"))
+                << ", "
                 << "\"summary\": " << rep.summary.to_json() << "}\n";
     });
 }
@@ -1035,6 +1050,14 @@ std::string summary_text(const ViewerReport& rep) {
         s += fmt::format("errors        {} tile answers were errors{}, {} tiles did not decode\n", rep.summary.source_errors(),
                          rep.summary.first_source_error().empty() ? "" : " (first: " + rep.summary.first_source_error() + ")",
                          rep.summary.decode_failures());
+    if (rep.disk_cache) {
+        const client::DiskCacheCounts& d = *rep.disk_cache;
+        s += fmt::format("disk cache    {} entries, {:.1f} MiB; {} hits, {} written{}{}{}{}\n", d.entries, double(d.bytes) / (1 << 20),
+                         d.hits, d.writes, d.evictions ? fmt::format(", {} evicted", d.evictions) : "",
+                         d.corrupt ? fmt::format(", {} damaged (deleted, fetched again)", d.corrupt) : "",
+                         d.write_errors ? fmt::format(", {} WRITES FAILED (a full disk, a folder gone, permissions)", d.write_errors) : "",
+                         d.write_drops ? fmt::format(", {} writes dropped (queue full)", d.write_drops) : "");
+    }
     if (rep.remote) {
         if (rep.unserved_s == 0 && rep.outages == 0)
             s += fmt::format("server        0.0 s unserved of {:.1f} s (connected throughout)\n", rep.run_s);

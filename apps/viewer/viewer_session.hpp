@@ -4,6 +4,7 @@
 // per-frame records, and the run's outputs (PNG frames, stats, trace, reference PSNR).
 #include <cstdint>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -146,6 +147,7 @@ struct ViewerReport {
     std::uint64_t pool_texels = 0;
     std::vector<FrameRecord> frames;
     client::StatsSummary summary;
+    std::optional<client::DiskCacheCounts> disk_cache;  // with --disk-cache: what it held and could not do
     double wall_s = 0;
     std::vector<std::string> pngs;
     double warmup_ms = kNaN;        // first view: time to full detail (NaN: no warm-up)

@@ -259,6 +259,12 @@ struct DiskTileCache::Impl {
     std::thread writer;
 
     // ------------------------------------------------------------------------------------------
+    // What an entry costs the disk: its blocks, not its length (a 62-byte record of an absent
+    // tile takes a 4 KiB block; counted by length, a budget of such records took 66x its size).
+    static std::uint64_t disk_usage(const struct stat& st) {
+        return std::max<std::uint64_t>(static_cast<std::uint64_t>(st.st_size), static_cast<std::uint64_t>(st.st_blocks) * 512u);
+    }
+
     std::string store_dir(std::string_view store) const {
         std::string p = dir;
         p += '/';
@@ -361,7 +367,7 @@ struct DiskTileCache::Impl {
             // replaced since we opened it (then it is no longer the entry).
             struct stat now {};
             if (::fstat(fd, &now) == 0 && now.st_nlink > 0) {
-                insert_front_locked(id, static_cast<std::uint64_t>(now.st_size));
+                insert_front_locked(id, disk_usage(now));
                 scan_deleted.erase(id);
             }
         }
@@ -490,6 +496,9 @@ struct DiskTileCache::Impl {
         }
         bool ok = write_all(fd, header.data(), header.size(), tile.payload.data(), tile.payload.size());
         if (ok && opt.fsync) ok = ::fdatasync(fd) == 0;
+        struct stat written {};
+        std::uint64_t usage = header.size() + tile.payload.size();
+        if (ok && ::fstat(fd, &written) == 0) usage = std::max(usage, disk_usage(written));
         if (::close(fd) != 0) ok = false;
         if (!ok) {
             ::unlink(tmp.c_str());
@@ -503,7 +512,7 @@ struct DiskTileCache::Impl {
                 ++write_errors;
                 return;
             }
-            insert_front_locked(id, header.size() + tile.payload.size());
+            insert_front_locked(id, usage);
             ++writes;
             evict_locked();
         }
@@ -555,8 +564,7 @@ struct DiskTileCache::Impl {
                                 !S_ISREG(st.st_mode)) {
                                 continue;
                             }
-                            found.push_back(Found{TileId{s.name, version, {level, x, y}},
-                                                  static_cast<std::uint64_t>(st.st_size), st.st_mtim});
+                            found.push_back(Found{TileId{s.name, version, {level, x, y}}, disk_usage(st), st.st_mtim});
                         }
                         if (aborted) break;
                         if (kept == 0) ::unlinkat(vfd.fd, l.name.c_str(), AT_REMOVEDIR);
@@ -685,7 +693,9 @@ Result<std::optional<TileData>> DiskTileCache::get(const TileId& id) {
         return make_error(Errc::invalid_argument, "disk cache: invalid store name '" + id.store + "'");
     }
     const std::string path = m.entry_path(id);
-    const Fd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW));
+    // O_NONBLOCK: a FIFO put in an entry's place would block the open until a writer came (and
+    // every lookup queued behind it); read_entry refuses anything but a regular file.
+    const Fd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK));
     if (fd.fd < 0) {
         const int err = errno;
         ++m.misses;

@@ -27,7 +27,8 @@
 // thread owned by the cache writes, evicts and deletes; the queue is bounded in entries and bytes
 // and a put that does not fit is dropped and counted, so put() never blocks on I/O.
 //
-// Budget: the sum of entry file sizes (headers included; directories not counted). After the
+// Budget: the disk space of the entries: each file's allocated blocks, or its length where that
+// is more (headers included; directories not counted). After the
 // scan at open and after every write, least recently used entries are deleted until the sum is
 // within the budget. Recency: the in-memory LRU during a run; across runs, file mtime (a hit
 // updates the mtime lazily, batched on the writer thread every touch_interval and at flush/close).
@@ -86,7 +87,7 @@ struct DiskCacheStats {
     std::uint64_t rejected = 0;      // puts refused: bad store name, too large for the budget,
                                      // payload not matching its checksum
     std::uint64_t write_errors = 0;  // writes the OS refused (ENOSPC, EACCES, ...)
-    std::uint64_t bytes = 0;         // sum of known entry file sizes
+    std::uint64_t bytes = 0;         // disk space of the known entries (blocks, see Budget)
     std::uint64_t entries = 0;
     std::uint64_t evictions = 0;     // entries deleted to keep within the budget
     std::uint64_t dropped_versions = 0;  // entries deleted by drop_other_versions

@@ -59,6 +59,8 @@ public:
     PageLoader& operator=(const PageLoader&) = delete;
 
     Status open_disk_cache();
+    // The disk cache's stats; nothing without one.
+    std::optional<DiskCacheStats> disk_stats() const { return disk_ ? std::optional<DiskCacheStats>(disk_->stats()) : std::nullopt; }
 
     // Binds store `store` of `source` as texture `id` (the next one: 0, 1, ...) and checks that
     // its pages can be transcoded to the pool's format. Returns its geometry; add_texture then

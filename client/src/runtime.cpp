@@ -137,6 +137,11 @@ public:
     float lod_bias() const override { return glide_.bias(); }
     const Residency& residency() const override { return residency_; }
     const StatsSummary& summary() const override { return summary_; }
+    std::optional<DiskCacheCounts> disk_cache() const override {
+        const auto s = loader_.disk_stats();
+        if (!s) return std::nullopt;
+        return DiskCacheCounts{s->entries, s->bytes, s->hits, s->writes, s->corrupt, s->write_errors, s->write_drops, s->evictions};
+    }
     std::size_t in_flight() const override { return loader_.in_flight(); }
 
 private:

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 
@@ -129,6 +130,8 @@ public:
     virtual float lod_bias() const = 0;
     virtual const Residency& residency() const = 0;
     virtual const StatsSummary& summary() const = 0;
+    // The disk cache's counts; nothing without one (RuntimeConfig::disk_cache_dir empty).
+    virtual std::optional<DiskCacheCounts> disk_cache() const = 0;
     virtual std::size_t in_flight() const = 0;  // pages requested and not yet mapped or dropped
 };
 

@@ -176,4 +176,15 @@ private:
     LogLinearHistogram<4, 32> time_to_detail_;
 };
 
+// The disk cache's own counts (Runtime::disk_cache): what it holds, and what it found or could not
+// do (a full disk, a damaged entry), which per-level hits alone do not show.
+struct DiskCacheCounts {
+    std::uint64_t entries = 0, bytes = 0;  // held now; bytes of disk space (each entry's blocks)
+    std::uint64_t hits = 0, writes = 0;
+    std::uint64_t corrupt = 0;       // entries that failed verification: deleted, fetched again
+    std::uint64_t write_errors = 0;  // writes the OS refused (a full disk, a folder gone, permissions)
+    std::uint64_t write_drops = 0;   // writes dropped: the write queue was full
+    std::uint64_t evictions = 0;     // entries deleted to keep within the size
+};
+
 }  // namespace tessera::client
