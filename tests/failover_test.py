@@ -6,7 +6,8 @@ deadline, invalid and data-loss counters stay 0); another server sends its first
 of the kill (read from the servers' own counters, polled every 10 ms); the viewer's per-frame
 stats have all 240 frames with at most 1 s of them without a server; and fallback over the run
 stays <= 1%. Then the same with a single server killed and restarted on
-its port. Prints the figures docs/benchmarks.md quotes.
+its port; then two replicas, the viewer's one stalled (SIGSTOP), whose stream must move to the
+other within 13 s (keepalive pings: 10 s, and the reconnect). Prints the figures docs/benchmarks.md quotes.
 
 Under a sanitizer (TESSERA_SANITIZE in the environment, tests/CMakeLists.txt) the bound on fallback is
 5%: a server restarted under ThreadSanitizer, beside other sanitized tests on two cores, was
@@ -77,9 +78,9 @@ def check_frames(frames, what, max_down_frames):
     return down
 
 
-def view(tessera, target, stats, outage_at, action):
+def view(tessera, target, stats, outage_at, action, frames=240):
     """Runs the viewer; `action()` at `outage_at` seconds into the run. Returns (rc, output, summary)."""
-    v = subprocess.Popen([tessera, "view", "--store", f"grpc://{target}/terrain", "--headless", "--size", "320x180", "--frames", "240",
+    v = subprocess.Popen([tessera, "view", "--store", f"grpc://{target}/terrain", "--headless", "--size", "320x180", "--frames", str(frames),
                           "--fps", "60", "--pace", "--path", "flyover", "--stats", stats],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
@@ -200,6 +201,48 @@ def main():
             fail(f"{unserved} s without a server (bound 1 s after the restart)")
         if fallback > FALLBACK_BOUND:
             fail(f"fallback {fallback}% over the run (bound {FALLBACK_BOUND:g}%)")
+
+        # Two replicas; the one serving the viewer stalls (SIGSTOP: its connection stays open and
+        # silent). Its unanswered keepalive ping ends the stream within 10 s, and the other
+        # replica takes over (it took 40 s, and a stall shorter than that was never left).
+        servers = [start_server(a.server, store) for _ in range(2)]
+        target = ",".join(f"127.0.0.1:{g}" for _, g, _ in servers)
+        stalled = {}
+
+        def stall_busiest():
+            for _ in range(200):
+                sent = [tiles_sent(h) for _, _, h in servers]
+                if max(sent) > 0:
+                    break
+                time.sleep(0.1)
+            i = max(range(2), key=lambda k: sent[k])
+            other = 1 - i
+            servers[i][0].send_signal(signal.SIGSTOP)
+            stalled.update(index=i)
+            t_stop = time.monotonic()
+            # The viewer keeps asking for new pages along the path; the other replica's counter
+            # moves once the stream is on it.
+            while time.monotonic() - t_stop < 14:
+                if tiles_sent(servers[other][2]) > max(sent[other], 0):
+                    stalled["resumed_s"] = time.monotonic() - t_stop
+                    break
+                time.sleep(0.05)
+
+        try:
+            rc, out, fallback, unserved, frames = view(a.tessera, target, os.path.join(d, "c.json"), 1.5, stall_busiest, frames=960)
+        finally:
+            for p, _, _ in servers:
+                if p.poll() is None:
+                    p.send_signal(signal.SIGCONT)
+                    p.terminate()
+                p.wait()
+        resumed = stalled.get("resumed_s")
+        print(f"stall: server {stalled.get('index')} stopped; viewer exit {rc}; the other replica's first tile "
+              f"{resumed if resumed is None else round(resumed, 3)} s after the stop; fallback {fallback:.4f}%")
+        if rc != 0:
+            fail(f"the viewer exited {rc}:\n{out}")
+        if resumed is None or resumed > 13.0:
+            fail(f"the other replica sent no tile within 13 s of the stall (first after {resumed} s):\n{out}")
     print("PASS")
 
 
