@@ -1192,6 +1192,22 @@ TEST(CliView, LosslessPsnrIsSaidInWords) {
     EXPECT_EQ(stats["settled"]["psnr_db"].get<double>(), 999.0) << stats["settled"];
 }
 
+// A store whose every tile fails to read: the summary says so, and the run is no success (exit 1
+// after the summary), where it exited 0 having shown nothing of the store.
+TEST(CliView, AStoreNoTileOfWhichCanBeReadFails) {
+    ScratchDir d;
+    ASSERT_EQ(run_tessera("build -q procedural:terrain:64 --codec zstd -o " + q(d.file("one.tsr"))).exit_code, 0);
+    auto bytes = read_file(d.file("one.tsr"));
+    bytes[bytes.size() - 10] ^= 0xFF;  // in its one tile's payload
+    write_file(d.file("bad.tsr"), std::vector<std::uint8_t>(bytes.begin(), bytes.end()));
+    const RunResult r = run_tessera("view --store " + q(d.file("bad.tsr")) + " --headless --size 32x32 --frames 5 --no-warmup");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_TRUE(has(r.out, "errors        1 tile answers were errors (first: level 0 (0, 0): DATA_LOSS")) << r.out;
+    EXPECT_TRUE(has(r.out, "no tile of the store could be read")) << r.out;
+    // The intact store: exit 0.
+    EXPECT_EQ(run_tessera("view --store " + q(d.file("one.tsr")) + " --headless --size 32x32 --frames 5 --no-warmup").exit_code, 0);
+}
+
 // ---- serve: options checked before it starts ------------------------------------------------------
 
 // Thread counts past 1024 are refused on the command line; threads that cannot be created at start

@@ -199,6 +199,7 @@ Command add_demo(CLI::App& app) {
         std::fflush(stdout);
         // The server is in this process: an outage here means the stream broke, not a server gone.
         check_outage(view, kDefaultMaxOutageSeconds, "the demo's limit of");
+        check_tiles_arrived(view);
         return 0;
     };
 }

@@ -129,6 +129,7 @@ Command add_view(CLI::App& app) {
         }
         std::fflush(stdout);
         check_outage(rep, *max_outage, "--max-outage");
+        check_tiles_arrived(rep);
         return 0;
     };
 }

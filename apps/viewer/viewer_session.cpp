@@ -1071,6 +1071,13 @@ std::string summary_text(const ViewerReport& rep) {
     return s;
 }
 
+void check_tiles_arrived(const ViewerReport& rep) {
+    if (rep.summary.pages_arrived() > 0 || rep.summary.source_errors() == 0) return;
+    throw Failure(fmt::format("no tile of the store could be read: all {} answers were errors{}", rep.summary.source_errors(),
+                              rep.summary.first_source_error().empty() ? "" : " (first: " + rep.summary.first_source_error() + ")"),
+                  1);
+}
+
 void check_outage(const ViewerReport& rep, double max_outage_s, const std::string& flag) {
     if (max_outage_s < 0 || !(rep.unserved_s > max_outage_s)) return;
     throw Failure(fmt::format("the tile server was unreachable for {:.1f} s of the run, more than {} {:g} s",

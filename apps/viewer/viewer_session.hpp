@@ -199,5 +199,8 @@ std::string summary_text(const ViewerReport& report);
 // Throws Failure (exit kOutageExitCode) when the run was unserved for longer than max_outage_s;
 // a negative max_outage_s never throws. `flag` names the setting in the message.
 void check_outage(const ViewerReport& report, double max_outage_s, const std::string& flag);
+// Throws Failure (exit 1) when not one tile arrived and the source answered with errors (every
+// read of the store failed: a run that showed nothing of it is no success).
+void check_tiles_arrived(const ViewerReport& report);
 
 }  // namespace tessera::tools
