@@ -78,6 +78,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include "tessera.grpc.pb.h"
+#include "tessera/host_port.hpp"
 #include "tessera/protocol/stream_codec.hpp"
 #include "tessera/protocol/wire.hpp"
 #include "tessera/log_linear_histogram.hpp"
@@ -320,18 +321,16 @@ std::vector<Key> keys_from_store(const std::string& path) {
 
 // ---- HTTP: one epoll thread, C keep-alive connections -----------------------------------------
 
-std::pair<std::string, std::string> split_host_port(const std::string& hp) {
-    const auto colon = hp.rfind(':');
-    if (colon == std::string::npos || colon == 0 || colon + 1 == hp.size()) die("expected HOST:PORT, got " + hp);
-    std::string host = hp.substr(0, colon);
-    if (host.size() > 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
-    return {host, hp.substr(colon + 1)};
+std::pair<std::string, std::string> host_and_port(const std::string& hp) {
+    const auto parts = tessera::split_host_port(hp);
+    if (!parts || parts->host.empty() || !tessera::parse_port(parts->port)) die("expected HOST:PORT, got " + hp);
+    return {std::string(parts->host), std::string(parts->port)};
 }
 
 class HttpLoad {
 public:
     HttpLoad(const Options& o, std::vector<std::string> urls) : o_(o), urls_(std::move(urls)), rng_(o.seed) {
-        const auto [host, port] = split_host_port(o.http);
+        const auto [host, port] = host_and_port(o.http);
         addrinfo hints{};
         hints.ai_family = AF_UNSPEC;
         hints.ai_socktype = SOCK_STREAM;

@@ -7,7 +7,7 @@ of the kill (read from the servers' own counters, polled every 10 ms); the viewe
 stats have all 240 frames with at most 1 s of them without a server; and fallback over the run
 stays <= 1%. Then the same with a single server killed and restarted on
 its port; then two replicas, the viewer's one stalled (SIGSTOP), whose stream must move to the
-other within 13 s (keepalive pings: 10 s, and the reconnect). Prints the figures docs/benchmarks.md quotes.
+other within 15 s (keepalive pings: 10 s, and the reconnect). Prints the figures docs/benchmarks.md quotes.
 
 Under a sanitizer (TESSERA_SANITIZE in the environment, tests/CMakeLists.txt) the bound on fallback is
 5%: a server restarted under ThreadSanitizer, beside other sanitized tests on two cores, was
@@ -79,7 +79,8 @@ def check_frames(frames, what, max_down_frames):
 
 
 def view(tessera, target, stats, outage_at, action, frames=240):
-    """Runs the viewer; `action()` at `outage_at` seconds into the run. Returns (rc, output, summary)."""
+    """Runs the viewer; `action()` at `outage_at` seconds into the run. Returns (rc, output, fallback %,
+    unserved s, per-frame records)."""
     v = subprocess.Popen([tessera, "view", "--store", f"grpc://{target}/terrain", "--headless", "--size", "320x180", "--frames", str(frames),
                           "--fps", "60", "--pace", "--path", "flyover", "--stats", stats],
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -102,6 +103,9 @@ def view(tessera, target, stats, outage_at, action, frames=240):
 
 SANITIZED = bool(os.environ.get("TESSERA_SANITIZE"))
 FALLBACK_BOUND = 5.0 if SANITIZED else 1.0  # percent
+# Seconds from the stall to the other replica's first tile: 10 s of keepalive (a ping every 6 s,
+# 4 s to answer it), then the reconnect and a new stream's first tile on a busy 2-core machine.
+STALL_BOUND = 20.0 if SANITIZED else 15.0
 
 
 def main():
@@ -222,14 +226,14 @@ def main():
             t_stop = time.monotonic()
             # The viewer keeps asking for new pages along the path; the other replica's counter
             # moves once the stream is on it.
-            while time.monotonic() - t_stop < 14:
+            while time.monotonic() - t_stop < STALL_BOUND + 1:
                 if tiles_sent(servers[other][2]) > max(sent[other], 0):
                     stalled["resumed_s"] = time.monotonic() - t_stop
                     break
                 time.sleep(0.05)
 
         try:
-            rc, out, fallback, unserved, frames = view(a.tessera, target, os.path.join(d, "c.json"), 1.5, stall_busiest, frames=960)
+            rc, out, fallback, unserved, frames = view(a.tessera, target, os.path.join(d, "c.json"), 1.5, stall_busiest, frames=1200)
         finally:
             for p, _, _ in servers:
                 if p.poll() is None:
@@ -241,8 +245,8 @@ def main():
               f"{resumed if resumed is None else round(resumed, 3)} s after the stop; fallback {fallback:.4f}%")
         if rc != 0:
             fail(f"the viewer exited {rc}:\n{out}")
-        if resumed is None or resumed > 13.0:
-            fail(f"the other replica sent no tile within 13 s of the stall (first after {resumed} s):\n{out}")
+        if resumed is None or resumed > STALL_BOUND:
+            fail(f"the other replica sent no tile within {STALL_BOUND:g} s of the stall (first after {resumed} s):\n{out}")
     print("PASS")
 
 

@@ -690,13 +690,16 @@ TEST_F(HttpServerTest, AbsoluteFormTargetsAreServed) {
     ASSERT_FALSE(c.read(absolute));
     EXPECT_EQ(absolute.result_int(), origin.result_int());
     EXPECT_EQ(absolute.body(), origin.body());
-    // A fragment belongs to no request target.
-    PlainClient bad;
-    ASSERT_FALSE(bad.connect(server_->port()));
-    ASSERT_FALSE(bad.write_raw("GET http://h#x HTTP/1.1\r\nHost: h\r\n\r\n"));
-    PlainClient::Response r;
-    ASSERT_FALSE(bad.read(r));
-    EXPECT_EQ(r.result_int(), 400);
+    // A fragment belongs to no request target, and an http URI has a host.
+    for (const std::string target : {"http://h#x", "http://?x", "http:///healthz"}) {
+        SCOPED_TRACE(target);
+        PlainClient bad;
+        ASSERT_FALSE(bad.connect(server_->port()));
+        ASSERT_FALSE(bad.write_raw("GET " + target + " HTTP/1.1\r\nHost: h\r\n\r\n"));
+        PlainClient::Response r;
+        ASSERT_FALSE(bad.read(r));
+        EXPECT_EQ(r.result_int(), 400);
+    }
 }
 
 TEST_F(HttpServerTest, IdleConnectionsTimeOut) {

@@ -32,7 +32,7 @@
 #include "page_table.hpp"
 #include "procedural_source.hpp"
 #include "tessera/client/runtime.hpp"
-#include "residency.hpp"
+#include "runtime_internal.hpp"
 #include "tessera/scene/camera.hpp"
 #include "tessera/scene/scene.hpp"
 #include "tessera/storage/types.hpp"
@@ -80,7 +80,7 @@ void far_corner_end_to_end(std::uint32_t size, std::uint32_t tile, std::uint32_t
     ASSERT_FALSE(PageTable::dense_packing_fits(n, n)) << "should need the two-level table";
     auto added = renderer.add_texture(*tex, info);
     ASSERT_TRUE(added.ok()) << added.error().message;
-    const PageTable* table = rt.residency().table(*tex);
+    const PageTable* table = residency_of(rt).table(*tex);
     ASSERT_NE(table, nullptr);
     ASSERT_TRUE(table->sparse());
 
@@ -130,10 +130,10 @@ void far_corner_end_to_end(std::uint32_t size, std::uint32_t tile, std::uint32_t
         // The 2 x 2 pages around the corner are what the runtime made resident.
         for (const std::uint32_t py : {last - 1, last})
             for (const std::uint32_t px : {last - 1, last})
-                EXPECT_TRUE(rt.residency().is_resident(PageKey{*tex, std::uint8_t(level), px, py}))
+                EXPECT_TRUE(residency_of(rt).is_resident(PageKey{*tex, std::uint8_t(level), px, py}))
                     << "level " << level << " page (" << px << ", " << py << ")";
         run.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-        const auto rs = rt.residency().stats();
+        const auto rs = residency_of(rt).stats();
         std::printf("  %u texels (2^%.4f), tile %u: level %u (%u pages per side): %d frames, %.2f s; %u pages resident, "
                     "%zu pixels on texel centres, %zu wrong\n",
                     size, std::log2(double(size)), tile, level, last + 1, run.frames, run.seconds, rs.resident_pages,

@@ -39,7 +39,7 @@
 #include "page_table.hpp"
 #include "tessera/client/runtime.hpp"
 #include "fades.hpp"
-#include "residency.hpp"
+#include "runtime_internal.hpp"
 #include "tessera/client/tile_source.hpp"
 #include "tessera/scene/camera.hpp"
 #include "tessera/scene/cpu_feedback.hpp"
@@ -242,7 +242,7 @@ std::unique_ptr<Vt> expect_store_matches_reference(const gl::RendererConfig& cfg
         return nullptr;
     }
     if (!load_everything(*vt)) {
-        ADD_FAILURE() << "resident " << vt->runtime->residency().stats().resident_pages << " of " << page_count(vt->info);
+        ADD_FAILURE() << "resident " << residency_of(*vt->runtime).stats().resident_pages << " of " << page_count(vt->info);
         return nullptr;
     }
     auto levels = tessera::client::decode_store_levels(store, 16384, reference_format(cfg, cfg.show_layer, lossless_reference), cfg.show_layer);
@@ -462,7 +462,7 @@ FunctionSource height_source(std::uint32_t side, st::SampleType type) {
 std::size_t expect_pages_read_back(Vt& vt, const st::StoreReader& reader, std::uint32_t layer,
                                    const std::function<bool(const st::Tile&, std::vector<std::uint8_t>&)>& want_page) {
     const auto& info = reader.info();
-    const auto* table = vt.runtime->residency().table(vt.texture);
+    const auto* table = residency_of(*vt.runtime).table(vt.texture);
     EXPECT_NE(table, nullptr);
     if (!table) return 0;
     std::vector<std::uint8_t> want;

@@ -11,7 +11,7 @@
 #include <thread>
 #include <vector>
 
-#include "residency.hpp"
+#include "runtime_internal.hpp"
 #include "tessera/client/gl/frame_loop.hpp"
 #include "tessera/client/gl/renderer.hpp"
 #include "tessera/client/runtime.hpp"
@@ -91,7 +91,7 @@ inline bool load_everything(Vt& vt, std::chrono::seconds timeout = 60s) {
     std::size_t resident = 0;
     while (std::chrono::steady_clock::now() < deadline) {
         vt.runtime->frame(ids, std::uint32_t(ids.size()), 1, 0.0f);
-        const std::size_t now_resident = vt.runtime->residency().stats().resident_pages;
+        const std::size_t now_resident = residency_of(*vt.runtime).stats().resident_pages;
         if (now_resident == total && vt.runtime->in_flight() == 0) return true;
         if (now_resident > resident) deadline = std::chrono::steady_clock::now() + timeout;
         resident = now_resident;

@@ -11,7 +11,7 @@
 #include "server_process.hpp"
 #include "tessera/client/fakes/uploaders.hpp"
 #include "tessera/client/runtime.hpp"
-#include "residency.hpp"
+#include "runtime_internal.hpp"
 
 namespace {
 
@@ -88,10 +88,10 @@ TEST(RuntimeEndToEnd, FetchesFromARealServerAndSurvivesItsRestart) {
     // Phase 1: level 1 of the whole texture (9 x 9 pages) plus ancestors arrive and are mapped.
     const auto level1 = whole_texture(info, 1);
     ASSERT_TRUE(frames_until(rt, level1, [&] { return rt.frame(level1, std::uint32_t(level1.size()), 1).fallback_estimate == 0.0f; }, 60s))
-        << "resident: " << rt.residency().stats().resident_pages;
-    const auto resident_before = rt.residency().stats().resident_pages;
+        << "resident: " << residency_of(rt).stats().resident_pages;
+    const auto resident_before = residency_of(rt).stats().resident_pages;
     EXPECT_GE(resident_before, level1.size());
-    for (const auto id : level1) EXPECT_TRUE(rt.residency().is_resident(unpack_feedback(id)));
+    for (const auto id : level1) EXPECT_TRUE(residency_of(rt).is_resident(unpack_feedback(id)));
 
     // Phase 2: the server dies (SIGKILL, no drain). The view moves to level 0: nothing can
     // arrive, frames go on, and what is resident stays resident (level 1 serves as fallback).
@@ -103,14 +103,14 @@ TEST(RuntimeEndToEnd, FetchesFromARealServerAndSurvivesItsRestart) {
         std::this_thread::sleep_for(5ms);
     }
     EXPECT_FALSE(source->available());
-    for (const auto id : level1) EXPECT_TRUE(rt.residency().is_resident(unpack_feedback(id)));
+    for (const auto id : level1) EXPECT_TRUE(residency_of(rt).is_resident(unpack_feedback(id)));
 
     // Phase 3: a new server on the same port; the client reconnects by itself and level 0 arrives.
     ServerProcess again({"--store", store}, dir.file("log2"), address);
     ASSERT_TRUE(again.running()) << again.log();
     ASSERT_TRUE(frames_until(rt, level0, [&] { return rt.frame(level0, std::uint32_t(level0.size()), 1).fallback_estimate == 0.0f; }, 60s))
-        << "resident: " << rt.residency().stats().resident_pages;
-    for (const auto id : level0) EXPECT_TRUE(rt.residency().is_resident(unpack_feedback(id)));
+        << "resident: " << residency_of(rt).stats().resident_pages;
+    for (const auto id : level0) EXPECT_TRUE(residency_of(rt).is_resident(unpack_feedback(id)));
     EXPECT_TRUE(source->available());
     EXPECT_EQ(uploader.malformed(), 0u);
     EXPECT_GT(rt.summary().latency().count(), level0.size());
@@ -146,8 +146,8 @@ TEST(RuntimeEndToEnd, OneStoreBehindTwoTexturesLoadsBoth) {
         both.push_back(pack_feedback(k));
     }
     ASSERT_TRUE(frames_until(rt, both, [&] { return rt.frame(both, std::uint32_t(both.size()), 1).fallback_estimate == 0.0f; }, 60s))
-        << "resident: " << rt.residency().stats().resident_pages;
-    for (const auto id : both) EXPECT_TRUE(rt.residency().is_resident(unpack_feedback(id)));
+        << "resident: " << residency_of(rt).stats().resident_pages;
+    for (const auto id : both) EXPECT_TRUE(residency_of(rt).is_resident(unpack_feedback(id)));
     EXPECT_EQ(uploader.malformed(), 0u);
 }
 
@@ -194,7 +194,7 @@ TEST(RuntimeEndToEnd, ALayeredStoreComesInOneRequestPerPage) {
 
     const auto level0 = whole_texture(info, 0);
     ASSERT_TRUE(frames_until(rt, level0, [&] { return rt.frame(level0, std::uint32_t(level0.size()), 1).fallback_estimate == 0.0f; }, 60s))
-        << "resident: " << rt.residency().stats().resident_pages;
+        << "resident: " << residency_of(rt).stats().resident_pages;
     EXPECT_EQ(uploader.malformed(), 0u);
     const std::size_t bytes = pool.upload_bytes(info.tile_size());
     EXPECT_EQ(bytes, std::size_t(128) * 128 * (4 + 1 + 2));

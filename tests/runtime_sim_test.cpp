@@ -18,7 +18,7 @@
 #include "tessera/client/runtime.hpp"
 #include "tessera/storage/store_writer.hpp"
 #include "page_loader.hpp"
-#include "residency.hpp"
+#include "runtime_internal.hpp"
 #include "tessera/storage/store_reader.hpp"
 #include "test_util.hpp"
 
@@ -210,7 +210,7 @@ TEST_F(RuntimeSim, StaticViewConvergesWithALargePool) {
     // Every upload mapped a page; the page table followed.
     EXPECT_EQ(up.malformed(), 0u);
     EXPECT_GT(up.tables().size(), 0u);
-    EXPECT_EQ(rt->residency().stats().resident_pages, up.pages().size());
+    EXPECT_EQ(residency_of(*rt).stats().resident_pages, up.pages().size());
     // Frames to converge: bounded by latency + wanted / upload budget.
     unsigned converged = 0;
     while (converged < r.fallback.size() && r.fallback[converged] > 0) ++converged;
@@ -273,11 +273,11 @@ struct WeightAudit {
         for (const SlotId slot : up.below_full()) {
             const auto& calls = up.pages();
             const auto last = std::find_if(calls.rbegin(), calls.rend(), [&](const auto& c) { return c.slot == slot; });
-            if (last == calls.rend() || !rt.residency().is_resident(last->page)) ++blended_but_unmapped;
+            if (last == calls.rend() || !residency_of(rt).is_resident(last->page)) ++blended_but_unmapped;
         }
         const std::size_t out = up.fading_out().size();
         most_fading_out = std::max(most_fading_out, out);
-        EXPECT_LE(out, rt.residency().stats().leaving + kept) << "a slot fading out that the page cache does not call leaving";
+        EXPECT_LE(out, residency_of(rt).stats().leaving + kept) << "a slot fading out that the page cache does not call leaving";
     }
 };
 
@@ -303,7 +303,7 @@ TEST_F(RuntimeSim, RecentlySeenVictimsFadeOutBeforeTheirSlotsAreReused) {
             const auto& st = rt->frame(feedback(info, 160, 90, cx, 4000, tpp, b), 160, 90, b);
             last_fallback = st.fallback_estimate;
             peak_bias = std::max(peak_bias, st.lod_bias);
-            most_leaving = std::max(most_leaving, rt->residency().stats().leaving);
+            most_leaving = std::max(most_leaving, residency_of(*rt).stats().leaving);
             audit.check(up, *rt, st.pages_rescued);
         }
         EXPECT_EQ(up.written_while_leaving(), 0u);
@@ -320,7 +320,7 @@ TEST_F(RuntimeSim, RecentlySeenVictimsFadeOutBeforeTheirSlotsAreReused) {
             EXPECT_TRUE(up.below_full().empty()) << "the still view ends with every page at full weight";
         }
         std::printf("  fade %.0f ms: %zu pages faded out, at most %u leaving at once, %llu evictions\n", fade_ms, up.fade_outs(),
-                    most_leaving, static_cast<unsigned long long>(rt->residency().stats().evictions));
+                    most_leaving, static_cast<unsigned long long>(residency_of(*rt).stats().evictions));
     }
 }
 
@@ -347,13 +347,13 @@ TEST_F(RuntimeSim, PagesFadingOutThatTheViewWantsAgainAreKept) {
     EXPECT_GT(up.fade_backs(), 0u);
     EXPECT_LE(up.fade_backs(), rescued);
     EXPECT_EQ(up.written_while_leaving(), 0u);
-    EXPECT_EQ(rt->residency().stats().rescued, rescued);
+    EXPECT_EQ(residency_of(*rt).stats().rescued, rescued);
     EXPECT_EQ(rt->summary().pages_rescued(), rescued);
     EXPECT_EQ(audit.blended_but_unmapped, 0u);
     std::printf("  %zu pages started fading out, %llu were wanted again and kept (%zu seen rising by the uploader), %llu "
                 "evictions\n",
                 up.fade_outs(), static_cast<unsigned long long>(rescued), up.fade_backs(),
-                static_cast<unsigned long long>(rt->residency().stats().evictions));
+                static_cast<unsigned long long>(residency_of(*rt).stats().evictions));
 }
 
 TEST_F(RuntimeSim, StaleRequestsAreCancelledAtTheSource) {
@@ -376,7 +376,7 @@ TEST_F(RuntimeSim, StaleRequestsAreCancelledAtTheSource) {
     ASSERT_FALSE(first_pages.empty());
     for (const auto id : first_pages) {
         EXPECT_FALSE(later_pages.contains(id));
-        EXPECT_FALSE(rt->residency().is_resident(unpack_feedback(id))) << "a stale page was mapped";
+        EXPECT_FALSE(residency_of(*rt).is_resident(unpack_feedback(id))) << "a stale page was mapped";
     }
     // Served = what the later view wanted (and the shared coarse ancestors), not the stale ones.
     EXPECT_EQ(r.fallback.back(), 0.0f);
@@ -624,8 +624,8 @@ TEST_F(RuntimeSim, ATileThatDoesNotDecodeIsAskedForOnce) {
     }
     EXPECT_EQ(src.served(bad), 1u) << "fetched again after it failed to decode";
     EXPECT_EQ(rt->summary().decode_failures(), 1u);
-    EXPECT_FALSE(rt->residency().is_resident(bad));
-    EXPECT_TRUE(rt->residency().is_resident(PageKey{0, std::uint8_t(top - 1), 0, 0})) << "its parent stands in";
+    EXPECT_FALSE(residency_of(*rt).is_resident(bad));
+    EXPECT_TRUE(residency_of(*rt).is_resident(PageKey{0, std::uint8_t(top - 1), 0, 0})) << "its parent stands in";
     EXPECT_EQ(rt->in_flight(), 0u);
     EXPECT_NE(rt->summary().to_json().find("\"decode_failures\":1"), std::string::npos) << rt->summary().to_json();
     EXPECT_EQ(up.malformed(), 0u);
@@ -646,12 +646,12 @@ TEST_F(RuntimeSim, AnErrorReplyIsAskedAgainAtOnce) {
     // the request set when it does.
     src.fail_next(page, 5);
     int frames = 0;
-    while (!rt->residency().is_resident(page) && frames < 60) {
+    while (!residency_of(*rt).is_resident(page) && frames < 60) {
         src.tick();
         rt->frame(ids, 1, 1, 0);
         ++frames;
     }
-    EXPECT_TRUE(rt->residency().is_resident(page));
+    EXPECT_TRUE(residency_of(*rt).is_resident(page));
     EXPECT_EQ(src.served(page), 2u);  // the error, then the tile
     // Asked at frame 1, the error at 1 + 3 + 5, asked again kErrorRetryFrames later, the tile 3
     // frames after that.
@@ -687,7 +687,7 @@ TEST_F(RuntimeSim, TheDiskCacheTakesServerStoresAbsentTilesIncluded) {
         const PageKey page{0, std::uint8_t(info.level_count() - 3), 1, 1};
         const std::vector<FeedbackId> ids = {pack_feedback(page)};
         int f = 0;
-        for (; f < 100 && !(*rt)->residency().is_resident(page); ++f) {
+        for (; f < 100 && !residency_of(**rt).is_resident(page); ++f) {
             src.tick();
             (*rt)->frame(ids, 1, 1, 0);
         }
@@ -806,7 +806,7 @@ TEST_F(RuntimeSim, AFrameWithoutFeedbackDoesNotAgeTheView) {
             src.tick();
             probe->frame(view, std::uint32_t(view.size()), 1, 0);
         }
-        needed = std::uint32_t(probe->residency().stats().resident_pages);
+        needed = std::uint32_t(residency_of(*probe).stats().resident_pages);
     }
     FakeUploader up;
     DelayedSource src(path_, 3);
@@ -815,7 +815,7 @@ TEST_F(RuntimeSim, AFrameWithoutFeedbackDoesNotAgeTheView) {
         src.tick();
         rt->frame(view, std::uint32_t(view.size()), 1, 0);
     }
-    for (const auto id : view) ASSERT_TRUE(rt->residency().is_resident(unpack_feedback(id)));
+    for (const auto id : view) ASSERT_TRUE(residency_of(*rt).is_resident(unpack_feedback(id)));
     // Motion prefetch: the view ahead asks, the view is seen, a readback gap, the view ahead
     // again as its tiles arrive.
     src.tick();
@@ -826,7 +826,7 @@ TEST_F(RuntimeSim, AFrameWithoutFeedbackDoesNotAgeTheView) {
     rt->frame_without_feedback();
     src.tick();
     EXPECT_GT(rt->frame(ahead, std::uint32_t(ahead.size()), 1, 0).pages_arrived, 0u) << "the view ahead's tiles came";
-    for (const auto id : view) EXPECT_TRUE(rt->residency().is_resident(unpack_feedback(id))) << "a page on screen was evicted";
+    for (const auto id : view) EXPECT_TRUE(residency_of(*rt).is_resident(unpack_feedback(id))) << "a page on screen was evicted";
 }
 
 // A replaced store's missing pages are asked for only every kReplacedRetryFrames, but those the
@@ -866,21 +866,21 @@ TEST_F(RuntimeSim, AReplacedStoresCachedPagesComeFromRam) {
         }
     };
     run(*probe, probe_src, view, 30);
-    const auto pool = std::uint32_t(probe->residency().stats().resident_pages);
+    const auto pool = std::uint32_t(residency_of(*probe).stats().resident_pages);
 
     FakeUploader up;
     DelayedSource src(path_, 2);
     auto rt = make_rt(pool, up, src);
     run(*rt, src, view, 30);
     run(*rt, src, other, 30);  // the view's pages leave the pool; the RAM cache keeps them
-    ASSERT_FALSE(rt->residency().is_resident(unpack_feedback(view.front())));
+    ASSERT_FALSE(residency_of(*rt).is_resident(unpack_feedback(view.front())));
     src.replace_store();
     run(*rt, src, third, 10);  // missing pages: the other version arrives, the store is replaced
     ASSERT_NE(rt->texture_replaced(0), 0u);
     const std::uint64_t served = src.served();
     int frames = 0;
     while (frames < 20 && !std::all_of(view.begin(), view.end(), [&](FeedbackId id) {
-               return rt->residency().is_resident(unpack_feedback(id));
+               return residency_of(*rt).is_resident(unpack_feedback(id));
            })) {
         run(*rt, src, view, 1);
         ++frames;
@@ -929,7 +929,7 @@ TEST_F(RuntimeSim, AReplacedStoreIsNotAskedForEveryFrame) {
     EXPECT_LE(frames_serving, 5) << "pages of the replaced store asked for again and again";
     EXPECT_GT(frames_serving, 0) << "never asked again: a rollback would never be seen";
     EXPECT_EQ(up.pages().size(), uploaded) << "pages of another version uploaded";
-    EXPECT_GT(rt->residency().stats().resident_pages, 0u) << "what was resident stays";
+    EXPECT_GT(residency_of(*rt).stats().resident_pages, 0u) << "what was resident stays";
     EXPECT_NE(rt->summary().to_json().find("\"other_version_arrivals\""), std::string::npos);
 
     src.restore_store();

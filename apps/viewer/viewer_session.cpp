@@ -426,7 +426,10 @@ void ViewerRun::make_runtime() {
     if (!texture) throw Failure(fmt::format("--store '{}': {}", o.store, texture.error().message));
     // The disk cache keys tiles by store name (docs/client.md, "Arrivals and decoding"): a store
     // file named by a path, or a procedural spec, has none, and is read from where it is.
-    if (!o.disk_cache_dir.empty() && store_name_.find_first_of("/:") != std::string::npos)
+    const bool cacheable_name = !store_name_.empty() && store_name_[0] != '.' && store_name_.find("..") == std::string::npos &&
+                                store_name_.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-") ==
+                                    std::string::npos;  // DiskTileCache::valid_store_name
+    if (!o.disk_cache_dir.empty() && !cacheable_name)
         fmt::print(stderr, "note: --disk-cache is not used for '{}': a store named by a path or a procedural spec is read from "
                            "where it is (the cache keys a server's stores by name)\n",
                    store_name_);

@@ -745,7 +745,10 @@ bool DiskTileCache::put(const TileId& id, std::shared_ptr<const TileData> tile) 
         return false;
     }
     const std::uint64_t cost = header_size(id.store.size()) + tile->payload.size();
-    if (cost > m.opt.byte_budget) {
+    // On disk it takes whole blocks (4 KiB on common file systems): an entry whose blocks exceed
+    // the budget would be written only to be evicted at once.
+    constexpr std::uint64_t kBlock = 4096;
+    if ((cost + kBlock - 1) / kBlock * kBlock > m.opt.byte_budget) {
         ++m.rejected;
         return false;
     }

@@ -39,7 +39,7 @@ Result<std::unique_ptr<TraceWriter>> TraceWriter::create(const std::string& path
     std::unique_ptr<TraceWriter> w(new TraceWriter());
     w->path_ = path;
     const fs::path p(path);
-    w->temp_ = (p.parent_path() / ("." + p.filename().string() + ".tmp" + std::to_string(::getpid()))).string();
+    w->temp_ = storage::temp_path_beside(path, "tmp");
     std::error_code ec;
     if (fs::is_directory(p, ec)) return make_error(Errc::invalid_argument, "trace: '" + path + "' is a directory");
     storage::track_temp_path(w->temp_);  // an interrupted command removes it (tools/interrupt.hpp)

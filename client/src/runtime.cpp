@@ -6,6 +6,7 @@
 #include "feedback_analysis.hpp"
 #include "page_loader.hpp"
 #include "residency.hpp"
+#include "runtime_internal.hpp"
 
 namespace tessera::client {
 
@@ -135,7 +136,7 @@ public:
     }
 
     float lod_bias() const override { return glide_.bias(); }
-    const Residency& residency() const override { return residency_; }
+    const Residency& residency() const { return residency_; }
     const StatsSummary& summary() const override { return summary_; }
     std::optional<DiskCacheCounts> disk_cache() const override {
         const auto s = loader_.disk_stats();
@@ -298,6 +299,11 @@ Result<std::unique_ptr<Runtime>> Runtime::create(const RuntimeConfig& config, Pa
     auto rt = std::make_unique<RuntimeImpl>(config, uploader, staging, std::move(*residency));
     TESSERA_TRY(rt->open_disk_cache());
     return std::unique_ptr<Runtime>(std::move(rt));
+}
+
+const Residency& residency_of(const Runtime& runtime) {
+    // Runtime::create makes every runtime; another implementation would have no page cache here.
+    return dynamic_cast<const RuntimeImpl&>(runtime).residency();
 }
 
 }  // namespace tessera::client

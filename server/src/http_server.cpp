@@ -115,6 +115,7 @@ bool origin_form(std::string_view& target, std::string_view& host, std::string& 
     const std::string_view rest = target.substr(scheme);
     const std::size_t path = rest.find_first_of("/?#");
     host = rest.substr(0, path);
+    if (host.empty()) return false;  // "http://?x": an http URI has a host (RFC 9110 4.2.1)
     if (path == std::string_view::npos) {
         target = "/";
         return true;

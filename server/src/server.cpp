@@ -238,8 +238,8 @@ public:
 
 private:
     static std::string host_of(const std::string& address) {
-        const auto colon = address.rfind(':');
-        return colon == std::string::npos ? address : address.substr(0, colon);
+        const auto parts = split_host_port(address);
+        return parts ? std::string(parts->host) : address;
     }
 
     // Checks that --tls-key is the key of --tls-cert and writes both, as one file, where gRPC's

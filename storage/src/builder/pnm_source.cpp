@@ -22,6 +22,7 @@ public:
     const SourceInfo& info() const override { return info_; }
 
     Status read_rows(std::uint32_t y0, std::uint32_t count, std::uint8_t* dst, const ParallelFor&) override {
+        if (count == 0) return {};
         const std::size_t samples = std::size_t(info_.width) * info_.channels * count;
         const std::size_t file_bytes = samples * (maxval_ > 255 ? 2 : 1);
         const std::size_t row_bytes = file_bytes / count;
@@ -66,7 +67,12 @@ long long header_number(std::FILE* f) {
         if (v > (1ll << 32)) return -1;
         c = std::fgetc(f);
     }
-    // Exactly one whitespace character ends the header's last number; it is consumed here.
+    // One whitespace character ends a number (the last one's is the last header byte); a comment
+    // may follow a number at once, as netpbm reads it, and runs to the end of its line.
+    if (c == '#') {
+        while (c != '\n' && c != EOF) c = std::fgetc(f);
+        return c == '\n' ? v : -1;
+    }
     return (c == ' ' || c == '\t' || c == '\n' || c == '\r' || c == '\v' || c == '\f') ? v : -1;
 }
 

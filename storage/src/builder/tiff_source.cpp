@@ -60,8 +60,8 @@ private:
             if (bits_) packed_.resize(packed);
             for (std::uint32_t y = y0; y < y0 + count; ++y) {
                 std::uint8_t* out = dst + std::size_t(y - y0) * row;
-                if (TIFFGetStrileByteCount(tif_, TIFFComputeStrip(tif_, y, 0)) == 0) {  // a strip with no data
-                    std::memset(out, 0, row);
+                if (TIFFGetStrileByteCount(tif_, TIFFComputeStrip(tif_, y, 0)) == 0) {  // a strip with no data: samples 0
+                    std::memset(out, bits_ && white_is_zero_ ? 255 : 0, row);
                     continue;
                 }
                 if (TIFFReadScanline(tif_, bits_ ? packed_.data() : out, y, 0) < 0) return failure();

@@ -28,8 +28,6 @@
 
 namespace tessera::client {
 
-class Residency;  // the page cache: slots, their states and page tables (internal: client/src/residency.hpp)
-
 struct ResidencyConfig {
     // Slots in the physical pool, 1 .. 2^24.
     std::uint32_t pool_slots = 0;
@@ -128,7 +126,6 @@ public:
     // The LoD bias to draw the next frame (and its feedback) with: the controller's, moving by at
     // most one level per fade time (RuntimeConfig::fade_ms).
     virtual float lod_bias() const = 0;
-    virtual const Residency& residency() const = 0;
     virtual const StatsSummary& summary() const = 0;
     // The disk cache's counts; nothing without one (RuntimeConfig::disk_cache_dir empty).
     virtual std::optional<DiskCacheCounts> disk_cache() const = 0;
