@@ -339,8 +339,11 @@ void fuzz_http(const Fixture& fx, std::uint8_t flags, std::string_view rest) {
     if (res.status == 304) {
         FUZZ_CHECK(!req.if_none_match.empty());
         FUZZ_CHECK(res.body.empty() && res.content_type.empty());
+        // Tiles, web images and pages, and the documents (store JSON, info.json, .dzi) revalidate.
         FUZZ_CHECK(res.route == HttpRoute::tile || res.route == HttpRoute::tile_png || res.route == HttpRoute::dzi_tile ||
-                   res.route == HttpRoute::iiif_image || res.route == HttpRoute::xyz_tile || res.route == HttpRoute::viewer);
+                   res.route == HttpRoute::iiif_image || res.route == HttpRoute::xyz_tile || res.route == HttpRoute::viewer ||
+                   res.route == HttpRoute::stores || res.route == HttpRoute::store || res.route == HttpRoute::dzi_info ||
+                   res.route == HttpRoute::iiif_info);
     }
     if (res.route == HttpRoute::other) FUZZ_CHECK(res.status != 200 && res.status != 304);
 
