@@ -256,6 +256,15 @@ std::unique_ptr<DiskTileCache> open_cache(const std::string& dir, DiskCacheOptio
     }
     return std::move(r).value();
 }
+// A cache of `budget` bytes whose write queue never drops: what it keeps is the budget's doing.
+std::unique_ptr<DiskTileCache> open_unqueued_cache(const std::string& dir, std::uint64_t budget) {
+    DiskCacheOptions opt;
+    opt.byte_budget = budget;
+    opt.max_queue_entries = 100000;
+    opt.max_queue_bytes = 1ull << 30;
+    return open_cache(dir, std::move(opt));
+}
+
 std::unique_ptr<DiskTileCache> open_cache(const std::string& dir, std::uint64_t budget) {
     DiskCacheOptions opt;
     opt.byte_budget = budget;
@@ -463,11 +472,7 @@ TEST(DiskTileCache, NonDrainingCloseDropsQueuedPuts) {
 TEST(DiskTileCache, SmallEntriesAreBoundedByTheirBlocks) {
     Scratch dir;
     constexpr std::uint64_t kBudget = 64 * 1024;
-    DiskCacheOptions opt;
-    opt.byte_budget = kBudget;
-    opt.max_queue_entries = 100000;
-    opt.max_queue_bytes = 1ull << 30;
-    auto cache = open_cache(dir.str(), std::move(opt));
+    auto cache = open_unqueued_cache(dir.str(), kBudget);
     ASSERT_TRUE(cache);
     for (std::uint32_t x = 0; x < 200; ++x) {
         TileData absent;
@@ -513,11 +518,7 @@ TEST(DiskTileCache, BoundedInBytes) {
     constexpr std::uint64_t kBudget = 256 * 1024;
     std::map<std::uint32_t, std::size_t> sizes;
     {
-        DiskCacheOptions opt;
-        opt.byte_budget = kBudget;
-        opt.max_queue_entries = 100000;
-        opt.max_queue_bytes = 1ull << 30;
-        auto cache = open_cache(dir.str(), std::move(opt));
+        auto cache = open_unqueued_cache(dir.str(), kBudget);
         ASSERT_TRUE(cache);
         std::mt19937 rng(7);
         for (std::uint32_t x = 0; x < 300; ++x) {

@@ -64,6 +64,17 @@ def failed_requests(http_port):
     return total
 
 
+def busiest(servers):
+    """(index, tiles sent by each) of the server the viewer streams from: the one that has sent
+    tiles. On a loaded machine the warm-up may still be opening the stream: waits, 20 s at most."""
+    for _ in range(200):
+        sent = [tiles_sent(h) for _, _, h in servers]
+        if max(sent) > 0:
+            break
+        time.sleep(0.1)
+    return max(range(len(servers)), key=lambda k: sent[k]), sent
+
+
 def check_frames(frames, what, max_down_frames):
     """The per-frame stats the viewer wrote: every frame there, unserved time never decreasing,
     and the frames without a server at most max_down_frames."""
@@ -123,14 +134,7 @@ def main():
         killed = {}
 
         def kill_busiest():
-            # The viewer's server is the one that has sent tiles (on a loaded machine the warm-up
-            # may still be opening the stream: wait for it, 20 s at most).
-            for _ in range(200):
-                sent = [tiles_sent(h) for _, _, h in servers]
-                if max(sent) > 0:
-                    break
-                time.sleep(0.1)
-            i = max(range(3), key=lambda k: sent[k])
+            i, sent = busiest(servers)
             killed.update(index=i, sent=sent, failed=failed_requests(servers[i][2]))
             servers[i][0].send_signal(signal.SIGKILL)
             t_kill = time.monotonic()
@@ -214,12 +218,7 @@ def main():
         stalled = {}
 
         def stall_busiest():
-            for _ in range(200):
-                sent = [tiles_sent(h) for _, _, h in servers]
-                if max(sent) > 0:
-                    break
-                time.sleep(0.1)
-            i = max(range(2), key=lambda k: sent[k])
+            i, sent = busiest(servers)
             other = 1 - i
             servers[i][0].send_signal(signal.SIGSTOP)
             stalled.update(index=i)

@@ -274,6 +274,7 @@ private:
     client::SourceUrl loc_;
     std::unique_ptr<client::TileSource> source_;
     std::string store_name_;
+    bool errors_only_ = false;  // the last settle() gave up: its view's reads only failed
     std::unique_ptr<client::gl::GlContext> ctx_;
     GLFWwindow* win_ = nullptr;
     storage::StoreInfo info_;
@@ -597,11 +598,30 @@ void ViewerRun::watch_link(Clock::time_point now) {
 // loading screen before the path, and the settled view after it (FrameLoop::settle). Counts its
 // frames in `settle_frames`; the runtime's clock moves 1/fps a frame.
 bool ViewerRun::settle(const scene::Camera& cam, std::uint32_t& settle_frames) {
-    const auto held = loop_->settle(cam, std::chrono::duration<double>(o_.warmup_timeout_s), [&] {
-        watch_link(Clock::now());
-        rt().set_time(clock_s_);
-        clock_s_ += 1.0 / o_.fps;
-    });
+    // A view whose reads only fail never settles: once errors keep coming and no page has
+    // arrived for kErrorsOnly, waiting out the whole timeout shows nothing more.
+    constexpr std::chrono::seconds kErrorsOnly{2};
+    std::uint64_t arrived = rt().summary().pages_arrived(), errors = rt().summary().source_errors();
+    Clock::time_point progress = Clock::now();
+    const auto held = loop_->settle(
+        cam, std::chrono::duration<double>(o_.warmup_timeout_s),
+        [&] {
+            watch_link(Clock::now());
+            rt().set_time(clock_s_);
+            clock_s_ += 1.0 / o_.fps;
+        },
+        [&] {
+            const auto& s = rt().summary();
+            const auto now = Clock::now();
+            if (s.pages_arrived() != arrived) {
+                arrived = s.pages_arrived();
+                errors = s.source_errors();
+                progress = now;
+                return false;
+            }
+            errors_only_ = now - progress >= kErrorsOnly && s.source_errors() >= errors + 2;  // errors, again and again
+            return errors_only_;
+        });
     settle_frames += held.frames;
     rt().frame_without_feedback();
     return held.settled;
@@ -621,6 +641,7 @@ ViewerReport ViewerRun::run() {
         // The loading screen: the path's first view until it is fully resident.
         const auto w0 = Clock::now();
         rep_.warmup_complete = settle(path_->at(0), rep_.warmup_frames);
+        rep_.warmup_errors_only = errors_only_;
         rep_.warmup_ms = std::chrono::duration<double, std::milli>(Clock::now() - w0).count();
     }
     path_clock_start_ = clock_s_;
@@ -1005,7 +1026,9 @@ std::string summary_text(const ViewerReport& rep) {
                      rep.wall_s, rep.mean_frame_ms(), rep.frame_ms_quantile(0.99));
     if (!std::isnan(rep.warmup_ms))
         s += fmt::format("first view    {} in {:.0f} ms ({} frames; then the path starts)\n",
-                         rep.warmup_complete ? "full detail" : "NOT at full detail (timed out)", rep.warmup_ms,
+                         rep.warmup_complete       ? "full detail"
+                         : rep.warmup_errors_only ? "NOT at full detail (stopped: for 2 s every read failed)"
+                                                  : "NOT at full detail (timed out)", rep.warmup_ms,
                          rep.warmup_frames);
     s += fmt::format("fallback      {} of textured pixels over the path (vs the biased level: {})\n",
                      pct(rep.fallback_rate()), pct(rep.fallback_rate_biased()));

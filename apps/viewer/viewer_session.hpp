@@ -152,7 +152,8 @@ struct ViewerReport {
     std::vector<std::string> pngs;
     double warmup_ms = kNaN;        // first view: time to full detail (NaN: no warm-up)
     std::uint32_t warmup_frames = 0;
-    bool warmup_complete = false;   // false: it timed out
+    bool warmup_complete = false;   // false: it timed out, or gave up on a view whose reads only failed
+    bool warmup_errors_only = false;  // gave up: for 2 s no page came and the reads kept failing
     // The path's last view held until resident and faded in, against the reference (headless,
     // with --psnr-every): PSNR once settled (NaN: not measured).
     double settled_psnr = kNaN;

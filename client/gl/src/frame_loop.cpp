@@ -18,7 +18,7 @@ FrameStep FrameLoop::step(const scene::Camera& camera, const std::function<void(
 }
 
 Settled FrameLoop::settle(const scene::Camera& camera, std::chrono::duration<double> timeout,
-                          const std::function<void()>& before_frame) {
+                          const std::function<void()>& before_frame, const std::function<bool()>& give_up) {
     using Clock = std::chrono::steady_clock;
     const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(timeout);
     Settled out;
@@ -42,7 +42,7 @@ Settled FrameLoop::settle(const scene::Camera& camera, std::chrono::duration<dou
             out.settled = true;
             break;
         }
-        if (Clock::now() >= until) break;
+        if (Clock::now() >= until || (give_up && give_up())) break;
     }
     renderer_.finish(&counters_, nullptr);  // drain the readbacks: what follows starts clean
     for (const auto& c : counters_)

@@ -46,9 +46,10 @@ public:
     // runs before each frame: the runtime's clock, a link monitor. Counters come back frames
     // late (more of them the faster the GPU), so settled means clean counters (textured pixels,
     // no fallback at either level) of a frame rendered once nothing was in flight, with no page
-    // fading and the bias at 0.
+    // fading and the bias at 0. `give_up` (optional), asked after each frame, ends the wait early
+    // (unsettled): a caller that sees the view can never settle (every read an error).
     Settled settle(const scene::Camera& camera, std::chrono::duration<double> timeout,
-                   const std::function<void()>& before_frame = {});
+                   const std::function<void()>& before_frame = {}, const std::function<bool()>& give_up = {});
 
 private:
     VtRenderer& renderer_;
