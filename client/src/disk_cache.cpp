@@ -260,7 +260,7 @@ struct DiskTileCache::Impl {
 
     // ------------------------------------------------------------------------------------------
     // What an entry costs the disk: its blocks, not its length (a 62-byte record of an absent
-    // tile takes a 4 KiB block; counted by length, a budget of such records took 66x its size).
+    // tile takes a 4 KiB block; counted by length, a 64 KiB budget of such records took 14x that on disk).
     static std::uint64_t disk_usage(const struct stat& st) {
         return std::max<std::uint64_t>(static_cast<std::uint64_t>(st.st_size), static_cast<std::uint64_t>(st.st_blocks) * 512u);
     }
