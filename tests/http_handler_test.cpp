@@ -1350,6 +1350,45 @@ TEST(StoreRegistryDir, ABadlyNamedFileIsWarnedAboutWhenItAppears) {
     ::close(fd);
 }
 
+// A store directory that cannot be listed (moved away, unreadable, a network glitch) keeps its
+// stores as they were opened, where every one of them was dropped at once (and /readyz stayed
+// 200 over an empty server); the error is logged when it appears, not at every rescan; a
+// directory listed again is rescanned as usual.
+TEST(StoreRegistryDir, AnUnlistableDirectoryKeepsItsStores) {
+    tessera::test::ScratchDir d;
+    const std::string dir = d.file("stores");
+    std::filesystem::create_directories(dir);
+    write_store(dir + "/t.tsr", spec_of(8, 8, 8, 0, 1, SampleType::u8, ColourSpace::linear, Codec::raw));
+    const std::string log_file = d.file("log");
+    const int fd = ::open(log_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    ASSERT_GE(fd, 0);
+    const auto count = [&](const std::string& what) {
+        std::ifstream in(log_file);
+        const std::string logged((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+        std::size_t n = 0;
+        for (std::size_t at = 0; (at = logged.find(what, at)) != std::string::npos; ++at) ++n;
+        return n;
+    };
+    {
+        Logger log(LogFormat::json, LogLevel::info, fd);
+        MetricsRegistry metrics;
+        StoreRegistry stores({"/nonexistent-dir-for-this-test/x.tsr"}, {dir}, log, metrics);
+        (void)stores.open();  // the missing --store file: an error, logged
+        ASSERT_NE(stores.find("t"), nullptr);
+        std::filesystem::rename(dir, dir + "-moved");
+        for (int i = 0; i < 3; ++i) stores.reload();
+        EXPECT_NE(stores.find("t"), nullptr) << "kept while its directory cannot be listed";
+        EXPECT_EQ(count("cannot read store directory"), 1u) << "logged once";
+        EXPECT_EQ(count("x.tsr does not exist"), 1u) << "logged once";
+        EXPECT_EQ(count("store removed"), 0u);
+        std::filesystem::create_directories(dir);  // listed again, empty: the store goes
+        stores.reload();
+        EXPECT_EQ(stores.find("t"), nullptr);
+        EXPECT_EQ(count("store removed"), 1u);
+    }
+    ::close(fd);
+}
+
 // Two --store locations that give one name: refused, naming both (the last one used to win in
 // silence, and a client asking for the name got whichever that was).
 TEST(StoreRegistryDir, TwoStoresOfOneNameAreRefused) {

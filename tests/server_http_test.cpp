@@ -7,6 +7,9 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
 
 #include "prometheus_text.hpp"
 #include "server_process.hpp"
@@ -384,4 +387,26 @@ TEST_F(ServerHttp, SighupRereadsTheTokenFile) {
     for (int i = 0; i < 200 && srv.log().find("auth token not reloaded") == std::string::npos; ++i) std::this_thread::sleep_for(50ms);
     EXPECT_NE(srv.log().find("auth token not reloaded"), std::string::npos) << srv.log();
     EXPECT_EQ(status_with("second-secret"), 200);
+    // That line is the log's own: JSON with ts, its quotes escaped (the path holds none here,
+    // the message does).
+    std::istringstream lines(srv.log());
+    for (std::string line; std::getline(lines, line);) {
+        if (line.find("auth token not reloaded") == std::string::npos) continue;
+        const auto j = nlohmann::json::parse(line, nullptr, false);
+        ASSERT_FALSE(j.is_discarded()) << line;
+        EXPECT_TRUE(j.contains("ts") && j.contains("error")) << line;
+    }
+}
+
+// A token in a query is never logged, however its key is spelled: "access%5Ftoken" is the token
+// as the query parser reads it, and was logged in clear.
+TEST_F(ServerHttp, QueryTokensAreNotLogged) {
+    std::ofstream(dir.file("token")) << "query-secret\n";
+    ServerProcess srv({"--store", store_, "--auth-token-file", dir.file("token"), "--log-level", "debug"}, dir.file("server.log"), "");
+    ASSERT_TRUE(srv.running()) << srv.log();
+    for (const std::string key : {"access_token", "access%5Ftoken", "%61ccess_token"})
+        EXPECT_EQ(http_get(srv.http_port(), "/v1/stores/terrain/tiles/0/0/0?" + key + "=query-secret").status, 200) << key;
+    for (int i = 0; i < 100 && srv.log().find("%61ccess_token") == std::string::npos; ++i) std::this_thread::sleep_for(50ms);
+    EXPECT_NE(srv.log().find("%61ccess_token=REDACTED"), std::string::npos) << srv.log();
+    EXPECT_EQ(srv.log().find("query-secret"), std::string::npos) << srv.log();
 }

@@ -95,8 +95,7 @@ int run_serve(ServeArgs& a) {
                 try {
                     srv->set_auth_token(read_token(a.auth_token_file));
                 } catch (const Failure& f) {
-                    std::fprintf(stderr, "{\"level\":\"error\",\"msg\":\"auth token not reloaded; the old one stays\",\"error\":\"%s\"}\n",
-                                 f.what());
+                    srv->log_error("auth token not reloaded; the old one stays", f.what());
                 }
             }
             notify_service_manager("READY=1\nSTATUS=serving");
@@ -170,12 +169,15 @@ Command add_serve(CLI::App& app) {
                   "Time slice, us, the HTTP event loops ask of the kernel (Linux 6.12+: a loop woken by a request "
                   "preempts longer-running work; 0: the kernel's default)")
         ->capture_default_str()->check(CLI::Range(0LL, 100000LL));
-    s->add_option("--max-viewers", c.max_viewers, "Concurrent StreamTiles calls; beyond: RESOURCE_EXHAUSTED")
-        ->capture_default_str();
-    s->add_option("--max-batch", c.max_batch, "Requests in one batch; a larger batch is refused whole")
-        ->capture_default_str();
-    s->add_option("--max-pending", c.max_pending, "Admitted requests waiting over all viewers; beyond: RESOURCE_EXHAUSTED")
-        ->capture_default_str();
+    // The limits have upper bounds too: "-1" (or a typo of many digits) would otherwise become
+    // the largest size_t, which is no limit at all.
+    s->add_option("--max-viewers", c.max_viewers, "Concurrent StreamTiles calls, 1..1048576; beyond: RESOURCE_EXHAUSTED")
+        ->capture_default_str()->check(CLI::Range(std::size_t{1}, server::kMaxLimit));
+    s->add_option("--max-batch", c.max_batch, "Requests in one batch, 1..1048576; a larger batch is refused whole")
+        ->capture_default_str()->check(CLI::Range(std::size_t{1}, server::kMaxLimit));
+    s->add_option("--max-pending", c.max_pending,
+                  "Admitted requests waiting over all viewers, 1..1048576; beyond: RESOURCE_EXHAUSTED")
+        ->capture_default_str()->check(CLI::Range(std::size_t{1}, server::kMaxLimit));
     s->add_option("--batch-hold", a->batch_hold_ms,
                   "While a viewer has more than 256 requests pending, hold its next large batch up to this long, ms "
                   "(a newer batch replaces it unread; 0: apply every batch as it arrives)")
@@ -183,11 +185,11 @@ Command add_serve(CLI::App& app) {
     add_bytes_option(*s, "--max-message", a->max_message, "Largest gRPC message accepted, e.g. 4MiB");
     add_bytes_option(*s, "--reply-message", c.grpc_message_bytes,
                      "Tile replies packed into one gRPC message up to this size (revision 1 viewers), e.g. 64KiB");
-    s->add_option("--max-connections", c.max_connections, "Concurrent HTTP connections; beyond: 503")
-        ->capture_default_str();
+    s->add_option("--max-connections", c.max_connections, "Concurrent HTTP connections, 1..1048576; beyond: 503")
+        ->capture_default_str()->check(CLI::Range(std::size_t{1}, server::kMaxLimit));
     add_bytes_option(*s, "--max-header", c.max_header_bytes, "Largest HTTP request head, e.g. 8KiB; beyond: 431");
-    s->add_option("--max-http-inflight", c.max_http_inflight, "HTTP tile requests served at once; beyond: 503")
-        ->capture_default_str();
+    s->add_option("--max-http-inflight", c.max_http_inflight, "HTTP tile requests served at once, 1..1048576; beyond: 503")
+        ->capture_default_str()->check(CLI::Range(std::size_t{1}, server::kMaxLimit));
     add_bytes_option(*s, "--viewer-buffer", a->viewer_buffer, "Replies read but unsent, per viewer (flow control), e.g. 4MiB");
     add_bytes_option(*s, "--total-buffer", a->total_buffer, "The same over all viewers, e.g. 512MiB");
     s->add_option("--request-timeout", a->timeout_ms,

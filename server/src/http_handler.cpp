@@ -133,14 +133,26 @@ void HttpHandler::finish_transport_response(HttpResponse& r, bool head, std::opt
 
 namespace {
 
-// The target as logs may hold it: an access_token's value replaced (logs outlive secrets).
+// The target as logs may hold it: an access_token's value replaced (logs outlive secrets). Keys
+// are compared decoded, as the query parser reads them: "access%5Ftoken" is the token too.
 std::string loggable_target(std::string_view target) {
-    std::string t(target);
-    for (std::size_t at = t.find("access_token="); at != std::string::npos; at = t.find("access_token=", at + 1)) {
-        const std::size_t v = at + 13, end = t.find('&', v);
-        t.replace(v, (end == std::string::npos ? t.size() : end) - v, "REDACTED");
+    const std::size_t q = target.find('?');
+    if (q == std::string_view::npos) return std::string(target);
+    std::string out(target.substr(0, q + 1));
+    const std::string_view query = target.substr(q + 1);
+    for (std::size_t start = 0; start <= query.size();) {
+        const std::size_t amp = std::min(query.find('&', start), query.size());
+        const std::string_view param = query.substr(start, amp - start);
+        const std::size_t eq = param.find('=');
+        const std::string_view raw_key = param.substr(0, eq);
+        std::string key, why;
+        const bool token = eq != std::string_view::npos && httpapi::percent_decode(raw_key, key, why, true) && key == "access_token";
+        out += token ? std::string(raw_key) + "=REDACTED" : std::string(param);
+        if (amp >= query.size()) break;
+        out += '&';
+        start = amp + 1;
     }
-    return t;
+    return out;
 }
 
 }  // namespace

@@ -110,9 +110,9 @@ Status validate(const ServerConfig& c) {
         return Error{Errc::invalid_argument, "both gRPC and HTTP are off: give --grpc or --http an address"};
     if (c.tls_cert_file.empty() != c.tls_key_file.empty())
         return Error{Errc::invalid_argument, "TLS needs both --tls-cert and --tls-key"};
-    if (c.max_viewers == 0 || c.max_batch == 0 || c.max_pending == 0 || c.max_connections == 0 ||
-        c.max_http_inflight == 0)
-        return Error{Errc::invalid_argument, "limits (--max-*) must be at least 1"};
+    for (const std::size_t limit : {c.max_viewers, c.max_batch, c.max_pending, c.max_connections, c.max_http_inflight})
+        if (limit == 0 || limit > kMaxLimit)
+            return Error{Errc::invalid_argument, "limits (--max-*) must be 1.." + std::to_string(kMaxLimit)};
     if (c.viewer_buffer_bytes < 64 * 1024 || c.total_buffer_bytes < c.viewer_buffer_bytes)
         return Error{Errc::invalid_argument, "--viewer-buffer must be at least 64KiB and at most --total-buffer"};
     if (c.max_message_bytes < 1024) return Error{Errc::invalid_argument, "--max-message must be at least 1KiB"};
@@ -183,6 +183,8 @@ public:
         ctx_.set_auth_token(token);
         log_.info("auth token replaced", {{"auth", !token.empty()}});
     }
+
+    void log_error(std::string_view event, std::string_view error) override { log_.error(event, {{"error", error}}); }
 
     Status reload_tls() override {
         if (config_.tls_cert_file.empty()) return {};
@@ -354,14 +356,24 @@ private:
 }  // namespace
 
 Result<std::unique_ptr<Server>> Server::start(const ServerConfig& config) {
-    TESSERA_TRY(validate(config));
+    // Why it did not start goes into the log too, in its format: a collector reading the JSON
+    // lines would otherwise see a shutdown and no error.
+    auto failed = [&](Error e) -> Error {
+        Logger(config.log_json ? LogFormat::json : LogFormat::text, LogLevel::info).error("start failed", {{"error", e.message}});
+        return e;
+    };
+    if (Status v = validate(config); !v) return failed(v.error());
     auto server = std::make_unique<ServerImpl>(config);
     try {
-        if (auto s = server->start(); !s) return s.error();
+        if (auto s = server->start(); !s) {
+            server.reset();  // its own lines (draining, stopped) first, then why
+            return failed(s.error());
+        }
     } catch (const std::system_error& e) {  // a thread that could not start (the others are stopped)
-        return Error{Errc::io_error, std::string("cannot start the server's threads: ") + e.what() +
-                                         " (fewer --io-threads, --http-threads, --work-threads or --render-concurrency, "
-                                         "or a higher ulimit -u / -v)"};
+        server.reset();
+        return failed(Error{Errc::io_error, std::string("cannot start the server's threads: ") + e.what() +
+                                                " (fewer --io-threads, --http-threads, --work-threads or --render-concurrency, "
+                                                "or a higher ulimit -u / -v)"});
     }
     return std::unique_ptr<Server>(std::move(server));
 }

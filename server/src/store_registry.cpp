@@ -161,19 +161,32 @@ void StoreRegistry::announce(const StoreHandle& h, bool replaced, ReloadReport& 
 ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
     std::lock_guard scan_lock(reload_mutex_);
     reloads_->inc();
+    // An error is logged when it first appears, not again on every rescan while it lasts (a
+    // dangling link in a watched directory would log one line every --watch-interval).
+    std::set<std::string> errors_now;
     std::function<void(Error)> fail = [&](Error e) {
-        log_.error("store scan", {{"error", e.message}});
+        if (!reported_errors_.contains(e.message)) log_.error("store scan", {{"error", e.message}});
+        errors_now.insert(e.message);
         if (first_error && first_error->ok()) *first_error = std::move(e);
     };
 
     // What the configuration names now: name -> path. Explicit files win over directory entries.
     std::map<std::string, std::string> wanted;
     std::set<std::string> skipped;
+    // Directories this scan could not list whole (permissions, a network file system's glitch,
+    // moved away): their stores stay as they are, rather than all being dropped at once.
+    std::set<fs::path> unlisted;
+    auto folder = [](const fs::path& p) {  // "stores/" and "stores" alike
+        fs::path n = p.lexically_normal();
+        return n.has_filename() ? n : n.parent_path();
+    };
     for (const auto& dir : dirs_) {
         std::error_code ec;
         fs::directory_iterator it(dir, ec), end;
         if (ec) {
-            fail(Error{Errc::io_error, "cannot read store directory " + dir + ": " + ec.message()});
+            fail(Error{Errc::io_error, "cannot read store directory " + dir + ": " + ec.message() +
+                                           " (its stores already open are kept)"});
+            unlisted.insert(folder(dir));
             continue;
         }
         for (; it != end; it.increment(ec)) {
@@ -189,6 +202,11 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
                 continue;
             }
             wanted[name] = it->path().string();
+        }
+        if (ec) {
+            fail(Error{Errc::io_error, "cannot list store directory " + dir + " to its end: " + ec.message() +
+                                           " (its stores already open are kept)"});
+            unlisted.insert(folder(dir));
         }
     }
     std::map<std::string, std::string> named;  // name -> the --store that gave it
@@ -267,10 +285,13 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         next->push_back(std::move(h));
     }
     for (const auto& [name, h] : old) {
-        if (!wanted.contains(name)) {
-            ++report.removed;
-            log_.info("store removed", {{"store", name}, {"path", shown(h->path)}});
+        if (wanted.contains(name)) continue;
+        if (!is_remote(h->path) && unlisted.contains(folder(fs::path(h->path).parent_path()))) {
+            next->push_back(h);  // its directory could not be listed: kept, as it is
+            continue;
         }
+        ++report.removed;
+        log_.info("store removed", {{"store", name}, {"path", shown(h->path)}});
     }
     std::sort(next->begin(), next->end(), [](const auto& a, const auto& b) { return a->name < b->name; });
     // Scenes beside the stores, looked up again on every scan (an OBJ may arrive after its store).
@@ -279,6 +300,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         std::lock_guard lock(mutex_);
         stores_ = std::move(next);
     }
+    reported_errors_ = std::move(errors_now);
     if (!first && (report.added || report.replaced || report.removed))
         log_.info("stores reloaded", {{"added", report.added}, {"replaced", report.replaced},
                                       {"removed", report.removed}, {"failed", report.failed}});

@@ -111,6 +111,7 @@ private:
     // Files in the store directories skipped for their names at the last scan (under
     // reload_mutex_): each is warned about when it first appears, not at every scan.
     std::set<std::string> skipped_files_;
+    std::set<std::string> reported_errors_;  // the last scan's errors: logged when they first appear
     mutable std::mutex mutex_; // guards stores_ (a sorted snapshot, replaced whole)
     std::shared_ptr<const std::vector<std::shared_ptr<const StoreHandle>>> stores_;
 };

@@ -22,42 +22,6 @@ int hex_value(char c) {
     return -1;
 }
 
-// Percent-decodes one path segment or query component. Escapes that decode to a control
-// character or a non-ASCII byte are refused everywhere. In a path segment so are '/', '.', '\'
-// and '%': nothing Tessera serves needs them, and they are how path tricks ("%2e%2e", "a%2fb")
-// get past a router. A query value is never a path, and an access token may hold any printable
-// ASCII, which URL encoders escape ('/' as %2F): `query` lets those through.
-bool percent_decode(std::string_view in, std::string& out, std::string& why, bool query = false) {
-    out.clear();
-    for (std::size_t i = 0; i < in.size(); ++i) {
-        const char c = in[i];
-        if (c != '%') {
-            out += c;
-            continue;
-        }
-        if (i + 2 >= in.size()) {
-            why = "truncated percent-escape";
-            return false;
-        }
-        const int hi = hex_value(in[i + 1]), lo = hex_value(in[i + 2]);
-        if (hi < 0 || lo < 0) {
-            why = "malformed percent-escape";
-            return false;
-        }
-        const auto d = static_cast<unsigned char>(hi * 16 + lo);
-        if (d < 0x20 || d >= 0x7f) {
-            why = "percent-encoded control or non-ASCII characters are not allowed";
-            return false;
-        }
-        if (!query && (d == '/' || d == '.' || d == '\\' || d == '%')) {
-            why = "percent-encoded '/', '.', '\\' or '%' is not allowed in a path";
-            return false;
-        }
-        out += static_cast<char>(d);
-        i += 2;
-    }
-    return true;
-}
 
 // Characters allowed raw in a request target: RFC 3986 pchar, '/' and '?' ('%' is checked by
 // decoding), and '^', which IIIF's size syntax uses unescaped.
@@ -88,6 +52,43 @@ std::string_view cookie_value(std::string_view header, std::string_view name) {
 }
 
 }  // namespace
+
+// Percent-decodes one path segment or query component. Escapes that decode to a control
+// character or a non-ASCII byte are refused everywhere. In a path segment so are '/', '.', '\'
+// and '%': nothing Tessera serves needs them, and they are how path tricks ("%2e%2e", "a%2fb")
+// get past a router. A query value is never a path, and an access token may hold any printable
+// ASCII, which URL encoders escape ('/' as %2F): `query` lets those through.
+bool percent_decode(std::string_view in, std::string& out, std::string& why, bool query) {
+    out.clear();
+    for (std::size_t i = 0; i < in.size(); ++i) {
+        const char c = in[i];
+        if (c != '%') {
+            out += c;
+            continue;
+        }
+        if (i + 2 >= in.size()) {
+            why = "truncated percent-escape";
+            return false;
+        }
+        const int hi = hex_value(in[i + 1]), lo = hex_value(in[i + 2]);
+        if (hi < 0 || lo < 0) {
+            why = "malformed percent-escape";
+            return false;
+        }
+        const auto d = static_cast<unsigned char>(hi * 16 + lo);
+        if (d < 0x20 || d >= 0x7f) {
+            why = "percent-encoded control or non-ASCII characters are not allowed";
+            return false;
+        }
+        if (!query && (d == '/' || d == '.' || d == '\\' || d == '%')) {
+            why = "percent-encoded '/', '.', '\\' or '%' is not allowed in a path";
+            return false;
+        }
+        out += static_cast<char>(d);
+        i += 2;
+    }
+    return true;
+}
 
 std::optional<std::string> ParsedRequest::param(std::string_view key, bool* twice) const {
     std::optional<std::string> v;

@@ -74,6 +74,10 @@ std::optional<std::uint32_t> parse_u32(std::string_view s);
 std::optional<std::uint64_t> parse_version(std::string_view s);
 bool iequals(std::string_view a, std::string_view b);
 
+// Percent-decodes one path segment (`query` false) or query component: escapes to control or
+// non-ASCII bytes are refused, and in a path '/', '.', '\\' and '%' too. False, with why, when so.
+bool percent_decode(std::string_view in, std::string& out, std::string& why, bool query = false);
+
 // If-None-Match with weak comparison (RFC 9110 13.1.2) against our quoted entity tag.
 bool if_none_match_matches(std::string_view header, std::string_view etag_quoted);
 

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "tessera/result.hpp"
@@ -15,6 +16,9 @@ namespace tessera::server {
 // The most threads of one kind (io_threads, http_threads, work_threads, render_concurrency): far
 // above what helps, well below what exhausts a machine's threads or address space.
 inline constexpr unsigned kMaxThreads = 1024;
+// The most any count limit (--max-viewers, --max-batch, --max-pending, --max-connections,
+// --max-http-inflight) may be: beyond it a limit is no limit.
+inline constexpr std::size_t kMaxLimit = std::size_t(1) << 20;
 
 struct ServerConfig {
     // Stores: single files, and directories whose *.tsr files are all served. A store is named by
@@ -45,7 +49,7 @@ struct ServerConfig {
     std::chrono::microseconds http_loop_slice{100};
 
     // Bounds. Beyond them new work is refused (RESOURCE_EXHAUSTED / 503); admitted work goes on.
-    std::size_t max_viewers = 256;          // concurrent StreamTiles calls
+    std::size_t max_viewers = 256;          // concurrent StreamTiles calls (each limit: 1..kMaxLimit)
     std::size_t max_batch = 16384;          // requests in one TileBatch
     std::size_t max_pending = 1u << 20;     // admitted, unread requests over all viewers
     std::size_t max_message_bytes = 4u << 20;   // largest gRPC message accepted
@@ -117,6 +121,9 @@ public:
     virtual Status reload_tls() = 0;
     // Replaces the bearer token requests need from now on ("": none); streams already open stay.
     virtual void set_auth_token(const std::string& token) = 0;
+    // Writes an error event to the server's log, in its format (a reload the caller could not
+    // do: a token file that became unreadable).
+    virtual void log_error(std::string_view event, std::string_view error) = 0;
     // Graceful stop: refuse new work, finish what was admitted (up to drain_timeout), close.
     virtual void shutdown() = 0;
 };
