@@ -1072,6 +1072,7 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
         {"demo --dir " + q(d.file("demo")) + " --guard-band 5", 2, "--guard-band"},
         {"serve --store " + q(d.file("missing.tsr")) + " --public-url example.org", 2, "--public-url"},
         {"serve --store " + q(d.file("missing.tsr")) + " --max-connections -1", 2, "--max-connections"},  // was: no limit
+        {"serve --store " + q(d.file("missing.tsr")) + " --config " + q(d.path().string()), 2, "is a directory"},  // was: read as empty
         {"serve --store " + q(d.file("missing.tsr")) + " --max-viewers 99999999999999999999999", 2, "--max-viewers"},
         {"demo --dir " + q(d.file("demo")) + " --path nosuch", 2, "--path"},
         {"demo --dir " + q(d.file("demo")) + " --page-format foo", 2, "--page-format"},

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <ctime>
+#include <filesystem>
 #include <fstream>
 #include <memory>
 #include <mutex>
@@ -250,6 +251,9 @@ Command add_serve(CLI::App& app) {
     s->parse_complete_callback([s] {
         CLI::Option* cfg = s->get_config_ptr();
         if (cfg == nullptr || cfg->count() == 0) return;
+        // A folder opens as an empty file: every option in it would be silently missing.
+        if (std::error_code ec; std::filesystem::is_directory(cfg->as<std::string>(), ec))
+            throw CLI::ValidationError("--config", "'" + cfg->as<std::string>() + "' is a directory, not a config file");
         for (const CLI::ConfigItem& item : s->get_config_formatter()->from_file(cfg->as<std::string>())) {
             if (item.name == "++" || item.name == "--") continue;  // [section] markers
             if (!(item.parents.empty() || (item.parents.size() == 1 && item.parents[0] == "serve")))
