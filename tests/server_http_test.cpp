@@ -2,6 +2,9 @@
 // over plain sockets.
 #include <gtest/gtest.h>
 #include <sys/syscall.h>
+#include <openssl/evp.h>
+#include <openssl/pem.h>
+#include <openssl/x509.h>
 #include <zlib.h>
 
 #include <cstring>
@@ -396,6 +399,55 @@ TEST_F(ServerHttp, SighupRereadsTheTokenFile) {
         ASSERT_FALSE(j.is_discarded()) << line;
         EXPECT_TRUE(j.contains("ts") && j.contains("error")) << line;
     }
+}
+
+// A self-signed certificate for 127.0.0.1 (an EC key) valid from `from_days` to `to_days` days
+// from now, written as PEM files.
+void write_certificate(const std::string& cert_path, const std::string& key_path, long from_days, long to_days) {
+    EVP_PKEY* key = EVP_EC_gen("P-256");
+    ASSERT_NE(key, nullptr);
+    X509* x = X509_new();
+    X509_set_version(x, 2);
+    ASN1_INTEGER_set(X509_get_serialNumber(x), 1);
+    X509_gmtime_adj(X509_getm_notBefore(x), from_days * 86400);
+    X509_gmtime_adj(X509_getm_notAfter(x), to_days * 86400);
+    X509_set_pubkey(x, key);
+    X509_NAME* name = X509_get_subject_name(x);
+    X509_NAME_add_entry_by_txt(name, "CN", MBSTRING_ASC, reinterpret_cast<const unsigned char*>("127.0.0.1"), -1, -1, 0);
+    X509_set_issuer_name(x, name);
+    ASSERT_GT(X509_sign(x, key, EVP_sha256()), 0);
+    std::FILE* f = std::fopen(cert_path.c_str(), "w");
+    ASSERT_TRUE(f && PEM_write_X509(f, x) == 1);
+    std::fclose(f);
+    f = std::fopen(key_path.c_str(), "w");
+    ASSERT_TRUE(f && PEM_write_PrivateKey(f, key, nullptr, nullptr, 0, nullptr, nullptr) == 1);
+    std::fclose(f);
+    X509_free(x);
+    EVP_PKEY_free(key);
+}
+
+// A certificate past its end (or before its start) is served, since a clock may be wrong, but
+// said to be out of date at start and at every reload: TLS clients refuse it, and it was taken up
+// without a word.
+TEST_F(ServerHttp, AnOutOfDateCertificateIsWarnedAbout) {
+    const std::string cert = dir.file("c.pem"), key = dir.file("k.pem");
+    write_certificate(cert, key, -30, -1);  // ended yesterday
+    ServerProcess srv({"--store", store_, "--tls-cert", cert, "--tls-key", key, "--watch-interval", "0"}, dir.file("server.log"), "");
+    ASSERT_TRUE(srv.running()) << srv.log();
+    EXPECT_NE(srv.log().find("TLS certificate is out of date; clients will refuse it"), std::string::npos) << srv.log();
+    EXPECT_NE(srv.log().find("expired on"), std::string::npos) << srv.log();
+    // Renewed (valid from yesterday to tomorrow): reloaded, and no warning at that reload.
+    write_certificate(cert, key, -1, 1);
+    srv.signal(SIGHUP);
+    for (int i = 0; i < 200 && srv.log().find("TLS certificate reloaded") == std::string::npos; ++i) std::this_thread::sleep_for(50ms);
+    const std::string log = srv.log();
+    ASSERT_NE(log.find("TLS certificate reloaded"), std::string::npos) << log;
+    EXPECT_EQ(log.find("out of date", log.find("TLS certificate reloaded")), std::string::npos) << log;
+    // One that starts next week: out of date again.
+    write_certificate(cert, key, 7, 30);
+    srv.signal(SIGHUP);
+    for (int i = 0; i < 200 && srv.log().find("not valid before") == std::string::npos; ++i) std::this_thread::sleep_for(50ms);
+    EXPECT_NE(srv.log().find("not valid before"), std::string::npos) << srv.log();
 }
 
 // A token in a query is never logged, however its key is spelled: "access%5Ftoken" is the token

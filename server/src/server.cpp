@@ -93,6 +93,33 @@ Status check_key_pair(const std::string& cert_pem, const std::string& key_pem, c
     return {};
 }
 
+// Why the PEM certificate is not valid now ("expired on Jan  1 00:00:00 2021 GMT", "not valid
+// before ..."), or "" when it is (or cannot be read: check_key_pair says so). TLS clients refuse
+// such a certificate; the server serves it all the same (a clock may be wrong) and says so.
+std::string certificate_out_of_date(const std::string& cert_pem) {
+    BIO* cb = BIO_new_mem_buf(cert_pem.data(), int(cert_pem.size()));
+    X509* cert = cb ? PEM_read_bio_X509(cb, nullptr, nullptr, nullptr) : nullptr;
+    std::string why;
+    auto text = [](const ASN1_TIME* t) {
+        std::string s;
+        if (BIO* out = BIO_new(BIO_s_mem())) {
+            if (ASN1_TIME_print(out, t) == 1) {
+                char* data = nullptr;
+                const long n = BIO_get_mem_data(out, &data);
+                if (n > 0 && data) s.assign(data, std::size_t(n));
+            }
+            BIO_free(out);
+        }
+        return s;
+    };
+    if (cert && X509_cmp_current_time(X509_get0_notAfter(cert)) < 0) why = "expired on " + text(X509_get0_notAfter(cert));
+    else if (cert && X509_cmp_current_time(X509_get0_notBefore(cert)) > 0) why = "not valid before " + text(X509_get0_notBefore(cert));
+    X509_free(cert);
+    BIO_free(cb);
+    ERR_clear_error();
+    return why;
+}
+
 // HOST:PORT with a port in 0..65535 (0: any); HOST may be a bracketed IPv6 literal.
 Status check_address(const std::string& address, const char* flag) {
     const auto parts = split_host_port(address);
@@ -173,7 +200,16 @@ public:
                                 {"stores", static_cast<unsigned long>(stores_.list().size())},
                                 {"tls", !config_.tls_cert_file.empty()},
                                 {"auth", !config_.auth_token.empty()}});
+        warn_if_certificate_out_of_date();
         return Status();
+    }
+
+    void warn_if_certificate_out_of_date() {
+        if (config_.tls_cert_file.empty()) return;
+        const auto cert = read_text_file(config_.tls_cert_file, "TLS certificate");
+        if (!cert) return;
+        if (const std::string why = certificate_out_of_date(*cert); !why.empty())
+            log_.warn("TLS certificate is out of date; clients will refuse it", {{"path", config_.tls_cert_file}, {"why", why}});
     }
 
     std::uint16_t grpc_port() const override { return static_cast<std::uint16_t>(grpc_port_); }
@@ -196,6 +232,7 @@ public:
             return s;
         }
         log_.info("TLS certificate reloaded", {{"http", http_ != nullptr}, {"grpc_within_s", kTlsRefreshSeconds}});
+        warn_if_certificate_out_of_date();
         return {};
     }
 
