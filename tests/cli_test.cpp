@@ -1092,6 +1092,71 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
     EXPECT_FALSE(std::filesystem::exists(d.file("demo"))) << "demo started its work";
 }
 
+// An error in a --config file names the file and the line, and says what is wrong there; CLI11's
+// reader said "INI was not able to parse bogus-key" and took an unclosed quote literally.
+TEST(CliConfigFile, ErrorsNameTheFileAndLine) {
+    ScratchDir d;
+    const std::string conf = d.file("tessera.conf");
+    const std::vector<std::tuple<std::string, std::string>> cases = {
+        {"# a comment\n\nbogus-key\n", ":3: expected `key = value`, got 'bogus-key'"},
+        {"[serve]\nbogus = 1\n", ":2: unknown option 'bogus'"},
+        {"public-url = \"https://example.org\n", ":1: unclosed quote"},
+        {"[client]\nhttp = \"127.0.0.1:0\"\n", ":1: unknown section [client]"},
+        {"\n\n\nmax-connections = -1\n", ":4: max-connections:"},
+        {"http = [\"127.0.0.1:1\", \"127.0.0.1:2\"]\n", ":1: 'http' takes one value"},
+        {"store-dir = [\"a\",\n  \"b\"\n", ":1: the list of 'store-dir' has no closing ']'"},
+        {"cache-size = \"1GiB\" extra\n", ":1: text after the closing quote"},
+        {"grpc =\n", ":1: no value"},
+        {"Http = \"127.0.0.1:0\"\n", ":1: 'Http' is not an option name"},
+        {"config = \"other.conf\"\n", ":1: unknown option 'config'"},
+    };
+    for (const auto& [text, says] : cases) {
+        SCOPED_TRACE(text);
+        {
+            std::ofstream f(conf, std::ios::trunc);
+            f << text;
+        }
+        const RunResult r = run_tessera("serve --store " + q(d.file("missing.tsr")) + " --config " + q(conf));
+        expect_one_line_error(r);
+        EXPECT_EQ(r.exit_code, 2) << r.out;
+        EXPECT_TRUE(has(r.out, conf + says)) << r.out;
+    }
+}
+
+// Values are read as written: a quoted one keeps its '#' and spaces, a list may go on over lines
+// with comments between, and the command line wins over the file.
+TEST(CliConfigFile, ValuesAreReadAsWritten) {
+    ScratchDir d;
+    const std::string store = tessera::test::cached_store("procedural:terrain:512 --codec zstd", "t512.tsr");
+    const std::string conf = d.file("tessera.conf");
+    auto serve_with = [&](const std::string& text, const std::string& args = "") {
+        {
+            std::ofstream f(conf, std::ios::trunc);
+            f << text;
+        }
+        return run_tessera("serve --grpc 127.0.0.1:0 --http 127.0.0.1:0 --config " + q(conf) + " " + args);
+    };
+    // The second store is missing: its whole name, '#' and space included, is in the error.
+    RunResult r = serve_with("[serve]\nstore = [\n  \"" + store + "\",  # exists\n  \"" + d.file("b #2.tsr") +
+                             "\"   # does not\n]\n");
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_TRUE(has(r.out, d.file("b #2.tsr"))) << r.out;
+    // One value quoted with a '#', then a comment.
+    r = serve_with("store = '" + d.file("c #3.tsr") + "'  # missing\n");
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_TRUE(has(r.out, d.file("c #3.tsr"))) << r.out;
+    // A bare value ends at " #".
+    r = serve_with("store = " + d.file("d.tsr") + " # missing\n");
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_TRUE(has(r.out, d.file("d.tsr") + " does not exist")) << r.out;
+    // The command line wins: the file's invalid value for the same key is not applied, so the run
+    // gets as far as opening its (missing) store.
+    r = serve_with("store = " + d.file("e.tsr") + "\ndrain-timeout = -1\n", "--drain-timeout 10");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_TRUE(has(r.out, d.file("e.tsr"))) << r.out;
+    EXPECT_FALSE(has(r.out, "drain-timeout")) << r.out;
+}
+
 // A mistyped command is named, not answered "A subcommand is required".
 TEST(CliHelp, AnUnknownCommandIsNamed) {
     RunResult r = run_tessera("frobnicate");

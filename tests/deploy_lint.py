@@ -12,7 +12,7 @@ setup.sh those checks must run, and a skip would let the ctest run pass without 
   systemd     deploy/tessera.service: `systemd-analyze verify` on a copy whose ExecStart points at
               --tessera (a stub when none is given), `systemd-analyze security --offline` exposure,
               and the directives the unit must keep (sandboxing, reload, stop, limits).
-  config      deploy/tessera.conf: CLI11 `key = value` syntax; every key (commented-out examples
+  config      deploy/tessera.conf: `key = value` syntax (docs/server.md, "Config file"); every key (commented-out examples
               too) is a long option of `tessera serve --help`.
   runtime     `tessera serve --config tessera.conf` on loopback ports with an empty store
               directory: the file is really read (a bad value in a probe file is refused),
@@ -466,7 +466,7 @@ def parse_conf(path: Path):
                 commented[m.group(1)] = m.group(2).strip()
             continue
         if re.fullmatch(r"\[[A-Za-z0-9_.-]*\]", line):
-            continue  # a section: CLI11 reads [serve] as the subcommand's options
+            continue  # a section: [serve] holds the subcommand's options
         m = re.fullmatch(r"([A-Za-z][A-Za-z0-9_.-]*)\s*=\s*(.*?)\s*(?:#.*)?", line)
         if not m:
             errors.append(f"line {n}: not `key = value`: {raw!r}")

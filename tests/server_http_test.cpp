@@ -401,6 +401,54 @@ TEST_F(ServerHttp, SighupRereadsTheTokenFile) {
     }
 }
 
+// SIGHUP does not reapply --config; when the file changed since the start, the log says so at
+// the reload and names the keys that changed, leaving out those the command line sets (it wins).
+TEST_F(ServerHttp, SighupSaysAChangedConfigFileIsNotReread) {
+    const std::string config = dir.file("tessera.conf");
+    auto write_config = [&](const std::string& text) {
+        std::ofstream f(config, std::ios::trunc);
+        f << text;
+    };
+    write_config("cache-size = \"64MiB\"\nrequest-timeout = 4000\nmax-connections = 100\n");
+    ServerProcess srv({"--store", store_, "--config", config, "--request-timeout", "3000", "--watch-interval", "0"},
+                      dir.file("server.log"), "");
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto count = [&](const std::string& text) {
+        const std::string log = srv.log();
+        std::size_t n = 0;
+        for (std::size_t at = log.find(text); at != std::string::npos; at = log.find(text, at + 1)) ++n;
+        return n;
+    };
+    auto reload = [&] {
+        const std::size_t before = count("\"msg\":\"reload\"");
+        srv.signal(SIGHUP);
+        for (int i = 0; i < 200 && count("\"msg\":\"reload\"") == before; ++i) std::this_thread::sleep_for(50ms);
+        ASSERT_EQ(count("\"msg\":\"reload\""), before + 1) << srv.log();
+    };
+    reload();  // the file as it was: nothing to say
+    EXPECT_EQ(count("config file changed"), 0u) << srv.log();
+
+    // Changed, added, removed, and one the command line overrides.
+    write_config("cache-size = \"32MiB\"\nrequest-timeout = 9000\nmax-header = \"16KiB\"\n");
+    reload();
+    ASSERT_EQ(count("config file changed"), 1u) << srv.log();
+    std::istringstream lines(srv.log());
+    for (std::string line; std::getline(lines, line);) {
+        if (line.find("config file changed") == std::string::npos) continue;
+        const auto j = nlohmann::json::parse(line, nullptr, false);
+        ASSERT_FALSE(j.is_discarded()) << line;
+        EXPECT_EQ(j.value("level", ""), "warn") << line;
+        EXPECT_EQ(j.value("keys", ""), "cache-size,max-header,max-connections") << line;
+    }
+
+    // A file that no longer parses: said, and the server goes on.
+    write_config("cache-size = \"32MiB\n");
+    reload();
+    EXPECT_EQ(count("config file unreadable at reload"), 1u) << srv.log();
+    EXPECT_NE(srv.log().find("tessera.conf:1: unclosed quote"), std::string::npos) << srv.log();
+    EXPECT_EQ(http_get(srv.http_port(), "/v1/stores/terrain/tiles/0/0/0").status, 200);
+}
+
 // A self-signed certificate for 127.0.0.1 (an EC key) valid from `from_days` to `to_days` days
 // from now, written as PEM files.
 void write_certificate(const std::string& cert_path, const std::string& key_path, long from_days, long to_days) {

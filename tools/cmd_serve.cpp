@@ -1,6 +1,7 @@
 // tessera serve: host .tsr stores over gRPC (viewers) and HTTP (everything else).
 #include <signal.h>
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <cstdio>
@@ -15,6 +16,7 @@
 
 #include "cli_options.hpp"
 #include "commands.hpp"
+#include "config_file.hpp"
 #include "service_notify.hpp"
 #include "tessera/server/server.hpp"
 
@@ -28,6 +30,9 @@ constexpr std::chrono::milliseconds kStopGrace{1500};
 struct ServeArgs {
     server::ServerConfig config;
     std::string auth_token_file;
+    std::string config_file;  // --config, reread on SIGHUP only to say what a restart would change
+    ConfigFile config_at_start;
+    std::vector<std::string> config_keys_overridden;  // given on the command line too, which wins
     std::string log_format = "json";
     std::string log_level = "info";
     long long watch_ms = 2000, timeout_ms = 5000, batch_hold_ms = 100, drain_ms = 10000, idle_ms = 60000, slice_us = 100;
@@ -49,6 +54,28 @@ std::string read_token(const std::string& path) {
     for (char ch : t)
         if (ch <= ' ' || ch > '~') throw Failure("the auth token in " + path + " must be printable ASCII without spaces");
     return t;
+}
+
+// A reload does not reapply --config (its options size the threads, ports and buffers the server
+// started with). When the file changed since the start, the log says so and names the keys, so
+// a reload is not taken for an applied change.
+void warn_if_config_changed(const ServeArgs& a, server::Server& srv) {
+    ConfigFile now;
+    try {
+        now = read_config_file(a.config_file);
+    } catch (const ConfigFileError& e) {
+        srv.log_error("config file unreadable at reload; the server goes on as started", e.what());
+        return;
+    }
+    std::string keys;
+    for (const std::string& key : changed_keys(a.config_at_start, now)) {
+        if (std::find(a.config_keys_overridden.begin(), a.config_keys_overridden.end(), key) !=
+            a.config_keys_overridden.end())
+            continue;
+        keys += (keys.empty() ? "" : ",") + key;
+    }
+    if (!keys.empty())
+        srv.log_warning("config file changed; a reload does not reread it, restart to apply", "keys", keys);
 }
 
 int run_serve(ServeArgs& a) {
@@ -88,6 +115,7 @@ int run_serve(ServeArgs& a) {
         if (sigwait(&signals, &sig) != 0) continue;
         if (sig == SIGHUP) {
             notify_service_manager("RELOADING=1\n" + monotonic_usec_field());
+            if (!a.config_file.empty()) warn_if_config_changed(a, *srv);
             srv->reload();
             (void)srv->reload_tls();  // a renewed certificate; an error is logged and the old one stays
             // The token file again (a rotated secret): a file that cannot be read or is empty keeps
@@ -242,27 +270,42 @@ Command add_serve(CLI::App& app) {
     s->add_option("--log-level", a->log_level, "info or debug")->capture_default_str()
         ->check(CLI::IsMember({"info", "debug"}));
     s->footer(
-        "Signals: SIGHUP rescans the stores and rereads --auth-token-file, --tls-cert and --tls-key; SIGTERM/SIGINT stop accepting, finish admitted work\n"
+        "Signals: SIGHUP rescans the stores and rereads --auth-token-file, --tls-cert and --tls-key (not --config: a\n"
+        "changed one is logged; restart for it); SIGTERM/SIGINT stop accepting, finish admitted work\n"
         "(up to --drain-timeout) and exit 0. Logs go to stderr, one line each: a JSON object (--log-format json) or text\n"
         "(--log-format text).");
-    // Debian 12's CLI11 (2.1) reads config files only for the main app,
-    // so apply --config here: keys are long option names, top level or under [serve]; the
-    // command line wins; an unknown key is an error.
-    s->parse_complete_callback([s] {
+    // --config is applied here (Debian 12's CLI11 2.1 reads config files only for the main app,
+    // and its reader names no line): keys are long option names, top level or under [serve]; the
+    // command line wins; an error names the file and line.
+    s->parse_complete_callback([s, a] {
         CLI::Option* cfg = s->get_config_ptr();
         if (cfg == nullptr || cfg->count() == 0) return;
-        // A folder opens as an empty file: every option in it would be silently missing.
-        if (std::error_code ec; std::filesystem::is_directory(cfg->as<std::string>(), ec))
-            throw CLI::ValidationError("--config", "'" + cfg->as<std::string>() + "' is a directory, not a config file");
-        for (const CLI::ConfigItem& item : s->get_config_formatter()->from_file(cfg->as<std::string>())) {
-            if (item.name == "++" || item.name == "--") continue;  // [section] markers
-            if (!(item.parents.empty() || (item.parents.size() == 1 && item.parents[0] == "serve")))
-                throw CLI::ConfigError::Extras(item.fullname());
-            CLI::Option* opt = s->get_option_no_throw("--" + item.name);
-            if (opt == nullptr || opt == cfg) throw CLI::ConfigError::Extras(item.fullname());
-            if (opt->count() > 0) continue;
-            opt->add_result(item.inputs);
-            opt->run_callback();
+        a->config_file = cfg->as<std::string>();
+        try {
+            a->config_at_start = read_config_file(a->config_file);
+        } catch (const ConfigFileError& e) {
+            throw CLI::ValidationError("--config", e.what());
+        }
+        const ConfigFile& file = a->config_at_start;
+        for (const ConfigEntry& entry : file.entries) {
+            CLI::Option* opt = s->get_option_no_throw("--" + entry.key);
+            if (opt == nullptr || opt == cfg || opt == s->get_help_ptr())
+                throw CLI::ValidationError("--config", file.where(entry) + ": unknown option '" + entry.key + "'");
+            if (entry.values.size() > 1 && opt->get_items_expected_max() <= 1)
+                throw CLI::ValidationError("--config", file.where(entry) + ": '" + entry.key + "' takes one value, the file gives " +
+                                                           std::to_string(entry.values.size()));
+            if (opt->count() > 0) {
+                a->config_keys_overridden.push_back(entry.key);
+                continue;
+            }
+            try {
+                opt->add_result(entry.values);
+                opt->run_callback();
+            } catch (const CLI::Error& e) {
+                std::string what = e.what();
+                if (what.rfind(": ", 0) == 0) what.erase(0, 2);
+                throw CLI::ValidationError("--config", file.where(entry) + ": " + entry.key + ": " + what);
+            }
         }
     });
     return [a] { return run_serve(*a); };

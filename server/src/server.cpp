@@ -221,6 +221,9 @@ public:
     }
 
     void log_error(std::string_view event, std::string_view error) override { log_.error(event, {{"error", error}}); }
+    void log_warning(std::string_view event, std::string_view key, std::string_view value) override {
+        log_.warn(event, {{key, value}});
+    }
 
     Status reload_tls() override {
         if (config_.tls_cert_file.empty()) return {};

@@ -124,6 +124,9 @@ public:
     // Writes an error event to the server's log, in its format (a reload the caller could not
     // do: a token file that became unreadable).
     virtual void log_error(std::string_view event, std::string_view error) = 0;
+    // Writes a warning event with one field `key` = `value` (a config file that changed but is
+    // not reread).
+    virtual void log_warning(std::string_view event, std::string_view key, std::string_view value) = 0;
     // Graceful stop: refuse new work, finish what was admitted (up to drain_timeout), close.
     virtual void shutdown() = 0;
 };
