@@ -1008,6 +1008,44 @@ TEST(Builder, TiffsOpenImageIoMisreadsAreReadRight) {
     EXPECT_EQ(worst_level0_difference(**sparse_reader, sparse), 0);
 }
 
+// Grey with extra bands, the last not marked alpha (GDAL's 2- and 4-band rasters other than 8-bit
+// RGBA: min-is-black, ExtraSamples unspecified) is multi-band data: refused by name, not
+// built with a band of data as alpha. Marked alpha, or RGB with an unspecified fourth band (as
+// libtiff reads it), the last band is alpha.
+TEST(Builder, TiffBandsNotMarkedAlphaAreRefused) {
+    ScratchDir d;
+    const std::string ramp = " -alpha set -channel A -fx 'i/w' +channel ";
+    auto im = [&](const std::string& args, const std::string& out) {
+        return run_tool("convert-im6.q16 -size 40x20 " + args + " " + d.file(out));
+    };
+    ASSERT_TRUE(im("xc:gray50" + ramp + "-define tiff:alpha=unspecified", "la_unspecified.tif"));
+    ASSERT_TRUE(im("xc:gray50" + ramp + "-define tiff:alpha=unassociated", "la_alpha.tif"));
+    ASSERT_TRUE(im("xc:red" + ramp + "-define tiff:alpha=unspecified", "rgba_unspecified.tif"));
+    // Four bands of grey and three unspecified extras, as GDAL writes a 4-band UInt16 raster.
+    ASSERT_TRUE(run_tool("cp " + d.file("rgba_unspecified.tif") + " " + d.file("bands4.tif") + " && tiffset -s 262 1 " +
+                         d.file("bands4.tif")));
+    ASSERT_TRUE(run_tool("tiffinfo " + d.file("bands4.tif") + " 2>/dev/null | grep -q 'Extra Samples: 3<unspecified'"));
+    const BuildOptions o = small_tiles(Codec::zstd);
+    for (const auto& [file, hint] : {std::pair{"la_unspecified.tif", "gdal_translate -b 1 "}, std::pair{"bands4.tif", "-b 3 -b 2 -b 1"}}) {
+        SCOPED_TRACE(file);
+        const auto r = build_store(d.file(file), d.file("refused.tsr"), o);
+        ASSERT_FALSE(r.ok());
+        EXPECT_EQ(r.error().code, Errc::invalid_argument);
+        EXPECT_NE(r.error().message.find(file), std::string::npos) << r.error().message;
+        EXPECT_NE(r.error().message.find("the last is not marked alpha"), std::string::npos) << r.error().message;
+        EXPECT_NE(r.error().message.find(hint), std::string::npos) << r.error().message;
+        EXPECT_FALSE(std::filesystem::exists(d.file("refused.tsr")));
+    }
+    for (const char* file : {"la_alpha.tif", "rgba_unspecified.tif"}) {
+        SCOPED_TRACE(file);
+        const auto r = build_store(d.file(file), d.file("ok.tsr"), o);
+        ASSERT_TRUE(r.ok()) << r.error().message;
+        auto reader = StoreReader::open(d.file("ok.tsr"));
+        ASSERT_TRUE(reader.ok());
+        EXPECT_TRUE((*reader)->info().has_alpha) << file;
+    }
+}
+
 // A WebP's EXIF orientation (OpenImageIO 2.4's WebP reader does not report it): a lossless WebP
 // from cwebp, tagged 6 (and 3) by webpmux, is built as ImageMagick turns the source, texel exact.
 TEST(Builder, WebpExifOrientationIsApplied) {
