@@ -95,7 +95,9 @@ TEST(EmulatedSource, AddsLatency) {
         EXPECT_LE(t.received - t1, 30ms);
         EXPECT_EQ(t.data.payload.size(), 100u);
     }
-    EXPECT_NE(s->describe().find("instant"), std::string::npos);
+    EXPECT_EQ(s->describe(), "instant over an emulated link (latency 30 ms, jitter 0 ms, unlimited bandwidth)");
+    auto capped = make_emulated_source(std::make_unique<InstantSource>(100, &sets), EmulatedLink{2500us, 500us, 2e7}, 1);
+    EXPECT_EQ(capped->describe(), "instant over an emulated link (latency 2.5 ms, jitter 0.5 ms, 20 Mbit/s)");
 }
 
 TEST(EmulatedSource, JitterIsBounded) {

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <queue>
 #include <random>
+#include <sstream>
 #include <unordered_map>
 #include <utility>
 #include <vector>
@@ -81,11 +82,15 @@ public:
     Result<std::optional<std::string>> scene(const std::string& store) override { return inner_->scene(store); }
 
     std::string describe() const override {
-        std::string s = inner_->describe() + " over an emulated link (latency " +
-                        std::to_string(link_.latency.count() / 1000.0) + " ms, jitter " +
-                        std::to_string(link_.jitter.count() / 1000.0) + " ms, ";
-        s += link_.bandwidth_bits_per_s > 0 ? std::to_string(link_.bandwidth_bits_per_s / 1e6) + " Mbit/s)"
-                                            : "unlimited bandwidth)";
+        // Shortest round-trip text ("150", "0.5", "2.5e+06"), not std::to_string's six decimals.
+        auto number = [](double v) {
+            std::ostringstream o;
+            o << v;
+            return o.str();
+        };
+        std::string s = inner_->describe() + " over an emulated link (latency " + number(link_.latency.count() / 1000.0) +
+                        " ms, jitter " + number(link_.jitter.count() / 1000.0) + " ms, ";
+        s += link_.bandwidth_bits_per_s > 0 ? number(link_.bandwidth_bits_per_s / 1e6) + " Mbit/s)" : "unlimited bandwidth)";
         return s;
     }
 
