@@ -1,5 +1,7 @@
 #include "tessera/client/gl/frame_loop.hpp"
 
+#include <thread>
+
 namespace tessera::client::gl {
 
 FrameStep FrameLoop::step(const scene::Camera& camera, const std::function<void(std::uint64_t)>& after_render) {
@@ -24,7 +26,16 @@ Settled FrameLoop::settle(const scene::Camera& camera, std::chrono::duration<dou
     Settled out;
     std::uint64_t first = 0;      // the first frame of this view: earlier views' counters do not count
     std::uint64_t idle_from = 0;  // the first frame rendered with nothing in flight; 0: busy
+    std::size_t pending_before = 0;
     for (;;) {
+        // A frame in which nothing arrived, was mapped or faded changes nothing the next one would
+        // show: while pages are only awaited, wait a little rather than render thousands of
+        // identical frames a second (a small view on a software renderer), which takes the CPU
+        // from the threads that fetch and transcode those pages.
+        const std::size_t pending = runtime_.in_flight();
+        if (out.frames > 0 && pending > 0 && pending == pending_before && renderer_.stats().fading_pages == 0)
+            std::this_thread::sleep_for(kAwaitPause);
+        pending_before = pending;
         if (before_frame) before_frame();
         const FrameStep s = step(camera);
         ++out.frames;

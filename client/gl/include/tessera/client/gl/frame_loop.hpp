@@ -48,8 +48,12 @@ public:
     // no fallback at either level) of a frame rendered once nothing was in flight, with no page
     // fading and the bias at 0. `give_up` (optional), asked after each frame, ends the wait early
     // (unsettled): a caller that sees the view can never settle (every read an error).
+    // While pages are awaited and the last frame changed nothing, it pauses kAwaitPause between
+    // frames instead of spinning.
     Settled settle(const scene::Camera& camera, std::chrono::duration<double> timeout,
                    const std::function<void()>& before_frame = {}, const std::function<bool()>& give_up = {});
+
+    static constexpr std::chrono::microseconds kAwaitPause{1000};
 
 private:
     VtRenderer& renderer_;
