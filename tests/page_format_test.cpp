@@ -74,8 +74,11 @@ void decode_bc4_page(const std::vector<std::uint8_t>& blocks, std::size_t first,
         }
 }
 
-StoreInfo info_of(std::uint32_t channels, SampleType t, std::uint32_t tile_size = 256, bool alpha = false) {
+// Data (linear) unless `colour` says sRGB: bc4, bc5 and the exact formats hold data.
+StoreInfo info_of(std::uint32_t channels, SampleType t, std::uint32_t tile_size = 256, bool alpha = false,
+                  storage::ColourSpace colour = storage::ColourSpace::linear) {
     storage::StoreSpec s;
+    s.colour_space = colour;
     s.width = s.height = tile_size * 2;
     s.tile_payload = tile_size - 8;
     s.border = 4;
@@ -115,6 +118,14 @@ TEST(PageFormat, StoresThatCannotTakeAFormatGetAClearError) {
     refused(info_of(1, SampleType::u16), PageFormat::r16f, "f16");
     refused(info_of(3, SampleType::f32), PageFormat::r32f, "1 channel");
     refused(info_of(3, SampleType::u8, 66), PageFormat::bc1, "multiple of 4");
+    // sRGB colour in a format the GPU samples as stored would be encoded twice on its way to the
+    // screen: a grey photo's 134 shown as 192.
+    const auto srgb = storage::ColourSpace::srgb;
+    refused(info_of(1, SampleType::u8, 256, false, srgb), PageFormat::bc4, "sRGB");
+    refused(info_of(2, SampleType::u8, 256, true, srgb), PageFormat::bc5, "sRGB");
+    refused(info_of(1, SampleType::u16, 256, false, srgb), PageFormat::r16, "sRGB");
+    for (const auto f : {PageFormat::rgba8, PageFormat::bc1, PageFormat::bc7})
+        EXPECT_TRUE(check_page_format(info_of(3, SampleType::u8, 256, false, srgb), f).ok()) << to_string(f);
     EXPECT_TRUE(check_page_format(info_of(3, SampleType::u8), PageFormat::bc1).ok());
     EXPECT_TRUE(check_page_format(info_of(1, SampleType::u16), PageFormat::bc4).ok());
     EXPECT_TRUE(check_page_format(info_of(2, SampleType::u8, 256, true), PageFormat::bc5).ok());

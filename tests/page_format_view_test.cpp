@@ -12,6 +12,7 @@
 #include "test_util.hpp"
 
 using tessera::test::run_tessera;
+using tessera::test::RunResult;
 using tessera::test::ScratchDir;
 using tessera::test::slurp;
 
@@ -97,6 +98,34 @@ TEST_F(PageFormatView, ABlockStoreGivesItsOwnFormatByDefault) {
     ASSERT_EQ(rgba.exit_code, 0) << rgba.out;
     EXPECT_NE(rgba.out.find("64 pages of rgba8"), std::string::npos) << rgba.out;
     EXPECT_GE(min_psnr(rgba.out), 85.0) << rgba.out;
+}
+
+// A grey photo (sRGB colour, from ImageMagick) built as BC4 blocks: `auto` draws it through RGBA8
+// (sRGB), since BC4 pages are sampled as stored and its colour would be encoded twice (a ramp's
+// 134 shown as 192: 16.6 dB against the reference); asking for bc4, or r16 for 16-bit grey, is
+// an error that says why.
+TEST_F(PageFormatView, SrgbGreyIsNeverDrawnThroughADataFormat) {
+    const std::string png = dir_->file("grey.png"), png16 = dir_->file("grey16.png");
+    const RunResult im = tessera::test::run_program(
+        "convert-im6.q16", "-size 512x512 gradient:white-black -colorspace Gray -depth 8 " + png +
+                               " && convert-im6.q16 -size 512x512 gradient:white-black -colorspace Gray -depth 16 " + png16);
+    ASSERT_EQ(im.exit_code, 0) << im.out;
+    const std::string bc4 = dir_->file("grey_bc4.tsr"), g16 = dir_->file("grey16.tsr");
+    auto built = run_tessera("build " + png + " --codec bc4 --quiet -o " + bc4);
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    built = run_tessera("build " + png16 + " --quiet -o " + g16);
+    ASSERT_EQ(built.exit_code, 0) << built.out;
+    const std::string args = " --headless --size 160x90 --frames 10 --pool 64 ";
+    auto r = run_tessera("view --store " + bc4 + args + "--psnr-every 5");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_NE(r.out.find("64 pages of rgba8"), std::string::npos) << r.out;
+    EXPECT_TRUE(r.out.find("\nPSNR          lossless") != std::string::npos || min_psnr(r.out) >= 40.0) << r.out;
+    for (const auto& [store, format] : {std::pair{bc4, "bc4"}, std::pair{g16, "r16"}}) {
+        auto refused = run_tessera("view --store " + store + args + "--page-format " + format);
+        EXPECT_NE(refused.exit_code, 0) << refused.out;
+        EXPECT_NE(refused.out.find(std::string("page format ") + format + " does not fit this store"), std::string::npos) << refused.out;
+        EXPECT_NE(refused.out.find("sRGB colour"), std::string::npos) << refused.out;
+    }
 }
 
 // A GL without the format (Mesa told to hide S3TC) is an error naming the format and the

@@ -395,7 +395,8 @@ struct BlockCase {
     double max_off_fraction;  // of pixels off by more than 3
     tessera::Codec store_codec = tessera::Codec::zstd;  // a block codec: the builder's blocks, uploaded as stored
     std::uint32_t border = 4;
-    const char* input = "procedural:terrain:2048";  // bc4: the terrain's 16-bit heights (one channel)
+    // bc4: the terrain's 16-bit heights (one channel); bc5: its normals (two): data, not sRGB colour
+    const char* input = "procedural:terrain:2048";
 };
 class RenderBlockPages : public ::testing::TestWithParam<BlockCase> {};
 
@@ -420,10 +421,12 @@ using tessera::client::PageFormat;
 INSTANTIATE_TEST_SUITE_P(
     Formats, RenderBlockPages,
     ::testing::Values(BlockCase{PageFormat::bc1, gl::Filter::bilinear, true, false, 50.0, 32, 0.001},
-                      BlockCase{PageFormat::bc5, gl::Filter::bilinear, false, false, 50.0, 3, 0.0},
+                      BlockCase{PageFormat::bc5, gl::Filter::bilinear, false, false, 50.0, 3, 0.0, tessera::Codec::zstd, 4,
+                                "procedural:terrain-normal:2048"},
                       BlockCase{PageFormat::bc1, gl::Filter::trilinear, true, false, 50.0, 32, 0.001, tessera::Codec::zstd, 8},
                       BlockCase{PageFormat::bc1, gl::Filter::anisotropic, true, false, 50.0, 32, 0.001, tessera::Codec::zstd, 8},
-                      BlockCase{PageFormat::bc5, gl::Filter::trilinear, false, false, 50.0, 3, 0.0, tessera::Codec::zstd, 8},
+                      BlockCase{PageFormat::bc5, gl::Filter::trilinear, false, false, 50.0, 3, 0.0, tessera::Codec::zstd, 8,
+                                "procedural:terrain-normal:2048"},
                       BlockCase{PageFormat::bc4, gl::Filter::bilinear, false, false, 50.0, 3, 0.0, tessera::Codec::zstd, 4,
                                 "procedural:terrain-height:2048"},
                       BlockCase{PageFormat::bc4, gl::Filter::trilinear, false, false, 50.0, 3, 0.0, tessera::Codec::zstd, 8,

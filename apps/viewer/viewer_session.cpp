@@ -160,14 +160,23 @@ private:
     std::uint32_t outages_ = 0;
 };
 
-// A data layer's page format: a block store's own blocks; 1-channel 16-bit and float samples
-// exactly; anything else RGBA8.
+// What `auto` picks for a store or layer: a block store's own blocks; for a data layer (`exact`),
+// 1-channel 16-bit and float samples exactly; anything else RGBA8, and RGBA8 too for sRGB colour
+// in a format the GPU would not decode from sRGB (a grey photo built as bc4, 16-bit grey).
+client::PageFormat auto_page_format(Codec codec, std::uint32_t channels, storage::SampleType sample,
+                                    storage::ColourSpace colour, bool exact) {
+    std::optional<client::PageFormat> f = client::page_format_of(codec);
+    if (!f && exact && channels == 1) {
+        if (sample == storage::SampleType::u16) f = client::PageFormat::r16;
+        if (sample == storage::SampleType::f16) f = client::PageFormat::r16f;
+        if (sample == storage::SampleType::f32) f = client::PageFormat::r32f;
+    }
+    if (!f || (colour == storage::ColourSpace::srgb && !client::page_format_decodes_srgb(*f))) return client::PageFormat::rgba8;
+    return *f;
+}
+
 client::PageFormat layer_page_format(const storage::LayerInfo& l) {
-    if (auto f = client::page_format_of(l.codec)) return *f;
-    if (l.channels == 1 && l.sample_type == storage::SampleType::u16) return client::PageFormat::r16;
-    if (l.channels == 1 && l.sample_type == storage::SampleType::f16) return client::PageFormat::r16f;
-    if (l.channels == 1 && l.sample_type == storage::SampleType::f32) return client::PageFormat::r32f;
-    return client::PageFormat::rgba8;
+    return auto_page_format(l.codec, l.channels, l.sample_type, l.colour_space, true);
 }
 
 // A multi-layer store's pool: the layers after the first, the layer drawn, and lighting by a
@@ -208,7 +217,8 @@ void configure_layers(const storage::StoreInfo& info, const ViewerOptions& o, cl
         const auto i = std::size_t(it - info.layers.begin());
         client::PageFormat& f = i == 0 ? rc.page_format : rc.more_layers[i - 1].page_format;
         if (format == "auto") {  // as --page-format auto for the first layer
-            f = i == 0 ? client::page_format_of(it->codec).value_or(client::PageFormat::rgba8) : layer_page_format(*it);
+            f = i == 0 ? auto_page_format(it->codec, it->channels, it->sample_type, it->colour_space, false)
+                       : layer_page_format(*it);
         } else if (const auto parsed = client::parse_page_format(format)) {
             f = *parsed;
         } else {
@@ -393,8 +403,9 @@ void ViewerRun::make_renderer() {
     // backgrounds. A terrain's alpha stays what the image shows.
     rc.alpha_test = atlas_scene_ && info_.has_alpha;
     if (o.page_format == "auto") {
-        // A block-codec store's own blocks go to the GPU as they are; anything else as RGBA8.
-        rc.page_format = client::page_format_of(info_.codec).value_or(client::PageFormat::rgba8);
+        // A block-codec store's own blocks go to the GPU as they are (unless they would lose the
+        // sRGB decode); anything else as RGBA8.
+        rc.page_format = auto_page_format(info_.codec, info_.channels, info_.sample_type, info_.colour_space, false);
     } else {
         const auto f = client::parse_page_format(o.page_format);
         if (!f) throw Failure(fmt::format("--page-format '{}': expected auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f", o.page_format));

@@ -254,6 +254,9 @@ Status check_page_format(const StoreInfo& info, PageFormat format) {
         return make_error(Errc::invalid_argument,
                           "page format " + std::string(to_string(format)) + " does not fit this store: " + std::string(why));
     };
+    if (info.colour_space == storage::ColourSpace::srgb && !page_format_decodes_srgb(format))
+        return refuse(std::string(to_string(format)) + " pages hold data, sampled as stored, and the store's samples are sRGB "
+                      "colour, which would show too bright (use rgba8, bc1 or bc7)");
     if (is_block_compressed(format) && info.tile_size() % 4 != 0)
         return refuse("its tiles are " + std::to_string(info.tile_size()) + " texels, not a multiple of 4 (4x4 blocks)");
     switch (format) {

@@ -44,6 +44,12 @@ std::optional<PageFormat> parse_page_format(std::string_view s);
 constexpr bool is_block_compressed(PageFormat f) {
     return f == PageFormat::bc1 || f == PageFormat::bc4 || f == PageFormat::bc5 || f == PageFormat::bc7;
 }
+// Whether the GPU decodes the format's samples from sRGB when its store's samples are sRGB colour:
+// rgba8, bc1 and bc7 have sRGB variants; the others hold data, sampled as stored, so sRGB colour
+// in them would be encoded a second time on its way to the screen (check_page_format refuses it).
+constexpr bool page_format_decodes_srgb(PageFormat f) {
+    return f == PageFormat::rgba8 || f == PageFormat::bc1 || f == PageFormat::bc7;
+}
 // The page format whose blocks a block-codec store holds (tiles it uploads as they are).
 constexpr std::optional<PageFormat> page_format_of(Codec c) {
     switch (c) {
