@@ -1081,6 +1081,10 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
              q(tessera::test::cached_store("procedural:terrain:1024 --codec zstd", "t1024.tsr")) + " --reference-store " +
              q(tessera::test::cached_store("procedural:terrain:512 --codec zstd", "t512.tsr")),
          1, "not a copy of it"},
+        // The reference samples GL mips, which halve rounding down: a 257-texel store's levels do not.
+        {"view --headless --frames 2 --size 64x36 --psnr-every 1 --store " +
+             q(tessera::test::cached_store("procedural:terrain:257 --codec zstd", "t257.tsr")),
+         1, "levels that halve exactly"},
     };
     for (const auto& [args, code, says] : cases) {
         SCOPED_TRACE(args);
@@ -1278,6 +1282,24 @@ TEST(CliView, AStoreNoTileOfWhichCanBeReadFails) {
     EXPECT_TRUE(has(r.out, "no tile of the store could be read")) << r.out;
     // The intact store: exit 0.
     EXPECT_EQ(run_tessera("view --store " + q(d.file("one.tsr")) + " --headless --size 32x32 --frames 5 --no-warmup").exit_code, 0);
+}
+
+// A first view that shows none of the texture (the camera beside it) wants nothing: the warm-up
+// ends at once, where it drew frames as fast as it could for its whole 20 s and said "timed out".
+TEST(CliView, AViewOfNoTextureIsSettledAtOnce) {
+    ScratchDir d;
+    ASSERT_EQ(run_tessera("build -q procedural:terrain:512 --codec zstd -o " + q(d.file("t.tsr"))).exit_code, 0);
+    {
+        std::ofstream path(d.file("beside.path"));
+        path << "0 5000 5000 600 90 -90\n1 5000 5000 600 90 -90\n";
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    const RunResult r = run_tessera("view --store " + q(d.file("t.tsr")) + " --headless --size 32x32 --frames 3 --path " +
+                                    q(d.file("beside.path")));
+    EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(15)) << r.out;
+    EXPECT_EQ(r.exit_code, 0) << r.out;
+    EXPECT_TRUE(has(r.out, "first view    full detail in")) << r.out;
+    EXPECT_TRUE(has(r.out, "fallback      n/a")) << r.out;
 }
 
 // ---- serve: options checked before it starts ------------------------------------------------------

@@ -46,8 +46,10 @@ Settled FrameLoop::settle(const scene::Camera& camera, std::chrono::duration<dou
         for (const auto& c : counters_) {
             if (c.frame < first) continue;
             out.counters = c;
-            clean = clean || (idle_from > 0 && c.frame >= idle_from && c.textured_pixels > 0 && c.fallback_unbiased == 0 &&
-                              c.fallback_biased == 0);
+            // No textured pixel at all is clean too: a view that shows none of the texture (the camera
+            // beside it, a texture under a pixel wide) wants nothing, and an empty entry would count
+            // as fallback.
+            clean = clean || (idle_from > 0 && c.frame >= idle_from && c.fallback_unbiased == 0 && c.fallback_biased == 0);
         }
         if (clean && renderer_.stats().fading_pages == 0 && runtime_.lod_bias() == 0.0f) {
             out.settled = true;

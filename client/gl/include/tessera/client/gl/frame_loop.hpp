@@ -44,9 +44,9 @@ public:
 
     // Renders `camera` until settled, or until `timeout` has passed. `before_frame` (optional)
     // runs before each frame: the runtime's clock, a link monitor. Counters come back frames
-    // late (more of them the faster the GPU), so settled means clean counters (textured pixels,
-    // no fallback at either level) of a frame rendered once nothing was in flight, with no page
-    // fading and the bias at 0. `give_up` (optional), asked after each frame, ends the wait early
+    // late (more of them the faster the GPU), so settled means clean counters (no fallback at
+    // either level; a view that shows no texture at all is clean) of a frame rendered once nothing
+    // was in flight, with no page fading and the bias at 0. `give_up` (optional), asked after each frame, ends the wait early
     // (unsettled): a caller that sees the view can never settle (every read an error).
     // While pages are awaited and the last frame changed nothing, it pauses kAwaitPause between
     // frames instead of spinning.
