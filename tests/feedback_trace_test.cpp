@@ -2,9 +2,12 @@
 // and every kind of damage is an error, never wrong ids.
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
+
+#include <sys/resource.h>
 
 #include "tessera/client/feedback_trace.hpp"
 #include "test_util.hpp"
@@ -100,6 +103,52 @@ TEST(FeedbackTrace, DamageIsAnErrorNeverWrongIds) {
     EXPECT_FALSE(write(good.substr(0, 16)).ok()) << "no frames";
     EXPECT_FALSE(write("not a trace at all, just text").ok());
     EXPECT_FALSE(read_trace(dir.file("missing.trace")).ok());
+}
+
+// A frame's header fields cannot make the reader allocate what the file does not hold: a
+// compressed size past the file's end, sides larger than any feedback buffer, or a size whose
+// ids the zstd frame does not hold, each an error before any buffer is sized from it (a compressed
+// size of 2^32 - 1 made the reader take 4.2 GB, 16384x16384 2.1 GB).
+TEST(FeedbackTrace, HeaderFieldsCannotSizeTheReader) {
+    tessera::test::ScratchDir dir;
+    std::mt19937_64 rng(9);
+    auto w = TraceWriter::create(dir.file("t.trace"));
+    ASSERT_TRUE(w.ok());
+    ASSERT_TRUE((*w)->write(frame(0, 32, 16, rng)).ok());
+    EXPECT_FALSE((*w)->write(frame(1, 8193, 1, rng)).ok()) << "wider than any feedback buffer";
+    ASSERT_TRUE((*w)->close().ok());
+    std::ifstream in(dir.file("t.trace"), std::ios::binary);
+    const std::string good((std::istreambuf_iterator<char>(in)), {});
+    // The first frame's header after the file's 16 bytes: frame u64, time f64, bias f32, then
+    // width, height and the compressed size, u32 each.
+    constexpr std::size_t kWidth = 16 + 20, kHeight = kWidth + 4, kCompressed = kHeight + 4;
+    auto patched = [&](std::size_t at, std::uint32_t v) {
+        std::string bad = good;
+        std::memcpy(bad.data() + at, &v, 4);
+        std::ofstream(dir.file("bad.trace"), std::ios::binary) << bad;
+        return read_trace(dir.file("bad.trace"));
+    };
+    const auto peak_kib = [] {
+        rusage u{};
+        ::getrusage(RUSAGE_SELF, &u);
+        return u.ru_maxrss;
+    };
+    const long before = peak_kib();
+    auto r = patched(kCompressed, 0xFFFFFFFFu);
+    ASSERT_FALSE(r.ok());
+    EXPECT_NE(r.error().message.find("truncated"), std::string::npos) << r.error().message;
+    r = patched(kWidth, 16384);
+    ASSERT_FALSE(r.ok());
+    EXPECT_NE(r.error().message.find("bad size"), std::string::npos) << r.error().message;
+    std::string big = good;
+    const std::uint32_t side = 8192;
+    std::memcpy(big.data() + kWidth, &side, 4);
+    std::memcpy(big.data() + kHeight, &side, 4);
+    std::ofstream(dir.file("big.trace"), std::ios::binary) << big;
+    r = read_trace(dir.file("big.trace"));
+    ASSERT_FALSE(r.ok());
+    EXPECT_NE(r.error().message.find("corrupt data"), std::string::npos) << r.error().message;
+    EXPECT_LT(peak_kib() - before, 64 * 1024) << "KiB of peak resident memory taken by reading damaged headers";
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 // Feedback traces: see feedback_trace.hpp for the format.
 #include "tessera/client/feedback_trace.hpp"
 
+#include <sys/stat.h>
 #include <unistd.h>
 #include <xxhash.h>
 #include <zstd.h>
@@ -15,7 +16,9 @@ namespace {
 
 constexpr char kMagic[8] = {'T', 'S', 'R', 'T', 'R', 'A', 'C', 'E'};
 constexpr std::uint32_t kVersion = 1;
-constexpr std::uint32_t kMaxSide = 1u << 16;  // feedback buffers are small; a bound against garbage
+// Feedback buffers are at most the viewer's largest image (8192 a side, --feedback-scale 1): a
+// bound against garbage, which would otherwise size the reader's buffers (2^16 a side: 16 GiB).
+constexpr std::uint32_t kMaxSide = 8192;
 
 template <class T>
 void put(std::vector<std::uint8_t>& out, T v) {
@@ -66,6 +69,9 @@ Status TraceWriter::write(const TraceFrame& f) {
     if (!file_) return make_error(Errc::invalid_argument, "trace: writer is closed");
     if (f.ids.size() != std::size_t(f.width) * f.height)
         return make_error(Errc::invalid_argument, "trace: frame ids do not match its size");
+    if (f.width == 0 || f.height == 0 || f.width > kMaxSide || f.height > kMaxSide)
+        return make_error(Errc::invalid_argument, "trace: a frame of " + std::to_string(f.width) + "x" +
+                                                      std::to_string(f.height) + " (each side 1.." + std::to_string(kMaxSide) + ")");
     const std::size_t raw = f.ids.size() * sizeof(FeedbackId);
     buffer_.resize(ZSTD_compressBound(raw));
     const std::size_t n = ZSTD_compress(buffer_.data(), buffer_.size(), f.ids.data(), raw, 1);
@@ -107,6 +113,10 @@ Result<std::unique_ptr<TraceReader>> TraceReader::open(const std::string& path) 
     r->path_ = path;
     r->file_ = std::fopen(path.c_str(), "rb");
     if (!r->file_) return make_error(Errc::not_found, "trace: cannot open '" + path + "': " + std::strerror(errno));
+    struct stat file_stat {};
+    if (::fstat(::fileno(r->file_), &file_stat) != 0 || !S_ISREG(file_stat.st_mode))
+        return make_error(Errc::invalid_argument, "trace: '" + path + "' is not a regular file");
+    r->size_ = std::uint64_t(file_stat.st_size);
     if (auto st = r->rewind(); !st.ok()) return st.error();
     return r;
 }
@@ -137,9 +147,14 @@ Result<bool> TraceReader::next(TraceFrame& f) {
         !get(file_, sum))
         return bad("truncated");
     if (f.width == 0 || f.height == 0 || f.width > kMaxSide || f.height > kMaxSide) return bad("bad size");
+    // Nothing is sized from a field the file cannot back: the compressed bytes must be in the
+    // file, and the zstd frame must say it holds exactly the frame's ids.
+    const long at = std::ftell(file_);
+    if (at < 0 || std::uint64_t(at) > size_ || n > size_ - std::uint64_t(at)) return bad("truncated");
     buffer_.resize(n);
     if (std::fread(buffer_.data(), 1, n, file_) != n) return bad("truncated");
     const std::size_t raw = std::size_t(f.width) * f.height * sizeof(FeedbackId);
+    if (ZSTD_getFrameContentSize(buffer_.data(), n) != raw) return bad("corrupt data");
     f.ids.resize(std::size_t(f.width) * f.height);
     const std::size_t got = ZSTD_decompress(f.ids.data(), raw, buffer_.data(), n);
     if (ZSTD_isError(got) || got != raw) return bad("corrupt data");

@@ -58,6 +58,7 @@ private:
     TraceReader() = default;
     std::string path_;
     std::FILE* file_ = nullptr;
+    std::uint64_t size_ = 0;  // the file's, at open
     std::vector<std::uint8_t> buffer_;
 };
 
