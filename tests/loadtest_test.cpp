@@ -4,15 +4,18 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <csignal>
 
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <memory>
 #include <sstream>
+#include <thread>
 #include <vector>
 
 #include <unistd.h>
@@ -226,6 +229,56 @@ TEST(Loadtest, RefusedStreamsShowInTheTable) {
     EXPECT_EQ(run["streams_refused"].get<long>(), column("streams")) << run.dump();
     EXPECT_EQ(run["frames_disconnected"].get<long>(), column("discon")) << run.dump();
     EXPECT_FALSE(run["pass"].get<bool>());
+}
+
+// A step in which no tile arrives (a link of 60 s) has no latency: "-" in the table and null in
+// the JSON, never 0.00 ms, which reads as instant.
+TEST(Loadtest, AStepWithNoTileHasNoLatency) {
+    auto& s = Server::get();
+    const std::string json = s.file("none.json");
+    auto r = run_tessera("loadtest --server " + s.address() + " --store terrain --viewers 1 --duration 1 --warmup 0 --fps 30 "
+                         "--latency 60000 --json " + json + " --quiet");
+    ASSERT_EQ(r.exit_code, 0) << r.out;
+    const auto run = load(json)["runs"][0];
+    EXPECT_EQ(run["tiles"].get<long>(), 0) << run.dump();
+    for (const char* k : {"mean", "p50", "p90", "p99", "p999", "max"}) EXPECT_TRUE(run["latency_ms"][k].is_null()) << k << run.dump();
+    std::istringstream lines(r.out);
+    bool row_seen = false;
+    for (std::string line; std::getline(lines, line);) {
+        std::istringstream words(line);
+        std::vector<std::string> w{std::istream_iterator<std::string>(words), {}};
+        if (w.size() < 12 || w[0] != "1") continue;
+        row_seen = true;
+        for (std::size_t i = 7; i < 12; ++i) EXPECT_EQ(w[i], "-") << line;  // p50 .. max
+    }
+    EXPECT_TRUE(row_seen) << r.out;
+}
+
+// A later step that cannot connect (the server killed during the first) ends the run, but the
+// first step's results are reported, and the exit status says it failed.
+TEST(Loadtest, AFailedStepKeepsTheStepsBeforeIt) {
+    ScratchDir dir;
+    auto b = run_tessera("build procedural:terrain:1024 -o " + dir.file("terrain.tsr") + " --quiet");
+    ASSERT_EQ(b.exit_code, 0) << b.out;
+    auto srv = std::make_unique<ServerProcess>(std::vector<std::string>{"--store", dir.file("terrain.tsr")},
+                                               dir.file("server.log"), "127.0.0.1:0", false);
+    ASSERT_TRUE(srv->running()) << srv->log();
+    const std::string json = dir.file("steps.json");
+    // The server goes 1.5 s into the first step's 4 s; the second step cannot connect.
+    std::thread killer([&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+        srv->signal(SIGKILL);
+    });
+    auto r = run_tessera("loadtest --server " + srv->grpc_address() + " --store terrain --viewers 1,2 --duration 4 --warmup 0 "
+                         "--fps 30 --connect-timeout 2 --json " + json);
+    killer.join();
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_NE(r.out.find("the 2-viewer step failed"), std::string::npos) << r.out;
+    const auto j = load(json);
+    ASSERT_EQ(j["runs"].size(), 1u) << j.dump();
+    EXPECT_EQ(j["runs"][0]["viewers"].get<unsigned>(), 1u);
+    EXPECT_GT(j["runs"][0]["frames_disconnected"].get<long>(), 0) << j["runs"][0].dump();
+    EXPECT_EQ(j["failed_step"]["viewers"].get<unsigned>(), 2u) << j.dump();
 }
 
 TEST(Loadtest, ServerDownIsAClearError) {

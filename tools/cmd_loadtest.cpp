@@ -28,10 +28,10 @@ Command add_loadtest(CLI::App& app) {
     c->add_option("--duration", o->duration, "measured seconds per run")->capture_default_str()->check(CLI::Range(0.1, 86400.0));
     c->add_option("--warmup", o->warmup, "seconds before measuring (excluded)")->capture_default_str()->check(CLI::Range(0.0, 3600.0));
     c->add_flag("--ramp", o->ramp, "step viewers 1, 2, 4, ... up to --max-viewers; report the most meeting both targets");
-    c->add_option("--ramp-p99-ms", o->ramp_p99_ms, "ramp target: p99 tile latency, ms")->capture_default_str()->check(CLI::PositiveNumber);
+    c->add_option("--ramp-p99-ms", o->ramp_p99_ms, "ramp target: p99 tile latency, ms, 0.001..3600000")->capture_default_str()->check(CLI::Range(0.001, 3600000.0));
     c->add_option("--ramp-fallback", o->ramp_fallback, "ramp target: fallback rate (fraction)")->capture_default_str()->check(CLI::Range(0.0, 1.0));
     c->add_option("--max-viewers", o->max_viewers, "ramp: the largest step")->capture_default_str()->check(CLI::Range(1u, 4096u));
-    c->add_option("--seed", o->seed, "seed for phases, offsets, jitter")->capture_default_str();
+    c->add_option("--seed", o->seed, "seed for phases, offsets, jitter")->capture_default_str()->check(CLI::NonNegativeNumber);
     c->add_option("--feedback-size", o->feedback_size, "feedback buffer, WxH")->capture_default_str();
     c->add_option("--view-size", o->view_size, "view the feedback stands for, WxH (--path)")->capture_default_str();
     add_bytes_option(*c, "--ram-cache", o->ram_cache, "RAM tile cache per viewer, e.g. 64MiB (0: off, every miss goes to the server)");
@@ -40,7 +40,7 @@ Command add_loadtest(CLI::App& app) {
     c->add_option("--jitter", o->jitter_ms, "emulated link: added uniform jitter, ms")->check(CLI::Range(0.0, 60000.0));
     c->add_option("--bandwidth", o->bandwidth_mbit, "emulated link: bandwidth cap per viewer, Mbit/s (0: none)")->check(CLI::Range(0.0, 1e6));
     c->add_option("--threads", o->threads, "driver threads (0: min(viewers, cores))")->capture_default_str();
-    c->add_option("--connect-timeout", o->connect_timeout, "seconds to wait for the server before giving up")->capture_default_str()->check(CLI::PositiveNumber);
+    c->add_option("--connect-timeout", o->connect_timeout, "seconds to wait for the server before giving up, 0.001..3600")->capture_default_str()->check(CLI::Range(0.001, 3600.0));
     c->add_option("--json", o->json, "write the results as JSON")->check(output_file());
     c->add_option("--plot", o->plot, "write a plot (SVG): fallback and p99 over time, or vs viewers")->check(output_file());
     c->add_flag("-q,--quiet", o->quiet, "no progress lines");

@@ -240,11 +240,16 @@ std::pair<std::uint32_t, std::uint32_t> parse_size(const std::string& s, const c
     return {static_cast<std::uint32_t>(w), static_cast<std::uint32_t>(h)};
 }
 
+// With no tile received there is no latency: null, never 0 (which would read as instant).
 nlohmann::json latency_json(const LatencyHistogram& h) {
-    return {{"count", h.count()},          {"mean", h.mean_ms()},        {"p50", h.quantile(0.5)},
-            {"p90", h.quantile(0.9)},      {"p99", h.quantile(0.99)},    {"p999", h.quantile(0.999)},
-            {"max", h.max_ms()}};
+    const auto ms = [&](double v) { return h.count() ? nlohmann::json(v) : nlohmann::json(nullptr); };
+    return {{"count", h.count()},          {"mean", ms(h.mean_ms())},        {"p50", ms(h.quantile(0.5))},
+            {"p90", ms(h.quantile(0.9))},  {"p99", ms(h.quantile(0.99))},    {"p999", ms(h.quantile(0.999))},
+            {"max", ms(h.max_ms())}};
 }
+
+// A latency column's text: "-" when no tile was received.
+std::string latency_cell(const LatencyHistogram& h, double ms) { return h.count() ? fmt::format("{:.2f}", ms) : "-"; }
 
 class LoadTest {
 public:
@@ -483,14 +488,16 @@ void print_table(const std::vector<RunResult>& runs) {
     for (const auto& r : runs) {
         const auto& h = r.latency;
         const double per_vs = r.server_cpu_per_viewer_s();
-        fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8.0f} {:>8.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7.2f} {:>7} "
+        fmt::print("{:>7} {:>8} {:>6} {:>7} {:>7} {:>8.0f} {:>8.2f} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7} "
                    "{:>6} {:>6} {:>8.3f}% {:>9} {:>7.0f}% {:>9}\n",
                    r.viewers, r.frames, r.late, r.skipped, r.unavailable, r.tiles / r.seconds, r.bytes / r.seconds / 1e6,
-                   h.quantile(0.5), h.quantile(0.9), h.quantile(0.99), h.quantile(0.999), h.max_ms(), r.streams_refused,
+                   latency_cell(h, h.quantile(0.5)), latency_cell(h, h.quantile(0.9)), latency_cell(h, h.quantile(0.99)),
+                   latency_cell(h, h.quantile(0.999)), latency_cell(h, h.max_ms()), r.streams_refused,
                    r.refused, r.failed, r.fallback * 100, std::isnan(per_vs) ? std::string("-") : fmt::format("{:.2f}", per_vs * 1e3),
                    100 * r.generator_cpu_s / r.seconds, r.generator_bound ? "generator" : "-");
     }
-    fmt::print("latency: ms, request issued (scheduled frame time) -> tile received; fallback: pixel-weighted\n");
+    fmt::print("latency: ms, request issued (scheduled frame time) -> tile received (\"-\": no tile received); "
+               "fallback: pixel-weighted\n");
     fmt::print("discon: frames run while the viewer's stream was down; refused streams: streams the server turned "
                "away (RESOURCE_EXHAUSTED: too many viewers); refused tiles: TILE_RESOURCE_EXHAUSTED replies (queues "
                "full); failed: other non-OK replies\n");
@@ -578,12 +585,14 @@ void write_plot(const Options& o, const std::vector<RunResult>& runs, const std:
         PlotSeries p50{"p50", {}, {}, colours[0]}, p99{"p99", {}, {}, colours[1]},
             p999{"p99.9", {}, {}, colours[2]}, fb{"fallback", {}, {}, colours[3], false, true};
         for (const auto& r : runs) {
-            p50.x.push_back(r.viewers);
-            p50.y.push_back(r.latency.quantile(0.5));
-            p99.x.push_back(r.viewers);
-            p99.y.push_back(r.latency.quantile(0.99));
-            p999.x.push_back(r.viewers);
-            p999.y.push_back(r.latency.quantile(0.999));
+            if (r.latency.count() > 0) {  // a step with no tile received has no latency to plot
+                p50.x.push_back(r.viewers);
+                p50.y.push_back(r.latency.quantile(0.5));
+                p99.x.push_back(r.viewers);
+                p99.y.push_back(r.latency.quantile(0.99));
+                p999.x.push_back(r.viewers);
+                p999.y.push_back(r.latency.quantile(0.999));
+            }
             fb.x.push_back(r.viewers);
             fb.y.push_back(r.fallback * 100);
         }
@@ -678,18 +687,34 @@ int run_loadtest(LoadTestOptions o) {
     }
     std::vector<RunResult> runs;
     std::optional<unsigned> best;
+    struct FailedStep {
+        unsigned viewers;
+        std::string error;
+        int code;
+    };
+    std::optional<FailedStep> failed_step;
     for (unsigned n : steps) {
         if (!o.quiet) {
             fmt::print(stderr, "loadtest: {} viewer{} for {:.1f} s (+{:.1f} s warm-up) ...\n", n, n == 1 ? "" : "s",
                        o.duration, o.warmup);
             std::fflush(stderr);
         }
-        runs.push_back(lt.run(n));
+        // A step that fails (its viewers cannot connect) ends the run; the steps before it are still
+        // reported, and the exit status is the failure's.
+        try {
+            runs.push_back(lt.run(n));
+        } catch (const Failure& f) {
+            if (runs.empty()) throw;
+            failed_step = {n, f.what(), f.code};
+            fmt::print(stderr, "loadtest: the {}-viewer step failed: {}; the steps before it are reported\n", n, f.what());
+            break;
+        }
         if (o.ramp) {
             const auto& r = runs.back();
             if (!o.quiet)
-                fmt::print(stderr, "loadtest: {} viewers: p99 {:.2f} ms, fallback {:.4f}% -> {}\n", n,
-                           r.latency.quantile(0.99), r.fallback * 100, r.pass ? "holds" : "does not hold");
+                fmt::print(stderr, "loadtest: {} viewers: {}, fallback {:.4f}% -> {}\n", n,
+                           r.latency.count() ? fmt::format("p99 {:.2f} ms", r.latency.quantile(0.99)) : "no tile received",
+                           r.fallback * 100, r.pass ? "holds" : "does not hold");
             if (!r.pass) {  // more viewers only load the server (or the generator) more
                 if (r.generator_bound && !o.quiet)
                     fmt::print(stderr, "loadtest: the generator could not keep up at {} viewers: the ramp measured "
@@ -742,6 +767,7 @@ int run_loadtest(LoadTestOptions o) {
         j["latency_definition"] = "request issued (scheduled time of the frame that first asked) -> tile received";
         j["runs"] = nlohmann::json::array();
         for (const auto& r : runs) j["runs"].push_back(run_json(r));
+        if (failed_step) j["failed_step"] = {{"viewers", failed_step->viewers}, {"error", failed_step->error}};
         if (o.ramp) {
             j["ramp"] = {{"p99_target_ms", o.ramp_p99_ms},
                          {"fallback_target", o.ramp_fallback},
@@ -751,6 +777,10 @@ int run_loadtest(LoadTestOptions o) {
         write_file_atomically(o.json, [&](std::ostream& f) { f << j.dump(2) << "\n"; });
     }
     if (!o.plot.empty()) write_plot(o, runs, o.plot);
+    if (failed_step) {
+        fmt::print(stderr, "tessera: error: the {}-viewer step: {}\n", failed_step->viewers, failed_step->error);
+        return failed_step->code;
+    }
     return 0;
 }
 
