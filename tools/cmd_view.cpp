@@ -91,7 +91,7 @@ Command add_view(CLI::App& app) {
                   "decoder threads (0: decode on the render thread, deterministic, for measurements)")
         ->capture_default_str()
         ->check(CLI::Range(0u, 256u));
-    c->add_option("--psnr-every", o->psnr_every, "compare against the reference renderer every N frames (0: never)")
+    c->add_option("--psnr-every", o->psnr_every, "compare against the reference renderer every N frames (0: never; a store of power-of-two sides)")
         ->capture_default_str();
     c->add_option("--reference-store", o->reference_store, "local copy of the store for the reference (remote stores)");
     c->add_option("--token", o->auth_token, "bearer token for the server");

@@ -502,6 +502,16 @@ void ViewerRun::make_reference() {
     if (o.psnr_every == 0) return;
     const std::string ref_store = !o.reference_store.empty() ? o.reference_store : loc_.remote ? std::string() : loc_.store;
     if (ref_store.empty()) throw Failure("PSNR needs a local copy of the store: --reference-store FILE (the store is remote)");
+    // The reference samples GL mip levels, which halve rounding down; a store's levels round up
+    // (257 -> 129): said before the reference is decoded, with what to do instead.
+    for (std::size_t l = 1; l < info_.levels.size(); ++l) {
+        const auto& up = info_.levels[l - 1];
+        const auto& lv = info_.levels[l];
+        if (lv.width != std::max(1u, up.width / 2) || lv.height != std::max(1u, up.height / 2))
+            throw Failure(fmt::format("--psnr-every: the reference renderer needs levels that halve exactly (power-of-two "
+                                      "sides); this store is {}x{} (level {} is {}x{}): view it without --psnr-every",
+                                      info_.width, info_.height, l, lv.width, lv.height));
+    }
     if (!o.reference_store.empty()) {
         // Any build of the same image will do (a lossless one measures the codec's error too),
         // but another image gives a PSNR of nothing: its size must be the store's.
@@ -524,7 +534,7 @@ void ViewerRun::make_reference() {
         layers.push_back(std::move(*n));
     }
     auto ref = client::gl::ReferenceRenderer::create(rc_, *levels, layers);
-    if (!ref) throw Failure(fmt::format("reference: {}", ref.error().message));
+    if (!ref) throw Failure(ref.error().message);  // "reference: ..." already
     reference_ = std::move(*ref);
     if (auto st = reference_->set_scene(*scene_); !st.ok()) throw Failure(st.error().message);
 }
