@@ -1113,6 +1113,9 @@ TEST(CliConfigFile, ErrorsNameTheFileAndLine) {
         {"grpc =\n", ":1: no value"},
         {"Http = \"127.0.0.1:0\"\n", ":1: 'Http' is not an option name"},
         {"config = \"other.conf\"\n", ":1: unknown option 'config'"},
+        {"grpc = # off\n", ":1: no value"},  // a comment, not the value "# off"
+        // A byte order mark is not part of the first key; a repeated key names both lines.
+        {"\xEF\xBB\xBFhttp = \"127.0.0.1:1\"\n\nhttp = \"127.0.0.1:2\"\n", ":1: 'http' takes one value, the file gives 2 (again on line 3)"},
     };
     for (const auto& [text, says] : cases) {
         SCOPED_TRACE(text);
@@ -1149,6 +1152,10 @@ TEST(CliConfigFile, ValuesAreReadAsWritten) {
     r = serve_with("store = '" + d.file("c #3.tsr") + "'  # missing\n");
     EXPECT_NE(r.exit_code, 0) << r.out;
     EXPECT_TRUE(has(r.out, d.file("c #3.tsr"))) << r.out;
+    // A bracket that does not end its line is no list (an IPv6 listen address is written so).
+    r = serve_with("store = [x]" + d.file("y.tsr").substr(1) + "\n");
+    EXPECT_NE(r.exit_code, 0) << r.out;
+    EXPECT_TRUE(has(r.out, "[x]" + d.file("y.tsr").substr(1) + " does not exist")) << r.out;
     // A bare value ends at " #".
     r = serve_with("store = " + d.file("d.tsr") + " # missing\n");
     EXPECT_NE(r.exit_code, 0) << r.out;

@@ -428,8 +428,9 @@ TEST_F(ServerHttp, SighupSaysAChangedConfigFileIsNotReread) {
     reload();  // the file as it was: nothing to say
     EXPECT_EQ(count("config file changed"), 0u) << srv.log();
 
-    // Changed, added, removed, and one the command line overrides.
-    write_config("cache-size = \"32MiB\"\nrequest-timeout = 9000\nmax-header = \"16KiB\"\n");
+    // Changed, added, removed, and two the command line sets (request-timeout, and http, which
+    // ServerProcess gives and the file did not have at the start).
+    write_config("cache-size = \"32MiB\"\nrequest-timeout = 9000\nmax-header = \"16KiB\"\nhttp = \"127.0.0.1:1\"\n");
     reload();
     ASSERT_EQ(count("config file changed"), 1u) << srv.log();
     std::istringstream lines(srv.log());
@@ -440,6 +441,12 @@ TEST_F(ServerHttp, SighupSaysAChangedConfigFileIsNotReread) {
         EXPECT_EQ(j.value("level", ""), "warn") << line;
         EXPECT_EQ(j.value("keys", ""), "cache-size,max-header,max-connections") << line;
     }
+
+    // A key no option has: a restart would fail, and the reload says so with the line.
+    write_config("cache-size = \"32MiB\"\nbogus = 1\n");
+    reload();
+    EXPECT_EQ(count("a restart would refuse it"), 1u) << srv.log();
+    EXPECT_NE(srv.log().find("tessera.conf:2: unknown option 'bogus'"), std::string::npos) << srv.log();
 
     // A file that no longer parses: said, and the server goes on.
     write_config("cache-size = \"32MiB\n");

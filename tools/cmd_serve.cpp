@@ -32,7 +32,8 @@ struct ServeArgs {
     std::string auth_token_file;
     std::string config_file;  // --config, reread on SIGHUP only to say what a restart would change
     ConfigFile config_at_start;
-    std::vector<std::string> config_keys_overridden;  // given on the command line too, which wins
+    std::vector<std::string> config_keys_overridden;  // options given on the command line, which wins
+    std::vector<std::string> config_keys;             // every long option name of serve
     std::string log_format = "json";
     std::string log_level = "info";
     long long watch_ms = 2000, timeout_ms = 5000, batch_hold_ms = 100, drain_ms = 10000, idle_ms = 60000, slice_us = 100;
@@ -66,6 +67,15 @@ void warn_if_config_changed(const ServeArgs& a, server::Server& srv) {
     } catch (const ConfigFileError& e) {
         srv.log_error("config file unreadable at reload; the server goes on as started", e.what());
         return;
+    }
+    // A key no option has would stop the restart (exit 2): said now, with its line.
+    for (const ConfigEntry& e : now.entries) {
+        if (e.key == "config" || e.key == "help" ||
+            std::find(a.config_keys.begin(), a.config_keys.end(), e.key) == a.config_keys.end()) {
+            srv.log_error("config file changed and a restart would refuse it; the server goes on as started",
+                          now.where(e) + ": unknown option '" + e.key + "'");
+            return;
+        }
     }
     std::string keys;
     for (const std::string& key : changed_keys(a.config_at_start, now)) {
@@ -287,17 +297,23 @@ Command add_serve(CLI::App& app) {
             throw CLI::ValidationError("--config", e.what());
         }
         const ConfigFile& file = a->config_at_start;
+        // What the command line sets (it wins over the file, now and after a restart), and every
+        // key a file may hold (a reload checks a changed file against them).
+        for (const CLI::Option* opt : s->get_options()) {
+            for (const std::string& name : opt->get_lnames()) {
+                a->config_keys.push_back(name);
+                if (opt->count() > 0) a->config_keys_overridden.push_back(name);
+            }
+        }
         for (const ConfigEntry& entry : file.entries) {
             CLI::Option* opt = s->get_option_no_throw("--" + entry.key);
             if (opt == nullptr || opt == cfg || opt == s->get_help_ptr())
                 throw CLI::ValidationError("--config", file.where(entry) + ": unknown option '" + entry.key + "'");
             if (entry.values.size() > 1 && opt->get_items_expected_max() <= 1)
                 throw CLI::ValidationError("--config", file.where(entry) + ": '" + entry.key + "' takes one value, the file gives " +
-                                                           std::to_string(entry.values.size()));
-            if (opt->count() > 0) {
-                a->config_keys_overridden.push_back(entry.key);
-                continue;
-            }
+                                                           std::to_string(entry.values.size()) +
+                                                           (entry.last_line != entry.line ? " (again on line " + std::to_string(entry.last_line) + ")" : ""));
+            if (opt->count() > 0) continue;
             try {
                 opt->add_result(entry.values);
                 opt->run_callback();

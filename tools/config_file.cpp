@@ -52,8 +52,9 @@ public:
             return true;
         }
         std::size_t end = 0;
+        // A '#' after a blank, or where the value would start (`grpc = # off`), begins a comment.
         while (end < s_.size() && stops.find(s_[end]) == std::string_view::npos &&
-               !(s_[end] == '#' && end > 0 && std::isspace(static_cast<unsigned char>(s_[end - 1]))))
+               !(s_[end] == '#' && (end == 0 || std::isspace(static_cast<unsigned char>(s_[end - 1])))))
             ++end;
         value.assign(trim(s_.substr(0, end)));
         s_.remove_prefix(end);
@@ -105,7 +106,8 @@ std::size_t list_end(std::string_view s, std::size_t& used, bool& quote_open) {
 ConfigFile parse_config_text(const std::string& text, const std::string& path) {
     ConfigFile file;
     file.path = path;
-    std::istringstream in(text);
+    // A UTF-8 byte order mark (some editors write one) is not part of the first key.
+    std::istringstream in(text.rfind("\xEF\xBB\xBF", 0) == 0 ? text.substr(3) : text);
     std::string raw;
     int number = 0;
     auto fail = [&](int line, const std::string& what) -> ConfigFileError {
@@ -138,7 +140,16 @@ ConfigFile parse_config_text(const std::string& text, const std::string& path) {
         std::vector<std::string> values;
         std::string error;
         ValueReader r(s.substr(eq + 1));
+        // '[' starts a list, unless the line goes on after its ']': `http = [::]:8080` is one value.
+        bool list = false;
         if (r.peek() == '[') {
+            bool quote_open = false;
+            std::size_t used = 0;
+            const std::string_view first = trim(r.rest()).substr(1);
+            const std::size_t close = list_end(first, used, quote_open);
+            list = close == std::string_view::npos || ValueReader(first.substr(close + 1)).at_end();
+        }
+        if (list) {
             // A list, which may go on over the following lines until its ']'.
             std::string items;
             std::string_view part = trim(r.rest()).substr(1);
@@ -159,14 +170,14 @@ ConfigFile parse_config_text(const std::string& text, const std::string& path) {
             items.append(part.substr(0, close));
             ValueReader after(part.substr(close + 1));
             if (!after.at_end()) throw fail(number, "text after the list's ']'");
-            ValueReader list(items);
-            while (!list.at_end()) {
+            ValueReader items_reader(items);
+            while (!items_reader.at_end()) {
                 std::string v;
-                if (!list.read(",", v, error)) throw fail(line, error);
+                if (!items_reader.read(",", v, error)) throw fail(line, error);
                 if (v.find('\n') != std::string::npos) throw fail(line, "expected ',' between the list's values");
                 values.push_back(std::move(v));
-                if (list.peek() == ',') list.take(1);
-                else if (!list.at_end()) throw fail(line, "expected ',' between the list's values");
+                if (items_reader.peek() == ',') items_reader.take(1);
+                else if (!items_reader.at_end()) throw fail(line, "expected ',' between the list's values");
             }
             if (values.empty()) throw fail(line, "an empty list");
         } else {
@@ -178,10 +189,12 @@ ConfigFile parse_config_text(const std::string& text, const std::string& path) {
 
         auto known = std::find_if(file.entries.begin(), file.entries.end(),
                                   [&](const ConfigEntry& e) { return e.key == key; });
-        if (known == file.entries.end())
-            file.entries.push_back({key, std::move(values), line});
-        else
+        if (known == file.entries.end()) {
+            file.entries.push_back({key, std::move(values), line, line});
+        } else {
             known->values.insert(known->values.end(), values.begin(), values.end());
+            known->last_line = line;
+        }
     }
     return file;
 }

@@ -12,7 +12,8 @@ namespace tessera::tools {
 struct ConfigEntry {
     std::string key;  // a long option name without dashes ("serve." and a [serve] section dropped)
     std::vector<std::string> values;
-    int line = 0;
+    int line = 0;       // where the key first appears
+    int last_line = 0;  // where it last appears (the same line unless it is repeated)
 };
 
 struct ConfigFile {
@@ -33,6 +34,7 @@ struct ConfigFileError : std::runtime_error {
 //   # comment, ; comment, blank           ignored
 //   [serve]                               a section; [default] too; any other is an error
 //   key = value                           a bare value: the text up to a " #" comment, trimmed
+//                                         (`[::]:8080` too: a list's ']' ends its line)
 //   key = "value" or 'value'              quoted: taken as written ('#' and spaces included)
 //   key = [a, "b", 'c']                   several values (the list may go on over lines)
 // Throws ConfigFileError on anything else: a line that is no `key = value`, an unclosed quote or
