@@ -1070,6 +1070,7 @@ TEST(CliVocabulary, RunsThatCannotSucceedAreRefusedFirst) {
         {"demo --dir " + q(d.file("demo")) + " --resolution 0x0", 2, "--resolution"},
         {"demo --dir " + q(d.file("demo")) + " --resolution 8x8", 2, "--resolution"},  // the viewer's bounds: 16 to 8192
         {"demo --dir " + q(d.file("demo")) + " --guard-band 5", 2, "--guard-band"},
+        {"demo --dir " + q(d.file("demo")) + " --texels 1000 --psnr-every 5", 2, "--texels a power of two"},
         {"serve --store " + q(d.file("missing.tsr")) + " --public-url example.org", 2, "--public-url"},
         {"serve --store " + q(d.file("missing.tsr")) + " --max-connections -1", 2, "--max-connections"},  // was: no limit
         {"serve --store " + q(d.file("missing.tsr")) + " --config " + q(d.path().string()), 2, "is a directory"},  // was: read as empty

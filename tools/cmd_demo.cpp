@@ -77,7 +77,7 @@ Command add_demo(CLI::App& app) {
             },
             "PATH", "camera path"));
     c->add_option("--frames", a->frames, "frames to render (0: the whole path at 60 frames per second)")->capture_default_str();
-    c->add_option("--psnr-every", a->psnr_every, "compare with the reference renderer every N frames (0: never)")
+    c->add_option("--psnr-every", a->psnr_every, "compare with the reference renderer every N frames (0: never; off by default when --texels is not a power of two)")
         ->capture_default_str();
     c->add_option("--pool", a->pool, "physical pages in the GPU pool (at least 16)")->capture_default_str()->check(CLI::Range(16u, 1u << 24));
     c->add_option("--page-format", a->page_format, "auto, rgba8, bc1, bc4, bc5, bc7, r16, r16f or r32f (tessera view --help)")
@@ -99,7 +99,17 @@ Command add_demo(CLI::App& app) {
                 "and lit by the normals");
     c->add_flag("--no-pace", a->no_pace,
                 "render as fast as the GPU can (default: each frame held to 1/60 s of wall time, as a display would)");
-    return [a]() -> int {
+    return [a, c]() -> int {
+        // The reference renderer samples GL mips, which halve rounding down: PSNR needs a store
+        // whose levels halve exactly. Asked for, that is an error now (not after the build); by
+        // default PSNR is left off, and the run says so.
+        if (a->psnr_every > 0 && (a->texels & (a->texels - 1)) != 0) {
+            if (c->count("--psnr-every") > 0)
+                throw Failure(fmt::format("--psnr-every: the reference renderer needs --texels a power of two, not {} "
+                                          "(or --psnr-every 0)", a->texels), 2);
+            fmt::print("PSNR off: the reference renderer needs --texels a power of two, not {}\n", a->texels);
+            a->psnr_every = 0;
+        }
         remove_temp_files_on_interrupt();  // before any thread is started
         namespace fs = std::filesystem;
         std::error_code ec;
