@@ -135,6 +135,13 @@ Timing pass_tj(const Corpus& c, Ring& ring, int pf) {
 
 // Bytes a zstd payload of the store decompresses to: the tile's samples, or a block tile's blocks
 // and its second level's.
+// The block format a store's pages take on the client-transcode route: BC4 for one channel of
+// data, BC1 otherwise (sRGB colour, grey included, needs a format the GPU decodes from sRGB).
+client::PageFormat client_block_format(const storage::StoreInfo& info) {
+    return info.channels == 1 && info.colour_space != storage::ColourSpace::srgb ? client::PageFormat::bc4
+                                                                                   : client::PageFormat::bc1;
+}
+
 std::size_t unpacked_bytes(const storage::StoreInfo& info) {
     const auto f = client::page_format_of(info.codec);
     return f ? client::page_upload_bytes(*f, info.tile_size(), true) : info.tile_bytes();
@@ -397,7 +404,7 @@ int main(int argc, char** argv) {
         s.rows.push_back({"transcode", 1, {}});
         s.passes.push_back([&jpeg, &ring] { return pass_transcode(jpeg, ring); });
         // The block format this store's pages take on the client-transcode route.
-        const client::PageFormat bc = jpeg.info->channels == 1 ? client::PageFormat::bc4 : client::PageFormat::bc1;
+        const client::PageFormat bc = client_block_format(*jpeg.info);
         s.rows.push_back({"transcode " + std::string(client::to_string(bc)), 1, {}});
         s.passes.push_back([&jpeg, &ring, bc] { return pass_transcode_to(jpeg, ring, bc); });
         add_pool_rows(s, ring);
@@ -528,7 +535,7 @@ int main(int argc, char** argv) {
         }
         // Block pages' quality on this store (not for 2-channel stores: no colour block format here).
         if (c.info->channels != 2) {
-            const auto bc = c.info->channels == 1 ? client::PageFormat::bc4 : client::PageFormat::bc1;
+            const auto bc = client_block_format(*c.info);
             const BlockQuality q = block_quality(c, bc);
             std::printf("  quality: %s pages against the RGBA8 pages: PSNR %.2f dB over all tiles, worst tile %.2f dB\n",
                         std::string(client::to_string(bc)).c_str(), q.psnr_db, q.worst_tile_db);
