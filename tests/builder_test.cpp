@@ -1020,13 +1020,16 @@ TEST(Builder, TiffBandsNotMarkedAlphaAreRefused) {
     };
     ASSERT_TRUE(im("xc:gray50" + ramp + "-define tiff:alpha=unspecified", "la_unspecified.tif"));
     ASSERT_TRUE(im("xc:gray50" + ramp + "-define tiff:alpha=unassociated", "la_alpha.tif"));
-    ASSERT_TRUE(im("xc:red" + ramp + "-define tiff:alpha=unspecified", "rgba_unspecified.tif"));
+    ASSERT_TRUE(im("xc:red" + ramp + "-depth 8 -define tiff:alpha=unspecified", "rgba_unspecified.tif"));
     // Four bands of grey and three unspecified extras, as GDAL writes a 4-band UInt16 raster.
     ASSERT_TRUE(run_tool("cp " + d.file("rgba_unspecified.tif") + " " + d.file("bands4.tif") + " && tiffset -s 262 1 " +
                          d.file("bands4.tif")));
     ASSERT_TRUE(run_tool("tiffinfo " + d.file("bands4.tif") + " 2>/dev/null | grep -q 'Extra Samples: 3<unspecified'"));
+    // The same bands planar (GDAL's INTERLEAVE=BAND): a layout left to OpenImageIO, refused all the same.
+    ASSERT_TRUE(run_tool("tiffcp -p separate " + d.file("bands4.tif") + " " + d.file("bands4_planar.tif")));
     const BuildOptions o = small_tiles(Codec::zstd);
-    for (const auto& [file, hint] : {std::pair{"la_unspecified.tif", "gdal_translate -b 1 "}, std::pair{"bands4.tif", "-b 3 -b 2 -b 1"}}) {
+    for (const auto& [file, hint] : {std::pair{"la_unspecified.tif", "gdal_translate -b 1 "}, std::pair{"bands4.tif", "-b 3 -b 2 -b 1"},
+                                     std::pair{"bands4_planar.tif", "-b 3 -b 2 -b 1"}}) {
         SCOPED_TRACE(file);
         const auto r = build_store(d.file(file), d.file("refused.tsr"), o);
         ASSERT_FALSE(r.ok());

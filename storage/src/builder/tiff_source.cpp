@@ -158,6 +158,28 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path) {
     TIFFGetField(tif, TIFFTAG_PHOTOMETRIC, &photo);
     std::uint16_t compression = COMPRESSION_NONE;
     TIFFGetFieldDefaulted(tif, TIFFTAG_COMPRESSION, &compression);
+    // Grey with extra bands, the last not marked alpha, is multi-band data (GDAL writes 2- and
+    // 4-band rasters of other than 8-bit RGBA so: blue, green, red, near-infrared), not grey and
+    // alpha or RGBA: read as such, a band of data would weight the mips and decide which tiles
+    // --sparse drops. Checked before any layout is left to OpenImageIO (planar bands, 16-bit
+    // signed samples), which would take the last band as alpha too. An RGB file's unspecified
+    // fourth band stays alpha, as libtiff reads it.
+    if ((spp == 2 || spp == 4) && (photo == PHOTOMETRIC_MINISBLACK || photo == PHOTOMETRIC_MINISWHITE)) {
+        std::uint16_t bands_extra = 0;
+        std::uint16_t* bands_kind = nullptr;
+        if (TIFFGetField(tif, TIFFTAG_EXTRASAMPLES, &bands_extra, &bands_kind) && bands_extra >= 1 && bands_kind &&
+            bands_kind[bands_extra - 1] == EXTRASAMPLE_UNSPECIFIED) {
+            TIFFClose(tif);
+            return make_error(Errc::invalid_argument,
+                              path + " has " + std::to_string(spp) +
+                                  " bands, grey and extra samples, and the last is not marked alpha (ExtraSamples "
+                                  "unspecified): it is multi-band data, not " +
+                                  (spp == 2 ? "grey and alpha. Pick the band to show (`gdal_translate -b 1 IN OUT.tif`) or "
+                                              "mark the second alpha (`gdal_translate -co ALPHA=YES IN OUT.tif`)"
+                                            : "RGBA. Pick the bands to show first, e.g. `gdal_translate -b 3 -b 2 -b 1 -co "
+                                              "PHOTOMETRIC=RGB IN OUT.tif`"));
+        }
+    }
     // JPEG-compressed YCbCr: libjpeg hands out RGB, with the orientation left to the caller
     // (OpenImageIO reads it through libtiff's RGBA interface, which flips it part of the way).
     if (photo == PHOTOMETRIC_YCBCR && compression == COMPRESSION_JPEG && spp == 3 && bps == 8 && planar == PLANARCONFIG_CONTIG &&
@@ -202,22 +224,6 @@ Result<std::unique_ptr<ImageSource>> open_tiff_source(const std::string& path) {
     std::uint16_t* extra = nullptr;
     if (info.has_alpha && TIFFGetField(tif, TIFFTAG_EXTRASAMPLES, &extra_count, &extra) && extra_count >= 1 && extra) {
         associated = extra[extra_count - 1] == EXTRASAMPLE_ASSOCALPHA;
-        // Grey with extra bands, the last not marked alpha, is multi-band data (GDAL writes 2-
-        // and 4-band rasters of other than 8-bit RGBA so: blue, green, red, near-infrared), not
-        // grey and alpha or RGBA: read as such, a band of data would weight the mips and decide
-        // which tiles --sparse drops. An RGB file's unspecified fourth band stays alpha, as
-        // libtiff reads it.
-        if (photo == PHOTOMETRIC_MINISBLACK && extra[extra_count - 1] == EXTRASAMPLE_UNSPECIFIED) {
-            TIFFClose(tif);
-            return make_error(Errc::invalid_argument,
-                              path + " has " + std::to_string(spp) +
-                                  " bands, grey and extra samples, and the last is not marked alpha (ExtraSamples "
-                                  "unspecified): it is multi-band data, not " +
-                                  (spp == 2 ? "grey and alpha. Pick the band to show (`gdal_translate -b 1 IN OUT.tif`) or "
-                                              "mark the second alpha (`gdal_translate -co ALPHA=YES IN OUT.tif`)"
-                                            : "RGBA. Pick the bands to show first, e.g. `gdal_translate -b 3 -b 2 -b 1 -co "
-                                              "PHOTOMETRIC=RGB IN OUT.tif`"));
-        }
     }
     if (associated) info.description = path + " (TIFF, associated alpha made straight)";
     std::uint16_t orientation = ORIENTATION_TOPLEFT;
