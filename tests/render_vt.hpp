@@ -130,8 +130,8 @@ inline std::size_t count(const std::vector<std::uint8_t>& mask) { return std::si
 
 // The render loop of a viewer, bounded (FrameLoop::settle): render `cam`, feed the feedback to the
 // runtime, read the counters, until a frame of this view rendered once nothing was in flight has
-// textured pixels and none falling back (against either level), no page is fading and the bias
-// is 0; or until `timeout` has passed.
+// no pixel falling back (against either level; a view of none of the texture has none), no page
+// is fading and the bias is 0; or until `timeout` has passed.
 struct Convergence {
     bool converged = false;
     int frames = 0;
