@@ -20,6 +20,9 @@ uniform ivec2 u_chunk_page;
 uniform vec2 u_chunk_base;
 uniform vec4 u_chunk_bounds;
 uniform uvec2 u_texel_origin;
+// The chunk's texel origin minus the frame's (a whole number): the frame of a terrain chunk
+// follows the camera, so v_local is small where texels are large on screen (scene_draw.cpp).
+uniform vec2 u_texel_shift;
 uniform int u_blend;  // 1: a blended chunk (SceneGeometry::Chunks)
 // Per texture and per frame.
 uniform uint u_levels;
@@ -28,7 +31,7 @@ uniform int u_table_column;
 uniform int u_table_last_row;
 uniform float u_bias;
 
-out vec2 v_local;
+out vec2 v_local;  // level-0 texels from the texel frame's origin
 out float v_w;  // clip w (eye depth): the feedback pass's exact derivatives need it
 out vec3 v_normal;  // material.glsl's lighting
 out vec3 v_eye;     // position relative to the camera (world units): material.glsl's view vector
@@ -45,7 +48,7 @@ flat out float vt_bias;
 invariant gl_Position;
 
 void main() {
-    v_local = a_texel;
+    v_local = a_texel + u_texel_shift;
     vt_chunk_page = u_chunk_page;
     vt_chunk_base = u_chunk_base;
     vt_chunk_bounds = u_chunk_bounds;

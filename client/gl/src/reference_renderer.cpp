@@ -88,6 +88,7 @@ public:
         u_view_projection_ = uniform(program_, "u_view_projection");
         chunk_.chunk_offset = uniform(program_, "u_chunk_offset");
         chunk_.texel_origin = uniform(program_, "u_texel_origin");
+        chunk_.texel_shift = uniform(program_, "u_texel_shift");
         chunk_.blend = uniform(program_, "u_blend");
         glProgramUniform1i(id, uniform(program_, "ref_texture"), 0);
         // Units: 0 the colour, 1 its second levels, 2.. the other layers, 2 + kMaxLayers.. theirs.

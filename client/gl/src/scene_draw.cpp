@@ -120,11 +120,19 @@ Status SceneGeometry::upload(const scene::Scene& s) {
             d.bmin[a] = std::numeric_limits<double>::infinity();
             d.bmax[a] = -std::numeric_limits<double>::infinity();
         }
-        for (const auto& vx : c.vertices)
+        // A chunk whose texels are its ground positions (the terrain's) can address pages from
+        // a frame that follows the camera (draw, below).
+        d.texel_is_ground = c.origin[0] == double(c.texel_origin[0]) && c.origin[1] == double(c.texel_origin[1]);
+        for (const auto& vx : c.vertices) {
             for (int a = 0; a < 3; ++a) {
                 d.bmin[a] = std::min(d.bmin[a], c.origin[a] + double(vx.position[a]));
                 d.bmax[a] = std::max(d.bmax[a], c.origin[a] + double(vx.position[a]));
             }
+            for (int a = 0; a < 2; ++a) {
+                d.texel_is_ground = d.texel_is_ground && vx.texel[a] == vx.position[a] && vx.texel[a] >= 0.0f;
+                d.texel_extent[a] = std::max(d.texel_extent[a], double(vx.texel[a]));
+            }
+        }
         glNamedBufferSubData(vertices_.get(), static_cast<GLintptr>(v * sizeof(scene::Vertex)),
                              static_cast<GLsizeiptr>(c.vertices.size() * sizeof(scene::Vertex)), c.vertices.data());
         glNamedBufferSubData(indices_.get(), static_cast<GLintptr>(d.index_offset),
@@ -233,20 +241,26 @@ float float_down(double x) {
 
 }  // namespace
 
+void SceneGeometry::PageFrame::set(const std::uint32_t origin[2], std::uint32_t payload, const std::uint32_t size[2]) {
+    for (int a = 0; a < 2; ++a) {
+        const std::uint32_t p = origin[a] / payload;
+        const double start = double(p) * payload;
+        page[a] = static_cast<std::int32_t>(p);
+        base[a] = static_cast<float>(origin[a] - p * payload);  // below P: exact
+        // Rounded inwards: a bound that is not a float (past 2^24 texels from the frame's page)
+        // is one no fragment of the chunk gets near.
+        bounds[a] = float_up(-start);
+        bounds[2 + a] = float_down(double(size[a]) - start);
+    }
+}
+
 void SceneGeometry::set_page_layout(std::uint32_t payload, std::uint32_t width, std::uint32_t height) {
-    const std::uint32_t size[2] = {width, height};
+    payload_ = payload;
+    size_[0] = width;
+    size_[1] = height;
     for (auto& d : chunks_) {
         d.has_frame = true;
-        for (int a = 0; a < 2; ++a) {
-            const std::uint32_t page = d.texel_origin[a] / payload;
-            const double start = double(page) * payload;
-            d.page[a] = static_cast<std::int32_t>(page);
-            d.base[a] = static_cast<float>(d.texel_origin[a] - page * payload);  // below P: exact
-            // Rounded inwards: a bound that is not a float (past 2^24 texels from the chunk's
-            // page) is one no fragment of the chunk gets near.
-            d.bounds[a] = float_up(-start);
-            d.bounds[2 + a] = float_down(double(size[a]) - start);
-        }
+        d.frame.set(d.texel_origin, payload, size_);
     }
 }
 
@@ -318,11 +332,32 @@ void SceneGeometry::draw(const Program& program, const ChunkUniforms& u, const s
         if (u.blend >= 0) glProgramUniform1i(program.get(), u.blend, d.blend ? 1 : 0);
         const auto off = scene::camera_relative(d.origin, camera.position);
         glProgramUniform3f(program.get(), u.chunk_offset, off[0], off[1], off[2]);
-        glProgramUniform2ui(program.get(), u.texel_origin, d.texel_origin[0], d.texel_origin[1]);
+        // The texel frame: the chunk's texel origin, or for a terrain chunk wider than
+        // kExactChunkTexels the texel under the camera (clamped into the chunk), so that the
+        // interpolated offsets from it are small where texels are large on screen. From the
+        // chunk's origin they reach the chunk's side, and a 2^18-texel chunk (a 2^24 terrain's)
+        // keeps 1/64 of a texel: edges moved by up to a quarter of a texel (docs/stability.md).
+        // The shift from the origin is a whole number below 2^24: exact.
+        std::uint32_t origin[2] = {d.texel_origin[0], d.texel_origin[1]};
+        float shift[2] = {0.0f, 0.0f};
+        const PageFrame* frame = &d.frame;
+        PageFrame moved;
+        if (d.texel_is_ground && d.has_frame && std::max(d.texel_extent[0], d.texel_extent[1]) > kExactChunkTexels) {
+            for (int a = 0; a < 2; ++a) {
+                const double lo = double(d.texel_origin[a]);
+                const double at = std::clamp(std::floor(camera.position[a]), lo, lo + std::floor(d.texel_extent[a]));
+                origin[a] = static_cast<std::uint32_t>(at);
+                shift[a] = static_cast<float>(lo - at);
+            }
+            moved.set(origin, payload_, size_);
+            frame = &moved;
+        }
+        glProgramUniform2ui(program.get(), u.texel_origin, origin[0], origin[1]);
+        if (u.texel_shift >= 0) glProgramUniform2fv(program.get(), u.texel_shift, 1, shift);
         if (u.chunk_page >= 0 && d.has_frame) {
-            glProgramUniform2iv(program.get(), u.chunk_page, 1, d.page);
-            glProgramUniform2fv(program.get(), u.chunk_base, 1, d.base);
-            glProgramUniform4fv(program.get(), u.chunk_bounds, 1, d.bounds);
+            glProgramUniform2iv(program.get(), u.chunk_page, 1, frame->page);
+            glProgramUniform2fv(program.get(), u.chunk_base, 1, frame->base);
+            glProgramUniform4fv(program.get(), u.chunk_bounds, 1, frame->bounds);
         }
         glDrawElementsBaseVertex(GL_TRIANGLES, d.index_count, GL_UNSIGNED_INT,
                                  reinterpret_cast<const void*>(ordered_ ? d.ordered_offset : d.index_offset), d.base_vertex);

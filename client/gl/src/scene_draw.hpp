@@ -21,7 +21,8 @@ std::string vt_shader_defines(const RendererConfig& c, std::uint32_t atlas_width
 // Uniform locations (scene.vert's) the scene's draw calls set per chunk.
 struct ChunkUniforms {
     GLint chunk_offset = -1;  // vec3: float(chunk.origin - camera.position)
-    GLint texel_origin = -1;  // uvec2
+    GLint texel_origin = -1;  // uvec2: the texel frame's origin (the chunk's, or near the camera)
+    GLint texel_shift = -1;   // vec2: the chunk's texel origin minus the frame's (scene.vert adds it)
     // The chunk's page frame (vt_sample.glsl, "Addressing"): ivec2, vec2, vec4. Set when the
     // program uses them, once set_page_layout was called.
     GLint chunk_page = -1, chunk_base = -1, chunk_bounds = -1;
@@ -58,7 +59,18 @@ public:
     bool blended_visible() const { return blend_begin_ < visible_.size(); }
     std::size_t visible_chunks() const { return visible_.size(); }
 
+    // The widest chunk whose offsets from its own texel origin keep 1/256 of a texel
+    // (docs/stability.md); wider terrain chunks are addressed from a frame near the camera.
+    static constexpr double kExactChunkTexels = 32768;
+
 private:
+    // A texel frame's page frame: the level-0 page holding its origin, the origin's position in
+    // it, and the texture's texels relative to that page's start (min, max).
+    struct PageFrame {
+        std::int32_t page[2] = {0, 0};
+        float base[2] = {0, 0}, bounds[4] = {0, 0, 0, 0};
+        void set(const std::uint32_t origin[2], std::uint32_t payload, const std::uint32_t size[2]);
+    };
     struct ChunkDraw {
         scene::Vec3d origin{0, 0, 0};
         std::uint32_t texel_origin[2] = {0, 0};
@@ -66,11 +78,12 @@ private:
         std::size_t index_offset = 0;  // bytes
         GLint base_vertex = 0;
         double bmin[3] = {0, 0, 0}, bmax[3] = {0, 0, 0};
-        // set_page_layout: the level-0 page holding the chunk's texel origin, the origin's
-        // position in it, and the texture's texels relative to that page's start (min, max).
+        // set_page_layout: the page frame of the chunk's texel origin.
         bool has_frame = false;
-        std::int32_t page[2] = {0, 0};
-        float base[2] = {0, 0}, bounds[4] = {0, 0, 0, 0};
+        PageFrame frame;
+        // Texels are ground positions (the terrain): draw may move the frame to the camera.
+        bool texel_is_ground = false;
+        double texel_extent[2] = {0, 0};  // the largest texel offset of a vertex
         // The heightfield grid (scene::Chunk's), and where order_front_to_back put its indices.
         std::uint32_t grid_quads = 0;
         double quad_size[2] = {0, 0};
@@ -86,6 +99,7 @@ private:
     std::size_t blend_begin_ = 0;
     bool any_blend_ = false;  // the scene has a blended chunk
     double chunk_pitch_ = 0;  // > 0: a heightfield scene
+    std::uint32_t payload_ = 0, size_[2] = {0, 0};  // set_page_layout's
     // This frame's front-to-back indices (orphaned and refilled each frame: the GPU may still be
     // reading the last frame's).
     Buffer ordered_indices_;

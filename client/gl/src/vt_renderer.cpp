@@ -56,6 +56,7 @@ struct VtUniforms {
         layer_atlas = uniform(p, "vt_layer_atlas");
         fade = uniform(p, "vt_fade");
         chunk.chunk_offset = uniform(p, "u_chunk_offset");
+        chunk.texel_shift = uniform(p, "u_texel_shift");
         chunk.chunk_page = uniform(p, "u_chunk_page");
         chunk.chunk_base = uniform(p, "u_chunk_base");
         chunk.chunk_bounds = uniform(p, "u_chunk_bounds");
