@@ -1362,6 +1362,38 @@ TEST_F(ServerGrpc, ReloadPicksUpNewAndReplacedStores) {
     EXPECT_FALSE(describe("b"));
 }
 
+// A store file whose time changed but whose bytes did not (touch, a backup restoring the time)
+// is the version already served: no "changed in place" error, no store replaced, tiles still OK.
+TEST_F(ServerGrpc, ATouchedStoreIsTheSameVersion) {
+    const fs::path stores = dir.path() / "stores";
+    fs::create_directory(stores);
+    fs::copy_file(Stores::small(), stores / "t.tsr");
+    ServerProcess srv({"--store-dir", stores.string(), "--watch-interval", "0"}, dir.file("log"));
+    ASSERT_TRUE(srv.running()) << srv.log();
+    auto count = [&](const std::string& text) {
+        const std::string log = srv.log();
+        std::size_t n = 0;
+        for (auto at = log.find(text); at != std::string::npos; at = log.find(text, at + 1)) ++n;
+        return n;
+    };
+    const auto mtime = fs::last_write_time(stores / "t.tsr");
+    fs::last_write_time(stores / "t.tsr", mtime + std::chrono::seconds(30));
+    srv.signal(SIGHUP);
+    for (int i = 0; i < 200 && count("\"msg\":\"reload\"") < 1; ++i) std::this_thread::sleep_for(20ms);
+    ASSERT_EQ(count("\"msg\":\"reload\""), 1u) << srv.log();
+    EXPECT_EQ(count("store file touched"), 1u) << srv.log();
+    EXPECT_EQ(count("changed in place"), 0u) << srv.log();
+    EXPECT_EQ(count("store replaced"), 0u) << srv.log();
+    Viewer v(srv.grpc_address());
+    ASSERT_TRUE(v.send(batch(1, "t", {{0, 0, 0, 1}})));
+    ASSERT_TRUE(v.read_until([&] { return v.tiles.size() == 1; }));
+    EXPECT_EQ(v.tiles[0].status(), v1::TILE_OK);
+    // Touched again and rescanned: still the same version, nothing said twice about one change.
+    srv.signal(SIGHUP);
+    for (int i = 0; i < 200 && count("\"msg\":\"reload\"") < 2; ++i) std::this_thread::sleep_for(20ms);
+    EXPECT_EQ(count("store file touched"), 1u) << srv.log();
+}
+
 TEST_F(ServerGrpc, WatchPicksUpAReplacedStoreWithoutSignal) {
     const fs::path stores = dir.path() / "stores";
     fs::create_directory(stores);

@@ -262,12 +262,20 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
             next->push_back(prev->second);  // unchanged
             continue;
         }
-        // The same inode with a new size or mtime: the old version's bytes are gone from under it.
+        // The same inode with a new size or mtime: the old version's bytes may be gone from under
+        // it. Unless it opens again to the same size and index (a touch, a backup restoring the
+        // time, a copy of the same bytes): then it is the version already served, and nothing is
+        // refused while the new handle is made.
         const bool in_place = same_file && prev->second->device == id.device && prev->second->inode == id.inode;
-        if (in_place && !prev->second->stale.exchange(true))
+        auto reader = storage::StoreReader::open(path);
+        const bool unchanged = in_place && reader && (*reader)->info().store_id == prev->second->version &&
+                               id.size == prev->second->size;
+        if (unchanged) {
+            log_.info("store file touched; its contents are the version served", {{"store", name}, {"path", path}});
+        } else if (in_place && !prev->second->stale.exchange(true)) {
             log_.error("store file changed in place; not serving it until it opens as a new version",
                        {{"store", name}, {"path", path}});
-        auto reader = storage::StoreReader::open(path);
+        }
         if (!reader) {
             fail(Error{reader.error().code, "store " + name + " (" + path + "): " + reader.error().message});
             ++report.failed;
@@ -281,7 +289,7 @@ ReloadReport StoreRegistry::scan(bool first, Status* first_error) {
         h->inode = id.inode;
         h->size = id.size;
         h->mtime_ns = id.mtime_ns;
-        announce(*h, prev != old.end(), report);
+        if (!unchanged) announce(*h, prev != old.end(), report);
         next->push_back(std::move(h));
     }
     for (const auto& [name, h] : old) {
