@@ -1449,6 +1449,21 @@ TEST_F(HandlerTest, CorruptTileIs500AndNeverItsBytes) {
     EXPECT_EQ(p.value("tessera_http_requests_total", {{"route", "tile"}, {"code", "500"}}), 1.0);
 }
 
+// The encoded web cache's bytes are a gauge: 0, then what a web image put in it.
+TEST_F(HandlerTest, EncodedWebCacheBytesAreAGauge) {
+    auto bytes = [&] {
+        const auto p = tessera::test::parse_prometheus_text(get("/metrics").body);
+        EXPECT_TRUE(p.ok()) << p.error;
+        return p.value("tessera_web_encoded_bytes", {});
+    };
+    EXPECT_EQ(bytes(), 0.0);
+    const HttpResponse img = get("/iiif/rgb/full/max/0/default.png");
+    ASSERT_EQ(img.status, 200u) << img.body;
+    // Its charge: the image and its key (the store version and what was asked).
+    EXPECT_GT(bytes(), double(img.body.size()));
+    EXPECT_LT(bytes(), double(img.body.size() + 512));
+}
+
 // ---- Bounds -----------------------------------------------------------------------------------------
 
 TEST_F(HandlerTest, InflightBoundGives503) {

@@ -63,11 +63,18 @@ HttpResponse http_error_response(unsigned status, std::string_view message) {
     return r;
 }
 
+namespace {
+constexpr const char* kWebEncodedBytes = "tessera_web_encoded_bytes";
+}  // namespace
+
 HttpHandler::HttpHandler(ServerContext& ctx)
     : ctx_(ctx),
       web_cache_(std::make_unique<httpapi::WebTileCache>(ctx.config.web_cache_bytes)),
       requests_(kHttpRouteCount * kStatusSlots) {
     for (auto& c : requests_) c.store(nullptr, std::memory_order_relaxed);
+    // What the encoded web cache holds (its decoded sibling's gauge is the tile fetcher's).
+    ctx_.metrics.gauge_callback(kWebEncodedBytes, "Bytes held by the RAM cache of encoded web images (--web-cache)", {},
+                                [cache = web_cache_.get()] { return double(cache->bytes()); });
     for (std::size_t r = 0; r < kHttpRouteCount; ++r) {
         const std::string route(to_string(static_cast<HttpRoute>(r)));
         duration_[r] = &ctx_.metrics.histogram("tessera_http_request_duration_seconds",
@@ -78,7 +85,7 @@ HttpHandler::HttpHandler(ServerContext& ctx)
     }
 }
 
-HttpHandler::~HttpHandler() = default;
+HttpHandler::~HttpHandler() { ctx_.metrics.remove_callbacks(kWebEncodedBytes); }
 
 Counter& HttpHandler::requests_counter(HttpRoute route, unsigned status) {
     const unsigned slot = status < kStatusSlots ? status : 0;
