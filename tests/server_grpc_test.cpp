@@ -1370,12 +1370,7 @@ TEST_F(ServerGrpc, ATouchedStoreIsTheSameVersion) {
     fs::copy_file(Stores::small(), stores / "t.tsr");
     ServerProcess srv({"--store-dir", stores.string(), "--watch-interval", "0"}, dir.file("log"));
     ASSERT_TRUE(srv.running()) << srv.log();
-    auto count = [&](const std::string& text) {
-        const std::string log = srv.log();
-        std::size_t n = 0;
-        for (auto at = log.find(text); at != std::string::npos; at = log.find(text, at + 1)) ++n;
-        return n;
-    };
+    auto count = [&](const std::string& text) { return srv.log_count(text); };
     const auto mtime = fs::last_write_time(stores / "t.tsr");
     fs::last_write_time(stores / "t.tsr", mtime + std::chrono::seconds(30));
     srv.signal(SIGHUP);

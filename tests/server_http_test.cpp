@@ -413,12 +413,7 @@ TEST_F(ServerHttp, SighupSaysAChangedConfigFileIsNotReread) {
     ServerProcess srv({"--store", store_, "--config", config, "--request-timeout", "3000", "--watch-interval", "0"},
                       dir.file("server.log"), "");
     ASSERT_TRUE(srv.running()) << srv.log();
-    auto count = [&](const std::string& text) {
-        const std::string log = srv.log();
-        std::size_t n = 0;
-        for (std::size_t at = log.find(text); at != std::string::npos; at = log.find(text, at + 1)) ++n;
-        return n;
-    };
+    auto count = [&](const std::string& text) { return srv.log_count(text); };
     auto reload = [&] {
         const std::size_t before = count("\"msg\":\"reload\"");
         srv.signal(SIGHUP);

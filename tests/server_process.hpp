@@ -105,6 +105,13 @@ public:
     const std::string& grpc_address() const { return grpc_address_; }
     int http_port() const { return http_port_; }
     std::string log() const { return slurp(log_path_); }
+    // How many times `text` occurs in the log so far.
+    std::size_t log_count(const std::string& text) const {
+        const std::string all = log();
+        std::size_t n = 0;
+        for (auto at = all.find(text); at != std::string::npos; at = all.find(text, at + 1)) ++n;
+        return n;
+    }
     void signal(int sig) const { ::kill(pid_, sig); }
 
     // Waits for the process to exit; its exit code, or nullopt on timeout (or a signal death: -sig).
